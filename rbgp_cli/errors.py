@@ -1,0 +1,75 @@
+"""Exceptions shared by every layer (this module imports nothing from rbgp).
+
+The command line maps them to exit codes and one line on stderr:
+
+* :class:`InputError` (bad input or bad usage): exit code 2.
+* :class:`RbgpRuntimeError` (a computation that failed on valid input): exit code 1.
+
+Messages are one line and say *where* (file, row, topic) and *what to do*.
+"""
+
+from __future__ import annotations
+
+__all__ = ["RbgpError", "InputError", "RbgpRuntimeError", "closest"]
+
+
+class RbgpError(Exception):
+    """Base class of rbgp's own errors."""
+
+    exit_code = 1
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        path: str | None = None,
+        row: int | None = None,
+        topic: str | None = None,
+        hint: str | None = None,
+    ) -> None:
+        self.message = message
+        self.path = None if path is None else str(path)
+        self.row = row
+        self.topic = topic
+        self.hint = hint
+        super().__init__(self.format())
+
+    def format(self) -> str:
+        """One line: ``FILE:ROW: [topic T: ]message (hint)``."""
+        where = ""
+        if self.path is not None:
+            where = self.path
+            if self.row is not None:
+                where += f":{self.row}"
+            where += ": "
+        elif self.row is not None:
+            where = f"row {self.row}: "
+        if self.topic is not None:
+            where += f"topic {self.topic}: "
+        text = where + self.message
+        if self.hint:
+            text += f"; {self.hint}"
+        return " ".join(text.split())  # one line, always
+
+
+class InputError(RbgpError, ValueError):
+    """The input (a file, an option, a start pose) cannot be used as given. Exit code 2."""
+
+    exit_code = 2
+
+
+class RbgpRuntimeError(RbgpError, RuntimeError):
+    """A computation failed although its input was valid (e.g. no hyperparameters gave a positive
+    definite Gram matrix). Exit code 1."""
+
+    exit_code = 1
+
+
+def closest(name: str, candidates) -> str | None:
+    """The candidate closest to ``name`` (for "did you mean" hints), or None."""
+    import difflib
+
+    cands = [str(c) for c in candidates]
+    lower = {c.lower(): c for c in cands}
+    hit = difflib.get_close_matches(name.lower(), list(lower), n=1, cutoff=0.6)
+    return lower[hit[0]] if hit else None

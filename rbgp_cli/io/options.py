@@ -1,0 +1,50 @@
+"""Options that tell the readers how to interpret a file. One dataclass, shared by every format.
+
+All fields default to "decide from the file"; when the file does not decide and the choice matters,
+the reader raises :class:`rbgp_cli.errors.InputError` naming the option that decides it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["ReadOptions", "FORMATS", "LENGTH_UNITS"]
+
+FORMATS = ("auto", "csv", "qtm", "motive", "vicon", "mcap")
+#: metres per unit
+LENGTH_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+
+
+@dataclass(frozen=True)
+class ReadOptions:
+    """How to read demonstrations (CLI flags of the same names).
+
+    format : one of ``FORMATS``; ``auto`` sniffs the content.
+    columns : explicit column mapping for CSV, e.g. ``{"t": "stamp", "qx": "ox", ...}``; keys among
+        t, x, y, z, qx, qy, qz, qw, rx, ry, rz, roll, pitch, yaw, demo.
+    quat_order : ``xyzw`` or ``wxyz``, for columns named q0..q3 (or quaternion columns in a vendor
+        export whose order is not stated).
+    euler_order : scipy-style sequence (``xyz`` extrinsic, ``XYZ`` intrinsic) for Euler columns.
+    degrees : Euler angles in degrees (None: from the file's header/unit suffixes, else radians).
+    length_unit : ``m``, ``cm`` or ``mm`` (None: from the file, else metres with a hint if values
+        look like mm).
+    time_unit : ``s``, ``ms``, ``us``, ``ns`` (None: from the column name, else seconds).
+    rate : sample rate in Hz when there is no time column.
+    topic : MCAP topic; frame : child frame (TF); time_source : ``header`` or ``log``.
+    body : rigid body / segment name in vendor exports with several bodies.
+    rotation : Vicon RX,RY,RZ meaning: ``helical`` (axis-angle, default) or ``euler``.
+    """
+
+    format: str = "auto"
+    columns: dict | None = None
+    quat_order: str | None = None
+    euler_order: str | None = None
+    degrees: bool | None = None
+    length_unit: str | None = None
+    time_unit: str | None = None
+    rate: float | None = None
+    topic: str | None = None
+    frame: str | None = None
+    time_source: str = "header"
+    body: str | None = None
+    rotation: str | None = None

@@ -1,0 +1,1 @@
+"""rbgp_cli.viz"""
