@@ -10,7 +10,7 @@ Messages are one line and say *where* (file, row, topic) and *what to do*.
 
 from __future__ import annotations
 
-__all__ = ["RbgpError", "InputError", "RbgpRuntimeError", "closest"]
+__all__ = ["RbgpError", "InputError", "RbgpRuntimeError", "RbgpWarning", "warn", "closest"]
 
 
 class RbgpError(Exception):
@@ -73,3 +73,16 @@ def closest(name: str, candidates) -> str | None:
     lower = {c.lower(): c for c in cands}
     hit = difflib.get_close_matches(name.lower(), list(lower), n=1, cutoff=0.6)
     return lower[hit[0]] if hit else None
+
+
+class RbgpWarning(UserWarning):
+    """Something was repaired or looks suspicious but the result is still correct (e.g. "dropped 3
+    lost frames"). The command line prints these to stderr as ``rbgp: warning: ...``."""
+
+
+def warn(message: str, *, path: str | None = None, row: int | None = None, topic: str | None = None) -> None:
+    """Emit an :class:`RbgpWarning` whose text names the file/row/topic like the errors do."""
+    import warnings
+
+    text = RbgpError(message, path=path, row=row, topic=topic).format()
+    warnings.warn(text, RbgpWarning, stacklevel=2)
