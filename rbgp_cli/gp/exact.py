@@ -1,0 +1,458 @@
+"""Exact Gaussian-process regression with hyperparameters from the marginal likelihood (MATH.md §7).
+
+One zero-mean GP per output dimension l (paper sec. 3.2, eq. 20–21), or one shared set of
+hyperparameters for all outputs after scaling each by its standard deviation (``shared=True``: one
+Cholesky per evaluation for all outputs).
+
+Negative log marginal likelihood (R&W Alg. 2.1) with C = K + σn² I = L Lᵀ and α = C⁻¹ y:
+
+    NLML = ½ yᵀα + Σ_i log L_ii + (n/2) log 2π
+
+and its gradient (R&W eq. 5.9) with W = ααᵀ − C⁻¹:
+
+    ∂NLML/∂θ = −½ Σ_ij W_ij ∂C_ij/∂θ
+
+Kernels provide Σ W ∘ ∂K/∂logθ directly (:meth:`Kernel.grad_contract`); the noise term is
+∂C/∂log σn = 2σn² I, so its contribution is −σn² tr(W).
+
+Indefinite kernels (MATH.md §6: the paper's geodesic kernel is not PSD): where C fails its Cholesky,
+the optimiser is told the point is infeasible (a large finite NLML, from which L-BFGS-B's line search
+backs off) and keeps going. A fitted output is accepted only if C at the optimum passes Cholesky with
+a reciprocal condition number above ``MIN_RCOND``; otherwise increasing jitter is added to the
+diagonal and reported. If nothing works the fit raises :class:`RbgpRuntimeError` — a model whose
+predictions can explode is never returned.
+
+All BLAS/LAPACK calls in the evaluation loop go through ``scipy.linalg`` (ECOSYSTEM.md §7).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.linalg import blas, lapack, solve_triangular
+
+from rbgp_cli.errors import RbgpRuntimeError
+from rbgp_cli.kernels.base import Hyperparameter, Kernel
+
+__all__ = ["OutputFit", "GaussianProcess", "fit_gp", "nlml_and_gradient", "MIN_RCOND", "NOISE"]
+
+NOISE = "noise_std"
+#: Reciprocal condition number below which C = K + σn²I is treated as numerically singular.
+MIN_RCOND = 1e-12
+#: NLML reported for hyperparameters whose C is not positive definite (finite, so that the
+#: L-BFGS-B line search backtracks instead of producing NaNs).
+INFEASIBLE_NLML = 1e25
+_LOG2PI = math.log(2.0 * math.pi)
+#: Jitter ladder (relative to σf² + σn²) tried when the optimum is ill conditioned.
+_JITTERS = (0.0, 1e-10, 1e-8, 1e-6, 1e-4)
+
+
+# ----------------------------------------------------------------------------- linear algebra
+def _cholesky(K: np.ndarray, noise_var: float, jitter: float = 0.0):
+    """Lower Cholesky factor of K + (σn² + jitter) I as a Fortran-ordered array, or None.
+
+    K is symmetric and C-ordered, so its transpose (a free view) is the same matrix in Fortran order.
+    """
+    C = np.array(K, order="F", copy=True)
+    idx = np.arange(C.shape[0])
+    C[idx, idx] += noise_var + jitter
+    c, info = lapack.dpotrf(C, lower=1, clean=1, overwrite_a=1)
+    if info != 0:
+        return None
+    return c
+
+
+def _rcond(c: np.ndarray, K: np.ndarray, noise_var: float) -> float:
+    """Reciprocal 1-norm condition number of C from its Cholesky factor (LAPACK dpocon)."""
+    anorm = float(np.max(np.sum(np.abs(K), axis=0)) + noise_var)
+    rcond, info = lapack.dpocon(c, anorm, uplo="L")
+    return float(rcond) if info == 0 else 0.0
+
+
+def nlml_and_gradient(kernel: Kernel, pre: dict, values: dict, y: np.ndarray, grad_names) -> tuple[float, np.ndarray]:
+    """NLML and ∂NLML/∂logθ for the hyperparameters in ``grad_names`` (noise included as ``noise_std``).
+
+    Parameters
+    ----------
+    pre : kernel.precompute(X), pairwise arrays of shape (n, n)
+    values : {name: value} for every hyperparameter of the kernel plus ``noise_std``
+    y : shape (n,) or (n, L) — with L columns the NLML is the sum over columns with one shared C
+    grad_names : names of the free hyperparameters, in theta order
+
+    Returns (INFEASIBLE_NLML, zeros) when K + σn²I is not positive definite.
+    """
+    y2 = y.reshape(len(y), -1)
+    n, L = y2.shape
+    K, state = kernel.gram(pre, values)
+    s2 = values[NOISE] ** 2
+    c = _cholesky(K, s2)
+    if c is None:
+        return INFEASIBLE_NLML, np.zeros(len(grad_names))
+    alpha, info = lapack.dpotrs(c, y2, lower=1)  # Line 3 of R&W Alg. 2.1
+    logdet_half = float(np.sum(np.log(np.diagonal(c))))
+    nlml = 0.5 * float(np.sum(y2 * alpha)) + L * logdet_half + 0.5 * n * L * _LOG2PI
+    if len(grad_names) == 0:
+        return nlml, np.zeros(0)
+    inv, info = lapack.dpotri(c, lower=1, overwrite_c=1)  # lower triangle of C⁻¹, upper is zero
+    # W = Σ_l α_l α_lᵀ − L·C⁻¹, built in place (all on scipy's BLAS)
+    W = inv
+    W += inv.T  # full symmetric, diagonal doubled
+    idx = np.arange(n)
+    W[idx, idx] *= 0.5
+    W *= -float(L)
+    alpha_f = np.asfortranarray(alpha)
+    W = blas.dgemm(1.0, alpha_f, alpha_f, beta=1.0, c=W, trans_b=1, overwrite_c=1)
+    values = dict(values)
+    values["_K"] = K
+    kernel_names = [nm for nm in grad_names if nm != NOISE]
+    g_kernel = kernel.grad_contract(pre, values, state, W, kernel_names) if kernel_names else np.zeros(0)
+    grad = np.empty(len(grad_names))
+    it = iter(g_kernel)
+    for i, nm in enumerate(grad_names):
+        if nm == NOISE:
+            grad[i] = -s2 * float(np.trace(W))
+        else:
+            grad[i] = -0.5 * next(it)
+    return nlml, grad
+
+
+# ----------------------------------------------------------------------------- results
+@dataclass
+class OutputFit:
+    """What the fit of one output (or of all outputs, in shared mode) found and how.
+
+    values : final hyperparameters {name: value} (noise_std included)
+    nlml : negative log marginal likelihood at ``values`` (summed over outputs in shared mode, on the
+        standardised outputs)
+    jitter : diagonal jitter added to K + σn²I to pass Cholesky / the conditioning check (0 if none)
+    rcond : reciprocal condition number of K + (σn² + jitter) I
+    positive_definite : K + σn²I (without jitter) passed Cholesky and the conditioning check
+    n_evaluations, n_infeasible : NLML evaluations, and how many of them met a non-PD matrix
+    starts : per start {"start": {...}, "nlml": final, "status": message, "evaluations": k}
+    at_bounds : names of free hyperparameters that ended at a bound
+    """
+
+    values: dict
+    nlml: float
+    jitter: float = 0.0
+    rcond: float = float("nan")
+    positive_definite: bool = True
+    n_evaluations: int = 0
+    n_infeasible: int = 0
+    starts: list = field(default_factory=list)
+    at_bounds: list = field(default_factory=list)
+    free: list = field(default_factory=list)
+    seconds: float = 0.0
+
+    def to_dict(self) -> dict:
+        return {
+            "values": {k: float(v) for k, v in self.values.items()},
+            "nlml": float(self.nlml),
+            "jitter": float(self.jitter),
+            "rcond": float(self.rcond),
+            "positive_definite": bool(self.positive_definite),
+            "n_evaluations": int(self.n_evaluations),
+            "n_infeasible": int(self.n_infeasible),
+            "starts": self.starts,
+            "at_bounds": list(self.at_bounds),
+            "free": list(self.free),
+            "seconds": float(self.seconds),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "OutputFit":
+        return cls(**{k: d[k] for k in cls.__dataclass_fields__ if k in d})
+
+
+class GaussianProcess:
+    """A fitted exact GP with L outputs on inputs X (n, d).
+
+    ``groups`` lists the hyperparameter sets: one per output (default) or one shared by all outputs
+    (``shared``), each with its Cholesky factor and its α = C⁻¹ y (on the standardised outputs
+    y / scale in shared mode; predictions are scaled back).
+    """
+
+    def __init__(self, kernel: Kernel, X: np.ndarray, Y: np.ndarray, fits: list, shared: bool, y_scale=None):
+        self.kernel = kernel
+        self.X = np.ascontiguousarray(X, dtype=np.float64)
+        self.Y = np.ascontiguousarray(np.asarray(Y, dtype=np.float64).reshape(len(X), -1))
+        self.fits = list(fits)
+        self.shared = bool(shared)
+        self.y_scale = np.ones(self.Y.shape[1]) if y_scale is None else np.asarray(y_scale, dtype=np.float64)
+        self._factorise()
+
+    @property
+    def n_outputs(self) -> int:
+        return self.Y.shape[1]
+
+    def _group_outputs(self):
+        if self.shared:
+            return [(self.fits[0], list(range(self.n_outputs)))]
+        return [(f, [l]) for l, f in enumerate(self.fits)]
+
+    def _factorise(self) -> None:
+        """Cholesky factors and α for every group, with each fit's recorded jitter; verified."""
+        pre = self.kernel.precompute(self.X)
+        self._L = []
+        self._alpha = []
+        for fit, outs in self._group_outputs():
+            K, _ = self.kernel.gram(pre, fit.values)
+            s2 = fit.values[NOISE] ** 2
+            c = _cholesky(K, s2, fit.jitter)
+            if c is None:
+                raise RbgpRuntimeError(
+                    "the stored hyperparameters do not give a positive definite covariance matrix",
+                    hint="refit the model (rbgp train)",
+                )
+            y = self.Y[:, outs] / self.y_scale[outs]
+            alpha, _ = lapack.dpotrs(c, np.asfortranarray(y), lower=1)
+            self._L.append(np.tril(c))
+            self._alpha.append(np.asarray(alpha))
+
+    def predict(self, Xs, return_std: bool = False, noisy: bool = False, chunk_elements: int = 2_000_000):
+        """Predictive mean (and standard deviation) at query inputs.
+
+        Parameters
+        ----------
+        Xs : shape (m, d)
+        return_std : also return the standard deviation
+        noisy : std of a new noisy observation (σ² + σn²) instead of the latent function's σ
+        chunk_elements : query rows are processed in chunks of at most chunk_elements / n rows, so
+            10⁵ query points never allocate n × 10⁵ at once
+
+        Returns
+        -------
+        mean : shape (m, L);  std : shape (m, L) if requested.
+        Latent variances k** − k*ᵀC⁻¹k* that come out negative (possible with an indefinite kernel, or
+        from round-off) are clipped to 0; ``self.last_clipped`` counts them.
+        """
+        Xs = np.ascontiguousarray(np.asarray(Xs, dtype=np.float64).reshape(-1, self.X.shape[1]))
+        m, n = len(Xs), len(self.X)
+        mean = np.empty((m, self.n_outputs))
+        std = np.empty((m, self.n_outputs)) if return_std else None
+        step = max(1, int(chunk_elements // max(n, 1)))
+        self.last_clipped = 0
+        for a in range(0, m, step):
+            Xc = Xs[a : a + step]
+            pre = self.kernel.precompute(Xc, self.X)
+            for (fit, outs), Lc, alpha in zip(self._group_outputs(), self._L, self._alpha):
+                Ks, _ = self.kernel.gram(pre, fit.values)  # (mc, n)
+                scale = self.y_scale[outs]
+                mean[a : a + step, outs] = (Ks @ alpha) * scale
+                if return_std:
+                    v = solve_triangular(Lc, Ks.T, lower=True, check_finite=False)
+                    var = self.kernel.diag(Xc, fit.values) - np.einsum("ij,ij->j", v, v)
+                    self.last_clipped += int(np.sum(var < 0))
+                    var = np.maximum(var, 0.0)
+                    if noisy:
+                        var = var + fit.values[NOISE] ** 2 + fit.jitter
+                    std[a : a + step, outs] = np.sqrt(var)[:, None] * scale
+        return (mean, std) if return_std else mean
+
+    def predict_mean(self, Xs) -> np.ndarray:
+        """Predictive mean, shape (m, L) (single-step mean prediction, MATH.md §8)."""
+        return self.predict(Xs)
+
+
+# ----------------------------------------------------------------------------- fitting
+def _free_spec(kernel: Kernel, pre: dict, y: np.ndarray, noise, fixed: dict | None, bounds: dict | None):
+    """All hyperparameters (kernel + noise) with data-driven starts and bounds, and the free names."""
+    spec = dict(kernel.default_hyperparameters(pre, y))
+    sy = float(np.std(y)) if np.std(y) > 0 else 1.0
+    if noise is None or noise == "learn":
+        spec[NOISE] = Hyperparameter(NOISE, 0.1 * sy, (1e-6 * sy, 10.0 * sy))
+    else:
+        spec[NOISE] = Hyperparameter(NOISE, float(noise), (float(noise), float(noise)), fixed=True)
+    for name, v in (fixed or {}).items():
+        if name not in spec:
+            raise ValueError(f"unknown hyperparameter {name!r}; known: {sorted(spec)}")
+        spec[name] = Hyperparameter(name, float(v), (float(v), float(v)), fixed=True)
+    for name, b in (bounds or {}).items():
+        if name in spec and not spec[name].fixed:
+            lo, hi = float(b[0]), float(b[1])
+            spec[name] = Hyperparameter(name, min(max(spec[name].value, lo), hi), (lo, hi))
+    free = [nm for nm in [*kernel.names, NOISE] if nm in spec and not spec[nm].fixed]
+    return spec, free
+
+
+def _random_start(spec: dict, free: list, rng: np.random.Generator) -> np.ndarray:
+    """A random start in log space around the data-driven one: λ × e^U(−1.5,1), σf × e^U(−1,1),
+    σn × e^U(−3,1), ρ1 ~ U(0.1, 0.9), each clipped into its bounds."""
+    widths = {"length_scale": (-1.5, 1.0), "signal_std": (-1.0, 1.0), NOISE: (-3.0, 1.0)}
+    theta = np.empty(len(free))
+    for i, nm in enumerate(free):
+        h = spec[nm]
+        lo, hi = h.log_bounds
+        if nm == "rho_rot":
+            t = math.log(rng.uniform(0.1, 0.9))
+        else:
+            a, b = widths.get(nm, (-1.0, 1.0))
+            t = math.log(h.value) + rng.uniform(a, b)
+        theta[i] = min(max(t, lo), hi)
+    return theta
+
+
+def _fit_one(kernel, pre, y, spec, free, restarts, rng, max_iter):
+    """Minimise the NLML for one target (vector, or matrix in shared mode) from several starts."""
+    from scipy.optimize import minimize
+
+    fixed_values = {nm: h.value for nm, h in spec.items() if nm not in free}
+    log_bounds = [spec[nm].log_bounds for nm in free]
+    counter = {"evals": 0, "infeasible": 0}
+
+    def values_of(theta):
+        v = dict(fixed_values)
+        v.update({nm: math.exp(t) for nm, t in zip(free, theta)})
+        return v
+
+    penalty = {"ref": None}
+
+    def objective(theta):
+        counter["evals"] += 1
+        f, g = nlml_and_gradient(kernel, pre, values_of(theta), y, free)
+        if f >= INFEASIBLE_NLML:
+            counter["infeasible"] += 1
+            if penalty["ref"] is not None:
+                # Infeasible: report a value well above this run's start (so the line search backs
+                # off) but not so far above that its interpolation collapses to a zero step, which
+                # L-BFGS-B would take for convergence.
+                ref = penalty["ref"]
+                return ref + max(10.0, abs(ref)), np.zeros_like(g)
+        return f, g
+
+    starts = [np.array([math.log(spec[nm].value) for nm in free])]
+    starts += [_random_start(spec, free, rng) for _ in range(max(0, restarts - 1))]
+    best = None
+    records = []
+    for s, theta0 in enumerate(starts):
+        theta0 = np.clip(theta0, [b[0] for b in log_bounds], [b[1] for b in log_bounds])
+        # an infeasible start is moved towards short length-scales / more noise, where K is PD
+        penalty["ref"] = None
+        for _ in range(8):
+            f0, _g = objective(theta0)
+            if f0 < INFEASIBLE_NLML:
+                break
+            for i, nm in enumerate(free):
+                if nm == "length_scale":
+                    theta0[i] = max(theta0[i] - math.log(2.0), log_bounds[i][0])
+                elif nm == NOISE:
+                    theta0[i] = min(theta0[i] + math.log(2.0), log_bounds[i][1])
+        ev0 = counter["evals"]
+        penalty["ref"] = f0 if f0 < INFEASIBLE_NLML else None
+        if not free:
+            res_x, res_f, msg = theta0, f0, "no free hyperparameters"
+        else:
+            res = minimize(objective, theta0, jac=True, method="L-BFGS-B", bounds=log_bounds,
+                           options={"maxiter": max_iter})
+            res_x, res_f, msg = res.x, float(res.fun), str(res.message)
+        records.append({
+            "start": {nm: float(math.exp(t)) for nm, t in zip(free, theta0)},
+            "nlml": float(res_f),
+            "status": msg,
+            "evaluations": counter["evals"] - ev0,
+            "kind": "data-driven" if s == 0 else "random",
+        })
+        if res_f < INFEASIBLE_NLML and (best is None or res_f < best[1]):
+            best = (np.array(res_x), res_f)
+    return best, records, counter, values_of
+
+
+def _accept(kernel, pre, y, values):
+    """Check C = K + σn²I at the optimum; add jitter from a ladder if needed. Returns (jitter, rcond, pd)."""
+    K, _ = kernel.gram(pre, values)
+    s2 = values[NOISE] ** 2
+    scale = float(np.mean(np.diagonal(K))) + s2
+    for j, rel in enumerate(_JITTERS):
+        jitter = rel * scale
+        c = _cholesky(K, s2, jitter)
+        if c is None:
+            continue
+        rc = _rcond(c, K, s2 + jitter)
+        if rc >= MIN_RCOND:
+            return jitter, rc, (j == 0)
+    return None, 0.0, False
+
+
+def fit_gp(
+    X,
+    Y,
+    kernel: Kernel,
+    *,
+    noise=None,
+    restarts: int = 3,
+    seed: int = 0,
+    shared: bool = False,
+    fixed: dict | None = None,
+    bounds: dict | None = None,
+    max_iter: int = 200,
+    progress=None,
+) -> GaussianProcess:
+    """Fit one GP per output column of Y (or one shared set of hyperparameters) by minimising the NLML.
+
+    Parameters
+    ----------
+    X : shape (n, d) — inputs (e.g. poses (rx, ry, rz, x, y, z))
+    Y : shape (n, L) — outputs (e.g. velocities (ωx, ωy, ωz, vx, vy, vz))
+    kernel : a :class:`Kernel`
+    noise : None / "learn" to learn σn, or a number to fix σn (the paper fixes σn = 1)
+    restarts : number of starts per output: the data-driven start plus ``restarts − 1`` random ones
+    seed : seeds the random starts (same data, options and seed → bit-identical hyperparameters)
+    shared : one set of hyperparameters for all outputs, each output scaled by its standard deviation
+    fixed : {name: value} hyperparameters to hold fixed (signal_std, length_scale, rho_rot, noise_std)
+    bounds : {name: (low, high)} to override the data-driven bounds
+    progress : optional callable(str) for progress messages (the CLI prints them to stderr)
+    """
+    X = np.ascontiguousarray(np.asarray(X, dtype=np.float64))
+    Y = np.asarray(Y, dtype=np.float64).reshape(len(X), -1)
+    if len(X) < 2:
+        raise ValueError("a GP needs at least 2 training points")
+    if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
+        raise ValueError("training inputs and outputs must be finite")
+    restarts = max(1, int(restarts))
+    pre = kernel.precompute(X)
+    L = Y.shape[1]
+    ss = np.random.SeedSequence(int(seed))
+    fits = []
+    if shared:
+        scale = np.std(Y, axis=0)
+        scale[~(scale > 0)] = 1.0
+        targets = [(Y / scale, "all outputs")]
+        rngs = [np.random.default_rng(ss)]
+    else:
+        scale = None
+        targets = [(Y[:, l], f"output {l}") for l in range(L)]
+        rngs = [np.random.default_rng(s) for s in ss.spawn(L)]
+    for (y, label), rng in zip(targets, rngs):
+        t0 = time.perf_counter()
+        spec, free = _free_spec(kernel, pre, y, noise, fixed, bounds)
+        best, records, counter, values_of = _fit_one(kernel, pre, y, spec, free, restarts, rng, max_iter)
+        if best is None:
+            raise RbgpRuntimeError(
+                f"no hyperparameters gave a positive definite covariance for {label}",
+                hint="use --kernel se-chordal, fix a smaller length-scale, or learn the noise",
+            )
+        values = values_of(best[0])
+        jitter, rc, pd = _accept(kernel, pre, y, values)
+        if jitter is None:
+            raise RbgpRuntimeError(
+                f"the fitted covariance for {label} is numerically singular even with jitter",
+                hint="use --kernel se-chordal or subsample fewer, less redundant points",
+            )
+        at_bounds = []
+        for nm, t in zip(free, best[0]):
+            lo, hi = spec[nm].log_bounds
+            if abs(t - lo) < 1e-6 or abs(t - hi) < 1e-6:
+                at_bounds.append(nm)
+        fit = OutputFit(
+            values=values, nlml=float(best[1]), jitter=float(jitter), rcond=rc, positive_definite=pd,
+            n_evaluations=counter["evals"], n_infeasible=counter["infeasible"], starts=records,
+            at_bounds=at_bounds, free=list(free), seconds=time.perf_counter() - t0,
+        )
+        fits.append(fit)
+        if progress is not None:
+            progress(f"{label}: NLML {fit.nlml:.4g} after {fit.n_evaluations} evaluations"
+                     f" ({fit.n_infeasible} infeasible), {fit.seconds:.2f} s")
+    return GaussianProcess(kernel, X, Y, fits, shared=shared, y_scale=scale)

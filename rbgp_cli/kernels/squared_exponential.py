@@ -1,0 +1,203 @@
+"""Squared-exponential kernels on SE(3) (paper eq. 24, MATH.md §6).
+
+    k(g_i, g_j) = σf² · exp(−d²(g_i, g_j) / (2 λ²)),
+    d²(g_i, g_j) = ρ1 · d_rot(r_i, r_j)² + (1 − ρ1) · ‖t_i − t_j‖²        (eq. 19)
+
+The rotation distance ``d_rot`` is chosen by ``metric``:
+
+* ``"arc"``: d_arc = 2·acos|⟨q_i, q_j⟩| (eq. 14 with the absolute value) on canonical rotation vectors
+  — the paper's rigid-body kernel. **Not positive semi-definite in general** (MATH.md §6: Theorem 1
+  is false); the GP guards against the resulting indefinite Gram matrices.
+* ``"chordal"``: d_ch = 2·sqrt(1 − ⟨q_i, q_j⟩²) — a Euclidean distance of an embedding of SO(3),
+  so the kernel is positive definite for every λ and ρ1. Our robust variant.
+* ``"euclidean"``: ‖a_i − a_j‖ on the rotation coordinates as given (the Euler-angle baseline).
+* ``"s3"``: acos|⟨q_i, q_j⟩| on unit quaternions (the quaternion baseline; half of d_arc).
+
+Inputs X have shape (n, k + 3): rotation coordinates first (k = 3 for rotation vectors or Euler angles,
+k = 4 for quaternions x, y, z, w), translation (metres) last.
+
+Hyperparameters: ``signal_std`` σf, ``length_scale`` λ, ``rho_rot`` ρ1 (fixed by default at the
+paper's 0.7, or learned). Gradients with respect to their logs:
+
+    ∂K/∂log σf = 2 K
+    ∂K/∂log λ  = K ∘ d² / λ²
+    ∂K/∂log ρ1 = −K ∘ ρ1 (d_rot² − ‖Δt‖²) / (2 λ²)
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from rbgp_cli.kernels.base import Hyperparameter, Kernel, fdot
+
+__all__ = ["SquaredExponential", "ROTATION_METRICS"]
+
+ROTATION_METRICS = ("arc", "chordal", "euclidean", "s3")
+
+
+def _rotation_sq_distance(metric: str, A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Pairwise squared rotation distance, shape (n, m), for rotation blocks A (n, k), B (m, k)."""
+    from rbgp_cli.geometry import distance
+
+    if metric == "euclidean":
+        return distance.pairwise_sq_distance(A, B)
+    if metric == "s3":
+        if A.shape[-1] != 4:
+            raise ValueError("the 's3' rotation metric needs quaternion inputs (x, y, z, w)")
+        from rbgp_cli.geometry.so3 import rotvec_from_quat
+
+        # acos|<q1,q2>| = d_arc / 2
+        d = 0.5 * distance.pairwise_rotation_distance(rotvec_from_quat(A), rotvec_from_quat(B), metric="arc")
+        return d * d
+    if metric in ("arc", "chordal"):
+        if A.shape[-1] == 4:
+            from rbgp_cli.geometry.so3 import rotvec_from_quat
+
+            A, B = rotvec_from_quat(A), rotvec_from_quat(B)
+        d = distance.pairwise_rotation_distance(A, B, metric=metric)
+        return d * d
+    raise ValueError(f"unknown rotation metric {metric!r}; expected one of {ROTATION_METRICS}")
+
+
+class SquaredExponential(Kernel):
+    """σf² exp(−(ρ1 d_rot² + (1−ρ1)‖Δt‖²) / (2λ²)) on (rotation, translation) inputs (eq. 24).
+
+    Parameters
+    ----------
+    metric : "arc" | "chordal" | "euclidean" | "s3" (see module docstring)
+    rotation_dims : number of leading rotation columns of X (3 or 4); the last 3 are translation
+    rho_rot : ρ1 in (0, 1); the rotation weight of eq. 19 (paper: 0.7)
+    learn_rho : learn ρ1 (in log space, bounds [0.01, 0.99]) instead of fixing it
+    """
+
+    kind = "squared_exponential"
+
+    def __init__(self, metric: str = "arc", rotation_dims: int = 3, rho_rot: float = 0.7, learn_rho: bool = False):
+        if metric not in ROTATION_METRICS:
+            raise ValueError(f"unknown rotation metric {metric!r}; expected one of {ROTATION_METRICS}")
+        if not 0.0 < rho_rot < 1.0:
+            raise ValueError(f"rho_rot must lie strictly between 0 and 1, got {rho_rot}")
+        self.metric = metric
+        self.rotation_dims = int(rotation_dims)
+        self.rho_rot = float(rho_rot)
+        self.learn_rho = bool(learn_rho)
+        self.names = ("signal_std", "length_scale", "rho_rot")
+
+    # ------------------------------------------------------------------ precomputation (once per fit)
+    def precompute(self, Xa, Xb=None) -> dict:
+        """Hyperparameter-free pairwise squared distances, each shape (n, m).
+
+        With ρ1 fixed only ``d2`` = ρ1·d_rot² + (1−ρ1)·‖Δt‖² is kept; with ρ1 learned, ``rot2`` and
+        ``trans2`` separately (d² is formed per evaluation, one fused n² pass).
+        """
+        from rbgp_cli.geometry.distance import pairwise_sq_distance
+
+        Xa = np.asarray(Xa, dtype=np.float64)
+        Xb = Xa if Xb is None else np.asarray(Xb, dtype=np.float64)
+        k = self.rotation_dims
+        rot2 = _rotation_sq_distance(self.metric, Xa[:, :k], Xb[:, :k])
+        trans2 = pairwise_sq_distance(Xa[:, k:], Xb[:, k:])
+        if self.learn_rho:
+            return {"rot2": rot2, "trans2": trans2}
+        rot2 *= self.rho_rot
+        rot2 += (1.0 - self.rho_rot) * trans2
+        return {"d2": rot2}
+
+    def _d2(self, pre: dict, values: dict) -> np.ndarray:
+        if "d2" in pre:
+            return pre["d2"]
+        rho = values["rho_rot"]
+        d2 = pre["rot2"] * rho
+        d2 += (1.0 - rho) * pre["trans2"]
+        return d2
+
+    # ------------------------------------------------------------------ Gram matrix and gradient
+    def gram(self, pre: dict, values: dict):
+        """K = σf² exp(−d²/(2λ²)), shape (n, m). The returned state is d² (reused by the gradient)."""
+        d2 = self._d2(pre, values)
+        lam = values["length_scale"]
+        K = np.multiply(d2, -0.5 / (lam * lam))
+        np.exp(K, out=K)
+        K *= values["signal_std"] ** 2
+        return K, d2
+
+    def grad_contract(self, pre, values, state, W, names) -> np.ndarray:
+        """Σ_ij W_ij ∂K_ij/∂logθ for θ in ``names`` (see the module docstring for the formulas).
+
+        ``state`` is the d² returned by :meth:`gram`; ``W`` has the shape of K. K itself is passed in
+        ``values["_K"]`` by the GP to avoid recomputing the exponential.
+        """
+        K = values["_K"]
+        lam2 = values["length_scale"] ** 2
+        out = np.empty(len(names))
+        WK = None
+        for i, name in enumerate(names):
+            if name == "signal_std":
+                out[i] = 2.0 * fdot(W, K)
+            elif name == "length_scale":
+                if WK is None:
+                    WK = W * K
+                out[i] = fdot(WK, state) / lam2
+            elif name == "rho_rot":
+                if WK is None:
+                    WK = W * K
+                rho = values["rho_rot"]
+                out[i] = -rho / (2.0 * lam2) * (fdot(WK, pre["rot2"]) - fdot(WK, pre["trans2"]))
+            else:
+                raise KeyError(name)
+        return out
+
+    def gram_with_gradient(self, Xa, values, names):
+        pre = self.precompute(Xa)
+        K, d2 = self.gram(pre, values)
+        n = K.shape[0]
+        dK = np.empty((n, n, len(names)))
+        lam2 = values["length_scale"] ** 2
+        for i, name in enumerate(names):
+            if name == "signal_std":
+                dK[..., i] = 2.0 * K
+            elif name == "length_scale":
+                dK[..., i] = K * d2 / lam2
+            elif name == "rho_rot":
+                dK[..., i] = -K * values["rho_rot"] * (pre["rot2"] - pre["trans2"]) / (2.0 * lam2)
+        return K, dK
+
+    def diag(self, X, values) -> np.ndarray:
+        return np.full(len(X), values["signal_std"] ** 2)
+
+    # ------------------------------------------------------------------ starts and description
+    def default_hyperparameters(self, pre: dict, y: np.ndarray) -> dict:
+        """Data-driven start (MATH.md §7): λ ~ median pairwise distance, σf ~ std(y); bounds scale
+        with the data (λ within [1e-3, 1e2] × median distance, σf within [1e-3, 1e2] × std(y))."""
+        d2 = self._d2(pre, {"rho_rot": self.rho_rot})
+        n = d2.shape[0]
+        iu = np.triu_indices(n, 1) if n <= 600 else _sample_pairs(n)
+        med = float(np.sqrt(np.median(d2[iu]))) if n > 1 else 1.0
+        if not np.isfinite(med) or med <= 0:
+            med = 1.0
+        sy = float(np.std(y)) if np.std(y) > 0 else 1.0
+        return {
+            "signal_std": Hyperparameter("signal_std", sy, (1e-3 * sy, 1e2 * sy)),
+            "length_scale": Hyperparameter("length_scale", med, (1e-3 * med, 1e2 * med)),
+            "rho_rot": Hyperparameter("rho_rot", self.rho_rot, (0.01, 0.99), fixed=not self.learn_rho),
+        }
+
+    def to_dict(self) -> dict:
+        return {
+            "kind": self.kind,
+            "metric": self.metric,
+            "rotation_dims": self.rotation_dims,
+            "rho_rot": self.rho_rot,
+            "learn_rho": self.learn_rho,
+        }
+
+
+def _sample_pairs(n: int, k: int = 200_000):
+    """A fixed, deterministic sample of index pairs i < j (for medians of large matrices)."""
+    rng = np.random.default_rng(12345)
+    i = rng.integers(0, n, k)
+    j = rng.integers(0, n, k)
+    keep = i < j
+    return i[keep], j[keep]
