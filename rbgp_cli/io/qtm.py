@@ -1,0 +1,552 @@
+"""Qualisys QTM 6DOF TSV exports (``*_6D.tsv``) -> raw :class:`~rbgp_cli.dynamics.trajectory.Trajectory`.
+
+The format (ECOSYSTEM.md §2.1, checked against real exports of 2010 and 2020)
+    * Key/value header lines, tab separated: ``FILE_VERSION`` (absent before 2.0.0), ``NO_OF_FRAMES``,
+      ``NO_OF_BODIES``, ``FREQUENCY`` (Hz, or ``EXT`` for an external timebase), ``TIME_STAMP``,
+      any number of ``EVENT <name> <frame> <time>`` lines, ``DATA_INCLUDED 6D``,
+      ``BODY_NAMES <name1> <name2> ...``. The column header is found by its content, not by counting
+      lines (EVENT lines shift it).
+    * Current layout: ``Frame  Time  <Body> X  Y  Z  Roll  Pitch  Yaw  Residual  Rot[0] .. Rot[8]``
+      then the next body's ``<Body> X`` ..., and a trailing tab.
+    * Old layout (2010 exports): no Frame/Time columns (time = row / FREQUENCY), one anonymous header
+      `` X  Y  Z  Yaw  Pitch  Roll  Residual  Rot[0] .. Rot[8]`` for the first body only; every body's
+      block is followed by an empty column (so rows end with a tab); names come from ``BODY_NAMES``.
+    * Units: positions in **mm**, angles in **degrees**, Time in seconds.
+    * ``Rot[0..8]`` is the rotation matrix body -> world in **column-major** order
+      (``Rot[1] = r21``, ``Rot[3] = r12``), ``P_world = R P_body + P_origin``. It is preferred to the
+      Euler angles (the user can redefine the Euler convention in QTM). Each matrix is checked for
+      orthonormality and det = +1; a row that fails falls back to its Euler angles (with a warning).
+    * Euler angles, when used: the three angle columns, **in the order the header lists them**, are an
+      intrinsic sequence with Roll about X, Pitch about Y, Yaw about Z. The QTM default header
+      ``Roll Pitch Yaw`` gives ``R = Rx(roll) Ry(pitch) Rz(yaw)`` (scipy ``"XYZ"``), the 2010 header
+      ``Yaw Pitch Roll`` gives ``R = Rz(yaw) Ry(pitch) Rx(roll)`` (scipy ``"ZYX"``); both were
+      verified against the files' own Rot[] to 5e-6. ``ReadOptions.euler_order`` overrides this
+      (scipy notation, applied to the angle columns in file order).
+    * Lost frames: ``null``/``NaN``/empty cells, an all-zero Rot[], or ``Residual`` = -1 (QTM writes
+      zeros and -1 when a body is not tracked). They are kept as NaN rows; cleaning happens later.
+
+This module also holds the small helpers the vendor readers share (:mod:`rbgp_cli.io.motive` and
+:mod:`rbgp_cli.io.vicon` import them): text loading, numeric cell parsing with row numbers in errors,
+body selection, unit factors and NaN-aware rotation conversions.
+"""
+
+from __future__ import annotations
+
+import functools
+import operator
+import re
+from pathlib import Path
+
+import numpy as np
+
+from rbgp_cli.dynamics.trajectory import Trajectory
+from rbgp_cli.errors import InputError, closest, warn
+from rbgp_cli.io.options import LENGTH_UNITS, ReadOptions
+
+__all__ = [
+    "sniff",
+    "read",
+    "describe",
+    # helpers shared by the vendor readers
+    "read_text",
+    "numeric_cells",
+    "select_bodies",
+    "metres_per",
+    "quat_from_valid",
+    "reader_guard",
+]
+
+# --------------------------------------------------------------------------------------------------
+# Helpers shared by the vendor readers (qtm, motive, vicon)
+# --------------------------------------------------------------------------------------------------
+
+#: Cell texts that mean "no value" (compared after strip + lower).
+MISSING_TOKENS = ("", "null", "nan", "-nan", "na", "n/a")
+
+
+def read_text(path) -> str:
+    """The file's text (UTF-8 with or without BOM, else Latin-1); InputError if it cannot be read."""
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except FileNotFoundError:
+        raise InputError("file not found", path=str(path)) from None
+    except IsADirectoryError:
+        raise InputError("is a directory, not a file", path=str(path)) from None
+    except OSError as exc:
+        raise InputError(f"cannot read the file ({exc.strerror or exc})", path=str(path)) from None
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        text = data.decode("latin-1")  # QTM/Motive on Windows may write cp1252 names
+    if not text.strip():
+        raise InputError("the file is empty", path=str(path))
+    return text
+
+
+def reader_guard(what: str, hint: str):
+    """Decorate a reader function ``f(path, ...)`` so that an unexpected parsing failure becomes one
+    :class:`InputError` naming the file (never a traceback). InputErrors pass through unchanged."""
+
+    def decorate(fn):
+        @functools.wraps(fn)
+        def wrapper(path, *args, **kwargs):
+            try:
+                return fn(path, *args, **kwargs)
+            except InputError:
+                raise
+            except (ValueError, IndexError, KeyError, TypeError, ZeroDivisionError) as exc:
+                raise InputError(
+                    f"cannot read this as {what} ({type(exc).__name__}: {exc})", path=str(path), hint=hint
+                ) from exc
+
+        return wrapper
+
+    return decorate
+
+
+def numeric_cells(rows, columns, lines, *, path, labels=None, hint=None, decimal_comma=False) -> np.ndarray:
+    """Parse the cells ``rows[i][columns[j]]`` as floats, shape (len(rows), len(columns)).
+
+    ``rows`` is a list of split lines, ``lines`` their 1-based line numbers in the file (for errors),
+    ``labels`` maps a column index to its header name. Cells in :data:`MISSING_TOKENS` become NaN.
+    ``decimal_comma`` accepts ``1,5`` for 1.5 (locales that separate fields with ``;``).
+    A row too short for ``columns`` (truncated, or split with the wrong delimiter) or a non-numeric
+    cell raises :class:`InputError` with the row's line number.
+    """
+    n, k = len(rows), len(columns)
+    if n == 0 or k == 0:
+        return np.empty((n, k))
+    need = max(columns) + 1
+    for cells, line in zip(rows, lines):
+        if len(cells) < need:
+            raise InputError(
+                f"row has {len(cells)} cells but the column header needs {need} "
+                "(a truncated row, or a different delimiter than the header)",
+                path=str(path),
+                row=int(line),
+                hint=hint,
+            )
+    pick = operator.itemgetter(*columns)
+    table = np.array([pick(r) for r in rows] if k > 1 else [(pick(r),) for r in rows], dtype=str)
+    if decimal_comma:
+        table = np.char.replace(table, ",", ".")
+    missing = np.isin(np.char.lower(np.char.strip(table)), MISSING_TOKENS)
+    table[missing] = "nan"
+    try:
+        return table.astype(np.float64)
+    except ValueError:
+        pass
+    for i in range(n):  # slow path: find the first bad cell to name it
+        for j in range(k):
+            try:
+                float(table[i, j])
+            except ValueError:
+                label = (labels or {}).get(columns[j], f"#{columns[j] + 1}")
+                raise InputError(
+                    f"cell {str(table[i, j])!r} in column {label} is not a number",
+                    path=str(path),
+                    row=int(lines[i]),
+                    hint=hint,
+                ) from None
+    raise InputError("cannot parse the numeric cells", path=str(path), hint=hint)  # pragma: no cover
+
+
+def select_bodies(names, body, *, path, aliases=None) -> list[str]:
+    """The body names to read: ``body`` None -> the only body (InputError listing them if several);
+    ``"all"`` -> every body; else the named one (exact, then case-insensitive, then ``aliases``
+    {alias: name}); an unknown name raises InputError suggesting the closest name."""
+    names = list(names)
+    if not names:
+        raise InputError("the file holds no rigid bodies", path=str(path))
+    listed = ", ".join(repr(n) for n in names)
+    if body is None:
+        if len(names) == 1:
+            return names
+        raise InputError(
+            f"the file holds {len(names)} rigid bodies: {listed}; choose one",
+            path=str(path),
+            hint="use --body NAME, or --body all to read every body",
+        )
+    if body in names:
+        return [body]
+    if body == "all":
+        return names
+    folded = [n for n in names if n.lower() == body.lower()]
+    if len(folded) == 1:
+        return folded
+    aliased = sorted({v for a, v in (aliases or {}).items() if a.lower() == body.lower()})
+    if len(aliased) == 1:
+        return aliased
+    guess = closest(body, names + list(aliases or {}))
+    guess = (aliases or {}).get(guess, guess)
+    raise InputError(
+        f"no rigid body named {body!r}; the bodies are {listed}",
+        path=str(path),
+        hint=f"did you mean --body {guess!r}?" if guess else "use --body NAME or --body all",
+    )
+
+
+def metres_per(unit: str, *, path, hint=None) -> float:
+    """Metres per ``unit`` (``m``, ``cm``, ``mm``); InputError for anything else."""
+    try:
+        return LENGTH_UNITS[unit]
+    except KeyError:
+        raise InputError(
+            f"unknown length unit {unit!r}; use one of {', '.join(LENGTH_UNITS)}", path=str(path), hint=hint
+        ) from None
+
+
+def quat_from_valid(valid, convert, values) -> np.ndarray:
+    """Quaternions (x, y, z, w), shape (N, 4): ``convert(values[valid])`` (a scipy Rotation) on the
+    valid rows, NaN elsewhere (scipy rejects NaN rows and zero matrices, so they never reach it)."""
+    out = np.full((len(valid), 4), np.nan)
+    if np.any(valid):
+        out[valid] = convert(values[valid]).as_quat()
+    return out
+
+
+def _rotation():
+    from scipy.spatial.transform import Rotation  # the io edge may use scipy (ARCHITECTURE.md)
+
+    return Rotation
+
+
+# --------------------------------------------------------------------------------------------------
+# QTM
+# --------------------------------------------------------------------------------------------------
+
+_KEY = re.compile(r"^[A-Z][A-Z0-9]*(?:_[A-Z0-9]+)+$")
+_BARE_KEYS = {"FREQUENCY", "DESCRIPTION", "EVENT"}
+#: QTM's names for the rotation about each axis (Qualisys standard Euler definition).
+ANGLE_AXES = {"roll": "X", "pitch": "Y", "yaw": "Z"}
+ROT_FIELDS = tuple(f"Rot[{k}]" for k in range(9))
+#: Rot[] rows whose ``max |R Rᵀ - I|`` exceeds this are not rotations (exports print 5 decimals, so
+#: real matrices are orthonormal to ~1e-5).
+ORTHONORMAL_TOL = 1e-3
+_HINT = "export the 6DOF data from QTM as TSV (File > Export > TSV, 6D)"
+
+
+def _is_key(cell: str) -> bool:
+    return cell in _BARE_KEYS or bool(_KEY.match(cell))
+
+
+def sniff(head: str) -> bool:
+    """True if ``head`` (the first few KiB of text) looks like a QTM TSV export: it starts with
+    tab-separated QTM header keys such as ``NO_OF_FRAMES`` or ``FILE_VERSION``."""
+    lines = [ln for ln in head.lstrip("\ufeff").splitlines() if ln.strip()][:3]
+    if not lines or "\t" not in lines[0]:
+        return False
+    first = lines[0].split("\t")[0].strip()
+    return first in ("FILE_VERSION", "NO_OF_FRAMES", "NO_OF_CAMERAS", "NO_OF_BODIES", "NO_OF_MARKERS")
+
+
+class _Layout:
+    """What the header says: key/values, events, columns and the blocks of each body."""
+
+    def __init__(self, path, text):
+        self.path = str(path)
+        self.lines = text.splitlines()
+        self.header: dict[str, list[str]] = {}
+        self.events: list[list[str]] = []
+        self.header_line = None
+        for i, line in enumerate(self.lines):
+            if not line.strip():
+                continue
+            cells = line.split("\t")
+            key = cells[0].strip()
+            if _is_key(key):
+                values = [c.strip() for c in cells[1:]]
+                while values and not values[-1]:
+                    values.pop()
+                if key == "EVENT":
+                    self.events.append(values)
+                else:
+                    self.header.setdefault(key, values)
+                continue
+            self.header_line = i
+            break
+        if not self.header:
+            raise InputError("no QTM header (NO_OF_FRAMES, FREQUENCY, BODY_NAMES ...)", path=self.path, hint=_HINT)
+        included = " ".join(self.header.get("DATA_INCLUDED", [])).upper()
+        if included and "6D" not in included:
+            raise InputError(
+                f"this QTM file holds {included} data, not 6DOF rigid bodies", path=self.path, hint=_HINT
+            )
+        if self.header_line is None:
+            raise InputError("the file has a QTM header but no column header or data", path=self.path, hint=_HINT)
+        cells = [c.strip() for c in self.lines[self.header_line].split("\t")]
+        if _is_number(cells[0]):
+            raise InputError(
+                "the QTM file has no column header line (Frame, Time, <Body> X ...)",
+                path=self.path,
+                row=self.header_line + 1,
+                hint="export again with the header included",
+            )
+        self.columns = cells
+        self._blocks(cells)
+        # a row of tabs only is a frame in which every body was lost (2010 layout): keep it
+        self.data = [i for i in range(self.header_line + 1, len(self.lines)) if self.lines[i].strip(" ")]
+
+    def _blocks(self, cells):
+        meta: dict[str, int] = {}
+        blocks: list[tuple[str | None, dict[str, int]]] = []
+        current = None
+        for j, c in enumerate(cells):
+            if not c:
+                current = None
+                continue
+            if c == "X" or c.endswith(" X"):
+                current = (c[:-2].strip() or None, {"X": j})  # None: anonymous (2010 layout)
+                blocks.append(current)
+                continue
+            if current is None:
+                meta[c] = j
+                continue
+            name, fields = current
+            if name and c.startswith(name + " "):
+                c = c[len(name) + 1 :]
+            fields.setdefault(c, j)
+        if not blocks:
+            raise InputError(
+                "no rigid-body columns in the column header (expected '<Body> X  Y  Z ... Rot[8]')",
+                path=self.path,
+                row=self.header_line + 1,
+                hint=_HINT,
+            )
+        names_hdr = self.header.get("BODY_NAMES", [])
+        anonymous = all(name is None for name, _ in blocks)
+        if anonymous:
+            n_bodies = len(names_hdr) or _int(self.header.get("NO_OF_BODIES")) or len(blocks)
+            if len(blocks) == 1 and n_bodies > 1:
+                # 2010 layout: one header block, every body's block followed by an empty column
+                fields = blocks[0][1]
+                first, last = min(fields.values()), max(fields.values())
+                stride = last - first + 2
+                blocks = [(None, {f: j + k * stride for f, j in fields.items()}) for k in range(n_bodies)]
+                self._check_separators([first + k * stride - 1 for k in range(1, n_bodies)])
+            names = names_hdr if len(names_hdr) == len(blocks) else [f"body{k + 1}" for k in range(len(blocks))]
+            blocks = [(names[k], fields) for k, (_, fields) in enumerate(blocks)]
+            self.layout = "old" if "Frame" not in meta else "current"
+        else:
+            blocks = [(name or f"body{k + 1}", fields) for k, (name, fields) in enumerate(blocks)]
+            self.layout = "current"
+        self.meta = meta
+        self.blocks = dict(blocks)
+        if len(self.blocks) != len(blocks):
+            raise InputError("two bodies in the column header have the same name", path=self.path,
+                             row=self.header_line + 1)
+
+    def _check_separators(self, columns):
+        """In the 2010 layout every body's block is followed by an empty column; a non-empty cell there
+        means the blocks are not where the single header says (and every value would be misread)."""
+        first = next((i for i in range(self.header_line + 1, len(self.lines)) if self.lines[i].strip(" ")), None)
+        if first is None:
+            return
+        cells = self.lines[first].split("\t")
+        filled = [j for j in columns if j < len(cells) and cells[j].strip()]
+        if filled:
+            raise InputError(
+                f"expected an empty column between the bodies' blocks (column {filled[0] + 1}); "
+                "the rows do not match the one-body header",
+                path=self.path, row=first + 1, hint=_HINT)
+
+    # facts -------------------------------------------------------------------------------------
+    def frequency(self) -> float | None:
+        value = (self.header.get("FREQUENCY") or [""])[0]
+        try:
+            f = float(value)
+        except ValueError:
+            return None  # e.g. EXT (external timebase)
+        return f if f > 0 else None
+
+    def rotation_plan(self, fields, options: ReadOptions):
+        """``(rot_cols, angle_cols, euler_seq, euler_source, angle_names)`` for one body's fields;
+        ``rot_cols`` is None without Rot[0..8], ``angle_cols`` None unless there are three angle
+        columns, ``euler_seq`` None when neither the angle names nor ``--euler-order`` define it."""
+        rot = [fields[f] for f in ROT_FIELDS] if all(f in fields for f in ROT_FIELDS) else None
+        skip = {"X", "Y", "Z", "Residual", *ROT_FIELDS}
+        angle_names = [f for f in sorted(fields, key=fields.get) if f not in skip]
+        angles = [fields[f] for f in angle_names] if len(angle_names) == 3 else None
+        seq, source = None, None
+        if angles is not None:
+            if options.euler_order:
+                seq, source = options.euler_order, "--euler-order"
+            else:
+                axes = [ANGLE_AXES.get(a.lower()) for a in angle_names]
+                if None not in axes and len(set(axes)) == 3:
+                    seq, source = "".join(axes), "header " + " ".join(angle_names)
+        return rot, angles, seq, source, angle_names
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _int(values) -> int:
+    try:
+        return int(float((values or [""])[0]))
+    except ValueError:
+        return 0
+
+
+def _time_axis(layout: _Layout, values, options: ReadOptions, n: int):
+    """Seconds for each data row, and a note on where they came from."""
+    f_file = layout.frequency()
+    rate = f_file or options.rate
+    if options.rate and f_file and abs(options.rate - f_file) > 1e-9 * f_file:
+        warn(f"ignoring --rate {options.rate:g}: the file states FREQUENCY {f_file:g} Hz", path=layout.path)
+    if "Time" in values:
+        return values["Time"], "Time column", rate
+    if rate is None:
+        raise InputError(
+            "FREQUENCY is not a number (external timebase?) and there is no Time column",
+            path=layout.path,
+            hint="give the sample rate with --rate HZ",
+        )
+    if "Frame" in values:
+        return (values["Frame"] - 1.0) / rate, "(Frame - 1) / FREQUENCY", rate
+    return np.arange(n) / rate, "row / FREQUENCY", rate
+
+
+@reader_guard("a QTM 6D TSV file", _HINT)
+def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
+    """Read the selected rigid bodies of a QTM 6DOF TSV export.
+
+    Returns one raw :class:`Trajectory` per selected body (``options.body``: None -> the only body,
+    ``"all"`` -> every body): t in seconds, quaternions x, y, z, w (body -> world), positions in metres
+    (the file's mm unless ``options.length_unit`` says otherwise), lost frames as NaN rows.
+    """
+    options = options or ReadOptions()
+    layout = _Layout(path, read_text(path))
+    chosen = select_bodies(list(layout.blocks), options.body, path=path)
+    scale = metres_per(options.length_unit or "mm", path=path, hint="use --length-unit m|cm|mm")
+    degrees = True if options.degrees is None else bool(options.degrees)
+    R = _rotation()
+
+    rows = [layout.lines[i].split("\t") for i in layout.data]
+    line_no = [i + 1 for i in layout.data]
+    labels = {j: c for j, c in enumerate(layout.columns)}
+    meta_cols = {k: layout.meta[k] for k in ("Frame", "Time") if k in layout.meta}
+    plans, wanted = {}, list(meta_cols.values())
+    for name in chosen:
+        fields = layout.blocks[name]
+        missing = [f for f in ("X", "Y", "Z") if f not in fields]
+        if missing:
+            raise InputError(f"body {name!r} has no {'/'.join(missing)} column", path=path,
+                             row=layout.header_line + 1, hint=_HINT)
+        plan = layout.rotation_plan(fields, options)
+        rot, angles, seq, _, angle_names = plan
+        if rot is None and (angles is None or seq is None):
+            what = (f"angle columns {' '.join(angle_names)} of unknown convention" if angles is not None
+                    else "no Euler angle columns")
+            raise InputError(
+                f"body {name!r} has no Rot[0..8] matrix and {what}", path=path, row=layout.header_line + 1,
+                hint="give the angles' convention with --euler-order (e.g. XYZ for Roll Pitch Yaw)",
+            )
+        plans[name] = plan
+        wanted += [fields[f] for f in ("X", "Y", "Z")] + (rot or []) + (angles or [])
+        if "Residual" in fields:
+            wanted.append(fields["Residual"])
+    wanted = sorted(set(wanted))
+    table = numeric_cells(rows, wanted, line_no, path=path, labels=labels, hint=_HINT)
+    col = {j: table[:, k] for k, j in enumerate(wanted)}
+
+    t, time_source, rate = _time_axis(layout, {k: col[j] for k, j in meta_cols.items()}, options, len(rows))
+    out = []
+    for name in chosen:
+        fields = layout.blocks[name]
+        rot, angles, seq, seq_source, angle_names = plans[name]
+        pos = np.stack([col[fields[f]] for f in ("X", "Y", "Z")], axis=1) * scale
+        lost = ~np.all(np.isfinite(pos), axis=1)
+        if "Residual" in fields:
+            lost |= col[fields["Residual"]] < 0  # QTM writes -1 for an untracked body
+        quat = np.full((len(rows), 4), np.nan)
+        source = None
+        if rot is not None:
+            m = np.stack([col[j] for j in rot], axis=1).reshape(-1, 3, 3).transpose(0, 2, 1)  # column-major
+            finite = np.all(np.isfinite(m), axis=(1, 2))
+            zero = finite & np.all(m == 0.0, axis=(1, 2))
+            lost |= ~finite | zero
+            ok = finite & ~zero
+            err = np.full(len(m), np.inf)
+            if ok.any():
+                mm = m[ok]
+                err[ok] = np.max(np.abs(mm @ mm.transpose(0, 2, 1) - np.eye(3)), axis=(1, 2))
+                err[ok] = np.where(np.linalg.det(mm) > 0, err[ok], np.inf)
+            good = ok & (err <= ORTHONORMAL_TOL) & ~lost
+            quat = quat_from_valid(good, R.from_matrix, m)
+            bad = ok & ~good & ~lost
+            source = "Rot[] matrix (column-major)"
+            if bad.any():
+                if angles is not None and seq is not None:
+                    eul = np.stack([col[j] for j in angles], axis=1)
+                    use = bad & np.all(np.isfinite(eul), axis=1)
+                    lost |= bad & ~use
+                    quat[use] = R.from_euler(seq, eul[use], degrees=degrees).as_quat()
+                    warn(f"body {name!r}: {int(bad.sum())} Rot[] matrices are not rotations; "
+                         f"used the Euler angles ({seq}) for those rows", path=path)
+                else:
+                    lost |= bad
+                    warn(f"body {name!r}: {int(bad.sum())} Rot[] matrices are not rotations; kept as lost frames",
+                         path=path)
+        else:
+            eul = np.stack([col[j] for j in angles], axis=1)
+            finite = np.all(np.isfinite(eul), axis=1)
+            lost |= ~finite
+            if "Residual" not in fields:
+                lost |= finite & np.all(eul == 0.0, axis=1) & np.all(pos == 0.0, axis=1)
+            quat = quat_from_valid(~lost, lambda a: R.from_euler(seq, a, degrees=degrees), eul)
+            source = f"euler {seq} {'deg' if degrees else 'rad'} ({seq_source})"
+        pos[lost] = np.nan
+        quat[lost] = np.nan
+        info = {
+            "format": "qtm",
+            "layout": layout.layout,
+            "body": name,
+            "bodies": list(layout.blocks),
+            "length_unit": options.length_unit or "mm",
+            "rotation_source": source,
+            "rate_hz": rate,
+            "time_source": time_source,
+            "lost_frames": int(lost.sum()),
+            "file_version": (layout.header.get("FILE_VERSION") or [None])[0],
+            "events": [list(e) for e in layout.events],
+        }
+        if angles is not None:
+            info["angle_columns"] = angle_names
+        out.append(Trajectory(t=t, quat=quat, position=pos, name=name, source=str(path), info=info))
+    return out
+
+
+@reader_guard("a QTM 6D TSV file", _HINT)
+def describe(path, options: ReadOptions | None = None) -> dict:
+    """Plain-data summary for ``rbgp inspect`` (header fields, bodies, units, rotation, frames, rate),
+    without parsing the numbers."""
+    options = options or ReadOptions()
+    layout = _Layout(path, read_text(path))
+    bodies = {}
+    for name, fields in layout.blocks.items():
+        rot, angles, seq, seq_source, angle_names = layout.rotation_plan(fields, options)
+        bodies[name] = {
+            "rotation": "Rot[] matrix (column-major)" if rot is not None else (
+                f"euler {seq} ({seq_source})" if seq else "unknown (use --euler-order)"),
+            "angle_columns": angle_names,
+        }
+    return {
+        "format": "qtm",
+        "layout": layout.layout,
+        "header": {k: (v[0] if len(v) == 1 else v) for k, v in layout.header.items()},
+        "events": layout.events,
+        "bodies": list(layout.blocks),
+        "body_details": bodies,
+        "time_columns": [c for c in layout.meta],
+        "length_unit": options.length_unit or "mm",
+        "angle_unit": "deg",
+        "frames": len(layout.data),
+        "rate_hz": layout.frequency() or options.rate,
+    }
