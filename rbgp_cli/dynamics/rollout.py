@@ -1,0 +1,164 @@
+"""Rollouts: new motions from start poses by single-step mean prediction (MATH.md §8, paper sec. 4.3).
+
+From start poses g_0 (B of them, advanced together):
+
+    ξ_k = μ(g_k),      g_{k+1} = step(g_k, ξ_k, Δt)   (exp map for axis-angle, addition for baselines)
+
+All B trajectories share one kernel block per step (B × n), not one per trajectory. Uncertainty:
+the latent predictive standard deviation σ(g_k) of every output along each mean trajectory, and
+optionally K Monte Carlo rollouts per start that draw ξ_k ~ N(μ(g_k), σ²(g_k)) each step from a
+seeded rng.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from rbgp_cli.dynamics.trajectory import Trajectory
+from rbgp_cli.errors import InputError, RbgpRuntimeError
+from rbgp_cli.geometry.so3 import quat_make_continuous, quat_normalize
+
+__all__ = ["RolloutResult", "rollout", "rollout_one_at_a_time", "starts_near"]
+
+
+@dataclass
+class RolloutResult:
+    """Rolled-out trajectories.
+
+    t : (S+1,) seconds from the start
+    quat : (B, S+1, 4) x, y, z, w (sign-continuous along time); position : (B, S+1, 3) metres
+    std : (B, S+1, L) latent predictive std of each output at each state, or None
+    output_names : names of the L outputs (e.g. wx ... vz)
+    sample_quat : (B, K, S+1, 4) and sample_position : (B, K, S+1, 3) Monte Carlo rollouts, or None
+    """
+
+    t: np.ndarray
+    quat: np.ndarray
+    position: np.ndarray
+    std: np.ndarray | None
+    output_names: tuple
+    sample_quat: np.ndarray | None = None
+    sample_position: np.ndarray | None = None
+
+    @property
+    def count(self) -> int:
+        return self.quat.shape[0]
+
+    def trajectories(self, include_samples: bool = False) -> list[Trajectory]:
+        """The mean rollouts (names ``0``, ``1``, …) and, optionally, the samples (``0.s0``, …)."""
+        out = [Trajectory(self.t, self.quat[b], self.position[b], name=str(b)) for b in range(self.count)]
+        if include_samples and self.sample_quat is not None:
+            for b in range(self.count):
+                for k in range(self.sample_quat.shape[1]):
+                    out.append(Trajectory(self.t, self.sample_quat[b, k], self.sample_position[b, k], name=f"{b}.s{k}"))
+        return out
+
+
+def _check_finite(state, step):
+    if not np.all(np.isfinite(state)):
+        raise RbgpRuntimeError(f"the rollout diverged (non-finite state) at step {step}", hint="check the model with rbgp info")
+
+
+def rollout(model, start_quat, start_position, steps: int, dt: float | None = None, *, samples: int = 0,
+            seed: int = 0, with_std: bool = True, progress=None) -> RolloutResult:
+    """Roll out ``model`` (a :class:`~rbgp_cli.dynamics.model.MotionModel`) from B start poses.
+
+    Parameters
+    ----------
+    start_quat : (B, 4) x, y, z, w;  start_position : (B, 3) metres
+    steps : number of integration steps S (the result has S + 1 samples)
+    dt : step in seconds (default: the model's, i.e. the demonstrations' median time step)
+    samples : K Monte Carlo rollouts per start (ξ drawn from the latent predictive Gaussian each step)
+    seed : seeds the Monte Carlo draws
+    with_std : record the predictive std along the mean trajectories (costs one triangular solve per
+        step; switch off for speed)
+    """
+    rep, gp = model.representation, model.gp
+    dt = float(model.dt if dt is None else dt)
+    if not np.isfinite(dt) or dt <= 0:
+        raise InputError(f"--dt must be a positive number of seconds, got {dt}")
+    steps = int(steps)
+    if steps < 1:
+        raise InputError(f"--steps must be at least 1, got {steps}")
+    q0 = quat_normalize(np.asarray(start_quat, dtype=np.float64).reshape(-1, 4))
+    p0 = np.asarray(start_position, dtype=np.float64).reshape(-1, 3)
+    B, K = len(q0), int(samples)
+    state = rep.state_from_pose(q0, p0)
+    d = state.shape[1]
+    L = gp.n_outputs
+    states = np.empty((steps + 1, B, d))
+    states[0] = state
+    std = np.empty((steps + 1, B, L)) if with_std else None
+    rng = np.random.default_rng(seed)
+    if K > 0:
+        sstate = np.repeat(state, K, axis=0)  # (B*K, d), sample k of start b at row b*K + k
+        sstates = np.empty((steps + 1, B * K, d))
+        sstates[0] = sstate
+    for k in range(steps + 1):
+        last = k == steps
+        if with_std:
+            mu, sd = gp.predict(state, return_std=True)
+            std[k] = sd
+        elif not last:
+            mu = gp.predict(state)
+        if not last:
+            state = rep.step(state, mu, dt)
+            _check_finite(state, k + 1)
+            states[k + 1] = state
+            if K > 0:
+                smu, ssd = gp.predict(sstate, return_std=True)
+                sstate = rep.step(sstate, smu + ssd * rng.standard_normal(smu.shape), dt)
+                _check_finite(sstate, k + 1)
+                sstates[k + 1] = sstate
+        if progress is not None and (k % 100 == 0 or last):
+            progress(k, steps)
+    quat, pos = rep.pose_from_state(states.reshape(-1, d))
+    quat = quat_make_continuous(quat.reshape(steps + 1, B, 4).transpose(1, 0, 2))
+    pos = pos.reshape(steps + 1, B, 3).transpose(1, 0, 2)
+    res = RolloutResult(
+        t=np.arange(steps + 1) * dt, quat=quat, position=pos,
+        std=None if std is None else std.transpose(1, 0, 2), output_names=tuple(rep.output_names),
+    )
+    if K > 0:
+        sq, sp = rep.pose_from_state(sstates.reshape(-1, d))
+        res.sample_quat = quat_make_continuous(sq.reshape(steps + 1, B, K, 4).transpose(1, 2, 0, 3))
+        res.sample_position = sp.reshape(steps + 1, B, K, 3).transpose(1, 2, 0, 3)
+    return res
+
+
+def rollout_one_at_a_time(model, start_quat, start_position, steps: int, dt: float | None = None) -> RolloutResult:
+    """The unbatched reference: each start rolled out alone (for benchmarks and tests)."""
+    parts = [rollout(model, q[None], p[None], steps, dt, with_std=False) for q, p in zip(start_quat, start_position)]
+    return RolloutResult(parts[0].t, np.concatenate([r.quat for r in parts]), np.concatenate([r.position for r in parts]),
+                         None, parts[0].output_names)
+
+
+def starts_near(starts: np.ndarray, count: int, spread: float, seed: int = 0, spread_rot: float | None = None):
+    """``count`` start poses near the given ones (paper sec. 4.3: 100 unseen starts near the demos').
+
+    Each new start takes a demonstration start (cycling through them in a seeded random order) and
+    perturbs it: translation by N(0, spread²) per axis (metres), rotation by exp of a N(0, s_r²)
+    rotation vector with s_r = spread_rot (radians; default spread / 0.3 m × 0.1 rad, i.e. about
+    0.1 rad per 0.3 m of translation spread, matching the scale of human start-pose variation).
+
+    starts : (D, 7) = (qx, qy, qz, qw, x, y, z). Returns (quat (count, 4), position (count, 3)).
+    """
+    from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
+
+    starts = np.asarray(starts, dtype=np.float64).reshape(-1, 7)
+    if len(starts) == 0:
+        raise InputError("no start poses to draw from")
+    if count < 1:
+        raise InputError(f"--count must be at least 1, got {count}")
+    if spread < 0:
+        raise InputError(f"--start-spread must be >= 0, got {spread}")
+    rng = np.random.default_rng(seed)
+    s_r = spread / 0.3 * 0.1 if spread_rot is None else spread_rot
+    order = np.concatenate([rng.permutation(len(starts)) for _ in range(-(-count // len(starts)))])[:count]
+    base = starts[order]
+    dq = exp_quat(rng.normal(0.0, 1.0, (count, 3)) * s_r)
+    q = quat_multiply(dq, base[:, :4])
+    p = base[:, 4:] + rng.normal(0.0, 1.0, (count, 3)) * spread
+    return q, p
