@@ -1,0 +1,178 @@
+"""Model files: one ``.npz`` (zip) of plain arrays plus a JSON header. No pickle, no code.
+
+Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
+
+* ``header``: UTF-8 JSON as a uint8 array — format, version, rbgp version, creation time (UTC),
+  representation, kernel, per-output hyperparameters and fit diagnostics, shared mode, time step,
+  training summary, provenance (input names and SHA-256, options), and the SHA-256 of every array.
+* ``X`` (n, d) training inputs, ``Y`` (n, L) outputs, ``y_scale`` (L,), ``starts`` (D, 7),
+  ``durations`` (D,).
+
+Loading uses ``allow_pickle=False``, checks the format name and version, verifies every checksum,
+rebuilds the GP and re-runs its Cholesky factorisation. Any failure is an :class:`InputError`
+naming the file and what to do. Files are written atomically (temporary name, then rename).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+import zipfile
+import zlib
+
+import numpy as np
+
+from rbgp_cli import __version__
+from rbgp_cli.errors import InputError, RbgpError
+from rbgp_cli.io.atomic import atomic_open
+
+__all__ = ["FORMAT", "FORMAT_VERSION", "save_model", "load_model", "file_sha256", "array_sha256"]
+
+FORMAT = "rbgp-model"
+FORMAT_VERSION = 1
+_ARRAYS = ("X", "Y", "y_scale", "starts", "durations")
+
+
+def array_sha256(a: np.ndarray) -> str:
+    """SHA-256 of an array's dtype, shape and little-endian C-ordered bytes."""
+    a = np.ascontiguousarray(a)
+    h = hashlib.sha256()
+    h.update(str(a.dtype.newbyteorder("<") if a.dtype.byteorder == ">" else a.dtype).encode())
+    h.update(str(a.shape).encode())
+    h.update(a.astype(a.dtype.newbyteorder("<"), copy=False).tobytes())
+    return h.hexdigest()
+
+
+def file_sha256(path) -> str:
+    """SHA-256 of a file's bytes (for provenance)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, (np.floating,)):
+        return float(x)
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, (np.bool_,)):
+        return bool(x)
+    return x
+
+
+def save_model(model, path) -> dict:
+    """Write a :class:`~rbgp_cli.dynamics.model.MotionModel` to ``path`` atomically; returns the header."""
+    gp = model.gp
+    arrays = {
+        "X": np.ascontiguousarray(gp.X, dtype=np.float64),
+        "Y": np.ascontiguousarray(gp.Y, dtype=np.float64),
+        "y_scale": np.ascontiguousarray(gp.y_scale, dtype=np.float64),
+        "starts": np.ascontiguousarray(model.starts, dtype=np.float64).reshape(-1, 7),
+        "durations": np.ascontiguousarray(model.durations, dtype=np.float64).reshape(-1),
+    }
+    header = {
+        "format": FORMAT,
+        "version": FORMAT_VERSION,
+        "rbgp_version": __version__,
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "representation": model.representation.to_dict(),
+        "kernel": gp.kernel.to_dict(),
+        "shared": bool(gp.shared),
+        "fits": [f.to_dict() for f in gp.fits],
+        "dt": float(model.dt),
+        "input_names": list(model.representation.input_names),
+        "output_names": list(model.representation.output_names),
+        "summary": _jsonable(model.summary),
+        "provenance": _jsonable(model.provenance),
+        "checksums": {k: array_sha256(v) for k, v in arrays.items()},
+    }
+    raw = json.dumps(header, sort_keys=True, allow_nan=True).encode("utf-8")
+    with atomic_open(path, "wb") as fh:
+        np.savez_compressed(fh, header=np.frombuffer(raw, dtype=np.uint8), **arrays)
+    return header
+
+
+def _bad(path, what, hint="retrain it with rbgp train or restore it from a backup"):
+    return InputError(what, path=str(path), hint=hint)
+
+
+def read_header(path) -> tuple[dict, dict]:
+    """Header and arrays of a model file, verified (format, version, checksums); no GP rebuilt."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            names = set(z.files)
+            if "header" not in names:
+                raise _bad(path, "not an rbgp model file (no header)", "pass a file written by rbgp train")
+            header_bytes = z["header"].tobytes()
+            arrays = {k: z[k] for k in _ARRAYS if k in names}
+    except RbgpError:
+        raise
+    except FileNotFoundError:
+        raise InputError("model file not found", path=str(path), hint="check the path") from None
+    except IsADirectoryError:
+        raise InputError("is a directory, not a model file", path=str(path)) from None
+    except (zipfile.BadZipFile, zlib.error, EOFError, ValueError, OSError, KeyError, TypeError) as exc:
+        raise _bad(path, f"not a readable rbgp model file ({type(exc).__name__}: {str(exc)[:80]})") from None
+    try:
+        header = json.loads(header_bytes.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError):
+        raise _bad(path, "the model header is damaged") from None
+    if not isinstance(header, dict) or header.get("format") != FORMAT:
+        raise _bad(path, "not an rbgp model file", "pass a file written by rbgp train")
+    version = header.get("version")
+    if not isinstance(version, int):
+        raise _bad(path, "the model header has no valid format version")
+    if version > FORMAT_VERSION:
+        raise InputError(
+            f"model format version {version} is newer than this rbgp supports ({FORMAT_VERSION})",
+            path=str(path), hint="upgrade rbgp (pip install -U rbgp-cli)",
+        )
+    if version < 1:
+        raise _bad(path, f"unknown model format version {version}")
+    sums = header.get("checksums") or {}
+    for name in _ARRAYS:
+        if name not in arrays:
+            raise _bad(path, f"array {name!r} is missing from the model file")
+        if sums.get(name) != array_sha256(arrays[name]):
+            raise _bad(path, f"checksum mismatch in array {name!r}: the file is corrupted")
+    return header, arrays
+
+
+def load_model(path):
+    """Load and verify a model file; returns a :class:`~rbgp_cli.dynamics.model.MotionModel`."""
+    from rbgp_cli.dynamics.model import MotionModel
+    from rbgp_cli.dynamics.representations import representation_from_dict
+    from rbgp_cli.gp.exact import GaussianProcess, OutputFit
+    from rbgp_cli.kernels import kernel_from_dict
+
+    header, arrays = read_header(path)
+    try:
+        rep = representation_from_dict(header["representation"])
+        kernel = kernel_from_dict(header["kernel"])
+        fits = [OutputFit.from_dict(f) for f in header["fits"]]
+        X, Y = arrays["X"], arrays["Y"]
+        if X.ndim != 2 or Y.ndim != 2 or len(X) != len(Y) or X.shape[1] != len(rep.input_names) or Y.shape[1] != len(rep.output_names):
+            raise ValueError("array shapes disagree with the representation")
+        if len(fits) != (1 if header["shared"] else Y.shape[1]):
+            raise ValueError("number of fitted outputs disagrees with the data")
+        if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
+            raise ValueError("non-finite training data")
+        gp = GaussianProcess(kernel, X, Y, fits, shared=header["shared"], y_scale=arrays["y_scale"])
+        dt = float(header["dt"])
+        if not (np.isfinite(dt) and dt > 0):
+            raise ValueError("invalid time step")
+    except RbgpError as exc:
+        raise _bad(path, f"the model cannot be rebuilt: {exc.message}") from None
+    except (KeyError, TypeError, ValueError, IndexError) as exc:
+        raise _bad(path, f"the model header is inconsistent ({type(exc).__name__}: {str(exc)[:80]})") from None
+    return MotionModel(rep, gp, dt, arrays["starts"], arrays["durations"],
+                       summary=header.get("summary", {}), provenance=header.get("provenance", {})), header
