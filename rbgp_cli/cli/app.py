@@ -1,0 +1,372 @@
+"""The ``rbgp`` command line: parse, call one library function (:mod:`rbgp_cli.workflows`), print.
+
+stdout carries data (CSV or JSON); progress, warnings and errors go to stderr. Exit codes: 0 ok,
+1 runtime failure, 2 bad usage or bad input. Heavy libraries are imported inside the commands.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Annotated, List, Optional
+
+import typer
+
+from rbgp_cli import __version__
+from rbgp_cli.cli.common import (
+    BodyOpt, ColumnsOpt, DegreesOpt, EulerOrderOpt, FormatOpt, FrameOpt, LengthUnitOpt, MaxGapOpt,
+    QuatOrderOpt, RateOpt, RotationOpt, TimeSourceOpt, TimeUnitOpt, TopicOpt, command, emit_json,
+    progress, read_options, set_quiet, write_text_output,
+)
+
+app = typer.Typer(
+    name="rbgp",
+    help="Learn rigid-body motion from motion-capture demonstrations with the rigid-body Gaussian "
+    "process (Lang & Hirche), generate new motions, and score them against the demonstrations.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+_TRAIN = "Model"
+_OUT = "Output"
+
+
+def _version(value: bool):
+    if value:
+        print(f"rbgp {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    version: Annotated[bool, typer.Option("--version", "-V", callback=_version, is_eager=True, help="Print the version.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress messages on stderr (warnings and errors still).")] = False,
+):
+    set_quiet(quiet)
+
+
+# ---------------------------------------------------------------------------------------------- train
+@app.command()
+@command
+def train(
+    demos: Annotated[List[str], typer.Argument(help="Demonstration files or directories ('-' reads a CSV from stdin).")],
+    output: Annotated[str, typer.Option("--output", "-o", help="Model file to write (written atomically).", rich_help_panel=_OUT)],
+    representation: Annotated[str, typer.Option(help="axis-angle (the paper's rigid-body GP), euler or quaternion.", rich_help_panel=_TRAIN)] = "axis-angle",
+    kernel: Annotated[str, typer.Option(help="se (paper eq. 24), se-chordal (always positive definite) or dot (eq. 22).", rich_help_panel=_TRAIN)] = "se",
+    rho_rot: Annotated[str, typer.Option("--rho-rot", help="Rotation weight ρ1 of eq. 19 in (0, 1), or 'learn'.", rich_help_panel=_TRAIN)] = "0.7",
+    restarts: Annotated[int, typer.Option(min=1, help="Optimiser starts per output (the data-driven one plus random ones).", rich_help_panel=_TRAIN)] = 3,
+    seed: Annotated[int, typer.Option(help="Seed for subsampling and random starts.", rich_help_panel=_TRAIN)] = 0,
+    noise: Annotated[str, typer.Option(help="'learn', or a fixed noise standard deviation (the paper fixes 1).", rich_help_panel=_TRAIN)] = "learn",
+    share_hyperparameters: Annotated[bool, typer.Option("--share-hyperparameters", help="One set of hyperparameters for all outputs (faster).", rich_help_panel=_TRAIN)] = False,
+    subsample: Annotated[float, typer.Option(help="Random fraction of the training pairs to use (the paper: 0.1).", rich_help_panel=_TRAIN)] = 0.1,
+    max_points: Annotated[int, typer.Option(min=2, help="At most this many training points.", rich_help_panel=_TRAIN)] = 2000,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the summary as JSON on stdout.", rich_help_panel=_OUT)] = False,
+    rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd) of the demonstrations and training points.", rich_help_panel=_OUT)] = None,
+    up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.", rich_help_panel=_OUT)] = "z",
+    fmt: FormatOpt = "auto", columns: ColumnsOpt = None, quat_order: QuatOrderOpt = None, euler_order: EulerOrderOpt = None,
+    degrees: DegreesOpt = None, length_unit: LengthUnitOpt = None, time_unit: TimeUnitOpt = None, rate: RateOpt = None,
+    topic: TopicOpt = None, frame: FrameOpt = None, time_source: TimeSourceOpt = "header", body: BodyOpt = None,
+    rotation: RotationOpt = None, max_gap: MaxGapOpt = None,
+):
+    """Train a motion model on demonstrations.
+
+    Example: rbgp train sample_data/csv -o shoe.rbgp
+    """
+    from rbgp_cli import workflows
+    from rbgp_cli.errors import InputError
+
+    opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation)
+    rho = rho_rot if rho_rot == "learn" else _float(rho_rot, "--rho-rot")
+    noise_v = None if noise == "learn" else _float(noise, "--noise")
+    if noise_v is not None and not noise_v > 0:
+        raise InputError(f"--noise must be 'learn' or a positive number, got {noise}")
+    if up not in ("z", "y"):
+        raise InputError(f"--up must be z or y, got {up!r}")
+    model, header, trajs = workflows.train_from_files(
+        demos, output, options=opts, max_gap=max_gap, progress=progress,
+        representation=representation, kernel=kernel, rho_rot=rho, restarts=restarts, seed=seed, noise=noise_v,
+        shared=share_hyperparameters, subsample=subsample, max_points=max_points,
+    )
+    if rerun:
+        from rbgp_cli.viz.recording import record_training
+
+        record_training(rerun, trajs, model, up=up)
+        progress(f"wrote {rerun}")
+    summary = dict(model.summary)
+    summary["model"] = output
+    if json_out:
+        emit_json(summary)
+    else:
+        from rbgp_cli.cli.report import format_train_summary
+
+        print(format_train_summary(summary), file=sys.stderr)
+
+
+def _float(text: str, flag: str) -> float:
+    from rbgp_cli.errors import InputError
+
+    try:
+        v = float(text)
+    except ValueError:
+        raise InputError(f"{flag} must be a number, got {text!r}") from None
+    if v != v or v in (float("inf"), float("-inf")):
+        raise InputError(f"{flag} must be finite, got {text!r}")
+    return v
+
+
+# ---------------------------------------------------------------------------------------------- info
+@app.command()
+@command
+def info(
+    model: Annotated[str, typer.Argument(help="Model file written by rbgp train.")],
+    json_out: Annotated[bool, typer.Option("--json", help="Print the header as JSON.")] = False,
+):
+    """Show what a model file holds and how it was made (verifies its checksums)."""
+    from rbgp_cli.io.model_store import read_header
+
+    header, arrays = read_header(model)
+    header = dict(header)
+    header["training_points"] = int(arrays["X"].shape[0])
+    if json_out:
+        emit_json(header)
+    else:
+        from rbgp_cli.cli.report import format_model_info
+
+        print(format_model_info(model, header))
+
+
+# ---------------------------------------------------------------------------------------------- predict
+@app.command()
+@command
+def predict(
+    model: Annotated[str, typer.Argument(help="Model file.")],
+    poses: Annotated[str, typer.Argument(help="CSV of poses (any pose columns the reader knows; '-' for stdin).")],
+    output: Annotated[Optional[str], typer.Option("--output", "-o", help="CSV to write (default: stdout).")] = None,
+    noisy: Annotated[bool, typer.Option("--noisy", help="Std of a new noisy observation instead of the latent function's.")] = False,
+    quat_order: QuatOrderOpt = None, length_unit: LengthUnitOpt = None, columns: ColumnsOpt = None,
+    euler_order: EulerOrderOpt = None, degrees: DegreesOpt = None,
+):
+    """Predict the velocity (mean and standard deviation) at each pose of a CSV file."""
+    from rbgp_cli import workflows
+    from rbgp_cli.io.model_store import load_model
+
+    m, _ = load_model(model)
+    opts = read_options("csv", columns, quat_order, euler_order, degrees, length_unit, None, 1.0)
+    q, p = workflows.read_start_poses(poses, opts) if poses != "-" else _stdin_poses(opts)
+    mean, std = m.predict(q, p, return_std=True, noisy=noisy)
+    names = list(m.representation.output_names)
+
+    def write(fh):
+        fh.write(",".join(["x", "y", "z", "qx", "qy", "qz", "qw"] + [f"mean_{n}" for n in names] + [f"std_{n}" for n in names]) + "\n")
+        for row in zip(p, q, mean, std):
+            fh.write(",".join(repr(float(v)) for part in row for v in part) + "\n")
+
+    write_text_output(output, write)
+
+
+def _stdin_poses(opts):
+    import numpy as np
+
+    from rbgp_cli.io.read import read_demonstrations
+
+    trajs = read_demonstrations(["-"], opts)
+    return np.concatenate([t.quat for t in trajs]), np.concatenate([t.position for t in trajs])
+
+
+# ---------------------------------------------------------------------------------------------- rollout
+@app.command()
+@command
+def rollout(
+    model: Annotated[str, typer.Argument(help="Model file.")],
+    start: Annotated[Optional[List[str]], typer.Option("--start", help='Start pose "rx ry rz x y z" (rad, m); repeatable.')] = None,
+    starts: Annotated[Optional[str], typer.Option("--starts", help="CSV of start poses, one per row.")] = None,
+    from_demos: Annotated[Optional[List[str]], typer.Option("--from-demos", help="Draw starts near these demonstrations' start poses (repeatable; directories and globs allowed).")] = None,
+    count: Annotated[int, typer.Option(min=1, help="Number of starts drawn near the demonstrations' (or the model's stored) start poses.")] = 1,
+    start_spread: Annotated[float, typer.Option("--start-spread", min=0.0, help="Std of the start perturbation in metres (rotation: 0.1 rad per 0.3 m).")] = 0.02,
+    steps: Annotated[Optional[int], typer.Option(min=1, help="Integration steps (default: the demonstrations' median duration / dt).")] = None,
+    duration: Annotated[Optional[float], typer.Option(help="Duration in seconds instead of --steps.")] = None,
+    dt: Annotated[Optional[float], typer.Option(help="Time step in seconds (default: the model's).")] = None,
+    samples: Annotated[int, typer.Option(min=0, help="Monte Carlo rollouts per start, drawing velocities from the predictive Gaussian.")] = 0,
+    seed: Annotated[int, typer.Option(help="Seed for start perturbations and Monte Carlo draws.")] = 0,
+    no_std: Annotated[bool, typer.Option("--no-std", help="Skip the predictive standard deviations (faster).")] = False,
+    output: Annotated[Optional[str], typer.Option("--output", "-o", help="CSV to write ('-' or omitted: stdout).")] = None,
+    json_out: Annotated[bool, typer.Option("--json", help="Print a JSON summary on stdout (requires -o FILE).")] = False,
+    rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd).")] = None,
+    up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.")] = "z",
+):
+    """Generate new motions from start poses by single-step mean prediction (MATH.md §8).
+
+    Example: rbgp rollout shoe.rbgp --count 100 --samples 5 -o rollouts.csv
+    """
+    import numpy as np
+
+    from rbgp_cli import workflows
+    from rbgp_cli.dynamics.rollout import starts_near
+    from rbgp_cli.errors import InputError
+    from rbgp_cli.io.csv import write_trajectories_csv
+    from rbgp_cli.io.model_store import load_model
+
+    if json_out and (output is None or output == "-"):
+        raise InputError("--json prints a summary on stdout, so the CSV needs -o FILE")
+    if steps is not None and duration is not None:
+        raise InputError("give --steps or --duration, not both")
+    m, _ = load_model(model)
+    qs, ps = [], []
+    for s in start or []:
+        q, p = workflows.parse_pose(s)
+        qs.append(q[None])
+        ps.append(p[None])
+    if starts:
+        q, p = workflows.read_start_poses(starts)
+        qs.append(q)
+        ps.append(p)
+    if from_demos:
+        demos, _, _ = workflows.load_demonstrations(from_demos)
+        base = np.array([np.concatenate([t.quat[0], t.position[0]]) for t in demos])
+        q, p = starts_near(base, count, start_spread, seed=seed)
+        qs.append(q)
+        ps.append(p)
+    if not qs:
+        q, p = starts_near(m.starts, count, start_spread, seed=seed) if count > 1 or start_spread > 0 else (m.starts[:1, :4], m.starts[:1, 4:])
+        qs.append(q)
+        ps.append(p)
+        progress(f"no start given: {len(q)} start(s) near the demonstrations' start poses stored in the model")
+    q0, p0 = np.concatenate(qs), np.concatenate(ps)
+    res = workflows.rollout_model(m, q0, p0, steps=steps, duration=duration, dt=dt, samples=samples, seed=seed,
+                                  with_std=not no_std, progress=lambda k, n: progress(f"step {k}/{n}"))
+    trajs = res.trajectories(include_samples=samples > 0)
+    extra = None
+    if res.std is not None:
+        B = res.count
+        nan = np.full_like(res.std[0], np.nan)
+        per = [res.std[b] for b in range(B)] + [nan for _ in range(len(trajs) - B)]
+        extra = {f"std_{n}": [a[:, j] for a in per] for j, n in enumerate(res.output_names)}
+    write_text_output(output, lambda fh: write_trajectories_csv(trajs, fh, extra=extra))
+    if rerun:
+        from rbgp_cli.viz.recording import record_rollout
+
+        record_rollout(rerun, res, up=up)
+        progress(f"wrote {rerun}")
+    if json_out:
+        emit_json({"trajectories": res.count, "samples_per_start": samples, "steps": len(res.t) - 1,
+                   "dt": float(res.t[1] - res.t[0]), "output": output, "std": res.std is not None})
+
+
+# ---------------------------------------------------------------------------------------------- evaluate
+@app.command()
+@command
+def evaluate(
+    generated: Annotated[Optional[List[str]], typer.Argument(help="Generated trajectories (CSV from rbgp rollout; '-' for stdin).")] = None,
+    demos: Annotated[Optional[List[str]], typer.Option("--demos", help="Demonstration files or directories (repeatable).")] = None,
+    model: Annotated[Optional[str], typer.Option("--model", help="Generate --count trajectories from this model like the paper instead.")] = None,
+    count: Annotated[int, typer.Option(min=1, help="With --model: number of rollouts from starts near the demonstrations'.")] = 100,
+    start_spread: Annotated[float, typer.Option("--start-spread", min=0.0, help="With --model: start perturbation std in metres.")] = 0.02,
+    seed: Annotated[int, typer.Option(help="With --model: seed of the start perturbations.")] = 0,
+    length: Annotated[Optional[int], typer.Option(min=2, help="Resample every trajectory to this many steps (default: the demonstrations' median).")] = None,
+    covariance: Annotated[str, typer.Option(help="Per-step Gaussians with diag (mean and variance per dimension) or full covariance.")] = "diag",
+    per_step: Annotated[Optional[str], typer.Option("--per-step", help="Write the per-step series to this CSV.")] = None,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the scores as JSON on stdout.")] = False,
+    rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd).")] = None,
+    plot: Annotated[Optional[str], typer.Option("--plot", help="Also write a figure (PNG) like the paper's Fig. 4/5.")] = None,
+    compare: Annotated[Optional[str], typer.Option("--compare", help="With --plot: generated trajectories of a second model (CSV) drawn in another colour.")] = None,
+    up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.")] = "z",
+    fmt: FormatOpt = "auto", columns: ColumnsOpt = None, quat_order: QuatOrderOpt = None, euler_order: EulerOrderOpt = None,
+    degrees: DegreesOpt = None, length_unit: LengthUnitOpt = None, time_unit: TimeUnitOpt = None, rate: RateOpt = None,
+    topic: TopicOpt = None, frame: FrameOpt = None, time_source: TimeSourceOpt = "header", body: BodyOpt = None,
+    rotation: RotationOpt = None, max_gap: MaxGapOpt = None,
+):
+    """Score generated trajectories against demonstrations: per-step Bhattacharyya distance (MATH.md §9).
+
+    Example: rbgp rollout shoe.rbgp --count 100 -o - | rbgp evaluate - --demos sample_data/csv
+    """
+    from rbgp_cli import workflows
+    from rbgp_cli.errors import InputError
+
+    if not demos:
+        raise InputError("no demonstrations given", hint="pass --demos FILE_OR_DIR")
+    if covariance not in ("diag", "full"):
+        raise InputError(f"--covariance must be diag or full, got {covariance!r}")
+    if model is not None and generated:
+        raise InputError("give generated trajectories or --model, not both")
+    opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation)
+    m = None
+    if model is not None:
+        from rbgp_cli.io.model_store import load_model
+
+        m, _ = load_model(model)
+    result, gen, dem = workflows.evaluate_files(generated or [], demos, options=opts, max_gap=max_gap, length=length,
+                                                covariance=covariance, model=m, count=count, spread=start_spread, seed=seed)
+    if per_step:
+        from rbgp_cli.cli.report import write_per_step
+
+        write_text_output(per_step, lambda fh: write_per_step(result, fh))
+    if rerun:
+        from rbgp_cli.viz.recording import record_evaluation
+
+        record_evaluation(rerun, result, gen, dem, up=up)
+        progress(f"wrote {rerun}")
+    if plot:
+        from rbgp_cli.viz.plots import plot_evaluation
+
+        other = None
+        if compare:
+            other, _, _ = workflows.load_demonstrations([compare])
+        plot_evaluation(plot, result, gen, dem, compare=other)
+        progress(f"wrote {plot}")
+    if json_out:
+        emit_json(result.to_dict())
+    else:
+        b = result.to_dict()["bhattacharyya"]
+        print(f"bhattacharyya mean {b['mean']:.4f}  rotation {b['rotation']:.4f}  translation {b['translation']:.4f}"
+              f"  ({result.steps} steps, {result.n_generated} generated, {result.n_demos} demonstrations)")
+
+
+# ---------------------------------------------------------------------------------------------- inspect
+@app.command()
+@command
+def inspect(
+    files: Annotated[List[str], typer.Argument(help="Files to describe ('-' for stdin).")],
+    json_out: Annotated[bool, typer.Option("--json", help="Print the description as JSON.")] = False,
+    fmt: FormatOpt = "auto", columns: ColumnsOpt = None, quat_order: QuatOrderOpt = None, euler_order: EulerOrderOpt = None,
+    degrees: DegreesOpt = None, length_unit: LengthUnitOpt = None, time_unit: TimeUnitOpt = None, rate: RateOpt = None,
+    topic: TopicOpt = None, frame: FrameOpt = None, time_source: TimeSourceOpt = "header", body: BodyOpt = None,
+    rotation: RotationOpt = None,
+):
+    """Describe what files hold (columns or topics, rate, duration, gaps, units) without training."""
+    from rbgp_cli.io.inspect import format_inspect, inspect_file
+    from rbgp_cli.workflows import expand_paths
+
+    opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation)
+    results = [inspect_file(f, opts) for f in expand_paths(files)]
+    if json_out:
+        emit_json(results if len(results) != 1 else results[0])
+    else:
+        print("\n\n".join(format_inspect(r) for r in results))
+
+
+# ---------------------------------------------------------------------------------------------- demo
+@app.command()
+@command
+def demo(
+    out: Annotated[str, typer.Option("--out", help="Directory for the models, rollouts and per-step scores.")] = "rbgp-demo",
+    count: Annotated[int, typer.Option(min=1, help="Rollouts per representation.")] = 100,
+    representations: Annotated[str, typer.Option(help="Comma-separated representations to compare.")] = "axis-angle,euler,quaternion",
+    json_out: Annotated[bool, typer.Option("--json", help="Print the scores as JSON on stdout.")] = False,
+):
+    """Run the main job on the bundled sample data: train → rollout → evaluate for each representation,
+    and print the Bhattacharyya scores (lower is closer to the demonstrations)."""
+    from rbgp_cli.demo import run_demo
+
+    scores = run_demo(out, count=count, representations=[r.strip() for r in representations.split(",") if r.strip()], progress=progress)
+    if json_out:
+        emit_json(scores)
+    else:
+        print(f"{'representation':<14} {'mean':>8} {'rotation':>9} {'translation':>12}  train_s  rollout_s")
+        for rep, s in scores["representations"].items():
+            b = s["bhattacharyya"]
+            print(f"{rep:<14} {b['mean']:8.3f} {b['rotation']:9.3f} {b['translation']:12.3f}  {s['train_seconds']:7.1f}  {s['rollout_seconds']:9.1f}")
+
+
+def main() -> None:
+    """Console-script entry point."""
+    app()

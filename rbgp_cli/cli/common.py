@@ -1,0 +1,182 @@
+"""What every command shares: error handling and exit codes, warnings and progress on stderr,
+read options, and writing data to a file or stdout. Imports only the standard library and typer at
+module level, so ``rbgp --help`` stays fast (no rerun, mcap, pandas or scipy.optimize)."""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+import sys
+import warnings
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+__all__ = ["command", "progress", "emit_json", "read_options", "ReadOpts", "write_text_output"]
+
+
+def _stderr(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+_QUIET = {"on": False}
+
+
+def set_quiet(value: bool) -> None:
+    _QUIET["on"] = bool(value)
+
+
+def progress(msg: str) -> None:
+    """A progress line on stderr (never stdout: stdout carries data)."""
+    if not _QUIET["on"]:
+        _stderr(f"rbgp: {msg}")
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    from rbgp_cli.errors import RbgpWarning
+
+    if issubclass(category, RbgpWarning):
+        _stderr(f"rbgp: warning: {message}")
+    elif not _QUIET["on"] and os.environ.get("RBGP_DEBUG"):
+        _stderr(f"rbgp: warning: {category.__name__}: {message}")
+
+
+def command(func):
+    """Wrap a command: rbgp errors become one line on stderr with their exit code (2 for bad input,
+    1 for runtime failures); any other exception is an internal error (exit 1, no traceback unless
+    RBGP_DEBUG=1). Library warnings of type RbgpWarning are printed as ``rbgp: warning: ...``."""
+
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        from rbgp_cli.errors import RbgpError, RbgpWarning
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", RbgpWarning)
+            warnings.simplefilter("ignore", DeprecationWarning)
+            warnings.showwarning = _show_warning
+            try:
+                return func(*args, **kwargs)
+            except typer.Exit:
+                raise
+            except RbgpError as exc:
+                _stderr(f"rbgp: error: {exc.format()}")
+                raise typer.Exit(exc.exit_code) from None
+            except KeyboardInterrupt:
+                _stderr("rbgp: interrupted")
+                raise typer.Exit(130) from None
+            except BrokenPipeError:
+                # the reader of our stdout went away (e.g. `| head`): not an error of ours
+                try:
+                    sys.stdout = open(os.devnull, "w")
+                except OSError:
+                    pass
+                raise typer.Exit(0) from None
+            except MemoryError:
+                _stderr("rbgp: error: out of memory; use --max-points or --subsample to train on fewer points")
+                raise typer.Exit(1) from None
+            except Exception as exc:  # noqa: BLE001 - the last line of defence: no tracebacks for users
+                if os.environ.get("RBGP_DEBUG"):
+                    raise
+                text = " ".join(str(exc).split())[:300]
+                _stderr(f"rbgp: internal error: {type(exc).__name__}: {text} (set RBGP_DEBUG=1 for a traceback)")
+                raise typer.Exit(1) from None
+
+    return wrapper
+
+
+def emit_json(obj) -> None:
+    """Write JSON to stdout (data), one document, newline-terminated."""
+    sys.stdout.write(json.dumps(obj, indent=2, sort_keys=False, default=_json_default, allow_nan=False) + "\n")
+    sys.stdout.flush()
+
+
+def _json_default(o):
+    import numpy as np
+
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def write_text_output(path: Optional[str], writer) -> None:
+    """Call ``writer(stream)`` on stdout (path None or '-') or on a file written atomically."""
+    if path is None or str(path) == "-":
+        writer(sys.stdout)
+        sys.stdout.flush()
+        return
+    from rbgp_cli.io.atomic import atomic_open
+
+    with atomic_open(path, "w", newline="", encoding="utf-8") as fh:
+        writer(fh)
+
+
+# ---------------------------------------------------------------------------------------------
+# Read options: one Annotated alias per flag, so every command that reads demonstrations spells them
+# the same way.
+_READ = "Reading demonstrations"
+FormatOpt = Annotated[str, typer.Option("--format", help="auto|csv|qtm|motive|vicon|mcap (auto sniffs the content).", rich_help_panel=_READ)]
+ColumnsOpt = Annotated[Optional[str], typer.Option("--columns", help="Explicit CSV column mapping, e.g. 't=stamp,qw=w,x=px'.", rich_help_panel=_READ)]
+QuatOrderOpt = Annotated[Optional[str], typer.Option("--quat-order", help="xyzw or wxyz, for quaternion columns named q0..q3.", rich_help_panel=_READ)]
+EulerOrderOpt = Annotated[Optional[str], typer.Option("--euler-order", help="Euler sequence, scipy style: xyz extrinsic, XYZ intrinsic.", rich_help_panel=_READ)]
+DegreesOpt = Annotated[Optional[bool], typer.Option("--degrees/--radians", help="Euler angles in degrees or radians (default: from the file).", rich_help_panel=_READ)]
+LengthUnitOpt = Annotated[Optional[str], typer.Option("--length-unit", help="m, cm or mm (default: from the file).", rich_help_panel=_READ)]
+TimeUnitOpt = Annotated[Optional[str], typer.Option("--time-unit", help="s, ms, us or ns (default: from the column name).", rich_help_panel=_READ)]
+RateOpt = Annotated[Optional[float], typer.Option("--rate", help="Sample rate in Hz when the file has no time column.", rich_help_panel=_READ)]
+TopicOpt = Annotated[Optional[str], typer.Option("--topic", help="MCAP topic (default: the only pose topic).", rich_help_panel=_READ)]
+FrameOpt = Annotated[Optional[str], typer.Option("--frame", help="Child frame of TF messages.", rich_help_panel=_READ)]
+TimeSourceOpt = Annotated[str, typer.Option("--time", help="MCAP time: header (message stamps) or log.", rich_help_panel=_READ)]
+BodyOpt = Annotated[Optional[str], typer.Option("--body", help="Rigid body / segment name in vendor exports ('all' for every body).", rich_help_panel=_READ)]
+RotationOpt = Annotated[Optional[str], typer.Option("--rotation", help="Vicon RX,RY,RZ: helical (axis-angle, default) or euler.", rich_help_panel=_READ)]
+MaxGapOpt = Annotated[Optional[float], typer.Option("--max-gap", help="Fill runs of lost frames up to this many seconds by slerp (default: drop them).", rich_help_panel=_READ)]
+
+
+def parse_columns(text: Optional[str]) -> Optional[dict]:
+    if not text:
+        return None
+    from rbgp_cli.errors import InputError
+
+    out = {}
+    for part in text.split(","):
+        if not part.strip():
+            continue
+        if "=" not in part:
+            raise InputError(f"--columns entry {part.strip()!r} is not KEY=NAME", hint="e.g. --columns t=stamp,qw=w")
+        k, v = part.split("=", 1)
+        out[k.strip()] = v.strip()
+    return out
+
+
+def read_options(fmt="auto", columns=None, quat_order=None, euler_order=None, degrees=None, length_unit=None,
+                 time_unit=None, rate=None, topic=None, frame=None, time_source="header", body=None, rotation=None):
+    """Validate the flags and build :class:`rbgp_cli.io.options.ReadOptions`."""
+    from rbgp_cli.errors import InputError
+    from rbgp_cli.io.options import FORMATS, LENGTH_UNITS, ReadOptions
+
+    if fmt not in FORMATS:
+        raise InputError(f"unknown --format {fmt!r}; expected one of {', '.join(FORMATS)}")
+    if quat_order is not None and quat_order.lower() not in ("xyzw", "wxyz"):
+        raise InputError(f"--quat-order must be xyzw or wxyz, got {quat_order!r}")
+    if length_unit is not None and length_unit not in LENGTH_UNITS:
+        raise InputError(f"--length-unit must be one of {', '.join(LENGTH_UNITS)}, got {length_unit!r}")
+    if time_unit is not None and time_unit not in ("s", "ms", "us", "ns"):
+        raise InputError(f"--time-unit must be s, ms, us or ns, got {time_unit!r}")
+    if rate is not None and not (rate > 0 and rate < float("inf")):
+        raise InputError(f"--rate must be a positive number of Hz, got {rate}")
+    if time_source not in ("header", "log"):
+        raise InputError(f"--time must be header or log, got {time_source!r}")
+    if rotation is not None and rotation not in ("helical", "euler"):
+        raise InputError(f"--rotation must be helical or euler, got {rotation!r}")
+    return ReadOptions(
+        format=fmt, columns=parse_columns(columns), quat_order=None if quat_order is None else quat_order.lower(),
+        euler_order=euler_order, degrees=degrees, length_unit=length_unit, time_unit=time_unit, rate=rate,
+        topic=topic, frame=frame, time_source=time_source, body=body, rotation=rotation,
+    )
+
+
+ReadOpts = dict  # marker for readability in signatures

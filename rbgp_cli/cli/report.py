@@ -1,0 +1,67 @@
+"""Human-readable summaries for stderr and the per-step CSV of ``rbgp evaluate``."""
+
+from __future__ import annotations
+
+__all__ = ["format_train_summary", "format_model_info", "write_per_step"]
+
+
+def _fmt_values(values: dict) -> str:
+    short = {"signal_std": "σf", "length_scale": "λ", "rho_rot": "ρ1", "noise_std": "σn"}
+    return "  ".join(f"{short.get(k, k)}={v:.4g}" for k, v in values.items())
+
+
+def format_train_summary(s: dict) -> str:
+    """Demos, pairs, points used, hyperparameters and NLML per output, safeguards, time."""
+    lines = [
+        f"model: {s.get('model', '')}  ({s['representation']}, kernel {s['kernel']}"
+        + (f", rotation metric {s['rotation_metric']}" if s.get("rotation_metric") else "") + ")",
+        f"demonstrations: {s['demos']}   pairs: {s['pairs']}   training points: {s['points']}"
+        f"   hyperparameters: {'shared' if s['shared_hyperparameters'] else 'per output'}",
+    ]
+    for o in s["outputs"]:
+        flags = []
+        if o["jitter"] > 0:
+            flags.append(f"jitter {o['jitter']:.2g}")
+        if not o["positive_definite"]:
+            flags.append("not PD without jitter")
+        if o["at_bounds"]:
+            flags.append("at bound: " + ",".join(o["at_bounds"]))
+        if o["n_infeasible"]:
+            flags.append(f"{o['n_infeasible']}/{o['n_evaluations']} evaluations infeasible")
+        lines.append(f"  {o['output']:<7} NLML {o['nlml']:11.4g}  {_fmt_values(o['values'])}" + (f"  [{'; '.join(flags)}]" if flags else ""))
+    sg = s["safeguards"]
+    lines.append(
+        f"safeguards: {'all covariances positive definite' if sg['all_positive_definite'] else 'jitter was needed'}"
+        f", {sg['infeasible_evaluations']} infeasible evaluations rejected"
+    )
+    lines.append(f"time: {s['seconds']:.1f} s")
+    return "\n".join(lines)
+
+
+def format_model_info(path: str, h: dict) -> str:
+    s = h.get("summary", {})
+    prov = h.get("provenance", {})
+    lines = [
+        f"{path}: {h['format']} version {h['version']}, written by rbgp {h.get('rbgp_version', '?')} at {h.get('created', '?')}",
+        f"representation: {h['representation'].get('name')}   kernel: {h['kernel']}",
+        f"inputs: {', '.join(h.get('input_names', []))}   outputs: {', '.join(h.get('output_names', []))}",
+        f"training points: {h.get('training_points', '?')}   time step: {h['dt']:.6g} s   shared hyperparameters: {h['shared']}",
+    ]
+    names = ["all"] if h["shared"] else h.get("output_names", [])
+    for nm, f in zip(names, h["fits"]):
+        lines.append(f"  {nm:<7} NLML {f['nlml']:11.4g}  {_fmt_values(f['values'])}  jitter {f['jitter']:.2g}")
+    for inp in prov.get("inputs", []):
+        lines.append(f"input: {inp.get('name')}  sha256 {inp.get('sha256', '-')[:16]}…")
+    if prov.get("train_options"):
+        lines.append("options: " + ", ".join(f"{k}={v}" for k, v in prov["train_options"].items()))
+    if s.get("seconds") is not None:
+        lines.append(f"training took {s['seconds']:.1f} s")
+    return "\n".join(lines)
+
+
+def write_per_step(result, fh) -> None:
+    """Columns: step, s (normalised time), bhattacharyya, rotation, translation."""
+    fh.write("step,s,bhattacharyya,rotation,translation\n")
+    for i in range(result.steps):
+        fh.write(f"{i},{result.s[i]!r},{float(result.per_step[i])!r},{float(result.per_step_rotation[i])!r},"
+                 f"{float(result.per_step_translation[i])!r}\n")

@@ -1,0 +1,198 @@
+"""What each command does, as library calls: read → prepare → train / roll out / evaluate.
+
+This module sits at the edge with :mod:`rbgp_cli.io` (it reads files); the core layers below it
+never read files. The command line (:mod:`rbgp_cli.cli`) parses arguments, calls one function here
+and prints the result.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from rbgp_cli import __version__
+from rbgp_cli.errors import InputError
+from rbgp_cli.io.options import ReadOptions
+
+__all__ = [
+    "expand_paths",
+    "load_demonstrations",
+    "train_from_files",
+    "parse_pose",
+    "read_start_poses",
+    "rollout_model",
+    "evaluate_files",
+    "generate_like_paper",
+    "SAMPLE_DATA",
+]
+
+#: The bundled sample demonstrations (made by scripts/make_sample_data.py).
+SAMPLE_DATA = Path(__file__).resolve().parents[1] / "sample_data"
+
+
+def expand_paths(paths) -> list[str]:
+    """Expand directories (their *.csv, *.tsv, *.mcap, sorted) and glob patterns; keep '-' as is."""
+    out: list[str] = []
+    for p in paths:
+        p = str(p)
+        if p == "-":
+            out.append(p)
+        elif os.path.isdir(p):
+            found = sorted(
+                str(f) for f in Path(p).iterdir()
+                if f.is_file() and f.suffix.lower() in (".csv", ".tsv", ".txt", ".mcap")
+            )
+            if not found:
+                raise InputError("the directory holds no .csv, .tsv or .mcap files", path=p)
+            out.extend(found)
+        elif any(ch in p for ch in "*?[") and not os.path.exists(p):
+            found = sorted(glob.glob(p))
+            if not found:
+                raise InputError("no file matches this pattern", path=p)
+            out.extend(found)
+        else:
+            out.append(p)
+    return out
+
+
+def load_demonstrations(sources, options: ReadOptions | None = None, *, max_gap: float | None = None,
+                        stdin=None) -> tuple[list, list[dict], list[dict]]:
+    """Read and clean demonstrations.
+
+    Returns (trajectories, repair reports, provenance of the inputs: name, format, sha256).
+    """
+    from rbgp_cli.dynamics.prepare import prepare_all
+    from rbgp_cli.io.model_store import file_sha256
+    from rbgp_cli.io.read import read_demonstrations
+
+    options = options or ReadOptions()
+    paths = expand_paths(sources)
+    if not paths:
+        raise InputError("no demonstrations given", hint="pass one or more files or a directory")
+    raw = read_demonstrations(paths, options, stdin=stdin)
+    if not raw:
+        raise InputError("the inputs hold no demonstrations", path=", ".join(paths))
+    clean, reports = prepare_all(raw, max_gap=max_gap)
+    inputs = []
+    for p in paths:
+        entry = {"name": p}
+        if p != "-" and os.path.isfile(p):
+            entry["sha256"] = file_sha256(p)
+            entry["bytes"] = os.path.getsize(p)
+        inputs.append(entry)
+    return clean, reports, inputs
+
+
+def train_from_files(sources, output, *, options: ReadOptions | None = None, max_gap=None, stdin=None,
+                     progress=None, **train_kwargs):
+    """``rbgp train``: read + clean demonstrations, train, save atomically. Returns (model, header).
+
+    ``train_kwargs`` go to :func:`rbgp_cli.dynamics.model.train_model` (representation, kernel,
+    rho_rot, restarts, seed, noise, shared, subsample, max_points).
+    """
+    from rbgp_cli.dynamics.model import train_model
+    from rbgp_cli.io.model_store import save_model
+
+    options = options or ReadOptions()
+    trajs, reports, inputs = load_demonstrations(sources, options, max_gap=max_gap, stdin=stdin)
+    model = train_model(trajs, progress=progress, **train_kwargs)
+    model.provenance = {
+        "rbgp_version": __version__,
+        "created_unix": time.time(),
+        "inputs": inputs,
+        "demonstrations": [
+            {"name": t.name, "source": t.source, "samples": len(t), "duration_s": t.duration} for t in trajs
+        ],
+        "read_options": {k: v for k, v in asdict(options).items() if v is not None},
+        "max_gap": max_gap,
+        "train_options": {k: (v if isinstance(v, (int, float, str, bool)) or v is None else str(v))
+                          for k, v in train_kwargs.items()},
+        "repairs": reports,
+    }
+    header = save_model(model, output)
+    return model, header, trajs
+
+
+def parse_pose(text: str) -> tuple[np.ndarray, np.ndarray]:
+    """Parse a start pose "rx ry rz x y z" (rotation vector in rad, position in m; commas allowed)."""
+    parts = text.replace(",", " ").split()
+    try:
+        vals = np.array([float(v) for v in parts])
+    except ValueError:
+        raise InputError(f"start pose {text!r} is not six numbers", hint='write it as "rx ry rz x y z" (rad, m)') from None
+    if vals.shape != (6,) or not np.all(np.isfinite(vals)):
+        raise InputError(f"start pose {text!r} must be six finite numbers", hint='write it as "rx ry rz x y z" (rad, m)')
+    from rbgp_cli.geometry.so3 import quat_from_rotvec
+
+    return quat_from_rotvec(vals[:3]), vals[3:]
+
+
+def read_start_poses(path, options: ReadOptions | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Start poses from a file: every row is a start (any pose columns the CSV reader knows)."""
+    from rbgp_cli.io.read import read_demonstrations
+
+    opts = options or ReadOptions()
+    if opts.rate is None:
+        from dataclasses import replace
+
+        opts = replace(opts, rate=1.0)  # a list of poses needs no time column
+    trajs = read_demonstrations([str(path)], opts)
+    q = np.concatenate([t.quat for t in trajs]) if trajs else np.zeros((0, 4))
+    p = np.concatenate([t.position for t in trajs]) if trajs else np.zeros((0, 3))
+    bad = ~(np.all(np.isfinite(q), 1) & np.all(np.isfinite(p), 1)) | (np.linalg.norm(q, axis=1) < 1e-9)
+    if len(q) == 0:
+        raise InputError("no start poses in the file", path=str(path))
+    if np.any(bad):
+        raise InputError(f"start pose {int(np.argmax(bad)) + 1} is not finite", path=str(path),
+                         hint="remove or fix that row")
+    return q, p
+
+
+def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, samples=0, seed=0, with_std=True,
+                  progress=None):
+    """``rbgp rollout``: steps from --steps, or --duration / dt, or the demonstrations' median duration."""
+    from rbgp_cli.dynamics.rollout import rollout
+
+    step = float(model.dt if dt is None else dt)
+    if steps is None:
+        dur = float(np.median(model.durations)) if duration is None else float(duration)
+        if not np.isfinite(dur) or dur <= 0:
+            raise InputError(f"--duration must be a positive number of seconds, got {dur}")
+        steps = max(1, int(round(dur / step)))
+    return rollout(model, quat, pos, steps, step, samples=samples, seed=seed, with_std=with_std, progress=progress)
+
+
+def generate_like_paper(model, demos, count=100, spread=0.02, seed=0):
+    """The paper's protocol (sec. 4.3): ``count`` rollouts from unseen starts near the demonstrations'
+    start poses, each as long as the demonstrations' median duration, at the model's time step."""
+    from rbgp_cli.dynamics.rollout import starts_near
+
+    starts = np.array([np.concatenate([t.quat[0], t.position[0]]) for t in demos]) if demos else model.starts
+    q, p = starts_near(starts, count, spread, seed=seed)
+    dur = float(np.median([t.duration for t in demos])) if demos else float(np.median(model.durations))
+    return rollout_model(model, q, p, duration=dur, with_std=False)
+
+
+def evaluate_files(generated_sources, demo_sources, *, options: ReadOptions | None = None, max_gap=None,
+                   length=None, covariance="diag", stdin=None, model=None, count=100, spread=0.02, seed=0):
+    """``rbgp evaluate``: Bhattacharyya distance between generated trajectories and demonstrations.
+
+    ``generated_sources`` are files of generated trajectories ('-' for stdin); or, with ``model``,
+    ``count`` trajectories are generated like the paper. Returns (EvaluationResult, generated, demos).
+    """
+    from rbgp_cli.evaluation import evaluate
+
+    demos, _, _ = load_demonstrations(demo_sources, options, max_gap=max_gap)
+    if model is not None:
+        generated = generate_like_paper(model, demos, count=count, spread=spread, seed=seed).trajectories()
+    else:
+        if not generated_sources:
+            raise InputError("no generated trajectories given", hint="pass a file (or - for stdin) or --model MODEL")
+        generated, _, _ = load_demonstrations(generated_sources, ReadOptions(), stdin=stdin)
+    result = evaluate(generated, demos, length=length, covariance=covariance)
+    return result, generated, demos
