@@ -1,0 +1,1031 @@
+"""Generic CSV / TSV reader and the trajectory CSV writer.
+
+Columns are found by **name** (case-insensitive; separators ``_ . - space`` are equivalent), never by
+position or by guessing from values:
+
+* time: ``t``, ``time``, ``timestamp``, ``stamp``, ``sec`` (also ``header.stamp``-style names ending in
+  ``_time`` / ``_stamp``); a ``sec`` + ``nanosec`` pair is added up; no time column → ``--rate``
+  (``frame`` / rate when a frame column exists).
+* position: ``x y z``, ``pos_x``, ``px``, ``tx``, ``position_x``, ``pose.position.x`` ...
+* rotation, in this order of preference:
+  quaternion with named components (``qx qy qz qw``, ``quat_x``, ``orientation_x``, ``rot_x..rot_w``,
+  ``rx ry rz rw``) in any column order; numbered ``q0..q3`` / ``q1..q4`` (needs ``--quat-order``);
+  rotation vector ``rx ry rz``; Euler angles about named axes ``rot_x rot_y rot_z`` or ``roll pitch
+  yaw`` (needs ``--euler-order``, scipy's convention, and degrees/radians from the name or the option).
+* several demonstrations in one file: a ``demo`` / ``trial`` / ``trajectory`` / ``episode`` /
+  ``sequence`` column; each value becomes ``<file stem>#<value>`` in order of first appearance.
+
+Units come from a suffix of the column name (``x_mm``, ``x [mm]``, ``x(cm)``, ``time_ms``, ``t [ns]``,
+``yaw_deg``), from a ``# ... length_unit=m time_unit=s`` comment line above the header (as written by
+:func:`write_trajectories_csv`), or from :class:`~rbgp_cli.io.options.ReadOptions`, which wins over the
+file. When nothing states a unit: lengths are metres unless the values look like millimetres (median
+``|p|`` > 10 → :class:`InputError` hinting ``--length-unit mm``), and times are seconds unless the implied
+sampling interval is implausible (median dt > 5 s or < 1e-5 s → :class:`InputError` naming the
+``--time-unit`` that makes it plausible).
+
+Readers return *raw* trajectories (SI units, quaternions x, y, z, w): empty / NaN / ``null`` cells are
+lost frames kept as NaN rows for :func:`rbgp_cli.dynamics.prepare.prepare_trajectory`.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from rbgp_cli.dynamics.trajectory import Trajectory
+from rbgp_cli.errors import InputError, closest
+from rbgp_cli.io.options import LENGTH_UNITS, ReadOptions
+
+__all__ = ["read", "read_bytes", "read_text", "describe", "write_trajectories_csv", "CANONICAL_KEYS"]
+
+#: Keys accepted by ``ReadOptions.columns`` (``--columns KEY=NAME``).
+CANONICAL_KEYS = (
+    "t", "x", "y", "z", "qx", "qy", "qz", "qw", "q0", "q1", "q2", "q3",
+    "rx", "ry", "rz", "roll", "pitch", "yaw", "frame", "demo",
+)  # fmt: skip
+
+#: seconds per unit
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+
+_UNIT_TOKENS = {
+    # length
+    "m": ("length", "m"), "meter": ("length", "m"), "meters": ("length", "m"), "metre": ("length", "m"),
+    "metres": ("length", "m"), "mm": ("length", "mm"), "millimeter": ("length", "mm"),
+    "millimeters": ("length", "mm"), "millimetre": ("length", "mm"), "millimetres": ("length", "mm"),
+    "cm": ("length", "cm"), "centimeter": ("length", "cm"), "centimeters": ("length", "cm"),
+    "centimetre": ("length", "cm"), "centimetres": ("length", "cm"),
+    # time
+    "s": ("time", "s"), "sec": ("time", "s"), "secs": ("time", "s"), "second": ("time", "s"),
+    "seconds": ("time", "s"), "ms": ("time", "ms"), "msec": ("time", "ms"), "millisecond": ("time", "ms"),
+    "milliseconds": ("time", "ms"), "us": ("time", "us"), "µs": ("time", "us"), "usec": ("time", "us"),
+    "microsecond": ("time", "us"), "microseconds": ("time", "us"), "ns": ("time", "ns"),
+    "nsec": ("time", "ns"), "nanosec": ("time", "ns"), "nanosecond": ("time", "ns"),
+    "nanoseconds": ("time", "ns"),
+    # angle
+    "deg": ("angle", "deg"), "degree": ("angle", "deg"), "degrees": ("angle", "deg"),
+    "rad": ("angle", "rad"), "radian": ("angle", "rad"), "radians": ("angle", "rad"),
+}  # fmt: skip
+
+# Names (after normalisation and unit extraction) and what they are. Rank 0: exact; rank 1: found as
+# a qualified suffix of a longer name (``pose_position_x``); lower rank wins.
+_TIME_NAMES = {"t", "time", "times", "timestamp", "timestamps", "time_stamp", "stamp", "elapsed",
+               "elapsed_time", "time_elapsed"}  # fmt: skip
+_TIME_IMPLIED_UNIT = {"sec": "s", "secs": "s", "seconds": "s"}
+_NSEC_PARTNERS = ("nanosec", "nsec", "nsecs", "nanoseconds")
+_FRAME_NAMES = {"frame", "frames", "frame_number", "frame_no", "frame_num", "frame_index", "frame_idx"}
+_DEMO_NAMES = {"demo", "demonstration", "trial", "trajectory", "traj", "episode", "sequence"}
+_DEMO_SUFFIXES = ("", "_id", "_name", "_index", "_idx", "_no", "_number", "_num")
+_POS_PREFIXES = {"", "p", "pos", "position", "t", "tr", "trans", "translation", "loc", "location", "xyz"}
+_QUAT_PREFIXES = {"q", "quat", "quaternion", "orientation", "ori", "orient", "qu", "quat_"}
+# prefixes whose x, y, z are a quaternion's when a w exists, else the "other" kind
+_ROT_AMBIGUOUS = {"rot": "euler_axis", "rotation": "euler_axis", "r": "rotvec"}
+_ROTVEC_PREFIXES = {"rv", "rotvec", "rot_vec", "rotation_vector", "axis_angle", "axisangle", "aa"}
+_EULER_AXIS_PREFIXES = {"euler", "eul", "euler_angle", "euler_angles", "angle", "ang", "angles"}
+_RPY = {"roll": "x", "pitch": "y", "yaw": "z"}
+_NUMBERED_PREFIXES = {"q", "quat", "quaternion", "orientation", "rot", "r"}
+
+_ROTATION_KINDS = ("quaternion", "numbered", "rotvec", "euler_axis", "rpy")
+_KIND_ROLES = {
+    "quaternion": ("qx", "qy", "qz", "qw"),
+    "numbered": ("qn0", "qn1", "qn2", "qn3"),
+    "rotvec": ("rx", "ry", "rz"),
+    "euler_axis": ("ex", "ey", "ez"),
+    "rpy": ("roll", "pitch", "yaw"),
+}
+# canonical option key -> internal role
+_KEY_ROLE = {"q0": "qn0", "q1": "qn1", "q2": "qn2", "q3": "qn3"}
+
+_NA_TOKENS = {"", "nan", "-nan", "null", "none", "na", "n/a", "<na>", "#n/a", "#na"}
+
+_MM_THRESHOLD = 10.0  # median |position| above this, in "metres", looks like millimetres
+_DT_MAX, _DT_MIN = 5.0, 1e-5  # plausible median sampling interval in seconds
+
+
+# --------------------------------------------------------------------------------------------------
+# column names
+
+
+@dataclass
+class _Column:
+    index: int
+    name: str  # as in the file
+    base: str  # normalised, unit removed
+    unit_kind: str | None = None  # length / time / angle
+    unit: str | None = None
+    roles: list = field(default_factory=list)  # [(role, rank)]
+
+
+def _normalise_name(name: str) -> tuple[str, str | None, str | None]:
+    """``"X [mm]"`` -> ``("x", "length", "mm")``; ``"time_s"`` -> ``("time", "time", "s")``."""
+    s = name.strip().strip("\"'").strip().lower()
+    unit = None
+    m = re.fullmatch(r"(.*?)\s*[\[\(\{]\s*([^\]\)\}]*?)\s*[\]\)\}]\s*", s)
+    if m and m.group(1) and m.group(2) in _UNIT_TOKENS:
+        s, unit = m.group(1), m.group(2)
+    base = re.sub(r"[\s.\-/:\[\]\(\)\{\}]+", "_", s)
+    base = re.sub(r"[^0-9a-zµ_]", "", base).strip("_")
+    if unit is None:
+        parts = base.split("_")
+        if len(parts) > 1 and parts[-1] in _UNIT_TOKENS:
+            unit, base = parts[-1], "_".join(parts[:-1])
+    if unit is None:
+        return base, None, None
+    kind, unit = _UNIT_TOKENS[unit]
+    return base, kind, unit
+
+
+def _prefix_candidates(prefix: str):
+    """``pose_position`` -> (``pose_position``, 0), (``position``, 1): the prefix itself, then its
+    qualified tails (never the empty tail: ``vel_x`` is not ``x``)."""
+    yield prefix, 0
+    parts = prefix.split("_")
+    for k in range(1, len(parts)):
+        tail = "_".join(parts[k:])
+        if tail:
+            yield tail, 1
+
+
+def _classify(index: int, name: str) -> _Column:
+    base, kind, unit = _normalise_name(name)
+    col = _Column(index=index, name=name, base=base, unit_kind=kind, unit=unit)
+    roles = col.roles
+
+    def tail_match(b: str, names) -> int | None:
+        for cand, rank in _prefix_candidates(b):
+            if cand in names:
+                return rank
+        return None
+
+    # time
+    if base in _TIME_NAMES:
+        roles.append(("t", 0))
+    elif base in _TIME_IMPLIED_UNIT:
+        roles.append(("t", 0))
+        if unit is None:
+            col.unit_kind, col.unit = "time", _TIME_IMPLIED_UNIT[base]
+    elif re.fullmatch(r".+_(time|timestamp|stamp)", base):
+        roles.append(("t", 1))
+    if base in _FRAME_NAMES:
+        roles.append(("frame", 0))
+    for suffix in _DEMO_SUFFIXES:
+        if suffix and not base.endswith(suffix):
+            continue
+        stem = base[: len(base) - len(suffix)] if suffix else base
+        if stem in _DEMO_NAMES:
+            roles.append(("demo", 0))
+            break
+    if base in _RPY:
+        roles.append((base, 0))
+    m = re.fullmatch(r"(.*?)_?([0-4])", base)
+    if m:
+        rank = tail_match(m.group(1), _NUMBERED_PREFIXES)
+        if rank is not None:
+            roles.append((f"qn{m.group(2)}", rank))
+    m = re.fullmatch(r"(.*?)_?([xyzw])", base)
+    if m and base not in _RPY:
+        prefix, comp = m.group(1), m.group(2)
+        for cand, rank in _prefix_candidates(prefix):
+            if rank and not cand:
+                continue
+            found = False
+            if comp != "w" and cand in _POS_PREFIXES:
+                roles.append((comp, rank))
+                found = True
+            if cand in _QUAT_PREFIXES or cand in _ROT_AMBIGUOUS:
+                roles.append((f"q{comp}", rank))
+                found = True
+            if comp != "w":
+                if cand in _ROTVEC_PREFIXES or _ROT_AMBIGUOUS.get(cand) == "rotvec":
+                    roles.append((f"r{comp}", rank))
+                    found = True
+                if cand in _EULER_AXIS_PREFIXES or _ROT_AMBIGUOUS.get(cand) == "euler_axis":
+                    roles.append((f"e{comp}", rank))
+                    found = True
+            if found:
+                break
+    return col
+
+
+# --------------------------------------------------------------------------------------------------
+# the text table
+
+
+@dataclass
+class _Table:
+    source: str
+    header: list  # column names as in the file
+    header_line: int  # 1-based
+    data_text: str  # the data lines joined (comments/blank lines removed)
+    lines: np.ndarray  # 1-based file line of every data row
+    delimiter: str  # "," ";" "\t" or "whitespace"
+    decimal: str
+    declared: dict  # from "# key=value" comment lines above the header
+
+
+def _decode(data: bytes, source: str) -> str:
+    if not data.strip():
+        raise InputError("the file is empty", path=source, hint="export the demonstrations again")
+    head = data[:8192]
+    if b"\x00" in head:
+        raise InputError(
+            "not a text file (it contains binary data)",
+            path=source,
+            hint="rbgp reads CSV/TSV, QTM, Motive and Vicon exports and MCAP files",
+        )
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        text = data.decode("latin-1")
+    ctrl = sum(1 for ch in text[:4096] if ord(ch) < 32 and ch not in "\r\n\t\f\v")
+    if ctrl > 0.05 * min(len(text), 4096):
+        raise InputError(
+            "not a text file (it contains binary data)",
+            path=source,
+            hint="rbgp reads CSV/TSV, QTM, Motive and Vicon exports and MCAP files",
+        )
+    return text
+
+
+def _split_fields(line: str, delimiter: str) -> list[str]:
+    import csv as _csv
+
+    if delimiter == "whitespace":
+        return line.split()
+    return next(_csv.reader([line], delimiter=delimiter))
+
+
+def _is_number(s: str) -> bool:
+    try:
+        float(s.replace(",", "."))
+        return True
+    except ValueError:
+        return False
+
+
+def _sniff_delimiter(line: str) -> str:
+    counts = {d: line.count(d) for d in (",", ";", "\t")}
+    best = max(counts, key=lambda d: counts[d])
+    if counts[best] > 0:
+        return best
+    return "whitespace"
+
+
+def _parse_table(text: str, source: str) -> _Table:
+    all_lines = text.splitlines()
+    comments: list[tuple[int, str]] = []
+    header = None
+    header_line = 0
+    data_start = None
+    for i, line in enumerate(all_lines):
+        s = line.strip()
+        if not s:
+            continue
+        if s.startswith("#"):
+            comments.append((i, s.lstrip("#").strip()))
+            continue
+        header, header_line, data_start = s, i + 1, i + 1
+        break
+    if header is None:
+        raise InputError("the file has no header and no data (only comments or blank lines)", path=source)
+    delimiter = _sniff_delimiter(header)
+    names = [f.strip() for f in _split_fields(header, delimiter)]
+    if names and all(_is_number(f) for f in names if f.strip()):
+        # No header line. numpy.savetxt writes it as a comment ("# t,x,y,...") just above the data.
+        cand_fields = None
+        if comments:
+            cand = comments[-1][1]
+            cand_fields = [f.strip() for f in _split_fields(cand, _sniff_delimiter(cand))]
+            if len(cand_fields) != len(names) or any(_is_number(f) for f in cand_fields):
+                cand_fields = None
+        if cand_fields is None:
+            raise InputError(
+                "no header line: the first line holds numbers",
+                path=source,
+                row=header_line,
+                hint="add a header such as t,x,y,z,qx,qy,qz,qw (rbgp finds columns by name)",
+            )
+        names = cand_fields
+        data_start = header_line - 1
+        header_line = comments[-1][0] + 1
+        comments = comments[:-1]
+    declared: dict = {}
+    for _, c in comments:
+        for key, value in re.findall(r"(\w+)\s*=\s*([\w]+)", c):
+            if key in ("length_unit", "time_unit", "quaternion"):
+                declared[key] = value.lower()
+    # data lines: drop blank lines and comments, remember the file line of each row
+    keep_idx = []
+    keep = []
+    for i in range(data_start, len(all_lines)):
+        line = all_lines[i]
+        s = line.lstrip()
+        if not s or s.startswith("#"):
+            continue
+        keep_idx.append(i + 1)
+        keep.append(line)
+    decimal = "."
+    if delimiter == ";" and keep and re.search(r"\d,\d", keep[0]):
+        decimal = ","
+    return _Table(
+        source=source,
+        header=names,
+        header_line=header_line,
+        data_text="\n".join(keep),
+        lines=np.asarray(keep_idx, dtype=np.int64),
+        delimiter=delimiter,
+        decimal=decimal,
+        declared=declared,
+    )
+
+
+# --------------------------------------------------------------------------------------------------
+# choosing the columns
+
+
+@dataclass
+class _Plan:
+    roles: dict  # role -> _Column
+    rotation: str  # one of _ROTATION_KINDS
+    columns: list  # all classified columns
+
+
+def _columns_list(cols: list) -> str:
+    names = [c.name for c in cols if c.name]
+    text = ", ".join(names[:40])
+    return text + (", ..." if len(names) > 40 else "")
+
+
+def _role_key(role: str) -> str:
+    """The ``--columns`` key (or display name) of an internal role."""
+    return {"qn0": "q0", "qn1": "q1", "qn2": "q2", "qn3": "q3", "ex": "rot_x", "ey": "rot_y", "ez": "rot_z"}.get(
+        role, role
+    )
+
+
+def _candidates(cols: list, role: str, used: set) -> list:
+    """The best-ranked columns (not in ``used``) that could hold ``role``."""
+    cands = [(rank, c) for c in cols if c.index not in used for (r, rank) in c.roles if r == role]
+    if not cands:
+        return []
+    top = min(rank for rank, _ in cands)
+    return [c for rank, c in cands if rank == top]
+
+
+def _best(cols: list, role: str, used: set, source: str):
+    """The unique best-ranked column for ``role`` (None when there is none; InputError when several)."""
+    best = _candidates(cols, role, used)
+    if len(best) > 1:
+        key = _role_key(role)
+        raise InputError(
+            f"several columns could be '{key}': " + ", ".join(repr(c.name) for c in best),
+            path=source,
+            hint=f"choose one with --columns {key if key in CANONICAL_KEYS else 'KEY'}=NAME",
+        )
+    return best[0] if best else None
+
+
+def _missing_error(role_key: str, what: str, cols: list, used: set, source: str) -> InputError:
+    unused = [c.name for c in cols if c.name and c.index not in used]
+    guess = closest(role_key, unused) or closest(role_key, [c.base for c in cols if c.index not in used])
+    if guess and guess not in unused:  # matched a normalised name: report the file's name
+        guess = next(c.name for c in cols if c.base == guess)
+    msg = f"{what} column '{role_key}' not found; columns are {_columns_list(cols)}"
+    if guess:
+        msg += f"; did you mean {guess!r}?"
+        hint = f"rename the column or pass --columns {role_key}={guess}"
+    else:
+        hint = f"rename the column or pass --columns {role_key}=NAME"
+    return InputError(msg, path=source, hint=hint)
+
+
+def _renumber_one_based(cols: list) -> None:
+    """``q1..q4`` -> roles ``qn0..qn3`` when there is no ``q0``."""
+    have = {r for c in cols for r, _ in c.roles}
+    if "qn4" in have and "qn0" not in have:
+        for c in cols:
+            c.roles = [(f"qn{int(r[2]) - 1}", k) if r.startswith("qn") else (r, k) for r, k in c.roles]
+    for c in cols:
+        c.roles = [(r, k) for r, k in c.roles if r != "qn4"]
+
+
+def _plan(cols: list, options: ReadOptions, source: str) -> _Plan:
+    _renumber_one_based(cols)
+    by_name = {c.name: c for c in cols}
+    by_lower = {c.name.strip().lower(): c for c in cols}
+    roles: dict = {}
+    for key, fname in dict(options.columns or {}).items():
+        k = str(key).strip().lower()
+        if k not in CANONICAL_KEYS:
+            guess = closest(k, CANONICAL_KEYS)
+            raise InputError(
+                f"unknown --columns key {key!r}; keys are {', '.join(CANONICAL_KEYS)}"
+                + (f"; did you mean {guess!r}?" if guess else "")
+            )
+        col = by_name.get(fname) or by_lower.get(str(fname).strip().lower())
+        if col is None:
+            guess = closest(str(fname), [c.name for c in cols])
+            raise InputError(
+                f"--columns {k}={fname}: the file has no column {fname!r}; columns are {_columns_list(cols)}"
+                + (f"; did you mean {guess!r}?" if guess else ""),
+                path=source,
+            )
+        roles[_KEY_ROLE.get(k, k)] = col
+    explicit = set(roles)
+
+    def used() -> set:
+        return {c.index for c in roles.values()}
+
+    # rotation kind: explicit keys decide, else the first complete family
+    kind = next((k for k in _ROTATION_KINDS if explicit & set(_KIND_ROLES[k])), None)
+    if kind is None:
+        for k in _ROTATION_KINDS:
+            if all(r in roles or _candidates(cols, r, used()) for r in _KIND_ROLES[k]):
+                kind = k
+                break
+    if kind is None:
+        # name the missing column of the most complete partial family, else say what is expected
+        partial = None
+        for k in ("quaternion", "numbered", "rpy"):
+            have = [r for r in _KIND_ROLES[k] if _candidates(cols, r, used())]
+            if len(have) >= 2 and (partial is None or len(have) > len(partial[1])):
+                partial = (k, have)
+        if partial:
+            k, have = partial
+            missing = next(r for r in _KIND_ROLES[k] if r not in have)
+            raise _missing_error(_role_key(missing), "rotation", cols, used(), source)
+        raise InputError(
+            f"no rotation columns found; columns are {_columns_list(cols)}",
+            path=source,
+            hint="expected quaternion columns qx,qy,qz,qw (any order), a rotation vector rx,ry,rz, or "
+            "Euler angles roll,pitch,yaw; map other names with --columns qx=NAME,...",
+        )
+    for r in _KIND_ROLES[kind] + ("x", "y", "z"):
+        if r in roles:
+            continue
+        c = _best(cols, r, used(), source)
+        if c is None:
+            raise _missing_error(_role_key(r), "rotation" if r in _KIND_ROLES[kind] else "position", cols,
+                                 used(), source)  # fmt: skip
+        roles[r] = c
+    if "t" not in roles:
+        cands = _candidates(cols, "t", used())
+        if len(cands) > 1:
+            pair = _sec_nsec_pair(cands)
+            if pair is None:
+                raise InputError(
+                    "several columns could be the time: " + ", ".join(repr(x.name) for x in cands),
+                    path=source,
+                    hint="choose one with --columns t=NAME",
+                )
+            roles["t"], roles["t_nsec"] = pair
+        elif cands:
+            roles["t"] = cands[0]
+            partner = _nsec_partner(cands[0], cols)
+            if partner is not None and partner.index not in used():
+                roles["t_nsec"] = partner
+    for r in ("frame", "demo"):
+        if r not in roles:
+            c = _best(cols, r, used(), source)
+            if c is not None:
+                roles[r] = c
+    # one column, one role
+    seen: dict = {}
+    for r, c in roles.items():
+        if c.index in seen:
+            raise InputError(
+                f"column {c.name!r} is used both as '{_role_key(seen[c.index])}' and as '{_role_key(r)}'",
+                path=source,
+                hint="fix the mapping with --columns",
+            )
+        seen[c.index] = r
+    return _Plan(roles=roles, rotation=kind, columns=cols)
+
+
+def _sec_nsec_pair(cands: list):
+    if len(cands) != 2:
+        return None
+    a, b = cands
+    units = {a.unit, b.unit}
+    if a.base == b.base and units == {"s", "ns"}:
+        return (a, b) if a.unit == "s" else (b, a)
+    return None
+
+
+def _nsec_partner(tcol: _Column, cols: list):
+    """``sec`` + ``nanosec`` (ROS split stamps): the nanosecond column beside a ``sec`` column."""
+    if tcol.base not in ("sec", "secs"):
+        return None
+    for c in cols:
+        if c is not tcol and c.unit is None and c.base in _NSEC_PARTNERS:
+            return c
+    return None
+
+
+# --------------------------------------------------------------------------------------------------
+# reading the numbers
+
+
+def _read_frame(table: _Table, plan: _Plan):
+    """Parse the data lines; returns {role: ndarray or list[str]}."""
+    import pandas as pd
+
+    demo_col = plan.roles.get("demo")
+    dtype = {demo_col.index: "str"} if demo_col is not None else None
+    if not table.data_text.strip():
+        return None
+    kwargs = dict(header=None, index_col=False, dtype=dtype, skip_blank_lines=False, decimal=table.decimal,
+                  quotechar='"', low_memory=False)  # fmt: skip
+    if table.delimiter == "whitespace":
+        kwargs["sep"] = r"\s+"
+    else:
+        kwargs["sep"] = table.delimiter
+    try:
+        df = pd.read_csv(io.StringIO(table.data_text), **kwargs)
+    except pd.errors.ParserError as exc:
+        m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", str(exc))
+        if m:
+            k = int(m.group(2)) - 1
+            line = int(table.lines[k]) if 0 <= k < len(table.lines) else None
+            raise InputError(
+                f"row has {m.group(3)} fields, the rows above have {m.group(1)}",
+                path=table.source,
+                row=line,
+                hint="check the delimiter and quoting of that row",
+            ) from None
+        raise InputError(f"cannot parse the table: {exc}", path=table.source) from None
+    n = len(df)
+    out: dict = {}
+    for role, col in plan.roles.items():
+        if col.index >= df.shape[1]:
+            out[role] = np.full(n, np.nan) if role != "demo" else [""] * n
+            continue
+        series = df.iloc[:, col.index]
+        if role == "demo":
+            values = series.astype(object).where(series.notna(), None).tolist()
+            for k, v in enumerate(values):
+                if v is None or not str(v).strip():
+                    raise InputError(
+                        f"empty {col.name!r} cell: every row needs a demonstration id",
+                        path=table.source,
+                        row=int(table.lines[k]),
+                    )
+            out[role] = [str(v).strip() for v in values]
+            continue
+        if series.dtype.kind in "fiub":
+            out[role] = series.to_numpy(dtype=np.float64)
+            continue
+        text = series.astype(object)
+        num = pd.to_numeric(text.where(text.notna(), None), errors="coerce").to_numpy(dtype=np.float64)
+        bad = np.isnan(num) & text.notna().to_numpy()
+        if bad.any():
+            idx = np.flatnonzero(bad)
+            lowered = [str(text.iloc[k]).strip().lower() for k in idx]
+            real = [k for k, s in zip(idx, lowered) if s not in _NA_TOKENS]
+            if real:
+                k = int(real[0])
+                raise InputError(
+                    f"non-numeric value {str(text.iloc[k])!r} in column {col.name!r}",
+                    path=table.source,
+                    row=int(table.lines[k]),
+                    hint="fix the cell, or leave it empty to mark a lost frame",
+                )
+        out[role] = num
+    return out
+
+
+# --------------------------------------------------------------------------------------------------
+# units
+
+
+def _length_unit(plan: _Plan, table: _Table, options: ReadOptions, position: np.ndarray):
+    if options.length_unit:
+        if options.length_unit not in LENGTH_UNITS:
+            raise InputError(
+                f"unknown length unit {options.length_unit!r}; use one of {', '.join(LENGTH_UNITS)}"
+            )
+        return options.length_unit, "option"
+    units = {plan.roles[r].unit for r in "xyz" if plan.roles[r].unit_kind == "length"}
+    if len(units) > 1:
+        raise InputError(
+            f"the position columns disagree on units ({', '.join(sorted(units))})",
+            path=table.source,
+            hint="pass --length-unit to override",
+        )
+    if units:
+        return units.pop(), "column name"
+    if table.declared.get("length_unit") in LENGTH_UNITS:
+        return table.declared["length_unit"], "file comment"
+    finite = np.all(np.isfinite(position), axis=1)
+    if finite.any():
+        med = float(np.median(np.linalg.norm(position[finite], axis=1)))
+        if med > _MM_THRESHOLD:
+            names = ",".join(plan.roles[r].name for r in "xyz")
+            raise InputError(
+                f"positions ({names}) have no unit and their median distance from the origin is "
+                f"{med:.4g}, which looks like millimetres, not metres",
+                path=table.source,
+                hint="pass --length-unit mm (or cm, or m if they really are metres)",
+            )
+    return "m", "assumed"
+
+
+def _time_unit(plan: _Plan, table: _Table, options: ReadOptions, t: np.ndarray, groups):
+    if options.time_unit:
+        if options.time_unit not in TIME_UNITS:
+            raise InputError(f"unknown time unit {options.time_unit!r}; use one of {', '.join(TIME_UNITS)}")
+        return options.time_unit, "option"
+    col = plan.roles["t"]
+    if col.unit_kind == "time":
+        return col.unit, "column name"
+    if col.unit_kind is not None:
+        raise InputError(
+            f"time column {col.name!r} has a {col.unit_kind} unit ({col.unit})",
+            path=table.source,
+            hint="pass --time-unit s|ms|us|ns",
+        )
+    if table.declared.get("time_unit") in TIME_UNITS:
+        return table.declared["time_unit"], "file comment"
+    diffs = []
+    for idx in groups.values():
+        tt = t[idx]
+        tt = tt[np.isfinite(tt)]
+        d = np.diff(tt)
+        diffs.append(d[d > 0])
+    d = np.concatenate(diffs) if diffs else np.empty(0)
+    if len(d):
+        med = float(np.median(d))
+        if med > _DT_MAX or med < _DT_MIN:
+            suggestion = None
+            for unit in ("ms", "us", "ns"):
+                if 1e-4 <= med * TIME_UNITS[unit] <= 1.0:
+                    suggestion = unit
+                    break
+            if suggestion is None:
+                for unit in ("ms", "us", "ns"):
+                    if _DT_MIN <= med * TIME_UNITS[unit] <= _DT_MAX:
+                        suggestion = unit
+                        break
+            what = f"{1.0 / med:.4g} Hz" if med > 0 else "?"
+            hint = (
+                f"pass --time-unit {suggestion} ({1.0 / (med * TIME_UNITS[suggestion]):.4g} Hz)"
+                if suggestion
+                else "pass --time-unit s|ms|us|ns, or --rate HZ with --columns to ignore the time column"
+            )
+            raise InputError(
+                f"time column {col.name!r} has no unit and read as seconds its median step is {med:.4g} s "
+                f"({what}), which is implausible for motion capture",
+                path=table.source,
+                hint=hint,
+            )
+    return "s", "assumed"
+
+
+def _angles_in_degrees(plan: _Plan, kind: str, options: ReadOptions, source: str) -> bool:
+    cols = [plan.roles[r] for r in _KIND_ROLES[kind]]
+    units = {c.unit for c in cols if c.unit_kind == "angle"}
+    if options.degrees is not None:
+        return bool(options.degrees)
+    if len(units) > 1:
+        raise InputError(
+            "the angle columns disagree on units (deg and rad)", path=source, hint="pass --degrees or --radians"
+        )
+    if units:
+        return units.pop() == "deg"
+    if kind == "rotvec":
+        return False
+    names = ", ".join(c.name for c in cols)
+    raise InputError(
+        f"Euler angles ({names}) do not say whether they are degrees or radians",
+        path=source,
+        hint="pass --degrees or --radians (or name the columns e.g. roll_deg)",
+    )
+
+
+# --------------------------------------------------------------------------------------------------
+# rotation
+
+
+def _rotation(plan: _Plan, data: dict, options: ReadOptions, source: str):
+    """Quaternions (N, 4) x, y, z, w (raw, not normalised) and a description."""
+    kind = plan.rotation
+    if kind == "quaternion":
+        q = np.stack([data["qx"], data["qy"], data["qz"], data["qw"]], axis=-1)
+        order = "".join(sorted("xyzw", key=lambda c: plan.roles[f"q{c}"].index))
+        return q, f"quaternion {order}"
+    if kind == "numbered":
+        names = ", ".join(plan.roles[r].name for r in _KIND_ROLES[kind])
+        order = (options.quat_order or "").lower()
+        if order not in ("xyzw", "wxyz"):
+            raise InputError(
+                f"quaternion columns {names} are numbered, so their order (scalar first or last) is unknown"
+                + (f" (--quat-order {options.quat_order!r} is not xyzw or wxyz)" if options.quat_order else ""),
+                path=source,
+                hint="pass --quat-order xyzw (w last) or --quat-order wxyz (w first)",
+            )
+        raw = np.stack([data[r] for r in _KIND_ROLES[kind]], axis=-1)
+        q = raw if order == "xyzw" else raw[:, [1, 2, 3, 0]]
+        return q, f"quaternion {order} (--quat-order)"
+    from scipy.spatial.transform import Rotation
+
+    n = len(data["x"])
+    q = np.full((n, 4), np.nan)
+    if kind == "rotvec":
+        rv = np.stack([data["rx"], data["ry"], data["rz"]], axis=-1)
+        deg = _angles_in_degrees(plan, kind, options, source)
+        ok = np.all(np.isfinite(rv), axis=1)
+        if ok.any():
+            if deg:
+                rv = np.deg2rad(rv)
+            norms = np.linalg.norm(rv[ok], axis=1)
+            if not deg and options.degrees is None and np.median(norms) > 2 * np.pi:
+                raise InputError(
+                    f"rotation vectors have median length {np.median(norms):.4g}, more than 2π radians",
+                    path=source,
+                    hint="if they are in degrees pass --degrees",
+                )
+            q[ok] = Rotation.from_rotvec(rv[ok]).as_quat()
+        return q, "rotation vector (deg)" if deg else "rotation vector (rad)"
+    roles = _KIND_ROLES[kind]
+    axis_of = dict(zip(roles, "xyz"))
+    names = ", ".join(plan.roles[r].name for r in roles)
+    seq = options.euler_order
+    if not seq:
+        raise InputError(
+            f"Euler angles ({names}) need their rotation order",
+            path=source,
+            hint="pass --euler-order, scipy's convention: lowercase extrinsic (e.g. xyz), uppercase "
+            "intrinsic (e.g. ZYX)",
+        )
+    if not re.fullmatch(r"[xyz]{3}|[XYZ]{3}", seq) or len(set(seq.lower())) != 3:
+        raise InputError(
+            f"--euler-order {seq!r}: the columns name the axis of each angle, so the order must use each of "
+            "x, y, z once, all lowercase (extrinsic) or all uppercase (intrinsic)",
+            path=source,
+        )
+    deg = _angles_in_degrees(plan, kind, options, source)
+    by_axis = {axis_of[r]: data[r] for r in roles}
+    angles = np.stack([by_axis[a] for a in seq.lower()], axis=-1)
+    ok = np.all(np.isfinite(angles), axis=1)
+    if ok.any():
+        q[ok] = Rotation.from_euler(seq, angles[ok], degrees=deg).as_quat()
+    return q, f"euler {seq} ({'deg' if deg else 'rad'})"
+
+
+# --------------------------------------------------------------------------------------------------
+# public API
+
+
+def _stem(source: str) -> str:
+    if source in ("-", ""):
+        return "stdin"
+    return Path(source).stem
+
+
+def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
+    """Read one CSV/TSV file into raw trajectories (one per demo id, or one for the file).
+
+    Parameters
+    ----------
+    path : str or Path
+    options : ReadOptions, optional
+
+    Returns
+    -------
+    list of Trajectory
+        Raw: seconds, metres, quaternions x, y, z, w; lost frames are NaN rows.
+    """
+    path = str(path)
+    try:
+        data = Path(path).read_bytes()
+    except FileNotFoundError:
+        raise InputError("file not found", path=path, hint="check the path") from None
+    except IsADirectoryError:
+        raise InputError("is a directory, not a file", path=path, hint="pass the files inside it") from None
+    except OSError as exc:
+        raise InputError(f"cannot read the file ({exc.strerror or exc})", path=path) from None
+    return read_bytes(data, path, options)
+
+
+def read_bytes(data: bytes, source: str, options: ReadOptions | None = None) -> list[Trajectory]:
+    """Like :func:`read` for the bytes of a file (e.g. stdin); ``source`` names it in messages."""
+    return read_text(_decode(data, source), source, options)
+
+
+def read_text(text: str, source: str, options: ReadOptions | None = None) -> list[Trajectory]:
+    """Like :func:`read` for already decoded text."""
+    options = options or ReadOptions()
+    table = _parse_table(text, source)
+    cols = [_classify(i, name) for i, name in enumerate(table.header)]
+    plan = _plan(cols, options, source)
+    data = _read_frame(table, plan)
+    if data is None or len(data["x"]) == 0:
+        raise InputError("the file has a header but no data rows", path=source, row=table.header_line)
+    n = len(data["x"])
+    # groups of rows (demonstrations)
+    if "demo" in plan.roles:
+        groups: dict = {}
+        for k, v in enumerate(data["demo"]):
+            groups.setdefault(v, []).append(k)
+        groups = {k: np.asarray(v, dtype=np.int64) for k, v in groups.items()}
+    else:
+        groups = {None: np.arange(n)}
+    # time
+    if "t" in plan.roles:
+        if "t_nsec" in plan.roles:
+            t = data["t"] + data["t_nsec"] * 1e-9
+            unit, unit_source = "s", "sec + nanosec columns"
+        else:
+            unit, unit_source = _time_unit(plan, table, options, data["t"], groups)
+            t = data["t"] * TIME_UNITS[unit]
+        time_info = {"time_unit": unit, "time_unit_source": unit_source}
+    else:
+        if not options.rate:
+            tcands = [c.name for c in cols if any(w in c.base for w in ("time", "stamp", "sec"))]
+            raise InputError(
+                "no time column; pass --rate HZ"
+                + (" or --columns t=NAME" if tcands else "")
+                + f" (columns are {_columns_list(cols)})",
+                path=source,
+                hint=f"did you mean {tcands[0]!r}? pass --columns t={tcands[0]}" if tcands else None,
+            )
+        rate = float(options.rate)
+        if not np.isfinite(rate) or rate <= 0:
+            raise InputError(f"--rate must be a positive number of Hz, got {options.rate!r}")
+        t = np.empty(n)
+        if "frame" in plan.roles:
+            t = data["frame"] / rate
+            time_info = {"time_unit": "frame / rate", "time_unit_source": "frame column and --rate"}
+        else:
+            for idx in groups.values():
+                t[idx] = np.arange(len(idx)) / rate
+            time_info = {"time_unit": "row / rate", "time_unit_source": "--rate"}
+        time_info["rate_option_hz"] = rate
+    position = np.stack([data["x"], data["y"], data["z"]], axis=-1)
+    length_unit, length_source = _length_unit(plan, table, options, position)
+    position = position * LENGTH_UNITS[length_unit]
+    quat, rotation = _rotation(plan, data, options, source)
+    colmap = {}
+    order = {k: i for i, k in enumerate(("t", "t_nsec", "frame", "demo", "x", "y", "z"))}
+    for role, col in sorted(plan.roles.items(), key=lambda rc: (order.get(rc[0], 99), rc[1].index)):
+        colmap[_role_key(role)] = col.name
+    base_info = {
+        "format": "csv",
+        "columns": colmap,
+        "delimiter": table.delimiter,
+        "length_unit": length_unit,
+        "length_unit_source": length_source,
+        **time_info,
+        "rotation": rotation,
+    }
+    stem = _stem(source)
+    out = []
+    for demo, idx in groups.items():
+        tt = t[idx]
+        d = np.diff(tt[np.isfinite(tt)])
+        d = d[d > 0]
+        info = dict(base_info)
+        info["rate_hz"] = float(1.0 / np.median(d)) if len(d) else None
+        lines = table.lines[idx]
+        if len(lines) and np.all(np.diff(lines) == 1):
+            info["first_data_line"] = int(lines[0])
+        else:
+            info["line_runs"] = _runs(lines)
+        name = stem
+        if demo is not None:
+            info["demo"] = demo
+            name = f"{stem}#{demo}"
+        out.append(Trajectory(t=tt, quat=quat[idx], position=position[idx], name=name, source=source, info=info))
+    return out
+
+
+def _runs(lines: np.ndarray) -> list:
+    """[[first_line, count], ...] for the consecutive runs of ``lines``."""
+    if len(lines) == 0:
+        return []
+    breaks = np.flatnonzero(np.diff(lines) != 1) + 1
+    starts = np.concatenate([[0], breaks])
+    ends = np.concatenate([breaks, [len(lines)]])
+    return [[int(lines[s]), int(e - s)] for s, e in zip(starts, ends)]
+
+
+def describe(path, options: ReadOptions | None = None, *, text: str | None = None) -> dict:
+    """The header of a CSV file and what each column would be taken as (nothing is converted).
+
+    Returns plain data: ``{"delimiter", "header_line", "columns": [{"name", "taken_as", "unit"}],
+    "rotation", "problem"}``; ``problem`` is the message of the error reading would raise about the
+    columns (None if they are fine).
+    """
+    options = options or ReadOptions()
+    source = str(path)
+    if text is None:
+        text = _decode(Path(source).read_bytes(), source)
+    table = _parse_table(text, source)
+    cols = [_classify(i, name) for i, name in enumerate(table.header)]
+    problem = None
+    taken: dict = {}
+    rotation = None
+    try:
+        plan = _plan(cols, options, source)
+        rotation = plan.rotation
+        for role, col in plan.roles.items():
+            taken[col.index] = _role_key(role)
+        if "t" not in plan.roles and not options.rate:
+            problem = "no time column; pass --rate HZ"
+    except InputError as exc:
+        problem = str(exc)
+    columns = [
+        {"name": c.name, "taken_as": taken.get(c.index), "unit": c.unit}
+        for c in cols
+    ]
+    return {
+        "delimiter": table.delimiter,
+        "header_line": table.header_line,
+        "data_rows": int(len(table.lines)),
+        "declared": table.declared,
+        "columns": columns,
+        "rotation": rotation,
+        "problem": problem,
+    }
+
+
+# --------------------------------------------------------------------------------------------------
+# writing
+
+WRITE_COLUMNS = ("trajectory", "t", "x", "y", "z", "qx", "qy", "qz", "qw")
+
+
+def _extra_columns(extra, trajectories) -> list[tuple[str, np.ndarray]]:
+    lengths = [len(tr) for tr in trajectories]
+    total = sum(lengths)
+    out = []
+    for name, value in (extra or {}).items():
+        if isinstance(value, (list, tuple)) and len(value) == len(trajectories) and all(
+            np.ndim(v) >= 1 and len(v) == n for v, n in zip(value, lengths)
+        ):
+            arr = np.concatenate([np.asarray(v, dtype=np.float64).reshape(len(v), -1) for v in value], axis=0)
+        else:
+            arr = np.asarray(value, dtype=np.float64)
+            arr = arr.reshape(len(arr), -1) if arr.ndim else arr.reshape(1, 1)
+        if arr.shape[0] != total:
+            raise ValueError(f"extra column {name!r} has {arr.shape[0]} rows, the trajectories have {total}")
+        if arr.shape[1] == 1:
+            out.append((str(name), arr[:, 0]))
+        else:
+            out.extend((f"{name}_{j}", arr[:, j]) for j in range(arr.shape[1]))
+    return out
+
+
+def _write(trajectories, fh, extra) -> None:
+    import csv as _csv
+
+    extras = _extra_columns(extra, trajectories)
+    fh.write("# rbgp trajectories: time_unit=s length_unit=m quaternion=xyzw\n")
+    w = _csv.writer(fh, lineterminator="\n")
+    w.writerow(list(WRITE_COLUMNS) + [n for n, _ in extras])
+    offset = 0
+    fmt = float.__repr__
+    for k, tr in enumerate(trajectories):
+        name = tr.name or str(k)
+        block = np.concatenate([tr.t[:, None], tr.position, tr.quat], axis=1)
+        n = len(tr)
+        ex = np.stack([a[offset : offset + n] for _, a in extras], axis=1) if extras else None
+        for i in range(n):
+            row = [name] + [fmt(float(v)) for v in block[i]]
+            if ex is not None:
+                row += [fmt(float(v)) for v in ex[i]]
+            w.writerow(row)
+        offset += n
+
+
+def write_trajectories_csv(trajectories, stream_or_path, extra: dict | None = None) -> None:
+    """Write trajectories as ``trajectory,t,x,y,z,qx,qy,qz,qw[,extra...]``.
+
+    Floats are written with ``repr`` (shortest text that reads back to the same float64), so
+    :func:`read` returns identical arrays; the ``trajectory`` column holds each trajectory's name (its
+    index when empty) and splits them again on reading. A first comment line states the units
+    (``time_unit=s length_unit=m quaternion=xyzw``), which the reader honours.
+
+    Parameters
+    ----------
+    trajectories : sequence of Trajectory
+        Seconds, metres, quaternions x, y, z, w.
+    stream_or_path : text stream, str or Path
+        A path is written atomically (whole file or nothing).
+    extra : dict of name -> array, optional
+        Extra columns, each a 1-D array with one value per written row (all trajectories one after
+        the other), a (rows, k) array (written as ``name_0..name_{k-1}``) or a list of per-trajectory
+        arrays; e.g. ``{"std_wx": ..., ..., "std_vz": ...}``.
+    """
+    trajectories = list(trajectories)
+    if isinstance(stream_or_path, (str, os.PathLike)):
+        from rbgp_cli.io.atomic import atomic_open
+
+        with atomic_open(stream_or_path, "w", newline="", encoding="utf-8") as fh:
+            _write(trajectories, fh, extra)
+    else:
+        _write(trajectories, stream_or_path, extra)
