@@ -58,7 +58,7 @@ def _check_length(T) -> int:
 
 
 def normalised_time(T: int) -> np.ndarray:
-    """The ``T`` equally spaced values ``s_j = j/(T − 1)`` of normalised time, shape (T,), s_0 = 0, s_{T−1} = 1."""
+    """The T equally spaced steps of normalised time ``s_j = j/(T − 1)``, shape (T,); s_0 = 0, s_{T−1} = 1."""
     return np.linspace(0.0, 1.0, _check_length(T))
 
 
@@ -77,7 +77,7 @@ def _check_trajectory(traj: Trajectory) -> None:
         raise InputError(
             f"trajectory {_label(traj)} contains non-finite values (lost frames?)",
             path=path,
-            hint="clean it first (rbgp_cli.dynamics.prepare.prepare_trajectory drops or fills lost frames)",
+            hint="drop or repair those samples first (e.g. rbgp_cli.dynamics.prepare.prepare_trajectory)",
         )
     if not np.all(np.diff(traj.t) > 0):
         raise InputError(

@@ -180,7 +180,8 @@ def test_mean_is_equivariant_under_world_rotation():
     rng = np.random.default_rng(7)
     q = quat_multiply(random_quat(rng, 10), exp_quat(0.4 * rng.normal(size=(5, 10, 3))))
     q_w = random_quat(rng)
-    assert np.max(quat_dist(mean_rotation(quat_multiply(q_w, q)), quat_multiply(q_w, mean_rotation(q)))) < 1e-12
+    rotated_mean = mean_rotation(quat_multiply(q_w, q))
+    assert np.max(quat_dist(rotated_mean, quat_multiply(q_w, mean_rotation(q)))) < 1e-12
 
 
 # ---------------------------------------------------------------------------------------------
