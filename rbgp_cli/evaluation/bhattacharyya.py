@@ -1,0 +1,425 @@
+"""Bhattacharyya distance between generated motions and the demonstrations (MATH.md §9, paper sec. 4.3).
+
+For two Gaussians N(μ1, S1), N(μ2, S2) in R^k, with Σ = (S1 + S2)/2 and Δ = μ1 − μ2,
+
+    D_B = ⅛ Δᵀ Σ⁻¹ Δ + ½ ln( det Σ / sqrt(det S1 · det S2) )          (Bhattacharyya 1943)
+
+D_B >= 0, = 0 exactly for identical Gaussians, symmetric, and unchanged by any invertible affine map
+``x -> A x + b`` applied to both (so the full-covariance score does not depend on the world frame).
+For diagonal covariances it is a sum of per-dimension terms (1-D closed form)
+
+    D_B,i = (μ1_i − μ2_i)² / (4 (v1_i + v2_i)) + ½ ln( (v1_i + v2_i) / (2 sqrt(v1_i v2_i)) ).
+
+:func:`evaluate` resamples demonstrations and generated trajectories to T steps of normalised time,
+takes the features ``x = (log(R̄_tᵀ R), p)`` in the tangent space at the demonstrations' mean
+rotation R̄_t (:mod:`rbgp_cli.evaluation.resample`), fits one Gaussian per step and set (sample mean,
+sample variance with ddof = 1, plus a small ridge on the diagonal) and reports D_B per step, its mean
+over steps (the paper: 2.9 for the rigid-body GP vs 4.4 for the Euler GP on its shoe data), and the
+rotation and translation parts separately.
+
+Conventions: features are (rx, ry, rz, x, y, z), rotation first, radians and metres; the ridge is
+absolute, in rad² for the rotation dimensions and m² for the translation ones.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from rbgp_cli.dynamics.trajectory import Trajectory
+from rbgp_cli.errors import InputError, warn
+from rbgp_cli.evaluation.resample import (
+    _check_length,
+    mean_rotation,
+    normalised_time,
+    resample_all,
+    tangent_features,
+)
+
+__all__ = [
+    "bhattacharyya_gaussian",
+    "bhattacharyya_diag",
+    "EvaluationResult",
+    "evaluate",
+    "COVARIANCES",
+    "DEFAULT_RIDGE",
+    "MAX_UPSAMPLING",
+]
+
+#: Accepted values of ``evaluate(covariance=...)``.
+COVARIANCES = ("diag", "full")
+#: Default ridge added to every variance (rad² and m²): 1e-6 is (1 mrad)² and (1 mm)², below what
+#: motion capture resolves, so it only matters where a set has (almost) no spread.
+DEFAULT_RIDGE = 1e-6
+#: ``length`` may exceed the longest demonstration's sample count by at most this factor.
+MAX_UPSAMPLING = 4
+
+_LN2 = math.log(2.0)
+
+
+def _log_cosh(y: np.ndarray) -> np.ndarray:
+    """ln cosh y, accurate and >= 0 for every y (including ±inf).
+
+    ``log1p(2 sinh²(y/2))`` for |y| < 1 (no cancellation near 0), ``|y| + log1p(e^{−2|y|}) − ln 2``
+    otherwise (no overflow).
+    """
+    a = np.abs(y)
+    small = a < 1.0
+    with np.errstate(over="ignore", invalid="ignore"):
+        near = np.log1p(2.0 * np.sinh(0.5 * np.where(small, a, 0.0)) ** 2)
+        far = a + np.log1p(np.exp(-2.0 * np.where(small, 1.0, a))) - _LN2
+    return np.where(small, near, far)
+
+
+def bhattacharyya_diag(mu1, var1, mu2, var2) -> np.ndarray:
+    """Per-dimension Bhattacharyya terms of two Gaussians with diagonal covariances.
+
+    ``D_B,i = Δ_i² / (4 (v1_i + v2_i)) + ½ ln((v1_i + v2_i) / (2 sqrt(v1_i v2_i)))``; their sum over
+    the last axis is D_B of the k-dimensional Gaussians. The log term is evaluated as
+    ``½ ln cosh(½ ln(v1/v2))`` (the same quantity: (v1 + v2)/(2 sqrt(v1 v2)) = cosh(½ ln(v1/v2))),
+    which is >= 0 and exactly 0 for v1 = v2, without round-off below zero.
+
+    Degenerate variances: one variance 0 and the other > 0 gives +inf (the supports differ); both 0
+    gives 0 if the means agree and +inf otherwise. Negative variances raise ValueError.
+
+    Parameters
+    ----------
+    mu1, var1, mu2, var2 : array-like, shape (..., k)
+        Means and variances (broadcast against each other).
+
+    Returns
+    -------
+    ndarray, shape (..., k)
+        Nonnegative terms.
+    """
+    arrays = (np.asarray(a, dtype=np.float64) for a in (mu1, var1, mu2, var2))
+    mu1, var1, mu2, var2 = np.broadcast_arrays(*arrays)
+    if np.any(var1 < 0) or np.any(var2 < 0):
+        raise ValueError("bhattacharyya_diag: variances must be >= 0")
+    d2 = (mu1 - mu2) ** 2
+    vs = var1 + var2
+    both_zero = vs == 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        maha = np.where(both_zero, np.where(d2 == 0, 0.0, np.inf), d2 / (4.0 * np.where(both_zero, 1.0, vs)))
+        y = 0.5 * (np.log(np.where(both_zero, 1.0, var1)) - np.log(np.where(both_zero, 1.0, var2)))
+    logterm = 0.5 * _log_cosh(y)  # y = ±inf when exactly one variance is 0 -> +inf
+    return maha + logterm
+
+
+def _logdet_psd(S: np.ndarray) -> np.ndarray:
+    """ln det of symmetric PSD matrices (..., k, k): ``2 Σ ln L_ii`` by Cholesky; if any matrix of the
+    batch is singular, ``Σ ln λ_i`` by ``eigvalsh`` for the batch (−inf where an eigenvalue is <= 0)."""
+    try:
+        L = np.linalg.cholesky(S)
+    except np.linalg.LinAlgError:
+        lam = np.linalg.eigvalsh(S)
+        logdet = np.sum(np.log(np.where(lam > 0, lam, 1.0)), axis=-1)
+        return np.where(np.all(lam > 0, axis=-1), logdet, -np.inf)
+    return 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
+
+
+def _not_psd_error() -> ValueError:
+    return ValueError(
+        "bhattacharyya_gaussian: (S1 + S2)/2 has a negative eigenvalue; covariances must be symmetric "
+        "positive semi-definite"
+    )
+
+
+def bhattacharyya_gaussian(mu1, S1, mu2, S2) -> np.ndarray:
+    """Bhattacharyya distance of two Gaussians with full covariances, batched over leading axes.
+
+    ``D_B = ⅛ Δᵀ Σ⁻¹ Δ + ½ ln(det Σ / sqrt(det S1 det S2))``, ``Σ = (S1 + S2)/2``, ``Δ = μ1 − μ2``.
+
+    Numerics: ``Σ = L Lᵀ`` (Cholesky), ``Δᵀ Σ⁻¹ Δ = ‖L⁻¹ Δ‖²`` (a sum of squares, never negative),
+    ``ln det = 2 Σ ln L_ii`` for Σ, S1 and S2 alike, so no determinant is formed (nothing under- or
+    overflows for small or large variances) and identical Gaussians give exactly 0 (then Σ = S1
+    bit for bit). The log term is >= 0 in exact arithmetic (ln det is concave); round-off below 0 is
+    clipped to 0.
+
+    Degenerate covariances (only reached without a ridge; handled by ``eigh``/``eigvalsh`` instead
+    of Cholesky): a singular S1 or S2 with a nonsingular Σ gives +inf (the supports differ); a
+    singular Σ gives NaN; a Σ with a clearly negative eigenvalue (below −1e-12 of its largest) means
+    an input was not a covariance: ValueError.
+
+    Parameters
+    ----------
+    mu1, mu2 : array-like, shape (..., k)
+    S1, S2 : array-like, shape (..., k, k)
+        Symmetric positive (semi-)definite; everything broadcasts over the leading axes.
+
+    Returns
+    -------
+    ndarray, shape (...)
+    """
+    mu1 = np.asarray(mu1, dtype=np.float64)
+    mu2 = np.asarray(mu2, dtype=np.float64)
+    S1 = np.asarray(S1, dtype=np.float64)
+    S2 = np.asarray(S2, dtype=np.float64)
+    if mu1.ndim == 0 or mu2.ndim == 0 or mu1.shape[-1] != mu2.shape[-1]:
+        raise ValueError(
+            f"bhattacharyya_gaussian: means must have shape (..., k), got {mu1.shape} and {mu2.shape}"
+        )
+    k = mu1.shape[-1]
+    for name, S in (("S1", S1), ("S2", S2)):
+        if S.ndim < 2 or S.shape[-2:] != (k, k):
+            raise ValueError(f"bhattacharyya_gaussian: {name} must have shape (..., {k}, {k}), got {S.shape}")
+    batch = np.broadcast_shapes(mu1.shape[:-1], mu2.shape[:-1], S1.shape[:-2], S2.shape[:-2])
+    delta = np.broadcast_to(mu1 - mu2, batch + (k,))
+    S1 = np.broadcast_to(S1, batch + (k, k))
+    S2 = np.broadcast_to(S2, batch + (k, k))
+    Sigma = 0.5 * (S1 + S2)
+
+    try:
+        L = np.linalg.cholesky(Sigma)  # (..., k, k)
+    except np.linalg.LinAlgError:
+        L = None
+    if L is not None:
+        y = np.linalg.solve(L, delta[..., None])[..., 0]  # L⁻¹ Δ, (..., k)
+        maha = np.einsum("...i,...i->...", y, y)
+        logdet_sigma = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
+        regular = np.ones(batch, dtype=bool)
+    else:  # some Σ singular or not PSD: eigen-decomposition for the whole batch
+        lam, V = np.linalg.eigh(Sigma)
+        if np.any(lam[..., 0] < -1e-12 * np.maximum(np.abs(lam[..., -1]), np.finfo(float).tiny)):
+            raise _not_psd_error()
+        regular = lam[..., 0] > 0
+        lam_safe = np.where(regular[..., None], lam, 1.0)
+        z = np.einsum("...ji,...j->...i", V, delta)  # Vᵀ Δ
+        maha = np.sum(z * z / lam_safe, axis=-1)
+        logdet_sigma = np.sum(np.log(lam_safe), axis=-1)
+    with np.errstate(invalid="ignore"):
+        logterm = np.maximum(0.5 * (logdet_sigma - 0.5 * (_logdet_psd(S1) + _logdet_psd(S2))), 0.0)
+    out = 0.125 * maha + logterm
+    return np.where(regular, out, np.nan)
+
+
+@dataclass
+class EvaluationResult:
+    """Per-step and mean Bhattacharyya distances between generated trajectories and demonstrations.
+
+    Features are ``(rx, ry, rz, x, y, z)``: the rotation vector of ``R̄_tᵀ R`` (rad) and the position
+    (m), MATH.md §9. The parts: with ``covariance="diag"`` the rotation (translation) part is the
+    sum of the per-dimension terms of the 3 rotation (translation) dimensions and the total is their
+    sum; with ``"full"`` the total uses the full 6×6 covariances and each part its 3×3 block, so the
+    parts need not add up to the total (they ignore rotation-translation correlation).
+
+    Attributes
+    ----------
+    steps : int
+        T, the number of resampled steps.
+    n_generated, n_demos : int
+        Number of generated trajectories and of demonstrations.
+    covariance : str
+        ``"diag"`` or ``"full"``.
+    ridge : float
+        Added to every variance (rad², m²).
+    per_step, per_step_rotation, per_step_translation : ndarray, shape (T,)
+        D_B per step: total, rotation part, translation part.
+    mean, rotation, translation : float
+        Their means over the T steps.
+    s : ndarray, shape (T,)
+        Normalised time of each step, ``j/(T − 1)``.
+    reference : ndarray, shape (T, 4)
+        The demonstrations' chordal mean rotation per step (quaternions x, y, z, w).
+    demo_mean, demo_std, gen_mean, gen_std : ndarray, shape (T, 6)
+        Per-step sample mean and standard deviation (ddof = 1; 0 for a single trajectory; without
+        the ridge) of the features of the demonstrations and of the generated trajectories.
+    """
+
+    steps: int
+    n_generated: int
+    n_demos: int
+    covariance: str
+    ridge: float
+    per_step: np.ndarray
+    per_step_rotation: np.ndarray
+    per_step_translation: np.ndarray
+    mean: float
+    rotation: float
+    translation: float
+    s: np.ndarray
+    reference: np.ndarray
+    demo_mean: np.ndarray
+    demo_std: np.ndarray
+    gen_mean: np.ndarray
+    gen_std: np.ndarray
+
+    def to_dict(self, include_series: bool = False) -> dict:
+        """Plain data (floats, ints, str, lists) for JSON output.
+
+        ``{"bhattacharyya": {"mean", "rotation", "translation"}, "steps", "n_generated",
+        "n_demos", "covariance", "ridge"}``, plus ``"per_step": {"s", "total", "rotation",
+        "translation"}`` (lists of length T) when ``include_series``. Non-finite values (only
+        possible with ``ridge=0``) stay ``inf``/``nan`` floats.
+        """
+        out = {
+            "bhattacharyya": {
+                "mean": float(self.mean),
+                "rotation": float(self.rotation),
+                "translation": float(self.translation),
+            },
+            "steps": int(self.steps),
+            "n_generated": int(self.n_generated),
+            "n_demos": int(self.n_demos),
+            "covariance": str(self.covariance),
+            "ridge": float(self.ridge),
+        }
+        if include_series:
+            out["per_step"] = {
+                "s": [float(v) for v in self.s],
+                "total": [float(v) for v in self.per_step],
+                "rotation": [float(v) for v in self.per_step_rotation],
+                "translation": [float(v) for v in self.per_step_translation],
+            }
+        return out
+
+
+def _moments(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-step sample mean (T, 6) and covariance (T, 6, 6) of features x (M, T, 6).
+
+    ddof = 1 for M >= 2; a single trajectory has covariance 0 (the ridge makes it usable).
+    """
+    M = x.shape[0]
+    mu = x.mean(axis=0)
+    if M < 2:
+        return mu, np.zeros(mu.shape + (mu.shape[-1],))
+    c = x - mu
+    return mu, np.einsum("mti,mtj->tij", c, c) / (M - 1)
+
+
+def _default_length(demos: Sequence[Trajectory]) -> int:
+    """Median sample count of the demonstrations, rounded half up."""
+    return int(math.floor(float(np.median([len(d) for d in demos])) + 0.5))
+
+
+def evaluate(
+    generated: Sequence[Trajectory],
+    demos: Sequence[Trajectory],
+    *,
+    length: int | None = None,
+    covariance: str = "diag",
+    ridge: float = DEFAULT_RIDGE,
+) -> EvaluationResult:
+    """Bhattacharyya distance between generated trajectories and demonstrations, per step (MATH.md §9).
+
+    1. Resample every trajectory to ``T = length`` steps of normalised time (default: the median
+       sample count of the demonstrations), slerp for rotation, linear for translation
+       (:func:`~rbgp_cli.evaluation.resample.resample`).
+    2. Reference R̄_t: the chordal mean of the demonstrations' rotations at each step.
+    3. Features ``x = (log(R̄_tᵀ R), p)``, shape (6,), for every trajectory and step.
+    4. Per step and set, a Gaussian: sample mean; covariance with ddof = 1 (0 for a single
+       trajectory); ``ridge`` added to the diagonal (absolute: rad² and m²).
+    5. D_B per step. ``"diag"``: per-dimension terms (:func:`bhattacharyya_diag`); rotation part = sum
+       over the 3 rotation dimensions, translation part = sum over the 3 translation dimensions,
+       total = both. ``"full"``: total from the full 6×6 covariances, parts from the 3×3 blocks
+       (:func:`bhattacharyya_gaussian`).
+
+    The rotation part does not change when the world frame is rotated (R̄ᵀR is invariant) and has no
+    jump at θ = π; with ``"full"`` the translation part and the total are also invariant under a
+    common rigid motion of the world (an orthogonal map keeps ``ridge·I``); with ``"diag"`` the
+    translation part is invariant under common translations (per-axis variances change when the axes
+    rotate).
+
+    Length rule: resampling to more steps than a demonstration has samples only interpolates, which is
+    harmless up to a point; ``length`` above ``MAX_UPSAMPLING`` (4) times the longest demonstration's
+    sample count is refused (the steps would be almost all interpolation), and ``length`` above the
+    longest demonstration's sample count is reported with an :class:`~rbgp_cli.errors.RbgpWarning`.
+
+    Parameters
+    ----------
+    generated, demos : sequence of Trajectory
+        Clean trajectories (>= 2 samples each; quaternions x, y, z, w; metres); at least one of each.
+    length : int, optional
+        T >= 2; default the median sample count of ``demos`` (rounded half up).
+    covariance : {"diag", "full"}
+    ridge : float
+        >= 0, added to every variance; 0 can give infinite or NaN distances where a set has no spread.
+
+    Returns
+    -------
+    EvaluationResult
+
+    Raises
+    ------
+    InputError
+        No generated trajectories or no demonstrations, a trajectory with fewer than 2 samples (or
+        not clean), ``length < 2`` or above the rule, unknown ``covariance``, negative ridge.
+    """
+    generated = list(generated)
+    demos = list(demos)
+    if not generated:
+        raise InputError("no generated trajectories to evaluate", hint="pass at least one")
+    if not demos:
+        raise InputError("no demonstrations to compare with", hint="pass at least one demonstration")
+    if covariance not in COVARIANCES:
+        raise InputError(f"unknown covariance {covariance!r}", hint="use 'diag' or 'full'")
+    try:
+        ridge = float(ridge)
+    except (TypeError, ValueError):
+        raise InputError(f"ridge must be a number, got {ridge!r}") from None
+    if not (math.isfinite(ridge) and ridge >= 0):
+        raise InputError(f"ridge must be finite and >= 0, got {ridge}", hint="use e.g. 1e-6")
+
+    longest = max(len(d) for d in demos)
+    if length is None:
+        T = _check_length(max(_default_length(demos), 2))
+    else:
+        T = _check_length(length)
+        if T > MAX_UPSAMPLING * longest:
+            raise InputError(
+                f"length {T} is more than {MAX_UPSAMPLING}x the longest demonstration ({longest} samples)",
+                hint=f"use a length of at most {MAX_UPSAMPLING * longest}, or omit it for the median "
+                f"demonstration length ({_default_length(demos)})",
+            )
+        if T > longest:
+            warn(
+                f"length {T} exceeds the longest demonstration ({longest} samples); "
+                "the demonstrations are upsampled by interpolation"
+            )
+
+    q_d, p_d = resample_all(demos, T)  # (M_D, T, 4), (M_D, T, 3)
+    q_g, p_g = resample_all(generated, T)  # (M_G, T, 4), (M_G, T, 3)
+    ref = mean_rotation(q_d)  # (T, 4)
+    x_d = tangent_features(q_d, p_d, ref)  # (M_D, T, 6)
+    x_g = tangent_features(q_g, p_g, ref)  # (M_G, T, 6)
+
+    mu_d, cov_d = _moments(x_d)  # (T, 6), (T, 6, 6)
+    mu_g, cov_g = _moments(x_g)
+    var_d = np.diagonal(cov_d, axis1=-2, axis2=-1)  # (T, 6), without the ridge
+    var_g = np.diagonal(cov_g, axis1=-2, axis2=-1)
+    rot, tra = slice(0, 3), slice(3, 6)
+
+    if covariance == "diag":
+        terms = bhattacharyya_diag(mu_d, var_d + ridge, mu_g, var_g + ridge)  # (T, 6)
+        per_rot = terms[:, rot].sum(axis=-1)
+        per_tra = terms[:, tra].sum(axis=-1)
+        per_step = per_rot + per_tra
+    else:
+        eye = ridge * np.eye(6)
+        S_d, S_g = cov_d + eye, cov_g + eye
+        per_step = bhattacharyya_gaussian(mu_d, S_d, mu_g, S_g)
+        per_rot = bhattacharyya_gaussian(mu_d[:, rot], S_d[:, rot, rot], mu_g[:, rot], S_g[:, rot, rot])
+        per_tra = bhattacharyya_gaussian(mu_d[:, tra], S_d[:, tra, tra], mu_g[:, tra], S_g[:, tra, tra])
+
+    return EvaluationResult(
+        steps=T,
+        n_generated=len(generated),
+        n_demos=len(demos),
+        covariance=covariance,
+        ridge=ridge,
+        per_step=per_step,
+        per_step_rotation=per_rot,
+        per_step_translation=per_tra,
+        mean=float(np.mean(per_step)),
+        rotation=float(np.mean(per_rot)),
+        translation=float(np.mean(per_tra)),
+        s=normalised_time(T),
+        reference=ref,
+        demo_mean=mu_d,
+        demo_std=np.sqrt(var_d),
+        gen_mean=mu_g,
+        gen_std=np.sqrt(var_g),
+    )
