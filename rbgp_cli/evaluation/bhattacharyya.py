@@ -315,7 +315,10 @@ def evaluate(
     5. D_B per step. ``"diag"``: per-dimension terms (:func:`bhattacharyya_diag`); rotation part = sum
        over the 3 rotation dimensions, translation part = sum over the 3 translation dimensions,
        total = both. ``"full"``: total from the full 6×6 covariances, parts from the 3×3 blocks
-       (:func:`bhattacharyya_gaussian`).
+       (:func:`bhattacharyya_gaussian`). M trajectories give a sample covariance of rank <= M − 1,
+       so a full 6×6 covariance needs at least 7 trajectories per set; with fewer, its smallest
+       eigenvalues are the ridge and the log-determinant term of D_B is dominated by it (the
+       3×3 parts need at least 4). Prefer ``"diag"`` for small sets.
 
     The rotation part does not change when the world frame is rotated (R̄ᵀR is invariant) and has no
     jump at θ = π; with ``"full"`` the translation part and the total are also invariant under a
