@@ -1,0 +1,263 @@
+"""Vicon Nexus / Tracker CSV exports -> raw :class:`~rbgp_cli.dynamics.trajectory.Trajectory`.
+
+The format (ECOSYSTEM.md §2.3)
+    * Sections (``Devices``, ``Joints``, ``Model Outputs``, ``Segments``, ``Trajectories``), separated
+      by blank lines. Each has a title line, a rate line (``100``), a names line with
+      ``Subject:Segment`` in the first column of each block, the column line
+      ``Frame,Sub Frame,RX,RY,RZ,TX,TY,TZ,...`` and a units line (``,,deg,deg,deg,mm,mm,mm``).
+    * 6DOF poses are the ``RX RY RZ TX TY TZ`` blocks of the ``Segments`` section (global poses). If
+      there is no Segments section, another section with such blocks is used, but never ``Joints``
+      (joint transforms are relative to the parent segment).
+    * Time: ``t = (Frame - 1) / rate`` (frames count from 1). ``Sub Frame`` only matters for device
+      data and is ignored.
+    * Lost frames are blank cells; they become NaN rows.
+    * Separator ``,`` or ``;`` (some locales; then a decimal comma is accepted too), or a tab.
+
+Rotation (a documented assumption, overridable)
+    ``RX, RY, RZ`` are read as the **helical** angles of the segment, i.e. the rotation vector
+    ``θ·u`` (axis times angle) in the units line's unit (degrees by default), the Vicon default for
+    segment export (ECOSYSTEM.md §2.3, unverified against Vicon's own documentation). With
+    ``ReadOptions.rotation == "euler"`` they are Euler angles instead: ``--euler-order`` (scipy
+    notation, e.g. ``XYZ`` intrinsic) is then required, and each angle is taken from the column of
+    its axis (RX for X, ...).
+
+Positions ``TX TY TZ`` are in the units line's unit (mm); ``--length-unit`` overrides it and is
+required when the file has no units line.
+"""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+
+from rbgp_cli.dynamics.trajectory import Trajectory
+from rbgp_cli.errors import InputError, warn
+from rbgp_cli.io.options import ReadOptions
+from rbgp_cli.io.qtm import metres_per, numeric_cells, quat_from_valid, read_text, reader_guard, select_bodies
+
+__all__ = ["sniff", "read", "describe", "SECTIONS"]
+
+SECTIONS = ("Devices", "Joints", "Model Outputs", "Segments", "Trajectories")
+_POSE = ("RX", "RY", "RZ", "TX", "TY", "TZ")
+_HINT = "export the Segments section from Vicon Nexus/Tracker as CSV"
+_ANGLE_UNITS = {"deg": True, "degrees": True, "rad": False, "radians": False}
+
+
+def _delimiter(lines) -> str | None:
+    for line in lines[:200]:
+        for d in (",", ";", "\t"):
+            if line.startswith(f"Frame{d}"):
+                return d
+    return None
+
+
+def sniff(head: str) -> bool:
+    """True if ``head`` looks like a Vicon CSV export: a section title (``Segments``, ...) on the
+    first non-empty line and a ``Frame,Sub Frame`` column line."""
+    lines = [ln for ln in head.lstrip("\ufeff").splitlines() if ln.strip(",;\t ")]
+    if not lines:
+        return False
+    title = lines[0].strip().rstrip(",;\t").strip()
+    d = _delimiter(lines)
+    return title in SECTIONS and d is not None and any(ln.startswith(f"Frame{d}Sub Frame") for ln in lines)
+
+
+class _Section:
+    """One section; ``column_row`` is the 0-based index of its ``Frame,Sub Frame`` line (so the rate
+    line is at file line ``column_row - 1``, the units line at ``column_row + 2``, 1-based)."""
+
+    def __init__(self, title, column_row, rate, names, columns, units, data):
+        self.title, self.column_row, self.rate = title, column_row, rate
+        self.names, self.columns, self.units, self.data = names, columns, units, data
+        self.blocks: dict[str, dict[str, int]] = {}
+        current = None
+        for j in range(2, len(columns)):
+            if j < len(names) and names[j]:
+                current = self.blocks.setdefault(names[j], {})
+            if current is not None and columns[j]:
+                current.setdefault(columns[j], j)
+
+    @property
+    def poses(self) -> dict[str, dict[str, int]]:
+        return {n: b for n, b in self.blocks.items() if all(c in b for c in _POSE)}
+
+
+class _Layout:
+    def __init__(self, path, text):
+        self.path = str(path)
+        self.lines = text.splitlines()
+        self.delimiter = _delimiter(self.lines)
+        if self.delimiter is None:
+            raise InputError("no 'Frame,Sub Frame,...' column line: not a Vicon CSV export", path=self.path,
+                             hint=_HINT)
+        rows = list(csv.reader(self.lines, delimiter=self.delimiter))
+        self.rows = [[c.strip() for c in r] for r in rows]
+        self.sections: list[_Section] = []
+        blank = [not any(r) for r in self.rows]
+        for c, r in enumerate(self.rows):
+            if not r or r[0] != "Frame" or c < 2:
+                continue
+            names, rate_row = self.rows[c - 1], self.rows[c - 2]
+            title_row = self.rows[c - 3] if c >= 3 else []
+            title = title_row[0] if title_row else ""
+            units = None
+            start = c + 1
+            if start < len(self.rows) and self.rows[start] and not self.rows[start][0] and any(self.rows[start]):
+                units, start = self.rows[start], start + 1
+            end = start
+            while end < len(self.rows) and not blank[end]:
+                end += 1
+            rate = _float(rate_row[0] if rate_row else "", self.delimiter)
+            self.sections.append(_Section(title, c, rate, names, r, units, list(range(start, end))))
+        if not self.sections:
+            raise InputError("no section with a 'Frame,Sub Frame' column line", path=self.path, hint=_HINT)
+
+    def pose_section(self) -> _Section:
+        candidates = [s for s in self.sections if s.poses]
+        preferred = [s for s in candidates if s.title == "Segments"] or [s for s in candidates if s.title != "Joints"]
+        if preferred:
+            return preferred[0]
+        titles = ", ".join(s.title or "(untitled)" for s in self.sections)
+        if candidates:
+            raise InputError(
+                "only the Joints section has RX..TZ columns, and joint transforms are relative to the parent "
+                "segment, not world poses", path=self.path, hint="export the Segments section (global poses)")
+        raise InputError(f"no RX,RY,RZ,TX,TY,TZ (segment pose) columns; the sections are {titles}",
+                         path=self.path, hint=_HINT)
+
+
+def _float(text: str, delimiter: str) -> float | None:
+    try:
+        value = float(text.replace(",", ".") if delimiter == ";" else text)
+    except ValueError:
+        return None
+    return value if value > 0 else None
+
+
+@reader_guard("a Vicon CSV export", _HINT)
+def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
+    """Read the selected segments of a Vicon CSV export.
+
+    Returns one raw :class:`Trajectory` per selected segment (``options.body`` matches
+    ``Subject:Segment`` or the segment name alone; None -> the only one, ``"all"`` -> every one):
+    t in seconds, quaternions x, y, z, w (segment -> world), positions in metres, lost frames as NaN.
+    """
+    options = options or ReadOptions()
+    layout = _Layout(path, read_text(path))
+    section = layout.pose_section()
+    poses = section.poses
+    aliases = {n.split(":", 1)[1]: n for n in poses if ":" in n}
+    if len(set(aliases.values())) != len(aliases) or len(aliases) != len({a.lower() for a in aliases}):
+        aliases = {}
+    chosen = select_bodies(list(poses), options.body, path=path, aliases=aliases)
+
+    rotation = (options.rotation or "helical").lower()
+    if rotation not in ("helical", "euler"):
+        raise InputError(f"unknown --rotation {options.rotation!r} for Vicon RX,RY,RZ", path=path,
+                         hint="use --rotation helical (axis-angle, default) or --rotation euler")
+    if rotation == "euler" and not options.euler_order:
+        raise InputError("--rotation euler needs the Euler convention of RX,RY,RZ", path=path,
+                         hint="give it with --euler-order (e.g. XYZ intrinsic, xyz extrinsic)")
+    first = poses[chosen[0]]
+    units = section.units or []
+    if options.length_unit:
+        length_unit = options.length_unit
+    elif first["TX"] < len(units) and units[first["TX"]]:
+        length_unit = units[first["TX"]]
+    else:
+        raise InputError("no units line under the column line, so the length unit is unknown", path=path,
+                         row=section.column_row + 1, hint="give it with --length-unit m|cm|mm")
+    scale = metres_per(length_unit, path=path, hint="use --length-unit m|cm|mm")
+    if options.degrees is not None:
+        degrees = bool(options.degrees)
+    else:
+        stated = units[first["RX"]].lower() if first["RX"] < len(units) else ""
+        if stated and stated not in _ANGLE_UNITS:
+            raise InputError(f"unknown angle unit {stated!r} for RX", path=path, row=section.column_row + 2,
+                             hint="say whether angles are degrees with --degrees / --no-degrees")
+        degrees = _ANGLE_UNITS.get(stated, True)
+
+    rate = section.rate or options.rate
+    if section.rate is None and options.rate is None:
+        raise InputError(f"the rate line of section {section.title!r} is not a number", path=path,
+                         row=section.column_row - 1, hint="give the sample rate with --rate HZ")
+    if options.rate and section.rate and abs(options.rate - section.rate) > 1e-9 * section.rate:
+        warn(f"ignoring --rate {options.rate:g}: the file states {section.rate:g} Hz", path=path)
+
+    rows = [layout.rows[i] for i in section.data]
+    line_no = [i + 1 for i in section.data]
+    labels = {j: f"{section.columns[j]}" for j in range(len(section.columns))}
+    wanted = sorted({0} | {poses[n][c] for n in chosen for c in _POSE})
+    table = numeric_cells(rows, wanted, line_no, path=path, labels=labels, hint=_HINT,
+                          decimal_comma=layout.delimiter == ";")
+    col = {j: table[:, k] for k, j in enumerate(wanted)}
+    t = (col[0] - 1.0) / rate
+
+    from scipy.spatial.transform import Rotation as R
+
+    out = []
+    for name in chosen:
+        b = poses[name]
+        pos = np.stack([col[b[c]] for c in ("TX", "TY", "TZ")], axis=1) * scale
+        lost = ~np.all(np.isfinite(pos), axis=1)
+        if rotation == "helical":
+            rv = np.stack([col[b[c]] for c in ("RX", "RY", "RZ")], axis=1)
+            rv = np.deg2rad(rv) if degrees else rv
+            lost |= ~np.all(np.isfinite(rv), axis=1)
+            quat = quat_from_valid(~lost, R.from_rotvec, rv)
+            source = f"helical (rotation vector) {'deg' if degrees else 'rad'}"
+        else:
+            seq = options.euler_order
+            ang = np.stack([col[b["R" + a.upper()]] for a in seq], axis=1)
+            lost |= ~np.all(np.isfinite(ang), axis=1)
+            quat = quat_from_valid(~lost, lambda a: R.from_euler(seq, a, degrees=degrees), ang)
+            source = f"euler {seq} {'deg' if degrees else 'rad'} (--euler-order)"
+        pos[lost] = np.nan
+        info = {
+            "format": "vicon",
+            "layout": f"vicon csv, section {section.title or '(untitled)'}, delimiter {layout.delimiter!r}",
+            "body": name,
+            "bodies": list(poses),
+            "length_unit": length_unit,
+            "rotation_source": source,
+            "rate_hz": rate,
+            "time_source": "(Frame - 1) / rate",
+            "lost_frames": int(lost.sum()),
+            "sections": [s.title for s in layout.sections],
+        }
+        out.append(Trajectory(t=t, quat=quat, position=pos, name=name, source=str(path), info=info))
+    return out
+
+
+@reader_guard("a Vicon CSV export", _HINT)
+def describe(path, options: ReadOptions | None = None) -> dict:
+    """Plain-data summary for ``rbgp inspect`` (sections, segments, units, rate, frames), without
+    parsing the numbers."""
+    options = options or ReadOptions()
+    layout = _Layout(path, read_text(path))
+    sections = [
+        {
+            "title": s.title,
+            "rate_hz": s.rate,
+            "frames": len(s.data),
+            "blocks": list(s.blocks),
+            "pose_blocks": list(s.poses),
+            "units": sorted({u for u in (s.units or [])[2:] if u}),
+        }
+        for s in layout.sections
+    ]
+    try:
+        pose = layout.pose_section()
+    except InputError:
+        pose = None
+    return {
+        "format": "vicon",
+        "delimiter": layout.delimiter,
+        "sections": sections,
+        "bodies": list(pose.poses) if pose else [],
+        "pose_section": pose.title if pose else None,
+        "rotation": (options.rotation or "helical") if pose else None,
+        "frames": len(pose.data) if pose else 0,
+        "rate_hz": pose.rate if pose else None,
+    }
