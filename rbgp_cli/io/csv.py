@@ -989,16 +989,19 @@ def _write(trajectories, fh, extra) -> None:
     w.writerow(list(WRITE_COLUMNS) + [n for n, _ in extras])
     offset = 0
     fmt = float.__repr__
+    used: set = set()
     for k, tr in enumerate(trajectories):
-        name = tr.name or str(k)
+        label = (tr.name or "").strip() or str(k)
+        if label in used:  # the column splits the trajectories again, so names must be unique
+            label = f"{label}#{k}"
+        used.add(label)
+        # always quoted, so that a name starting with '#' is not read back as a comment
+        name = '"' + label.replace('"', '""') + '"'
         block = np.concatenate([tr.t[:, None], tr.position, tr.quat], axis=1)
         n = len(tr)
-        ex = np.stack([a[offset : offset + n] for _, a in extras], axis=1) if extras else None
-        for i in range(n):
-            row = [name] + [fmt(float(v)) for v in block[i]]
-            if ex is not None:
-                row += [fmt(float(v)) for v in ex[i]]
-            w.writerow(row)
+        if extras:
+            block = np.concatenate([block, np.stack([a[offset : offset + n] for _, a in extras], axis=1)], axis=1)
+        fh.writelines(name + "," + ",".join(map(fmt, row)) + "\n" for row in block.tolist())
         offset += n
 
 
@@ -1007,7 +1010,7 @@ def write_trajectories_csv(trajectories, stream_or_path, extra: dict | None = No
 
     Floats are written with ``repr`` (shortest text that reads back to the same float64), so
     :func:`read` returns identical arrays; the ``trajectory`` column holds each trajectory's name (its
-    index when empty) and splits them again on reading. A first comment line states the units
+    index when empty; a repeated name gets ``#<index>`` appended) and splits them again on reading. A first comment line states the units
     (``time_unit=s length_unit=m quaternion=xyzw``), which the reader honours.
 
     Parameters
