@@ -551,10 +551,15 @@ def _read(stream, source: str, options: ReadOptions, *, select_all: bool) -> lis
         exc = scan.error
         if isinstance(exc, InvalidMagic):
             raise InputError("not an MCAP file (bad magic bytes)", path=source) from None
-        what = "empty" if isinstance(exc, EndOfFile) and not topics else "truncated or corrupt"
         if not topics and isinstance(exc, EndOfFile):
+            empty = False
+            if seekable:
+                stream.seek(0, 2)
+                empty = stream.tell() <= start
             raise InputError(
-                f"the MCAP file is {what}: no messages could be read ({type(exc).__name__})",
+                "the file is empty"
+                if empty
+                else f"the MCAP file is truncated or corrupt: it ends before its first message ({type(exc).__name__})",
                 path=source,
                 hint="record or copy the file again",
             ) from None

@@ -316,3 +316,49 @@ def truncate(src, dst, size: int) -> Path:
     data = Path(src).read_bytes()
     Path(dst).write_bytes(data[:size])
     return Path(dst)
+
+
+def write_ros2_topics(path, topics: dict, n: int = 20, seed: int = 0, stamps_zero: bool = False, finish: bool = True,
+                      chunk_size: int = 1024 * 1024):  # fmt: skip
+    """Several single-pose ROS 2 topics ({topic: type name}), all with the same poses; with
+    ``stamps_zero`` the header stamps are 0 (log times stay real); without ``finish`` the writer is
+    left unfinished (no summary, no footer), as after a crash."""
+    from mcap_ros2.writer import Writer
+
+    stamps, pos, q = ground_truth(n, seed)
+    fh = open(path, "wb")
+    w = Writer(fh, chunk_size=chunk_size)
+    schemas = {t: w.register_msgdef(ty, MSGDEFS[ty]) for t, ty in topics.items()}
+    for k, ns in enumerate(stamps):
+        for t, ty in topics.items():
+            msg = ros2_message(ty, 0 if stamps_zero else int(ns), pos[0, k], q[0, k])
+            w.write_message(t, schemas[t], msg, log_time=int(ns) + LOG_OFFSET_NS, publish_time=int(ns))
+    if finish:
+        w.finish()  # else: only the chunks already full are in the file, as a crashed recorder leaves it
+    fh.close()
+    return stamps, pos, q
+
+
+def write_raw(path, topic: str, schema_name: str, schema_encoding: str, schema_data: bytes, message_encoding: str,
+              payloads: list):  # fmt: skip
+    """Raw mcap Writer: any schema/encoding, given message payloads (for error cases)."""
+    from mcap.writer import Writer
+
+    with open(path, "wb") as fh:
+        w = Writer(fh)
+        w.start(profile="", library="rbgp-tests")
+        sid = w.register_schema(schema_name, schema_encoding, schema_data)
+        cid = w.register_channel(topic, message_encoding, sid)
+        for k, data in enumerate(payloads):
+            ns = T0_NS + k * DT_NS
+            w.add_message(cid, log_time=ns, data=data, publish_time=ns)
+        w.finish()
+
+
+def chunk_data_offsets(path) -> list[int]:
+    """File offsets of the compressed data of every chunk (from the summary's chunk indexes)."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    return [ci.chunk_start_offset + ci.chunk_length - ci.compressed_size for ci in summary.chunk_indexes]
