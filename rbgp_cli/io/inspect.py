@@ -150,7 +150,7 @@ def _inspect_stdin(options: ReadOptions, stdin) -> dict:
 
     def fix(x):
         if isinstance(x, str):
-            return x.replace(tmp, "-")
+            return x.replace(tmp, "-").replace(Path(tmp).stem, "stdin")
         if isinstance(x, dict):
             return {k: fix(v) for k, v in x.items()}
         if isinstance(x, list):

@@ -245,7 +245,8 @@ def read_stream(stream, options: ReadOptions | None = None, source: str = "-") -
         raise InputError(exc.message.replace(tmp, source), path=source, row=exc.row, topic=exc.topic, hint=exc.hint) from None
     finally:
         os.unlink(tmp)
-    return [t.with_(source=t.source.replace(tmp, source)) for t in trajs]
+    stem = Path(tmp).stem
+    return [t.with_(source=t.source.replace(tmp, source), name=t.name.replace(stem, "stdin")) for t in trajs]
 
 
 def read_demonstrations(sources, options: ReadOptions | None = None, stdin=None) -> list[Trajectory]:
