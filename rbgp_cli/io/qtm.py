@@ -131,6 +131,7 @@ def numeric_cells(rows, columns, lines, *, path, labels=None, hint=None, decimal
     table = np.array([pick(r) for r in rows] if k > 1 else [(pick(r),) for r in rows], dtype=str)
     if decimal_comma:
         table = np.char.replace(table, ",", ".")
+    table = table.astype(np.result_type(table.dtype, "<U3"))  # room for "nan" when every cell is blank
     missing = np.isin(np.char.lower(np.char.strip(table)), MISSING_TOKENS)
     table[missing] = "nan"
     try:

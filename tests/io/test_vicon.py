@@ -156,6 +156,11 @@ def test_blank_cells_are_lost_frames(tmp_path):
     np.testing.assert_array_equal(tr.t, np.arange(4) / 100.0)
 
 
+def test_a_file_whose_cells_are_all_blank_is_all_lost(tmp_path):
+    (tr,) = vicon.read(write(tmp_path, segments([[""] * 6, [""] * 6])))
+    assert np.isnan(tr.quat).all() and np.isnan(tr.position).all() and tr.info["lost_frames"] == 2
+
+
 def test_truncated_and_non_numeric_rows(tmp_path):
     text = segments([ROW] * 3)
     with pytest.raises(InputError, match="truncated row") as err:
