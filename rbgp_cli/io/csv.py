@@ -538,8 +538,15 @@ def _read_frame(table: _Table, plan: _Plan):
     dtype = {demo_col.index: "str"} if demo_col is not None else None
     if not table.data_text.strip():
         return None
-    kwargs = dict(header=None, index_col=False, dtype=dtype, skip_blank_lines=False, decimal=table.decimal,
-                  quotechar='"', low_memory=False)  # fmt: skip
+    # as many columns as the header (short rows, e.g. lost frames, get NaN), or more when the first rows
+    # end with empty fields the header lacks (a trailing delimiter); other extra fields are an error
+    width = len(table.header)
+    for row in table.data_text.split("\n", 64)[:64]:
+        fields = _split_fields(row, table.delimiter)
+        if len(fields) > width and not any(f.strip() for f in fields[width:]):
+            width = len(fields)  # trailing empty fields only: ignored
+    kwargs = dict(header=None, names=list(range(width)), index_col=False, dtype=dtype, skip_blank_lines=False,
+                  decimal=table.decimal, quotechar='"', low_memory=False)  # fmt: skip
     if table.delimiter == "whitespace":
         kwargs["sep"] = r"\s+"
     else:
@@ -552,7 +559,7 @@ def _read_frame(table: _Table, plan: _Plan):
             k = int(m.group(2)) - 1
             line = int(table.lines[k]) if 0 <= k < len(table.lines) else None
             raise InputError(
-                f"row has {m.group(3)} fields, the rows above have {m.group(1)}",
+                f"row has {m.group(3)} fields, the header and the first rows have {m.group(1)}",
                 path=table.source,
                 row=line,
                 hint="check the delimiter and quoting of that row",

@@ -359,6 +359,15 @@ def test_row_with_too_many_fields(tmp_path):
         rcsv.read(write(tmp_path, "\n".join(text) + "\n"))
 
 
+def test_short_first_row_and_trailing_delimiters(tmp_path):
+    text = table("t,x,y,z,qx,qy,qz,qw".split(","), [T, *P.T, *XYZW]).splitlines()
+    text[1] = f"{float(T[0])!r},,"  # a lost frame written short
+    text[2:] = [line + "," for line in text[2:]]  # every other row ends with a delimiter
+    tr = read1(write(tmp_path, "\n".join(text) + "\n"))
+    assert np.isnan(tr.position[0]).all() and np.isnan(tr.quat[0]).all()
+    np.testing.assert_array_equal(tr.position[1:], P[1:])
+
+
 def test_empty_file(tmp_path):
     p = write(tmp_path, "")
     with pytest.raises(InputError, match="empty"):
