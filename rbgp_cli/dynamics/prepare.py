@@ -204,13 +204,19 @@ def prepare_trajectory(
     n_lost = int(lost.sum())
     n_filled = int(fill_idx.size)
     if len(rows) < 2:
+        finite_q = np.all(np.isfinite(q), axis=1)
+        n_zero = int(np.sum(finite_q & (np.linalg.norm(np.where(np.isfinite(q), q, 0.0), axis=1) < ZERO_QUAT_NORM)))
+        hint = "check that the file holds a whole demonstration and that the right columns were used"
+        if n_zero:
+            hint = (f"{n_zero} samples have an all-zero quaternion (an unset protobuf/foxglove Quaternion "
+                    "defaults to w = 0): the recorder did not fill in the orientation")  # fmt: skip
         raise InputError(
             f"{traj.name + ': ' if traj.name else ''}needs at least 2 samples for a velocity, "
             f"{len(rows)} left of {n} ({n_lost} lost frames"
             + (f", {int(dup_raw.sum())} duplicates" if dup_raw.any() else "")
             + ")",
             path=traj.source or None,
-            hint="check that the file holds a whole demonstration and that the right columns were used",
+            hint=hint,
         )
 
     # sign continuity

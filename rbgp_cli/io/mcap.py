@@ -505,7 +505,7 @@ def _read(stream, source: str, options: ReadOptions, *, select_all: bool) -> lis
     if seekable:
         summary = None
         try:
-            reader = SeekingReader(stream)
+            reader = SeekingReader(stream, validate_crcs=True)
             summary = reader.get_summary()
         except InvalidMagic:
             raise InputError("not an MCAP file (bad magic bytes)", path=source) from None
@@ -531,11 +531,11 @@ def _read(stream, source: str, options: ReadOptions, *, select_all: bool) -> lis
             stream.seek(start)
             wanted = {chosen.topic} if chosen is not None else None
             scan = _Scan(source, options, wanted)
-            reader = NonSeekingReader(stream)
+            reader = NonSeekingReader(stream, validate_crcs=True)
             _scan(reader.iter_messages(log_time_order=False), scan, factories)
     else:
         scan = _Scan(source, options, None)
-        reader = NonSeekingReader(stream)
+        reader = NonSeekingReader(stream, validate_crcs=True)
         _scan(reader.iter_messages(log_time_order=False), scan, factories)
     if not topics or scan.error is not None:
         topics = dict(scan.topics)

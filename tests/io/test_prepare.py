@@ -195,6 +195,12 @@ def test_fewer_than_two_samples_is_an_error(n_valid):
         prepare_trajectory(tr.with_(quat=q))
 
 
+def test_all_zero_quaternions_explain_the_protobuf_default():
+    tr = smooth(n=5)
+    with pytest.raises(InputError, match=r"0 left of 5 \(5 lost frames\); 5 samples have an all-zero quaternion"):
+        prepare_trajectory(tr.with_(quat=np.zeros((5, 4))))
+
+
 def test_one_sample_is_an_error():
     tr = smooth(n=1)
     with pytest.raises(InputError, match="needs at least 2 samples for a velocity, 1 left of 1"):
