@@ -284,6 +284,25 @@ def test_corrupted_zstd_chunk_keeps_the_chunks_before_it(tmp_path, chunked):
     assert "ZstdError" in warns[0] and f"recovered {n}" in warns[0]
 
 
+def test_bit_flip_in_an_uncompressed_chunk_is_caught_by_its_crc(tmp_path):
+    from mcap.writer import CompressionType
+
+    src = tmp_path / "plain.mcap"
+    stamps, pos, q = F.write_ros2(src, "geometry_msgs/msg/PoseStamped", n=200, chunk_size=2000,
+                                  compression=CompressionType.NONE)
+    offsets = F.chunk_data_offsets(src)
+    data = bytearray(src.read_bytes())
+    k = len(offsets) // 2
+    data[offsets[k] + 200] ^= 0x10  # one bit inside a message: decodes, but to a wrong pose
+    p = tmp_path / "flip.mcap"
+    p.write_bytes(bytes(data))
+    trajs, warns = read_quiet(p)
+    n = len(trajs[0])
+    assert 0 < n < 200
+    check(trajs, stamps[:n], pos[:, :n], q[:, :n])  # only the intact chunks before it
+    assert "CRC" in warns[0] or "crc" in warns[0]
+
+
 def test_corrupted_first_chunk_is_an_error(tmp_path, chunked):
     src, _ = chunked
     offsets = F.chunk_data_offsets(src)
