@@ -4,8 +4,8 @@ Columns are found by **name** (case-insensitive; separators ``_ . - space`` are 
 position or by guessing from values:
 
 * time: ``t``, ``time``, ``timestamp``, ``stamp``, ``sec`` (also ``header.stamp``-style names ending in
-  ``_time`` / ``_stamp``); a ``sec`` + ``nanosec`` pair is added up; no time column → ``--rate``
-  (``frame`` / rate when a frame column exists).
+  ``_time`` / ``_stamp``), numbers or ISO 8601 date-times; a ``sec`` + ``nanosec`` pair is added up; no
+  time column → ``--rate`` (``frame`` / rate when a frame column exists).
 * position: ``x y z``, ``pos_x``, ``px``, ``tx``, ``position_x``, ``pose.position.x`` ...
 * rotation, in this order of preference:
   quaternion with named components (``qx qy qz qw``, ``quat_x``, ``orientation_x``, ``rot_x..rot_w``,
@@ -587,6 +587,12 @@ def _read_frame(table: _Table, plan: _Plan):
             out[role] = series.to_numpy(dtype=np.float64)
             continue
         text = series.astype(object)
+        if role == "t":
+            stamps = _iso_datetimes(text)
+            if stamps is not None:
+                out[role] = stamps
+                out["t_datetime"] = True
+                continue
         num = pd.to_numeric(text.where(text.notna(), None), errors="coerce").to_numpy(dtype=np.float64)
         bad = np.isnan(num) & text.notna().to_numpy()
         if bad.any():
@@ -603,6 +609,24 @@ def _read_frame(table: _Table, plan: _Plan):
                 )
         out[role] = num
     return out
+
+
+def _iso_datetimes(text):
+    """Seconds since the epoch (UTC; naive times taken as UTC) if every non-empty cell is an ISO 8601
+    date-time such as ``2024-05-01T12:00:00.125``; else None."""
+    import pandas as pd
+
+    present = text[text.notna()]
+    if present.empty:
+        return None
+    first = str(present.iloc[0])
+    if not re.match(r"\s*\d{4}-\d{2}-\d{2}[T ]\d", first):
+        return None
+    ts = pd.to_datetime(text.where(text.notna(), None), format="ISO8601", errors="coerce", utc=True)
+    if ts[text.notna()].isna().any():
+        return None
+    secs = (ts - pd.Timestamp("1970-01-01", tz="UTC")) / pd.Timedelta(seconds=1)
+    return np.asarray(secs, dtype=np.float64)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -843,7 +867,10 @@ def read_text(text: str, source: str, options: ReadOptions | None = None) -> lis
         groups = {None: np.arange(n)}
     # time
     if "t" in plan.roles:
-        if "t_nsec" in plan.roles:
+        if data.get("t_datetime"):
+            t = data["t"]
+            unit, unit_source = "s", "ISO 8601 date-times"
+        elif "t_nsec" in plan.roles:
             t = data["t"] + data["t_nsec"] * 1e-9
             unit, unit_source = "s", "sec + nanosec columns"
         else:

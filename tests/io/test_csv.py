@@ -188,6 +188,25 @@ def test_sec_and_nanosec_columns_are_added(tmp_path):
     assert tr.t[0] == pytest.approx(1.7e9)
 
 
+def test_iso_datetime_time_column(tmp_path):
+    rows = ["timestamp,x,y,z,qx,qy,qz,qw"]
+    for k in range(N):
+        stamp = f"2024-05-01T12:00:{k * 0.01:09.6f}" if k != 3 else ""
+        rows.append(",".join([stamp] + [repr(float(v)) for v in (*P[k], *Q[k])]))
+    tr = read1(write(tmp_path, "\n".join(rows) + "\n"))
+    assert np.isnan(tr.t[3])
+    ok = np.arange(N) != 3
+    np.testing.assert_allclose(tr.t[ok] - tr.t[0], np.arange(N)[ok] * 0.01, atol=1e-6)
+    assert tr.t[0] == pytest.approx(1714564800.0)
+    assert tr.info["time_unit_source"] == "ISO 8601 date-times"
+
+
+def test_time_of_day_strings_are_not_guessed(tmp_path):
+    rows = ["t,x,y,z,qx,qy,qz,qw", "12:00:01,0,0,0,0,0,0,1", "12:00:02,0,0,0,0,0,0,1"]
+    with pytest.raises(InputError, match=r":2: non-numeric value '12:00:01' in column 't'"):
+        rcsv.read(write(tmp_path, "\n".join(rows) + "\n"))
+
+
 # -------------------------------------------------------------------------------------------- rotation kinds
 def test_numbered_quaternion_asks_for_quat_order_then_works(tmp_path):
     p = write(tmp_path, table("t,x,y,z,q0,q1,q2,q3".split(","), [T, *P.T, *WXYZ]))
