@@ -207,6 +207,13 @@ def read_stream(stream, options: ReadOptions | None = None, source: str = "-") -
     fmt = _format_option(options)
     if isinstance(stream, io.TextIOBase):
         stream = stream.buffer
+    try:
+        tty = bool(stream.isatty())
+    except (AttributeError, ValueError, OSError):
+        tty = False
+    if tty:
+        raise InputError("'-' reads stdin, but stdin is a terminal", path=source,
+                         hint="pipe a file in, e.g. rbgp train - < demo.csv")  # fmt: skip
     if _seekable(stream):
         pos = stream.tell()
         head = stream.read(len(MCAP_MAGIC))

@@ -154,6 +154,15 @@ def test_stdin_only_once_and_not_empty():
         rread.read_demonstrations(["-"], stdin=io.BytesIO(b""))
 
 
+def test_stdin_terminal_is_refused():
+    class Tty(io.BytesIO):
+        def isatty(self):
+            return True
+
+    with pytest.raises(InputError, match="stdin is a terminal"):
+        rread.read_demonstrations(["-"], stdin=Tty(CSV_TEXT.encode()))
+
+
 class _NonSeekable(io.RawIOBase):
     def __init__(self, data):
         self._b = io.BytesIO(data)
