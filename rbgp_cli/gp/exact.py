@@ -105,10 +105,8 @@ def nlml_and_gradient(kernel: Kernel, pre: dict, values: dict, y: np.ndarray, gr
     W *= -float(L)
     alpha_f = np.asfortranarray(alpha)
     W = blas.dgemm(1.0, alpha_f, alpha_f, beta=1.0, c=W, trans_b=1, overwrite_c=1)
-    values = dict(values)
-    values["_K"] = K
     kernel_names = [nm for nm in grad_names if nm != NOISE]
-    g_kernel = kernel.grad_contract(pre, values, state, W, kernel_names) if kernel_names else np.zeros(0)
+    g_kernel = kernel.grad_contract(pre, values, K, state, W, kernel_names) if kernel_names else np.zeros(0)
     grad = np.empty(len(grad_names))
     it = iter(g_kernel)
     for i, nm in enumerate(grad_names):

@@ -10,7 +10,7 @@ distances, inner products) are computed once per fit:
 
 * ``precompute(Xa, Xb=None) -> dict`` of pairwise arrays, shape (n, m), hyperparameter-free;
 * ``gram(pre, values) -> (K, state)`` with ``K`` of shape (n, m);
-* ``grad_contract(pre, values, state, W, names) -> ndarray``: ``Σ_ij W_ij ∂K_ij/∂log θ`` for the
+* ``grad_contract(pre, values, K, state, W, names) -> ndarray``: ``Σ_ij W_ij ∂K_ij/∂log θ`` for the
   named hyperparameters, which is all the marginal-likelihood gradient needs (R&W eq. 5.9) without
   materialising an (n, n, p) tensor;
 * ``gram_with_gradient(Xa, values, names)``: K and the full dK/dlogθ, shape (n, n, p), for tests.
@@ -72,7 +72,7 @@ class Kernel:
     def gram(self, pre: dict, values: dict) -> tuple[np.ndarray, object]:
         raise NotImplementedError
 
-    def grad_contract(self, pre: dict, values: dict, state, W: np.ndarray, names) -> np.ndarray:
+    def grad_contract(self, pre: dict, values: dict, K: np.ndarray, state, W: np.ndarray, names) -> np.ndarray:
         raise NotImplementedError
 
     def diag(self, X: np.ndarray, values: dict) -> np.ndarray:
@@ -106,5 +106,5 @@ class Kernel:
             for j in range(n):
                 E = np.zeros((n, n))
                 E[i, j] = 1.0
-                dK[i, j] = self.grad_contract(pre, values, state, E, names)
+                dK[i, j] = self.grad_contract(pre, values, K, state, E, names)
         return K, dK

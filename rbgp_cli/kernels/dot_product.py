@@ -45,8 +45,7 @@ class DotProduct(Kernel):
         K = G * values["signal_std"] ** 2
         return K, G
 
-    def grad_contract(self, pre, values, state, W, names):
-        K = values["_K"]
+    def grad_contract(self, pre, values, K, state, W, names):
         out = np.empty(len(names))
         for i, name in enumerate(names):
             if name == "signal_std":

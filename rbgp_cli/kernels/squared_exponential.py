@@ -123,13 +123,11 @@ class SquaredExponential(Kernel):
         K *= values["signal_std"] ** 2
         return K, d2
 
-    def grad_contract(self, pre, values, state, W, names) -> np.ndarray:
+    def grad_contract(self, pre, values, K, state, W, names) -> np.ndarray:
         """Σ_ij W_ij ∂K_ij/∂logθ for θ in ``names`` (see the module docstring for the formulas).
 
-        ``state`` is the d² returned by :meth:`gram`; ``W`` has the shape of K. K itself is passed in
-        ``values["_K"]`` by the GP to avoid recomputing the exponential.
+        ``K`` and ``state`` (the d²) are what :meth:`gram` returned; ``W`` has the shape of K.
         """
-        K = values["_K"]
         lam2 = values["length_scale"] ** 2
         out = np.empty(len(names))
         WK = None
