@@ -1,0 +1,150 @@
+"""Velocities, integration, representations and rollouts."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from rbgp_cli.dynamics.model import train_model, training_set
+from rbgp_cli.dynamics.representations import make_representation
+from rbgp_cli.dynamics.rollout import rollout, rollout_one_at_a_time, starts_near
+from rbgp_cli.dynamics.trajectory import Trajectory
+from rbgp_cli.dynamics.velocities import forward_differences
+from rbgp_cli.errors import InputError
+
+
+def crossing_pi_trajectory(n=200, seed=0):
+    """A rotation whose angle passes θ = π (canonical rotation vector flips), non-uniform times."""
+    rng = np.random.default_rng(seed)
+    t = np.cumsum(rng.uniform(0.004, 0.007, n))
+    axis = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    ang = np.linspace(math.pi - 0.6, math.pi + 0.6, n)
+    wobble = Rotation.from_rotvec(0.05 * np.sin(np.linspace(0, 6, n))[:, None] * np.array([1.0, 0, 0]))
+    rot = wobble * Rotation.from_rotvec(ang[:, None] * axis)
+    q = rot.as_quat()
+    q *= np.where(q[:, 3:] < 0, -1.0, 1.0)  # canonical w >= 0: the stored sign flips at θ = π too
+    p = np.stack([np.sin(t), np.cos(2 * t), 0.1 * t], 1)
+    return Trajectory(t, q, p, name="pi")
+
+
+def test_trajectory_crosses_pi_in_canonical_form():
+    r = crossing_pi_trajectory().poses[:, :3]
+    assert np.max(np.linalg.norm(np.diff(r, axis=0), axis=1)) > 3.0  # the flip is there
+
+
+@pytest.mark.parametrize("representation", ["axis-angle", "euler", "quaternion"])
+def test_integrating_exact_differences_reproduces_the_demonstration(representation):
+    """MATH.md §4: integrating a demonstration's own forward differences reproduces it to 1e-9,
+    also across θ = π (and across the Euler angles' ±180° for the baseline)."""
+    tr = crossing_pi_trajectory()
+    rep = make_representation(representation)
+    rep.prepare([tr])
+    X, Y, dt = rep.training_pairs(tr)
+    state = rep.state_from_pose(tr.quat[:1], tr.position[:1])
+    qs, ps = [], []
+    for k in range(len(dt)):
+        state = rep.step(state, Y[k : k + 1], dt[k])
+        q, p = rep.pose_from_state(state)
+        qs.append(q[0])
+        ps.append(p[0])
+    qs, ps = np.array(qs), np.array(ps)
+    dots = np.abs(np.sum(qs * tr.quat[1:], axis=1))
+    assert np.max(1 - dots) < 1e-12  # |<q, q_true>| = 1: same rotation (up to sign)
+    np.testing.assert_allclose(ps, tr.position[1:], atol=1e-9)
+
+
+def test_forward_differences_match_scipy_relative_rotation():
+    tr = crossing_pi_trajectory()
+    xi, dt = forward_differences(tr)
+    rel = Rotation.from_quat(tr.quat[1:]) * Rotation.from_quat(tr.quat[:-1]).inv()
+    np.testing.assert_allclose(xi[:, :3] * dt[:, None], rel.as_rotvec(), atol=1e-12)
+
+
+def test_too_coarse_rotation_step_is_rejected():
+    q = Rotation.from_rotvec([[0, 0, 0], [0, 0, math.pi]]).as_quat()
+    tr = Trajectory([0.0, 0.1], q, np.zeros((2, 3)), source="coarse.csv")
+    with pytest.raises(InputError, match="too coarse"):
+        forward_differences(tr)
+
+
+def test_euler_inputs_are_unwrapped_and_quaternions_on_one_hemisphere():
+    tr = crossing_pi_trajectory()
+    eul = make_representation("euler")
+    X, Y, _ = eul.training_pairs(tr)
+    assert np.max(np.abs(np.diff(X[:, :3], axis=0))) < 0.5  # no ±2π jumps
+    qrep = make_representation("quaternion")
+    qrep.prepare([tr])
+    X, Y, _ = qrep.training_pairs(tr)
+    assert np.all(np.sum(X[1:, :4] * X[:-1, :4], axis=1) > 0)  # sign-continuous
+    assert float(X[0, :4] @ qrep.reference) > 0
+
+
+def smooth_demos(k=4, n=120, seed=0):
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(k):
+        t = np.arange(n) / 60.0
+        s = t / t[-1]
+        r = (0.4 + 1.8 * s + 0.05 * rng.normal())[:, None] * np.array([0.2, 0.3, 0.93])
+        p = np.stack([0.5 * s + 0.02 * rng.normal(), 0.2 * np.sin(np.pi * s), 0.8 - 0.3 * s], 1)
+        out.append(Trajectory(t, Rotation.from_rotvec(r).as_quat(), p, name=f"d{i}"))
+    return out
+
+
+@pytest.fixture(scope="module")
+def small_model():
+    return train_model(smooth_demos(), subsample=None, max_points=120, restarts=1, seed=0, shared=True)
+
+
+def test_training_set_subsamples_deterministically():
+    demos = smooth_demos()
+    rep = make_representation("axis-angle")
+    X1, Y1, i1 = training_set(demos, rep, subsample=0.1, seed=3)
+    X2, Y2, i2 = training_set(demos, rep, subsample=0.1, seed=3)
+    assert i1["pairs"] == 4 * 119 and i1["points"] == round(0.1 * 4 * 119)
+    np.testing.assert_array_equal(X1, X2)
+    assert not np.array_equal(training_set(demos, rep, subsample=0.1, seed=4)[2]["indices"], i1["indices"])
+
+
+def test_batched_rollout_equals_one_at_a_time(small_model):
+    q0, p0 = starts_near(small_model.starts, 5, 0.02, seed=1)
+    a = rollout(small_model, q0, p0, 60, with_std=False)
+    b = rollout_one_at_a_time(small_model, q0, p0, 60)
+    np.testing.assert_allclose(a.position, b.position, atol=1e-9)  # BLAS gemv vs gemm round-off
+    np.testing.assert_allclose(np.abs(np.sum(a.quat * b.quat, -1)), 1.0, atol=1e-12)
+
+
+def test_rollout_shapes_std_and_seeded_samples(small_model):
+    q0, p0 = starts_near(small_model.starts, 3, 0.02, seed=2)
+    r1 = rollout(small_model, q0, p0, 40, samples=4, seed=9)
+    r2 = rollout(small_model, q0, p0, 40, samples=4, seed=9)
+    assert r1.quat.shape == (3, 41, 4) and r1.position.shape == (3, 41, 3) and r1.std.shape == (3, 41, 6)
+    assert r1.sample_quat.shape == (3, 4, 41, 4)
+    np.testing.assert_array_equal(r1.sample_position, r2.sample_position)
+    assert np.all(r1.std >= 0)
+    # the samples spread around the mean rollout, starting from the same pose
+    np.testing.assert_allclose(r1.sample_position[:, :, 0], np.repeat(r1.position[:, None, 0], 4, axis=1))
+    assert np.std(r1.sample_position[:, :, -1], axis=1).max() > 0
+    assert len(r1.trajectories(include_samples=True)) == 3 + 12
+
+
+def test_rollout_follows_the_demonstrations(small_model):
+    """Started at a demonstration's start, the mean rollout ends near where the demonstrations end."""
+    demos = smooth_demos()
+    res = rollout(small_model, small_model.starts[:1, :4], small_model.starts[:1, 4:], 119, dt=1 / 60.0, with_std=False)
+    end = np.mean([d.position[-1] for d in demos], axis=0)
+    assert np.linalg.norm(res.position[0, -1] - end) < 0.1
+
+
+def test_starts_near_is_seeded_and_spread():
+    base = np.array([[0, 0, 0, 1, 0.1, 0.2, 0.3], [0, 0, 0.38268343, 0.92387953, -0.1, 0.0, 0.5]])
+    q, p = starts_near(base, 50, 0.02, seed=0)
+    q2, p2 = starts_near(base, 50, 0.02, seed=0)
+    np.testing.assert_array_equal(p, p2)
+    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1, atol=1e-12)
+    assert 0.01 < np.std(p[:, 0] - np.where(p[:, 0] > 0, 0.1, -0.1)) < 0.04
+    with pytest.raises(InputError):
+        starts_near(base, 0, 0.02)
