@@ -33,6 +33,7 @@ body selection, unit factors and NaN-aware rotation conversions.
 from __future__ import annotations
 
 import functools
+import itertools
 import operator
 import re
 from pathlib import Path
@@ -61,7 +62,7 @@ __all__ = [
 # --------------------------------------------------------------------------------------------------
 
 #: Cell texts that mean "no value" (compared after strip + lower).
-MISSING_TOKENS = ("", "null", "nan", "-nan", "na", "n/a")
+MISSING_TOKENS = frozenset({"", "null", "nan", "-nan", "na", "n/a", "none"})
 
 
 def read_text(path) -> str:
@@ -95,7 +96,7 @@ def reader_guard(what: str, hint: str):
                 return fn(path, *args, **kwargs)
             except InputError:
                 raise
-            except (ValueError, IndexError, KeyError, TypeError, ZeroDivisionError) as exc:
+            except (ValueError, IndexError, KeyError, ZeroDivisionError) as exc:
                 raise InputError(
                     f"cannot read this as {what} ({type(exc).__name__}: {exc})", path=str(path), hint=hint
                 ) from exc
@@ -118,38 +119,38 @@ def numeric_cells(rows, columns, lines, *, path, labels=None, hint=None, decimal
     if n == 0 or k == 0:
         return np.empty((n, k))
     need = max(columns) + 1
-    for cells, line in zip(rows, lines):
-        if len(cells) < need:
-            raise InputError(
-                f"row has {len(cells)} cells but the column header needs {need} "
-                "(a truncated row, or a different delimiter than the header)",
-                path=str(path),
-                row=int(line),
-                hint=hint,
-            )
+    short = next((i for i, cells in enumerate(rows) if len(cells) < need), None)
+    if short is not None:
+        raise InputError(
+            f"row has {len(rows[short])} cells but the column header needs {need} "
+            "(a truncated row, or a different delimiter than the header)",
+            path=str(path),
+            row=int(lines[short]),
+            hint=hint,
+        )
+    # Python's float() on a flat list: correctly rounded and ~3x faster than numpy's str -> float
     pick = operator.itemgetter(*columns)
-    table = np.array([pick(r) for r in rows] if k > 1 else [(pick(r),) for r in rows], dtype=str)
+    flat = list(itertools.chain.from_iterable(pick(r) for r in rows)) if k > 1 else [pick(r) for r in rows]
     if decimal_comma:
-        table = np.char.replace(table, ",", ".")
-    table = table.astype(np.result_type(table.dtype, "<U3"))  # room for "nan" when every cell is blank
-    missing = np.isin(np.char.lower(np.char.strip(table)), MISSING_TOKENS)
-    table[missing] = "nan"
+        flat = [c.replace(",", ".") for c in flat]
     try:
-        return table.astype(np.float64)
+        return np.fromiter(map(float, flat), dtype=np.float64, count=n * k).reshape(n, k)
     except ValueError:
         pass
-    for i in range(n):  # slow path: find the first bad cell to name it
-        for j in range(k):
-            try:
-                float(table[i, j])
-            except ValueError:
-                label = (labels or {}).get(columns[j], f"#{columns[j] + 1}")
-                raise InputError(
-                    f"cell {str(table[i, j])!r} in column {label} is not a number",
-                    path=str(path),
-                    row=int(lines[i]),
-                    hint=hint,
-                ) from None
+    flat = ["nan" if c.strip().lower() in MISSING_TOKENS else c for c in flat]
+    try:
+        return np.fromiter(map(float, flat), dtype=np.float64, count=n * k).reshape(n, k)
+    except ValueError:
+        pass
+    for index, text in enumerate(flat):  # find the first bad cell to name it
+        try:
+            float(text)
+        except ValueError:
+            i, j = divmod(index, k)
+            label = (labels or {}).get(columns[j], f"#{columns[j] + 1}")
+            raise InputError(
+                f"cell {text!r} in column {label} is not a number", path=str(path), row=int(lines[i]), hint=hint
+            ) from None
     raise InputError("cannot parse the numeric cells", path=str(path), hint=hint)  # pragma: no cover
 
 
@@ -450,7 +451,7 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
                 hint="give the angles' convention with --euler-order (e.g. XYZ for Roll Pitch Yaw)",
             )
         plans[name] = plan
-        wanted += [fields[f] for f in ("X", "Y", "Z")] + (rot or []) + (angles or [])
+        wanted += [fields[f] for f in ("X", "Y", "Z")] + (rot or angles)  # angles: only when no Rot[]
         if "Residual" in fields:
             wanted.append(fields["Residual"])
     wanted = sorted(set(wanted))
@@ -485,10 +486,12 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
             source = "Rot[] matrix (column-major)"
             if bad.any():
                 if angles is not None and seq is not None:
-                    eul = np.stack([col[j] for j in angles], axis=1)
-                    use = bad & np.all(np.isfinite(eul), axis=1)
-                    lost |= bad & ~use
-                    quat[use] = R.from_euler(seq, eul[use], degrees=degrees).as_quat()
+                    idx = np.flatnonzero(bad)
+                    eul = numeric_cells([rows[i] for i in idx], angles, [line_no[i] for i in idx], path=path,
+                                        labels=labels, hint=_HINT)
+                    use = np.all(np.isfinite(eul), axis=1)
+                    lost[idx[~use]] = True
+                    quat[idx[use]] = R.from_euler(seq, eul[use], degrees=degrees).as_quat()
                     warn(f"body {name!r}: {int(bad.sum())} Rot[] matrices are not rotations; "
                          f"used the Euler angles ({seq}) for those rows", path=path)
                 else:

@@ -91,27 +91,33 @@ class _Layout:
         if self.delimiter is None:
             raise InputError("no 'Frame,Sub Frame,...' column line: not a Vicon CSV export", path=self.path,
                              hint=_HINT)
-        rows = list(csv.reader(self.lines, delimiter=self.delimiter))
-        self.rows = [[c.strip() for c in r] for r in rows]
+        d = self.delimiter
         self.sections: list[_Section] = []
-        blank = [not any(r) for r in self.rows]
-        for c, r in enumerate(self.rows):
-            if not r or r[0] != "Frame" or c < 2:
+        for c in (i for i, line in enumerate(self.lines) if line.startswith(f"Frame{d}")):
+            if c < 2:
                 continue
-            names, rate_row = self.rows[c - 1], self.rows[c - 2]
-            title_row = self.rows[c - 3] if c >= 3 else []
-            title = title_row[0] if title_row else ""
-            units = None
-            start = c + 1
-            if start < len(self.rows) and self.rows[start] and not self.rows[start][0] and any(self.rows[start]):
-                units, start = self.rows[start], start + 1
+            title_row = self.row(c - 3) if c >= 3 else []
+            units, start = None, c + 1
+            if start < len(self.lines) and not self.blank(start):
+                first = self.row(start)
+                if not first[0]:
+                    units, start = first, start + 1
             end = start
-            while end < len(self.rows) and not blank[end]:
+            while end < len(self.lines) and not self.blank(end):
                 end += 1
-            rate = _float(rate_row[0] if rate_row else "", self.delimiter)
-            self.sections.append(_Section(title, c, rate, names, r, units, list(range(start, end))))
+            rate_row = self.row(c - 2)
+            rate = _float(rate_row[0] if rate_row else "", d)
+            title = title_row[0] if title_row else ""
+            self.sections.append(_Section(title, c, rate, self.row(c - 1), self.row(c), units, list(range(start, end))))
         if not self.sections:
             raise InputError("no section with a 'Frame,Sub Frame' column line", path=self.path, hint=_HINT)
+
+    def row(self, i) -> list[str]:
+        """Line ``i`` (0-based) split with the csv module (header rows may quote names)."""
+        return [c.strip() for c in next(csv.reader([self.lines[i]], delimiter=self.delimiter), [])]
+
+    def blank(self, i) -> bool:
+        return not self.lines[i].strip(self.delimiter + " \t")
 
     def pose_section(self) -> _Section:
         candidates = [s for s in self.sections if s.poses]
@@ -185,7 +191,7 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
     if options.rate and section.rate and abs(options.rate - section.rate) > 1e-9 * section.rate:
         warn(f"ignoring --rate {options.rate:g}: the file states {section.rate:g} Hz", path=path)
 
-    rows = [layout.rows[i] for i in section.data]
+    rows = [layout.lines[i].split(layout.delimiter) for i in section.data]
     line_no = [i + 1 for i in section.data]
     labels = {j: f"{section.columns[j]}" for j in range(len(section.columns))}
     wanted = sorted({0} | {poses[n][c] for n in chosen for c in _POSE})

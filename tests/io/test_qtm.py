@@ -248,8 +248,10 @@ def test_non_numeric_cell_names_row_and_column(tmp_path):
     body["ang"] = body["ang"].astype(object)
     body["ang"][3][1] = "12,5"
     with pytest.raises(InputError) as err:
-        qtm.read(write(tmp_path, qtm_text({"b": body})))
+        qtm.read(write(tmp_path, qtm_text({"b": body}, rot=False)))
     assert err.value.row == 16 and "'12,5' in column Pitch is not a number" in str(err.value)
+    (tr,) = qtm.read(write(tmp_path, qtm_text({"b": body})))  # with Rot[] the angles are not needed
+    np.testing.assert_allclose(matrices(tr.quat), body["rot"], atol=1e-12)
 
 
 def test_comma_separated_file_is_not_read_as_qtm(tmp_path):
