@@ -208,12 +208,6 @@ def quat_from_valid(valid, convert, values) -> np.ndarray:
     return out
 
 
-def _rotation():
-    from scipy.spatial.transform import Rotation  # the io edge may use scipy (ARCHITECTURE.md)
-
-    return Rotation
-
-
 # --------------------------------------------------------------------------------------------------
 # QTM
 # --------------------------------------------------------------------------------------------------
@@ -381,6 +375,19 @@ class _Layout:
         return rot, angles, seq, source, angle_names
 
 
+def _check_matrices(m):
+    """For matrices (N, 3, 3): ``(empty, bad)`` masks: empty = a non-finite or all-zero matrix (QTM's
+    lost frame), bad = otherwise not a rotation (``max |R Rᵀ - I| > ORTHONORMAL_TOL`` or det <= 0)."""
+    finite = np.all(np.isfinite(m), axis=(1, 2))
+    empty = ~finite | np.all(m == 0.0, axis=(1, 2))
+    bad = np.zeros(len(m), bool)
+    if (~empty).any():
+        mm = m[~empty]
+        err = np.max(np.abs(mm @ mm.transpose(0, 2, 1) - np.eye(3)), axis=(1, 2))
+        bad[~empty] = (err > ORTHONORMAL_TOL) | (np.linalg.det(mm) <= 0)
+    return empty, bad
+
+
 def _is_number(text: str) -> bool:
     try:
         float(text)
@@ -428,7 +435,7 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
     chosen = select_bodies(list(layout.blocks), options.body, path=path)
     scale = metres_per(options.length_unit or "mm", path=path, hint="use --length-unit m|cm|mm")
     degrees = True if options.degrees is None else bool(options.degrees)
-    R = _rotation()
+    from scipy.spatial.transform import Rotation as R  # the io edge may use scipy
 
     rows = [layout.lines[i].split("\t") for i in layout.data]
     line_no = [i + 1 for i in layout.data]
@@ -467,22 +474,12 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
         lost = ~np.all(np.isfinite(pos), axis=1)
         if "Residual" in fields:
             lost |= col[fields["Residual"]] < 0  # QTM writes -1 for an untracked body
-        quat = np.full((len(rows), 4), np.nan)
-        source = None
         if rot is not None:
             m = np.stack([col[j] for j in rot], axis=1).reshape(-1, 3, 3).transpose(0, 2, 1)  # column-major
-            finite = np.all(np.isfinite(m), axis=(1, 2))
-            zero = finite & np.all(m == 0.0, axis=(1, 2))
-            lost |= ~finite | zero
-            ok = finite & ~zero
-            err = np.full(len(m), np.inf)
-            if ok.any():
-                mm = m[ok]
-                err[ok] = np.max(np.abs(mm @ mm.transpose(0, 2, 1) - np.eye(3)), axis=(1, 2))
-                err[ok] = np.where(np.linalg.det(mm) > 0, err[ok], np.inf)
-            good = ok & (err <= ORTHONORMAL_TOL) & ~lost
-            quat = quat_from_valid(good, R.from_matrix, m)
-            bad = ok & ~good & ~lost
+            empty, bad = _check_matrices(m)
+            lost |= empty
+            bad &= ~lost
+            quat = quat_from_valid(~lost & ~bad, R.from_matrix, m)
             source = "Rot[] matrix (column-major)"
             if bad.any():
                 if angles is not None and seq is not None:

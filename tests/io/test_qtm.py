@@ -133,11 +133,18 @@ def test_non_orthonormal_rot_row_falls_back_to_euler(tmp_path):
     body = random_body(rng, 5)
     body["rot"] = body["rot"].copy()
     body["rot"][2] = body["rot"][2] * 1.5  # scaled: not a rotation
+    body["rot"][3] = -body["rot"][3]  # orthonormal but a reflection (det -1)
     path = write(tmp_path, qtm_text({"b": body}))
-    with pytest.warns(RbgpWarning, match="1 Rot\\[\\] matrices are not rotations"):
+    with pytest.warns(RbgpWarning, match="2 Rot\\[\\] matrices are not rotations; used the Euler angles"):
         (tr,) = qtm.read(path)
     np.testing.assert_allclose(matrices(tr.quat)[2], body["rot"][2] / 1.5, atol=1e-12)
+    np.testing.assert_allclose(matrices(tr.quat)[3], -body["rot"][3], atol=1e-12)
     assert tr.info["lost_frames"] == 0
+    unusable_angles = qtm_text(  # "Extra" is no QTM angle name, so no Euler fallback
+        {"b": body}, angles=("Roll", "Pitch")).replace("\tPitch\tResidual", "\tPitch\tExtra\tResidual")
+    with pytest.warns(RbgpWarning, match="kept as lost frames"):
+        (tr,) = qtm.read(write(tmp_path, unusable_angles, "n.tsv"))
+    assert tr.info["lost_frames"] == 2 and np.isnan(tr.quat[[2, 3]]).all() and np.isfinite(tr.quat[[0, 1, 4]]).all()
 
 
 # ---------------------------------------------------------------- layout facts
