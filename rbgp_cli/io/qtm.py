@@ -229,12 +229,14 @@ def _is_key(cell: str) -> bool:
 
 def sniff(head: str) -> bool:
     """True if ``head`` (the first few KiB of text) looks like a QTM TSV export: it starts with
-    tab-separated QTM header keys such as ``NO_OF_FRAMES`` or ``FILE_VERSION``."""
+    tab-separated QTM header keys such as ``NO_OF_FRAMES`` or ``FILE_VERSION``, or (an export without
+    that header) with the ``Frame<TAB>Time<TAB>`` column header."""
     lines = [ln for ln in head.lstrip("\ufeff").splitlines() if ln.strip()][:3]
     if not lines or "\t" not in lines[0]:
         return False
     first = lines[0].split("\t")[0].strip()
-    return first in ("FILE_VERSION", "NO_OF_FRAMES", "NO_OF_CAMERAS", "NO_OF_BODIES", "NO_OF_MARKERS")
+    keys = ("FILE_VERSION", "NO_OF_FRAMES", "NO_OF_CAMERAS", "NO_OF_BODIES", "NO_OF_MARKERS")
+    return first in keys or lines[0].startswith("Frame\tTime\t")
 
 
 class _Layout:
@@ -262,8 +264,11 @@ class _Layout:
                 continue
             self.header_line = i
             break
-        if not self.header:
-            raise InputError("no QTM header (NO_OF_FRAMES, FREQUENCY, BODY_NAMES ...)", path=self.path, hint=_HINT)
+        if not self.header and not (
+            self.header_line is not None and self.lines[self.header_line].startswith("Frame\tTime\t")
+        ):  # an export without the key/value header still starts with the tab-separated column header
+            raise InputError("no QTM header (NO_OF_FRAMES, FREQUENCY, BODY_NAMES ...) and no tab-separated "
+                             "'Frame, Time, <Body> X ...' column header", path=self.path, hint=_HINT)
         included = " ".join(self.header.get("DATA_INCLUDED", [])).upper()
         if included and "6D" not in included:
             raise InputError(

@@ -170,6 +170,18 @@ def test_old_layout_time_is_row_over_frequency(tmp_path):
     np.testing.assert_allclose(trs[1].position, bodies["Lower"]["pos"] / 1000, rtol=1e-15)
 
 
+def test_export_without_key_value_header(tmp_path):
+    rng = np.random.default_rng(19)
+    bodies = {"a": random_body(rng, 5), "b": random_body(rng, 5)}
+    text = qtm_text(bodies)
+    columns_and_rows = text[text.index("Frame\tTime"):]
+    assert qtm.sniff(columns_and_rows)
+    trs = qtm.read(write(tmp_path, columns_and_rows), ReadOptions(body="all"))
+    assert [t.name for t in trs] == ["a", "b"] and trs[0].info["rate_hz"] is None
+    np.testing.assert_allclose(trs[1].t, np.arange(5) / 100.0, atol=1e-12)
+    np.testing.assert_allclose(matrices(trs[1].quat), bodies["b"]["rot"], atol=1e-12)
+
+
 def test_external_frequency_needs_rate_without_time_column(tmp_path):
     rng = np.random.default_rng(8)
     path = write(tmp_path, qtm_text({"b": random_body(rng, 4)}, layout="old", freq="EXT"))
@@ -264,7 +276,7 @@ def test_non_numeric_cell_names_row_and_column(tmp_path):
 def test_comma_separated_file_is_not_read_as_qtm(tmp_path):
     rng = np.random.default_rng(16)
     text = qtm_text({"b": random_body(rng, 2)}).replace("\t", ",")
-    with pytest.raises(InputError, match="no QTM header"):
+    with pytest.raises(InputError, match="no QTM header .* and no tab-separated"):
         qtm.read(write(tmp_path, text))
 
 
