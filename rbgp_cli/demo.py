@@ -22,9 +22,12 @@ def find_sample_data() -> Path:
 
 
 def run_demo(out, *, count: int = 100, representations=("axis-angle", "euler", "quaternion"), data=None,
-             seed: int = 0, progress=None) -> dict:
+             seed: int = 0, quick: bool = False, progress=None) -> dict:
     """Train, roll out and evaluate each representation; write models, rollouts and per-step scores to
-    ``out``; return the scores as plain data."""
+    ``out``; return the scores as plain data.
+
+    ``quick`` trains on at most 200 points with one shared set of hyperparameters (a smoke test of
+    the whole path in seconds; the scores are then not the paper-setting ones)."""
     from rbgp_cli import workflows
     from rbgp_cli.cli.report import write_per_step
     from rbgp_cli.dynamics.rollout import starts_near
@@ -40,13 +43,14 @@ def run_demo(out, *, count: int = 100, representations=("axis-angle", "euler", "
     base = np.array([np.concatenate([t.quat[0], t.position[0]]) for t in demos])
     q0, p0 = starts_near(base, count, 0.02, seed=seed)
     duration = float(np.median([t.duration for t in demos]))
-    scores = {"data": str(data), "demonstrations": len(demos), "rollouts": count, "representations": {}}
+    scores = {"data": str(data), "demonstrations": len(demos), "rollouts": count, "quick": quick, "representations": {}}
     for rep in representations:
         if progress:
             progress(f"[{rep}] training")
         t0 = time.perf_counter()
+        extra = {"max_points": 200, "shared": True, "restarts": 1} if quick else {}
         model, _, _ = workflows.train_from_files([str(data)], os.path.join(out, f"{rep}.rbgp"), representation=rep,
-                                                 seed=seed, progress=progress)
+                                                 seed=seed, progress=progress, **extra)
         t1 = time.perf_counter()
         if progress:
             progress(f"[{rep}] {count} rollouts of {duration:.2f} s")

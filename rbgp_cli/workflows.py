@@ -21,6 +21,7 @@ from rbgp_cli.io.options import ReadOptions
 
 __all__ = [
     "expand_paths",
+    "check_writable",
     "load_demonstrations",
     "train_from_files",
     "parse_pose",
@@ -99,6 +100,7 @@ def train_from_files(sources, output, *, options: ReadOptions | None = None, max
     from rbgp_cli.io.model_store import save_model
 
     options = options or ReadOptions()
+    check_writable(output)  # fail before minutes of training, not after
     trajs, reports, inputs = load_demonstrations(sources, options, max_gap=max_gap, stdin=stdin)
     model = train_model(trajs, progress=progress, **train_kwargs)
     model.provenance = {
@@ -116,6 +118,17 @@ def train_from_files(sources, output, *, options: ReadOptions | None = None, max
     }
     header = save_model(model, output)
     return model, header, trajs
+
+
+def check_writable(path) -> None:
+    """Raise InputError unless ``path`` can be created (its folder exists and is writable)."""
+    folder = os.path.dirname(os.path.abspath(str(path)))
+    if os.path.isdir(str(path)):
+        raise InputError("is a directory; give a file name for the output", path=str(path))
+    if not os.path.isdir(folder):
+        raise InputError("the output folder does not exist", path=str(path), hint="create it first")
+    if not os.access(folder, os.W_OK):
+        raise InputError("the output folder is not writable", path=str(path))
 
 
 def parse_pose(text: str) -> tuple[np.ndarray, np.ndarray]:

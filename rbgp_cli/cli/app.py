@@ -351,13 +351,15 @@ def demo(
     out: Annotated[str, typer.Option("--out", help="Directory for the models, rollouts and per-step scores.")] = "rbgp-demo",
     count: Annotated[int, typer.Option(min=1, help="Rollouts per representation.")] = 100,
     representations: Annotated[str, typer.Option(help="Comma-separated representations to compare.")] = "axis-angle,euler,quaternion",
+    quick: Annotated[bool, typer.Option("--quick", help="A fast smoke run: at most 200 points, shared hyperparameters.")] = False,
     json_out: Annotated[bool, typer.Option("--json", help="Print the scores as JSON on stdout.")] = False,
 ):
     """Run the main job on the bundled sample data: train → rollout → evaluate for each representation,
     and print the Bhattacharyya scores (lower is closer to the demonstrations)."""
     from rbgp_cli.demo import run_demo
 
-    scores = run_demo(out, count=count, representations=[r.strip() for r in representations.split(",") if r.strip()], progress=progress)
+    scores = run_demo(out, count=count, representations=[r.strip() for r in representations.split(",") if r.strip()],
+                      quick=quick, progress=progress)
     if json_out:
         emit_json(scores)
     else:

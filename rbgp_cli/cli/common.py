@@ -111,7 +111,9 @@ def write_text_output(path: Optional[str], writer) -> None:
         sys.stdout.flush()
         return
     from rbgp_cli.io.atomic import atomic_open
+    from rbgp_cli.workflows import check_writable
 
+    check_writable(path)
     with atomic_open(path, "w", newline="", encoding="utf-8") as fh:
         writer(fh)
 

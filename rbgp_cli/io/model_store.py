@@ -96,8 +96,12 @@ def save_model(model, path) -> dict:
         "checksums": {k: array_sha256(v) for k, v in arrays.items()},
     }
     raw = json.dumps(header, sort_keys=True, allow_nan=True).encode("utf-8")
-    with atomic_open(path, "wb") as fh:
-        np.savez_compressed(fh, header=np.frombuffer(raw, dtype=np.uint8), **arrays)
+    try:
+        with atomic_open(path, "wb") as fh:
+            np.savez_compressed(fh, header=np.frombuffer(raw, dtype=np.uint8), **arrays)
+    except (FileNotFoundError, NotADirectoryError, PermissionError, IsADirectoryError) as exc:
+        raise InputError(f"cannot write the model file ({exc.strerror or type(exc).__name__})", path=str(path),
+                         hint="check that the folder exists and is writable") from None
     return header
 
 

@@ -1,0 +1,198 @@
+"""End-to-end tests of the command line on sample_data/, as a user runs it."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from rbgp_cli.cli.app import app
+
+REPO = Path(__file__).resolve().parents[2]
+CSV_DIR = REPO / "sample_data" / "csv"
+MCAP = REPO / "sample_data" / "shoe_demos.mcap"
+runner = CliRunner()
+FAST = ["--max-points", "150", "--restarts", "1", "--share-hyperparameters"]
+
+
+def run(*args, input=None):
+    return runner.invoke(app, [str(a) for a in args], input=input, catch_exceptions=False)
+
+
+def assert_one_line_error(res, code=2, *fragments):
+    assert res.exit_code == code, (res.exit_code, res.stdout, res.stderr)
+    err = res.stderr.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("rbgp: error:"), res.stderr
+    assert "Traceback" not in res.stderr and res.stdout == ""
+    for f in fragments:
+        assert f in err[0], err[0]
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory):
+    path = tmp_path_factory.mktemp("model") / "shoe.rbgp"
+    res = run("train", CSV_DIR, "-o", path, *FAST, "--json")
+    assert res.exit_code == 0, res.stderr
+    summary = json.loads(res.stdout)
+    assert summary["demos"] == 9 and summary["points"] == 150 and summary["representation"] == "axis-angle"
+    assert path.exists()
+    return path
+
+
+def test_train_summary_goes_to_stderr_and_json_to_stdout(tmp_path):
+    out = tmp_path / "m.rbgp"
+    res = run("train", CSV_DIR, "-o", out, *FAST, "--representation", "euler")
+    assert res.exit_code == 0
+    assert res.stdout == ""  # data only on stdout, and there is none without --json
+    assert "demonstrations: 9" in res.stderr and "NLML" in res.stderr and "safeguards" in res.stderr
+
+
+def test_info_shows_provenance(model):
+    res = run("info", model, "--json")
+    assert res.exit_code == 0
+    h = json.loads(res.stdout)
+    assert h["format"] == "rbgp-model" and h["version"] == 1
+    names = [i["name"] for i in h["provenance"]["inputs"]]
+    assert len(names) == 9 and all(len(i["sha256"]) == 64 for i in h["provenance"]["inputs"])
+    assert h["provenance"]["train_options"]["max_points"] == 150
+    text = run("info", model)
+    assert text.exit_code == 0 and "axis-angle" in text.stdout
+
+
+def test_predict_writes_mean_and_std_per_pose(model, tmp_path):
+    poses = tmp_path / "poses.csv"
+    poses.write_text("rx,ry,rz,x,y,z\n0.1,0.2,0.3,0.3,0.0,1.1\n0.0,0.0,0.0,0.5,0.1,0.8\n")
+    res = run("predict", model, poses)
+    assert res.exit_code == 0, res.stderr
+    lines = res.stdout.strip().splitlines()
+    assert lines[0].startswith("x,y,z,qx,qy,qz,qw,mean_wx") and "std_vz" in lines[0]
+    vals = np.array([[float(v) for v in ln.split(",")] for ln in lines[1:]])
+    assert vals.shape == (2, 7 + 12) and np.all(np.isfinite(vals)) and np.all(vals[:, -6:] >= 0)
+
+
+def test_rollout_csv_reads_back(model, tmp_path):
+    out = tmp_path / "gen.csv"
+    res = run("rollout", model, "--count", 4, "--steps", 50, "--samples", 2, "-o", out, "--json")
+    assert res.exit_code == 0, res.stderr
+    meta = json.loads(res.stdout)
+    assert meta["trajectories"] == 4 and meta["steps"] == 50
+    from rbgp_cli.io.options import ReadOptions
+    from rbgp_cli.io.read import read_demonstrations
+
+    trajs = read_demonstrations([str(out)], ReadOptions())
+    assert len(trajs) == 4 + 4 * 2 and all(len(t) == 51 for t in trajs)
+    header = out.read_text().splitlines()[1]
+    assert header.startswith("trajectory,t,x,y,z,qx,qy,qz,qw") and "std_wx" in header
+
+
+def test_rollout_from_explicit_start_and_demos(model, tmp_path):
+    res = run("rollout", model, "--start", "0.1 0.2 0.3 0.3 0.0 1.1", "--steps", 10, "--no-std")
+    assert res.exit_code == 0 and res.stdout.count("\n") == 1 + 1 + 11  # comment, header, 11 rows
+    res = run("rollout", model, "--from-demos", CSV_DIR, "--count", 3, "--steps", 5, "--no-std")
+    assert res.exit_code == 0 and res.stdout.count("\n") == 2 + 3 * 6
+
+
+def test_evaluate_json_schema(model, tmp_path):
+    gen = tmp_path / "gen.csv"
+    assert run("rollout", model, "--count", 6, "-o", gen, "--no-std").exit_code == 0
+    per = tmp_path / "per_step.csv"
+    res = run("evaluate", gen, "--demos", CSV_DIR, "--json", "--per-step", per)
+    assert res.exit_code == 0, res.stderr
+    d = json.loads(res.stdout)
+    assert set(d["bhattacharyya"]) == {"mean", "rotation", "translation"}
+    assert d["n_generated"] == 6 and d["n_demos"] == 9 and d["steps"] > 100
+    b = d["bhattacharyya"]
+    assert b["mean"] == pytest.approx(b["rotation"] + b["translation"])  # diag: parts add up
+    assert len(per.read_text().splitlines()) == d["steps"] + 1
+
+
+def test_evaluate_with_model_generates_like_the_paper(model):
+    res = run("evaluate", "--model", model, "--count", 5, "--demos", CSV_DIR, "--json")
+    assert res.exit_code == 0, res.stderr
+    assert json.loads(res.stdout)["n_generated"] == 5
+
+
+def test_real_subprocess_pipe_rollout_into_evaluate(model):
+    """stdout carries only data: rollout -o - | evaluate - works through a real (non-seekable) pipe."""
+    env = dict(os.environ, PYTHONWARNINGS="ignore")
+    cmd = [sys.executable, "-m", "rbgp_cli"]
+    p1 = subprocess.Popen(cmd + ["rollout", str(model), "--count", "5", "--no-std", "-o", "-"], stdout=subprocess.PIPE,
+                          stderr=subprocess.PIPE, env=env)
+    p2 = subprocess.run(cmd + ["evaluate", "-", "--demos", str(CSV_DIR), "--json"], stdin=p1.stdout,
+                        capture_output=True, env=env, timeout=300)
+    p1.stdout.close()
+    assert p1.wait(timeout=300) == 0
+    assert p2.returncode == 0, p2.stderr.decode()
+    assert json.loads(p2.stdout)["n_generated"] == 5
+
+
+def test_inspect_csv_and_mcap():
+    res = run("inspect", CSV_DIR / "shoe_01.csv", "--json")
+    assert res.exit_code == 0
+    d = json.loads(res.stdout)
+    assert d["format"] == "csv"
+    res = run("inspect", MCAP)
+    assert res.exit_code == 0 and "/shoe/trial_07/pose" in res.stdout
+
+
+def test_help_does_not_import_heavy_modules():
+    code = (
+        "import sys\n"
+        "from typer.testing import CliRunner\n"
+        "from rbgp_cli.cli.app import app\n"
+        "r = CliRunner()\n"
+        "for args in (['--help'], ['train', '--help'], ['rollout', '--help'], ['evaluate', '--help'], ['inspect', '--help']):\n"
+        "    assert r.invoke(app, args).exit_code == 0, args\n"
+        "bad = [m for m in ('rerun', 'mcap', 'pandas', 'scipy.optimize', 'matplotlib') if m in sys.modules]\n"
+        "print(bad)\n"
+        "assert not bad, bad\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stdout + res.stderr
+
+
+@pytest.mark.parametrize(
+    "args,fragments",
+    [
+        (["train", "missing.csv", "-o", "{tmp}/m.rbgp"], ["missing.csv"]),
+        (["train", str(CSV_DIR), "-o", "{tmp}/m.rbgp", "--rho-rot", "1.5"], ["--rho-rot"]),
+        (["train", str(CSV_DIR), "-o", "{tmp}/m.rbgp", "--kernel", "matern"], ["kernel"]),
+        (["train", str(CSV_DIR), "-o", "{tmp}/m.rbgp", "--representation", "euler", "--kernel", "se-chordal"], ["se-chordal"]),
+        (["train", str(CSV_DIR), "-o", "{tmp}/nodir/m.rbgp", "--max-points", "20"], ["folder does not exist"]),
+        (["rollout", "{tmp}/none.rbgp"], ["not found"]),
+        (["evaluate", "x.csv"], ["--demos"]),
+    ],
+)
+def test_bad_usage_exits_2_with_one_line_and_no_output_file(tmp_path, args, fragments):
+    args = [a.replace("{tmp}", str(tmp_path)) for a in args]
+    res = run(*args)
+    assert_one_line_error(res, 2, *fragments)
+    assert not (tmp_path / "m.rbgp").exists()
+    assert not any(p.name.endswith(".tmp") for p in tmp_path.rglob("*"))
+
+
+@pytest.mark.parametrize("pose", ["1 2 3", "a b c d e f", "nan 0 0 0 0 0", "0 0 0 0 0 inf"])
+def test_malformed_start_poses(model, pose):
+    assert_one_line_error(run("rollout", model, "--start", pose), 2, "start pose")
+
+
+def test_model_file_errors(tmp_path):
+    bad = tmp_path / "bad.rbgp"
+    bad.write_bytes(b"not a model at all")
+    assert_one_line_error(run("info", bad), 2, "bad.rbgp")
+
+
+def test_demo_quick_prints_three_scores(tmp_path):
+    res = run("demo", "--quick", "--count", "5", "--out", tmp_path / "demo", "--json")
+    assert res.exit_code == 0, res.stderr
+    d = json.loads(res.stdout)
+    assert set(d["representations"]) == {"axis-angle", "euler", "quaternion"}
+    for rep in d["representations"].values():
+        assert np.isfinite(rep["bhattacharyya"]["mean"])
+    assert (tmp_path / "demo" / "axis-angle.rbgp").exists()
