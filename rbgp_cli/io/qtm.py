@@ -1,6 +1,7 @@
 """Qualisys QTM 6DOF TSV exports (``*_6D.tsv``) -> raw :class:`~rbgp_cli.dynamics.trajectory.Trajectory`.
 
-The format (ECOSYSTEM.md §2.1, checked against real exports of 2010 and 2020)
+The format (ECOSYSTEM.md §2.1; checked against the 2010 exports in shared/realdata and a 2020 export,
+shiplab/dt_cv data/basin/raw/M510A-IRR-EKFPID-020019_6D.tsv)
     * Key/value header lines, tab separated: ``FILE_VERSION`` (absent before 2.0.0), ``NO_OF_FRAMES``,
       ``NO_OF_BODIES``, ``FREQUENCY`` (Hz, or ``EXT`` for an external timebase), ``TIME_STAMP``,
       any number of ``EVENT <name> <frame> <time>`` lines, ``DATA_INCLUDED 6D``,
@@ -11,6 +12,8 @@ The format (ECOSYSTEM.md §2.1, checked against real exports of 2010 and 2020)
     * Old layout (2010 exports): no Frame/Time columns (time = row / FREQUENCY), one anonymous header
       `` X  Y  Z  Yaw  Pitch  Roll  Residual  Rot[0] .. Rot[8]`` for the first body only; every body's
       block is followed by an empty column (so rows end with a tab); names come from ``BODY_NAMES``.
+    * An export without the key/value header starts directly with the ``Frame  Time ...`` line;
+      names then come from the columns and times from the Time column.
     * Units: positions in **mm**, angles in **degrees**, Time in seconds.
     * ``Rot[0..8]`` is the rotation matrix body -> world in **column-major** order
       (``Rot[1] = r21``, ``Rot[3] = r12``), ``P_world = R P_body + P_origin``. It is preferred to the
