@@ -189,7 +189,8 @@ def test_markers_and_bones_are_ignored(tmp_path):
             + [("Rigid Body Marker", "cup:Marker1", "Position", a) for a in "XYZ"]
             + [("Rigid Body Marker", "cup:Marker1", "Marker Quality", "")]
             + [("Marker", "cup:Marker1", "Position", a) for a in "XYZ"]
-            + [("Bone", "skel:Hip", "Rotation", a) for a in "XYZW"] + [("Bone", "skel:Hip", "Position", a) for a in "XYZ"]
+            + [("Bone", "skel:Hip", "Rotation", a) for a in "XYZW"]
+            + [("Bone", "skel:Hip", "Position", a) for a in "XYZ"]
             + [("Bone Marker", "skel:Hip1", "Position", a) for a in "XYZ"]
             + rigid_body("plate"))
     row = [*ANGLES.values(), *POS_CM, 0.01, 1, 2, 3, 0.9, 4, 5, 6, 0, 0, 0, 1, 7, 8, 9, 10, 11, 12, 0, 0, 0, 1, 2, 3]
@@ -223,7 +224,8 @@ def test_body_selection(tmp_path):
 
 
 # ---------------------------------------------------------------- layouts and lost frames
-@pytest.mark.parametrize("labelled, parent, timecode", [(False, False, False), (True, False, False), (True, True, True)])
+@pytest.mark.parametrize("labelled, parent, timecode",
+                         [(False, False, False), (True, False, False), (True, True, True)])
 def test_header_variants(tmp_path, labelled, parent, timecode):
     data = [[*ANGLES.values(), *POS_CM], [1, 2, 3, 4, 5, 6], [0, 0, 0, 7, 8, 9]]
     path = write(tmp_path, motive_text(rigid_body("cup"), data, labelled=labelled, parent=parent, timecode=timecode))

@@ -107,7 +107,8 @@ def test_euler_and_rot_agree_with_hand_composition(tmp_path, layout, angles, ord
     'Roll Pitch Yaw' -> Rx Ry Rz (QTM default), 'Yaw Pitch Roll' -> Rz Ry Rx (2010 files)."""
     rng = np.random.default_rng(3)
     bodies = {"a": random_body(rng, 40, order), "b": random_body(rng, 40, order)}
-    with_rot = qtm.read(write(tmp_path, qtm_text(bodies, layout=layout, angles=angles), "r.tsv"), ReadOptions(body="all"))
+    with_rot = qtm.read(write(tmp_path, qtm_text(bodies, layout=layout, angles=angles), "r.tsv"),
+                        ReadOptions(body="all"))
     euler_only = qtm.read(write(tmp_path, qtm_text(bodies, layout=layout, angles=angles, rot=False), "e.tsv"),
                           ReadOptions(body="all"))
     for name, a, b in zip(bodies, with_rot, euler_only):
@@ -229,7 +230,7 @@ def test_qtm_zero_rows_with_residual_minus_one_are_lost(tmp_path):
 # ---------------------------------------------------------------- bodies and options
 def test_body_selection(tmp_path):
     rng = np.random.default_rng(12)
-    bodies = {"Upper Leg IMU": random_body(rng, 3), "Foot IMU": random_body(rng, 3), "Lower Leg IMU": random_body(rng, 3)}
+    bodies = {name: random_body(rng, 3) for name in ("Upper Leg IMU", "Foot IMU", "Lower Leg IMU")}
     path = write(tmp_path, qtm_text(bodies))
     with pytest.raises(InputError, match="3 rigid bodies: 'Upper Leg IMU', 'Foot IMU', 'Lower Leg IMU'.*--body"):
         qtm.read(path)
