@@ -614,19 +614,46 @@ def _open(path):
         raise InputError(f"cannot read the file ({exc.strerror or exc})", path=path) from None
 
 
+def _is_pattern(topic: str | None) -> bool:
+    return bool(topic) and (topic == "all" or any(ch in topic for ch in "*?["))
+
+
+def _read_matching(stream, source: str, options: ReadOptions) -> list[Trajectory]:
+    """``--topic all`` or a glob (``'/shoe/*'``): every matching pose topic, one demonstration each."""
+    import fnmatch
+    from dataclasses import replace
+
+    pattern = options.topic
+    trajs = _read(stream, source, replace(options, topic=None), select_all=True)
+    if pattern != "all":
+        trajs = [t for t in trajs if fnmatch.fnmatchcase(t.info.get("topic", ""), pattern)
+                 or fnmatch.fnmatchcase(t.info.get("topic", "").strip("/"), pattern.strip("/"))]
+    if not trajs:
+        raise InputError(f"no pose topic matches {pattern!r}", path=source,
+                         hint="list the topics with rbgp inspect, then pass --topic NAME or a pattern like '/body/*'")
+    return trajs
+
+
 def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
     """Read the pose topic of an MCAP file (``options.topic``; automatic when there is one).
 
-    Returns raw trajectories (seconds, metres, quaternions x, y, z, w), one per topic / child frame /
-    pose index, sorted by time.
+    ``options.topic`` may also be ``all`` or a glob pattern (``'/shoe/*'``): then every matching pose
+    topic becomes one demonstration (e.g. one topic per trial). Returns raw trajectories (seconds,
+    metres, quaternions x, y, z, w), one per topic / child frame / pose index, sorted by time.
     """
+    options = options or ReadOptions()
     with _open(path) as fh:
-        return _read(fh, str(path), options or ReadOptions(), select_all=False)
+        if _is_pattern(options.topic):
+            return _read_matching(fh, str(path), options)
+        return _read(fh, str(path), options, select_all=False)
 
 
 def read_stream(stream, options: ReadOptions | None = None, source: str = "-") -> list[Trajectory]:
     """Like :func:`read` for an open binary stream (stdin, a pipe: read once, front to back)."""
-    return _read(stream, source, options or ReadOptions(), select_all=False)
+    options = options or ReadOptions()
+    if _is_pattern(options.topic):
+        return _read_matching(stream, source, options)
+    return _read(stream, source, options, select_all=False)
 
 
 def read_all(path, options: ReadOptions | None = None) -> list[Trajectory]:

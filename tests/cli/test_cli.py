@@ -196,3 +196,25 @@ def test_demo_quick_prints_three_scores(tmp_path):
     for rep in d["representations"].values():
         assert np.isfinite(rep["bhattacharyya"]["mean"])
     assert (tmp_path / "demo" / "axis-angle.rbgp").exists()
+
+
+def test_csv_and_mcap_give_the_same_model(tmp_path):
+    """The sample data's CSV files and its ROS 2 MCAP (one topic per trial) hold the same instants and
+    poses, so the models agree (times pass through integer nanoseconds: same to ~1e-9 s)."""
+    a, b = tmp_path / "csv.rbgp", tmp_path / "mcap.rbgp"
+    assert run("train", CSV_DIR, "-o", a, *FAST).exit_code == 0
+    res = run("train", MCAP, "--topic", "/shoe/*", "-o", b, *FAST)
+    assert res.exit_code == 0, res.stderr
+    from rbgp_cli.io.model_store import load_model
+
+    (ma, _), (mb, _) = load_model(a), load_model(b)
+    np.testing.assert_allclose(ma.gp.X, mb.gp.X, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(ma.gp.Y, mb.gp.Y, rtol=1e-6, atol=1e-9)
+    for fa, fb in zip(ma.gp.fits, mb.gp.fits):
+        for k in fa.values:
+            assert fa.values[k] == pytest.approx(fb.values[k], rel=1e-5)
+
+
+def test_mcap_topic_pattern_errors_name_the_topics():
+    res = run("train", MCAP, "--topic", "/hand/*", "-o", "/tmp/never.rbgp")
+    assert_one_line_error(res, 2, "/hand/*")
