@@ -55,7 +55,7 @@ def trajectory_summary(traj) -> dict:
         "position_min_m": [float(v) for v in p.min(axis=0)] if len(p) else None,
         "position_max_m": [float(v) for v in p.max(axis=0)] if len(p) else None,
     }
-    for key in ("length_unit", "length_unit_source", "time_unit", "time_unit_source", "rotation", "topic",
+    for key in ("length_unit", "length_unit_source", "time_unit", "time_unit_source", "rotation", "rotation_source", "topic",
                 "frame_id", "child_frame_id", "time_source", "body", "demo", "columns"):  # fmt: skip
         if key in info:
             out[key] = info[key]
@@ -214,6 +214,8 @@ def format_inspect(d: dict) -> str:
             conv.append(f"time {tr['time_unit']}" + (f" ({tr['time_unit_source']})" if "time_unit_source" in tr else ""))
         if "rotation" in tr:
             conv.append(f"rotation {tr['rotation']}")
+        elif "rotation_source" in tr:
+            conv.append(f"rotation from {tr['rotation_source']}")
         if "time_source" in tr:
             conv.append(f"{tr['time_source']} time")
         if conv:
