@@ -167,7 +167,7 @@ def plot_evaluation(path, result, generated: Sequence[Trajectory], demos: Sequen
     ax.set_ylabel("$D_B$ [–]")
     ax.set_xlim(0.0, 1.0)
     ax.grid(True, lw=0.3, alpha=0.5)
-    ax.legend(fontsize=8, ncols=4, loc="upper left")
+    ax.legend(fontsize=8, ncols=2, loc="upper left")
 
     if title is None:
         title = f"{gen_label}: mean Bhattacharyya distance {result.mean:.2f}"
