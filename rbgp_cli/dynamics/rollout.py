@@ -75,6 +75,13 @@ def rollout(model, start_quat, start_position, steps: int, dt: float | None = No
     with_std : record the predictive std along the mean trajectories (costs one triangular solve per
         step; switch off for speed)
     """
+    from rbgp_cli.gp.exact import blas_threads
+
+    with blas_threads(len(model.gp.X)):
+        return _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, progress)
+
+
+def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, progress):
     rep, gp = model.representation, model.gp
     dt = float(model.dt if dt is None else dt)
     if not np.isfinite(dt) or dt <= 0:
@@ -99,16 +106,16 @@ def rollout(model, start_quat, start_position, steps: int, dt: float | None = No
     for k in range(steps + 1):
         last = k == steps
         if with_std:
-            mu, sd = gp.predict(state, return_std=True)
+            mu, sd = gp.predict(state, return_std=True, manage_threads=False)
             std[k] = sd
         elif not last:
-            mu = gp.predict(state)
+            mu = gp.predict(state, manage_threads=False)
         if not last:
             state = rep.step(state, mu, dt)
             _check_finite(state, k + 1)
             states[k + 1] = state
             if K > 0:
-                smu, ssd = gp.predict(sstate, return_std=True)
+                smu, ssd = gp.predict(sstate, return_std=True, manage_threads=False)
                 sstate = rep.step(sstate, smu + ssd * rng.standard_normal(smu.shape), dt)
                 _check_finite(sstate, k + 1)
                 sstates[k + 1] = sstate

@@ -37,7 +37,7 @@ from scipy.linalg import blas, lapack, solve_triangular
 from rbgp_cli.errors import RbgpRuntimeError
 from rbgp_cli.kernels.base import Hyperparameter, Kernel
 
-__all__ = ["OutputFit", "GaussianProcess", "fit_gp", "nlml_and_gradient", "MIN_RCOND", "NOISE"]
+__all__ = ["OutputFit", "GaussianProcess", "fit_gp", "nlml_and_gradient", "blas_threads", "MIN_RCOND", "NOISE"]
 
 NOISE = "noise_std"
 #: Reciprocal condition number below which C = K + σn²I is treated as numerically singular.
@@ -51,6 +51,25 @@ _JITTERS = (0.0, 1e-10, 1e-8, 1e-6, 1e-4)
 
 
 # ----------------------------------------------------------------------------- linear algebra
+#: Below this many training points BLAS runs single-threaded: a 2-thread OpenBLAS pool costs more
+#: in synchronisation than it saves on small matrices, and on a loaded machine its spin-waiting made
+#: one NLML evaluation at n = 80 take 8–150 ms instead of 0.5 ms (measured).
+SINGLE_THREAD_BELOW = 700
+
+
+def blas_threads(n: int):
+    """Context manager: BLAS/LAPACK single-threaded for problems with n < SINGLE_THREAD_BELOW points."""
+    import contextlib
+
+    if n >= SINGLE_THREAD_BELOW:
+        return contextlib.nullcontext()
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - threadpoolctl is a dependency; stay usable without it
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
+
+
 def _cholesky(K: np.ndarray, noise_var: float, jitter: float = 0.0):
     """Lower Cholesky factor of K + (σn² + jitter) I as a Fortran-ordered array, or None.
 
@@ -210,7 +229,8 @@ class GaussianProcess:
             self._L.append(np.tril(c))
             self._alpha.append(np.asarray(alpha))
 
-    def predict(self, Xs, return_std: bool = False, noisy: bool = False, chunk_elements: int = 2_000_000):
+    def predict(self, Xs, return_std: bool = False, noisy: bool = False, chunk_elements: int = 2_000_000,
+                manage_threads: bool = True):
         """Predictive mean (and standard deviation) at query inputs.
 
         Parameters
@@ -226,7 +246,16 @@ class GaussianProcess:
         mean : shape (m, L);  std : shape (m, L) if requested.
         Latent variances k** − k*ᵀC⁻¹k* that come out negative (possible with an indefinite kernel, or
         from round-off) are clipped to 0; ``self.last_clipped`` counts them.
+
+        ``manage_threads=False`` skips the BLAS thread limit (about 1 ms per call) for callers that set
+        it once around many calls (rollouts: see :func:`blas_threads`).
         """
+        if not manage_threads:
+            return self._predict(Xs, return_std, noisy, chunk_elements)
+        with blas_threads(len(self.X)):
+            return self._predict(Xs, return_std, noisy, chunk_elements)
+
+    def _predict(self, Xs, return_std, noisy, chunk_elements):
         Xs = np.ascontiguousarray(np.asarray(Xs, dtype=np.float64).reshape(-1, self.X.shape[1]))
         m, n = len(Xs), len(self.X)
         mean = np.empty((m, self.n_outputs))
@@ -410,6 +439,11 @@ def fit_gp(
     if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
         raise ValueError("training inputs and outputs must be finite")
     restarts = max(1, int(restarts))
+    with blas_threads(len(X)):
+        return _fit_gp(X, Y, kernel, noise, restarts, seed, shared, fixed, bounds, max_iter, progress)
+
+
+def _fit_gp(X, Y, kernel, noise, restarts, seed, shared, fixed, bounds, max_iter, progress):
     pre = kernel.precompute(X)
     L = Y.shape[1]
     ss = np.random.SeedSequence(int(seed))
