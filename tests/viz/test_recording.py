@@ -67,6 +67,27 @@ class Rrd:
         order = np.argsort(np.array([_num(v) for v in out[timeline]]), kind="stable")
         return {k: ([v[i] for i in order] if k != "_type" else v) for k, v in out.items()}
 
+    def views(self) -> tuple[dict[str, str], list[str]]:
+        """The default blueprint: ({view origin: view class}, [time panel's time line])."""
+        (bp,) = self.reader.blueprints()
+        views, timelines = {}, []
+        for c in self.reader.stream(store=bp).to_chunks():
+            cols = {n: c.to_record_batch().column(n).to_pylist() for n in c.to_record_batch().schema.names}
+            if "ViewBlueprint:space_origin" in cols:
+                views[cols["ViewBlueprint:space_origin"][-1][0]] = cols["ViewBlueprint:class_identifier"][-1][0]
+            timelines += [row[0] for row in cols.get("TimePanelBlueprint:timeline", [])]
+        return views, timelines
+
+    def assert_blueprint(self, timeline: str, series_origins: set[str]) -> None:
+        """A 3D view of /world, the expected time-series views, each showing data that exists."""
+        views, timelines = self.views()
+        assert views.pop("/world") == "3D"
+        assert set(views.values()) == {"TimeSeries"}
+        assert set(views) == series_origins
+        for origin in views:
+            assert any(e == origin or e.startswith(origin + "/") for e in self.entities()), origin
+        assert timelines == [timeline]
+
     def num_rows(self, entity: str) -> int:
         return sum(c.num_rows for c in self.by_entity[entity] if not c.is_static)
 
@@ -142,7 +163,7 @@ def test_rollout_entities_rows_and_file_metadata(rollout_file, rollout_res):
     for o in OUTPUTS:
         assert rrd.num_rows(f"/metrics/std/{o}") == n
     assert [s.application_id for s in rrd.reader.recordings()] == ["rbgp"]
-    assert len(rrd.reader.blueprints()) == 1  # a default blueprint travels with the file
+    rrd.assert_blueprint("time", {f"/metrics/std/{o}" for o in OUTPUTS} | {f"/metrics/position/{a}" for a in "xyz"})
     assert rrd.static("/__properties/rbgp", "trajectories") == [B]
     assert rrd.static("/world", "ViewCoordinates:xyz") == [[3, 5, 1]]  # right, forward, up: z up by default
     # nothing but the recording is left beside it
@@ -200,6 +221,7 @@ def test_rollout_without_std_or_samples(tmp_path):
     assert not any(e.startswith("/metrics/std") or e.endswith("/samples") for e in rrd.entities())
     assert rrd.num_rows("/world/rollouts/1/body") == 11
     assert rrd.num_rows("/metrics/position/z") == 11
+    rrd.assert_blueprint("time", {f"/metrics/position/{a}" for a in "xyz"})
 
 
 def test_up_axis_selects_the_view_coordinates(tmp_path):
@@ -240,6 +262,8 @@ def test_training_recording_demos_points_and_arrows(tmp_path, demos, tiny_model)
         z = np.array(rrd.temporal(f"/metrics/position/z/{esc(name)}", "time")["Scalars:scalars"])[:, 0]
         np.testing.assert_allclose(z, tr.position[:, 2], rtol=1e-12)
 
+    rrd.assert_blueprint("time", {f"/metrics/position/{a}" for a in "xyz"})
+
     _, pos = tiny_model.representation.pose_from_state(tiny_model.gp.X)
     points = np.array(rrd.static("/world/training/points", "Points3D:positions"))
     assert points.shape == (len(tiny_model.gp.X), 3)
@@ -269,6 +293,8 @@ def test_evaluation_recording(tmp_path, demos, generated):
     assert {"/metrics/bhattacharyya"} | {f"/metrics/features/{d}" for d in FEATURE_NAMES} <= rrd.entities()
     assert len([e for e in rrd.entities() if e.startswith("/world/demos/") and e.endswith("/path")]) == len(demos)
     assert len([e for e in rrd.entities() if e.startswith("/world/generated/") and e.endswith("/path")]) == len(generated)
+
+    rrd.assert_blueprint("step", {"/metrics/bhattacharyya"} | {f"/metrics/features/{d}" for d in FEATURE_NAMES})
 
     rows = rrd.temporal("/metrics/bhattacharyya", "step")
     assert rows["_type"] == ["int64"]
