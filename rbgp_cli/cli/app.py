@@ -268,7 +268,7 @@ def evaluate(
     json_out: Annotated[bool, typer.Option("--json", help="Print the scores as JSON on stdout.")] = False,
     rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd).")] = None,
     plot: Annotated[Optional[str], typer.Option("--plot", help="Also write a figure (PNG) like the paper's Fig. 4/5.")] = None,
-    compare: Annotated[Optional[str], typer.Option("--compare", help="With --plot: generated trajectories of a second model (CSV) drawn in another colour.")] = None,
+    compare: Annotated[Optional[str], typer.Option("--compare", help="With --plot: generated trajectories of a second model (CSV, e.g. the Euler GP's rollouts) drawn in another colour and scored in the distance panel.")] = None,
     up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.")] = "z",
     fmt: FormatOpt = "auto", columns: ColumnsOpt = None, quat_order: QuatOrderOpt = None, euler_order: EulerOrderOpt = None,
     degrees: DegreesOpt = None, length_unit: LengthUnitOpt = None, time_unit: TimeUnitOpt = None, rate: RateOpt = None,
@@ -311,7 +311,12 @@ def evaluate(
         other = None
         if compare:
             other, _, _ = workflows.load_demonstrations([compare])
-        plot_evaluation(plot, result, gen, dem, compare=other)
+        from pathlib import Path
+
+        first = (generated or ["-"])[0]
+        label = f"{Path(model).stem} rollouts" if model else ("generated" if first == "-" else Path(first).stem)
+        plot_evaluation(plot, result, gen, dem, compare=other,
+                        labels=(label, Path(compare).stem if compare else "compare"))
         progress(f"wrote {plot}")
     if json_out:
         emit_json(result.to_dict())

@@ -1,7 +1,7 @@
 """Exact Gaussian-process regression with hyperparameters from the marginal likelihood (MATH.md §7).
 
 One zero-mean GP per output dimension l (paper sec. 3.2, eq. 20–21), or one shared set of
-hyperparameters for all outputs after scaling each by its standard deviation (``shared=True``: one
+hyperparameters for all outputs after scaling each by its root mean square (``shared=True``: one
 Cholesky per evaluation for all outputs).
 
 Negative log marginal likelihood (R&W Alg. 2.1) with C = K + σn² I = L Lᵀ and α = C⁻¹ y:
@@ -35,7 +35,7 @@ import numpy as np
 from scipy.linalg import blas, lapack, solve_triangular
 
 from rbgp_cli.errors import RbgpRuntimeError
-from rbgp_cli.kernels.base import Hyperparameter, Kernel
+from rbgp_cli.kernels.base import Hyperparameter, Kernel, output_scale
 
 __all__ = ["OutputFit", "GaussianProcess", "fit_gp", "nlml_and_gradient", "blas_threads", "MIN_RCOND", "NOISE"]
 
@@ -188,7 +188,7 @@ class GaussianProcess:
     """A fitted exact GP with L outputs on inputs X (n, d).
 
     ``groups`` lists the hyperparameter sets: one per output (default) or one shared by all outputs
-    (``shared``), each with its Cholesky factor and its α = C⁻¹ y (on the standardised outputs
+    (``shared``), each with its Cholesky factor and its α = C⁻¹ y (on the RMS-scaled outputs
     y / scale in shared mode; predictions are scaled back).
     """
 
@@ -288,7 +288,7 @@ class GaussianProcess:
 def _free_spec(kernel: Kernel, pre: dict, y: np.ndarray, noise, fixed: dict | None, bounds: dict | None):
     """All hyperparameters (kernel + noise) with data-driven starts and bounds, and the free names."""
     spec = dict(kernel.default_hyperparameters(pre, y))
-    sy = float(np.std(y)) if np.std(y) > 0 else 1.0
+    sy = output_scale(y)
     if noise is None or noise == "learn":
         spec[NOISE] = Hyperparameter(NOISE, 0.1 * sy, (1e-6 * sy, 10.0 * sy))
     else:
@@ -427,7 +427,7 @@ def fit_gp(
     noise : None / "learn" to learn σn, or a number to fix σn (the paper fixes σn = 1)
     restarts : number of starts per output: the data-driven start plus ``restarts − 1`` random ones
     seed : seeds the random starts (same data, options and seed → bit-identical hyperparameters)
-    shared : one set of hyperparameters for all outputs, each output scaled by its standard deviation
+    shared : one set of hyperparameters for all outputs, each output scaled by its root mean square
     fixed : {name: value} hyperparameters to hold fixed (signal_std, length_scale, rho_rot, noise_std)
     bounds : {name: (low, high)} to override the data-driven bounds
     progress : optional callable(str) for progress messages (the CLI prints them to stderr)
@@ -449,8 +449,7 @@ def _fit_gp(X, Y, kernel, noise, restarts, seed, shared, fixed, bounds, max_iter
     ss = np.random.SeedSequence(int(seed))
     fits = []
     if shared:
-        scale = np.std(Y, axis=0)
-        scale[~(scale > 0)] = 1.0
+        scale = np.array([output_scale(Y[:, l]) for l in range(L)])
         targets = [(Y / scale, "all outputs")]
         rngs = [np.random.default_rng(ss)]
     else:

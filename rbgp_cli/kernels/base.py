@@ -23,7 +23,18 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-__all__ = ["Hyperparameter", "Kernel", "fdot"]
+__all__ = ["Hyperparameter", "Kernel", "fdot", "output_scale"]
+
+
+def output_scale(y: np.ndarray) -> float:
+    """The scale of zero-mean GP targets: their root mean square, or 1 when they are all (nearly) zero.
+
+    The GP has zero mean (MATH.md §7), so the prior variance must cover the mean as well as the
+    spread: RMS, not the standard deviation (a constant output has std 0, or 1e-16 from round-off,
+    which made bounds and scaled targets meaningless).
+    """
+    rms = float(np.sqrt(np.mean(np.square(y)))) if np.size(y) else 0.0
+    return rms if np.isfinite(rms) and rms > 1e-12 else 1.0
 
 
 def fdot(a: np.ndarray, b: np.ndarray) -> float:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rbgp_cli.kernels.base import Hyperparameter, Kernel, fdot
+from rbgp_cli.kernels.base import Hyperparameter, Kernel, fdot, output_scale
 
 __all__ = ["DotProduct"]
 
@@ -76,7 +76,7 @@ class DotProduct(Kernel):
     def default_hyperparameters(self, pre, y):
         # scale so that the prior variance on the data matches var(y)
         g = float(np.mean(np.diag(self.gram(pre, {"rho_rot": self.rho_rot, "signal_std": 1.0})[0])))
-        sy = float(np.std(y)) if np.std(y) > 0 else 1.0
+        sy = output_scale(y)
         sf = sy / np.sqrt(g) if g > 0 else sy
         return {
             "signal_std": Hyperparameter("signal_std", sf, (1e-4 * sf, 1e3 * sf)),

@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-from rbgp_cli.kernels.base import Hyperparameter, Kernel, fdot
+from rbgp_cli.kernels.base import Hyperparameter, Kernel, fdot, output_scale
 
 __all__ = ["SquaredExponential", "ROTATION_METRICS"]
 
@@ -167,15 +167,15 @@ class SquaredExponential(Kernel):
 
     # ------------------------------------------------------------------ starts and description
     def default_hyperparameters(self, pre: dict, y: np.ndarray) -> dict:
-        """Data-driven start (MATH.md §7): λ ~ median pairwise distance, σf ~ std(y); bounds scale
-        with the data (λ within [1e-3, 1e2] × median distance, σf within [1e-3, 1e2] × std(y))."""
+        """Data-driven start (MATH.md §7): λ ~ median pairwise distance, σf ~ RMS(y); bounds scale
+        with the data (λ within [1e-3, 1e2] × median distance, σf within [1e-3, 1e2] × RMS(y))."""
         d2 = self._d2(pre, {"rho_rot": self.rho_rot})
         n = d2.shape[0]
         iu = np.triu_indices(n, 1) if n <= 600 else _sample_pairs(n)
         med = float(np.sqrt(np.median(d2[iu]))) if n > 1 else 1.0
         if not np.isfinite(med) or med <= 0:
             med = 1.0
-        sy = float(np.std(y)) if np.std(y) > 0 else 1.0
+        sy = output_scale(y)
         return {
             "signal_std": Hyperparameter("signal_std", sy, (1e-3 * sy, 1e2 * sy)),
             "length_scale": Hyperparameter("length_scale", med, (1e-3 * med, 1e2 * med)),

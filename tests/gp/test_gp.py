@@ -149,7 +149,7 @@ def test_prediction_in_chunks_equals_prediction_at_once():
     Xs = poses(1000, 13)
     m1, s1 = gp.predict(Xs, return_std=True)
     m2, s2 = gp.predict(Xs, return_std=True, chunk_elements=40 * 7)  # 7 rows per chunk
-    np.testing.assert_allclose(m1, m2, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(m1, m2, rtol=1e-10, atol=1e-12)  # gemm vs gemv round-off
     np.testing.assert_allclose(s1, s2, rtol=1e-10, atol=1e-12)
     assert np.all(s1 >= 0) and np.all(np.isfinite(m1))
 
@@ -182,3 +182,17 @@ def test_no_feasible_start_raises_a_runtime_error():
     k = SquaredExponential("arc", 3, 0.99)
     with pytest.raises(RbgpRuntimeError, match="positive definite"):
         fit_gp(X, np.sin(ang), k, noise=1e-9, fixed={"length_scale": 4.0, "signal_std": 1.0}, restarts=1)
+
+
+@pytest.mark.parametrize("shared", [False, True])
+def test_constant_and_zero_outputs_give_sane_hyperparameters(shared):
+    """A constant output (std ~1e-16 from round-off) or an all-zero one must not drive the scales to
+    1e13 (seen with noiseless synthetic demonstrations before the RMS scaling)."""
+    X = poses(60, 14)
+    rng = np.random.default_rng(14)
+    Y = np.column_stack([np.full(60, 0.3) + 1e-16 * rng.normal(size=60), np.zeros(60), np.sin(X[:, 3])])
+    gp = fit_gp(X, Y, SquaredExponential("chordal", 3, 0.7), restarts=2, seed=0, shared=shared)
+    for fit in gp.fits:
+        assert fit.values["signal_std"] < 1e3 and fit.values["noise_std"] < 1e3
+    mean, std = gp.predict(poses(20, 15), return_std=True)
+    assert np.all(np.isfinite(mean)) and np.max(np.abs(mean)) < 2 and np.max(std) < 2
