@@ -1,0 +1,701 @@
+"""Hostile inputs, end to end through the command line (issue 4, part 2).
+
+Every case is one row of ``CASES``: a name, a builder that writes the input files into the test's
+folder and returns the command line, and what must happen:
+
+* ``error=(...)``: exit code 2; stderr holds exactly one ``rbgp: error:`` line (warnings may come
+  before it), containing every fragment (the file's name, the row or topic, what to do); no traceback,
+  no "internal error", nothing on stdout, and the output folder is empty: no output file, no leftover
+  temporary file.
+* otherwise: exit code 0, every ``warning`` fragment (which counts what was repaired) appears in an
+  ``rbgp: warning:`` line, and ``check(ctx)`` verifies the result is right, typically that the model
+  equals the one trained on the clean file the hostile one was made from.
+
+Inputs live in ``in/``, outputs go to ``out/``, clean reference files and their models to ``ref/``.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pytest
+
+from rbgp_cli.io.model_store import load_model
+from tests.hostile import builders as B
+from tests.hostile.conftest import run_cli
+
+# ---------------------------------------------------------------------------------------------- harness
+
+
+@dataclass
+class Ctx:
+    root: Path
+    model_src: Path  # the session's tiny model (copy it before damaging it)
+
+    @property
+    def inp(self) -> Path:
+        return self.root / "in"
+
+    @property
+    def out(self) -> Path:
+        return self.root / "out"
+
+    @property
+    def ref(self) -> Path:
+        return self.root / "ref"
+
+    @property
+    def model_out(self) -> Path:
+        return self.out / "model.rbgp"
+
+    def model(self, name: str = "tiny.rbgp") -> Path:
+        dst = self.inp / name
+        shutil.copyfile(self.model_src, dst)
+        return dst
+
+    def train(self, *inputs, opts=()) -> list:
+        return ["train", *inputs, "-o", self.model_out, *B.FAST, "--json", *opts]
+
+
+@dataclass
+class Case:
+    name: str
+    build: Callable[[Ctx], list]
+    error: tuple = ()
+    warning: tuple = ()
+    check: Callable[[Ctx, object], None] | None = None
+
+
+ROWS = B.table(B.smooth_motion())  # t, x, y, z, qx, qy, qz, qw; data row k is on file line k + 2
+
+
+def rows() -> np.ndarray:
+    return ROWS.copy()
+
+
+def line(k: int) -> int:
+    """File line of data row ``k`` in a file written by ``B.write_table`` (header on line 1)."""
+    return k + 2
+
+
+def csv(ctx: Ctx, data, name: str = "demo.csv", **kw) -> Path:
+    return B.write_table(ctx.inp / name, data, **kw)
+
+
+def text(ctx: Ctx, content, name: str = "demo.csv") -> Path:
+    p = ctx.inp / name
+    if isinstance(content, bytes):
+        p.write_bytes(content)
+    else:
+        p.write_text(content, encoding="utf-8")
+    return p
+
+
+def train_on(builder, name="demo.csv", opts=(), **kw):
+    """A case builder: write the rows ``builder()`` returns, then train on them."""
+
+    def build(ctx: Ctx):
+        return ctx.train(csv(ctx, builder(), name, **kw), opts=opts)
+
+    return build
+
+
+def _starts_close(a: np.ndarray, b: np.ndarray, atol: float) -> None:
+    """Start poses (qx, qy, qz, qw, x, y, z): q and -q are the same rotation."""
+    flip = np.where(np.sum(a[:, :4] * b[:, :4], axis=1) < 0, -1.0, 1.0)
+    np.testing.assert_allclose(a[:, :4] * flip[:, None], b[:, :4], rtol=0, atol=atol)
+    np.testing.assert_allclose(a[:, 4:], b[:, 4:], rtol=0, atol=atol)
+
+
+def assert_same_model(a: Path, b: Path, exact: bool = True) -> None:
+    """Same training data (bit for bit, or to round-off when not ``exact``) and the same fit.
+
+    With data equal only to round-off (a unit conversion, a normalisation), L-BFGS-B may stop at a
+    slightly different point of a flat likelihood (a few % in λ), so then the fits are compared by
+    their predictions at the training inputs instead of their hyperparameters.
+    """
+    (ma, _), (mb, _) = load_model(a), load_model(b)
+    atol = 0.0 if exact else 1e-9
+    np.testing.assert_allclose(ma.gp.X, mb.gp.X, rtol=0, atol=atol)
+    np.testing.assert_allclose(ma.gp.Y, mb.gp.Y, rtol=0, atol=atol * 100)
+    _starts_close(ma.starts, mb.starts, atol)
+    np.testing.assert_allclose(ma.durations, mb.durations, rtol=0, atol=atol)
+    assert ma.dt == pytest.approx(mb.dt, rel=0, abs=atol)
+    assert len(ma.gp.fits) == len(mb.gp.fits)
+    if exact:
+        for fa, fb in zip(ma.gp.fits, mb.gp.fits):
+            assert fa.values == fb.values
+    else:
+        pa = ma.gp.predict(ma.gp.X)
+        pb = mb.gp.predict(mb.gp.X)
+        scale = np.std(ma.gp.Y, axis=0)
+        assert np.max(np.abs(pa - pb) / scale) < 1e-4  # measured: 3e-6 at most
+
+
+def same_model_as(reference, opts=(), exact=True, name="demo.csv"):
+    """check: the model equals the one trained (same options) on the clean rows ``reference()``."""
+
+    def check(ctx: Ctx, res):
+        ctx.ref.mkdir(exist_ok=True)
+        ref_file = B.write_table(ctx.ref / name, reference())
+        ref_model = ctx.ref / "model.rbgp"
+        r = run_cli("train", ref_file, "-o", ref_model, *B.FAST, *opts)
+        assert r.exit_code == 0, r.stderr
+        assert_same_model(ctx.model_out, ref_model, exact=exact)
+
+    return check
+
+
+def sign_changes(flipped: np.ndarray) -> int:
+    return int(np.sum(flipped[1:] != flipped[:-1]))
+
+
+# ---------------------------------------------------------------------------------------------- CSV builders
+def _delete(k):
+    return lambda: np.delete(rows(), k, axis=0)
+
+
+def _nan_rows():
+    r = rows()
+    r[10:13, 4:8] = np.nan
+    return r
+
+
+def _blank_cells():
+    r = rows().astype(object)
+    r[40, 1] = ""
+    r[41, 5] = ""
+    return r
+
+
+def _null_cells():
+    r = rows().astype(object)
+    r[50, 4:8] = "null"
+    return r
+
+
+def _inf_cell():
+    r = rows()
+    r[60, 2] = np.inf
+    return r
+
+
+def _zero_quats(sl=slice(20, 23)):
+    def f():
+        r = rows()
+        r[sl, 4:8] = 0.0
+        return r
+
+    return f
+
+
+def _far_quat():
+    r = rows()
+    r[30, 4:8] *= 3.0
+    return r
+
+
+def _slightly_off():
+    r = rows()
+    r[:, 4:8] *= 1.05
+    return r
+
+
+FLIPPED = (np.arange(len(ROWS)) % 3) == 0
+
+
+def _sign_flips():
+    r = rows()
+    r[FLIPPED, 4:8] *= -1
+    return r
+
+
+def _unsorted():
+    r = rows()
+    r[[30, 31]] = r[[31, 30]]
+    return r
+
+
+def _duplicates():
+    r = rows()
+    return np.insert(r, 51, [r[50], r[50]], axis=0)
+
+
+def _dup_time():
+    r = rows()
+    r[51, 0] = r[50, 0]
+    return r
+
+
+def _time_scaled(scale):
+    def f():
+        r = rows()
+        r[:, 0] *= scale
+        return r
+
+    return f
+
+
+def _length_scaled(scale):
+    def f():
+        r = rows()
+        r[:, 1:4] *= scale
+        return r
+
+    return f
+
+
+def _step_of_pi():
+    """From row 60 on, the body is turned by π about z; row 60 repeats row 59's orientation turned,
+    so the step 59 -> 60 is exactly a half turn: its direction cannot be told."""
+    from scipy.spatial.transform import Rotation
+
+    r = rows()
+    half = Rotation.from_rotvec([0.0, 0.0, np.pi])
+    q = r[:, 4:8].copy()
+    q[60] = q[59]
+    r[60:, 4:8] = (half * Rotation.from_quat(q[60:])).as_quat()
+    return r
+
+
+def _wxyz():
+    return rows()[:, [0, 1, 2, 3, 7, 4, 5, 6]]
+
+
+def _first(n):
+    return lambda: rows()[:n]
+
+
+def _non_numeric():
+    r = rows().astype(object)
+    r[18, 3] = "abc"
+    return r
+
+
+def _extra_field(ctx: Ctx, k: int) -> Path:
+    lines = B.write_table(ctx.inp / "demo.csv", rows()).read_text().splitlines()
+    lines[line(k) - 1] += ",5.0"
+    return text(ctx, "\n".join(lines) + "\n")
+
+
+def _semicolon_decimal_comma(ctx: Ctx):
+    return ctx.train(csv(ctx, rows(), delimiter=";", decimal=","))
+
+
+def _numbers_only(ctx: Ctx):
+    lines = B.write_table(ctx.inp / "demo.csv", rows()).read_text().splitlines()
+    return ctx.train(text(ctx, "\n".join(lines[1:]) + "\n"))
+
+
+def _binary(ctx: Ctx):
+    rng = np.random.default_rng(7)
+    return ctx.train(text(ctx, rng.integers(0, 256, 3000, dtype=np.uint8).tobytes()))
+
+
+def _header(names):
+    return tuple(names.split(","))
+
+
+# ---------------------------------------------------------------------------------------------- vendor builders
+def _traj_with_lost(rows_lost):
+    tr = B.smooth_motion()
+    q = tr.quat.copy()
+    q[rows_lost] = np.nan
+    return tr.with_(quat=q)
+
+
+def _qtm_lost(ctx: Ctx):
+    return ctx.train(B.write_qtm(ctx.inp / "take_6D.tsv", _traj_with_lost([30, 31, 32])))
+
+
+def _qtm_truncated(ctx: Ctx):
+    p = B.write_qtm(ctx.inp / "take_6D.tsv")
+    data = p.read_text()
+    lines = data.splitlines()
+    cut = len("\n".join(lines[:70])) + 1 + len(lines[70]) // 2  # in the middle of file line 71
+    p.write_text(data[:cut])
+    return ctx.train(p)
+
+
+def _motive_lost(ctx: Ctx):
+    return ctx.train(B.write_motive(ctx.inp / "take.csv", _traj_with_lost([40, 41, 42])))
+
+
+def _motive_header_cut(ctx: Ctx):
+    p = B.write_motive(ctx.inp / "take.csv")
+    p.write_text("\n".join(p.read_text().splitlines()[:4]) + "\n")
+    return ctx.train(p)
+
+
+def _close_to_csv_model(ctx: Ctx, res, drop=()):
+    """A vendor file (mm, Euler/matrix columns) converts to the same numbers up to round-off."""
+    ctx.ref.mkdir(exist_ok=True)
+    ref_file = B.write_table(ctx.ref / "demo.csv", np.delete(rows(), list(drop), axis=0))
+    r = run_cli("train", ref_file, "-o", ctx.ref / "model.rbgp", *B.FAST)
+    assert r.exit_code == 0, r.stderr
+    assert_same_model(ctx.model_out, ctx.ref / "model.rbgp", exact=False)
+
+
+# ---------------------------------------------------------------------------------------------- MCAP builders
+def _mcap(ctx: Ctx, **kw) -> Path:
+    return B.write_mcap(ctx.inp / "rec.mcap", **kw)
+
+
+def _mcap_cut(frac):
+    def build(ctx: Ctx):
+        p = _mcap(ctx)
+        data = p.read_bytes()
+        p.write_bytes(data[: int(len(data) * frac)])
+        return ctx.train(p)
+
+    return build
+
+
+def _mcap_corrupt_chunk(which):
+    def build(ctx: Ctx):
+        p = _mcap(ctx, chunk_size=4096)
+        off = B.chunk_data_offsets(p)[which]
+        p.write_bytes(B.mutate(p.read_bytes(), flip=[(off + k, 3) for k in range(4, 12)]))
+        return ctx.train(p)
+
+    return build
+
+
+def _recovered_prefix(ctx: Ctx, res):
+    """The model learned from exactly the messages before the damage, and says so."""
+    import re
+
+    warn = next(ln for ln in res.stderr.splitlines() if "recovered" in ln)
+    n = int(re.search(r"recovered (\d+) pose samples", warn).group(1))
+    assert 2 < n <= len(ROWS)
+    m, header = load_model(ctx.model_out)
+    assert header["provenance"]["demonstrations"][0]["samples"] == n
+    np.testing.assert_allclose(m.starts[0], np.concatenate([ROWS[0, 4:8], ROWS[0, 1:4]]), atol=1e-15)
+    assert m.durations[0] == pytest.approx(ROWS[n - 1, 0], abs=1e-9)
+
+
+def _later_chunk_recovered(ctx: Ctx, res):
+    """Damage in chunk 1: exactly the messages of chunk 0 are kept."""
+    _recovered_prefix(ctx, res)
+    ctx.ref.mkdir(exist_ok=True)
+    clean = B.write_mcap(ctx.ref / "clean.mcap", chunk_size=4096)
+    assert f"recovered {B.messages_in_first_chunks(clean, 1)} pose samples" in res.stderr
+
+
+def _mcap_zero_quats(ctx: Ctx):
+    tr = B.smooth_motion()
+    return ctx.train(_mcap(ctx, traj=tr.with_(quat=np.zeros_like(tr.quat))))
+
+
+def _json_tf_matches_csv(ctx: Ctx, res):
+    """JSON TF with a JSON schema reads like the CSV (times through integer ns: round-off only)."""
+    _close_to_csv_model(ctx, res)
+
+
+# ---------------------------------------------------------------------------------------------- model builders
+def _model_bytes(ctx: Ctx) -> bytes:
+    return ctx.model_src.read_bytes()
+
+
+def _model_cut(ctx: Ctx):
+    p = ctx.inp / "tiny.rbgp"
+    p.write_bytes(_model_bytes(ctx)[: len(_model_bytes(ctx)) // 2])
+    return ["rollout", p, "--steps", "5", "-o", ctx.out / "gen.csv"]
+
+
+def _model_flipped(ctx: Ctx):
+    import zipfile
+
+    p = ctx.model()
+    with zipfile.ZipFile(p) as z:
+        info = z.getinfo("X.npy")
+    off = info.header_offset + 30 + len(info.filename) + len(info.extra) + info.compress_size // 2
+    p.write_bytes(B.mutate(p.read_bytes(), flip=[(off, 0)]))
+    return ["info", p]
+
+
+def _model_header_edit(edit, command="info"):
+    def build(ctx: Ctx):
+        header, arrays = B.read_model_npz(ctx.model_src)
+        edit(header, arrays)
+        p = B.write_model_npz(ctx.inp / "tiny.rbgp", header, arrays)
+        if command == "info":
+            return ["info", p]
+        return ["rollout", p, "--steps", "5", "-o", ctx.out / "gen.csv"]
+
+    return build
+
+
+def _set(key, value):
+    def edit(header, arrays):
+        header[key] = value
+
+    return edit
+
+
+def _model_tampered_array(ctx: Ctx):
+    header, arrays = B.read_model_npz(ctx.model_src)
+    arrays["Y"] = arrays["Y"].copy()
+    arrays["Y"][3, 1] += 1e-9
+    p = B.write_model_npz(ctx.inp / "tiny.rbgp", header, arrays, checksums=False)
+    return ["rollout", p, "--steps", "5", "-o", ctx.out / "gen.csv"]
+
+
+def _model_not_zip(ctx: Ctx):
+    p = csv(ctx, rows(), name="tiny.rbgp")
+    return ["rollout", p, "--steps", "5", "-o", ctx.out / "gen.csv"]
+
+
+def _model_npz_without_header(ctx: Ctx):
+    p = ctx.inp / "tiny.rbgp"
+    with open(p, "wb") as fh:
+        np.savez(fh, X=np.zeros((3, 6)))
+    return ["info", p]
+
+
+# ---------------------------------------------------------------------------------------------- start poses
+def _rollout_start(pose):
+    def build(ctx: Ctx):
+        return ["rollout", ctx.model(), "--start", pose, "--steps", "5", "-o", ctx.out / "gen.csv"]
+
+    return build
+
+
+def _rollout_starts(content):
+    def build(ctx: Ctx):
+        p = text(ctx, content, "starts.csv")
+        return ["rollout", ctx.model(), "--starts", p, "--steps", "5", "-o", ctx.out / "gen.csv"]
+
+    return build
+
+
+STARTS_HEADER = "x,y,z,qx,qy,qz,qw\n"
+GOOD_START = "0.3,0.1,0.8,0,0,0,1\n"
+
+
+def _predict(content):
+    def build(ctx: Ctx):
+        p = text(ctx, content, "poses.csv")
+        return ["predict", ctx.model(), p, "-o", ctx.out / "pred.csv"]
+
+    return build
+
+
+# ---------------------------------------------------------------------------------------------- evaluate
+def _demos(ctx: Ctx, n: int = 3) -> Path:
+    d = ctx.inp / "demos"
+    d.mkdir(exist_ok=True)
+    for k in range(n):
+        B.write_csv(d / f"demo_{k}.csv", B.smooth_motion(seed=k, name=f"demo_{k}"))
+    return d
+
+
+def _evaluate(gen_rows=None, length=None, gen_text=None):
+    def build(ctx: Ctx):
+        demos = _demos(ctx)
+        args = ["evaluate"]
+        if gen_text is not None:
+            args.append(text(ctx, gen_text, "gen.csv"))
+        elif gen_rows is not None:
+            args.append(csv(ctx, gen_rows(), "gen.csv"))
+        args += ["--demos", demos, "--per-step", ctx.out / "steps.csv", "--json"]
+        if length is not None:
+            args += ["--length", str(length)]
+        return args
+
+    return build
+
+
+def _steps_written(length):
+    def check(ctx: Ctx, res):
+        d = json.loads(res.stdout)
+        assert d["steps"] == length and d["n_generated"] == 1 and d["n_demos"] == 3
+        assert np.isfinite(d["bhattacharyya"]["mean"])
+        assert len((ctx.out / "steps.csv").read_text().splitlines()) == length + 1
+
+    return check
+
+
+# ---------------------------------------------------------------------------------------------- the table
+N = len(ROWS)
+
+CASES = [
+    # --- files that hold nothing usable
+    Case("empty_file", lambda c: c.train(text(c, "")), error=("demo.csv", "empty")),
+    Case("blank_lines_only", lambda c: c.train(text(c, "\n  \n\t\n")), error=("demo.csv", "empty")),
+    Case("header_only", lambda c: c.train(text(c, ",".join(B.COLUMNS) + "\n")),
+         error=("demo.csv:1:", "header but no data rows")),
+    Case("binary_garbage", _binary, error=("demo.csv", "not a text file", "MCAP")),
+    Case("numbers_without_header", _numbers_only, error=("demo.csv:1:", "no header line", "add a header")),
+    # --- delimiters
+    Case("semicolon_and_decimal_comma", _semicolon_decimal_comma, check=same_model_as(rows)),
+    Case("tab_separated", train_on(rows, "demo.tsv", delimiter="\t"), check=same_model_as(rows)),
+    # --- columns
+    Case("missing_qw_column", train_on(lambda: rows()[:, :7], header=B.COLUMNS[:7]),
+         error=("demo.csv", "column 'qw' not found", "columns are t, x, y, z, qx, qy, qz", "--columns qw=")),
+    Case("misspelled_qw_column", train_on(rows, header=_header("t,x,y,z,qx,qy,qz,qww")),
+         error=("demo.csv", "columns are t, x, y, z, qx, qy, qz, qww", "did you mean 'qww'", "--columns qw=qww")),
+    Case("misspelled_x_column", train_on(rows, header=_header("t,xx,y,z,qx,qy,qz,qw")),
+         error=("demo.csv", "position column 'x' not found", "did you mean 'xx'", "--columns x=xx")),
+    Case("ambiguous_quaternion_order", train_on(rows, header=_header("t,x,y,z,q0,q1,q2,q3")),
+         error=("demo.csv", "q0, q1, q2, q3", "--quat-order xyzw", "--quat-order wxyz")),
+    Case("quaternion_order_given",
+         train_on(_wxyz, header=_header("t,x,y,z,q0,q1,q2,q3"), opts=("--quat-order", "wxyz")),
+         check=same_model_as(rows)),
+    Case("named_columns_w_first", train_on(_wxyz, header=_header("t,x,y,z,qw,qx,qy,qz")), check=same_model_as(rows)),
+    # --- lost frames
+    Case("nan_rows", train_on(_nan_rows), warning=("demo.csv", "dropped 3 lost frames"),
+         check=same_model_as(_delete([10, 11, 12]))),
+    Case("blank_cells", train_on(_blank_cells), warning=("dropped 2 lost frames",),
+         check=same_model_as(_delete([40, 41]))),
+    Case("null_cells", train_on(_null_cells), warning=("dropped 1 lost frame",), check=same_model_as(_delete([50]))),
+    Case("infinite_value", train_on(_inf_cell), warning=("dropped 1 lost frame",), check=same_model_as(_delete([60]))),
+    Case("some_all_zero_quaternions", train_on(_zero_quats()), warning=("dropped 3 lost frames",),
+         check=same_model_as(_delete([20, 21, 22]))),
+    Case("every_quaternion_all_zero", train_on(_zero_quats(slice(None))),
+         error=("demo.csv", "at least 2 samples", f"{N} samples have an all-zero quaternion")),
+    # --- quaternions
+    Case("quaternion_far_from_unit", train_on(_far_quat),
+         error=(f"demo.csv:{line(30)}:", "quaternion norm 3", "far from 1", "--columns")),
+    Case("quaternions_slightly_off_unit", train_on(_slightly_off), warning=("normalised quaternions", "0.05"),
+         check=same_model_as(rows, exact=False)),
+    Case("sign_flips", train_on(_sign_flips), warning=(f"fixed {sign_changes(FLIPPED)} quaternion sign flips",),
+         check=same_model_as(rows)),
+    Case("step_of_pi", train_on(_step_of_pi),
+         error=(f"demo.csv:{line(60)}:", "π or more", "record at a higher rate")),
+    # --- time
+    Case("unsorted_times", train_on(_unsorted),
+         error=(f"demo.csv:{line(31)}:", "time goes backwards", "sort the rows")),
+    Case("duplicate_rows", train_on(_duplicates), warning=("dropped 2 duplicate samples",), check=same_model_as(rows)),
+    Case("duplicate_time_other_pose", train_on(_dup_time),
+         error=(f"demo.csv:{line(51)}:", "same time as the sample before it", "remove one of them")),
+    Case("times_in_ms", train_on(_time_scaled(1e3)), error=("demo.csv", "column 't' has no unit", "--time-unit ms")),
+    Case("times_in_ns", train_on(_time_scaled(1e9)), error=("demo.csv", "--time-unit ns")),
+    Case("times_in_ms_with_option", train_on(_time_scaled(1e3), opts=("--time-unit", "ms")),
+         check=same_model_as(rows, exact=False)),
+    Case("times_in_ns_named_column", train_on(_time_scaled(1e9), header=("t_ns",) + B.COLUMNS[1:]),
+         check=same_model_as(rows, exact=False)),
+    # --- too little data
+    Case("one_sample", train_on(_first(1)), error=("demo.csv", "at least 2 samples for a velocity")),
+    # --- units
+    Case("millimetres_assumed_metres", train_on(_length_scaled(1e3)),
+         error=("demo.csv", "looks like millimetres", "--length-unit mm")),
+    Case("millimetres_with_option", train_on(_length_scaled(1e3), opts=("--length-unit", "mm")),
+         check=same_model_as(rows, exact=False)),
+    Case("millimetres_in_column_names",
+         train_on(_length_scaled(1e3), header=("t", "x_mm", "y_mm", "z_mm") + B.COLUMNS[4:]),
+         check=same_model_as(rows, exact=False)),
+    # --- malformed rows
+    Case("non_numeric_cell", train_on(_non_numeric),
+         error=(f"demo.csv:{line(18)}:", "non-numeric value 'abc'", "column 'z'", "leave it empty")),
+    Case("extra_field_in_a_row", lambda c: c.train(_extra_field(c, 10)),
+         error=(f"demo.csv:{line(10)}:", "9 fields", "delimiter")),
+    # --- vendor exports
+    Case("qtm_lost_frames", _qtm_lost, warning=("take_6D.tsv", "dropped 3 lost frames"),
+         check=lambda c, r: _close_to_csv_model(c, r, drop=(30, 31, 32))),
+    Case("qtm_truncated_row", _qtm_truncated, error=("take_6D.tsv:", "cells")),
+    Case("motive_lost_frames", _motive_lost, warning=("take.csv", "dropped 3 lost frames"),
+         check=lambda c, r: _close_to_csv_model(c, r, drop=(40, 41, 42))),
+    Case("motive_header_cut_short", _motive_header_cut, error=("take.csv", "Frame,Time")),
+    # --- MCAP
+    Case("mcap_truncated_in_header", _mcap_cut(0.01), error=("rec.mcap", "truncated or corrupt")),
+    Case("mcap_truncated_at_40_percent", _mcap_cut(0.4), warning=("rec.mcap", "truncated or corrupt", "recovered"),
+         check=_recovered_prefix),
+    Case("mcap_truncated_at_90_percent", _mcap_cut(0.9), warning=("rec.mcap", "truncated or corrupt", "recovered"),
+         check=_recovered_prefix),
+    Case("mcap_unfinished_recording", lambda c: c.train(_mcap(c, finish=False)),
+         warning=("rec.mcap", "recovered"), check=_recovered_prefix),
+    Case("mcap_corrupt_first_zstd_chunk", _mcap_corrupt_chunk(0),
+         error=("rec.mcap", "truncated or corrupt", "no pose message could be read", "record it again")),
+    Case("mcap_corrupt_later_zstd_chunk", _mcap_corrupt_chunk(1), warning=("rec.mcap", "topic /shoe/pose", "recovered"),
+         check=_later_chunk_recovered),
+    Case("mcap_no_pose_topic", lambda c: c.train(B.write_mcap_strings(c.inp / "rec.mcap")),
+         error=("rec.mcap", "no pose topic found", "/chatter (std_msgs/msg/String", "rbgp reads")),
+    Case("mcap_misspelled_topic", lambda c: c.train(_mcap(c, extra_strings="/chatter"), opts=("--topic", "/shoe/poze")),
+         error=("rec.mcap", "no topic '/shoe/poze'", "did you mean '/shoe/pose'")),
+    Case("mcap_topic_without_poses",
+         lambda c: c.train(_mcap(c, extra_strings="/chatter"), opts=("--topic", "/chatter")),
+         error=("rec.mcap", "/chatter", "hold no pose", "pose topics are: /shoe/pose")),
+    Case("mcap_json_tf_under_ros_schema", lambda c: c.train(B.write_mcap_json_tf(c.inp / "rec.mcap")),
+         error=("rec.mcap", "topic /tf", "JSON-encoded", "ros2msg")),
+    Case("mcap_json_tf_with_json_schema",
+         lambda c: c.train(B.write_mcap_json_tf(c.inp / "rec.mcap", schema_encoding="jsonschema")),
+         check=_json_tf_matches_csv),
+    Case("mcap_all_zero_quaternions", _mcap_zero_quats, error=("rec.mcap", "all-zero quaternion", "orientation")),
+    # --- model files
+    Case("model_truncated", _model_cut, error=("tiny.rbgp", "not a readable rbgp model file", "retrain")),
+    Case("model_bit_flipped", _model_flipped, error=("tiny.rbgp", "not a readable rbgp model file")),
+    Case("model_array_changed", _model_tampered_array,
+         error=("tiny.rbgp", "checksum mismatch in array 'Y'", "corrupted")),
+    Case("model_future_version", _model_header_edit(_set("version", 99), "rollout"),
+         error=("tiny.rbgp", "version 99 is newer", "upgrade rbgp")),
+    Case("model_other_format", _model_header_edit(_set("format", "something-else")),
+         error=("tiny.rbgp", "not an rbgp model file")),
+    Case("model_is_a_csv", _model_not_zip, error=("tiny.rbgp", "not a readable rbgp model file")),
+    Case("model_npz_without_header", _model_npz_without_header, error=("tiny.rbgp", "no header")),
+    Case("model_missing", lambda c: ["info", c.inp / "tiny.rbgp"], error=("tiny.rbgp", "not found")),
+    # --- start poses
+    Case("start_pose_three_numbers", _rollout_start("1 2 3"), error=("start pose '1 2 3'", "rx ry rz x y z")),
+    Case("start_pose_nan", _rollout_start("nan 0 0 0.3 0 0.8"), error=("start pose", "finite")),
+    Case("start_pose_text", _rollout_start("a b c d e f"), error=("start pose", "six numbers")),
+    Case("starts_file_header_only", _rollout_starts(STARTS_HEADER), error=("starts.csv:1:", "no data rows")),
+    Case("starts_file_binary", _rollout_starts(b"\x00\x01\x02" * 50), error=("starts.csv", "not a text file")),
+    # --- evaluate
+    Case("evaluate_no_generated", _evaluate(), error=("no generated trajectories", "--model")),
+    Case("evaluate_generated_header_only", _evaluate(gen_text=",".join(B.COLUMNS) + "\n"),
+         error=("gen.csv:1:", "no data rows")),
+    Case("evaluate_generated_one_sample", _evaluate(gen_rows=_first(1)), error=("gen.csv", "at least 2 samples")),
+    Case("evaluate_length_far_beyond_demos", _evaluate(gen_rows=rows, length=10 * N),
+         error=("4x the longest demonstration", f"at most {4 * N}")),
+    Case("evaluate_demos_shorter_than_length", _evaluate(gen_rows=rows, length=2 * N),
+         warning=(f"length {2 * N} exceeds the longest demonstration ({N} samples)", "upsampled"),
+         check=_steps_written(2 * N)),
+]
+
+
+def _ids():
+    names = [c.name for c in CASES]
+    assert len(names) == len(set(names)), "case names must be unique"
+    return names
+
+
+@pytest.mark.parametrize("case", CASES, ids=_ids())
+def test_hostile_input(case: Case, tmp_path, tiny_model_path):
+    ctx = Ctx(tmp_path, tiny_model_path)
+    for d in (ctx.inp, ctx.out):
+        d.mkdir()
+    args = case.build(ctx)
+    res = run_cli(*args)
+    lines = res.stderr.splitlines()
+    assert "Traceback" not in res.stderr and "internal error" not in res.stderr, res.stderr
+    assert all(ln.startswith(("rbgp: error: ", "rbgp: warning: ")) for ln in lines), res.stderr
+    errors = [ln for ln in lines if ln.startswith("rbgp: error: ")]
+    warnings = [ln for ln in lines if ln.startswith("rbgp: warning: ")]
+    if case.error:
+        assert res.exit_code == 2, (res.exit_code, res.stderr)
+        assert len(errors) == 1 and lines[-1] == errors[0], res.stderr
+        for frag in case.error:
+            assert frag in errors[0], (frag, errors[0])
+        assert res.stdout == ""
+        assert list(ctx.out.iterdir()) == [], "an output (or temporary) file was left behind"
+    else:
+        assert res.exit_code == 0, res.stderr
+        assert not errors
+        for frag in case.warning:
+            assert any(frag in w for w in warnings), (frag, res.stderr)
+        if not case.warning:
+            assert not warnings, res.stderr
+        if case.check is not None:
+            case.check(ctx, res)
+        leftovers = [p.name for p in ctx.out.iterdir() if p.name.startswith(".") or p.name.endswith(".tmp")]
+        assert leftovers == []
+
+
+def test_the_table_is_big_enough():
+    assert len(CASES) >= 40
+    assert sum(1 for c in CASES if c.error) >= 20 and sum(1 for c in CASES if not c.error) >= 10
