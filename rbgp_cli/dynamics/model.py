@@ -88,6 +88,14 @@ def training_set(trajs: list[Trajectory], representation: Representation, *, sub
     X = np.concatenate(Xs)
     Y = np.concatenate(Ys)
     n = len(X)
+    if n < 2:  # two samples give one velocity: nothing for a GP to fit (nor a length scale to learn)
+        sources = sorted({tr.source or tr.name for tr in trajs if tr.source or tr.name})
+        raise InputError(
+            f"the demonstrations give {n} training pair{'s' * (n != 1)} (one velocity per two consecutive "
+            "samples); a GP needs at least 2",
+            path=", ".join(sources) or None,
+            hint="train on demonstrations with 3 or more samples",
+        )
     rng = np.random.default_rng(seed)
     k = n
     if subsample is not None:

@@ -582,6 +582,7 @@ CASES = [
          check=same_model_as(rows, exact=False)),
     # --- too little data
     Case("one_sample", train_on(_first(1)), error=("demo.csv", "at least 2 samples for a velocity")),
+    Case("two_samples_one_velocity", train_on(_first(2)), error=("demo.csv", "1 training pair", "3 or more samples")),
     # --- units
     Case("millimetres_assumed_metres", train_on(_length_scaled(1e3)),
          error=("demo.csv", "looks like millimetres", "--length-unit mm")),
