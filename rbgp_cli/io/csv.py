@@ -541,10 +541,19 @@ def _read_frame(table: _Table, plan: _Plan):
     # as many columns as the header (short rows, e.g. lost frames, get NaN), or more when the first rows
     # end with empty fields the header lacks (a trailing delimiter); other extra fields are an error
     width = len(table.header)
-    for row in table.data_text.split("\n", 64)[:64]:
-        fields = _split_fields(row, table.delimiter)
+    head = [_split_fields(row, table.delimiter) for row in table.data_text.split("\n", 64)[:64]]
+    for fields in head:
         if len(fields) > width and not any(f.strip() for f in fields[width:]):
             width = len(fields)  # trailing empty fields only: ignored
+    for k, fields in enumerate(head):
+        # pandas reports longer rows, except in the first row, whose extra fields it drops with a warning
+        if len(fields) > width:
+            raise InputError(
+                f"row has {len(fields)} fields, the header and the first rows have {width}",
+                path=table.source,
+                row=int(table.lines[k]),
+                hint="check the delimiter and quoting of that row",
+            )
     kwargs = dict(header=None, names=list(range(width)), index_col=False, dtype=dtype, skip_blank_lines=False,
                   decimal=table.decimal, quotechar='"', low_memory=False)  # fmt: skip
     if table.delimiter == "whitespace":

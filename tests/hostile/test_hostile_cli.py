@@ -596,6 +596,8 @@ CASES = [
          error=(f"demo.csv:{line(18)}:", "non-numeric value 'abc'", "column 'z'", "leave it empty")),
     Case("extra_field_in_a_row", lambda c: c.train(_extra_field(c, 10)),
          error=(f"demo.csv:{line(10)}:", "9 fields", "delimiter")),
+    Case("extra_field_in_first_row", lambda c: c.train(_extra_field(c, 0)),
+         error=(f"demo.csv:{line(0)}:", "9 fields", "delimiter")),
     # --- vendor exports
     Case("qtm_lost_frames", _qtm_lost, warning=("take_6D.tsv", "dropped 3 lost frames"),
          check=lambda c, r: _close_to_csv_model(c, r, drop=(30, 31, 32))),
