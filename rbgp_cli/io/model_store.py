@@ -124,7 +124,8 @@ def read_header(path) -> tuple[dict, dict]:
         raise InputError("model file not found", path=str(path), hint="check the path") from None
     except IsADirectoryError:
         raise InputError("is a directory, not a model file", path=str(path)) from None
-    except (zipfile.BadZipFile, zlib.error, EOFError, ValueError, OSError, KeyError, TypeError) as exc:
+    except (zipfile.BadZipFile, zlib.error, EOFError, ValueError, OSError, KeyError, TypeError,
+            NotImplementedError, RuntimeError) as exc:  # zipfile: unknown compression / "encrypted" flag
         raise _bad(path, f"not a readable rbgp model file ({type(exc).__name__}: {str(exc)[:80]})") from None
     try:
         header = json.loads(header_bytes.decode("utf-8"))
@@ -163,6 +164,10 @@ def load_model(path):
         rep = representation_from_dict(header["representation"])
         kernel = kernel_from_dict(header["kernel"])
         fits = [OutputFit.from_dict(f) for f in header["fits"]]
+        for f in fits:  # every hyperparameter is positive (they are optimised in log space)
+            for k, v in f.values.items():
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < float("inf"):
+                    raise ValueError(f"hyperparameter {k} = {v!r} is not a positive finite number")
         X, Y = arrays["X"], arrays["Y"]
         if X.ndim != 2 or Y.ndim != 2 or len(X) != len(Y) or X.shape[1] != len(rep.input_names) or Y.shape[1] != len(rep.output_names):
             raise ValueError("array shapes disagree with the representation")
@@ -176,7 +181,7 @@ def load_model(path):
             raise ValueError("invalid time step")
     except RbgpError as exc:
         raise _bad(path, f"the model cannot be rebuilt: {exc.message}") from None
-    except (KeyError, TypeError, ValueError, IndexError) as exc:
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError, ArithmeticError) as exc:
         raise _bad(path, f"the model header is inconsistent ({type(exc).__name__}: {str(exc)[:80]})") from None
     return MotionModel(rep, gp, dt, arrays["starts"], arrays["durations"],
                        summary=header.get("summary", {}), provenance=header.get("provenance", {})), header

@@ -225,6 +225,18 @@ def read_model_npz(path) -> tuple[dict, dict]:
     return header, arrays
 
 
+def zip_central_entry(data: bytes, name: str) -> int:
+    """Offset of the central-directory header (``PK\\1\\2``) of member ``name`` in zip bytes; its
+    general-purpose flags are at +8, the compression method at +10."""
+    off = data.find(b"PK\x01\x02")
+    while off >= 0:
+        n = int.from_bytes(data[off + 28:off + 30], "little")
+        if data[off + 46:off + 46 + n] == name.encode():
+            return off
+        off = data.find(b"PK\x01\x02", off + 4)
+    raise KeyError(name)
+
+
 def mutate(data: bytes, *, flip=(), delete=None, insert=None, truncate=None) -> bytes:
     """Byte surgery: flip bits ``[(offset, bit)]``, delete ``(start, stop)``, insert ``(offset, bytes)``,
     truncate to ``truncate`` bytes."""

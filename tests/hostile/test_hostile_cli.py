@@ -438,6 +438,26 @@ def _set(key, value):
     return edit
 
 
+def _fit_value(key, value):
+    def edit(header, arrays):
+        header["fits"][0]["values"][key] = value
+
+    return edit
+
+
+def _model_zip_field(offset_in_entry: int, value: int):
+    """Overwrite a byte of X.npy's central-directory entry (flags: +8, compression method: +10)."""
+
+    def build(ctx: Ctx):
+        p = ctx.model()
+        data = bytearray(p.read_bytes())
+        data[B.zip_central_entry(bytes(data), "X.npy") + offset_in_entry] = value
+        p.write_bytes(bytes(data))
+        return ["rollout", p, "--steps", "5", "-o", ctx.out / "gen.csv"]
+
+    return build
+
+
 def _model_tampered_array(ctx: Ctx):
     header, arrays = B.read_model_npz(ctx.model_src)
     arrays["Y"] = arrays["Y"].copy()
@@ -639,6 +659,16 @@ CASES = [
          error=("tiny.rbgp", "version 99 is newer", "upgrade rbgp")),
     Case("model_other_format", _model_header_edit(_set("format", "something-else")),
          error=("tiny.rbgp", "not an rbgp model file")),
+    Case("model_marked_encrypted", _model_zip_field(8, 0x01), error=("tiny.rbgp", "not a readable rbgp model file")),
+    Case("model_unknown_compression", _model_zip_field(10, 99), error=("tiny.rbgp", "not a readable rbgp model file")),
+    Case("model_kernel_not_an_object", _model_header_edit(_set("kernel", []), "rollout"),
+         error=("tiny.rbgp", "header is inconsistent", "retrain")),
+    Case("model_zero_length_scale", _model_header_edit(_fit_value("length_scale", 0.0), "rollout"),
+         error=("tiny.rbgp", "length_scale = 0.0 is not a positive finite number")),
+    Case("model_infinite_length_scale", _model_header_edit(_fit_value("length_scale", float("inf")), "rollout"),
+         error=("tiny.rbgp", "length_scale = inf")),
+    Case("model_negative_signal_std", _model_header_edit(_fit_value("signal_std", -1e308), "rollout"),
+         error=("tiny.rbgp", "signal_std = -1e+308")),
     Case("model_is_a_csv", _model_not_zip, error=("tiny.rbgp", "not a readable rbgp model file")),
     Case("model_npz_without_header", _model_npz_without_header, error=("tiny.rbgp", "no header")),
     Case("model_missing", lambda c: ["info", c.inp / "tiny.rbgp"], error=("tiny.rbgp", "not found")),
