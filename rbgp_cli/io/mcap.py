@@ -30,6 +30,8 @@ warning saying how many; nothing usable is an :class:`~rbgp_cli.errors.InputErro
 
 from __future__ import annotations
 
+import contextlib
+import io
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -80,10 +82,14 @@ def is_pose_schema(name: str | None) -> bool:
 
 
 def _corrupt_errors() -> tuple:
-    """Exceptions a damaged MCAP raises while it is being read (ECOSYSTEM §1.2)."""
+    """Exceptions a damaged MCAP raises while it is being read (ECOSYSTEM §1.2).
+
+    mcap bounds a whole record at 4 GiB but trusts the lengths inside one (a chunk's data length): a
+    corrupt one asks for an impossible read, OverflowError above sys.maxsize and MemoryError for a
+    huge allocation that never happened (so memory is not exhausted and reading can go on)."""
     from mcap.exceptions import McapError
 
-    errs = [McapError, struct.error, ValueError, EOFError, RuntimeError, OSError]
+    errs = [McapError, struct.error, ValueError, EOFError, RuntimeError, OSError, OverflowError, MemoryError]
     try:
         import zstandard
 
@@ -282,7 +288,10 @@ def _scan(iterator, scan: _Scan, factories: list) -> None:
         if dec is None:
             for factory in factories:
                 try:
-                    dec = factory.decoder_for(channel.message_encoding, schema)
+                    # mcap_ros2's message-definition parser prints to stderr before raising; the
+                    # error below says it in one line
+                    with contextlib.redirect_stderr(io.StringIO()):
+                        dec = factory.decoder_for(channel.message_encoding, schema)
                 except Exception as exc:  # a schema the factory cannot parse
                     raise InputError(
                         f"cannot parse the schema {schema.name if schema else ''!r} ({type(exc).__name__}: {exc})",

@@ -366,6 +366,30 @@ def _mcap_corrupt_chunk(which):
     return build
 
 
+def _mcap_chunk_length(which, value):
+    """A chunk record whose data length field (the u64 before the data) is corrupt."""
+
+    def build(ctx: Ctx):
+        p = _mcap(ctx, chunk_size=4096)
+        off = B.chunk_data_offsets(p)[which]
+        data = bytearray(p.read_bytes())
+        data[off - 8:off] = int(value).to_bytes(8, "little")
+        p.write_bytes(bytes(data))
+        return ctx.train(p)
+
+    return build
+
+
+def _mcap_bad_schema(ctx: Ctx):
+    """A ROS 2 message definition the parser rejects (an upper-case package name)."""
+    from tests.io.mcap_fixtures import MSGDEFS, write_raw
+
+    text_ = MSGDEFS["geometry_msgs/msg/PoseStamped"].replace("builtin_interfaces/Time", "builtin_interFaces/Time")
+    p = ctx.inp / "rec.mcap"
+    write_raw(p, B.TOPIC, "geometry_msgs/msg/PoseStamped", "ros2msg", text_.encode(), "cdr", [b"\0" * 64] * 5)
+    return ctx.train(p)
+
+
 def _recovered_prefix(ctx: Ctx, res):
     """The model learned from exactly the messages before the damage, and says so."""
     import re
@@ -637,6 +661,14 @@ CASES = [
          error=("rec.mcap", "truncated or corrupt", "no pose message could be read", "record it again")),
     Case("mcap_corrupt_later_zstd_chunk", _mcap_corrupt_chunk(1), warning=("rec.mcap", "topic /shoe/pose", "recovered"),
          check=_later_chunk_recovered),
+    Case("mcap_chunk_length_max_u64", _mcap_chunk_length(1, 2**64 - 1), warning=("rec.mcap", "OverflowError", "recovered"),
+         check=_later_chunk_recovered),
+    Case("mcap_chunk_length_2_to_40", _mcap_chunk_length(1, 2**40), warning=("rec.mcap", "MemoryError", "recovered"),
+         check=_later_chunk_recovered),
+    Case("mcap_first_chunk_length_2_to_40", _mcap_chunk_length(0, 2**40),
+         error=("rec.mcap", "truncated or corrupt", "no pose message could be read")),
+    Case("mcap_malformed_message_definition", _mcap_bad_schema,
+         error=("rec.mcap", "topic /shoe/pose", "cannot parse the schema", "builtin_interFaces")),
     Case("mcap_no_pose_topic", lambda c: c.train(B.write_mcap_strings(c.inp / "rec.mcap")),
          error=("rec.mcap", "no pose topic found", "/chatter (std_msgs/msg/String", "rbgp reads")),
     Case("mcap_misspelled_topic", lambda c: c.train(_mcap(c, extra_strings="/chatter"), opts=("--topic", "/shoe/poze")),
