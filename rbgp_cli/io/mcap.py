@@ -560,7 +560,7 @@ def _read(stream, source: str, options: ReadOptions, *, select_all: bool) -> lis
         exc = scan.error
         if isinstance(exc, InvalidMagic):
             raise InputError("not an MCAP file (bad magic bytes)", path=source) from None
-        if not topics and isinstance(exc, EndOfFile):
+        if not topics and isinstance(exc, (EndOfFile, struct.error)):  # a short read: cut before any record
             empty = False
             if seekable:
                 stream.seek(0, 2)
@@ -577,6 +577,7 @@ def _read(stream, source: str, options: ReadOptions, *, select_all: bool) -> lis
                 f"no pose topic found before the damage (the file is truncated or corrupt: "
                 f"{type(exc).__name__}: {exc}); topics are: {_listing(topics.values()) or 'none'}",
                 path=source,
+                hint="run `mcap recover` on it, or record it again",
             ) from None
         raise InputError(
             f"the MCAP file is truncated or corrupt ({type(exc).__name__}: {exc}) and no pose message "

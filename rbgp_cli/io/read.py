@@ -51,7 +51,7 @@ def detect_format(path_or_head) -> str:
     else:
         with open(path_or_head, "rb") as fh:
             head = fh.read(_HEAD)
-    if head.startswith(MCAP_MAGIC):
+    if _is_mcap_head(head):
         return "mcap"
     text = head.decode("utf-8-sig", errors="replace").lstrip("\ufeff")
     lines = text.splitlines()
@@ -75,6 +75,12 @@ def detect_format(path_or_head) -> str:
         except ValueError:
             pass
     return "csv"
+
+
+def _is_mcap_head(head: bytes) -> bool:
+    """The MCAP magic, or all of a file too short to hold it that begins like it (a file cut in its
+    first 8 bytes is a truncated MCAP, not a CSV)."""
+    return head.startswith(MCAP_MAGIC) or (0 < len(head) < len(MCAP_MAGIC) and MCAP_MAGIC.startswith(head))
 
 
 def expand_sources(paths) -> list[str]:
@@ -227,7 +233,7 @@ def read_stream(stream, options: ReadOptions | None = None, source: str = "-") -
             head += chunk
     if not head:
         raise InputError("the input is empty", path=source, hint="pipe a CSV, TSV or MCAP file into rbgp")
-    if fmt == "mcap" or (fmt == "auto" and head.startswith(MCAP_MAGIC)):
+    if fmt == "mcap" or (fmt == "auto" and _is_mcap_head(head)):
         from rbgp_cli.io import mcap
 
         s = stream if _seekable(stream) else io.BufferedReader(_PrefixedRaw(head, stream))

@@ -12,6 +12,7 @@ folder and returns the command line, and what must happen:
   equals the one trained on the clean file the hostile one was made from.
 
 Inputs live in ``in/``, outputs go to ``out/``, clean reference files and their models to ``ref/``.
+A builder may return ``(args, stdin_bytes)`` for a case that reads ``-``.
 """
 
 from __future__ import annotations
@@ -650,6 +651,10 @@ CASES = [
          check=lambda c, r: _close_to_csv_model(c, r, drop=(40, 41, 42))),
     Case("motive_header_cut_short", _motive_header_cut, error=("take.csv", "Frame,Time")),
     # --- MCAP
+    Case("mcap_truncated_inside_magic", lambda c: c.train(text(c, b"\x89MCAP0\r", "rec.mcap")),
+         error=("rec.mcap", "truncated or corrupt", "record or copy the file again")),
+    Case("mcap_truncated_inside_magic_on_stdin", lambda c: (c.train("-"), b"\x89MCAP0\r"),
+         error=("rbgp: error: -: ", "truncated or corrupt")),
     Case("mcap_truncated_in_header", _mcap_cut(0.01), error=("rec.mcap", "truncated or corrupt")),
     Case("mcap_truncated_at_40_percent", _mcap_cut(0.4), warning=("rec.mcap", "truncated or corrupt", "recovered"),
          check=_recovered_prefix),
@@ -734,8 +739,9 @@ def test_hostile_input(case: Case, tmp_path, tiny_model_path):
     ctx = Ctx(tmp_path, tiny_model_path)
     for d in (ctx.inp, ctx.out):
         d.mkdir()
-    args = case.build(ctx)
-    res = run_cli(*args)
+    built = case.build(ctx)
+    args, stdin = built if isinstance(built, tuple) else (built, None)  # (args, bytes for '-')
+    res = run_cli(*args, input=stdin)
     lines = res.stderr.splitlines()
     assert "Traceback" not in res.stderr and "internal error" not in res.stderr, res.stderr
     assert all(ln.startswith(("rbgp: error: ", "rbgp: warning: ")) for ln in lines), res.stderr
