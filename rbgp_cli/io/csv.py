@@ -458,6 +458,14 @@ def _plan(cols: list, options: ReadOptions, source: str) -> _Plan:
             k, have = partial
             missing = next(r for r in _KIND_ROLES[k] if r not in have)
             raise _missing_error(_role_key(missing), "rotation", cols, used(), source)
+        if len(cols) == 1 and re.search(r"[^\w\s\[\]()]", cols[0].name):
+            # one "column" full of punctuation: the delimiter is none of those the sniffer knows
+            raise InputError(
+                f"the header line is a single column ({cols[0].name[:60]!r}): its delimiter is not a comma, "
+                "semicolon, tab or spaces",
+                path=source,
+                hint="save the file comma- or tab-separated",
+            )
         raise InputError(
             f"no rotation columns found; columns are {_columns_list(cols)}",
             path=source,
@@ -889,6 +897,10 @@ def read_text(text: str, source: str, options: ReadOptions | None = None) -> lis
     else:
         if not options.rate:
             tcands = [c.name for c in cols if any(w in c.base for w in ("time", "stamp", "sec"))]
+            if not tcands:  # a misspelled time column ('tme', 'tiem'): the closest unused name
+                used = {c.index for c in plan.roles.values()}
+                guess = closest("time", [c.name for c in cols if c.index not in used])
+                tcands = [guess] if guess else []
             raise InputError(
                 "no time column; pass --rate HZ"
                 + (" or --columns t=NAME" if tcands else "")

@@ -578,6 +578,8 @@ CASES = [
     Case("binary_garbage", _binary, error=("demo.csv", "not a text file", "MCAP")),
     Case("numbers_without_header", _numbers_only, error=("demo.csv:1:", "no header line", "add a header")),
     # --- delimiters
+    Case("pipe_delimiter", train_on(rows, delimiter="|"),
+         error=("demo.csv", "single column ('t|x|y|z|qx|qy|qz|qw')", "comma- or tab-separated")),
     Case("semicolon_and_decimal_comma", _semicolon_decimal_comma, check=same_model_as(rows)),
     Case("tab_separated", train_on(rows, "demo.tsv", delimiter="\t"), check=same_model_as(rows)),
     # --- columns
@@ -587,6 +589,8 @@ CASES = [
          error=("demo.csv", "columns are t, x, y, z, qx, qy, qz, qww", "did you mean 'qww'", "--columns qw=qww")),
     Case("misspelled_x_column", train_on(rows, header=_header("t,xx,y,z,qx,qy,qz,qw")),
          error=("demo.csv", "position column 'x' not found", "did you mean 'xx'", "--columns x=xx")),
+    Case("misspelled_time_column", train_on(rows, header=_header("tme,x,y,z,qx,qy,qz,qw")),
+         error=("demo.csv", "no time column", "columns are tme, x, y", "did you mean 'tme'", "--columns t=tme")),
     Case("ambiguous_quaternion_order", train_on(rows, header=_header("t,x,y,z,q0,q1,q2,q3")),
          error=("demo.csv", "q0, q1, q2, q3", "--quat-order xyzw", "--quat-order wxyz")),
     Case("quaternion_order_given",
