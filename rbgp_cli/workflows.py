@@ -146,7 +146,13 @@ def parse_pose(text: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def read_start_poses(path, options: ReadOptions | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Start poses from a file: every row is a start (any pose columns the CSV reader knows)."""
+    """Poses from a file, one per row (any pose columns the CSV reader knows): rollout starts, or the
+    poses ``rbgp predict`` evaluates. Returns unit quaternions (m, 4) x, y, z, w and positions (m, 3).
+
+    Every row must be a pose: finite values and a quaternion within 0.1 of unit norm (the tolerance of
+    :func:`~rbgp_cli.dynamics.prepare.prepare_trajectory`); the error names the file line otherwise.
+    """
+    from rbgp_cli.dynamics.prepare import ZERO_QUAT_NORM, line_of
     from rbgp_cli.io.read import read_demonstrations
 
     opts = options or ReadOptions()
@@ -157,13 +163,25 @@ def read_start_poses(path, options: ReadOptions | None = None) -> tuple[np.ndarr
     trajs = read_demonstrations([str(path)], opts)
     q = np.concatenate([t.quat for t in trajs]) if trajs else np.zeros((0, 4))
     p = np.concatenate([t.position for t in trajs]) if trajs else np.zeros((0, 3))
-    bad = ~(np.all(np.isfinite(q), 1) & np.all(np.isfinite(p), 1)) | (np.linalg.norm(q, axis=1) < 1e-9)
     if len(q) == 0:
-        raise InputError("no start poses in the file", path=str(path))
+        raise InputError("no poses in the file", path=str(path))
+    finite = np.all(np.isfinite(q), 1) & np.all(np.isfinite(p), 1)
+    with np.errstate(invalid="ignore"):
+        norm = np.linalg.norm(np.where(np.isfinite(q), q, 0.0), axis=1)
+    bad = ~finite | ~(np.abs(norm - 1.0) <= 0.1)
     if np.any(bad):
-        raise InputError(f"start pose {int(np.argmax(bad)) + 1} is not finite", path=str(path),
-                         hint="remove or fix that row")
-    return q, p
+        k = int(np.argmax(bad))
+        offsets = np.cumsum([0] + [len(t) for t in trajs])
+        j = int(np.searchsorted(offsets, k, side="right")) - 1
+        if not finite[k]:
+            what, hint = "has a value that is not a finite number", "remove or fix that row"
+        elif norm[k] < ZERO_QUAT_NORM:
+            what, hint = "has an all-zero quaternion", "remove or fix that row"
+        else:
+            what = f"has a quaternion of norm {norm[k]:.6g}, far from 1"
+            hint = "check which columns hold the quaternion and their order (--columns, --quat-order)"
+        raise InputError(f"pose {k + 1} {what}", path=str(path), row=line_of(trajs[j], k - offsets[j]), hint=hint)
+    return q / norm[:, None], p
 
 
 def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, samples=0, seed=0, with_std=True,

@@ -28,7 +28,7 @@ import numpy as np
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError, warn
 
-__all__ = ["prepare_trajectory", "prepare_all", "lost_frame_mask", "ZERO_QUAT_NORM", "STEP_LIMIT"]
+__all__ = ["prepare_trajectory", "prepare_all", "lost_frame_mask", "line_of", "ZERO_QUAT_NORM", "STEP_LIMIT"]
 
 #: A quaternion with a smaller norm is "no rotation recorded" (a lost frame), not a rotation.
 ZERO_QUAT_NORM = 1e-9
@@ -47,7 +47,7 @@ def lost_frame_mask(traj: Trajectory) -> np.ndarray:
     return ~(finite & (norm >= ZERO_QUAT_NORM))
 
 
-def _line_of(traj: Trajectory, k: int) -> int | None:
+def line_of(traj: Trajectory, k: int) -> int | None:
     """The file line of raw sample ``k`` (0-based) if the reader recorded where its rows are."""
     info = traj.info or {}
     if "first_data_line" in info:
@@ -66,7 +66,7 @@ def _where(traj: Trajectory, k: int) -> tuple[int | None, str]:
     into the error's ``FILE:LINE:`` prefix."""
     t = traj.t[k]
     tt = f" (t = {t:.9g} s)" if np.isfinite(t) else ""
-    return _line_of(traj, k), f"sample {k + 1}{tt}"
+    return line_of(traj, k), f"sample {k + 1}{tt}"
 
 
 def _error(traj: Trajectory, k: int, message: str, hint: str | None = None) -> InputError:

@@ -519,6 +519,21 @@ def _rollout_starts(content):
     return build
 
 
+def _rollout_starts_at(position, quat):
+    """check: the rollout starts exactly at the given pose (quaternion normalised)."""
+
+    def check(ctx: Ctx, res):
+        from rbgp_cli.io.read import read_demonstrations
+
+        (gen,) = read_demonstrations([str(ctx.out / "gen.csv")])
+        q = np.asarray(quat, float) / np.linalg.norm(quat)
+        np.testing.assert_allclose(gen.position[0], position, atol=1e-15)
+        np.testing.assert_allclose(gen.quat[0] * np.sign(gen.quat[0] @ q), q, atol=1e-15)
+        assert len(gen) == 6
+
+    return check
+
+
 STARTS_HEADER = "x,y,z,qx,qy,qz,qw\n"
 GOOD_START = "0.3,0.1,0.8,0,0,0,1\n"
 
@@ -717,6 +732,19 @@ CASES = [
     Case("start_pose_three_numbers", _rollout_start("1 2 3"), error=("start pose '1 2 3'", "rx ry rz x y z")),
     Case("start_pose_nan", _rollout_start("nan 0 0 0.3 0 0.8"), error=("start pose", "finite")),
     Case("start_pose_text", _rollout_start("a b c d e f"), error=("start pose", "six numbers")),
+    Case("starts_file_nan_row", _rollout_starts(STARTS_HEADER + GOOD_START + "0.3,nan,0.8,0,0,0,1\n"),
+         error=("starts.csv:3:", "pose 2", "not a finite number")),
+    Case("starts_file_zero_quaternion", _rollout_starts(STARTS_HEADER + GOOD_START + "0.3,0.1,0.8,0,0,0,0\n"),
+         error=("starts.csv:3:", "pose 2", "all-zero quaternion")),
+    Case("starts_file_quaternion_far_from_unit", _rollout_starts(STARTS_HEADER + "0.3,0.1,0.8,0,0,0,3\n"),
+         error=("starts.csv:2:", "pose 1", "norm 3", "--quat-order")),
+    Case("starts_file_blank_line_before_bad_row",
+         _rollout_starts(STARTS_HEADER + GOOD_START + "\n# a comment\n" + GOOD_START + "0.3,0.1,,0,0,0,1\n"),
+         error=("starts.csv:6:", "pose 3")),
+    Case("predict_poses_nan_row", _predict("rx,ry,rz,x,y,z\n0.1,0.2,0.3,0.3,0.0,1.1\n0.1,nan,0.3,0.3,0.0,1.1\n"),
+         error=("poses.csv:3:", "pose 2")),
+    Case("starts_file_quaternion_slightly_off_unit", _rollout_starts(STARTS_HEADER + "0.3,0.1,0.8,0,0,0.6,0.84\n"),
+         check=_rollout_starts_at([0.3, 0.1, 0.8], [0, 0, 0.6, 0.84])),
     Case("starts_file_header_only", _rollout_starts(STARTS_HEADER), error=("starts.csv:1:", "no data rows")),
     Case("starts_file_binary", _rollout_starts(b"\x00\x01\x02" * 50), error=("starts.csv", "not a text file")),
     # --- evaluate
