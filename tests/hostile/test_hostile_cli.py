@@ -293,9 +293,13 @@ def _numbers_only(ctx: Ctx):
     return ctx.train(text(ctx, "\n".join(lines[1:]) + "\n"))
 
 
-def _binary(ctx: Ctx):
+def _binary_file(ctx: Ctx) -> Path:
     rng = np.random.default_rng(7)
-    return ctx.train(text(ctx, rng.integers(0, 256, 3000, dtype=np.uint8).tobytes()))
+    return text(ctx, rng.integers(0, 256, 3000, dtype=np.uint8).tobytes())
+
+
+def _binary(ctx: Ctx):
+    return ctx.train(_binary_file(ctx))
 
 
 def _header(names):
@@ -427,10 +431,14 @@ def _model_bytes(ctx: Ctx) -> bytes:
     return ctx.model_src.read_bytes()
 
 
-def _model_cut(ctx: Ctx):
+def _cut_model_file(ctx: Ctx) -> Path:
     p = ctx.inp / "tiny.rbgp"
     p.write_bytes(_model_bytes(ctx)[: len(_model_bytes(ctx)) // 2])
-    return ["rollout", p, "--steps", "5", "-o", ctx.out / "gen.csv"]
+    return p
+
+
+def _model_cut(ctx: Ctx):
+    return ["rollout", _cut_model_file(ctx), "--steps", "5", "-o", ctx.out / "gen.csv"]
 
 
 def _model_flipped(ctx: Ctx):
@@ -444,11 +452,15 @@ def _model_flipped(ctx: Ctx):
     return ["info", p]
 
 
+def _edited_model_file(ctx: Ctx, edit) -> Path:
+    header, arrays = B.read_model_npz(ctx.model_src)
+    edit(header, arrays)
+    return B.write_model_npz(ctx.inp / "tiny.rbgp", header, arrays)
+
+
 def _model_header_edit(edit, command="info"):
     def build(ctx: Ctx):
-        header, arrays = B.read_model_npz(ctx.model_src)
-        edit(header, arrays)
-        p = B.write_model_npz(ctx.inp / "tiny.rbgp", header, arrays)
+        p = _edited_model_file(ctx, edit)
         if command == "info":
             return ["info", p]
         return ["rollout", p, "--steps", "5", "-o", ctx.out / "gen.csv"]
@@ -535,6 +547,7 @@ def _rollout_starts_at(position, quat):
 
 
 STARTS_HEADER = "x,y,z,qx,qy,qz,qw\n"
+GOOD_POSES = "rx,ry,rz,x,y,z\n0.1,0.2,0.3,0.3,0.0,1.1\n"
 GOOD_START = "0.3,0.1,0.8,0,0,0,1\n"
 
 
@@ -579,6 +592,32 @@ def _steps_written(length):
         assert len((ctx.out / "steps.csv").read_text().splitlines()) == length + 1
 
     return check
+
+
+# ---------------------------------------------------------------------------------------------- inspect
+def _inspect_json(check_json):
+    def check(ctx: Ctx, res):
+        check_json(json.loads(res.stdout))
+
+    return check
+
+
+def _inspect_cut_mcap(ctx: Ctx):
+    p = _mcap(ctx)
+    data = p.read_bytes()
+    p.write_bytes(data[: len(data) // 2])
+    return ["inspect", p, "--json"]
+
+
+def _cut_mcap_described(d):
+    """inspect describes what it can and says the file is damaged (it reports, it does not fail)."""
+    assert d["format"] == "mcap" and d["description"]["damaged"] and d["error"] is None
+    (tr,) = d["trajectories"]
+    assert tr["topic"] == B.TOPIC and 2 < tr["samples"] < N and tr["lost_frames"] == 0
+
+
+def _garbage_described(d):
+    assert d["trajectories"] == [] and "not a text file" in d["error"]
 
 
 # ---------------------------------------------------------------------------------------------- the table
@@ -685,7 +724,8 @@ CASES = [
          error=("rec.mcap", "truncated or corrupt", "no pose message could be read", "record it again")),
     Case("mcap_corrupt_later_zstd_chunk", _mcap_corrupt_chunk(1), warning=("rec.mcap", "topic /shoe/pose", "recovered"),
          check=_later_chunk_recovered),
-    Case("mcap_chunk_length_max_u64", _mcap_chunk_length(1, 2**64 - 1), warning=("rec.mcap", "OverflowError", "recovered"),
+    Case("mcap_chunk_length_max_u64", _mcap_chunk_length(1, 2**64 - 1),
+         warning=("rec.mcap", "OverflowError", "recovered"),
          check=_later_chunk_recovered),
     Case("mcap_chunk_length_2_to_40", _mcap_chunk_length(1, 2**40), warning=("rec.mcap", "MemoryError", "recovered"),
          check=_later_chunk_recovered),
@@ -728,6 +768,13 @@ CASES = [
     Case("model_is_a_csv", _model_not_zip, error=("tiny.rbgp", "not a readable rbgp model file")),
     Case("model_npz_without_header", _model_npz_without_header, error=("tiny.rbgp", "no header")),
     Case("model_missing", lambda c: ["info", c.inp / "tiny.rbgp"], error=("tiny.rbgp", "not found")),
+    Case("predict_with_truncated_model",
+         lambda c: ["predict", _cut_model_file(c), text(c, GOOD_POSES, "poses.csv"), "-o", c.out / "pred.csv"],
+         error=("tiny.rbgp", "not a readable rbgp model file")),
+    Case("evaluate_with_future_model",
+         lambda c: ["evaluate", "--model", _edited_model_file(c, _set("version", 2)), "--demos", _demos(c),
+                    "--count", "3", "--per-step", c.out / "steps.csv"],
+         error=("tiny.rbgp", "version 2 is newer", "upgrade rbgp")),
     # --- start poses
     Case("start_pose_three_numbers", _rollout_start("1 2 3"), error=("start pose '1 2 3'", "rx ry rz x y z")),
     Case("start_pose_nan", _rollout_start("nan 0 0 0.3 0 0.8"), error=("start pose", "finite")),
@@ -747,6 +794,10 @@ CASES = [
          check=_rollout_starts_at([0.3, 0.1, 0.8], [0, 0, 0.6, 0.84])),
     Case("starts_file_header_only", _rollout_starts(STARTS_HEADER), error=("starts.csv:1:", "no data rows")),
     Case("starts_file_binary", _rollout_starts(b"\x00\x01\x02" * 50), error=("starts.csv", "not a text file")),
+    # --- inspect describes damage instead of failing
+    Case("inspect_truncated_mcap", _inspect_cut_mcap, check=_inspect_json(_cut_mcap_described)),
+    Case("inspect_binary_garbage", lambda c: ["inspect", _binary_file(c), "--json"],
+         check=_inspect_json(_garbage_described)),
     # --- evaluate
     Case("evaluate_no_generated", _evaluate(), error=("no generated trajectories", "--model")),
     Case("evaluate_generated_header_only", _evaluate(gen_text=",".join(B.COLUMNS) + "\n"),
