@@ -121,7 +121,7 @@ def arc_distance_quat(q1, q2) -> np.ndarray:
     q1 = quat_normalize(q1)
     q2 = quat_normalize(q2)
     a, b = _diff_sum_norms(q1, q2)
-    return 4.0 * np.arctan2(a, b)
+    return np.minimum(4.0 * np.arctan2(a, b), np.pi)  # min: round-off at exactly π apart
 
 
 def arc_distance(r1, r2) -> np.ndarray:
@@ -143,7 +143,7 @@ def chordal_distance_quat(q1, q2) -> np.ndarray:
     """
     q1 = quat_normalize(q1)
     q2 = quat_normalize(q2)
-    return _norm(q1 - q2) * _norm(q1 + q2)
+    return np.minimum(_norm(q1 - q2) * _norm(q1 + q2), 2.0)  # min: round-off at π apart
 
 
 def chordal_distance(r1, r2) -> np.ndarray:
@@ -218,7 +218,7 @@ def _pairwise_quat(qa: np.ndarray, qb: np.ndarray, kind: str) -> np.ndarray:
             dn, sn = _norm(a - b), _norm(a + b)
             if kind == "chordal":
                 o[ii, jj] = dn * sn
-            else:
+            else:  # only pairs far from π apart come here: no clipping needed
                 o[ii, jj] = np.arctan2(dn, sn) * (4.0 if kind == "arc" else 2.0)
 
     _run_blocks(n, m, block)
@@ -248,8 +248,9 @@ def pairwise_rotation_distance(r_a, r_b, metric: str = "arc") -> np.ndarray:
     where ``d_arc < 0.02`` rad; equal to :func:`arc_distance` / :func:`chordal_distance` to ~1e-13.
     """
     _check_metric(metric)
-    qa = quat_from_rotvec(_as_rows(r_a, 3, "pairwise_rotation_distance r_a"))
-    qb = quat_from_rotvec(_as_rows(r_b, 3, "pairwise_rotation_distance r_b"))
+    # normalised as in the elementwise functions, so the close pairs agree with them bit for bit
+    qa = quat_normalize(quat_from_rotvec(_as_rows(r_a, 3, "pairwise_rotation_distance r_a")))
+    qb = quat_normalize(quat_from_rotvec(_as_rows(r_b, 3, "pairwise_rotation_distance r_b")))
     return _pairwise_quat(qa, qb, metric)
 
 
