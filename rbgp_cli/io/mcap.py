@@ -86,10 +86,12 @@ def _corrupt_errors() -> tuple:
 
     mcap bounds a whole record at 4 GiB but trusts the lengths inside one (a chunk's data length): a
     corrupt one asks for an impossible read, OverflowError above sys.maxsize and MemoryError for a
-    huge allocation that never happened (so memory is not exhausted and reading can go on)."""
+    huge allocation that never happened (so memory is not exhausted and reading can go on). A damaged
+    summary makes the seeking reader look up channels that do not exist (KeyError, IndexError)."""
     from mcap.exceptions import McapError
 
-    errs = [McapError, struct.error, ValueError, EOFError, RuntimeError, OSError, OverflowError, MemoryError]
+    errs = [McapError, struct.error, ValueError, EOFError, RuntimeError, OSError, OverflowError, MemoryError,
+            KeyError, IndexError]  # fmt: skip
     try:
         import zstandard
 

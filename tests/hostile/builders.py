@@ -191,6 +191,23 @@ def chunk_data_offsets(path) -> list[int]:
     return offsets(path)
 
 
+def first_chunk_index_channel_offset(data: bytes) -> int:
+    """Offset of the first channel id (u16) in the first ChunkIndex record of the summary section
+    (found from the footer: opcode, length, summary_start u64, summary_offset_start u64, crc u32)."""
+    import struct
+
+    footer = len(data) - 8 - 29
+    assert data[footer] == 0x02, "no footer"
+    (summary_start,) = struct.unpack_from("<Q", data, footer + 9)
+    off = summary_start
+    while off < footer:
+        opcode, length = data[off], struct.unpack_from("<Q", data, off + 1)[0]
+        if opcode == 0x08:  # ChunkIndex: 4 × u64 times/offsets, then the map's byte length (u32)
+            return off + 9 + 32 + 4
+        off += 9 + length
+    raise ValueError("no chunk index")
+
+
 def messages_in_first_chunks(path, k: int) -> int:
     """How many messages the first ``k`` chunks (in file order) of an intact MCAP file hold."""
     from mcap.reader import make_reader
@@ -217,9 +234,12 @@ def write_model_npz(path, header: dict, arrays: dict, *, checksums: bool = True)
     return Path(path)
 
 
-def read_model_npz(path) -> tuple[dict, dict]:
-    """(header dict, {name: array}) of a model file, read without rbgp's checks."""
-    with np.load(path, allow_pickle=False) as z:
+def read_model_npz(path_or_bytes) -> tuple[dict, dict]:
+    """(header dict, {name: array}) of a model file (a path or its bytes), read without rbgp's checks."""
+    import io
+
+    src = io.BytesIO(path_or_bytes) if isinstance(path_or_bytes, bytes) else path_or_bytes
+    with np.load(src, allow_pickle=False) as z:
         header = json.loads(z["header"].tobytes().decode("utf-8"))
         arrays = {k: z[k] for k in z.files if k != "header"}
     return header, arrays

@@ -385,6 +385,23 @@ def _mcap_chunk_length(which, value):
     return build
 
 
+def _mcap_chunk_index_unknown_channel(ctx: Ctx):
+    """The summary's first chunk index names channel 99, which does not exist."""
+    p = _mcap(ctx)
+    data = bytearray(p.read_bytes())
+    off = B.first_chunk_index_channel_offset(bytes(data))
+    data[off:off + 2] = (99).to_bytes(2, "little")
+    p.write_bytes(bytes(data))
+    return ctx.train(p)
+
+
+def _all_samples_read(ctx: Ctx, res):
+    """A damaged index over intact data: the linear scan reads every message."""
+    m, header = load_model(ctx.model_out)
+    assert header["provenance"]["demonstrations"][0]["samples"] == N
+    np.testing.assert_allclose(m.starts[0], np.concatenate([ROWS[0, 4:8], ROWS[0, 1:4]]), atol=1e-15)
+
+
 def _mcap_bad_schema(ctx: Ctx):
     """A ROS 2 message definition the parser rejects (an upper-case package name)."""
     from tests.io.mcap_fixtures import MSGDEFS, write_raw
@@ -731,6 +748,7 @@ CASES = [
          check=_later_chunk_recovered),
     Case("mcap_first_chunk_length_2_to_40", _mcap_chunk_length(0, 2**40),
          error=("rec.mcap", "truncated or corrupt", "no pose message could be read")),
+    Case("mcap_summary_names_unknown_channel", _mcap_chunk_index_unknown_channel, check=_all_samples_read),
     Case("mcap_malformed_message_definition", _mcap_bad_schema,
          error=("rec.mcap", "topic /shoe/pose", "cannot parse the schema", "builtin_interFaces")),
     Case("mcap_no_pose_topic", lambda c: c.train(B.write_mcap_strings(c.inp / "rec.mcap")),
