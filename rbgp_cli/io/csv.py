@@ -872,7 +872,8 @@ def read_text(text: str, source: str, options: ReadOptions | None = None) -> lis
     plan = _plan(cols, options, source)
     data = _read_frame(table, plan)
     if data is None or len(data["x"]) == 0:
-        raise InputError("the file has a header but no data rows", path=source, row=table.header_line)
+        raise InputError("the file has a header but no data rows", path=source, row=table.header_line,
+                         hint="the export stopped before the first sample: export or record it again")
     n = len(data["x"])
     # groups of rows (demonstrations)
     if "demo" in plan.roles:

@@ -645,7 +645,7 @@ CASES = [
     Case("empty_file", lambda c: c.train(text(c, "")), error=("demo.csv", "empty")),
     Case("blank_lines_only", lambda c: c.train(text(c, "\n  \n\t\n")), error=("demo.csv", "empty")),
     Case("header_only", lambda c: c.train(text(c, ",".join(B.COLUMNS) + "\n")),
-         error=("demo.csv:1:", "header but no data rows")),
+         error=("demo.csv:1:", "header but no data rows", "export or record it again")),
     Case("binary_garbage", _binary, error=("demo.csv", "not a text file", "MCAP")),
     Case("numbers_without_header", _numbers_only, error=("demo.csv:1:", "no header line", "add a header")),
     # --- delimiters
@@ -810,7 +810,8 @@ CASES = [
          error=("poses.csv:3:", "pose 2")),
     Case("starts_file_quaternion_slightly_off_unit", _rollout_starts(STARTS_HEADER + "0.3,0.1,0.8,0,0,0.6,0.84\n"),
          check=_rollout_starts_at([0.3, 0.1, 0.8], [0, 0, 0.6, 0.84])),
-    Case("starts_file_header_only", _rollout_starts(STARTS_HEADER), error=("starts.csv:1:", "no data rows")),
+    Case("starts_file_header_only", _rollout_starts(STARTS_HEADER),
+         error=("starts.csv:1:", "no data rows", "export or record it again")),
     Case("starts_file_binary", _rollout_starts(b"\x00\x01\x02" * 50), error=("starts.csv", "not a text file")),
     # --- inspect describes damage instead of failing
     Case("inspect_truncated_mcap", _inspect_cut_mcap, check=_inspect_json(_cut_mcap_described)),
