@@ -109,9 +109,26 @@ def _bad(path, what, hint="retrain it with rbgp train or restore it from a backu
     return InputError(what, path=str(path), hint=hint)
 
 
+def _head(path, n: int) -> bytes:
+    """The first ``n`` bytes of a path or an open binary file (left where it was)."""
+    if hasattr(path, "read"):
+        pos = path.tell()
+        head = path.read(n)
+        path.seek(pos)
+        return head
+    with open(path, "rb") as fh:
+        return fh.read(n)
+
+
 def read_header(path) -> tuple[dict, dict]:
     """Header and arrays of a model file, verified (format, version, checksums); no GP rebuilt."""
     try:
+        magic = _head(path, 4)
+        if not magic:
+            raise _bad(path, "the model file is empty")
+        if magic != b"PK\x03\x04":  # np.load would try it as a pickle and say so, which misleads
+            raise _bad(path, "not an rbgp model file (.rbgp files are zip archives; this one is not)",
+                       "pass a file written by rbgp train")
         with np.load(path, allow_pickle=False) as z:
             names = set(z.files)
             if "header" not in names:
