@@ -19,14 +19,17 @@ Numerics
     ``d_arc = 4·atan2(‖q1 − q2‖, ‖q1 + q2‖)`` and ``d_ch = ‖q1 − q2‖·‖q1 + q2‖``, which are accurate
     to a few ulp everywhere, including exactly 0 for equal quaternions.
 
-    The pairwise matrices use the Gram matrix ``⟨qa_i, qb_j⟩`` (one matmul) and ``acos`` /
-    ``sqrt(1 − c²)`` for the bulk of the pairs, and recompute the difference-based formula for the
-    pairs with ``φ < PAIRWISE_PRECISE_ANGLE`` (0.01 rad), where the Gram formula would be
-    inaccurate. At the switch the Gram formula's absolute error is about
-    ``1e-15/sin φ <= 1e-13`` rad, so the matrices agree with the elementwise functions to ~1e-13.
-    Large matrices are computed in row blocks of 64 on up to 4 threads (numpy releases the GIL in
-    ufuncs; ``arccos`` dominates the cost), with the Gram products summed without BLAS (see
-    ``_gram_block``).
+    The pairwise matrices use the Gram matrix ``⟨qa_i, qb_j⟩`` and ``acos`` / ``sqrt(1 − c²)`` for
+    the bulk of the pairs, and a difference-based formula for the pairs with
+    ``φ < PAIRWISE_PRECISE_ANGLE`` (0.01 rad), where the Gram formula would be inaccurate: the
+    elementwise formula on the gathered pairs when they are few, or, when a block has many (data
+    clustered within a few degrees), ``‖qa − s·qb‖²`` for the whole block and the series of
+    ``asin``. At the switch the Gram formula's absolute error is about ``1e-15/sin φ <= 1e-13`` rad,
+    so the matrices agree with the elementwise functions to ~1e-13 (and to ~1e-15 relative for the
+    close pairs). Large matrices are computed in row blocks of 64 on up to 4 threads (numpy
+    releases the GIL in ufuncs; ``arccos`` dominates the cost), with the Gram products summed
+    without BLAS (see ``_gram_block``). n = m = 1752 takes ~35 ms (arc) and ~17 ms (chordal) on
+    2 cores, ~70 ms / ~45 ms when all pairs are close.
 """
 
 from __future__ import annotations
@@ -60,6 +63,8 @@ _METRICS = ("arc", "chordal")
 #: Row-block size and the work (n·m) above which blocks are spread over threads.
 _BLOCK_ROWS = 64
 _PARALLEL_MIN_WORK = 200_000
+#: Above this fraction of close pairs in a block, their precise distances are computed densely.
+_DENSE_FRACTION = 0.02
 _EXECUTOR: ThreadPoolExecutor | None = None
 _EXECUTOR_PID: int | None = None
 
@@ -187,6 +192,20 @@ def _gram_block(a: np.ndarray, bt: np.ndarray, o: np.ndarray) -> None:
             o += tmp
 
 
+def _small_angle_from_sq_chord(d2: np.ndarray, c: np.ndarray, kind: str) -> np.ndarray:
+    """Distance of close pairs from ``d2 = ‖qa − s·qb‖²`` (signs aligned) and ``c = |⟨qa, qb⟩|``.
+
+    ``x = sqrt(d2)/2 = sin(φ/2)``; ``φ/2 = asin x = x (1 + x²/6 + 3x⁴/40 + 5x⁶/112 + …)``, the next
+    term below 1e-19 relative for φ < PAIRWISE_PRECISE_ANGLE. Chordal: ``‖qa − s qb‖·‖qa + s qb‖``
+    with ``‖qa + s qb‖² = 2 + 2c`` (no cancellation). Valid only where ``c > cos(PRECISE_ANGLE)``.
+    """
+    if kind == "chordal":
+        return np.sqrt(d2 * (2.0 + 2.0 * c))
+    x2 = 0.25 * d2
+    half = np.sqrt(x2) * (1.0 + x2 * (1.0 / 6.0 + x2 * (3.0 / 40.0 + x2 * (5.0 / 112.0))))
+    return half * (4.0 if kind == "arc" else 2.0)
+
+
 def _pairwise_quat(qa: np.ndarray, qb: np.ndarray, kind: str) -> np.ndarray:
     """(n, m) matrix of ``kind`` in {"arc", "chordal", "s3"} between unit quaternions (n,4), (m,4)."""
     n, m = qa.shape[0], qb.shape[0]
@@ -195,10 +214,36 @@ def _pairwise_quat(qa: np.ndarray, qb: np.ndarray, kind: str) -> np.ndarray:
 
     def block(sl: slice) -> None:
         o = out[sl]
-        _gram_block(qa[sl], qbt, o)  # ⟨qa_i, qb_j⟩
-        c = np.abs(o, out=o)
-        # Pairs with φ < PAIRWISE_PRECISE_ANGLE: the difference formula (as the elementwise ones).
-        ii, jj = np.nonzero(c > _COS_PRECISE)
+        qa_blk = qa[sl]
+        g = np.empty_like(o)
+        _gram_block(qa_blk, qbt, g)  # ⟨qa_i, qb_j⟩
+        c = np.abs(g, out=o)
+        # Pairs with φ < PAIRWISE_PRECISE_ANGLE get a difference-based formula (module doc).
+        close = c > _COS_PRECISE
+        n_close = int(np.count_nonzero(close))
+        precise = None
+        if n_close > _DENSE_FRACTION * close.size:
+            # many close pairs (clustered data): ‖qa − s·qb‖² for the whole block, s = sign⟨qa, qb⟩
+            sgn = np.copysign(1.0, g, out=g)
+            d2 = np.zeros_like(o)
+            tmp = np.empty_like(o)
+            for k in range(4):
+                np.multiply(sgn, qbt[k], out=tmp)
+                np.subtract(qa_blk[:, k : k + 1], tmp, out=tmp)
+                tmp *= tmp
+                d2 += tmp
+            precise = _small_angle_from_sq_chord(d2, c, kind)
+        elif n_close:
+            # a few close pairs: gather them, exactly the elementwise formula
+            ii, jj = np.nonzero(close)
+            a = qa_blk[ii]
+            b = qb[jj]
+            b = b * np.where(np.sum(a * b, axis=-1) < 0, -1.0, 1.0)[:, None]
+            dn, sn = _norm(a - b), _norm(a + b)
+            if kind == "chordal":
+                vals = dn * sn
+            else:
+                vals = np.arctan2(dn, sn) * (4.0 if kind == "arc" else 2.0)
         np.minimum(c, 1.0, out=c)
         if kind == "chordal":
             # 2 sqrt(1 − c²) = 2 sqrt((1 − c)(1 + c))
@@ -211,15 +256,10 @@ def _pairwise_quat(qa: np.ndarray, qb: np.ndarray, kind: str) -> np.ndarray:
             np.arccos(c, out=o)
             if kind == "arc":
                 o *= 2.0
-        if ii.size:
-            a = qa[sl][ii]
-            b = qb[jj]
-            b = b * np.where(np.sum(a * b, axis=-1) < 0, -1.0, 1.0)[:, None]
-            dn, sn = _norm(a - b), _norm(a + b)
-            if kind == "chordal":
-                o[ii, jj] = dn * sn
-            else:  # only pairs far from π apart come here: no clipping needed
-                o[ii, jj] = np.arctan2(dn, sn) * (4.0 if kind == "arc" else 2.0)
+        if precise is not None:
+            np.copyto(o, precise, where=close)
+        elif n_close:
+            o[ii, jj] = vals
 
     _run_blocks(n, m, block)
     return out

@@ -142,15 +142,18 @@ def test_pairwise_rotation_distance_equals_elementwise(metric, n):
     rng = np.random.default_rng(n)
     a = _hard_rotation_set(rng, n)
     b = np.concatenate([a[::3], Rotation.random(50, rng=rng).as_rotvec()])
+    # clustered within ~0.5°: nearly every pair takes the precise branch (the dense variant)
+    cluster = so3.compose_rotvec(a[0], rng.normal(size=(n, 3)) * 10.0 ** rng.uniform(-12, -2.5, (n, 1)))
+    cluster[-3:] = so3.compose_rotvec(np.array([0.0, 0.0, PI]), rng.normal(size=(3, 3)) * 1e-3)  # near π
     elem = dist.arc_distance if metric == "arc" else dist.chordal_distance
-    for x, y in [(a, b), (a, a)]:
+    for x, y in [(a, b), (a, a), (cluster, cluster), (cluster, a)]:
         got = dist.pairwise_rotation_distance(x, y, metric=metric)
         assert got.shape == (len(x), len(y))
         want = elem(x[:, None, :], y[None, :, :])
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
         # relative accuracy for the small ones too
         small = want < 0.02
-        np.testing.assert_allclose(got[small], want[small], rtol=1e-12, atol=0)
+        np.testing.assert_allclose(got[small], want[small], rtol=1e-12, atol=1e-16)
     same = dist.pairwise_rotation_distance(a, a, metric=metric)
     np.testing.assert_array_equal(np.diag(same), 0.0)
     np.testing.assert_array_equal(same, same.T)
