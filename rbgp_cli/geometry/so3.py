@@ -295,7 +295,8 @@ def canonical_rotvec(r) -> np.ndarray:
     unchanged (bit for bit); the others go through the quaternion: ``θ > π`` becomes
     ``(2π − θ)(−u)`` (modulo 2π), and ``θ = π`` gets the eq. 7 tie-break (u_z > 0, or u_z = 0 and
     u_y > 0, or u_z = u_y = 0 and u_x > 0; tolerances in the module doc). Shape (..., 3) -> (..., 3).
-    Idempotent: ``canonical_rotvec(canonical_rotvec(r)) == canonical_rotvec(r)``.
+    Idempotent: ``canonical_rotvec(canonical_rotvec(r))`` is ``canonical_rotvec(r)`` (bit for bit
+    for θ < π − ``PI_TOLERANCE``, to round-off near π, and never its twin).
     """
     r = _as_array(r, 3, "canonical_rotvec")
     inside = _norm(r) < np.pi - PI_TOLERANCE
