@@ -874,3 +874,38 @@ def test_hostile_input(case: Case, tmp_path, tiny_model_path):
 def test_the_table_is_big_enough():
     assert len(CASES) >= 40
     assert sum(1 for c in CASES if c.error) >= 20 and sum(1 for c in CASES if not c.error) >= 10
+
+
+def test_mcap_truncated_at_many_offsets_through_the_cli(tmp_path):
+    """``rbgp train`` on a recording cut at 30 offsets from the magic bytes to the footer: each run
+    learns from exactly the samples before the cut and says how many, or exits 2 with one line and
+    writes nothing (test_fuzz.py cuts at every 13th byte at the library level)."""
+    import re
+
+    data = B.write_mcap(tmp_path / "full.mcap").read_bytes()
+    cuts = sorted({*np.linspace(0, len(data) - 1, 28).astype(int).tolist(), 3, 9, len(data) - 30})
+    seen = set()
+    for k, cut in enumerate(cuts):
+        src = tmp_path / f"cut{k}.mcap"
+        src.write_bytes(data[:cut])
+        out = tmp_path / f"out{k}"
+        out.mkdir()
+        res = run_cli("train", src, "-o", out / "m.rbgp", *B.FAST, "--json")
+        lines = res.stderr.splitlines()
+        assert "Traceback" not in res.stderr and "internal error" not in res.stderr, (cut, res.stderr)
+        if res.exit_code == 2:
+            errors = [ln for ln in lines if ln.startswith("rbgp: error: ")]
+            assert errors == lines[-1:] and str(src) in errors[0], (cut, res.stderr)
+            assert all(ln.startswith("rbgp: warning: ") for ln in lines[:-1]), (cut, res.stderr)
+            assert list(out.iterdir()) == [] and res.stdout == ""
+            seen.add("exit 2")
+            continue
+        assert res.exit_code == 0, (cut, res.stderr)
+        _, header = load_model(out / "m.rbgp")
+        n = header["provenance"]["demonstrations"][0]["samples"]
+        if cut < len(data) - 30:  # the last cuts only lose the summary: every sample is there
+            assert re.search(rf"recovered {n} pose samples", res.stderr), (cut, res.stderr)
+        m, _ = load_model(out / "m.rbgp")
+        np.testing.assert_allclose(m.durations[0], ROWS[n - 1, 0], atol=1e-9)
+        seen.add("recovered")
+    assert seen == {"exit 2", "recovered"}
