@@ -230,6 +230,11 @@ class _Table:
 def _decode(data: bytes, source: str) -> str:
     if not data.strip():
         raise InputError("the file is empty", path=source, hint="export the demonstrations again")
+    if data[:2] in (b"\xff\xfe", b"\xfe\xff"):  # UTF-16 with a BOM (Excel's "Unicode Text" export)
+        try:
+            return data.decode("utf-16")
+        except UnicodeDecodeError:
+            pass
     head = data[:8192]
     if b"\x00" in head:
         raise InputError(

@@ -651,6 +651,12 @@ CASES = [
     # --- delimiters
     Case("pipe_delimiter", train_on(rows, delimiter="|"),
          error=("demo.csv", "single column ('t|x|y|z|qx|qy|qz|qw')", "comma- or tab-separated")),
+    Case("utf16_with_bom_tab_separated", lambda c: c.train(text(c, csv(c, rows(), "demo.txt", delimiter="\t")
+                                                               .read_text().encode("utf-16"), "demo.txt")),
+         check=same_model_as(rows, name="demo.txt")),
+    Case("utf8_bom_and_crlf", lambda c: c.train(text(c, b"\xef\xbb\xbf" + csv(c, rows()).read_bytes()
+                                                     .replace(b"\n", b"\r\n"))),
+         check=same_model_as(rows)),
     Case("semicolon_and_decimal_comma", _semicolon_decimal_comma, check=same_model_as(rows)),
     Case("tab_separated", train_on(rows, "demo.tsv", delimiter="\t"), check=same_model_as(rows)),
     # --- columns
@@ -658,6 +664,9 @@ CASES = [
          error=("demo.csv", "column 'qw' not found", "columns are t, x, y, z, qx, qy, qz", "--columns qw=")),
     Case("misspelled_qw_column", train_on(rows, header=_header("t,x,y,z,qx,qy,qz,qww")),
          error=("demo.csv", "columns are t, x, y, z, qx, qy, qz, qww", "did you mean 'qww'", "--columns qw=qww")),
+    Case("columns_option_names_no_column",
+         train_on(rows, header=_header("t,x,y,z,qx,qy,qz,W"), opts=("--columns", "qw=w0")),
+         error=("demo.csv", "--columns qw=w0", "no column 'w0'", "columns are t, x, y, z, qx, qy, qz, W")),
     Case("misspelled_x_column", train_on(rows, header=_header("t,xx,y,z,qx,qy,qz,qw")),
          error=("demo.csv", "position column 'x' not found", "did you mean 'xx'", "--columns x=xx")),
     Case("misspelled_time_column", train_on(rows, header=_header("tme,x,y,z,qx,qy,qz,qw")),
