@@ -386,6 +386,14 @@ def _best(cols: list, role: str, used: set, source: str):
     best = _candidates(cols, role, used)
     if len(best) > 1:
         key = _role_key(role)
+        names = [c.name.strip() for c in best]
+        if len(set(names)) < len(names):  # --columns maps by name, so it cannot choose between them
+            raise InputError(
+                f"several columns are named {names[0]!r} (columns "
+                + ", ".join(str(c.index + 1) for c in best) + ")",
+                path=source,
+                hint="rename or delete all but one of them",
+            )
         raise InputError(
             f"several columns could be '{key}': " + ", ".join(repr(c.name) for c in best),
             path=source,

@@ -664,6 +664,8 @@ CASES = [
          error=("demo.csv", "column 'qw' not found", "columns are t, x, y, z, qx, qy, qz", "--columns qw=")),
     Case("misspelled_qw_column", train_on(rows, header=_header("t,x,y,z,qx,qy,qz,qww")),
          error=("demo.csv", "columns are t, x, y, z, qx, qy, qz, qww", "did you mean 'qww'", "--columns qw=qww")),
+    Case("two_columns_named_x", train_on(rows, header=_header("t,x,x,z,qx,qy,qz,qw")),
+         error=("demo.csv", "several columns are named 'x' (columns 2, 3)", "rename or delete all but one")),
     Case("columns_option_names_no_column",
          train_on(rows, header=_header("t,x,y,z,qx,qy,qz,W"), opts=("--columns", "qw=w0")),
          error=("demo.csv", "--columns qw=w0", "no column 'w0'", "columns are t, x, y, z, qx, qy, qz, W")),
