@@ -23,7 +23,7 @@ from rbgp_cli.cli.app import app
 from tests.hostile import builders as B
 
 #: examples per fuzz test in CI (the whole tests/hostile run stays well under 90 s on 2 cores)
-CI_EXAMPLES = 60
+CI_EXAMPLES = 200
 
 _HEALTH = [HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.function_scoped_fixture,
            HealthCheck.filter_too_much]  # fmt: skip
