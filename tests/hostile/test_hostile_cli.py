@@ -210,6 +210,14 @@ def _slightly_off():
 FLIPPED = (np.arange(len(ROWS)) % 3) == 0
 
 
+def _demo_column():
+    """Two demonstrations in one file: 'a' is the whole motion, 'b' a single sample."""
+    r = rows().astype(object)
+    a = np.concatenate([np.full((len(r), 1), "a", dtype=object), r], axis=1)
+    b = np.concatenate([[["b"]], r[:1]], axis=1)
+    return np.concatenate([a, b])
+
+
 def _sign_flips():
     r = rows()
     r[FLIPPED, 4:8] *= -1
@@ -690,6 +698,11 @@ CASES = [
          check=same_model_as(_delete([20, 21, 22]))),
     Case("every_quaternion_all_zero", train_on(_zero_quats(slice(None))),
          error=("demo.csv", "at least 2 samples", f"{N} samples have an all-zero quaternion")),
+    Case("nan_rows_on_stdin", lambda c: (c.train("-"), csv(c, _nan_rows()).read_bytes()),
+         warning=("rbgp: warning: -: ", "dropped 3 lost frames"), check=same_model_as(_delete([10, 11, 12]))),
+    Case("demo_column_with_a_one_sample_demo",
+         lambda c: c.train(csv(c, _demo_column(), header=("demo",) + B.COLUMNS)),
+         error=("demo.csv", "demo#b", "at least 2 samples")),
     # --- quaternions
     Case("quaternion_far_from_unit", train_on(_far_quat),
          error=(f"demo.csv:{line(30)}:", "quaternion norm 3", "far from 1", "--columns")),
@@ -920,3 +933,11 @@ def test_mcap_truncated_at_many_offsets_through_the_cli(tmp_path):
         np.testing.assert_allclose(m.durations[0], ROWS[n - 1, 0], atol=1e-9)
         seen.add("recovered")
     assert seen == {"exit 2", "recovered"}
+
+
+@pytest.mark.xfail(strict=True, reason="rbgp_cli/cli/app.py: predict reads '-' through _stdin_poses, which skips "
+                   "workflows.read_start_poses' checks (NaN rows give NaN predictions, exit 0)")
+def test_predict_poses_on_stdin_are_checked_like_a_file(tiny_model):
+    poses = b"rx,ry,rz,x,y,z\n0.1,0.2,0.3,0.3,0.0,1.1\n0.1,nan,0.3,0.3,0.0,1.1\n"
+    res = run_cli("predict", tiny_model, "-", input=poses)
+    assert res.exit_code == 2 and res.stderr.startswith("rbgp: error: -:3: pose 2"), res.stderr
