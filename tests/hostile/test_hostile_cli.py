@@ -787,6 +787,13 @@ CASES = [
     Case("mcap_json_tf_with_json_schema",
          lambda c: c.train(B.write_mcap_json_tf(c.inp / "rec.mcap", schema_encoding="jsonschema")),
          check=_json_tf_matches_csv),
+    Case("mcap_tf_misspelled_child_frame",
+         lambda c: c.train(B.write_mcap_json_tf(c.inp / "rec.mcap", schema_encoding="jsonschema"),
+                           opts=("--frame", "sheo")),
+         error=("rec.mcap", "topic /tf", "no transforms to child frame 'sheo'", "did you mean 'shoe'", "--frame")),
+    Case("mcap_topic_pattern_matches_nothing",
+         lambda c: c.train(_mcap(c, extra_strings="/chatter"), opts=("--topic", "/hand/*")),
+         error=("rec.mcap", "no pose topic matches '/hand/*'", "rbgp inspect")),
     Case("mcap_all_zero_quaternions", _mcap_zero_quats, error=("rec.mcap", "all-zero quaternion", "orientation")),
     # --- model files
     Case("model_truncated", _model_cut, error=("tiny.rbgp", "not a readable rbgp model file", "retrain")),
