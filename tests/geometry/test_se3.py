@@ -28,7 +28,7 @@ from tests.helpers import (
 )
 
 FAST = settings(max_examples=60, deadline=None)
-MORE = settings(max_examples=150, deadline=None)
+MORE = settings(max_examples=100, deadline=None)
 
 IDENTITY = np.zeros(6)
 
@@ -250,7 +250,7 @@ def test_integrate_quat_keeps_the_sign_of_its_input():
 # ---------------------------------------------------------------------------------------------
 
 
-@FAST
+@settings(max_examples=30, deadline=None)
 @given(stacked(poses(), (2, 3)), stacked(poses(), (2, 3)))
 def test_se3_functions_vectorise_over_leading_axes(a, b):
     pts = b[..., 3:]
