@@ -26,6 +26,8 @@ def format_train_summary(s: dict) -> str:
             flags.append("not PD without jitter")
         if o["at_bounds"]:
             flags.append("at bound: " + ",".join(o["at_bounds"]))
+        if o.get("guarded"):
+            flags.append("refit with the noise margin (indefinite kernel)")
         if o["n_infeasible"]:
             flags.append(f"{o['n_infeasible']}/{o['n_evaluations']} evaluations infeasible")
         lines.append(f"  {o['output']:<7} NLML {o['nlml']:11.4g}  {_fmt_values(o['values'])}" + (f"  [{'; '.join(flags)}]" if flags else ""))
@@ -33,6 +35,7 @@ def format_train_summary(s: dict) -> str:
     lines.append(
         f"safeguards: {'all covariances positive definite' if sg['all_positive_definite'] else 'jitter was needed'}"
         f", {sg['infeasible_evaluations']} infeasible evaluations rejected"
+        + (f", refit with the noise margin: {', '.join(sg['refit_with_noise_margin'])}" if sg.get("refit_with_noise_margin") else "")
     )
     lines.append(f"time: {s['seconds']:.1f} s")
     return "\n".join(lines)

@@ -161,6 +161,7 @@ def train_model(
             "jitter_used": any(f.jitter > 0 for f in gp.fits),
             "all_positive_definite": all(f.positive_definite for f in gp.fits),
             "infeasible_evaluations": int(sum(f.n_infeasible for f in gp.fits)),
+            "refit_with_noise_margin": [nm for nm, f in zip(names, gp.fits) if f.guarded],
         },
         "seconds": time.perf_counter() - t0,
     }
