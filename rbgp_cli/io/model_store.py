@@ -185,6 +185,7 @@ def load_model(path):
             for k, v in f.values.items():
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < float("inf"):
                     raise ValueError(f"hyperparameter {k} = {v!r} is not a positive finite number")
+                f.values[k] = float(v)  # JSON may hold an integer, which numpy would square into an object
         X, Y = arrays["X"], arrays["Y"]
         if X.ndim != 2 or Y.ndim != 2 or len(X) != len(Y) or X.shape[1] != len(rep.input_names) or Y.shape[1] != len(rep.output_names):
             raise ValueError("array shapes disagree with the representation")

@@ -488,6 +488,8 @@ def _model_header_edit(edit, command="info"):
         p = _edited_model_file(ctx, edit)
         if command == "info":
             return ["info", p]
+        if command == "predict":
+            return ["predict", p, text(ctx, GOOD_POSES, "poses.csv"), "-o", ctx.out / "pred.csv"]
         return ["rollout", p, "--steps", "5", "-o", ctx.out / "gen.csv"]
 
     return build
@@ -500,11 +502,25 @@ def _set(key, value):
     return edit
 
 
+def _fit_values(**values):
+    def edit(header, arrays):
+        header["fits"][0]["values"].update(values)
+
+    return edit
+
+
 def _fit_value(key, value):
     def edit(header, arrays):
         header["fits"][0]["values"][key] = value
 
     return edit
+
+
+def _predicts_finite(ctx: Ctx, res):
+    """A model with an odd but valid header (an integer hyperparameter) predicts finite numbers."""
+    lines = (ctx.out / "pred.csv").read_text().splitlines()
+    vals = np.array([[float(v) for v in ln.split(",")] for ln in lines[1:]])
+    assert vals.shape == (1, 19) and np.all(np.isfinite(vals))
 
 
 def _model_zip_field(offset_in_entry: int, value: int):
@@ -812,6 +828,8 @@ CASES = [
          error=("tiny.rbgp", "length_scale = 0.0 is not a positive finite number")),
     Case("model_infinite_length_scale", _model_header_edit(_fit_value("length_scale", float("inf")), "rollout"),
          error=("tiny.rbgp", "length_scale = inf")),
+    Case("model_integer_signal_std",  # σf² of an int above 3e9 overflows int64: numpy made it an object
+         _model_header_edit(_fit_values(signal_std=5_000_000_000, noise_std=1e9), "predict"), check=_predicts_finite),
     Case("model_negative_signal_std", _model_header_edit(_fit_value("signal_std", -1e308), "rollout"),
          error=("tiny.rbgp", "signal_std = -1e+308")),
     Case("model_is_a_csv", _model_not_zip,
