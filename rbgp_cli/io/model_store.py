@@ -186,6 +186,10 @@ def load_model(path):
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < float("inf"):
                     raise ValueError(f"hyperparameter {k} = {v!r} is not a positive finite number")
                 f.values[k] = float(v)  # JSON may hold an integer, which numpy would square into an object
+            j = f.jitter
+            if isinstance(j, bool) or not isinstance(j, (int, float)) or not 0 <= j < float("inf"):
+                raise ValueError(f"jitter = {j!r} is not a non-negative finite number")
+            f.jitter = float(j)
         X, Y = arrays["X"], arrays["Y"]
         if X.ndim != 2 or Y.ndim != 2 or len(X) != len(Y) or X.shape[1] != len(rep.input_names) or Y.shape[1] != len(rep.output_names):
             raise ValueError("array shapes disagree with the representation")

@@ -502,6 +502,13 @@ def _set(key, value):
     return edit
 
 
+def _set_fit(key, value):
+    def edit(header, arrays):
+        header["fits"][0][key] = value
+
+    return edit
+
+
 def _fit_values(**values):
     def edit(header, arrays):
         header["fits"][0]["values"].update(values)
@@ -830,6 +837,8 @@ CASES = [
          error=("tiny.rbgp", "length_scale = inf")),
     Case("model_integer_signal_std",  # σf² of an int above 3e9 overflows int64: numpy made it an object
          _model_header_edit(_fit_values(signal_std=5_000_000_000, noise_std=1e9), "predict"), check=_predicts_finite),
+    Case("model_nan_jitter", _model_header_edit(_set_fit("jitter", float("nan")), "predict"),
+         error=("tiny.rbgp", "jitter = nan is not a non-negative finite number")),
     Case("model_negative_signal_std", _model_header_edit(_fit_value("signal_std", -1e308), "rollout"),
          error=("tiny.rbgp", "signal_std = -1e+308")),
     Case("model_is_a_csv", _model_not_zip,
