@@ -339,8 +339,9 @@ def _random_start(spec: dict, free: list, rng: np.random.Generator) -> np.ndarra
     return theta
 
 
-def _fit_one(kernel, pre, y, spec, free, restarts, rng, max_iter, margin=0.0):
-    """Minimise the NLML for one target (vector, or matrix in shared mode) from several starts."""
+def _fit_one(kernel, pre, y, spec, free, restarts, rng, max_iter, margin=0.0, theta_starts=None):
+    """Minimise the NLML for one target (vector, or matrix in shared mode) from several starts
+    (``theta_starts``, log values of the free hyperparameters, replaces the usual starts)."""
     from scipy.optimize import minimize
 
     fixed_values = {nm: h.value for nm, h in spec.items() if nm not in free}
@@ -367,8 +368,11 @@ def _fit_one(kernel, pre, y, spec, free, restarts, rng, max_iter, margin=0.0):
                 return ref + max(10.0, abs(ref)), np.zeros_like(g)
         return f, g
 
-    starts = [np.array([math.log(spec[nm].value) for nm in free])]
-    starts += [_random_start(spec, free, rng) for _ in range(max(0, restarts - 1))]
+    if theta_starts is not None:
+        starts = [np.array(t, dtype=np.float64) for t in theta_starts]
+    else:
+        starts = [np.array([math.log(spec[nm].value) for nm in free])]
+        starts += [_random_start(spec, free, rng) for _ in range(max(0, restarts - 1))]
     best = None
     records = []
     for s, theta0 in enumerate(starts):
@@ -486,10 +490,13 @@ def _fit_gp(X, Y, kernel, noise, restarts, seed, shared, fixed, bounds, max_iter
         guarded = False
         if best is not None and not _meets_margin(kernel, pre, values_of(best[0])):
             # The optimum sits where K's negative eigenvalues nearly cancel the noise (indefinite
-            # kernel, MATH.md §6): refit with the margin enforced at every evaluation.
+            # kernel, MATH.md §6): refit with the margin enforced at every evaluation, from that
+            # optimum (moved into the feasible region by the infeasible-start rule) and the
+            # data-driven start.
             guarded = True
-            best2, records2, counter2, values_of = _fit_one(kernel, pre, y, spec, free, restarts, rng, max_iter,
-                                                            margin=NOISE_MARGIN)
+            data_start = [math.log(spec[nm].value) for nm in free]
+            best2, records2, counter2, values_of = _fit_one(kernel, pre, y, spec, free, 1, rng, max_iter,
+                                                            margin=NOISE_MARGIN, theta_starts=[best[0], data_start])
             records += [{**r, "kind": r["kind"] + " (margin)"} for r in records2]
             counter = {k: counter[k] + counter2[k] for k in counter}
             best = best2
