@@ -1,0 +1,381 @@
+"""Training and prediction benchmark: rbgp's exact GP against scikit-learn, on the same synthetic data.
+
+    .venv/bin/python benchmarks/bench_training.py                # n = 80, 500, 1752 (several minutes)
+    .venv/bin/python benchmarks/bench_training.py --quick        # n = 80, 300, one repeat: ~1 min
+    .venv/bin/python benchmarks/bench_training.py --sizes 80,500 --no-sklearn
+
+Data (benchmarks/_common.py): rotations uniform on SO(3) as canonical rotation vectors,
+translations ~ N(0, 0.3²) m, six smooth outputs of the pose plus N(0, 0.05²) noise.
+
+Measured at every n, in one run:
+
+* ours, per output: ``fit_gp(X, Y, SquaredExponential("arc", 3, 0.7), restarts=3, seed=0)`` —
+  wall time, total NLML evaluations (Σ OutputFit.n_evaluations) and infeasible ones (Σ n_infeasible);
+* ours, shared hyperparameters (``shared=True``), same numbers;
+* the time of ONE ``nlml_and_gradient`` evaluation at the fitted (typical, feasible) hyperparameters,
+  median of several, and the overhead ratio fit_time / (evaluations × t_eval) (target ≤ 1.3). The
+  evaluations inside the fit are also timed one by one (by wrapping the library function; nothing
+  else changes), which gives fit_time / Σ(in-fit evaluation times): the same question asked in a
+  way that the machine's load cannot skew (both sides are measured at the same moments);
+* scikit-learn: ``GaussianProcessRegressor(ConstantKernel()*RBF() + WhiteKernel(),
+  n_restarts_optimizer=2, random_state=0)``, six separate models on (Euler xyz angles, translation);
+  wall time and number of log-marginal-likelihood evaluations;
+* the same two fits of ours with the chordal rotation distance (MATH.md §6, §10);
+* test RMSE of every model against the noise-free outputs at 2000 unseen poses (so a faster fit is
+  not bought with a worse model);
+* prediction of mean and std at 10001 unseen poses from the n = 80 models: ours
+  (``GaussianProcess.predict(..., return_std=True)``) vs scikit-learn's ``predict(return_std=True)``
+  summed over its 6 models.
+
+Targets (at n = 1752): per-output fit ≥ 4× faster than scikit-learn's 6 fits; shared ≥ 20× faster;
+overhead ratio ≤ 1.3; prediction at n = 80 no slower than scikit-learn's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import statistics
+import sys
+import time
+import warnings
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import numpy as np  # noqa: E402
+
+from _common import blas_line, fmt_s, limit_blas_threads, machine_line, median_time, synthetic_data, synthetic_poses, velocity_field  # noqa: E402
+
+import rbgp_cli.gp.exact as exact  # noqa: E402
+from rbgp_cli.geometry.so3 import euler_from_quat  # noqa: E402
+from rbgp_cli.kernels import SquaredExponential  # noqa: E402
+
+TEST_POINTS = 2000
+PRED_POINTS = 10001
+
+
+# ------------------------------------------------------------------------------ timing of evaluations
+class EvalTimer:
+    """Wraps ``exact.nlml_and_gradient`` (looked up as a module global by the fit) to time each call.
+
+    Adds one ``perf_counter`` pair per call (~1 µs); records (seconds, feasible) per evaluation.
+    """
+
+    def __init__(self):
+        self.records: list[tuple[float, bool]] = []
+        self._orig = exact.nlml_and_gradient
+
+    def __enter__(self):
+        orig = self._orig
+
+        def timed(*a, **kw):
+            t0 = time.perf_counter()
+            out = orig(*a, **kw)
+            self.records.append((time.perf_counter() - t0, out[0] < exact.INFEASIBLE_NLML))
+            return out
+
+        exact.nlml_and_gradient = timed
+        return self
+
+    def __exit__(self, *exc):
+        exact.nlml_and_gradient = self._orig
+
+    @property
+    def total(self) -> float:
+        return sum(t for t, _ in self.records)
+
+    @property
+    def infeasible_time(self) -> float:
+        return sum(t for t, ok in self.records if not ok)
+
+
+def time_one_evaluation(kernel, X, gp, repeats: int) -> float:
+    """Median time of one nlml_and_gradient at the fitted hyperparameters (cycling over the outputs)."""
+    pre = kernel.precompute(X)
+    if gp.shared:
+        jobs = [(gp.fits[0], gp.Y / gp.y_scale)]
+    else:
+        jobs = [(f, gp.Y[:, l]) for l, f in enumerate(gp.fits)]
+    calls = [(f.values, y, list(f.free)) for f, y in jobs]
+    # the same BLAS thread policy as fit_gp uses for this n (single-threaded for small n, if the
+    # library has such a policy)
+    policy = getattr(exact, "blas_threads", None)
+    with policy(len(X)) if policy is not None else contextlib.nullcontext():
+        exact.nlml_and_gradient(kernel, pre, calls[0][0], calls[0][1], calls[0][2])  # warm-up
+        times = []
+        for r in range(repeats):
+            values, y, free = calls[r % len(calls)]
+            t0 = time.perf_counter()
+            f, _ = exact.nlml_and_gradient(kernel, pre, values, y, free)
+            times.append(time.perf_counter() - t0)
+            if f >= exact.INFEASIBLE_NLML:
+                raise RuntimeError("the fitted hyperparameters are infeasible: cannot time a typical evaluation")
+    return statistics.median(times)
+
+
+def rmse(pred: np.ndarray, truth: np.ndarray) -> float:
+    """Root mean squared error over all outputs (each output has std ≈ 0.3)."""
+    return float(np.sqrt(np.mean((pred - truth) ** 2)))
+
+
+# ------------------------------------------------------------------------------ ours
+def bench_ours(X, Y, metric: str, shared: bool, eval_repeats: int, Xt, Yt_true) -> dict:
+    kernel = SquaredExponential(metric, 3, 0.7)
+    with EvalTimer() as et:
+        t0 = time.perf_counter()
+        gp = exact.fit_gp(X, Y, kernel, restarts=3, seed=0, shared=shared)
+        fit_time = time.perf_counter() - t0
+    evals = sum(f.n_evaluations for f in gp.fits)
+    t_eval = time_one_evaluation(kernel, X, gp, eval_repeats)
+    return {
+        "kind": f"ours {'shared' if shared else 'per-output'} ({metric})",
+        "metric": metric,
+        "shared": shared,
+        "fit_s": fit_time,
+        "evaluations": evals,
+        "infeasible": sum(f.n_infeasible for f in gp.fits),
+        "infeasible_s": et.infeasible_time,
+        "in_fit_eval_s": et.total,
+        "t_eval_s": t_eval,
+        "ratio": fit_time / (evals * t_eval),
+        "ratio_in_fit": fit_time / et.total,
+        "jitter_used": any(f.jitter > 0 for f in gp.fits),
+        # outputs whose first optimum missed the library's noise margin and were refit with it (if the
+        # library has that safeguard; MATH.md §6)
+        "guarded": sum(bool(getattr(f, "guarded", False)) for f in gp.fits),
+        "rmse": rmse(gp.predict(Xt), Yt_true),
+        "load": os.getloadavg()[0],
+        "_gp": gp,
+    }
+
+
+# ------------------------------------------------------------------------------ scikit-learn
+def sklearn_regressor_class():
+    from sklearn.gaussian_process import GaussianProcessRegressor
+
+    class CountingGPR(GaussianProcessRegressor):
+        """GaussianProcessRegressor that counts its log-marginal-likelihood evaluations."""
+
+        n_lml_calls = 0
+
+        def log_marginal_likelihood(self, *a, **kw):
+            type(self).n_lml_calls += 1
+            return super().log_marginal_likelihood(*a, **kw)
+
+    return CountingGPR
+
+
+def euler_inputs(quat: np.ndarray, X: np.ndarray) -> np.ndarray:
+    return np.concatenate([euler_from_quat(quat, "xyz"), X[:, 3:]], axis=1)
+
+
+def bench_sklearn(q, X, Y, Eq_test, Yt_true) -> dict:
+    from sklearn.exceptions import ConvergenceWarning
+    from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
+
+    cls = sklearn_regressor_class()
+    cls.n_lml_calls = 0
+    E = euler_inputs(q, X)
+    models = []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ConvergenceWarning)
+        t0 = time.perf_counter()
+        for l in range(Y.shape[1]):
+            m = cls(ConstantKernel() * RBF() + WhiteKernel(), n_restarts_optimizer=2, random_state=0)
+            m.fit(E, Y[:, l])
+            models.append(m)
+        fit_time = time.perf_counter() - t0
+    pred = np.stack([m.predict(Eq_test) for m in models], axis=1)
+    return {
+        "kind": "scikit-learn, 6 fits (Euler)",
+        "fit_s": fit_time,
+        "evaluations": cls.n_lml_calls,
+        "t_eval_s": fit_time / max(cls.n_lml_calls, 1),
+        "convergence_warnings": sum(issubclass(w.category, ConvergenceWarning) for w in caught),
+        "rmse": rmse(pred, Yt_true),
+        "load": os.getloadavg()[0],
+        "_models": models,
+    }
+
+
+# ------------------------------------------------------------------------------ prediction
+def bench_prediction(gp_ours, gp_shared, sk_models, repeats: int) -> dict:
+    """Mean and std at PRED_POINTS unseen poses. The contenders are timed in turn within each repeat,
+    so that a change of the machine's load hits all of them; medians and the median paired ratio."""
+    qp, Xp = synthetic_poses(PRED_POINTS, seed=7)
+    Ep = euler_inputs(qp, Xp)
+    jobs = {"ours_s": lambda: gp_ours.predict(Xp, return_std=True)}
+    if gp_shared is not None:
+        jobs["ours_shared_s"] = lambda: gp_shared.predict(Xp, return_std=True)
+    if sk_models:
+        jobs["sklearn_s"] = lambda: [m.predict(Ep, return_std=True) for m in sk_models]
+    for fn in jobs.values():  # warm-up
+        fn()
+    times = {k: [] for k in jobs}
+    for _ in range(repeats):
+        for k, fn in jobs.items():
+            t0 = time.perf_counter()
+            fn()
+            times[k].append(time.perf_counter() - t0)
+    out = {"points": PRED_POINTS}
+    out.update({k: statistics.median(v) for k, v in times.items()})
+    if sk_models:
+        out["paired_ratio"] = statistics.median(s / o for s, o in zip(times["sklearn_s"], times["ours_s"]))
+    out["load"] = os.getloadavg()[0]
+    return out
+
+
+# ------------------------------------------------------------------------------ report
+def ratio(a, b) -> str:
+    return "–" if a is None or b is None else f"{a / b:.1f}×"
+
+
+def print_report(results: dict, pred: dict | None, header: str) -> list[str]:
+    lines = [header, ""]
+    sizes = sorted(results)
+    # Table 1: training times
+    lines += ["**Training time (s)** — wall clock, one run; sklearn/ours = how many times faster ours is", "",
+              "| n | ours per-output (arc) | ours shared (arc) | sklearn 6 fits | sklearn / per-output | sklearn / shared "
+              "| ours per-output (chordal) | ours shared (chordal) |",
+              "|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for n in sizes:
+        r = results[n]
+        po, sh = r.get("po_arc"), r.get("sh_arc")
+        sk = r.get("sklearn")
+        pc, sc = r.get("po_chordal"), r.get("sh_chordal")
+        g = lambda d: fmt_s(d["fit_s"]) if d else "–"  # noqa: E731
+        lines.append(f"| {n} | {g(po)} | {g(sh)} | {g(sk)} | {ratio(sk and sk['fit_s'], po and po['fit_s'])} "
+                     f"| {ratio(sk and sk['fit_s'], sh and sh['fit_s'])} | {g(pc)} | {g(sc)} |")
+    # Table 2: evaluations and overhead
+    lines += ["", "**Evaluations and overhead** — t_eval: one NLML+gradient at the fitted hyperparameters, median; "
+              "ratio = fit / (evaluations × t_eval) (target ≤ 1.3); in-fit = fit / Σ(times of the fit's own "
+              "evaluations), insensitive to load changes between the fit and the t_eval measurement; "
+              "load = 1-min load average after the fit", "",
+              "| n | model | evaluations | infeasible (time); refits | t_eval (ms) | fit / (evals × t_eval) | fit / Σ in-fit evals "
+              "| test RMSE | load |",
+              "|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for n in sizes:
+        for key in ("po_arc", "sh_arc", "po_chordal", "sh_chordal", "sklearn"):
+            d = results[n].get(key)
+            if not d:
+                continue
+            if key == "sklearn":
+                lines.append(f"| {n} | {d['kind']} | {d['evaluations']} | – | {d['t_eval_s'] * 1e3:.1f} (fit / evals) | – | – "
+                             f"| {d['rmse']:.4f} | {d['load']:.1f} |")
+            else:
+                lines.append(f"| {n} | {d['kind']} | {d['evaluations']} | {d['infeasible']} ({fmt_s(d['infeasible_s'])} s); {d['guarded']} "
+                             f"| {d['t_eval_s'] * 1e3:.1f} | {d['ratio']:.2f} | {d['ratio_in_fit']:.3f} | {d['rmse']:.4f} "
+                             f"| {d['load']:.1f} |")
+    if pred:
+        lines += ["", f"**Prediction of mean and std at {pred['points']} poses, models from n = {pred['n']}** (each timed "
+                  f"{pred['repeats']} times, in turn)", "",
+                  "| ours per-output (s) | ours shared (s) | sklearn, 6 models (s) | sklearn / ours per-output "
+                  "(median of paired ratios) | load |",
+                  "|---:|---:|---:|---:|---:|"]
+        pr = f"{pred['paired_ratio']:.2f}×" if "paired_ratio" in pred else "–"
+        lines.append(f"| {fmt_s(pred['ours_s'])} | {fmt_s(pred.get('ours_shared_s', float('nan')))} "
+                     f"| {fmt_s(pred.get('sklearn_s', float('nan')))} | {pr} | {pred['load']:.1f} |")
+    inf = sum(d["infeasible"] for n in sizes for k, d in results[n].items() if k != "sklearn" and d)
+    inf_arc = sum(results[n][k]["infeasible"] for n in sizes for k in ("po_arc", "sh_arc") if results[n].get(k))
+    lines += ["", f"Infeasible (non-PD) evaluations met by ours: {inf_arc} with the arc kernel, "
+              f"{inf - inf_arc} with the chordal kernel."]
+    return lines
+
+
+def check_targets(results: dict, pred: dict | None, n_target: int = 1752) -> list[str]:
+    out = ["", "**Targets**", ""]
+    r = results.get(n_target)
+    if r is None:
+        out.append(f"- (n = {n_target} not run: training targets not checked)")
+    else:
+        po, sh, sk = r.get("po_arc"), r.get("sh_arc"), r.get("sklearn")
+        if sk:
+            a, b = sk["fit_s"] / po["fit_s"], sk["fit_s"] / sh["fit_s"]
+            out.append(f"- per-output ≥ 4× faster than sklearn at n = {n_target}: {a:.1f}× — {'met' if a >= 4 else 'NOT met'}")
+            out.append(f"- shared ≥ 20× faster than sklearn at n = {n_target}: {b:.1f}× — {'met' if b >= 20 else 'NOT met'}")
+        for d in (po, sh):
+            out.append(f"- overhead ≤ 1.3 ({d['kind']}): fit/(evals×t_eval) {d['ratio']:.2f}, fit/Σ in-fit "
+                       f"{d['ratio_in_fit']:.3f} — {'met' if d['ratio'] <= 1.3 else 'NOT met'}"
+                       f"{'' if d['ratio'] <= 1.3 or d['ratio_in_fit'] > 1.3 else ' by the first measure (met by the in-fit one)'}")
+    if pred and "paired_ratio" in pred:
+        x = pred["paired_ratio"]
+        out.append(f"- prediction at n = {pred['n']} no slower than sklearn: {x:.2f}× — {'met' if x >= 1 else 'NOT met'}")
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--sizes", default=None, help="comma-separated training sizes (default 80,500,1752)")
+    ap.add_argument("--quick", action="store_true", help="n = 80, 300 and fewer repeats (about a minute)")
+    ap.add_argument("--no-sklearn", action="store_true", help="skip scikit-learn")
+    ap.add_argument("--no-chordal", action="store_true", help="skip the chordal-kernel fits")
+    ap.add_argument("--pred-n", type=int, default=80, help="training size of the models used for prediction")
+    ap.add_argument("--json", default=None, help="also write the numbers to this JSON file")
+    ap.add_argument("--markdown", default=None, help="also write the tables to this file")
+    ap.add_argument("--blas-threads", type=int, default=None,
+                    help="limit numpy's and scipy's OpenBLAS (and OpenMP) to this many threads (default: leave as is)")
+    args = ap.parse_args(argv)
+    if not args.no_sklearn:
+        import sklearn.gaussian_process  # noqa: F401 (load its thread pools before limiting them)
+    _limits = limit_blas_threads(args.blas_threads)  # noqa: F841 (kept alive for the whole run)
+    sizes = [int(s) for s in args.sizes.split(",")] if args.sizes else ([80, 300] if args.quick else [80, 500, 1752])
+    repeats = 3 if args.quick else 7
+    pred_n = args.pred_n if args.pred_n in sizes or not args.quick else sizes[0]
+    if pred_n not in sizes:
+        sizes = sorted(set(sizes) | {pred_n})
+    header = f"bench_training — {time.strftime('%Y-%m-%d %H:%M %Z')}; {machine_line()}\n{blas_line()}"
+    print(header, flush=True)
+    started = time.strftime("%H:%M")
+
+    qt, Xt = synthetic_poses(TEST_POINTS, seed=99)
+    Yt_true = velocity_field(qt, Xt[:, 3:])
+    Et = euler_inputs(qt, Xt)
+    results, pred_models = {}, {}
+    for n in sizes:
+        q, X, Y = synthetic_data(n, seed=0)
+        r = results[n] = {}
+        ev_rep = 6 if args.quick else 9  # single evaluations timed (cycling over the outputs' hyperparameters)
+        for metric in ("arc",) if args.no_chordal else ("arc", "chordal"):
+            for shared in (False, True):
+                key = f"{'sh' if shared else 'po'}_{metric}"
+                d = r[key] = bench_ours(X, Y, metric, shared, ev_rep, Xt, Yt_true)
+                print(f"n={n:5d} {d['kind']:30s} fit {d['fit_s']:8.2f} s  evals {d['evaluations']:4d} "
+                      f"(infeasible {d['infeasible']}, refits {d['guarded']})  t_eval {d['t_eval_s'] * 1e3:7.1f} ms  ratio {d['ratio']:.2f} "
+                      f"in-fit {d['ratio_in_fit']:.3f}  rmse {d['rmse']:.4f}  load {d['load']:.1f}", flush=True)
+        if not args.no_sklearn:
+            d = r["sklearn"] = bench_sklearn(q, X, Y, Et, Yt_true)
+            print(f"n={n:5d} {d['kind']:30s} fit {d['fit_s']:8.2f} s  evals {d['evaluations']:4d}  "
+                  f"per eval {d['t_eval_s'] * 1e3:7.1f} ms  rmse {d['rmse']:.4f}  "
+                  f"({d['convergence_warnings']} convergence warnings)  load {d['load']:.1f}", flush=True)
+        if n == pred_n:
+            pred_models = {"ours": r["po_arc"]["_gp"], "shared": r["sh_arc"]["_gp"],
+                           "sklearn": r.get("sklearn", {}).get("_models")}
+        for d in r.values():  # free the large arrays
+            d.pop("_gp", None)
+            d.pop("_models", None)
+
+    pred = None
+    if pred_models:
+        pred = bench_prediction(pred_models["ours"], pred_models["shared"], pred_models["sklearn"], repeats)
+        pred.update(n=pred_n, repeats=repeats)
+        print(f"prediction at {PRED_POINTS} poses (n = {pred_n}): ours {pred['ours_s']:.3f} s, shared "
+              f"{pred['ours_shared_s']:.3f} s, sklearn {pred.get('sklearn_s', float('nan')):.3f} s", flush=True)
+
+    lines = print_report(results, pred, f"Measured {time.strftime('%Y-%m-%d %H:%M %Z')} (run started {started}); "
+                                        f"{machine_line()}. {blas_line()}.")
+    lines += check_targets(results, pred)
+    text = "\n".join(lines)
+    print("\n" + text)
+    if args.markdown:
+        Path(args.markdown).write_text(text + "\n")
+    if args.json:
+        Path(args.json).write_text(json.dumps({"sizes": sizes, "results": {str(k): v for k, v in results.items()},
+                                               "prediction": pred, "machine": machine_line()}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
