@@ -152,7 +152,7 @@ def predict(
 
     m, _ = load_model(model)
     opts = read_options("csv", columns, quat_order, euler_order, degrees, length_unit, None, 1.0)
-    q, p = workflows.read_start_poses(poses, opts) if poses != "-" else _stdin_poses(opts)
+    q, p = workflows.read_start_poses(poses, opts)  # handles '-' too, with the same row checks
     mean, std = m.predict(q, p, return_std=True, noisy=noisy)
     names = list(m.representation.output_names)
 
@@ -162,15 +162,6 @@ def predict(
             fh.write(",".join(repr(float(v)) for part in row for v in part) + "\n")
 
     write_text_output(output, write)
-
-
-def _stdin_poses(opts):
-    import numpy as np
-
-    from rbgp_cli.io.read import read_demonstrations
-
-    trajs = read_demonstrations(["-"], opts)
-    return np.concatenate([t.quat for t in trajs]), np.concatenate([t.position for t in trajs])
 
 
 # ---------------------------------------------------------------------------------------------- rollout

@@ -969,8 +969,6 @@ def test_mcap_truncated_at_many_offsets_through_the_cli(tmp_path):
     assert seen == {"exit 2", "recovered"}
 
 
-@pytest.mark.xfail(strict=True, reason="rbgp_cli/cli/app.py: predict reads '-' through _stdin_poses, which skips "
-                   "workflows.read_start_poses' checks (NaN rows give NaN predictions, exit 0)")
 def test_predict_poses_on_stdin_are_checked_like_a_file(tiny_model):
     poses = b"rx,ry,rz,x,y,z\n0.1,0.2,0.3,0.3,0.0,1.1\n0.1,nan,0.3,0.3,0.0,1.1\n"
     res = run_cli("predict", tiny_model, "-", input=poses)
