@@ -47,7 +47,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import numpy as np  # noqa: E402
 
-from _common import blas_line, fmt_s, limit_blas_threads, machine_line, median_time, synthetic_data, synthetic_poses, velocity_field  # noqa: E402
+from _common import blas_line, fmt_s, limit_blas_threads, machine_line, synthetic_data, synthetic_poses, velocity_field  # noqa: E402
 
 import rbgp_cli.gp.exact as exact  # noqa: E402
 from rbgp_cli.geometry.so3 import euler_from_quat  # noqa: E402
