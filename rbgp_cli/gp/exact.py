@@ -64,17 +64,24 @@ _JITTERS = (0.0, 1e-10, 1e-8, 1e-6, 1e-4)
 SINGLE_THREAD_BELOW = 700
 
 
+_CONTROLLER = []
+
+
 def blas_threads(n: int):
-    """Context manager: BLAS/LAPACK single-threaded for problems with n < SINGLE_THREAD_BELOW points."""
+    """Context manager: BLAS/LAPACK single-threaded for problems with n < SINGLE_THREAD_BELOW points
+    (n = 0 forces it). The threadpoolctl controller is built once: building it scans the loaded
+    libraries (about 0.9 ms), reusing it costs about 0.015 ms."""
     import contextlib
 
     if n >= SINGLE_THREAD_BELOW:
         return contextlib.nullcontext()
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - threadpoolctl is a dependency; stay usable without it
-        return contextlib.nullcontext()
-    return threadpool_limits(limits=1, user_api="blas")
+    if not _CONTROLLER:
+        try:
+            from threadpoolctl import ThreadpoolController
+        except ImportError:  # pragma: no cover - threadpoolctl is a dependency; stay usable without it
+            return contextlib.nullcontext()
+        _CONTROLLER.append(ThreadpoolController())
+    return _CONTROLLER[0].limit(limits=1, user_api="blas")
 
 
 def _cholesky(K: np.ndarray, noise_var: float, jitter: float = 0.0):
