@@ -192,3 +192,21 @@ def stacked(strategy: st.SearchStrategy[np.ndarray], shape: tuple[int, ...]) -> 
     return st.lists(strategy, min_size=n, max_size=n).map(
         lambda items: np.stack(items).reshape(shape + items[0].shape)
     )
+
+
+# ---------------------------------------------------------------- elementary rotations, by hand
+# Independent oracles for the vendor readers' Euler conventions: the rotation matrix about one
+# world axis by an angle in degrees, written out (no library involved).
+def rx(a):
+    c, s = np.cos(np.radians(a)), np.sin(np.radians(a))
+    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def ry(a):
+    c, s = np.cos(np.radians(a)), np.sin(np.radians(a))
+    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+
+
+def rz(a):
+    c, s = np.cos(np.radians(a)), np.sin(np.radians(a))
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])

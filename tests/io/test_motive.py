@@ -9,21 +9,9 @@ from scipy.spatial.transform import Rotation
 from rbgp_cli.errors import InputError
 from rbgp_cli.io import motive
 from rbgp_cli.io.options import ReadOptions
+from tests.helpers import rx, ry, rz
 
 
-def rx(a):
-    c, s = np.cos(np.radians(a)), np.sin(np.radians(a))
-    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
-
-
-def ry(a):
-    c, s = np.cos(np.radians(a)), np.sin(np.radians(a))
-    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
-
-
-def rz(a):
-    c, s = np.cos(np.radians(a)), np.sin(np.radians(a))
-    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
 
 
 ELEMENTARY = {"X": rx, "Y": ry, "Z": rz}
