@@ -1,4 +1,4 @@
-"""Model files: one ``.npz`` (zip) of plain arrays plus a JSON header. No pickle, no code.
+"""Model files: one ``.npz`` (zip) of plain arrays plus a JSON header. Never unpickled, no code run.
 
 Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
 
@@ -126,7 +126,7 @@ def read_header(path) -> tuple[dict, dict]:
         magic = _head(path, 4)
         if not magic:
             raise _bad(path, "the model file is empty")
-        if magic != b"PK\x03\x04":  # np.load would try it as a pickle and say so, which misleads
+        if magic != b"PK\x03\x04":  # np.load would try to unpickle it and suggest allowing that, which misleads
             raise _bad(path, "not an rbgp model file (.rbgp files are zip archives; this one is not)",
                        "pass a file written by rbgp train")
         with np.load(path, allow_pickle=False) as z:
