@@ -94,7 +94,7 @@ def train_from_files(sources, output, *, options: ReadOptions | None = None, max
     """``rbgp train``: read + clean demonstrations, train, save atomically. Returns (model, header).
 
     ``train_kwargs`` go to :func:`rbgp_cli.dynamics.model.train_model` (representation, kernel,
-    rho_rot, restarts, seed, noise, shared, subsample, max_points).
+    rho_rot, restarts, seed, noise, shared, subsample, max_points, explore_size).
     """
     from rbgp_cli.dynamics.model import train_model
     from rbgp_cli.io.model_store import save_model

@@ -55,6 +55,7 @@ def train(
     kernel: Annotated[str, typer.Option(help="se (paper eq. 24), se-chordal (always positive definite) or dot (eq. 22).", rich_help_panel=_TRAIN)] = "se",
     rho_rot: Annotated[str, typer.Option("--rho-rot", help="Rotation weight ρ1 of eq. 19 in (0, 1), or 'learn'.", rich_help_panel=_TRAIN)] = "0.7",
     restarts: Annotated[int, typer.Option(min=1, help="Optimiser starts per output (the data-driven one plus random ones).", rich_help_panel=_TRAIN)] = 3,
+    explore_size: Annotated[int, typer.Option(min=0, help="With more than twice this many training points the starts explore a random subset of this size first and only new basins are refined on all points; 0 runs every start on all points.", rich_help_panel=_TRAIN)] = 400,
     seed: Annotated[int, typer.Option(help="Seed for subsampling and random starts.", rich_help_panel=_TRAIN)] = 0,
     noise: Annotated[str, typer.Option(help="'learn', or a fixed noise standard deviation (the paper fixes 1).", rich_help_panel=_TRAIN)] = "learn",
     share_hyperparameters: Annotated[bool, typer.Option("--share-hyperparameters", help="One set of hyperparameters for all outputs (faster).", rich_help_panel=_TRAIN)] = False,
@@ -85,7 +86,7 @@ def train(
     model, header, trajs = workflows.train_from_files(
         demos, output, options=opts, max_gap=max_gap, progress=progress,
         representation=representation, kernel=kernel, rho_rot=rho, restarts=restarts, seed=seed, noise=noise_v,
-        shared=share_hyperparameters, subsample=subsample, max_points=max_points,
+        shared=share_hyperparameters, subsample=subsample, max_points=max_points, explore_size=explore_size,
     )
     if rerun:
         from rbgp_cli.viz.recording import record_training

@@ -122,11 +122,13 @@ def train_model(
     max_points: int | None = 2000,
     euler_order: str = "xyz",
     progress=None,
+    explore_size: int | None = None,
 ) -> MotionModel:
     """Train a motion model on clean demonstrations (see :func:`rbgp_cli.dynamics.prepare.prepare_all`).
 
     ``rho_rot`` is ρ1 of eq. 19 (a number in (0, 1)) or ``"learn"``. ``noise`` is None to learn σn or
-    a fixed standard deviation. Returns the model; its ``summary`` holds demos, pairs, points, the
+    a fixed standard deviation. ``explore_size``: the optimiser's starts explore a random subset of
+    this many training points first (see :func:`rbgp_cli.gp.exact.fit_gp`; None: its default, 0: off). Returns the model; its ``summary`` holds demos, pairs, points, the
     hyperparameters and NLML per output, the safeguards used and the time taken.
     """
     t0 = time.perf_counter()
@@ -140,7 +142,8 @@ def train_model(
     if progress:
         progress(f"{len(trajs)} demonstrations, {info['pairs']} pairs, training on {info['points']} points "
                  f"({rep.name}, kernel {kernel}, {'shared' if shared else 'per-output'} hyperparameters)")
-    gp = fit_gp(X, Y, kern, noise=noise, restarts=restarts, seed=seed, shared=shared, progress=progress)
+    gp = fit_gp(X, Y, kern, noise=noise, restarts=restarts, seed=seed, shared=shared, progress=progress,
+                explore_size=explore_size)
     dts = np.concatenate([np.diff(tr.t) for tr in trajs])
     starts = np.array([np.concatenate([tr.quat[0], tr.position[0]]) for tr in trajs])
     durations = np.array([tr.duration for tr in trajs])

@@ -22,6 +22,13 @@ a reciprocal condition number above ``MIN_RCOND``; otherwise increasing jitter i
 diagonal and reported. If nothing works the fit raises :class:`RbgpRuntimeError` — a model whose
 predictions can explode is never returned.
 
+Starts (MATH.md §7): L-BFGS-B in log space from the data-driven start plus ``restarts − 1`` random
+ones from a seeded rng. The starts exist to find the best basin, and at n = 1752 all of them usually
+end in the same one, each costing 15–50 full-size evaluations. So for n > 2·SUBSAMPLE_SIZE the starts
+run on a random subsample of SUBSAMPLE_SIZE points (an evaluation there costs (400/1752)³ ≈ 1 % of a
+full one). On all points the fit then runs the data-driven start, and polishes the optimum of each
+random start that reached a basin (on the subsample) that no earlier start had reached.
+
 All BLAS/LAPACK calls in the evaluation loop go through ``scipy.linalg`` (ECOSYSTEM.md §7).
 """
 
@@ -55,6 +62,13 @@ _LOG2PI = math.log(2.0 * math.pi)
 NOISE_MARGIN = 0.25
 #: Jitter ladder (relative to σf² + σn²) tried when the optimum is ill conditioned.
 _JITTERS = (0.0, 1e-10, 1e-8, 1e-6, 1e-4)
+#: An infeasible start is moved by this much in log λ (down) and log σn (up), at most _START_MOVES times.
+_START_STEP = math.log(1.25)
+_START_MOVES = 16
+#: Above 2·SUBSAMPLE_SIZE points the starts explore a random subsample of this size first; only the
+#: random starts whose optima are distinct there (max |Δ log θ| > DISTINCT_LOG) are polished on all points.
+SUBSAMPLE_SIZE = 400
+DISTINCT_LOG = 0.1
 
 
 # ----------------------------------------------------------------------------- linear algebra
@@ -167,11 +181,14 @@ class OutputFit:
     jitter : diagonal jitter added to K + σn²I to pass Cholesky / the conditioning check (0 if none)
     rcond : reciprocal condition number of K + (σn² + jitter) I
     positive_definite : K + σn²I (without jitter) passed Cholesky and the conditioning check
-    n_evaluations, n_infeasible : NLML evaluations, and how many of them met a non-PD matrix
+    n_evaluations, n_infeasible : NLML evaluations on all n points, and how many of them met a
+        non-PD matrix (evaluations on the exploration subsample are counted in ``subsample``)
     starts : per start {"start": {...}, "nlml": final, "status": message, "evaluations": k}
     at_bounds : names of free hyperparameters that ended at a bound
     guarded : the first optimum missed the noise margin (λ_min(K + σn²I) < NOISE_MARGIN σn², possible
         only with an indefinite kernel) and the output was refit with the margin enforced
+    subsample : None, or {"size", "evaluations", "infeasible"} when the starts explored a random
+        subsample first (n > 2·SUBSAMPLE_SIZE; see :func:`fit_gp`)
     """
 
     values: dict
@@ -186,6 +203,7 @@ class OutputFit:
     free: list = field(default_factory=list)
     seconds: float = 0.0
     guarded: bool = False
+    subsample: dict | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -201,6 +219,7 @@ class OutputFit:
             "free": list(self.free),
             "seconds": float(self.seconds),
             "guarded": bool(self.guarded),
+            "subsample": self.subsample,
         }
 
     @classmethod
@@ -346,9 +365,13 @@ def _random_start(spec: dict, free: list, rng: np.random.Generator) -> np.ndarra
     return theta
 
 
-def _fit_one(kernel, pre, y, spec, free, restarts, rng, max_iter, margin=0.0, theta_starts=None):
-    """Minimise the NLML for one target (vector, or matrix in shared mode) from several starts
-    (``theta_starts``, log values of the free hyperparameters, replaces the usual starts)."""
+def _fit_one(kernel, pre, y, spec, free, restarts, rng, max_iter, margin=0.0, theta_starts=None, kinds=None):
+    """Minimise the NLML for one target (vector, or matrix in shared mode) from several starts.
+
+    The starts are the data-driven one and ``restarts − 1`` random ones, or ``theta_starts`` (log
+    values of the free hyperparameters) labelled ``kinds`` in the records. Returns (best (θ, NLML) or
+    None, one record per start, evaluation counters, θ -> values, per start its optimum (θ, NLML) or
+    None if it found no feasible point)."""
     from scipy.optimize import minimize
 
     fixed_values = {nm: h.value for nm, h in spec.items() if nm not in free}
@@ -377,24 +400,29 @@ def _fit_one(kernel, pre, y, spec, free, restarts, rng, max_iter, margin=0.0, th
 
     if theta_starts is not None:
         starts = [np.array(t, dtype=np.float64) for t in theta_starts]
+        kinds = list(kinds) if kinds is not None else ["given"] * len(starts)
     else:
         starts = [np.array([math.log(spec[nm].value) for nm in free])]
         starts += [_random_start(spec, free, rng) for _ in range(max(0, restarts - 1))]
+        kinds = ["data-driven"] + ["random"] * (len(starts) - 1)
     best = None
     records = []
+    optima = []
     for s, theta0 in enumerate(starts):
         theta0 = np.clip(theta0, [b[0] for b in log_bounds], [b[1] for b in log_bounds])
-        # an infeasible start is moved towards short length-scales / more noise, where K is PD
+        # an infeasible start is moved in small steps towards shorter length-scales and more
+        # noise, where K + σn²I is positive definite (the optimum of the arc kernel often lies just
+        # inside that boundary, so large steps would land far from it)
         penalty["ref"] = None
-        for _ in range(8):
+        for _ in range(_START_MOVES):
             f0, _g = objective(theta0)
             if f0 < INFEASIBLE_NLML:
                 break
             for i, nm in enumerate(free):
                 if nm == "length_scale":
-                    theta0[i] = max(theta0[i] - math.log(2.0), log_bounds[i][0])
+                    theta0[i] = max(theta0[i] - _START_STEP, log_bounds[i][0])
                 elif nm == NOISE:
-                    theta0[i] = min(theta0[i] + math.log(2.0), log_bounds[i][1])
+                    theta0[i] = min(theta0[i] + _START_STEP, log_bounds[i][1])
         ev0 = counter["evals"]
         penalty["ref"] = f0 if f0 < INFEASIBLE_NLML else None
         if not free:
@@ -408,11 +436,15 @@ def _fit_one(kernel, pre, y, spec, free, restarts, rng, max_iter, margin=0.0, th
             "nlml": float(res_f),
             "status": msg,
             "evaluations": counter["evals"] - ev0,
-            "kind": "data-driven" if s == 0 else "random",
+            "kind": kinds[s],
         })
-        if res_f < INFEASIBLE_NLML and (best is None or res_f < best[1]):
-            best = (np.array(res_x), res_f)
-    return best, records, counter, values_of
+        if res_f < INFEASIBLE_NLML:
+            optima.append((np.array(res_x), res_f))
+            if best is None or res_f < best[1]:
+                best = (np.array(res_x), res_f)
+        else:
+            optima.append(None)
+    return best, records, counter, values_of, optima
 
 
 def _meets_margin(kernel, pre, values) -> bool:
@@ -450,6 +482,7 @@ def fit_gp(
     bounds: dict | None = None,
     max_iter: int = 200,
     progress=None,
+    explore_size: int | None = None,
 ) -> GaussianProcess:
     """Fit one GP per output column of Y (or one shared set of hyperparameters) by minimising the NLML.
 
@@ -459,7 +492,15 @@ def fit_gp(
     Y : shape (n, L) — outputs (e.g. velocities (ωx, ωy, ωz, vx, vy, vz))
     kernel : a :class:`Kernel`
     noise : None / "learn" to learn σn, or a number to fix σn (the paper fixes σn = 1)
-    restarts : number of starts per output: the data-driven start plus ``restarts − 1`` random ones
+    restarts : number of starts per output: the data-driven start plus ``restarts − 1`` random ones.
+        With more than 2·``explore_size`` points (and restarts > 1) every start first runs on a
+        random subsample of ``explore_size`` points (the same for all outputs, drawn from ``seed``). On all n
+        points the data-driven start then runs as usual, and the optimum of each random start whose
+        subsample optimum differs from the data-driven one's and from each other's by more than
+        DISTINCT_LOG in some log θ is polished; the fit keeps the best. Random starts that end in
+        the basin already found, the usual case, so cost only cheap subsample evaluations.
+    explore_size : size of that subsample (default SUBSAMPLE_SIZE = 400); 0 runs every start on all
+        points
     seed : seeds the random starts (same data, options and seed → bit-identical hyperparameters)
     shared : one set of hyperparameters for all outputs, each output scaled by its root mean square
     fixed : {name: value} hyperparameters to hold fixed (signal_std, length_scale, rho_rot, noise_std)
@@ -473,11 +514,14 @@ def fit_gp(
     if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
         raise ValueError("training inputs and outputs must be finite")
     restarts = max(1, int(restarts))
+    explore = SUBSAMPLE_SIZE if explore_size is None else int(explore_size)
+    if explore < 0:
+        raise ValueError(f"explore_size must be >= 0, got {explore_size}")
     with blas_threads(len(X)):
-        return _fit_gp(X, Y, kernel, noise, restarts, seed, shared, fixed, bounds, max_iter, progress)
+        return _fit_gp(X, Y, kernel, noise, restarts, seed, shared, fixed, bounds, max_iter, progress, explore)
 
 
-def _fit_gp(X, Y, kernel, noise, restarts, seed, shared, fixed, bounds, max_iter, progress):
+def _fit_gp(X, Y, kernel, noise, restarts, seed, shared, fixed, bounds, max_iter, progress, explore):
     pre = kernel.precompute(X)
     L = Y.shape[1]
     ss = np.random.SeedSequence(int(seed))
@@ -490,10 +534,33 @@ def _fit_gp(X, Y, kernel, noise, restarts, seed, shared, fixed, bounds, max_iter
         scale = None
         targets = [(Y[:, l], f"output {l}") for l in range(L)]
         rngs = [np.random.default_rng(s) for s in ss.spawn(L)]
+    n = len(X)
+    sub = None
+    if explore > 1 and n > 2 * explore and restarts > 1:
+        sub = np.sort(np.random.default_rng(np.random.SeedSequence([int(seed), 1])).choice(n, explore, replace=False))
+        pre_sub = kernel.precompute(X[sub])
     for (y, label), rng in zip(targets, rngs):
         t0 = time.perf_counter()
         spec, free = _free_spec(kernel, pre, y, noise, fixed, bounds)
-        best, records, counter, values_of = _fit_one(kernel, pre, y, spec, free, restarts, rng, max_iter)
+        sub_info = None
+        if sub is not None and free:
+            # Explore: every start on the subsample. On all points: the data-driven start, and a
+            # polish of every optimum of a random start that lies in a basin not reached before.
+            _b, records_s, counter_s, _v, optima = _fit_one(kernel, pre_sub, y[sub], spec, free, restarts, rng, max_iter)
+            seen = [optima[0][0]] if optima[0] is not None else []
+            polish = []
+            for theta, _f in sorted((o for o in optima[1:] if o is not None), key=lambda t: t[1]):
+                if all(np.max(np.abs(theta - p)) > DISTINCT_LOG for p in seen):
+                    seen.append(theta)
+                    polish.append(theta)
+            data_start = np.array([math.log(spec[nm].value) for nm in free])
+            best, records, counter, values_of, _ = _fit_one(
+                kernel, pre, y, spec, free, 1, rng, max_iter, theta_starts=[data_start, *polish],
+                kinds=["data-driven (all points)"] + ["polish (all points)"] * len(polish))
+            records = [{**r, "kind": r["kind"] + f" (subsample of {explore})"} for r in records_s] + records
+            sub_info = {"size": explore, "evaluations": counter_s["evals"], "infeasible": counter_s["infeasible"]}
+        else:
+            best, records, counter, values_of, _ = _fit_one(kernel, pre, y, spec, free, restarts, rng, max_iter)
         guarded = False
         if best is not None and not _meets_margin(kernel, pre, values_of(best[0])):
             # The optimum sits where K's negative eigenvalues nearly cancel the noise (indefinite
@@ -502,9 +569,10 @@ def _fit_gp(X, Y, kernel, noise, restarts, seed, shared, fixed, bounds, max_iter
             # data-driven start.
             guarded = True
             data_start = [math.log(spec[nm].value) for nm in free]
-            best2, records2, counter2, values_of = _fit_one(kernel, pre, y, spec, free, 1, rng, max_iter,
-                                                            margin=NOISE_MARGIN, theta_starts=[best[0], data_start])
-            records += [{**r, "kind": r["kind"] + " (margin)"} for r in records2]
+            best2, records2, counter2, values_of, _ = _fit_one(
+                kernel, pre, y, spec, free, 1, rng, max_iter, margin=NOISE_MARGIN,
+                theta_starts=[best[0], data_start], kinds=["optimum (margin)", "data-driven (margin)"])
+            records += records2
             counter = {k: counter[k] + counter2[k] for k in counter}
             best = best2
         if best is None:
@@ -528,6 +596,7 @@ def _fit_gp(X, Y, kernel, noise, restarts, seed, shared, fixed, bounds, max_iter
             values=values, nlml=float(best[1]), jitter=float(jitter), rcond=rc, positive_definite=pd,
             n_evaluations=counter["evals"], n_infeasible=counter["infeasible"], starts=records,
             at_bounds=at_bounds, free=list(free), seconds=time.perf_counter() - t0, guarded=guarded,
+            subsample=sub_info,
         )
         fits.append(fit)
         if progress is not None:
