@@ -26,7 +26,7 @@ Numerics
     clustered within a few degrees), ``‖qa − s·qb‖²`` for the whole block and the series of
     ``asin``. At the switch the Gram formula's absolute error is about ``1e-15/sin φ <= 1e-13`` rad,
     so the matrices agree with the elementwise functions to ~1e-13 (and to ~1e-15 relative for the
-    close pairs). Large matrices are computed in row blocks of 64 on up to 4 threads (numpy
+    close pairs). Large matrices are computed in row blocks (>= 64 rows, ~65k elements) on up to 4 threads (numpy
     releases the GIL in ufuncs; ``arccos`` dominates the cost), with the Gram products summed
     without BLAS (see ``_gram_block``). n = m = 1752 takes ~35 ms (arc) and ~17 ms (chordal) on
     2 cores, ~70 ms / ~45 ms when all pairs are close.
@@ -62,6 +62,7 @@ _METRICS = ("arc", "chordal")
 
 #: Row-block size and the work (n·m) above which blocks are spread over threads.
 _BLOCK_ROWS = 64
+_BLOCK_ELEMENTS = 65_536
 _PARALLEL_MIN_WORK = 200_000
 #: Above this fraction of close pairs in a block, their precise distances are computed densely.
 _DENSE_FRACTION = 0.02
@@ -168,8 +169,14 @@ def chordal_distance(r1, r2) -> np.ndarray:
 
 
 def _run_blocks(n: int, m: int, block) -> None:
-    """Call ``block(slice)`` on row blocks of an (n, m) result, on threads when it is large."""
-    slices = [slice(i, min(i + _BLOCK_ROWS, n)) for i in range(0, n, _BLOCK_ROWS)]
+    """Call ``block(slice)`` on row blocks of an (n, m) result, on threads when it is large.
+
+    A block has at least _BLOCK_ROWS rows and about _BLOCK_ELEMENTS elements, so that a tall,
+    narrow matrix (10⁴ query poses × 80 training poses) is not cut into hundreds of tiny tasks
+    whose scheduling costs more than their work.
+    """
+    rows = max(_BLOCK_ROWS, -(-_BLOCK_ELEMENTS // max(m, 1)))
+    slices = [slice(i, min(i + rows, n)) for i in range(0, n, rows)]
     if n * m >= _PARALLEL_MIN_WORK and len(slices) > 1:
         for f in [_executor().submit(block, sl) for sl in slices]:
             f.result()
@@ -308,7 +315,8 @@ def pairwise_s3_angle(q_a, q_b) -> np.ndarray:
 def pairwise_sq_distance(a, b) -> np.ndarray:
     """Pairwise squared Euclidean distances ``‖a_i − b_j‖²``, shape (n, m); ``a`` (n, k), ``b`` (m, k).
 
-    For ``k <= 8`` (translations, Euler poses) computed directly as ``Σ_l (a_il − b_jl)²``: exact
+    For ``k <= 8`` (translations, Euler poses) computed directly as ``Σ_l (a_il − b_jl)²`` (scipy's
+    ``cdist``): exact
     to round-off, ``>= 0``, exactly 0 for identical rows. For more columns by the expansion
     ``‖a_i‖² + ‖b_j‖² − 2⟨a_i, b_j⟩`` (one matmul) after subtracting the mean of ``b`` from both
     (which shrinks the norms and so the cancellation), clipped at 0; pairs whose result is below
@@ -322,26 +330,14 @@ def pairwise_sq_distance(a, b) -> np.ndarray:
     n, m, k = a.shape[0], b.shape[0], a.shape[1]
     if n == 0 or m == 0 or k == 0:
         return np.zeros((n, m))
-    out = np.empty((n, m))
-    bt = np.ascontiguousarray(b.T)
 
     if k <= 8:
+        from scipy.spatial.distance import cdist
 
-        def block(sl: slice) -> None:
-            o = out[sl]
-            ab = a[sl]
-            np.subtract(ab[:, :1], bt[0], out=o)
-            o *= o
-            if k > 1:
-                tmp = np.empty_like(o)
-                for col in range(1, k):
-                    np.subtract(ab[:, col : col + 1], bt[col], out=tmp)
-                    tmp *= tmp
-                    o += tmp
+        # Σ_l (a_il − b_jl)² in C, one pass (4–9× faster than numpy passes over the columns)
+        return cdist(a, b, "sqeuclidean")
 
-        _run_blocks(n, m, block)
-        return out
-
+    out = np.empty((n, m))
     centre = b.mean(axis=0)
     ac = a - centre
     bc = b - centre

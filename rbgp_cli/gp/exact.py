@@ -98,6 +98,32 @@ def blas_threads(n: int):
     return _CONTROLLER[0].limit(limits=1, user_api="blas")
 
 
+#: Predictions with at least this many query × training pairs are spread over the cores, in row
+#: chunks on threads (numpy's ufuncs and BLAS release the GIL; the kernel's exp dominates).
+PARALLEL_PREDICT_MIN = 400_000
+_PREDICT_POOL = []
+
+
+def _prediction_workers(work: int) -> int:
+    import os
+
+    if work < PARALLEL_PREDICT_MIN:
+        return 1
+    return max(1, min(4, os.cpu_count() or 1))
+
+
+def _predict_pool():
+    """A thread pool for prediction chunks, separate from the distance pool of
+    :mod:`rbgp_cli.geometry.distance` (whose blocks the chunks submit and wait for)."""
+    import os
+    from concurrent.futures import ThreadPoolExecutor
+
+    if not _PREDICT_POOL or _PREDICT_POOL[0][1] != os.getpid():
+        _PREDICT_POOL[:] = [(ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1)),
+                                                thread_name_prefix="rbgp-predict"), os.getpid())]
+    return _PREDICT_POOL[0][0]
+
+
 def _cholesky(K: np.ndarray, noise_var: float, jitter: float = 0.0):
     """Lower Cholesky factor of K + (σn² + jitter) I as a Fortran-ordered array, or None.
 
@@ -304,23 +330,38 @@ class GaussianProcess:
         mean = np.empty((m, self.n_outputs))
         std = np.empty((m, self.n_outputs)) if return_std else None
         step = max(1, int(chunk_elements // max(n, 1)))
-        self.last_clipped = 0
-        for a in range(0, m, step):
-            Xc = Xs[a : a + step]
-            pre = self.kernel.precompute(Xc, self.X)
-            for (fit, outs), Lc, alpha in zip(self._group_outputs(), self._L, self._alpha):
-                Ks, _ = self.kernel.gram(pre, fit.values)  # (mc, n)
-                scale = self.y_scale[outs]
-                mean[a : a + step, outs] = (Ks @ alpha) * scale
-                if return_std:
-                    v = solve_triangular(Lc, Ks.T, lower=True, check_finite=False)
-                    var = self.kernel.diag(Xc, fit.values) - np.einsum("ij,ij->j", v, v)
-                    self.last_clipped += int(np.sum(var < 0))
-                    var = np.maximum(var, 0.0)
-                    if noisy:
-                        var = var + fit.values[NOISE] ** 2 + fit.jitter
-                    std[a : a + step, outs] = np.sqrt(var)[:, None] * scale
+        workers = _prediction_workers(m * n)
+        if workers > 1:
+            # at least one chunk per worker, so that large predictions use every core
+            step = min(step, -(-m // workers))
+        starts = range(0, m, step)
+        if workers > 1 and len(starts) > 1:
+            clipped = sum(_predict_pool().map(
+                lambda a: self._predict_rows(Xs, a, a + step, mean, std, noisy), starts))
+        else:
+            clipped = sum(self._predict_rows(Xs, a, a + step, mean, std, noisy) for a in starts)
+        self.last_clipped = int(clipped)
         return (mean, std) if return_std else mean
+
+    def _predict_rows(self, Xs, a, b, mean, std, noisy) -> int:
+        """Mean (and std) of query rows a:b into ``mean`` / ``std``; returns how many variances were clipped."""
+        Xc = Xs[a:b]
+        pre = self.kernel.precompute(Xc, self.X)
+        clipped = 0
+        for (fit, outs), Lc, alpha in zip(self._group_outputs(), self._L, self._alpha):
+            Ks, _ = self.kernel.gram(pre, fit.values)  # (mc, n)
+            scale = self.y_scale[outs]
+            mean[a:b, outs] = (Ks @ alpha) * scale
+            if std is not None:
+                # v = L⁻¹ k*, written over Ks (its transpose is the Fortran-ordered right-hand side)
+                v = solve_triangular(Lc, Ks.T, lower=True, check_finite=False, overwrite_b=True)
+                var = self.kernel.diag(Xc, fit.values) - np.einsum("ij,ij->j", v, v)
+                clipped += int(np.sum(var < 0))
+                var = np.maximum(var, 0.0)
+                if noisy:
+                    var = var + fit.values[NOISE] ** 2 + fit.jitter
+                std[a:b, outs] = np.sqrt(var)[:, None] * scale
+        return clipped
 
     def predict_mean(self, Xs) -> np.ndarray:
         """Predictive mean, shape (m, L) (single-step mean prediction, MATH.md §8)."""

@@ -49,15 +49,16 @@ def _rotation_sq_distance(metric: str, A: np.ndarray, B: np.ndarray) -> np.ndarr
         from rbgp_cli.geometry.so3 import rotvec_from_quat
 
         # acos|<q1,q2>| = d_arc / 2
-        d = 0.5 * distance.pairwise_rotation_distance(rotvec_from_quat(A), rotvec_from_quat(B), metric="arc")
-        return d * d
+        d = distance.pairwise_rotation_distance(rotvec_from_quat(A), rotvec_from_quat(B), metric="arc")
+        d *= 0.5
+        return np.square(d, out=d)
     if metric in ("arc", "chordal"):
         if A.shape[-1] == 4:
             from rbgp_cli.geometry.so3 import rotvec_from_quat
 
             A, B = rotvec_from_quat(A), rotvec_from_quat(B)
         d = distance.pairwise_rotation_distance(A, B, metric=metric)
-        return d * d
+        return np.square(d, out=d)
     raise ValueError(f"unknown rotation metric {metric!r}; expected one of {ROTATION_METRICS}")
 
 
@@ -102,7 +103,8 @@ class SquaredExponential(Kernel):
         if self.learn_rho:
             return {"rot2": rot2, "trans2": trans2}
         rot2 *= self.rho_rot
-        rot2 += (1.0 - self.rho_rot) * trans2
+        trans2 *= 1.0 - self.rho_rot
+        rot2 += trans2
         return {"d2": rot2}
 
     def _d2(self, pre: dict, values: dict) -> np.ndarray:

@@ -154,6 +154,28 @@ def test_prediction_in_chunks_equals_prediction_at_once():
     assert np.all(s1 >= 0) and np.all(np.isfinite(m1))
 
 
+@pytest.mark.parametrize("shared", [False, True])
+def test_prediction_on_threads_equals_serial_prediction(monkeypatch, shared):
+    """Large predictions run in row chunks on a thread pool: same numbers as one serial pass,
+    every row written (the output arrays start uninitialised), clipped variances counted."""
+    import rbgp_cli.gp.exact as exact
+
+    X = poses(60, 14)
+    Y = smooth_outputs(X, np.random.default_rng(14))
+    gp = fit_gp(X, Y, SquaredExponential("arc", 3, 0.7), restarts=1, shared=shared)
+    Xs = poses(2001, 15)
+    monkeypatch.setattr(exact, "PARALLEL_PREDICT_MIN", 10**12)
+    m1, s1 = gp.predict(Xs, return_std=True, noisy=True)
+    c1 = gp.last_clipped
+    monkeypatch.setattr(exact, "PARALLEL_PREDICT_MIN", 0)
+    monkeypatch.setattr(exact, "_prediction_workers", lambda work: 3)  # 3 workers even on 1 core
+    m2, s2 = gp.predict(Xs, return_std=True, noisy=True, chunk_elements=60 * 101)
+    np.testing.assert_allclose(m2, m1, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(s2, s1, rtol=1e-10, atol=1e-12)
+    assert gp.last_clipped == c1
+    np.testing.assert_allclose(gp.predict(Xs[:5]), m1[:5], rtol=1e-10, atol=1e-12)
+
+
 def test_indefinite_kernel_points_are_infeasible_not_errors():
     """On the 8-rotation counterexample with tiny noise, long length-scales make K + σn²I indefinite:
     the NLML reports the point as infeasible instead of raising, and the fit still returns a model
