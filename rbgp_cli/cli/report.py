@@ -31,6 +31,11 @@ def format_train_summary(s: dict) -> str:
         if o["n_infeasible"]:
             flags.append(f"{o['n_infeasible']}/{o['n_evaluations']} evaluations infeasible")
         lines.append(f"  {o['output']:<7} NLML {o['nlml']:11.4g}  {_fmt_values(o['values'])}" + (f"  [{'; '.join(flags)}]" if flags else ""))
+    explored = [o["subsample"] for o in s["outputs"] if o.get("subsample")]
+    if explored:
+        lines.append(f"optimiser: starts explored a random subset of {explored[0]['size']} points first "
+                     f"({sum(e['evaluations'] for e in explored)} evaluations there, "
+                     f"{sum(o['n_evaluations'] for o in s['outputs'])} on all points; --explore-size 0 turns this off)")
     sg = s["safeguards"]
     lines.append(
         f"safeguards: {'all covariances positive definite' if sg['all_positive_definite'] else 'jitter was needed'}"

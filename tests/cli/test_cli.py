@@ -218,3 +218,23 @@ def test_csv_and_mcap_give_the_same_model(tmp_path):
 def test_mcap_topic_pattern_errors_name_the_topics():
     res = run("train", MCAP, "--topic", "/hand/*", "-o", "/tmp/never.rbgp")
     assert_one_line_error(res, 2, "/hand/*")
+
+
+def test_train_explore_size_reaches_the_fit_and_the_provenance(tmp_path):
+    """--explore-size N: above 2N training points the starts explore N points first (reported per
+    output and recorded in the model's provenance); 0 runs every start on all points."""
+    base = ["--max-points", "150", "--restarts", "2", "--share-hyperparameters", "--json"]
+    on, off = tmp_path / "on.rbgp", tmp_path / "off.rbgp"
+    res = run("train", CSV_DIR, "-o", on, *base, "--explore-size", "50")
+    assert res.exit_code == 0, res.stderr
+    sub = json.loads(res.stdout)["outputs"][0]["subsample"]
+    assert sub["size"] == 50 and sub["evaluations"] > 0
+    res = run("train", CSV_DIR, "-o", off, *base, "--explore-size", "0")
+    assert res.exit_code == 0, res.stderr
+    assert json.loads(res.stdout)["outputs"][0]["subsample"] is None
+    info = json.loads(run("info", on, "--json").stdout)
+    assert info["provenance"]["train_options"]["explore_size"] == 50
+    assert run("train", CSV_DIR, "-o", tmp_path / "bad.rbgp", "--explore-size", "-1").exit_code == 2
+    assert not (tmp_path / "bad.rbgp").exists()
+    text = run("train", CSV_DIR, "-o", on, *base[:-1], "--explore-size", "50")
+    assert "explored a random subset of 50 points" in text.stderr
