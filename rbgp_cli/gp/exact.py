@@ -641,6 +641,8 @@ def _fit_gp(X, Y, kernel, noise, restarts, seed, shared, fixed, bounds, max_iter
         )
         fits.append(fit)
         if progress is not None:
-            progress(f"{label}: NLML {fit.nlml:.4g} after {fit.n_evaluations} evaluations"
+            explored = (f" + {sub_info['evaluations']} on a {sub_info['size']}-point subset"
+                        if sub_info else "")
+            progress(f"{label}: NLML {fit.nlml:.4g} after {fit.n_evaluations} evaluations{explored}"
                      f" ({fit.n_infeasible} infeasible), {fit.seconds:.2f} s")
     return GaussianProcess(kernel, X, Y, fits, shared=shared, y_scale=scale)

@@ -25,6 +25,17 @@ def smooth_outputs(X, rng, noise=0.02):
     return Y + noise * rng.normal(size=Y.shape)
 
 
+def assert_stationary_or_at_bounds(gp, kernel, X, Y):
+    """∂NLML/∂log θ ≈ 0 on all training points for every free hyperparameter not at a bound."""
+    pre = kernel.precompute(X)
+    for l, fit in enumerate(gp.fits):
+        y = Y / gp.y_scale if gp.shared else Y[:, l]
+        _, g = nlml_and_gradient(kernel, pre, fit.values, y, fit.free)
+        for name, gi in zip(fit.free, g):
+            if name not in fit.at_bounds:
+                assert abs(gi) < 1e-2 * max(1.0, abs(fit.nlml)) ** 0.5, (name, gi)
+
+
 KERNELS = [
     ("arc", lambda: SquaredExponential("arc", 3, 0.7)),
     ("arc-learn-rho", lambda: SquaredExponential("arc", 3, 0.7, learn_rho=True)),
@@ -86,13 +97,8 @@ def test_fit_ends_at_a_stationary_point_or_a_bound(shared):
     Y = smooth_outputs(X, np.random.default_rng(3))[:, :3]
     k = SquaredExponential("chordal", 3, 0.7, learn_rho=True)
     gp = fit_gp(X, Y, k, restarts=2, seed=1, shared=shared)
-    pre = k.precompute(X)
-    for l, fit in enumerate(gp.fits):
-        y = Y / gp.y_scale if shared else Y[:, l]
-        _, g = nlml_and_gradient(k, pre, fit.values, y, fit.free)
-        for name, gi in zip(fit.free, g):
-            if name not in fit.at_bounds:
-                assert abs(gi) < 1e-2 * max(1.0, abs(fit.nlml)) ** 0.5, (name, gi)
+    assert_stationary_or_at_bounds(gp, k, X, Y)
+    for fit in gp.fits:
         assert fit.positive_definite and fit.jitter == 0.0
 
 
@@ -274,14 +280,7 @@ def test_subsample_exploration_reaches_the_optimum_of_full_size_restarts(shared)
             assert f_sub.values[nm] == pytest.approx(f_full.values[nm], rel=1e-2), nm
         assert f_again.values == f_sub.values
     assert sum(f.n_evaluations for f in sub.fits) < 0.7 * sum(f.n_evaluations for f in full.fits)
-    # the optimum is one on all points: gradient ≈ 0 where no bound is active
-    pre = kernel.precompute(X)
-    for l, fit in enumerate(sub.fits):
-        y = Y / sub.y_scale if shared else Y[:, l]
-        _f, g = nlml_and_gradient(kernel, pre, fit.values, y, fit.free)
-        for nm, gi in zip(fit.free, g):
-            if nm not in fit.at_bounds:
-                assert abs(gi) < 1e-2 * max(1.0, abs(fit.nlml)) ** 0.5, (nm, gi)
+    assert_stationary_or_at_bounds(sub, kernel, X, Y)  # an optimum on all points, not the subsample's
     with pytest.raises(ValueError, match="explore_size"):
         fit_gp(X, Y, kernel, explore_size=-1)
 
