@@ -11,6 +11,7 @@ tie-break (u_z = 0, u_z = u_y = 0, negative components).
 
 from __future__ import annotations
 
+import io
 import math
 
 import numpy as np
@@ -210,3 +211,22 @@ def ry(a):
 def rz(a):
     c, s = np.cos(np.radians(a)), np.sin(np.radians(a))
     return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+
+class NonSeekable(io.RawIOBase):
+    """A byte stream that cannot seek and returns at most ``chunk`` bytes per read, like a pipe."""
+
+    def __init__(self, data: bytes, chunk: int = 777):
+        self._b = io.BytesIO(data)
+        self._chunk = int(chunk)
+
+    def readable(self):
+        return True
+
+    def seekable(self):
+        return False
+
+    def readinto(self, b):
+        part = self._b.read(min(len(b), self._chunk))
+        b[: len(part)] = part
+        return len(part)

@@ -15,6 +15,8 @@ from rbgp_cli.errors import InputError, RbgpWarning
 from rbgp_cli.io import mcap as rmcap
 from rbgp_cli.io.options import ReadOptions
 
+from tests.helpers import NonSeekable
+
 from . import mcap_fixtures as F
 
 ROS_TYPES = [
@@ -326,22 +328,6 @@ def test_unfinished_recording_recovers_complete_chunks(tmp_path):
 
 
 # -------------------------------------------------------------------------------------------- streams
-class NonSeekable(io.RawIOBase):
-    def __init__(self, data: bytes):
-        self._b = io.BytesIO(data)
-
-    def readable(self):
-        return True
-
-    def seekable(self):
-        return False
-
-    def readinto(self, b):
-        chunk = self._b.read(min(len(b), 777))  # short reads, like a pipe
-        b[: len(chunk)] = chunk
-        return len(chunk)
-
-
 def test_non_seekable_stream_reads_the_same(tmp_path):
     p = tmp_path / "two.mcap"
     truth = F.write_ros2_topics(p, {"/a": "geometry_msgs/msg/PoseStamped", "/b": "nav_msgs/msg/Odometry"})

@@ -19,6 +19,8 @@ from rbgp_cli.io.csv import write_trajectories_csv
 from rbgp_cli.io.inspect import format_inspect, inspect_file
 from rbgp_cli.io.options import ReadOptions
 
+from tests.helpers import NonSeekable
+
 from . import mcap_fixtures as F
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -140,7 +142,7 @@ def test_stdin_csv_and_mcap(tmp_path):
     assert out[0].source == "-" and out[0].name == "stdin" and len(out[0]) == 3
     m = tmp_path / "b.mcap"
     stamps, pos, q = F.write_protobuf(m, "PoseInFrame")
-    for stream in (io.BytesIO(m.read_bytes()), io.BufferedReader(_NonSeekable(m.read_bytes()))):
+    for stream in (io.BytesIO(m.read_bytes()), io.BufferedReader(NonSeekable(m.read_bytes(), chunk=5))):
         tr = rread.read_demonstrations(["-"], stdin=stream)[0]
         np.testing.assert_allclose(tr.position, pos[0], atol=1e-12)
         np.testing.assert_allclose(tr.t, stamps / 1e9, atol=1e-9)
@@ -161,22 +163,6 @@ def test_stdin_terminal_is_refused():
 
     with pytest.raises(InputError, match="stdin is a terminal"):
         rread.read_demonstrations(["-"], stdin=Tty(CSV_TEXT.encode()))
-
-
-class _NonSeekable(io.RawIOBase):
-    def __init__(self, data):
-        self._b = io.BytesIO(data)
-
-    def readable(self):
-        return True
-
-    def seekable(self):
-        return False
-
-    def readinto(self, b):
-        chunk = self._b.read(min(len(b), 5))  # very short reads
-        b[: len(chunk)] = chunk
-        return len(chunk)
 
 
 def test_real_pipe_in_a_subprocess(tmp_path):
