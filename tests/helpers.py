@@ -32,13 +32,9 @@ TIE_ATOL = 2 * PI_TOLERANCE
 
 def rotation_angle_between(r1, r2) -> np.ndarray:
     """Angle (rad) of ``R1ᵀ R2`` for rotation vectors (..., 3), by scipy. Shape (...)."""
-    r1 = np.asarray(r1, dtype=float)
-    r2 = np.asarray(r2, dtype=float)
-    r1, r2 = np.broadcast_arrays(r1, r2)
-    shape = r1.shape[:-1]
-    a = Rotation.from_rotvec(r1.reshape(-1, 3))
-    b = Rotation.from_rotvec(r2.reshape(-1, 3))
-    return (a.inv() * b).magnitude().reshape(shape)
+    r1, r2 = np.broadcast_arrays(np.asarray(r1, dtype=float), np.asarray(r2, dtype=float))
+    to_quat = lambda r: Rotation.from_rotvec(r.reshape(-1, 3)).as_quat().reshape(r.shape[:-1] + (4,))  # noqa: E731
+    return quat_angle_between(to_quat(r1), to_quat(r2))
 
 
 def quat_angle_between(q1, q2) -> np.ndarray:
