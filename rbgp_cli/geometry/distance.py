@@ -52,6 +52,11 @@ __all__ = [
     "pairwise_s3_angle",
     "pairwise_sq_distance",
     "weighted_se3_sq_distance",
+    "unit_quats",
+    "unit_quats_transposed",
+    "gram_sq_rotation_distance",
+    "sq_distance_plan",
+    "planned_sq_distance",
 ]
 
 #: Pairs whose S³ angle φ = d_arc/2 is below this (rad) are recomputed by the difference formula.
@@ -66,6 +71,9 @@ _BLOCK_ELEMENTS = 65_536
 _PARALLEL_MIN_WORK = 200_000
 #: Above this fraction of close pairs in a block, their precise distances are computed densely.
 _DENSE_FRACTION = 0.02
+#: Threads for the row blocks: None = up to 4 (at most the CPU count); 1 computes on the calling
+#: thread (set in rbgp's worker processes, which run one per core already).
+THREADS: int | None = None
 _EXECUTOR: ThreadPoolExecutor | None = None
 _EXECUTOR_PID: int | None = None
 
@@ -177,7 +185,7 @@ def _run_blocks(n: int, m: int, block) -> None:
     """
     rows = max(_BLOCK_ROWS, -(-_BLOCK_ELEMENTS // max(m, 1)))
     slices = [slice(i, min(i + rows, n)) for i in range(0, n, rows)]
-    if n * m >= _PARALLEL_MIN_WORK and len(slices) > 1:
+    if n * m >= _PARALLEL_MIN_WORK and len(slices) > 1 and THREADS != 1:
         for f in [_executor().submit(block, sl) for sl in slices]:
             f.result()
     else:
@@ -376,3 +384,96 @@ def weighted_se3_sq_distance(g_a, g_b, rho_rot: float = 0.7, metric: str = "arc"
     d_t2 *= 1.0 - rho
     d_rot += d_t2
     return d_rot
+
+
+# ----------------------------------------------------------------------------------------------
+# Squared distances for kernels: one matrix product per block (predictions, rollouts)
+# ----------------------------------------------------------------------------------------------
+
+
+def unit_quats(rot, rotation_dims: int) -> np.ndarray:
+    """Unit quaternions (n, 4) of rotation vectors (n, 3) or of quaternions (n, 4) (x, y, z, w,
+    any sign and norm): the left-hand side of :func:`gram_sq_rotation_distance`."""
+    rot = _as_rows(rot, rotation_dims, "unit_quats rot")
+    return quat_normalize(quat_from_rotvec(rot) if rotation_dims == 3 else rot)
+
+
+def unit_quats_transposed(rot, rotation_dims: int) -> np.ndarray:
+    """:func:`unit_quats` as a C-contiguous (4, n) array: the right-hand side of
+    :func:`gram_sq_rotation_distance`."""
+    return np.ascontiguousarray(unit_quats(rot, rotation_dims).T)
+
+
+def gram_sq_rotation_distance(qa, qbt, metric: str = "arc", scale: float = 1.0, out=None) -> np.ndarray:
+    """Squared rotation distances of all pairs from ONE matrix product of unit quaternions.
+
+    ``G = qa @ qbt`` with ``qa`` (m, 4) and ``qbt`` (4, n) unit quaternions (the second set
+    transposed, see :func:`unit_quats_transposed`), ``c = min(|G|, 1)``, then elementwise
+
+    * ``"arc"``: ``d² = 4·acos²(c)`` (the square of :func:`arc_distance_quat`);
+    * ``"chordal"``: ``d² = 4·(1 − G²)`` (clipped at 0; the square of :func:`chordal_distance_quat`);
+    * ``"s3"``: ``d² = acos²(c)`` (the square of :func:`pairwise_s3_angle`).
+
+    Returns ``scale · d²``, shape (m, n), written into ``out`` if given. Accuracy, without a small-angle branch: the
+    *squares* are smooth functions of c at c = 1 (``d acos²(c)/dc -> −2``), so the ~2e-16 error of c
+    (a 4-term dot product of unit vectors) moves d² by at most ~1e-15 absolute, everywhere. That is
+    what a kernel ``exp(−d²/2λ²)`` needs (relative error ≲ 1e-15/λ²); it is not a relative accuracy
+    of tiny distances themselves, for which :func:`pairwise_rotation_distance` keeps its precise
+    branch (module doc). The work is one matmul and 3–5 passes over the (m, n) block.
+    """
+    if metric not in ("arc", "chordal", "s3"):
+        raise ValueError(f"metric must be one of ('arc', 'chordal', 's3'), got {metric!r}")
+    qa = np.ascontiguousarray(qa, dtype=np.float64)
+    G = np.matmul(qa, qbt, out=out)
+    if metric == "chordal":
+        np.square(G, out=G)
+        np.subtract(1.0, G, out=G)
+        np.maximum(G, 0.0, out=G)
+        G *= 4.0 * scale
+        return G
+    np.abs(G, out=G)
+    np.minimum(G, 1.0, out=G)
+    np.arccos(G, out=G)
+    np.square(G, out=G)
+    factor = (4.0 if metric == "arc" else 1.0) * scale
+    if factor != 1.0:
+        G *= factor
+    return G
+
+
+def sq_distance_plan(b) -> dict:
+    """The hyperparameter-free part of :func:`planned_sq_distance` for a fixed second set b (n, k)."""
+    b = _as_rows(b, None, "sq_distance_plan b")
+    centre = b.mean(axis=0) if len(b) else np.zeros(b.shape[1])
+    bc = b - centre
+    # columns of [−2·b_c, ‖b_c‖², 1] (rows of the transposed matrix), so that
+    # [a_c, 1, ‖a_c‖²] @ rhs = ‖a_c‖² − 2⟨a_c, b_c⟩ + ‖b_c‖²
+    rhs = np.empty((b.shape[1] + 2, len(b)))
+    rhs[:-2] = -2.0 * bc.T
+    rhs[-2] = np.einsum("ij,ij->i", bc, bc)
+    rhs[-1] = 1.0
+    return {"centre": centre, "rhs": rhs, "k": b.shape[1]}
+
+
+def planned_sq_distance(plan: dict, a, scale: float = 1.0, offset: float = 0.0, out=None) -> np.ndarray:
+    """``scale · ‖a_i − b_j‖² + offset`` for all pairs, shape (m, n), by one matrix product with the
+    plan of b (:func:`sq_distance_plan`): ``‖a_c‖² − 2⟨a_c, b_c⟩ + ‖b_c‖²`` after subtracting b's mean
+    from both (which keeps the norms, and so the cancellation, small); ``scale`` and ``offset`` are
+    folded into the product. ``‖a_i − b_j‖²`` is clipped at 0 where ``scale > 0`` (round-off can make
+    it about −1e-16). Absolute error about ``1e-16 · (‖a_c‖² + ‖b_c‖²)`` (exact to round-off:
+    :func:`pairwise_sq_distance`)."""
+    a = _as_rows(a, plan["k"], "planned_sq_distance a")
+    ac = a - plan["centre"]
+    lhs = np.empty((len(a), plan["k"] + 2))
+    lhs[:, :-2] = ac
+    lhs[:, -2] = 1.0
+    lhs[:, -1] = np.einsum("ij,ij->i", ac, ac)
+    if scale != 1.0:
+        lhs *= scale
+    if offset != 0.0:
+        lhs[:, -1] += offset  # multiplies the row of ones
+    D = np.matmul(lhs, plan["rhs"], out=out)
+    if scale > 0:
+        np.maximum(D, offset, out=D)
+    return D
+

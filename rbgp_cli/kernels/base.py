@@ -13,7 +13,10 @@ distances, inner products) are computed once per fit:
 * ``grad_contract(pre, values, K, state, W, names) -> ndarray``: ``Σ_ij W_ij ∂K_ij/∂log θ`` for the
   named hyperparameters, which is all the marginal-likelihood gradient needs (R&W eq. 5.9) without
   materialising an (n, n, p) tensor;
-* ``gram_with_gradient(Xa, values, names)``: K and the full dK/dlogθ, shape (n, n, p), for tests.
+* ``gram_with_gradient(Xa, values, names)``: K and the full dK/dlogθ, shape (n, n, p), for tests;
+* ``cross_plan(Xb)`` and ``cross_precompute(plan, Xa)``: the same pairwise arrays as
+  ``precompute(Xa, Xb)`` for many query blocks Xa against one fixed Xb (predictions, rollouts),
+  with Xb's part computed once; ``cross_gram(plan, Xa, values)``: K(Xa, Xb) directly.
 """
 
 from __future__ import annotations
@@ -89,6 +92,23 @@ class Kernel:
     def diag(self, X: np.ndarray, values: dict) -> np.ndarray:
         """Prior variance k(x, x), shape (m,)."""
         raise NotImplementedError
+
+    # -- predictions: many query blocks against one fixed second set (the training inputs) --------
+    def cross_plan(self, Xb: np.ndarray) -> dict:
+        """Hyperparameter-free data of the fixed second argument Xb (n, d) of K(Xa, Xb), computed
+        once and reused by :meth:`cross_precompute` for every query block (predictions, rollouts)."""
+        return {"Xb": np.ascontiguousarray(Xb, dtype=np.float64)}
+
+    def cross_precompute(self, plan: dict, Xa: np.ndarray) -> dict:
+        """``precompute(Xa, Xb)`` for the Xb of ``plan``, for :meth:`gram`. Kernels may compute it
+        faster, equal to ``precompute`` up to round-off in K (each kernel says how close)."""
+        return self.precompute(Xa, plan["Xb"])
+
+    def cross_gram(self, plan: dict, Xa: np.ndarray, values: dict) -> np.ndarray:
+        """K(Xa, Xb), shape (m, n), for the Xb of ``plan``: :meth:`gram` of :meth:`cross_precompute`
+        (kernels may fuse the two for one set of hyperparameters)."""
+        K, _ = self.gram(self.cross_precompute(plan, Xa), values)
+        return K
 
     def default_hyperparameters(self, pre: dict, y: np.ndarray) -> dict:
         """Data-driven start values (MATH.md §7) and bounds, as ``{name: Hyperparameter}``."""

@@ -35,6 +35,8 @@ from rbgp_cli.kernels.base import Hyperparameter, Kernel, fdot, output_scale
 __all__ = ["SquaredExponential", "ROTATION_METRICS"]
 
 ROTATION_METRICS = ("arc", "chordal", "euclidean", "s3")
+#: Smallest exponent −d²/(2λ²) used in K (see :meth:`SquaredExponential.gram`).
+MIN_EXPONENT = -345.0
 
 
 def _rotation_sq_distance(metric: str, A: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -107,6 +109,69 @@ class SquaredExponential(Kernel):
         rot2 += trans2
         return {"d2": rot2}
 
+    def cross_plan(self, Xb) -> dict:
+        """Training-side data for :meth:`cross_precompute`: unit quaternions (4, n) of the rotations
+        (or the Euclidean plan of the rotation coordinates) and the plan of the translations."""
+        from rbgp_cli.geometry import distance
+
+        Xb = np.ascontiguousarray(Xb, dtype=np.float64)
+        k = self.rotation_dims
+        plan = {"Xb": Xb, "trans": distance.sq_distance_plan(Xb[:, k:])}
+        if self.metric == "euclidean":
+            plan["rot"] = distance.sq_distance_plan(Xb[:, :k])
+        else:
+            if self.metric == "s3" and k != 4:
+                raise ValueError("the 's3' rotation metric needs quaternion inputs (x, y, z, w)")
+            plan["quat_t"] = distance.unit_quats_transposed(Xb[:, :k], k)
+        return plan
+
+    def cross_precompute(self, plan, Xa) -> dict:
+        """:meth:`precompute` (Xa, Xb) for query rows Xa (m, d) against the plan's Xb, from matrix
+        products (:func:`~rbgp_cli.geometry.distance.gram_sq_rotation_distance`,
+        :func:`~rbgp_cli.geometry.distance.planned_sq_distance`) instead of elementwise pair work.
+        d² agrees with :meth:`precompute` to ~1e-15 · (1 + ‖t‖²) absolute, so K to that over 2λ²
+        relative; the fit keeps the precise distances."""
+        from rbgp_cli.geometry import distance
+
+        Xa = np.asarray(Xa, dtype=np.float64)
+        k = self.rotation_dims
+        learn = self.learn_rho
+        rho = 1.0 if learn else self.rho_rot
+        if self.metric == "euclidean":
+            rot2 = distance.planned_sq_distance(plan["rot"], Xa[:, :k], rho)
+        else:
+            qa = distance.unit_quats(Xa[:, :k], k)
+            rot2 = distance.gram_sq_rotation_distance(qa, plan["quat_t"], self.metric, rho)
+        trans2 = distance.planned_sq_distance(plan["trans"], Xa[:, k:], 1.0 if learn else 1.0 - rho)
+        if learn:
+            return {"rot2": rot2, "trans2": trans2}
+        rot2 += trans2
+        return {"d2": rot2}
+
+    def cross_gram(self, plan, Xa, values) -> np.ndarray:
+        """K(Xa, Xb) = σf² exp(−d²/2λ²) for query rows Xa against the plan's Xb, fused for one set of
+        hyperparameters: the exponent ``−(1−ρ1)‖Δt‖²/2λ² + log σf²`` comes out of one matrix product
+        (:func:`~rbgp_cli.geometry.distance.planned_sq_distance` with the scale and offset folded in),
+        the rotation term is added from the quaternion Gram matrix, then one ``exp``. Equal to
+        :meth:`gram` of :meth:`precompute` to ~1e-15·(1 + ‖t‖²)/λ² relative (see
+        :meth:`cross_precompute`), with the same floor of the exponent (MIN_EXPONENT)."""
+        from rbgp_cli.geometry import distance
+
+        Xa = np.asarray(Xa, dtype=np.float64)
+        k = self.rotation_dims
+        rho = values["rho_rot"] if self.learn_rho else self.rho_rot
+        a = -0.5 / values["length_scale"] ** 2
+        log_sf2 = 2.0 * math.log(values["signal_std"])
+        E = distance.planned_sq_distance(plan["trans"], Xa[:, k:], a * (1.0 - rho), log_sf2)
+        if self.metric == "euclidean":
+            E += distance.planned_sq_distance(plan["rot"], Xa[:, :k], a * rho)
+        else:
+            qa = distance.unit_quats(Xa[:, :k], k)
+            E += distance.gram_sq_rotation_distance(qa, plan["quat_t"], self.metric, a * rho)
+        np.maximum(E, MIN_EXPONENT + log_sf2, out=E)
+        np.exp(E, out=E)
+        return E
+
     def _d2(self, pre: dict, values: dict) -> np.ndarray:
         if "d2" in pre:
             return pre["d2"]
@@ -117,10 +182,17 @@ class SquaredExponential(Kernel):
 
     # ------------------------------------------------------------------ Gram matrix and gradient
     def gram(self, pre: dict, values: dict):
-        """K = σf² exp(−d²/(2λ²)), shape (n, m). The returned state is d² (reused by the gradient)."""
+        """K = σf² exp(−d²/(2λ²)), shape (n, m). The returned state is d² (reused by the gradient).
+
+        Exponents below MIN_EXPONENT are raised to it: exp(−d²/2λ²) >= e⁻³⁴⁵ ≈ 1e-150 (relative to
+        σf²), which changes nothing that double precision resolves in C = K + σn²I, but keeps the
+        exp and everything downstream (Cholesky, the gradient, predictions) free of subnormal
+        numbers: with short length-scales on recorded motions ~1 % of the pairs underflowed into
+        them, and an evaluation at n = 1752 took 180 ms instead of ~150 ms (measured)."""
         d2 = self._d2(pre, values)
         lam = values["length_scale"]
         K = np.multiply(d2, -0.5 / (lam * lam))
+        np.maximum(K, MIN_EXPONENT, out=K)
         np.exp(K, out=K)
         K *= values["signal_std"] ** 2
         return K, d2
