@@ -14,7 +14,7 @@ import numpy as np
 from rbgp_cli.dynamics.representations import Representation, make_representation
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError
-from rbgp_cli.gp.exact import GaussianProcess, fit_gp
+from rbgp_cli.gp.exact import GaussianProcess, default_jobs, fit_gp
 from rbgp_cli.kernels import DotProduct, Kernel, SquaredExponential
 
 __all__ = ["MotionModel", "make_kernel", "training_set", "train_model", "KERNELS"]
@@ -123,12 +123,15 @@ def train_model(
     euler_order: str = "xyz",
     progress=None,
     explore_size: int | None = None,
+    jobs: int | None = None,
 ) -> MotionModel:
     """Train a motion model on clean demonstrations (see :func:`rbgp_cli.dynamics.prepare.prepare_all`).
 
     ``rho_rot`` is ρ1 of eq. 19 (a number in (0, 1)) or ``"learn"``. ``noise`` is None to learn σn or
     a fixed standard deviation. ``explore_size``: the optimiser's starts explore a random subset of
-    this many training points first (see :func:`rbgp_cli.gp.exact.fit_gp`; None: its default, 0: off). Returns the model; its ``summary`` holds demos, pairs, points, the
+    this many training points first (see :func:`rbgp_cli.gp.exact.fit_gp`; None: its default, 0: off). ``jobs``:
+    worker processes for the per-output fits (None: :func:`rbgp_cli.gp.exact.default_jobs`, one per
+    usable core, 1 inside a worker process). Returns the model; its ``summary`` holds demos, pairs, points, the
     hyperparameters and NLML per output, the safeguards used and the time taken.
     """
     t0 = time.perf_counter()
@@ -142,8 +145,10 @@ def train_model(
     if progress:
         progress(f"{len(trajs)} demonstrations, {info['pairs']} pairs, training on {info['points']} points "
                  f"({rep.name}, kernel {kernel}, {'shared' if shared else 'per-output'} hyperparameters)")
+    if jobs is None:
+        jobs = default_jobs(1 if shared else Y.shape[1])
     gp = fit_gp(X, Y, kern, noise=noise, restarts=restarts, seed=seed, shared=shared, progress=progress,
-                explore_size=explore_size)
+                explore_size=explore_size, jobs=jobs)
     dts = np.concatenate([np.diff(tr.t) for tr in trajs])
     starts = np.array([np.concatenate([tr.quat[0], tr.position[0]]) for tr in trajs])
     durations = np.array([tr.duration for tr in trajs])
