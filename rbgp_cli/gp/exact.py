@@ -485,11 +485,17 @@ class _Objective:
         return v
 
     def __call__(self, theta):
+        theta = np.array(theta, dtype=np.float64)
+        last = getattr(self, "_last", None)
+        if last is not None and np.array_equal(last[0], theta):
+            # the same point again (L-BFGS-B's first call at a start we have just checked)
+            return last[1], last[2].copy()
         self.counter["evals"] += 1
         # looked up at call time: the benchmarks time the evaluations by wrapping this function
         f, g = nlml_and_gradient(self.kernel, self.pre, self.values_of(theta), self.y, self.free, self.margin)
         if f >= INFEASIBLE_NLML:
             self.counter["infeasible"] += 1
+        self._last = (theta, f, np.array(g))
         return f, g
 
 
@@ -506,9 +512,12 @@ def _fit_one(kernel, pre, y, spec, free, restarts, rng, max_iter, margin=0.0, th
     obj = _Objective(kernel, pre, y, spec, free, margin)
     log_bounds = obj.log_bounds
     penalty = {"ref": None}
+    seen = {"best": None}
 
     def objective(theta):
         f, g = obj(theta)
+        if f < INFEASIBLE_NLML and (seen["best"] is None or f < seen["best"][1]):
+            seen["best"] = (np.array(theta, dtype=np.float64), f)
         if f >= INFEASIBLE_NLML and penalty["ref"] is not None:
             # Infeasible: report a value well above this run's start (so the line search backs
             # off) but not so far above that its interpolation collapses to a zero step, which
@@ -543,9 +552,13 @@ def _fit_one(kernel, pre, y, spec, free, restarts, rng, max_iter, margin=0.0, th
         if not free:
             res_x, res_f, msg = theta0, f0, "no free hyperparameters"
         else:
+            seen["best"] = None
             options = {"maxiter": max_iter} if ftol is None else {"maxiter": max_iter, "ftol": ftol}
             res = minimize(objective, theta0, jac=True, method="L-BFGS-B", bounds=log_bounds, options=options)
-            res_x, res_f, msg = res.x, float(res.fun), str(res.message)
+            msg = str(res.message)
+            # the best feasible point this run evaluated: after an abnormal line-search end res.x may be
+            # an infeasible trial point and res.fun the penalty (or another point's value)
+            res_x, res_f = seen["best"] if seen["best"] is not None else (res.x, INFEASIBLE_NLML)
         records.append({
             "start": {nm: float(math.exp(t)) for nm, t in zip(free, theta0)},
             "nlml": float(res_f),
@@ -973,7 +986,10 @@ def fit_gp(
     if jobs < 1:
         raise ValueError(f"jobs must be >= 1, got {jobs}")
     o = _FitOptions(noise=noise, restarts=restarts, fixed=fixed, bounds=bounds, max_iter=int(max_iter))
-    with blas_threads(len(X)):
+    # BLAS single-threaded whatever the machine: the optimiser's path must not depend on how busy the
+    # machine is (a 2-thread pool changes the round-off, and on the arc kernel's indefinite edge that
+    # changed an optimum), and parallelism comes from the worker processes
+    with blas_threads(0):
         return _fit_gp(X, Y, kernel, o, seed, shared, progress, explore, jobs)
 
 

@@ -231,3 +231,46 @@ def test_weighted_se3_sq_distance_default_is_the_papers():
     for bad in (-0.1, 1.5):
         with pytest.raises(ValueError, match="rho_rot"):
             dist.weighted_se3_sq_distance(g, g, rho_rot=bad)
+
+
+# ---------------------------------------------------------------------------------------------
+# Squared distances from one matrix product (the prediction path of the kernels)
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("metric", ["arc", "chordal", "s3"])
+def test_gram_sq_rotation_distance_equals_squared_elementwise(metric):
+    """d² from one matrix product of unit quaternions, without a small-angle branch, is within
+    ~1e-15 (absolute) of the square of the elementwise, precise distance — also for equal,
+    near-equal (1e-12 rad), sign-flipped and half-turn pairs (module doc of distance.py)."""
+    rng = np.random.default_rng(31)
+    a = _hard_rotation_set(rng, 80)
+    cluster = so3.compose_rotvec(a[0], rng.normal(size=(60, 3)) * 10.0 ** rng.uniform(-12, -2.5, (60, 1)))
+    elem = {"arc": dist.arc_distance, "chordal": dist.chordal_distance, "s3": lambda x, y: dist.arc_distance(x, y) / 2}[metric]
+    for x, y in [(a, a), (cluster, cluster), (cluster, a[::2])]:
+        qx = so3.quat_from_rotvec(x) * rng.choice([-1.0, 1.0], size=(len(x), 1)) * rng.uniform(0.5, 2, (len(x), 1))
+        got = dist.gram_sq_rotation_distance(dist.unit_quats(qx, 4), dist.unit_quats_transposed(y, 3), metric)
+        want = elem(x[:, None, :], y[None, :, :]) ** 2
+        assert got.shape == (len(x), len(y)) and np.all(got >= 0)
+        np.testing.assert_allclose(got, want, rtol=0, atol=8e-15)
+    scaled = dist.gram_sq_rotation_distance(dist.unit_quats(a, 3), dist.unit_quats_transposed(a[:7], 3), metric, -0.3)
+    np.testing.assert_allclose(scaled, -0.3 * elem(a[:, None, :], a[None, :7, :]) ** 2, rtol=0, atol=4e-15)
+    with pytest.raises(ValueError, match="metric"):
+        dist.gram_sq_rotation_distance(dist.unit_quats(a, 3), dist.unit_quats_transposed(a, 3), "euclidean")
+
+
+def test_planned_sq_distance_equals_direct_sums():
+    """‖a_i − b_j‖² from one product with b's plan (centred on b's mean): within ~1e-16 of the
+    squared norms even for points metres away from the origin; scale and offset folded in."""
+    rng = np.random.default_rng(4)
+    b = rng.normal(size=(90, 3)) * 0.3 + np.array([5.0, -3.0, 2.0])
+    a = np.concatenate([b[::3], b[:4] + 1e-9, rng.normal(size=(25, 3)) * 0.3 + np.array([5.0, -3.0, 2.0])])
+    plan = dist.sq_distance_plan(b)
+    want = np.sum((a[:, None, :] - b[None, :, :]) ** 2, axis=-1)
+    got = dist.planned_sq_distance(plan, a)
+    assert np.all(got >= 0)
+    np.testing.assert_allclose(got, want, rtol=0, atol=2e-15)
+    np.testing.assert_allclose(dist.planned_sq_distance(plan, a, -2.5, 0.7), -2.5 * want + 0.7, rtol=0, atol=1e-14)
+    euler = rng.uniform(-PI, PI, (40, 3))
+    np.testing.assert_allclose(dist.planned_sq_distance(dist.sq_distance_plan(euler), euler[:9]),
+                               np.sum((euler[:9, None] - euler[None]) ** 2, -1), rtol=0, atol=1e-13)

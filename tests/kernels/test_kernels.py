@@ -133,3 +133,25 @@ def test_kernel_description_round_trips(name, make):
     k2 = kernel_from_dict(k.to_dict())
     X = poses(5, 2, quat=k.rotation_dims == 4)
     np.testing.assert_array_equal(k(X, None, values_for(k)), k2(X, None, values_for(k)))
+
+
+@pytest.mark.parametrize("name,make", ALL_KERNELS)
+@pytest.mark.parametrize("learn", [False, True])
+def test_prediction_path_matches_the_training_path(name, make, learn):
+    """cross_precompute / cross_gram (matrix products, used by predictions and rollouts) give the
+    same K(Xa, Xb) as precompute (the precise pairwise distances): d² to ~1e-15 absolute, so K to
+    ~1e-15/λ² relative, also for query points equal to or 1e-9 from training points, and with short
+    length-scales (exponents below the underflow floor)."""
+    k = make(learn)
+    quat = k.rotation_dims == 4
+    Xb = poses(50, 8, quat=quat)
+    Xb[:, -3:] += np.array([3.0, -2.0, 1.0])  # metres from the origin
+    Xa = np.concatenate([Xb[:6], Xb[6:10] + 1e-9, poses(15, 9, quat=quat)[:, :] + np.r_[np.zeros(Xb.shape[1] - 3), [3.0, -2.0, 1.0]]])
+    plan = k.cross_plan(Xb)
+    for lam in (0.7, 0.02):
+        vals = {**values_for(k), "length_scale": lam}
+        want = k(Xa, Xb, vals)
+        K_pre, _ = k.gram(k.cross_precompute(plan, Xa), vals)
+        rtol = 4e-15 / lam**2
+        np.testing.assert_allclose(K_pre, want, rtol=rtol, atol=1e-15)
+        np.testing.assert_allclose(k.cross_gram(plan, Xa, vals), want, rtol=rtol, atol=1e-15)
