@@ -17,10 +17,22 @@ Measured in one run:
 * both must give the same poses (max abs difference of quaternions and positions ≤ 1e-9);
 * batched with ``with_std=True`` (adds one triangular solve per step);
 * batched Monte Carlo: ``samples=5`` from fewer starts (``--sample-starts``, default 20);
-* where one batched step's time goes (distance block, kernel, mean, integration step), median over
-  many steps.
+* the batched rollout through the prediction path before issue 11 (pairwise distances with the
+  precise small-angle branch for every query block, then the kernel: the kernel's
+  ``cross_precompute`` / ``cross_gram`` replaced by ``precompute``; the rest of the code is today's):
+  time, and the largest difference of the poses (≤ 1e-9);
+* where one batched step's time goes (the kernel block from matrix products, the old distance
+  path, kernel, mean, integration step), median over many steps.
 
-Target: batched ≥ 3× faster than one at a time.
+With ``--baseline REV`` (e.g. ``main`` or a commit) the same model, saved to a model file, is also
+rolled out by the library as it was at REV (``git archive REV`` into a temporary folder, run in a
+subprocess with the same BLAS thread limit), alternating with today's code ``--rounds`` times: the
+same batched rollout, with ``with_std=True`` and with ``samples=5``; times and the largest pose
+difference.
+
+Targets: batched ≥ 3× faster than one at a time; (issue 11) batched ≥ 3× faster than the batched
+rollout of the baseline (or, without one, of the old distance path) with the same poses to 1e-9, and
+with ``samples`` the same per-sample cost.
 """
 
 from __future__ import annotations
@@ -41,7 +53,7 @@ from _common import blas_line, fmt_s, limit_blas_threads, machine_line, median_t
 from rbgp_cli.dynamics.model import MotionModel  # noqa: E402
 from rbgp_cli.dynamics.representations import AxisAngle  # noqa: E402
 from rbgp_cli.dynamics.rollout import rollout, rollout_one_at_a_time, starts_near  # noqa: E402
-from rbgp_cli.gp.exact import fit_gp  # noqa: E402
+from rbgp_cli.gp.exact import GaussianProcess, fit_gp  # noqa: E402
 from rbgp_cli.kernels import SquaredExponential  # noqa: E402
 
 DT = 0.01
@@ -62,6 +74,82 @@ def build_model(n: int, metric: str, seed: int = 0):
     return model, info
 
 
+class OldDistancePath:
+    """The kernel as the prediction path used it before issue 11: the pairwise distances of every
+    query block with the precise small-angle branch (``precompute``), then ``gram``."""
+
+    def __init__(self, kernel):
+        self._k = kernel
+
+    def __getattr__(self, name):
+        return getattr(self._k, name)
+
+    def cross_precompute(self, plan, Xa):
+        return self._k.precompute(Xa, plan["Xb"])
+
+    def cross_gram(self, plan, Xa, values):
+        K, _ = self._k.gram(self._k.precompute(Xa, plan["Xb"]), values)
+        return K
+
+
+def with_old_distance_path(model):
+    """The same model (same fit, same factors) predicting through :class:`OldDistancePath`."""
+    gp = model.gp
+    twin = GaussianProcess(OldDistancePath(gp.kernel), gp.X, gp.Y, gp.fits, shared=gp.shared, y_scale=gp.y_scale,
+                           factors=list(zip(gp._L, gp._alpha)))
+    return MotionModel(model.representation, twin, model.dt, model.starts, model.durations)
+
+
+BASELINE_SCRIPT = r"""
+import json, sys, time
+import numpy as np
+blas = int(sys.argv[3])
+if blas > 0:
+    from threadpoolctl import threadpool_limits
+    _limits = threadpool_limits(limits=blas)
+from rbgp_cli.io.model_store import load_model
+from rbgp_cli.dynamics.rollout import rollout
+model, _ = load_model(sys.argv[1])
+z = np.load(sys.argv[2])
+q0, p0, steps, k = z["q0"], z["p0"], int(z["steps"]), int(z["sample_starts"])
+rollout(model, q0[:2], p0[:2], 3, with_std=False)  # warm-up
+out = {}
+t0 = time.perf_counter(); r = rollout(model, q0, p0, steps, with_std=False); out["batched_s"] = time.perf_counter() - t0
+np.savez(sys.argv[4], quat=r.quat, position=r.position)
+if int(z["extras"]):
+    t0 = time.perf_counter(); rollout(model, q0, p0, steps, with_std=True); out["batched_std_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter(); rollout(model, q0[:k], p0[:k], steps, samples=5, seed=0, with_std=False)
+    out["samples_s"] = time.perf_counter() - t0
+print(json.dumps(out))
+"""
+
+
+def baseline_source(rev: str, folder: str) -> str:
+    """``git archive REV`` of this repository, unpacked into ``folder``; returns the folder."""
+    import subprocess
+    import tarfile
+
+    root = Path(__file__).resolve().parents[1]
+    tar = Path(folder) / "src.tar"
+    with open(tar, "wb") as fh:
+        subprocess.run(["git", "-C", str(root), "archive", rev], stdout=fh, check=True)
+    with tarfile.open(tar) as tf:
+        tf.extractall(Path(folder) / "src")
+    return str(Path(folder) / "src")
+
+
+def run_baseline(src: str, model_path: str, starts_path: str, poses_path: str, blas: int | None) -> dict:
+    """One rollout run of the baseline library (a subprocess importing ``src``)."""
+    import subprocess
+
+    env = dict(os.environ, PYTHONPATH=src)
+    out = subprocess.run([sys.executable, "-c", BASELINE_SCRIPT, model_path, starts_path, str(blas or 0), poses_path],
+                         env=env, capture_output=True, text=True, cwd=src)
+    if out.returncode != 0:
+        raise RuntimeError(f"baseline rollout failed: {out.stderr[-2000:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def step_profile(model, q0, p0, repeats: int = 50) -> dict:
     """Median time of the parts of one batched step (B = len(q0)) at the start poses."""
     gp, rep = model.gp, model.representation
@@ -70,9 +158,11 @@ def step_profile(model, q0, p0, repeats: int = 50) -> dict:
     out = {}
     out["predict_mean_ms"] = median_time(lambda: gp.predict(state), repeats)[0] * 1e3
     out["predict_mean_std_ms"] = median_time(lambda: gp.predict(state, return_std=True), repeats)[0] * 1e3
+    plan = gp.kernel.cross_plan(gp.X)
+    out["kernel_block_ms"] = median_time(lambda: gp.kernel.cross_gram(plan, state, fit.values), repeats)[0] * 1e3
     pre = gp.kernel.precompute(state, gp.X)
-    out["distance_ms"] = median_time(lambda: gp.kernel.precompute(state, gp.X), repeats)[0] * 1e3
-    out["kernel_ms"] = median_time(lambda: gp.kernel.gram(pre, fit.values), repeats)[0] * 1e3
+    out["old_distance_ms"] = median_time(lambda: gp.kernel.precompute(state, gp.X), repeats)[0] * 1e3
+    out["old_kernel_ms"] = median_time(lambda: gp.kernel.gram(pre, fit.values), repeats)[0] * 1e3
     Ks, _ = gp.kernel.gram(pre, fit.values)
     alpha = gp._alpha[0] if hasattr(gp, "_alpha") else None
     if alpha is not None:
@@ -94,6 +184,9 @@ def main(argv=None) -> int:
     ap.add_argument("--markdown", default=None)
     ap.add_argument("--blas-threads", type=int, default=None,
                     help="limit numpy's and scipy's OpenBLAS (and OpenMP) to this many threads (default: leave as is)")
+    ap.add_argument("--baseline", default=None, metavar="REV",
+                    help="also roll out the same model with the library at this git revision (e.g. main)")
+    ap.add_argument("--rounds", type=int, default=2, help="alternating rounds of baseline and today's code (default 2)")
     args = ap.parse_args(argv)
     _limits = limit_blas_threads(args.blas_threads)  # noqa: F841 (kept alive for the whole run)
     n = args.n or (500 if args.quick else 1752)
@@ -127,6 +220,17 @@ def main(argv=None) -> int:
     travelled = np.linalg.norm(batched.position[:, -1] - batched.position[:, 0], axis=1)
     res["median_travel_m"] = float(np.median(travelled))
 
+    old_model = with_old_distance_path(model)
+    t0 = time.perf_counter()
+    old = rollout(old_model, q0, p0, steps, with_std=False)
+    res["old_path_s"] = time.perf_counter() - t0
+    res["load_old"] = os.getloadavg()[0]
+    res["old_max_abs_diff_quat"] = float(np.max(np.abs(batched.quat - old.quat)))
+    res["old_max_abs_diff_position"] = float(np.max(np.abs(batched.position - old.position)))
+    res["old_same_poses"] = max(res["old_max_abs_diff_quat"], res["old_max_abs_diff_position"]) <= 1e-9
+    res["old_ratio"] = res["old_path_s"] / res["batched_s"]
+    print(f"batched through the old distance path: {res['old_path_s']:.2f} s (load {res['load_old']:.1f})", flush=True)
+
     t0 = time.perf_counter()
     with_std = rollout(model, q0, p0, steps, with_std=True)
     res["batched_std_s"] = time.perf_counter() - t0
@@ -144,6 +248,39 @@ def main(argv=None) -> int:
     print(f"batched, samples=5 from {sample_starts} starts: {res['samples_s']:.2f} s "
           f"(the same {sample_starts} mean rollouts alone: {res['samples_baseline_s']:.2f} s)", flush=True)
 
+    if args.baseline:
+        import tempfile
+
+        from rbgp_cli.io.model_store import load_model, save_model
+
+        with tempfile.TemporaryDirectory() as tmp:
+            src = baseline_source(args.baseline, tmp)
+            model_path, starts_path = os.path.join(tmp, "model.rbgp"), os.path.join(tmp, "starts.npz")
+            save_model(model, model_path)
+            loaded, _ = load_model(model_path)
+            rollout(loaded, q0[:2], p0[:2], 3, with_std=False)  # warm-up
+            rounds = []
+            for rnd in range(args.rounds):
+                extras = rnd == 0
+                np.savez(starts_path, q0=q0, p0=p0, steps=steps, sample_starts=sample_starts, extras=int(extras))
+                base = run_baseline(src, model_path, starts_path, os.path.join(tmp, "poses.npz"), args.blas_threads)
+                with np.load(os.path.join(tmp, "poses.npz")) as z:
+                    bq, bp = z["quat"], z["position"]
+                t0 = time.perf_counter()
+                now = rollout(loaded, q0, p0, steps, with_std=False)
+                mine = {"batched_s": time.perf_counter() - t0}
+                if extras:
+                    t0 = time.perf_counter()
+                    rollout(loaded, q0, p0, steps, with_std=True)
+                    mine["batched_std_s"] = time.perf_counter() - t0
+                    t0 = time.perf_counter()
+                    rollout(loaded, q0[:sample_starts], p0[:sample_starts], steps, samples=5, seed=0, with_std=False)
+                    mine["samples_s"] = time.perf_counter() - t0
+                diff = max(float(np.max(np.abs(now.quat - bq))), float(np.max(np.abs(now.position - bp))))
+                rounds.append({"baseline": base, "today": mine, "max_abs_diff": diff, "load": os.getloadavg()[0]})
+                print(f"round {rnd + 1}: baseline {args.baseline} {base}, today {mine}, max |Δ| {diff:.1e}", flush=True)
+        res["baseline"] = {"rev": args.baseline, "rounds": rounds}
+
     res["step_profile_B"] = count
     res["step_profile"] = step_profile(model, q0, p0)
     res["step_profile_1"] = step_profile(model, q0[:1], p0[:1], repeats=200)
@@ -156,6 +293,8 @@ def main(argv=None) -> int:
              f"| {count} rollouts × {steps} steps | time (s) | per step (ms) |",
              "|---|---:|---:|",
              f"| batched, `with_std=False` | {fmt_s(res['batched_s'])} | {res['batched_s'] / steps * 1e3:.2f} |",
+             f"| batched, `with_std=False`, through the old distance path | {fmt_s(res['old_path_s'])} "
+             f"| {res['old_path_s'] / steps * 1e3:.2f} |",
              f"| one at a time (`rollout_one_at_a_time`) | {fmt_s(res['single_s'])} | {res['single_s'] / steps * 1e3:.2f} |",
              f"| batched, `with_std=True` | {fmt_s(res['batched_std_s'])} | {res['batched_std_s'] / steps * 1e3:.2f} |",
              f"| batched, `samples=5` from {sample_starts} starts ({sample_starts} mean + {5 * sample_starts} sampled) "
@@ -169,18 +308,46 @@ def main(argv=None) -> int:
              f"{res['batched_std_s'] / res['batched_s']:.2f}× the mean-only rollout. Kernel evaluations in the batched run: "
              f"{kevals:.2e} ({kevals / res['batched_s'] / 1e6:.0f} M/s).",
              "",
+             f"Batched / batched through the old distance path: **{res['old_ratio']:.1f}× faster** (target ≥ 3×: "
+             f"{'met' if res['old_ratio'] >= 3 else 'NOT met'}). Same poses: max |Δq| = {res['old_max_abs_diff_quat']:.1e}, "
+             f"max |Δp| = {res['old_max_abs_diff_position']:.1e} m (≤ 1e-9: {'yes' if res['old_same_poses'] else 'NO'}). "
+             f"Per sampled trajectory (`samples=5`): {(res['samples_s'] - res['samples_baseline_s']) / (5 * sample_starts) * 1e3:.1f} ms, "
+             f"per mean trajectory without std: {res['batched_s'] / count * 1e3:.1f} ms, with std: "
+             f"{res['batched_std_s'] / count * 1e3:.1f} ms.",
+             "",
              "One step, median (ms): " + ", ".join(
                  f"B = {b}: " + ", ".join(f"{k.removesuffix('_ms')} {v:.3g}" for k, v in prof.items())
                  for b, prof in ((count, res["step_profile"]), (1, res["step_profile_1"]))),
              f"Load average (1 min): {res['load_batched']:.1f} after the batched run, {res['load_single']:.1f} after the "
              f"one-at-a-time run, {res['load_end']:.1f} at the end."]
+    if "baseline" in res:
+        b = res["baseline"]
+        rows = b["rounds"]
+        best = lambda who, key: min(r[who][key] for r in rows if key in r[who])  # noqa: E731
+        first = rows[0]
+        lines += ["", f"**Against the library at `{b['rev']}`** (the same model file and starts; {len(rows)} alternating "
+                  "rounds, best time of each; with std and samples in the first round)", "",
+                  f"| {count} rollouts × {steps} steps | `{b['rev']}` (s) | today (s) | ratio |", "|---|---:|---:|---:|"]
+        for key, label in (("batched_s", "batched, `with_std=False`"), ("batched_std_s", "batched, `with_std=True`"),
+                           ("samples_s", f"`samples=5` from {sample_starts} starts")):
+            lines.append(f"| {label} | {fmt_s(best('baseline', key))} | {fmt_s(best('today', key))} "
+                         f"| {best('baseline', key) / best('today', key):.1f}× |")
+        per_old = (first["baseline"]["samples_s"]) / (6 * sample_starts) * 1e3
+        per_new = (first["today"]["samples_s"]) / (6 * sample_starts) * 1e3
+        r = best("baseline", "batched_s") / best("today", "batched_s")
+        worst = max(x["max_abs_diff"] for x in rows)
+        lines += ["", f"Batched, today / `{b['rev']}`: **{r:.1f}× faster** (target ≥ 3×: {'met' if r >= 3 else 'NOT met'}); "
+                  f"same poses: max |Δ| = {worst:.1e} (≤ 1e-9: {'yes' if worst <= 1e-9 else 'NO'}). Per trajectory of the "
+                  f"`samples=5` run (mean + samples): {per_old:.1f} ms at `{b['rev']}`, {per_new:.1f} ms today; a mean "
+                  f"trajectory without std: {best('today', 'batched_s') / count * 1e3:.1f} ms today. "
+                  "Load average (1 min) after each round: " + ", ".join(f"{x['load']:.1f}" for x in rows) + "."]
     text = "\n".join(lines)
     print("\n" + text)
     if args.markdown:
         Path(args.markdown).write_text(text + "\n")
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=1))
-    return 0 if res["same_poses"] else 1
+    return 0 if res["same_poses"] and res["old_same_poses"] else 1
 
 
 if __name__ == "__main__":

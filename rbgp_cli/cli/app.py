@@ -61,7 +61,7 @@ def train(
     share_hyperparameters: Annotated[bool, typer.Option("--share-hyperparameters", help="One set of hyperparameters for all outputs (faster).", rich_help_panel=_TRAIN)] = False,
     subsample: Annotated[float, typer.Option(help="Random fraction of the training pairs to use (the paper: 0.1).", rich_help_panel=_TRAIN)] = 0.1,
     max_points: Annotated[int, typer.Option(min=2, help="At most this many training points.", rich_help_panel=_TRAIN)] = 2000,
-    jobs: Annotated[int, typer.Option(min=0, help="Worker processes for the per-output fits (BLAS single-threaded in each; the result does not depend on it); 0 = one per usable core.", rich_help_panel=_TRAIN)] = 0,
+    jobs: Annotated[int, typer.Option(min=0, help="Worker processes for the per-output fits (BLAS single-threaded in each; the result does not depend on it); 0 = one per output, fewer if memory is short, 1 on a single core.", rich_help_panel=_TRAIN)] = 0,
     json_out: Annotated[bool, typer.Option("--json", help="Print the summary as JSON on stdout.", rich_help_panel=_OUT)] = False,
     rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd) of the demonstrations and training points.", rich_help_panel=_OUT)] = None,
     up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.", rich_help_panel=_OUT)] = "z",

@@ -130,8 +130,8 @@ def train_model(
     ``rho_rot`` is ρ1 of eq. 19 (a number in (0, 1)) or ``"learn"``. ``noise`` is None to learn σn or
     a fixed standard deviation. ``explore_size``: the optimiser's starts explore a random subset of
     this many training points first (see :func:`rbgp_cli.gp.exact.fit_gp`; None: its default, 0: off). ``jobs``:
-    worker processes for the per-output fits (None: :func:`rbgp_cli.gp.exact.default_jobs`, one per
-    usable core, 1 inside a worker process). Returns the model; its ``summary`` holds demos, pairs, points, the
+    worker processes for the per-output fits (None: :func:`rbgp_cli.gp.exact.default_jobs`: one per
+    output if memory allows, 1 inside a worker process or on a single core). Returns the model; its ``summary`` holds demos, pairs, points, the
     hyperparameters and NLML per output, the safeguards used and the time taken.
     """
     t0 = time.perf_counter()
@@ -146,7 +146,7 @@ def train_model(
         progress(f"{len(trajs)} demonstrations, {info['pairs']} pairs, training on {info['points']} points "
                  f"({rep.name}, kernel {kernel}, {'shared' if shared else 'per-output'} hyperparameters)")
     if jobs is None:
-        jobs = default_jobs(1 if shared else Y.shape[1])
+        jobs = default_jobs(1 if shared else Y.shape[1], len(X))
     gp = fit_gp(X, Y, kern, noise=noise, restarts=restarts, seed=seed, shared=shared, progress=progress,
                 explore_size=explore_size, jobs=jobs)
     dts = np.concatenate([np.diff(tr.t) for tr in trajs])

@@ -57,6 +57,7 @@ __all__ = [
     "gram_sq_rotation_distance",
     "sq_distance_plan",
     "planned_sq_distance",
+    "planned_max_sq_distance",
 ]
 
 #: Pairs whose S³ angle φ = d_arc/2 is below this (rad) are recomputed by the difference formula.
@@ -452,7 +453,17 @@ def sq_distance_plan(b) -> dict:
     rhs[:-2] = -2.0 * bc.T
     rhs[-2] = np.einsum("ij,ij->i", bc, bc)
     rhs[-1] = 1.0
-    return {"centre": centre, "rhs": rhs, "k": b.shape[1]}
+    radius = float(np.sqrt(np.max(rhs[-2]))) if len(b) else 0.0
+    return {"centre": centre, "rhs": rhs, "k": b.shape[1], "radius": radius}
+
+
+def planned_max_sq_distance(plan: dict, a) -> float:
+    """An upper bound of ``‖a_i − b_j‖²`` over all pairs: ``(max‖a_c‖ + max‖b_c‖)²``."""
+    a = _as_rows(a, plan["k"], "planned_max_sq_distance a")
+    if len(a) == 0:
+        return 0.0
+    ac = a - plan["centre"]
+    return (float(np.sqrt(np.max(np.einsum("ij,ij->i", ac, ac)))) + plan["radius"]) ** 2
 
 
 def planned_sq_distance(plan: dict, a, scale: float = 1.0, offset: float = 0.0, out=None) -> np.ndarray:

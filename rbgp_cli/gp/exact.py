@@ -129,18 +129,19 @@ def blas_threads(n: int):
     return _CONTROLLER[0].limit(limits=1, user_api="blas")
 
 
-#: Predictions with at least this many query × training pairs are spread over the cores, in row
-#: chunks on threads (numpy's ufuncs and BLAS release the GIL; the kernel's exp dominates).
-PARALLEL_PREDICT_MIN = 400_000
+#: Predictions with at least this many query × training pairs are spread over the free cores, in row
+#: chunks on threads (numpy's ufuncs and BLAS release the GIL; the kernel's arccos and exp dominate):
+#: one rollout step of 100 trajectories against 1752 training points is 175 200 pairs.
+PARALLEL_PREDICT_MIN = 100_000
 _PREDICT_POOL = []
 
 
 def _prediction_workers(work: int) -> int:
-    import os
-
-    if work < PARALLEL_PREDICT_MIN:
+    """Threads for a prediction of ``work`` query × training pairs: the free cores (at most 4) above
+    PARALLEL_PREDICT_MIN, else 1 (and 1 in worker processes, which run one per core already)."""
+    if work < PARALLEL_PREDICT_MIN or _in_worker_process():
         return 1
-    return max(1, min(4, os.cpu_count() or 1))
+    return max(1, min(4, free_cores()))
 
 
 def _predict_pool():
@@ -848,16 +849,46 @@ def usable_cores() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-def default_jobs(tasks: int) -> int:
-    """Worker processes for ``tasks`` independent fits: one per usable core (at most ``tasks``), and
-    1 inside a worker process, so that pools never nest (e.g. under cross-validation folds that run
-    in workers of their own).
+def _available_memory() -> int | None:
+    """Bytes of memory available to new processes (Linux: MemAvailable), or None if unknown."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import os
 
-    The workers run BLAS single-threaded, so on a busy machine they take their fair share of the
-    cores without the spinning of multi-threaded BLAS pools; fewer workers would only take less."""
-    if tasks <= 1 or _in_worker_process():
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, OSError, ValueError):
+        return None
+
+
+#: n × n float64 matrices a worker holds at once while fitting one output on n points (distances,
+#: K, C, C⁻¹ / W, W ∘ K and the factor it returns).
+WORKER_MATRICES = 6
+
+
+def default_jobs(tasks: int, n: int | None = None) -> int:
+    """Worker processes for ``tasks`` independent fits on ``n`` points each: one per task when the
+    process may use two or more cores and half the available memory holds them
+    (WORKER_MATRICES n × n matrices each); 1 inside a worker process, so that pools never nest (e.g.
+    under cross-validation folds that run in workers of their own), and 1 on a single core.
+
+    More workers than cores cost nothing on an idle machine (the fits are CPU-bound and BLAS runs
+    single-threaded in each worker, without spinning threads), and on a busy one the operating system
+    shares the cores per task: with another program keeping both cores busy, 6 workers for 6 outputs
+    took 1.5× their time on the machine as it was, 2 workers 2.3× (measured, benchmarks/README.md)."""
+    if tasks <= 1 or _in_worker_process() or usable_cores() < 2:
         return 1
-    return max(1, min(int(tasks), usable_cores()))
+    jobs = int(tasks)
+    if n:
+        avail = _available_memory()
+        if avail is not None:
+            jobs = min(jobs, max(1, int(0.5 * avail // (WORKER_MATRICES * 8 * n * n))))
+    return max(1, jobs)
 
 
 _WORKER: dict = {}

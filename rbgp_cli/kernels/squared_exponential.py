@@ -37,6 +37,8 @@ __all__ = ["SquaredExponential", "ROTATION_METRICS"]
 ROTATION_METRICS = ("arc", "chordal", "euclidean", "s3")
 #: Smallest exponent −d²/(2λ²) used in K (see :meth:`SquaredExponential.gram`).
 MIN_EXPONENT = -345.0
+#: Largest squared rotation distance of each metric on unit quaternions (arc: π², chordal: 4, s3: (π/2)²).
+_MAX_SQ_ROTATION = {"arc": math.pi**2, "chordal": 4.0, "s3": (math.pi / 2) ** 2}
 
 
 def _rotation_sq_distance(metric: str, A: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -162,13 +164,18 @@ class SquaredExponential(Kernel):
         rho = values["rho_rot"] if self.learn_rho else self.rho_rot
         a = -0.5 / values["length_scale"] ** 2
         log_sf2 = 2.0 * math.log(values["signal_std"])
-        E = distance.planned_sq_distance(plan["trans"], Xa[:, k:], a * (1.0 - rho), log_sf2)
+        trans = Xa[:, k:]
+        E = distance.planned_sq_distance(plan["trans"], trans, a * (1.0 - rho), log_sf2)
         if self.metric == "euclidean":
             E += distance.planned_sq_distance(plan["rot"], Xa[:, :k], a * rho)
+            rot_max = distance.planned_max_sq_distance(plan["rot"], Xa[:, :k])
         else:
             qa = distance.unit_quats(Xa[:, :k], k)
             E += distance.gram_sq_rotation_distance(qa, plan["quat_t"], self.metric, a * rho)
-        np.maximum(E, MIN_EXPONENT + log_sf2, out=E)
+            rot_max = _MAX_SQ_ROTATION[self.metric]
+        # the floor only where some exponent can fall below it (a bound from the largest distances)
+        if a * (rho * rot_max + (1.0 - rho) * distance.planned_max_sq_distance(plan["trans"], trans)) < MIN_EXPONENT:
+            np.maximum(E, MIN_EXPONENT + log_sf2, out=E)
         np.exp(E, out=E)
         return E
 

@@ -1,0 +1,212 @@
+"""The whole `rbgp train` command on recorded demonstrations against scikit-learn, and under load.
+
+    .venv/bin/python benchmarks/bench_train_cli.py                      # handover demos, kernels se and se-chordal
+    .venv/bin/python benchmarks/bench_train_cli.py --kernels se --no-load
+    .venv/bin/python benchmarks/bench_train_cli.py --demos sample_data/csv --no-sklearn
+
+For each kernel, in one run:
+
+1. ``rbgp train DEMOS -o MODEL --subsample 1 --max-points 1752 --kernel K --json`` (per-output
+   hyperparameters; ``--jobs`` as given, default the command's own choice) as a subprocess: wall time
+   of the whole command (interpreter start, imports, reading and preparing the files, the fit, writing
+   the model file), and the fit's own time and evaluations from its JSON summary;
+2. scikit-learn's six fits (``ConstantKernel()*RBF() + WhiteKernel()``, ``n_restarts_optimizer=2``,
+   ``random_state=0``, one model per output) on the very arrays stored in the model file (X: rotation
+   vector and translation, Y: the six velocities), with its BLAS pools as they are (``--sklearn-threads``
+   to limit them), and the ratio (target ≥ 15×);
+3. the same ``rbgp train`` while ``--load-procs`` busy loops (default: one per usable core, i.e.
+   another program using every core) run, between two runs on the machine as it is; the ratio loaded
+   / as-is (target ≤ 2), and a check that the model is the same.
+
+The machine "as it is" may be shared: the 1-minute load average and the number of runnable tasks
+are printed with every run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import numpy as np  # noqa: E402
+
+from _common import fmt_s, machine_line  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_DEMOS = ROOT.parent / "shared" / "realdata" / "handover_object_csv"
+
+
+def runnable() -> str:
+    try:
+        with open("/proc/loadavg") as fh:
+            parts = fh.read().split()
+        return f"load {parts[0]}, runnable {parts[3]}"
+    except OSError:
+        return f"load {os.getloadavg()[0]:.2f}"
+
+
+def run_train(demos: str, out: str, kernel: str, jobs: int | None, max_points: int) -> dict:
+    """One `rbgp train` subprocess; returns wall time and its JSON summary."""
+    cmd = [sys.executable, "-m", "rbgp_cli", "train", demos, "-o", out, "--subsample", "1", "--max-points",
+           str(max_points), "--kernel", kernel, "--json"]
+    if jobs is not None:
+        cmd += ["--jobs", str(jobs)]
+    before = runnable()
+    t0 = time.perf_counter()
+    res = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+    wall = time.perf_counter() - t0
+    if res.returncode != 0:
+        raise RuntimeError(f"rbgp train failed ({res.returncode}): {res.stderr[-2000:]}")
+    summary = json.loads(res.stdout)
+    return {"wall_s": wall, "summary": summary, "before": before, "after": runnable()}
+
+
+def busy_loops(count: int) -> list[subprocess.Popen]:
+    """``count`` processes that each keep one core busy (pure Python loops, no I/O)."""
+    return [subprocess.Popen([sys.executable, "-c", "while True:\n    pass"]) for _ in range(count)]
+
+
+def stop(procs: list[subprocess.Popen]) -> None:
+    for p in procs:
+        p.kill()
+    for p in procs:
+        p.wait()
+
+
+def sklearn_fits(X: np.ndarray, Y: np.ndarray, threads: int | None) -> dict:
+    from sklearn.exceptions import ConvergenceWarning
+    from sklearn.gaussian_process import GaussianProcessRegressor
+    from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
+
+    import contextlib
+
+    from threadpoolctl import threadpool_limits
+
+    limit = threadpool_limits(limits=threads) if threads else contextlib.nullcontext()
+    before = runnable()
+    with limit, warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        t0 = time.perf_counter()
+        for l in range(Y.shape[1]):
+            GaussianProcessRegressor(ConstantKernel() * RBF() + WhiteKernel(), n_restarts_optimizer=2,
+                                     random_state=0).fit(X, Y[:, l])
+        wall = time.perf_counter() - t0
+    return {"wall_s": wall, "before": before, "after": runnable()}
+
+
+def fits_of(path: str) -> list:
+    from rbgp_cli.io.model_store import read_header
+
+    header, _ = read_header(path)
+    return [f["values"] for f in header["fits"]]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--demos", default=str(DEFAULT_DEMOS), help="demonstration files or folder (default: the handover recordings)")
+    ap.add_argument("--kernels", default="se,se-chordal", help="comma-separated --kernel values (default se,se-chordal)")
+    ap.add_argument("--max-points", type=int, default=1752)
+    ap.add_argument("--jobs", type=int, default=None, help="--jobs for rbgp train (default: the command's own choice)")
+    ap.add_argument("--no-sklearn", action="store_true")
+    ap.add_argument("--sklearn-threads", type=int, default=None, help="limit scikit-learn's BLAS pools (default: as they are)")
+    ap.add_argument("--no-load", action="store_true", help="skip the run under load")
+    ap.add_argument("--load-procs", type=int, default=None, help="busy loops for the loaded run (default: usable cores)")
+    ap.add_argument("--json", default=None)
+    ap.add_argument("--markdown", default=None)
+    args = ap.parse_args(argv)
+    if not Path(args.demos).exists():
+        print(f"demonstrations not found: {args.demos}", file=sys.stderr)
+        return 2
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:
+        cores = os.cpu_count() or 1
+    load_procs = args.load_procs or cores
+    started = time.strftime("%H:%M")
+    print(f"bench_train_cli — {time.strftime('%Y-%m-%d %H:%M %Z')}; {machine_line()}", flush=True)
+    results = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for kernel in args.kernels.split(","):
+            r = results[kernel] = {}
+            model = os.path.join(tmp, f"{kernel}.rbgp")
+            r["as_is_1"] = run_train(args.demos, model, kernel, args.jobs, args.max_points)
+            print(f"{kernel}: rbgp train {r['as_is_1']['wall_s']:.2f} s (fit {r['as_is_1']['summary']['seconds']:.2f} s; "
+                  f"{r['as_is_1']['before']})", flush=True)
+            if not args.no_sklearn:
+                from rbgp_cli.io.model_store import read_header
+
+                _, arrays = read_header(model)
+                r["sklearn"] = sklearn_fits(arrays["X"], arrays["Y"], args.sklearn_threads)
+                print(f"{kernel}: scikit-learn, 6 fits on the model's {len(arrays['X'])} points: {r['sklearn']['wall_s']:.1f} s "
+                      f"({r['sklearn']['before']})", flush=True)
+            if not args.no_load:
+                loaded_model = os.path.join(tmp, f"{kernel}-loaded.rbgp")
+                procs = busy_loops(load_procs)
+                try:
+                    time.sleep(1.0)
+                    r["loaded"] = run_train(args.demos, loaded_model, kernel, args.jobs, args.max_points)
+                finally:
+                    stop(procs)
+                r["same_model_loaded"] = fits_of(loaded_model) == fits_of(model)
+                print(f"{kernel}: rbgp train with {load_procs} busy loops {r['loaded']['wall_s']:.2f} s "
+                      f"({r['loaded']['before']}); same model: {r['same_model_loaded']}", flush=True)
+                time.sleep(1.0)
+                r["as_is_2"] = run_train(args.demos, model, kernel, args.jobs, args.max_points)
+                print(f"{kernel}: rbgp train again {r['as_is_2']['wall_s']:.2f} s ({r['as_is_2']['before']})", flush=True)
+
+    lines = [f"Measured {time.strftime('%Y-%m-%d %H:%M %Z')} (run started {started}); {machine_line()}.", "",
+             f"`rbgp train {Path(args.demos).name} --subsample 1 --max-points {args.max_points} --kernel K` "
+             f"(per-output hyperparameters{'' if args.jobs is None else f', --jobs {args.jobs}'}), whole command; "
+             "scikit-learn's six fits on the arrays stored in the model file"
+             + ("" if args.sklearn_threads is None else f" (its BLAS on {args.sklearn_threads} thread(s))") + ".", "",
+             "| kernel | rbgp train (s) | of which the fit (s) | evaluations on all points per output | sklearn (s) "
+             f"| sklearn / rbgp train | with {load_procs} busy loops (s) | loaded / as is | same model |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---|"]
+    for kernel, r in results.items():
+        runs = [r[k] for k in ("as_is_1", "as_is_2") if k in r]
+        as_is = sum(x["wall_s"] for x in runs) / len(runs)
+        summ = r["as_is_1"]["summary"]
+        per_output = np.mean([o["n_evaluations"] for o in summ["outputs"]])
+        sk = r.get("sklearn")
+        ld = r.get("loaded")
+        sk_s = fmt_s(sk["wall_s"]) if sk else "–"
+        sk_ratio = f"{sk['wall_s'] / as_is:.1f}×" if sk else "–"
+        ld_s = fmt_s(ld["wall_s"]) if ld else "–"
+        ld_ratio = f"{ld['wall_s'] / as_is:.2f}" if ld else "–"
+        same = ("yes" if r["same_model_loaded"] else "NO") if ld else "–"
+        times = " / ".join(fmt_s(x["wall_s"]) for x in runs)
+        lines.append(f"| {kernel} | {times} | {summ['seconds']:.2f} | {per_output:.1f} | {sk_s} | {sk_ratio} "
+                     f"| {ld_s} | {ld_ratio} | {same} |")
+    lines += ["", "Load before each run: " + "; ".join(
+        f"{kernel} {k}: {r[k]['before']}" for kernel, r in results.items() for k in ("as_is_1", "sklearn", "loaded", "as_is_2")
+        if k in r), "", "**Targets**", ""]
+    for kernel, r in results.items():
+        runs = [r[k] for k in ("as_is_1", "as_is_2") if k in r]
+        as_is = sum(x["wall_s"] for x in runs) / len(runs)
+        if "sklearn" in r:
+            x = r["sklearn"]["wall_s"] / as_is
+            lines.append(f"- {kernel}: whole command ≥ 15× faster than scikit-learn's six fits: {x:.1f}× — "
+                         f"{'met' if x >= 15 else 'NOT met'}")
+        if "loaded" in r:
+            y = r["loaded"]["wall_s"] / as_is
+            lines.append(f"- {kernel}: with every core busy no worse than 2× the time as is: {y:.2f}× — "
+                         f"{'met' if y <= 2 else 'NOT met'}")
+    text = "\n".join(lines)
+    print("\n" + text)
+    if args.markdown:
+        Path(args.markdown).write_text(text + "\n")
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=1, default=str))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
