@@ -458,15 +458,19 @@ def _random_start(spec: dict, free: list, rng: np.random.Generator) -> np.ndarra
     return theta
 
 
-def _move_towards_feasible(theta, free, log_bounds, step: float) -> np.ndarray:
+def _move_towards_feasible(theta, free, log_bounds, step: float, noise_step: float | None = None) -> np.ndarray:
     """One move of a point whose K + σn²I is not positive definite towards the region where it is:
-    log λ down and log σn up by ``step`` (within the bounds). Returns a new array."""
+    log λ down by ``step`` and log σn up by ``noise_step`` (default ``step``), within the bounds
+    (σn also when λ is not free). Returns a new array."""
     theta = np.array(theta, dtype=np.float64)
+    noise_step = step if noise_step is None else noise_step
+    if "length_scale" not in free:
+        noise_step = step
     for i, nm in enumerate(free):
         if nm == "length_scale":
             theta[i] = max(theta[i] - step, log_bounds[i][0])
         elif nm == NOISE:
-            theta[i] = min(theta[i] + step, log_bounds[i][1])
+            theta[i] = min(theta[i] + noise_step, log_bounds[i][1])
     return theta
 
 
@@ -587,8 +591,10 @@ POLISH_MAX_EVALS = 25
 #: Log step of the finite-difference Hessian on the subsample.
 _FD_STEP = 1e-4
 #: An infeasible polish start (the subsample optimum of an indefinite kernel often lies just outside
-#: the positive definite region of all points) moves λ down and σn up by this factor per try.
+#: the positive definite region of all points: at n = 1752 the optimum's λ was ~18 % shorter) moves λ
+#: down by this factor per try; σn, which the subsample estimates well, stays.
 _POLISH_MOVE = math.log(1.1)
+_POLISH_MOVE_NOISE = 0.0
 #: Largest polish step in any log hyperparameter (a factor e).
 _MAX_STEP = 1.0
 
@@ -632,7 +638,7 @@ def _polish(obj: _Objective, theta0, H, n: int, known=()) -> dict:
     for _ in range(_START_MOVES):
         if f < INFEASIBLE_NLML:
             break
-        theta = _move_towards_feasible(theta, obj.free, obj.log_bounds, _POLISH_MOVE)
+        theta = _move_towards_feasible(theta, obj.free, obj.log_bounds, _POLISH_MOVE, _POLISH_MOVE_NOISE)
         f, g = obj(theta)
     start = theta.copy()
     if f >= INFEASIBLE_NLML:
@@ -933,15 +939,26 @@ def _fit_outputs_in_workers(X, Y, kernel, o, seeds, sub, jobs, progress):
     """Per-output fits in ``jobs`` worker processes (BLAS single-threaded in each); results in output order."""
     import os
     from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures.process import BrokenProcessPool
 
     token = (os.getpid(), time.perf_counter_ns())
     L = Y.shape[1]
     tasks = [(token, X, np.ascontiguousarray(Y[:, l]), kernel, l, f"output {l}", seeds[l], o, sub) for l in range(L)]
     results = [None] * L
+    failures = {}
     with ProcessPoolExecutor(max_workers=jobs, mp_context=_process_context(), initializer=_worker_init) as pool:
-        futures = [pool.submit(_worker_fit, t) for t in tasks]
+        futures = {pool.submit(_worker_fit, t): t[4] for t in tasks}
         try:
             for fut in as_completed(futures):
+                if fut.cancelled():
+                    continue
+                exc = fut.exception()
+                if exc is not None:
+                    # the outputs not started yet are not needed; the running ones finish
+                    failures[futures[fut]] = exc
+                    for other in futures:
+                        other.cancel()
+                    continue
                 l, res = fut.result()
                 results[l] = res
                 if progress is not None:
@@ -950,6 +967,13 @@ def _fit_outputs_in_workers(X, Y, kernel, o, seeds, sub, jobs, progress):
             for fut in futures:
                 fut.cancel()
             raise
+    if failures:
+        # the error of the first output that failed, as the fit in one process would raise it
+        first = min(failures)
+        if isinstance(failures[first], BrokenProcessPool):
+            raise RbgpRuntimeError("a worker process fitting the outputs ended unexpectedly (out of memory?)",
+                                   hint="train with --jobs 1") from failures[first]
+        raise failures[first]
     return results
 
 
