@@ -76,6 +76,11 @@ DISTINCT_LOG = 0.1
 #: points. On recorded demonstrations such optima were degenerate (σn at its lower bound, or λ
 #: 5–10× off) and their polishes ended in the best optimum anyway, after 15–55 evaluations each.
 BASIN_GAP = 10.0
+#: ... and whose subsample NLML differs from every optimum already chosen by more than this: optima
+#: that fit the subsample equally well at different θ lie on one flat ridge (on recorded motions: the
+#: pure-noise fit, λ at its lower bound and σf → 0, where λ no longer matters), and their polishes
+#: met in the same optimum after 17–36 evaluations each.
+DISTINCT_NLML = 0.1
 #: L-BFGS-B's relative-reduction tolerance on the subsample (its default is 2.2e-9).
 EXPLORE_FTOL = 1e-7
 
@@ -756,10 +761,13 @@ def _fit_target(kernel, pre, y, label, rng, o: _FitOptions, sub=None, pre_sub=No
         _b, records_s, counter_s, _v, optima = _fit_one(kernel, pre_sub, y[sub], spec, free, o.restarts, rng, o.max_iter,
                                                         ftol=EXPLORE_FTOL)
         records = [{**r, "kind": r["kind"] + f" (subsample of {len(sub)})"} for r in records_s]
-        basins = []
+        basins, basin_nlml = [], []
         for theta, f_s in sorted((x for x in optima if x is not None), key=lambda t: t[1]):
-            if f_s <= _optima_best(optima) + BASIN_GAP and all(np.max(np.abs(theta - b)) > DISTINCT_LOG for b in basins):
+            if (f_s <= _optima_best(optima) + BASIN_GAP
+                    and all(np.max(np.abs(theta - b)) > DISTINCT_LOG for b in basins)
+                    and all(abs(f_s - fb) > DISTINCT_NLML for fb in basin_nlml)):
                 basins.append(theta)
+                basin_nlml.append(f_s)
         obj_s = _Objective(kernel, pre_sub, y[sub], spec, free)
         polished = []
         for theta_s in basins:
