@@ -26,8 +26,13 @@ Starts (MATH.md §7): L-BFGS-B in log space from the data-driven start plus ``re
 ones from a seeded rng. The starts exist to find the best basin, and at n = 1752 all of them usually
 end in the same one, each costing 15–50 full-size evaluations. So for n > 2·SUBSAMPLE_SIZE the starts
 run on a random subsample of SUBSAMPLE_SIZE points (an evaluation there costs (400/1752)³ ≈ 1 % of a
-full one). On all points the fit then runs the data-driven start, and polishes the optimum of each
-random start that reached a basin (on the subsample) that no earlier start had reached.
+full one). On all points the fit then polishes the best subsample optimum (and any other that is
+nearly as good and distinct) by projected quasi-Newton steps whose first Hessian is the subsample's,
+scaled to n points (:func:`_polish`): 4–10 evaluations on all points per output instead of 15–50.
+
+Per-output fits can run in worker processes (``fit_gp(..., jobs=)``), one output per task, BLAS
+single-threaded in each; every fit runs BLAS single-threaded, so its result never depends on the
+machine's load or on ``jobs``.
 
 All BLAS/LAPACK calls in the evaluation loop go through ``scipy.linalg`` (ECOSYSTEM.md §7).
 """
@@ -297,7 +302,10 @@ class GaussianProcess:
 
     ``groups`` lists the hyperparameter sets: one per output (default) or one shared by all outputs
     (``shared``), each with its Cholesky factor and its α = C⁻¹ y (on the RMS-scaled outputs
-    y / scale in shared mode; predictions are scaled back).
+    y / scale in shared mode; predictions are scaled back). ``factors``: per group (L, α) as
+    :func:`fit_gp` has just computed and checked them; without it they are computed and checked here
+    (a loaded model). Predictions build the kernel block against X from matrix products
+    (:meth:`Kernel.cross_plan`, :meth:`Kernel.cross_gram`).
     """
 
     def __init__(self, kernel: Kernel, X: np.ndarray, Y: np.ndarray, fits: list, shared: bool, y_scale=None, *,
