@@ -804,10 +804,11 @@ def format_report(res: dict) -> str:
         rows = []
         for r in ac["rows"]:
             e, g = r["rmse"], r["geodesic_rmse"]
-            rows.append([r["setting"], r["model"], _f(e["mean"]), _f(e["median"]), _f(e["trimmed_mean"]),
-                         _f(g["mean"]), _f(g["median"]), _f(g["trimmed_mean"]), r["blow_ups"], r["failed"],
+            rows.append([r["setting"], r["model"], f"{_f(e['mean'])} ± {_f(e['std'], 2)}", _f(e["median"]),
+                         _f(e["trimmed_mean"]), f"{_f(g['mean'])} ± {_f(g['std'], 2)}", _f(g["median"]),
+                         _f(g["trimmed_mean"]), r["blow_ups"], r["failed"],
                          _f(r["median_vs_zero"]), r["refit_with_noise_margin"]])
-        lines += _table(["setting", "model", "RMSE mean", "median", "trimmed", "geodesic mean", "median", "trimmed",
+        lines += _table(["setting", "model", "RMSE mean ± std", "median", "trimmed", "geodesic mean ± std", "median", "trimmed",
                          "blow-ups", "failed", "median / zero predictor", "noise-margin refits"], rows, text_columns=2)
         lines += ["", "Paired comparisons (ratio a / b per dynamics; below 1: a is more accurate):", ""]
         rows = []
