@@ -281,6 +281,8 @@ def run_runtime(repeats: int, seed: int = 0, progress=None) -> dict:
     keys = [_key(*m) for m in RUNTIME_MODELS]
     kinds = ("mean_only", "mean_std")
     times = {k: {kind: [] for kind in kinds} for k in keys}
+    skipped = []
+    warmed = False
     with threadpool_limits(limits=1):
         blas = _blas_pools()
         for rep_i in range(repeats):
@@ -289,16 +291,21 @@ def run_runtime(repeats: int, seed: int = 0, progress=None) -> dict:
             y = rng.standard_normal(RUNTIME_TRAIN)
             q_query, t_query = _random_poses(rng, RUNTIME_QUERY)
             models = {}
-            for (rep_name, kernel_name), key in zip(RUNTIME_MODELS, keys):
-                rep = make_representation(rep_name)
-                kernel = make_kernel(rep, kernel_name, rho_rot=RUNTIME_RHO)
-                X = rep.state_from_pose(q_train, t_train)
-                gp = fit_gp(X, y[:, None], kernel, noise="learn", restarts=1, seed=rep_i, shared=False,
-                            explore_size=0)
-                Xq = rep.state_from_pose(q_query, t_query)
-                models[key] = (gp, Xq)
-                if rep_i == 0:  # warm-up: thread pools, first-call costs
+            try:
+                for (rep_name, kernel_name), key in zip(RUNTIME_MODELS, keys):
+                    rep = make_representation(rep_name)
+                    kernel = make_kernel(rep, kernel_name, rho_rot=RUNTIME_RHO)
+                    X = rep.state_from_pose(q_train, t_train)
+                    gp = fit_gp(X, y[:, None], kernel, noise="learn", restarts=1, seed=rep_i, shared=False,
+                                explore_size=0)
+                    models[key] = (gp, rep.state_from_pose(q_query, t_query))
+            except RbgpRuntimeError as exc:  # no model, no same-run ratio: skip this repetition for all
+                skipped.append({"repetition": rep_i, "reason": exc.message})
+                continue
+            if not warmed:  # thread pools, first-call costs
+                for gp, Xq in models.values():
                     gp.predict(Xq, return_std=True)
+                warmed = True
             order = [(k, kind) for k in keys for kind in kinds]
             for i in rng.permutation(len(order)):
                 key, kind = order[i]
@@ -333,6 +340,7 @@ def run_runtime(repeats: int, seed: int = 0, progress=None) -> dict:
         "rows": rows,
         "welch": welch,
         "times": times,
+        "skipped": skipped,
         "seconds": time.perf_counter() - t0,
     }
 
@@ -772,7 +780,8 @@ def format_report(res: dict) -> str:
                   f"poses (ρ1 = {rt['rho_rot']}, one output), prediction at {rt['prediction_poses']} new poses, "
                   f"models in a random order each repetition. BLAS single-threaded for every model ({pools}); "
                   "rbgp's prediction splits the rows into chunks on its own thread pool, as for users. "
-                  "Times in ms: median [quartiles]; ratio = time / axis-angle's time in the same repetition.", ""]
+                  "Times in ms: median [quartiles]; ratio = time / axis-angle's time in the same repetition."
+                  + (f" {len(rt['skipped'])} repetitions skipped (a fit failed)." if rt.get("skipped") else ""), ""]
         rows = []
         for r in rt["rows"]:
             cells = [r["model"]]
