@@ -26,8 +26,9 @@ repetition (median and quartiles), and Welch's t-test of each model against axis
 unit-quaternion and Euler-angle GPs). Per repetition one random dynamics f of eq. 30
 (:class:`RandomDynamics`), 1000 rotations uniform on SO(3) with their ground truth f, 100 of them
 drawn (without replacement) for training, and the prediction at all 1000 scored, as in the paper.
-Each model is fitted per output with one start λ, σf ~ U(0, 3) (the paper's starts, λ in the
-representation's own rotation units), σn fixed to 1 (the paper) or learned. Errors of the predicted
+Each model is fitted per output in three settings (:data:`SETTINGS`): one start λ, σf ~ U(0, 3) (the
+paper's, λ in the representation's own rotation units) with σn fixed to 1 (the paper) or learned, and
+rbgp's own starts (data-driven plus random) with σn learned. Errors of the predicted
 rotation: RMSE over the components of the rotation vector (the paper's measure; predicted
 quaternions are normalised and Euler angles converted, then both mapped to the canonical rotation
 vector) and the root mean square geodesic angle d_arc between predicted and true rotation. Reported
