@@ -118,6 +118,25 @@ def test_evaluate_with_model_generates_like_the_paper(model):
     assert json.loads(res.stdout)["n_generated"] == 5
 
 
+def test_evaluate_against_one_demonstration_refuses_and_one_rollout_warns(model, tmp_path):
+    """One demonstration: the per-step spread is the ridge alone, so the score would measure the ridge
+    (the issue saw 'bhattacharyya mean 145.25'): exit 2 naming how many are needed. One generated
+    trajectory: a warning, and --json says the score is not reliable."""
+    one = tmp_path / "one_demo"
+    one.mkdir()
+    (one / "shoe_01.csv").write_bytes((CSV_DIR / "shoe_01.csv").read_bytes())
+    res = run("evaluate", "--model", model, "--count", 5, "--demos", one)
+    assert_one_line_error(res, 2, "1 demonstration", "ridge", "at least 2 demonstrations")
+    res = run("evaluate", "--model", model, "--count", 1, "--demos", CSV_DIR, "--json")
+    assert res.exit_code == 0, res.stderr
+    d = json.loads(res.stdout)
+    assert d["reliable"] is False and "only 1 generated trajectory" in d["warnings"][0]
+    assert "rbgp: warning: only 1 generated trajectory" in res.stderr and "at least 2" in res.stderr
+    res = run("evaluate", "--model", model, "--count", 5, "--demos", CSV_DIR, "--covariance", "full", "--json")
+    d = json.loads(res.stdout)
+    assert d["reliable"] is False and any("needs at least 7 generated" in w for w in d["warnings"])
+
+
 def test_real_subprocess_pipe_rollout_into_evaluate(model):
     """stdout carries only data: rollout -o - | evaluate - works through a real (non-seekable) pipe."""
     env = dict(os.environ, PYTHONWARNINGS="ignore")
