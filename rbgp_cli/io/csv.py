@@ -38,10 +38,11 @@ from pathlib import Path
 import numpy as np
 
 from rbgp_cli.dynamics.trajectory import Trajectory
-from rbgp_cli.errors import InputError, closest
+from rbgp_cli.errors import InputError, NotPoseData, closest
 from rbgp_cli.io.options import LENGTH_UNITS, ReadOptions
 
-__all__ = ["read", "read_bytes", "read_text", "describe", "write_trajectories_csv", "CANONICAL_KEYS"]
+__all__ = ["read", "read_bytes", "read_text", "describe", "sniff_pose_columns", "write_trajectories_csv",
+           "CANONICAL_KEYS"]
 
 #: Keys accepted by ``ReadOptions.columns`` (``--columns KEY=NAME``).
 CANONICAL_KEYS = (
@@ -442,10 +443,11 @@ def _plan(cols: list, options: ReadOptions, source: str) -> _Plan:
         col = by_name.get(fname) or by_lower.get(str(fname).strip().lower())
         if col is None:
             guess = closest(str(fname), [c.name for c in cols])
-            raise InputError(
+            raise NotPoseData(
                 f"--columns {k}={fname}: the file has no column {fname!r}; columns are {_columns_list(cols)}"
                 + (f"; did you mean {guess!r}?" if guess else ""),
                 path=source,
+                reason=f"no column {fname!r}",
             )
         roles[_KEY_ROLE.get(k, k)] = col
     explicit = set(roles)
@@ -473,25 +475,31 @@ def _plan(cols: list, options: ReadOptions, source: str) -> _Plan:
             raise _missing_error(_role_key(missing), "rotation", cols, used(), source)
         if len(cols) == 1 and re.search(r"[^\w\s\[\]()]", cols[0].name):
             # one "column" full of punctuation: the delimiter is none of those the sniffer knows
-            raise InputError(
+            raise NotPoseData(
                 f"the header line is a single column ({cols[0].name[:60]!r}): its delimiter is not a comma, "
                 "semicolon, tab or spaces",
                 path=source,
                 hint="save the file comma- or tab-separated",
+                reason="not a table",
             )
-        raise InputError(
+        raise NotPoseData(
             f"no rotation columns found; columns are {_columns_list(cols)}",
             path=source,
             hint="expected quaternion columns qx,qy,qz,qw (any order), a rotation vector rx,ry,rz, or "
             "Euler angles roll,pitch,yaw; map other names with --columns qx=NAME,...",
+            reason="no pose columns",
         )
+    no_position = not any(r in roles or _candidates(cols, r, used()) for r in ("x", "y", "z"))
     for r in _KIND_ROLES[kind] + ("x", "y", "z"):
         if r in roles:
             continue
         c = _best(cols, r, used(), source)
         if c is None:
-            raise _missing_error(_role_key(r), "rotation" if r in _KIND_ROLES[kind] else "position", cols,
+            err = _missing_error(_role_key(r), "rotation" if r in _KIND_ROLES[kind] else "position", cols,
                                  used(), source)  # fmt: skip
+            if no_position and r in "xyz":  # rotations only (an IMU log): not poses
+                raise NotPoseData(err.message, path=source, hint=err.hint, reason="no position columns")
+            raise err
         roles[r] = c
     if "t" not in roles:
         cands = _candidates(cols, "t", used())
@@ -1020,6 +1028,44 @@ def describe(path, options: ReadOptions | None = None, *, text: str | None = Non
         "rotation": rotation,
         "problem": problem,
     }
+
+
+def sniff_pose_columns(head: bytes, source: str, options: ReadOptions | None = None, *,
+                       complete: bool = False) -> str | None:
+    """Why a file that starts with ``head`` holds no pose data, in a few words, or None.
+
+    Judged like :func:`read` judges the whole file, on the complete lines of ``head`` (``complete``:
+    head is the whole file): "empty", "not a text file", "no table" (comments only), "no header line"
+    (numbers only), "not a table" (one column), "no pose columns" (no rotation), "no position columns".
+    None when the header names pose columns (even if reading may still fail: such a file is pose
+    data with a problem) or when the head ends before the header does.
+    """
+    options = options or ReadOptions()
+    if head[:2] in (b"\xff\xfe", b"\xfe\xff") and not complete:
+        head = head[: len(head) // 2 * 2]  # UTF-16: whole code units only
+    try:
+        text = _decode(head, source)
+    except InputError as exc:
+        return "empty" if "empty" in exc.message else "not a text file"
+    if not complete:
+        cut = max(text.rfind("\n"), text.rfind("\r"))
+        if cut < 0:
+            return None  # one line longer than the head
+        text = text[:cut]
+    try:
+        table = _parse_table(text, source)
+    except InputError as exc:
+        if not complete and "no header and no data" in exc.message:
+            return None  # comments longer than the head
+        return "no header line" if "no header line" in exc.message else "no table"
+    cols = [_classify(i, name) for i, name in enumerate(table.header)]
+    try:
+        _plan(cols, options, source)
+    except NotPoseData as exc:
+        return exc.reason
+    except InputError:
+        return None
+    return None
 
 
 # --------------------------------------------------------------------------------------------------

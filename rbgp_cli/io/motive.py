@@ -38,7 +38,7 @@ import csv
 import numpy as np
 
 from rbgp_cli.dynamics.trajectory import Trajectory
-from rbgp_cli.errors import InputError, warn
+from rbgp_cli.errors import InputError, NotPoseData, warn
 from rbgp_cli.io.options import ReadOptions
 from rbgp_cli.io.qtm import metres_per, numeric_cells, quat_from_valid, read_text, reader_guard, select_bodies
 
@@ -177,9 +177,10 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
     if not layout.bodies:
         others = layout.other_assets()
         listed = "; ".join(f"{k}: {', '.join(v)}" for k, v in others.items()) or "none"
-        raise InputError(f"no Rigid Body columns (only rigid bodies are poses); other assets: {listed}",
-                         path=path, row=layout.axis_line,
-                         hint="enable Rigid Bodies in Motive's CSV export options")
+        raise NotPoseData(f"no Rigid Body columns (only rigid bodies are poses); other assets: {listed}",
+                          path=path, row=layout.axis_line,
+                          hint="enable Rigid Bodies in Motive's CSV export options",
+                          reason="no rigid bodies, only " + (", ".join(k.lower() + "s" for k in others) or "markers"))
     chosen = select_bodies(list(layout.bodies), options.body, path=path)
     kinds = {name: layout.rotation_kind(name) for name in chosen}
     seq, seq_source = layout.euler_order(options)

@@ -32,7 +32,7 @@ import csv
 import numpy as np
 
 from rbgp_cli.dynamics.trajectory import Trajectory
-from rbgp_cli.errors import InputError, warn
+from rbgp_cli.errors import InputError, NotPoseData, warn
 from rbgp_cli.io.options import ReadOptions
 from rbgp_cli.io.qtm import metres_per, numeric_cells, quat_from_valid, read_text, reader_guard, select_bodies
 
@@ -126,11 +126,12 @@ class _Layout:
             return preferred[0]
         titles = ", ".join(s.title or "(untitled)" for s in self.sections)
         if candidates:
-            raise InputError(
+            raise NotPoseData(
                 "only the Joints section has RX..TZ columns, and joint transforms are relative to the parent "
-                "segment, not world poses", path=self.path, hint="export the Segments section (global poses)")
-        raise InputError(f"no RX,RY,RZ,TX,TY,TZ (segment pose) columns; the sections are {titles}",
-                         path=self.path, hint=_HINT)
+                "segment, not world poses", path=self.path, hint="export the Segments section (global poses)",
+                reason="joints only, no segment poses")
+        raise NotPoseData(f"no RX,RY,RZ,TX,TY,TZ (segment pose) columns; the sections are {titles}",
+                          path=self.path, hint=_HINT, reason="no segment poses")
 
 
 def _float(text: str, delimiter: str) -> float | None:

@@ -160,6 +160,33 @@ def test_inspect_csv_and_mcap():
     assert res.exit_code == 0 and "/shoe/trial_07/pose" in res.stdout
 
 
+def test_a_folder_with_a_licence_and_a_readme_trains(tmp_path):
+    """The issue's data/ folder: takes plus the dataset's LICENSE.txt and README.md. Every command that
+    takes a folder reads the takes and says once what it skipped; the LICENSE named alone is an error."""
+    data = tmp_path / "data"
+    data.mkdir()
+    for f in sorted(CSV_DIR.glob("*.csv")):
+        (data / f.name).write_bytes(f.read_bytes())
+    (data / "LICENSE.txt").write_text("Creative Commons Attribution 4.0 International\n\nBy using the Licensed Material\n")
+    (data / "README.md").write_text("# Shoe handovers\n\nNine takes at 100 Hz.\n")
+    model = tmp_path / "m.rbgp"
+    res = run("train", data, "-o", model, *FAST, "--json")
+    assert res.exit_code == 0, res.stderr
+    assert json.loads(res.stdout)["demos"] == 9
+    notes = [ln for ln in res.stderr.splitlines() if ln.startswith("rbgp: warning:")]
+    assert notes == [f"rbgp: warning: {data}: skipped 2 of 11 files that hold no pose data: "
+                     "LICENSE.txt, README.md (no pose columns)"]
+    inputs = json.loads(run("info", model, "--json").stdout)["provenance"]["inputs"]
+    assert [Path(i["name"]).name for i in inputs] == sorted(f.name for f in CSV_DIR.glob("*.csv"))
+    res = run("rollout", model, "--from-demos", data, "--count", 2, "--steps", 5, "--no-std")
+    assert res.exit_code == 0 and res.stderr.count("skipped 2 of 11") == 1
+    res = run("evaluate", "--model", model, "--count", 5, "--demos", data, "--json")
+    assert res.exit_code == 0 and json.loads(res.stdout)["n_demos"] == 9
+    res = run("inspect", data, "--json")
+    assert res.exit_code == 0 and len(json.loads(res.stdout)) == 9 and "LICENSE.txt" in res.stderr
+    assert_one_line_error(run("train", data / "LICENSE.txt", "-o", model), 2, "LICENSE.txt:", "no rotation columns")
+
+
 def test_help_does_not_import_heavy_modules():
     code = (
         "import sys\n"
