@@ -285,6 +285,14 @@ def describe(path, options: ReadOptions | None = None) -> dict:
             kinds[name] = layout.rotation_kind(name)
         except InputError:
             kinds[name] = "unknown"
+    needs = []
+    if unit is None:
+        stated = layout.header.get("Length Units")
+        needs.append("--length-unit m|cm|mm (" + (f"unknown Length Units {stated!r}" if stated else
+                                                  "the header states no Length Units") + ")")
+    if seq is None and "euler" in kinds.values():
+        needs.append("--euler-order XYZ for Motive 1.6+ exports, yzx before 1.6 (the header states no Rotation Type)")
+    time_col = next((a for a in layout.meta if a.startswith("Time") and a != "TimeCode"), None)
     return {
         "format": "motive",
         "header": dict(layout.header),
@@ -297,4 +305,9 @@ def describe(path, options: ReadOptions | None = None) -> dict:
         "time_columns": list(layout.meta),
         "frames": len(layout.data),
         "rate_hz": layout.rate(),
+        "euler_order": seq,
+        "euler_order_source": seq_source or None,
+        "time_source": f"{time_col} column" if time_col else "Frame / frame rate",
+        "up_axis": "Y (Motive default; axes kept as exported)",
+        "needs": needs,
     }

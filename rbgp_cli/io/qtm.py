@@ -552,6 +552,7 @@ def describe(path, options: ReadOptions | None = None) -> dict:
     options = options or ReadOptions()
     layout = _Layout(path, read_text(path))
     bodies = {}
+    needs = []
     for name, fields in layout.blocks.items():
         rot, angles, seq, seq_source, angle_names = layout.rotation_plan(fields, options)
         bodies[name] = {
@@ -559,6 +560,17 @@ def describe(path, options: ReadOptions | None = None) -> dict:
                 f"euler {seq} ({seq_source})" if seq else "unknown (use --euler-order)"),
             "angle_columns": angle_names,
         }
+        if rot is None and not seq and not needs:
+            needs.append(f"--euler-order (body {name!r} has no Rot[] matrix and angle columns "
+                         f"{' '.join(angle_names) or 'none'} of unknown convention)")
+    if "Time" in layout.meta:
+        time_source = "Time column"
+    elif layout.frequency() or options.rate:
+        time_source = "(Frame - 1) / FREQUENCY" if "Frame" in layout.meta else "row / FREQUENCY"
+    else:
+        time_source = None
+        freq = (layout.header.get("FREQUENCY") or ["missing"])[0]
+        needs.append(f"--rate HZ (FREQUENCY is {freq} and there is no Time column)")
     return {
         "format": "qtm",
         "layout": layout.layout,
@@ -571,4 +583,6 @@ def describe(path, options: ReadOptions | None = None) -> dict:
         "angle_unit": "deg",
         "frames": len(layout.data),
         "rate_hz": layout.frequency() or options.rate,
+        "time_source": time_source,
+        "needs": needs,
     }

@@ -258,6 +258,18 @@ def describe(path, options: ReadOptions | None = None) -> dict:
         pose = layout.pose_section()
     except InputError:
         pose = None
+    needs, length_unit, angle_unit = [], None, None
+    if pose is not None and pose.poses:
+        first = next(iter(pose.poses.values()))
+        units = pose.units or []
+        length_unit = options.length_unit or (units[first["TX"]] if first["TX"] < len(units) else None) or None
+        angle_unit = (units[first["RX"]] if first["RX"] < len(units) else None) or None
+        if length_unit is None:
+            needs.append("--length-unit m|cm|mm (no units line under the column line)")
+        if pose.rate is None and not options.rate:
+            needs.append(f"--rate HZ (the rate line of section {pose.title!r} is not a number)")
+        if (options.rotation or "").lower() == "euler" and not options.euler_order:
+            needs.append("--euler-order (--rotation euler needs the convention of RX, RY, RZ)")
     return {
         "format": "vicon",
         "delimiter": layout.delimiter,
@@ -266,5 +278,8 @@ def describe(path, options: ReadOptions | None = None) -> dict:
         "pose_section": pose.title if pose else None,
         "rotation": (options.rotation or "helical") if pose else None,
         "frames": len(pose.data) if pose else 0,
-        "rate_hz": pose.rate if pose else None,
+        "rate_hz": (pose.rate or options.rate) if pose else None,
+        "length_unit": length_unit,
+        "angle_unit": angle_unit,
+        "needs": needs,
     }
