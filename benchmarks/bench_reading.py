@@ -1,6 +1,6 @@
 """Reading a big pose CSV: peak memory (RSS) and rows per second, rbgp against peers in the same run.
 
-The file: ``t,x,y,z,qx,qy,qz,qw``, 10⁶ rows (``--rows``) of a seeded random motion at 100 Hz, positions in
+The file: ``t,x,y,z,qx,qy,qz,qw``, 10⁶ rows (``--rows``) of a seeded smooth motion at 100 Hz, positions in
 metres with 7 decimals, unit quaternions with 8 (about 86 bytes a row, 86 MB: the size of the file in
 the issue). Every reader runs in a fresh Python process that first imports numpy, scipy and pandas (and
 the reader), so "above imports" is what reading the file costs; peak RSS is ``ru_maxrss`` of that
@@ -92,7 +92,10 @@ print(json.dumps(out))
 
 
 def write_pose_csv(path: Path, rows: int, seed: int = 0) -> None:
-    """``rows`` rows of t,x,y,z,qx,qy,qz,qw: 100 Hz, positions ~ 1 m, random unit quaternions."""
+    """``rows`` rows of t,x,y,z,qx,qy,qz,qw at 100 Hz: a smooth, slowly turning motion about 1 m from
+    the origin with 0.1 mm / 0.1 mrad of noise (a file ``rbgp train`` accepts, too)."""
+    from rbgp_cli.geometry.so3 import quat_from_rotvec
+
     rng = np.random.default_rng(seed)
     block = 200_000
     with open(path, "w") as fh:
@@ -100,9 +103,10 @@ def write_pose_csv(path: Path, rows: int, seed: int = 0) -> None:
         for start in range(0, rows, block):
             n = min(block, rows - start)
             t = (start + np.arange(n)) / 100.0
-            p = 1.0 + 0.3 * rng.normal(size=(n, 3))
-            q = rng.normal(size=(n, 4))
-            q /= np.linalg.norm(q, axis=1, keepdims=True)
+            rv = np.stack([0.5 * np.sin(0.1 * t), 0.3 * np.cos(0.07 * t), 0.8 * np.sin(0.05 * t)], axis=1)
+            q = quat_from_rotvec(rv + 1e-4 * rng.normal(size=(n, 3)))
+            p = np.stack([0.6 + 0.2 * np.sin(0.3 * t), 0.2 * np.cos(0.2 * t), 1.0 + 0.1 * np.sin(0.5 * t)], axis=1)
+            p += 1e-4 * rng.normal(size=(n, 3))
             np.savetxt(fh, np.column_stack([t, p, q]), fmt=["%.4f"] + ["%.7f"] * 3 + ["%.8f"] * 4, delimiter=",")
 
 

@@ -1192,6 +1192,7 @@ def describe(path, options: ReadOptions | None = None, *, text: str | None = Non
     problem = None
     taken: dict = {}
     rotation = None
+    needs = []
     try:
         plan = _plan(cols, options, source)
         rotation = plan.rotation
@@ -1199,6 +1200,11 @@ def describe(path, options: ReadOptions | None = None, *, text: str | None = Non
             taken[col.index] = _role_key(role)
         if "t" not in plan.roles and not options.rate:
             problem = "no time column; pass --rate HZ"
+            needs.append("--rate HZ (no time column)")
+        if rotation == "numbered" and (options.quat_order or "").lower() not in ("xyzw", "wxyz"):
+            needs.append("--quat-order xyzw or wxyz (the quaternion columns are numbered)")
+        if rotation in ("euler_axis", "rpy") and not options.euler_order:
+            needs.append("--euler-order (the Euler angle columns do not say their order)")
     except InputError as exc:
         problem = str(exc)
     columns = [
@@ -1213,6 +1219,7 @@ def describe(path, options: ReadOptions | None = None, *, text: str | None = Non
         "columns": columns,
         "rotation": rotation,
         "problem": problem,
+        "needs": needs,
     }
 
 

@@ -170,7 +170,7 @@ def _inspect_stdin(options: ReadOptions, stdin) -> dict:
 # --------------------------------------------------------------------------------------------------
 # what is still needed
 
-_FLAG = re.compile(r"(--[a-z][a-z-]+(?: (?![a-z]+\b(?: |$))[^\s,;()]+)?)")
+_FLAG = re.compile(r"--[a-z][a-z-]+")
 
 
 def needs(d: dict, options: ReadOptions | None = None) -> list[str]:
@@ -186,12 +186,11 @@ def needs(d: dict, options: ReadOptions | None = None) -> list[str]:
         pose = [t["topic"] for t in desc.get("topics", []) if t.get("pose") and t.get("messages") != 0]
         if len(pose) > 1:
             out.append(f"--topic NAME, or --topic all / a pattern for one demonstration per topic ({len(pose)} pose topics)")
-    if d.get("error"):
+    if d.get("error"):  # the options the error names (it says why, on the line below)
         have = {n.split()[0] for n in out}
-        for flag in _FLAG.findall(d["error"]):
-            if flag.split()[0] not in have:
-                have.add(flag.split()[0])
-                out.append(flag)
+        flags = [f for f in dict.fromkeys(_FLAG.findall(d["error"])) if f not in have]
+        if flags:
+            out.append(" or ".join(flags) + " (see the error)")
     return out
 
 

@@ -128,7 +128,7 @@ def test_csv_and_mcap_also_say_what_is_still_needed(tmp_path, maker):
     if maker == "csv":
         p = tmp_path / "norate.csv"
         p.write_text("x,y,z,qx,qy,qz,qw\n0,0,0,0,0,0,1\n")
-        want = "--rate HZ"
+        want = "--rate"
     else:
         p = tmp_path / "two.mcap"
         F.write_ros2_topics(p, {"/a": "geometry_msgs/msg/PoseStamped", "/b": "nav_msgs/msg/Odometry"})
