@@ -109,7 +109,7 @@ _NA_TOKENS = {"", "nan", "-nan", "null", "none", "na", "n/a", "<na>", "#n/a", "#
 FAST_MIN_BYTES = 1 << 20
 _FAST_HEAD = 1 << 16
 # a line in the body that the text path would drop: blank, whitespace only, or a comment
-_DROPPED_LINE = re.compile(rb"\n[ \t\f\v]*(?:#|\r?\n|\r?\Z)")
+_DROPPED_LINE = re.compile(rb"\n(?=[ \t\f\v]*(?:#|\r?\n|\r?\Z))")  # at the newline before such a line
 _ODD_BREAKS = re.compile("[\r\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029]")  # splitlines() would break there
 _ISO_START = re.compile(r"\s*\d{4}-\d{2}-\d{2}[T ]\d")
 _MM_THRESHOLD = 10.0  # median |position| above this, in "metres", looks like millimetres
@@ -1185,9 +1185,13 @@ def describe(path, options: ReadOptions | None = None, *, text: str | None = Non
     """
     options = options or ReadOptions()
     source = str(path)
+    rows = None
     if text is None:
-        text = _decode(Path(source).read_bytes(), source)
-    table = _parse_table(text, source)
+        table, rows = _describe_big(source)
+        if table is None:
+            text = _decode(Path(source).read_bytes(), source)
+    if text is not None:
+        table = _parse_table(text, source)
     cols = [_classify(i, name) for i, name in enumerate(table.header)]
     problem = None
     taken: dict = {}
@@ -1214,13 +1218,48 @@ def describe(path, options: ReadOptions | None = None, *, text: str | None = Non
     return {
         "delimiter": table.delimiter,
         "header_line": table.header_line,
-        "data_rows": int(len(table.lines)),
+        "data_rows": int(len(table.lines)) if rows is None else rows,
         "declared": table.declared,
         "columns": columns,
         "rotation": rotation,
         "problem": problem,
         "needs": needs,
     }
+
+
+def _describe_big(source: str):
+    """For a file of at least :data:`FAST_MIN_BYTES`: the table parsed from its first 64 KiB and the
+    number of data rows counted on a memory map (lines after the header that are not blank or
+    comments), without decoding the file; ``(None, None)`` when the head does not hold the header."""
+    import mmap
+
+    try:
+        if os.path.getsize(source) < max(FAST_MIN_BYTES, 1):
+            return None, None
+        with open(source, "rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as buf:
+            head = bytes(buf[:_FAST_HEAD])
+            cut = head.rfind(b"\n")
+            if cut < 0 or head[:2] in (b"\xff\xfe", b"\xfe\xff"):
+                return None, None
+            try:
+                text = head[: cut + 1].decode("utf-8-sig")
+            except UnicodeDecodeError:
+                text = head[: cut + 1].decode("latin-1")
+            try:
+                table = _parse_table(text, source)
+            except InputError:
+                return None, None
+            if len(table.lines) == 0:
+                return None, None
+            offset = 0
+            for _ in range(int(table.lines[0]) - 1):
+                offset = head.index(b"\n", offset) + 1
+            newlines = sum(bytes(buf[i : i + (1 << 22)]).count(b"\n") for i in range(offset, len(buf), 1 << 22))
+            lines = newlines + (0 if buf[len(buf) - 1 : len(buf)] == b"\n" else 1)
+            dropped = sum(1 for _ in _DROPPED_LINE.finditer(buf, offset - 1)) - (buf[-1:] == b"\n")
+            return table, int(lines - dropped)
+    except (OSError, ValueError):
+        return None, None
 
 
 def sniff_pose_columns(head: bytes, source: str, options: ReadOptions | None = None, *,

@@ -169,3 +169,13 @@ def test_the_benchmark_reports_peak_rss_and_rows_per_second(tmp_path):
     ours = d["readers"][0]
     assert ours["peak_mb"] > ours["base_mb"] > 0 and ours["seconds"] > 0 and ours["rows"] == 20_000
     assert "rows/s" in res.stdout and "peak RSS" in res.stdout
+
+
+def test_describe_counts_the_rows_of_a_big_file_without_decoding_it(tmp_path):
+    """``rbgp inspect`` on a big file: the header from the head, the rows counted on a memory map, the
+    same count as the text path (blank and comment lines are not rows)."""
+    files = [path for path, _ in layouts(tmp_path).values()] + list(problems(tmp_path).values())
+    for path in files:
+        expected = len(rcsv._parse_table(rcsv._decode(path.read_bytes(), str(path)), str(path)).lines)
+        d = rcsv.describe(path)
+        assert d["data_rows"] == expected, path.name
