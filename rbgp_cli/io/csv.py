@@ -506,7 +506,7 @@ def _plan(cols: list, options: ReadOptions, source: str) -> _Plan:
         if c is None:
             err = _missing_error(_role_key(r), "rotation" if r in _KIND_ROLES[kind] else "position", cols,
                                  used(), source)  # fmt: skip
-            if no_position and r in "xyz":  # rotations only (an IMU log): not poses
+            if no_position and r in ("x", "y", "z"):  # rotations only (an IMU log): not poses
                 raise NotPoseData(err.message, path=source, hint=err.hint, reason="no position columns")
             raise err
         roles[r] = c

@@ -2,9 +2,11 @@
 
 :func:`inspect_file` returns plain data (JSON-ready); :func:`format_inspect` renders it for people.
 For CSV it lists the columns and what each is taken as, for MCAP the topics (from the summary), for
-vendor formats whatever the reader's ``describe()`` returns; then per trajectory: samples, duration,
-median rate, gaps (steps longer than 1.5× the median), lost frames, units and conventions, and the
-position range. A file rbgp cannot read still gets a description with the reader's error message.
+QTM, Motive and Vicon exports what the header says (layout, bodies, rate, units, rotation source,
+time, ignored assets), in aligned rows of plain words; then per trajectory: samples, duration, median
+rate, gaps (steps longer than 1.5× the median), lost frames, units and conventions, and the position
+range; then the options still needed to train on the file (:func:`needs`). A file rbgp cannot read
+still gets a description with the reader's error message.
 """
 
 from __future__ import annotations

@@ -112,7 +112,13 @@ class SourceList:
     listed : dict
         ``directory or pattern -> number of files it listed``.
     skipped : list of (str, str)
-        ``(file, reason)`` of the files skipped as not pose data, in order.
+        ``(file, reason)`` of the files skipped as not pose data, in the order they were listed.
+    subdirectories : dict
+        ``directory -> number of subdirectories`` (not searched; said when a directory yields nothing).
+    explicit : set
+        The paths named explicitly (never skipped).
+    order : dict
+        ``file -> position`` in the listing (orders ``skipped``).
     """
 
     files: list = field(default_factory=list)
