@@ -334,7 +334,7 @@ def inspect(
     from rbgp_cli.workflows import expand_paths
 
     opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation)
-    results = [inspect_file(f, opts) for f in expand_paths(files)]
+    results = [inspect_file(f, opts) for f in expand_paths(files, opts)]
     if json_out:
         emit_json(results if len(results) != 1 else results[0])
     else:
