@@ -109,7 +109,8 @@ class MotionModel:
         """The prior mean of the outputs at inputs X (m, d), or None for a zero-mean GP."""
         if not self.mean:
             return None
-        return attractor_mean(self.representation, X[:, : self.pose_dims], self.mean)
+        phase = X[:, -1] if self.time_input == "phase" else None
+        return attractor_mean(self.representation, X[:, : self.pose_dims], self.mean, phase)
 
     def predict_output(self, X, return_std: bool = False, manage_threads: bool = True):
         """Outputs (velocities in the representation's coordinates, per second or per unit phase) at
@@ -138,16 +139,54 @@ class MotionModel:
         return (mean, std) if return_std else mean
 
 
-def attractor_mean(representation: Representation, state: np.ndarray, mean: dict) -> np.ndarray:
-    """ξ_m = −a·(log(R R_goalᵀ), p − p_goal), as the representation's outputs at ``state`` (m, d)."""
+def attractor_mean(representation: Representation, state: np.ndarray, mean: dict, phase=None) -> np.ndarray:
+    """The prior mean as the representation's outputs at ``state`` (m, d).
+
+    ``attractor``: ξ_m = a·(log(R_goal Rᵀ), p_goal − p), a pull toward the demonstrations' mean final
+    pose. ``path`` (phase input only): ξ_m = ξ̄(s) + a·(log(R̄(s) Rᵀ), p̄(s) − p), the velocity of the
+    demonstrations' mean path at phase s (per unit phase) plus a pull toward its pose at s
+    (:func:`mean_path`); ``phase`` (m,) gives s.
+    """
+    from rbgp_cli.dynamics.trajectory import interpolate_poses
     from rbgp_cli.geometry.so3 import log_quat, quat_conjugate, quat_multiply
 
-    goal = np.asarray(mean["goal"], dtype=np.float64)
     a = float(mean["gain"])
     quat, pos = representation.pose_from_state(state)
-    rot = log_quat(quat_multiply(quat, quat_conjugate(goal[:4])))
-    xi = -a * np.concatenate([rot, pos - goal[4:]], axis=1)
+    if mean["kind"] == "path":
+        s_grid = np.asarray(mean["s"], dtype=np.float64)
+        s = np.clip(np.asarray(phase, dtype=np.float64), s_grid[0], s_grid[-1])
+        ref_q, ref_p = interpolate_poses(s_grid, np.asarray(mean["quat"]), np.asarray(mean["position"]), s)
+        k = np.clip(np.searchsorted(s_grid, s, side="right") - 1, 0, len(s_grid) - 2)
+        ff = np.asarray(mean["velocity"], dtype=np.float64)[k]
+    else:
+        goal = np.asarray(mean["goal"], dtype=np.float64)
+        ref_q, ref_p = np.broadcast_to(goal[:4], quat.shape), goal[4:]
+        ff = 0.0
+    rot = log_quat(quat_multiply(ref_q, quat_conjugate(quat)))
+    xi = ff + a * np.concatenate([rot, ref_p - pos], axis=1)
     return representation.output_from_velocity(state, quat, xi)
+
+
+def mean_path(trajs: list[Trajectory], steps: int = 51) -> dict:
+    """The demonstrations' mean path over phase s = (t − t_0)/D: at ``steps`` phases the chordal mean
+    rotation (principal eigenvector of Σ q qᵀ) and the mean position, and per interval the twist per
+    unit phase that carries one mean pose to the next (ξ̄_k = (log(R̄_{k+1} R̄_kᵀ), p̄_{k+1} − p̄_k)/Δs)."""
+    from rbgp_cli.dynamics.trajectory import interpolate_poses
+    from rbgp_cli.geometry.so3 import log_quat, quat_conjugate, quat_make_continuous, quat_multiply
+
+    s = np.linspace(0.0, 1.0, steps)
+    Q, P = [], []
+    for tr in trajs:
+        q, p = interpolate_poses((tr.t - tr.t[0]) / max(tr.duration, 1e-12), quat_make_continuous(tr.quat), tr.position, s)
+        Q.append(q)
+        P.append(p)
+    Q, P = np.array(Q), np.array(P)  # (D, S, 4), (D, S, 3)
+    _, V = np.linalg.eigh(np.einsum("dsi,dsj->sij", Q, Q))
+    q_mean = quat_make_continuous(V[:, :, -1])
+    p_mean = P.mean(axis=0)
+    ds = np.diff(s)[:, None]
+    vel = np.concatenate([log_quat(quat_multiply(q_mean[1:], quat_conjugate(q_mean[:-1]))), np.diff(p_mean, axis=0)], axis=1) / ds
+    return {"s": s.tolist(), "quat": q_mean.tolist(), "position": p_mean.tolist(), "velocity": vel.tolist()}
 
 
 def goal_pose(trajs: list[Trajectory]) -> np.ndarray:
@@ -249,6 +288,7 @@ def train_model(
     velocity: VelocityOptions | None = None,
     time_input: str | None = None,
     attractor: float | None = None,
+    path_gain: float | None = None,
 ) -> MotionModel:
     """Train a motion model on clean demonstrations (see :func:`rbgp_cli.dynamics.prepare.prepare_all`).
 
@@ -270,9 +310,14 @@ def train_model(
     X, Y, info = training_set(trajs, rep, subsample=subsample, max_points=max_points, seed=seed, velocity=velocity,
                               time_input=time_input)
     mean = None
-    if attractor:
+    if path_gain is not None:
+        if time_input != "phase":
+            raise InputError("a mean-path prior needs the phase input", hint="add --time-input phase")
+        mean = {"kind": "path", "gain": float(path_gain), **mean_path(trajs)}
+    elif attractor:
         mean = {"kind": "attractor", "gain": float(attractor), "goal": goal_pose(trajs).tolist()}
-        Y = Y - attractor_mean(rep, X[:, : len(rep.input_names)], mean)
+    if mean is not None:
+        Y = Y - attractor_mean(rep, X[:, : len(rep.input_names)], mean, X[:, -1] if time_input == "phase" else None)
     if progress:
         progress(f"{len(trajs)} demonstrations, {info['pairs']} pairs, training on {info['points']} points "
                  f"({rep.name}, kernel {kernel}, {'shared' if shared else 'per-output'} hyperparameters)")

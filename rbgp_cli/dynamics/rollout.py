@@ -62,7 +62,7 @@ def _check_finite(state, step):
 
 
 def rollout(model, start_quat, start_position, steps: int, dt: float | None = None, *, samples: int = 0,
-            seed: int = 0, with_std: bool = True, progress=None) -> RolloutResult:
+            seed: int = 0, with_std: bool = True, progress=None, durations=None) -> RolloutResult:
     """Roll out ``model`` (a :class:`~rbgp_cli.dynamics.model.MotionModel`) from B start poses.
 
     Parameters
@@ -74,16 +74,19 @@ def rollout(model, start_quat, start_position, steps: int, dt: float | None = No
     seed : seeds the Monte Carlo draws
     with_std : record the predictive std along the mean trajectories (costs one triangular solve per
         step; switch off for speed)
+    durations : (B,) seconds each trajectory is meant to last (default steps·dt for all). Only a model
+        with a phase input uses it: trajectory b advances its phase by dt/durations[b] per step, so a
+        batch of different lengths can share the steps (each is then cut to its own duration).
     """
     from rbgp_cli.gp.exact import blas_threads
 
     # Always single-threaded: per step the matrices are only B × n, and a 2-thread OpenBLAS pool
     # made 100 × 626 steps at n = 1752 take 11.0 s instead of 3.8 s on a loaded machine (measured).
     with blas_threads(0):
-        return _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, progress)
+        return _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, progress, durations)
 
 
-def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, progress):
+def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, progress, durations):
     rep, gp = model.representation, model.gp
     dt = float(model.dt if dt is None else dt)
     if not np.isfinite(dt) or dt <= 0:
@@ -94,7 +97,9 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
     q0 = quat_normalize(np.asarray(start_quat, dtype=np.float64).reshape(-1, 4))
     p0 = np.asarray(start_position, dtype=np.float64).reshape(-1, 3)
     B, K = len(q0), int(samples)
-    duration = steps * dt
+    duration = np.full((B, 1), steps * dt) if durations is None else np.asarray(durations, dtype=np.float64).reshape(B, 1)
+    if not np.all(np.isfinite(duration) & (duration > 0)):
+        raise InputError("rollout durations must be positive numbers of seconds")
     state = model.initial_state(q0, p0)
     d = state.shape[1]
     L = gp.n_outputs
@@ -119,7 +124,7 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
             states[k + 1] = state
             if K > 0:
                 smu, ssd = model.predict_output(sstate, return_std=True, manage_threads=False)
-                sstate = model.advance(sstate, smu + ssd * rng.standard_normal(smu.shape), dt, duration)
+                sstate = model.advance(sstate, smu + ssd * rng.standard_normal(smu.shape), dt, np.repeat(duration, K, axis=0))
                 _check_finite(sstate, k + 1)
                 sstates[k + 1] = sstate
         if progress is not None and (k % 100 == 0 or last):

@@ -169,7 +169,7 @@ def _generate(config: Config, train: list[Trajectory], test: list[Trajectory]):
     steps = np.array([max(1, int(round(tr.duration / model.dt))) for tr in test])
     q0 = np.array([tr.quat[0] for tr in test])
     p0 = np.array([tr.position[0] for tr in test])
-    res = rollout(model, q0, p0, int(steps.max()), with_std=False)
+    res = rollout(model, q0, p0, int(steps.max()), with_std=False, durations=steps * model.dt)
     gen = [Trajectory(res.t[: s + 1], res.quat[b, : s + 1], res.position[b, : s + 1], name=f"from {test[b].name}")
            for b, s in enumerate(steps)]
     return gen, train_s, model
