@@ -54,7 +54,7 @@ def run_demo(out, *, count: int = 100, representations=("axis-angle", "euler", "
         t1 = time.perf_counter()
         if progress:
             progress(f"[{rep}] {count} rollouts of {duration:.2f} s")
-        res = workflows.rollout_model(model, q0, p0, duration=duration, with_std=False)
+        res = workflows.rollout_model(model, q0, p0, duration=duration, with_std=False, progress=progress)
         t2 = time.perf_counter()
         gen = res.trajectories()
         write_trajectories_csv(gen, os.path.join(out, f"{rep}_rollouts.csv"))
