@@ -187,6 +187,25 @@ def test_rollout_reports_its_steps(model):
     assert task["statuses"] == ["2 trajectories"] and task["closed"] is True
 
 
+def test_the_demo_is_one_task_around_each_representations_training_and_rollout(tmp_path):
+    """The pattern a cross-validation follows: one outer task whose units are folds (here:
+    representations), with the training and rollout tasks of each nested inside it."""
+    from rbgp_cli.demo import run_demo
+
+    rec = Recorder()
+    run_demo(tmp_path / "d", count=3, representations=["axis-angle", "euler"], quick=True, progress=rec)
+    assert [t["description"] for t in rec.tasks] == ["demo", "training", "rollout", "training", "rollout"]
+    outer = rec.tasks[0]
+    assert (outer["total"], outer["unit"], outer["advanced"], outer["closed"]) == (2, "representations", 2, True)
+    assert outer["statuses"] == ["axis-angle", "euler"]
+    out = io.StringIO()
+    run_demo(tmp_path / "e", count=3, representations=["axis-angle"], quick=True,
+             progress=LineProgress(out, interval=1e9))
+    lines = out.getvalue().splitlines()
+    assert lines[-1].startswith("rbgp: demo: 1/1 representations in ")
+    assert not [ln for ln in lines if ln.startswith(("rbgp: training:", "rbgp: rollout:"))]  # nested: no lines
+
+
 def test_a_plain_callable_still_receives_the_messages():
     got = []
     p = as_progress(got.append)
