@@ -7,7 +7,6 @@ and prints the result.
 
 from __future__ import annotations
 
-import glob
 import os
 import time
 from dataclasses import asdict
@@ -36,29 +35,13 @@ __all__ = [
 SAMPLE_DATA = Path(__file__).resolve().parents[1] / "sample_data"
 
 
-def expand_paths(paths) -> list[str]:
-    """Expand directories (their *.csv, *.tsv, *.mcap, sorted) and glob patterns; keep '-' as is."""
-    out: list[str] = []
-    for p in paths:
-        p = str(p)
-        if p == "-":
-            out.append(p)
-        elif os.path.isdir(p):
-            found = sorted(
-                str(f) for f in Path(p).iterdir()
-                if f.is_file() and f.suffix.lower() in (".csv", ".tsv", ".txt", ".mcap")
-            )
-            if not found:
-                raise InputError("the directory holds no .csv, .tsv or .mcap files", path=p)
-            out.extend(found)
-        elif any(ch in p for ch in "*?[") and not os.path.exists(p):
-            found = sorted(glob.glob(p))
-            if not found:
-                raise InputError("no file matches this pattern", path=p)
-            out.extend(found)
-        else:
-            out.append(p)
-    return out
+def expand_paths(paths, options: ReadOptions | None = None) -> list[str]:
+    """Expand directories (their files, sorted) and glob patterns; keep files and '-' as given. Files
+    found in a directory or through a pattern that hold no pose data are left out, with one warning
+    naming them (:func:`rbgp_cli.io.read.expand_sources`)."""
+    from rbgp_cli.io.read import expand_sources
+
+    return expand_sources(paths, options)
 
 
 def load_demonstrations(sources, options: ReadOptions | None = None, *, max_gap: float | None = None,
@@ -69,13 +52,14 @@ def load_demonstrations(sources, options: ReadOptions | None = None, *, max_gap:
     """
     from rbgp_cli.dynamics.prepare import prepare_all
     from rbgp_cli.io.model_store import file_sha256
-    from rbgp_cli.io.read import read_demonstrations
+    from rbgp_cli.io.read import read_sources
 
     options = options or ReadOptions()
-    paths = expand_paths(sources)
-    if not paths:
+    sources = list(sources or [])
+    if not sources:
         raise InputError("no demonstrations given", hint="pass one or more files or a directory")
-    raw = read_demonstrations(paths, options, stdin=stdin)
+    raw, listing = read_sources(sources, options, stdin=stdin)  # skips what is not pose data in folders
+    paths = listing.files  # the files read
     if not raw:
         raise InputError("the inputs hold no demonstrations", path=", ".join(paths))
     clean, reports = prepare_all(raw, max_gap=max_gap)

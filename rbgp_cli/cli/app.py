@@ -345,7 +345,7 @@ def inspect(
     from rbgp_cli.workflows import expand_paths
 
     opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation)
-    results = [inspect_file(f, opts) for f in expand_paths(files)]
+    results = [inspect_file(f, opts) for f in expand_paths(files, opts)]
     if json_out:
         emit_json(results if len(results) != 1 else results[0])
     else:
@@ -375,6 +375,42 @@ def demo(
         for rep, s in scores["representations"].items():
             b = s["bhattacharyya"]
             print(f"{rep:<14} {b['mean']:8.3f} {b['rotation']:9.3f} {b['translation']:12.3f}  {s['train_seconds']:7.1f}  {s['rollout_seconds']:9.1f}")
+
+
+# ---------------------------------------------------------------------------------------------- bench
+bench_app = typer.Typer(help="Benchmarks that measure published claims on this machine.", no_args_is_help=True)
+app.add_typer(bench_app, name="bench")
+
+
+@bench_app.command("paper")
+@command
+def bench_paper(
+    part: Annotated[str, typer.Argument(help="all, theorem, runtime or accuracy.")] = "all",
+    quick: Annotated[bool, typer.Option("--quick", help="A smoke run of a few seconds (2 repetitions, no 200-rotation sets).")] = False,
+    repeats: Annotated[Optional[int], typer.Option(min=1, help="Repetitions of each part: random rotation sets per size, timing runs, random dynamics (default 50; 2 with --quick).")] = None,
+    seed: Annotated[int, typer.Option(help="Seed of every random draw.")] = 0,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the results as one JSON object on stdout.")] = False,
+    markdown: Annotated[Optional[str], typer.Option("--markdown", help="Also write the report as Markdown to this file.")] = None,
+):
+    """Measure the paper's Theorem 1 and its sec. 4.1 (speed) and 4.2 (accuracy) claims with rbgp's GP.
+
+    Each part runs alone too; statistics over repetitions, BLAS single-threaded for the timings.
+
+    Example: rbgp bench paper --repeats 100 --markdown paper.md
+    """
+    from rbgp_cli.bench.paper import PARTS, format_report, run_paper_bench
+    from rbgp_cli.errors import InputError
+
+    if part not in ("all", *PARTS):
+        raise InputError(f"unknown part {part!r}; expected all, {', '.join(PARTS)}")
+    res = run_paper_bench(PARTS if part == "all" else (part,), repeats=repeats, seed=seed, quick=quick, progress=progress)
+    report = format_report(res)
+    if markdown:
+        write_text_output(markdown, lambda fh: fh.write(report))
+    if json_out:
+        emit_json(res)
+    else:
+        print(report, end="")
 
 
 def main() -> None:

@@ -13,6 +13,7 @@ import numpy as np
 
 from rbgp_cli.dynamics.representations import Representation, make_representation
 from rbgp_cli.dynamics.trajectory import Trajectory
+from rbgp_cli.dynamics.velocities import VelocityOptions, estimate_velocities, integration_drift, window_problem
 from rbgp_cli.errors import InputError
 from rbgp_cli.gp.exact import GaussianProcess, fit_gp
 from rbgp_cli.kernels import DotProduct, Kernel, SquaredExponential
@@ -20,9 +21,12 @@ from rbgp_cli.kernels import DotProduct, Kernel, SquaredExponential
 __all__ = ["MotionModel", "make_kernel", "training_set", "train_model", "KERNELS"]
 
 KERNELS = ("se", "se-chordal", "dot")
+#: What the GP sees besides the pose: nothing (the paper), seconds since the start, or the phase.
+TIME_INPUTS = (None, "seconds", "phase")
 
 
-def make_kernel(representation: Representation, kernel: str = "se", rho_rot: float = 0.7, learn_rho: bool = False) -> Kernel:
+def make_kernel(representation: Representation, kernel: str = "se", rho_rot: float = 0.7, learn_rho: bool = False,
+                time_dims: int = 0) -> Kernel:
     """The kernel for a representation (MATH.md §6).
 
     ``se`` is the paper's squared exponential on the representation's own rotation distance: the
@@ -33,12 +37,14 @@ def make_kernel(representation: Representation, kernel: str = "se", rho_rot: flo
     rd = representation.rotation_dims
     if kernel == "se":
         metric = {"axis-angle": "arc", "euler": "euclidean", "quaternion": "s3"}[representation.name]
-        return SquaredExponential(metric, rd, rho_rot, learn_rho)
+        return SquaredExponential(metric, rd, rho_rot, learn_rho, time_dims)
     if kernel == "se-chordal":
         if representation.name == "euler":
             raise InputError("--kernel se-chordal needs a rotation representation (axis-angle or quaternion), not euler")
-        return SquaredExponential("chordal", rd, rho_rot, learn_rho)
+        return SquaredExponential("chordal", rd, rho_rot, learn_rho, time_dims)
     if kernel == "dot":
+        if time_dims:
+            raise InputError("--kernel dot takes no time input", hint="use --kernel se or se-chordal")
         return DotProduct(rd, rho_rot, learn_rho)
     raise InputError(f"unknown kernel {kernel!r}; expected one of {', '.join(KERNELS)}")
 
@@ -49,10 +55,19 @@ class MotionModel:
 
     representation : how poses become GP inputs and outputs integrate back
     gp : the fitted GP (inputs X (n, d), outputs Y (n, L))
-    dt : the demonstrations' median time step, seconds (default rollout step)
+    dt : the training step, seconds (default rollout step): 1/rate when velocities were estimated on a
+        resampled grid, else the demonstrations' median time step
     starts : demonstrations' start poses, shape (D, 7) = (qx, qy, qz, qw, x, y, z)
     durations : demonstrations' durations, seconds, shape (D,)
     summary : plain-data training summary; provenance : inputs, options, version, time
+    velocity : how the training velocities were estimated (held-out pairs are made the same way)
+    time_input : None, or ``"seconds"`` (time since the demonstration's start is a last GP input) or
+        ``"phase"`` (normalised time s = (t − t_0)/D is a last input, and the outputs are velocities
+        per unit phase, D·ξ, so that a rollout of any duration D' traverses the learned motion once)
+    mean : None (zero-mean GP, MATH.md §7) or ``{"kind": "attractor", "gain": a, "goal": (7,)}``: the
+        prior mean ξ_m = −a·(log(R R_goalᵀ), p − p_goal) (per second, or per unit phase) converted to
+        the representation's outputs; the GP models the residual, as in stable dynamical systems
+        learned from demonstration
     """
 
     representation: Representation
@@ -62,31 +77,138 @@ class MotionModel:
     durations: np.ndarray
     summary: dict = field(default_factory=dict)
     provenance: dict = field(default_factory=dict)
+    velocity: VelocityOptions = field(default_factory=VelocityOptions)
+    time_input: str | None = None
+    mean: dict | None = None
 
-    def predict(self, quat, position, return_std: bool = True, noisy: bool = False):
-        """Output mean and std at poses (quat (m, 4) x, y, z, w; position (m, 3))."""
+    @property
+    def pose_dims(self) -> int:
+        """Columns of the representation's state (the GP input without the time column)."""
+        return len(self.representation.input_names)
+
+    def initial_state(self, quat, position) -> np.ndarray:
+        """GP inputs (B, d) at the start of rollouts from poses (quat (B, 4) x, y, z, w; position (B, 3))."""
         X = self.representation.state_from_pose(np.asarray(quat, float).reshape(-1, 4), np.asarray(position, float).reshape(-1, 3))
-        return self.gp.predict(X, return_std=return_std, noisy=noisy)
+        if self.time_input:
+            X = np.concatenate([X, np.zeros((len(X), 1))], axis=1)
+        return X
+
+    def advance(self, X, output, dt: float, duration: float) -> np.ndarray:
+        """One rollout step from inputs X (B, d) with predicted outputs (B, L) over ``dt`` seconds of a
+        rollout lasting ``duration`` seconds (the phase mode divides by it)."""
+        d = self.pose_dims
+        if self.time_input == "phase":
+            nxt = self.representation.step(X[:, :d], output / duration, dt)
+            return np.concatenate([nxt, X[:, d:] + dt / duration], axis=1)
+        if self.time_input == "seconds":
+            nxt = self.representation.step(X[:, :d], output, dt)
+            return np.concatenate([nxt, X[:, d:] + dt], axis=1)
+        return self.representation.step(X, output, dt)
+
+    def prior_mean(self, X) -> np.ndarray | None:
+        """The prior mean of the outputs at inputs X (m, d), or None for a zero-mean GP."""
+        if not self.mean:
+            return None
+        return attractor_mean(self.representation, X[:, : self.pose_dims], self.mean)
+
+    def predict_output(self, X, return_std: bool = False, manage_threads: bool = True):
+        """Outputs (velocities in the representation's coordinates, per second or per unit phase) at
+        inputs X (m, d): the GP's prediction plus the prior mean."""
+        out = self.gp.predict(X, return_std=return_std, manage_threads=manage_threads)
+        m = self.prior_mean(np.asarray(X, dtype=np.float64))
+        if m is None:
+            return out
+        if return_std:
+            return out[0] + m, out[1]
+        return out + m
+
+    def predict(self, quat, position, return_std: bool = True, noisy: bool = False, tau=None):
+        """Output mean and std at poses (quat (m, 4) x, y, z, w; position (m, 3)); ``tau`` (m,) the
+        time since the start (seconds or phase, as the model was trained) for models with a time input."""
+        X = self.representation.state_from_pose(np.asarray(quat, float).reshape(-1, 4), np.asarray(position, float).reshape(-1, 3))
+        if self.time_input:
+            if tau is None:
+                raise InputError(f"this model takes the {'phase' if self.time_input == 'phase' else 'time since the start'} "
+                                 "as an input", hint="give a time column with the poses")
+            X = np.concatenate([X, np.asarray(tau, float).reshape(-1, 1)], axis=1)
+        mean, std = self.gp.predict(X, return_std=True, noisy=noisy)
+        m = self.prior_mean(X)
+        if m is not None:
+            mean = mean + m
+        return (mean, std) if return_std else mean
+
+
+def attractor_mean(representation: Representation, state: np.ndarray, mean: dict) -> np.ndarray:
+    """ξ_m = −a·(log(R R_goalᵀ), p − p_goal), as the representation's outputs at ``state`` (m, d)."""
+    from rbgp_cli.geometry.so3 import log_quat, quat_conjugate, quat_multiply
+
+    goal = np.asarray(mean["goal"], dtype=np.float64)
+    a = float(mean["gain"])
+    quat, pos = representation.pose_from_state(state)
+    rot = log_quat(quat_multiply(quat, quat_conjugate(goal[:4])))
+    xi = -a * np.concatenate([rot, pos - goal[4:]], axis=1)
+    return representation.output_from_velocity(state, quat, xi)
+
+
+def goal_pose(trajs: list[Trajectory]) -> np.ndarray:
+    """The demonstrations' mean final pose (7,): chordal mean rotation (principal eigenvector of
+    Σ q qᵀ, x, y, z, w) and mean position."""
+    Q = np.array([tr.quat[-1] for tr in trajs])
+    w, V = np.linalg.eigh(Q.T @ Q)
+    q = V[:, -1]
+    q = q if q[3] >= 0 else -q
+    return np.concatenate([q, np.mean([tr.position[-1] for tr in trajs], axis=0)])
+
+
+def demonstration_pairs(trajs: list[Trajectory], representation: Representation,
+                        velocity: VelocityOptions | None = None, time_input: str | None = None):
+    """Training pairs of every demonstration (MATH.md §4, §4.1), before any subsampling.
+
+    With a ``time_input`` the inputs get a last column: seconds since the demonstration's start, or
+    its phase (t − t_0)/D with outputs multiplied by D (velocities per unit phase).
+    Returns X (n, d), Y (n, L), per-demonstration pair counts, and the velocity segments.
+    """
+    velocity = velocity or VelocityOptions()
+    Xs, Ys, per_demo, segments = [], [], [], []
+    for tr in trajs:
+        segs = estimate_velocities(tr, velocity)
+        count = 0
+        for seg in segs:
+            X, Y = representation.pairs_from_segment(seg)
+            if time_input:
+                tau = seg.traj.t[: len(X)] - seg.t0
+                if time_input == "phase":
+                    D = max(tr.duration, 1e-9)
+                    tau = tau / D
+                    Y = Y * D
+                X = np.concatenate([X, tau[:, None]], axis=1)
+            Xs.append(X)
+            Ys.append(Y)
+            count += len(X)
+        per_demo.append(count)
+        segments.extend(segs)
+    d, L = len(representation.input_names) + (1 if time_input else 0), len(representation.output_names)
+    X = np.concatenate(Xs) if Xs else np.zeros((0, d))
+    Y = np.concatenate(Ys) if Ys else np.zeros((0, L))
+    return X, Y, per_demo, segments
 
 
 def training_set(trajs: list[Trajectory], representation: Representation, *, subsample: float | None = 0.1,
-                 max_points: int | None = None, seed: int = 0):
+                 max_points: int | None = None, seed: int = 0, velocity: VelocityOptions | None = None,
+                 time_input: str | None = None):
     """All training pairs of all demonstrations, then a seeded random subset.
 
     Returns X (n, d), Y (n, L) and a dict with ``pairs`` (before subsampling), ``points`` (after),
-    ``per_demo`` pair counts and the chosen ``indices`` into the concatenated pairs.
+    ``per_demo`` pair counts, the chosen ``indices`` into the concatenated pairs and the velocity
+    ``segments``.
     """
     if not trajs:
         raise InputError("no demonstrations given", hint="pass one or more demonstration files")
     representation.prepare(trajs)
-    Xs, Ys, per_demo = [], [], []
-    for tr in trajs:
-        X, Y, _ = representation.training_pairs(tr)
-        Xs.append(X)
-        Ys.append(Y)
-        per_demo.append(len(X))
-    X = np.concatenate(Xs)
-    Y = np.concatenate(Ys)
+    problem = window_problem(trajs, velocity or VelocityOptions())
+    if problem:
+        raise InputError(problem, hint="use a longer --smooth-window or 0 for forward differences")
+    X, Y, per_demo, segments = demonstration_pairs(trajs, representation, velocity, time_input)
     n = len(X)
     if n < 2:  # two samples give one velocity: nothing for a GP to fit (nor a length scale to learn)
         sources = sorted({tr.source or tr.name for tr in trajs if tr.source or tr.name})
@@ -105,7 +227,8 @@ def training_set(trajs: list[Trajectory], representation: Representation, *, sub
     if max_points is not None:
         k = min(k, int(max_points))
     idx = np.sort(rng.choice(n, size=k, replace=False)) if k < n else np.arange(n)
-    return X[idx], Y[idx], {"pairs": int(n), "points": int(len(idx)), "per_demo": per_demo, "indices": idx}
+    return X[idx], Y[idx], {"pairs": int(n), "points": int(len(idx)), "per_demo": per_demo, "indices": idx,
+                            "segments": segments}
 
 
 def train_model(
@@ -123,6 +246,9 @@ def train_model(
     euler_order: str = "xyz",
     progress=None,
     explore_size: int | None = None,
+    velocity: VelocityOptions | None = None,
+    time_input: str | None = None,
+    attractor: float | None = None,
 ) -> MotionModel:
     """Train a motion model on clean demonstrations (see :func:`rbgp_cli.dynamics.prepare.prepare_all`).
 
@@ -137,14 +263,22 @@ def train_model(
     rho = 0.7 if learn_rho else float(rho_rot)
     if not learn_rho and not 0 < rho < 1:
         raise InputError(f"--rho-rot must lie strictly between 0 and 1 (or be 'learn'), got {rho_rot}")
-    kern = make_kernel(rep, kernel, rho, learn_rho)
-    X, Y, info = training_set(trajs, rep, subsample=subsample, max_points=max_points, seed=seed)
+    if time_input not in TIME_INPUTS:
+        raise InputError(f"unknown time input {time_input!r}; expected one of none, seconds, phase")
+    kern = make_kernel(rep, kernel, rho, learn_rho, time_dims=1 if time_input else 0)
+    velocity = velocity or VelocityOptions()
+    X, Y, info = training_set(trajs, rep, subsample=subsample, max_points=max_points, seed=seed, velocity=velocity,
+                              time_input=time_input)
+    mean = None
+    if attractor:
+        mean = {"kind": "attractor", "gain": float(attractor), "goal": goal_pose(trajs).tolist()}
+        Y = Y - attractor_mean(rep, X[:, : len(rep.input_names)], mean)
     if progress:
         progress(f"{len(trajs)} demonstrations, {info['pairs']} pairs, training on {info['points']} points "
                  f"({rep.name}, kernel {kernel}, {'shared' if shared else 'per-output'} hyperparameters)")
     gp = fit_gp(X, Y, kern, noise=noise, restarts=restarts, seed=seed, shared=shared, progress=progress,
                 explore_size=explore_size)
-    dts = np.concatenate([np.diff(tr.t) for tr in trajs])
+    dt = 1.0 / velocity.rate if velocity.rate is not None else float(np.median(np.concatenate([np.diff(tr.t) for tr in trajs])))
     starts = np.array([np.concatenate([tr.quat[0], tr.position[0]]) for tr in trajs])
     durations = np.array([tr.duration for tr in trajs])
     names = ["all"] if shared else list(rep.output_names)
@@ -156,6 +290,8 @@ def train_model(
         "pairs": info["pairs"],
         "points": info["points"],
         "shared_hyperparameters": bool(shared),
+        "velocity": {**velocity.to_dict(), "segments": len(info["segments"]),
+                     "integration_drift": integration_drift(info["segments"])},
         "outputs": [
             {"output": nm, **{k: v for k, v in f.to_dict().items() if k not in ("starts",)}}
             for nm, f in zip(names, gp.fits)
@@ -168,4 +304,7 @@ def train_model(
         },
         "seconds": time.perf_counter() - t0,
     }
-    return MotionModel(rep, gp, float(np.median(dts)), starts, durations, summary=summary)
+    summary["time_input"] = time_input
+    summary["mean"] = mean
+    return MotionModel(rep, gp, float(dt), starts, durations, summary=summary, velocity=velocity,
+                       time_input=time_input, mean=mean)

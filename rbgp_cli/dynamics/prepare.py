@@ -164,6 +164,19 @@ def prepare_trajectory(
             hint="check which columns hold the quaternion, their order and units (--columns, --quat-order); "
             "a unit quaternion's components lie in [-1, 1]",
         )
+    # sample-and-hold (MATH.md §4.1): a valid sample that repeats its predecessor's pose bit for bit at
+    # a later time is the tracker holding the last pose, not motion: a lost frame like any other
+    held = np.zeros(n, dtype=bool)
+    if len(vi) > 1:
+        a, b = vi[:-1], vi[1:]
+        same_q = np.all(q[a] == q[b], axis=1) | np.all(q[a] == -q[b], axis=1)
+        held[b] = same_q & np.all(p[a] == p[b], axis=1) & (t[b] > t[a])
+    n_held = int(held.sum())
+    if n_held:
+        lost = lost | held
+        valid = ~lost
+        keep_v = ~held[vi]
+        vi, norms = vi[keep_v], norms[keep_v]
     qn = np.full_like(q, np.nan)
     qn[vi] = q[vi] / norms[:, None]
 
@@ -228,7 +241,7 @@ def prepare_trajectory(
     q_out = np.concatenate([qn[keep], fill_q])[order]
     p_out = np.concatenate([p[keep], fill_p])[order]
     t_out = t[rows]
-    n_lost = int(lost.sum())
+    n_lost = int(lost.sum()) - n_held
     n_filled = int(fill_idx.size)
     if len(rows) < 2:
         finite_q = np.all(np.isfinite(q), axis=1)
@@ -272,12 +285,16 @@ def prepare_trajectory(
         "samples_out": int(len(rows)),
         "lost": n_lost,
         "filled": n_filled,
-        "dropped": n_lost - n_filled,
+        "dropped": n_lost + n_held - n_filled,
+        "held": n_held,
         "duplicates": int(dup_raw.sum()),
         "sign_flips": int(flips.sum()),
         "max_norm_deviation": float(dev.max()) if len(vi) else 0.0,
     }
     parts = []
+    if n_held:
+        parts.append(f"{n_held} sample{'s' * (n_held != 1)} repeat{'s' * (n_held == 1)} the previous pose exactly "
+                     "(the tracker held it): treated as lost frame" + "s" * (n_held != 1))
     if report["dropped"]:
         parts.append(f"dropped {report['dropped']} lost frame{'s' * (report['dropped'] != 1)}")
     if n_filled:

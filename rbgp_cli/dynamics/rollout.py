@@ -98,7 +98,8 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
     p0 = np.asarray(start_position, dtype=np.float64).reshape(-1, 3)
     B, K = len(q0), int(samples)
     task.update(status=f"{B} trajectories" + (f", {K} Monte Carlo samples each" if K else ""))
-    state = rep.state_from_pose(q0, p0)
+    duration = steps * dt
+    state = model.initial_state(q0, p0)
     d = state.shape[1]
     L = gp.n_outputs
     states = np.empty((steps + 1, B, d))
@@ -112,22 +113,23 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
     for k in range(steps + 1):
         last = k == steps
         if with_std:
-            mu, sd = gp.predict(state, return_std=True, manage_threads=False)
+            mu, sd = model.predict_output(state, return_std=True, manage_threads=False)
             std[k] = sd
         elif not last:
-            mu = gp.predict(state, manage_threads=False)
+            mu = model.predict_output(state, manage_threads=False)
         if not last:
-            state = rep.step(state, mu, dt)
+            state = model.advance(state, mu, dt, duration)
             _check_finite(state, k + 1)
             states[k + 1] = state
             if K > 0:
-                smu, ssd = gp.predict(sstate, return_std=True, manage_threads=False)
-                sstate = rep.step(sstate, smu + ssd * rng.standard_normal(smu.shape), dt)
+                smu, ssd = model.predict_output(sstate, return_std=True, manage_threads=False)
+                sstate = model.advance(sstate, smu + ssd * rng.standard_normal(smu.shape), dt, duration)
                 _check_finite(sstate, k + 1)
                 sstates[k + 1] = sstate
         if not last:
             task.advance()
-    quat, pos = rep.pose_from_state(states.reshape(-1, d))
+    pd = model.pose_dims
+    quat, pos = rep.pose_from_state(states[..., :pd].reshape(-1, pd))
     quat = quat_make_continuous(quat.reshape(steps + 1, B, 4).transpose(1, 0, 2))
     pos = pos.reshape(steps + 1, B, 3).transpose(1, 0, 2)
     res = RolloutResult(
@@ -135,7 +137,7 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
         std=None if std is None else std.transpose(1, 0, 2), output_names=tuple(rep.output_names),
     )
     if K > 0:
-        sq, sp = rep.pose_from_state(sstates.reshape(-1, d))
+        sq, sp = rep.pose_from_state(sstates[..., :pd].reshape(-1, pd))
         res.sample_quat = quat_make_continuous(sq.reshape(steps + 1, B, K, 4).transpose(1, 2, 0, 3))
         res.sample_position = sp.reshape(steps + 1, B, K, 3).transpose(1, 2, 0, 3)
     return res

@@ -14,7 +14,11 @@ The rotation distance ``d_rot`` is chosen by ``metric``:
 * ``"s3"``: acos|⟨q_i, q_j⟩| on unit quaternions (the quaternion baseline; half of d_arc).
 
 Inputs X have shape (n, k + 3): rotation coordinates first (k = 3 for rotation vectors or Euler angles,
-k = 4 for quaternions x, y, z, w), translation (metres) last.
+k = 4 for quaternions x, y, z, w), translation (metres) last. With ``time_dims = 1`` a last column holds
+the time since the demonstration's start (or its phase), and the kernel is the product with a squared
+exponential on it (still positive definite when the pose kernel is):
+
+    k(x_i, x_j) = σf² · exp(−d²(g_i, g_j) / (2 λ²) − (τ_i − τ_j)² / (2 λτ²))
 
 Hyperparameters: ``signal_std`` σf, ``length_scale`` λ, ``rho_rot`` ρ1 (fixed by default at the
 paper's 0.7, or learned). Gradients with respect to their logs:
@@ -22,6 +26,7 @@ paper's 0.7, or learned). Gradients with respect to their logs:
     ∂K/∂log σf = 2 K
     ∂K/∂log λ  = K ∘ d² / λ²
     ∂K/∂log ρ1 = −K ∘ ρ1 (d_rot² − ‖Δt‖²) / (2 λ²)
+    ∂K/∂log λτ = K ∘ Δτ² / λτ²
 """
 
 from __future__ import annotations
@@ -71,11 +76,13 @@ class SquaredExponential(Kernel):
     rotation_dims : number of leading rotation columns of X (3 or 4); the last 3 are translation
     rho_rot : ρ1 in (0, 1); the rotation weight of eq. 19 (paper: 0.7)
     learn_rho : learn ρ1 (in log space, bounds [0.01, 0.99]) instead of fixing it
+    time_dims : 0, or 1 for a trailing time / phase column with its own length-scale ``time_scale`` λτ
     """
 
     kind = "squared_exponential"
 
-    def __init__(self, metric: str = "arc", rotation_dims: int = 3, rho_rot: float = 0.7, learn_rho: bool = False):
+    def __init__(self, metric: str = "arc", rotation_dims: int = 3, rho_rot: float = 0.7, learn_rho: bool = False,
+                 time_dims: int = 0):
         if metric not in ROTATION_METRICS:
             raise ValueError(f"unknown rotation metric {metric!r}; expected one of {ROTATION_METRICS}")
         if not 0.0 < rho_rot < 1.0:
@@ -84,7 +91,10 @@ class SquaredExponential(Kernel):
         self.rotation_dims = int(rotation_dims)
         self.rho_rot = float(rho_rot)
         self.learn_rho = bool(learn_rho)
-        self.names = ("signal_std", "length_scale", "rho_rot")
+        if time_dims not in (0, 1):
+            raise ValueError(f"time_dims must be 0 or 1, got {time_dims}")
+        self.time_dims = int(time_dims)
+        self.names = ("signal_std", "length_scale", "rho_rot") + (("time_scale",) if time_dims else ())
 
     # ------------------------------------------------------------------ precomputation (once per fit)
     def precompute(self, Xa, Xb=None) -> dict:
@@ -99,13 +109,14 @@ class SquaredExponential(Kernel):
         Xb = Xa if Xb is None else np.asarray(Xb, dtype=np.float64)
         k = self.rotation_dims
         rot2 = _rotation_sq_distance(self.metric, Xa[:, :k], Xb[:, :k])
-        trans2 = pairwise_sq_distance(Xa[:, k:], Xb[:, k:])
+        trans2 = pairwise_sq_distance(Xa[:, k:k + 3], Xb[:, k:k + 3])
+        extra = {"tau2": pairwise_sq_distance(Xa[:, k + 3:], Xb[:, k + 3:])} if self.time_dims else {}
         if self.learn_rho:
-            return {"rot2": rot2, "trans2": trans2}
+            return {"rot2": rot2, "trans2": trans2, **extra}
         rot2 *= self.rho_rot
         trans2 *= 1.0 - self.rho_rot
         rot2 += trans2
-        return {"d2": rot2}
+        return {"d2": rot2, **extra}
 
     def _d2(self, pre: dict, values: dict) -> np.ndarray:
         if "d2" in pre:
@@ -121,6 +132,9 @@ class SquaredExponential(Kernel):
         d2 = self._d2(pre, values)
         lam = values["length_scale"]
         K = np.multiply(d2, -0.5 / (lam * lam))
+        if "tau2" in pre:
+            lt = values["time_scale"]
+            K -= (0.5 / (lt * lt)) * pre["tau2"]
         np.exp(K, out=K)
         K *= values["signal_std"] ** 2
         return K, d2
@@ -145,6 +159,10 @@ class SquaredExponential(Kernel):
                     WK = W * K
                 rho = values["rho_rot"]
                 out[i] = -rho / (2.0 * lam2) * (fdot(WK, pre["rot2"]) - fdot(WK, pre["trans2"]))
+            elif name == "time_scale":
+                if WK is None:
+                    WK = W * K
+                out[i] = fdot(WK, pre["tau2"]) / values["time_scale"] ** 2
             else:
                 raise KeyError(name)
         return out
@@ -162,6 +180,8 @@ class SquaredExponential(Kernel):
                 dK[..., i] = K * d2 / lam2
             elif name == "rho_rot":
                 dK[..., i] = -K * values["rho_rot"] * (pre["rot2"] - pre["trans2"]) / (2.0 * lam2)
+            elif name == "time_scale":
+                dK[..., i] = K * pre["tau2"] / values["time_scale"] ** 2
         return K, dK
 
     def diag(self, X, values) -> np.ndarray:
@@ -178,11 +198,18 @@ class SquaredExponential(Kernel):
         if not np.isfinite(med) or med <= 0:
             med = 1.0
         sy = output_scale(y)
-        return {
+        out = {
             "signal_std": Hyperparameter("signal_std", sy, (1e-3 * sy, 1e2 * sy)),
             "length_scale": Hyperparameter("length_scale", med, (1e-3 * med, 1e2 * med)),
             "rho_rot": Hyperparameter("rho_rot", self.rho_rot, (0.01, 0.99), fixed=not self.learn_rho),
         }
+        if self.time_dims:
+            tau2 = pre["tau2"]
+            mt = float(np.sqrt(np.median(tau2[iu]))) if n > 1 else 1.0
+            if not np.isfinite(mt) or mt <= 0:
+                mt = 1.0
+            out["time_scale"] = Hyperparameter("time_scale", mt, (1e-3 * mt, 1e2 * mt))
+        return out
 
     def to_dict(self) -> dict:
         return {
@@ -191,6 +218,7 @@ class SquaredExponential(Kernel):
             "rotation_dims": self.rotation_dims,
             "rho_rot": self.rho_rot,
             "learn_rho": self.learn_rho,
+            "time_dims": self.time_dims,
         }
 
 

@@ -135,7 +135,8 @@ def plot_evaluation(path, result, generated: Sequence[Trajectory], demos: Sequen
     x_c = _features(compare, result) if compare else None
     res_c = None
     if compare:
-        res_c = evaluate(compare, demos, length=int(result.steps), covariance=result.covariance, ridge=result.ridge)
+        res_c = evaluate(compare, demos, length=int(result.steps), covariance=result.covariance, ridge=result.ridge,
+                         sample_size="record")  # the main evaluation already said what it had to
 
     fig = Figure(figsize=FIGSIZE_IN, dpi=DPI, layout="constrained")
     FigureCanvasAgg(fig)
