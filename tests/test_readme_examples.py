@@ -11,9 +11,10 @@ self-contained; nothing in them knows a particular example:
    demonstration (it also serves as poses, starts or generated trajectories), ``*.tsv`` → a QTM
    export of a sample demonstration, ``*.mcap`` → the sample MCAP, ``*.rbgp`` → a small model. Only
    relative names inside the folder are made, never values of output options or redirections.
-2. **Speed options are appended** to every ``rbgp`` command that accepts them and does not set them
-   (:data:`SPEED`): fewer training points and starts, ``--quick``. The command line is otherwise the
-   README's.
+2. **Speed options are appended** to every ``rbgp`` command (also after ``nice -n 10`` and the like)
+   that accepts them and does not set them (:data:`SPEED`): fewer training points and starts,
+   ``--quick``; and typed counts of repetitions above :data:`CAPS` are lowered to it. The command
+   line is otherwise the README's.
 3. **Installation steps** (``python3 -m venv .venv``, ``.venv/bin/pip install ...``) are the ones that
    made this test environment: they are left out of a ``&&`` chain, and ``.venv/bin/X`` is this
    environment's ``X``.
@@ -22,7 +23,8 @@ self-contained; nothing in them knows a particular example:
 
 To keep a new README example runnable: name its inputs like the rules above (or after files an
 earlier example writes), and if it is slow, give its command an option in :data:`SPEED` (or add the
-command's own fast option there); a new ``rbgp`` subcommand needs nothing else.
+command's own fast option there, or a cap for a count it types to :data:`CAPS`); a new ``rbgp``
+subcommand needs nothing else.
 """
 
 from __future__ import annotations
@@ -46,8 +48,10 @@ BIN = Path(sys.executable).parent
 #: Appended to an ``rbgp`` command (option, value or None for a flag) when the command has the option
 #: and the example does not set it: a smoke-test size for training, the demo's quick mode.
 SPEED = (("--max-points", "120"), ("--restarts", "1"), ("--quick", None))
+#: Typed values above these are lowered to them (repetitions of a benchmark).
+CAPS = {"--repeats": 2}
 #: Values of these options are outputs: never made beforehand.
-OUTPUT_OPTIONS = {"-o", "--output", "--out", "--per-step", "--plot", "--rerun"}
+OUTPUT_OPTIONS = {"-o", "--output", "--out", "--per-step", "--plot", "--rerun", "--markdown"}
 #: File name endings that make an argument look like a path.
 PATH_SUFFIXES = (".csv", ".tsv", ".mcap", ".rbgp", ".txt")
 
@@ -120,31 +124,38 @@ def runs_tests(line: str) -> bool:
 
 # --------------------------------------------------------------------------------------------------
 # making the example runnable
-def _rbgp_subcommand(words: list[str]) -> str | None:
-    if not words or Path(words[0]).name != "rbgp":
-        return None
-    for w in words[1:]:
-        if not w.startswith("-"):
-            return w
+def rbgp_words(words: list[str]) -> list[str] | None:
+    """The words from ``rbgp`` on (after wrappers such as ``nice -n 10`` or ``time``), or None."""
+    for i, w in enumerate(words):
+        if Path(w).name == "rbgp":
+            return words[i:]
     return None
 
 
-def _options_of(sub: str) -> set[str]:
+def _options_of(words: list[str]) -> set[str]:
+    """Every option the (sub)command named by ``rbgp ...`` words accepts (nested groups followed)."""
     import typer
 
     from rbgp_cli.cli.app import app
 
-    cmd = typer.main.get_command(app).commands.get(sub)
-    if cmd is None:
+    cmd = typer.main.get_command(app)
+    for w in words[1:]:
+        if w.startswith("-") or not hasattr(cmd, "commands"):
+            continue
+        nxt = cmd.commands.get(w)
+        if nxt is None:
+            break
+        cmd = nxt
+    if hasattr(cmd, "commands"):
         return set()
     return {o for p in cmd.params for o in [*getattr(p, "opts", []), *getattr(p, "secondary_opts", [])]}
 
 
 def speed_options(words: list[str]) -> list[str]:
-    sub = _rbgp_subcommand(words)
-    if sub is None:
+    words = rbgp_words(words)
+    if words is None:
         return []
-    have = _options_of(sub)
+    have = _options_of(words)
     typed = {w.split("=", 1)[0] for w in words}
     extra = []
     for opt, value in SPEED:
@@ -205,13 +216,16 @@ def runnable(line: str, folder: Path, model_path: Path) -> str:
         if is_install_step(words):
             continue
         seg = line[start:end].strip()
-        if words:
-            for name in inputs_of(words) if Path(words[0]).name == "rbgp" else []:
+        rbgp = rbgp_words(words)
+        if rbgp:
+            for name in inputs_of(rbgp[1:]):
                 make_input(name, folder, model_path)
+            head = line[start:words_end].rstrip()
+            for opt, cap in CAPS.items():
+                head = re.sub(rf"(?<!\S){re.escape(opt)}(\s+|=)(\d+)(?!\S)",
+                              lambda m: f"{opt}{m.group(1)}{min(int(m.group(2)), cap)}", head)
             extra = speed_options(words)
-            if extra:
-                head = line[start:words_end].rstrip()
-                seg = (head + " " + " ".join(extra) + " " + line[words_end:end]).strip()
+            seg = (head + "".join(" " + e for e in extra) + " " + line[words_end:end]).strip()
         sep = line[end:end + 2] if k + 1 < len(parts) else ""
         sep = sep if sep in ("&&", "||") else sep[:1]
         pieces.append((seg, sep))
@@ -287,6 +301,8 @@ def test_rules_keep_the_command_line_and_make_what_is_missing(tmp_path, small_mo
     cmd = runnable("rbgp train sample_data/shoe_demos.mcap --topic '/shoe/*' -o s.rbgp", tmp_path, small_model)
     assert cmd.endswith("--topic '/shoe/*' -o s.rbgp --max-points 120 --restarts 1")
     assert not Path("/shoe").exists()
+    cmd = runnable("nice -n 10 rbgp bench paper --repeats 300 --seed 0 --json > p.json", tmp_path, small_model)
+    assert cmd == "nice -n 10 rbgp bench paper --repeats 2 --seed 0 --json --quick > p.json"
     runnable("rbgp inspect export.tsv poses.csv d/", tmp_path, small_model)
     assert (tmp_path / "export.tsv").read_text().startswith("FILE_VERSION")
     assert (tmp_path / "poses.csv").read_text().startswith("t,x,y,z")
