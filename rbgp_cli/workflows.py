@@ -205,6 +205,11 @@ def evaluate_files(generated_sources, demo_sources, *, options: ReadOptions | No
 
     demos, _, _ = load_demonstrations(demo_sources, options, max_gap=max_gap)
     if model is not None:
+        from rbgp_cli.evaluation.bhattacharyya import check_sample_sizes
+
+        refusal = check_sample_sizes(count, len(demos), covariance).refusal
+        if refusal is not None:  # before seconds of rollouts that could not be scored
+            raise InputError(refusal, hint="pass more demonstrations (e.g. a folder of takes)")
         generated = generate_like_paper(model, demos, count=count, spread=spread, seed=seed,
                                         progress=progress).trajectories()
     else:
