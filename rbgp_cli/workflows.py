@@ -182,7 +182,7 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
     return rollout(model, quat, pos, steps, step, samples=samples, seed=seed, with_std=with_std, progress=progress)
 
 
-def generate_like_paper(model, demos, count=100, spread=0.02, seed=0):
+def generate_like_paper(model, demos, count=100, spread=0.02, seed=0, progress=None):
     """The paper's protocol (sec. 4.3): ``count`` rollouts from unseen starts near the demonstrations'
     start poses, each as long as the demonstrations' median duration, at the model's time step."""
     from rbgp_cli.dynamics.rollout import starts_near
@@ -190,11 +190,12 @@ def generate_like_paper(model, demos, count=100, spread=0.02, seed=0):
     starts = np.array([np.concatenate([t.quat[0], t.position[0]]) for t in demos]) if demos else model.starts
     q, p = starts_near(starts, count, spread, seed=seed)
     dur = float(np.median([t.duration for t in demos])) if demos else float(np.median(model.durations))
-    return rollout_model(model, q, p, duration=dur, with_std=False)
+    return rollout_model(model, q, p, duration=dur, with_std=False, progress=progress)
 
 
 def evaluate_files(generated_sources, demo_sources, *, options: ReadOptions | None = None, max_gap=None,
-                   length=None, covariance="diag", stdin=None, model=None, count=100, spread=0.02, seed=0):
+                   length=None, covariance="diag", stdin=None, model=None, count=100, spread=0.02, seed=0,
+                   progress=None):
     """``rbgp evaluate``: Bhattacharyya distance between generated trajectories and demonstrations.
 
     ``generated_sources`` are files of generated trajectories ('-' for stdin); or, with ``model``,
@@ -204,7 +205,13 @@ def evaluate_files(generated_sources, demo_sources, *, options: ReadOptions | No
 
     demos, _, _ = load_demonstrations(demo_sources, options, max_gap=max_gap)
     if model is not None:
-        generated = generate_like_paper(model, demos, count=count, spread=spread, seed=seed).trajectories()
+        from rbgp_cli.evaluation.bhattacharyya import check_sample_sizes
+
+        refusal = check_sample_sizes(count, len(demos), covariance).refusal
+        if refusal is not None:  # before seconds of rollouts that could not be scored
+            raise InputError(refusal, hint="pass more demonstrations (e.g. a folder of takes)")
+        generated = generate_like_paper(model, demos, count=count, spread=spread, seed=seed,
+                                        progress=progress).trajectories()
     else:
         if not generated_sources:
             raise InputError("no generated trajectories given", hint="pass a file (or - for stdin) or --model MODEL")

@@ -12,10 +12,11 @@ from typing import Annotated, List, Optional
 import typer
 
 from rbgp_cli import __version__
+from rbgp_cli.cli.args import RbgpGroup, paths_option
 from rbgp_cli.cli.common import (
     BodyOpt, ColumnsOpt, DegreesOpt, EulerOrderOpt, FormatOpt, FrameOpt, LengthUnitOpt, MaxGapOpt,
     QuatOrderOpt, RateOpt, RotationOpt, TimeSourceOpt, TimeUnitOpt, TopicOpt, command, emit_json,
-    progress, read_options, set_quiet, write_text_output,
+    progress, read_options, set_json, set_quiet, write_text_output,
 )
 
 app = typer.Typer(
@@ -25,6 +26,7 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    cls=RbgpGroup,  # several paths after one flag, as a shell expands a glob (rbgp_cli/cli/args.py)
 )
 
 _TRAIN = "Model"
@@ -40,9 +42,11 @@ def _version(value: bool):
 @app.callback()
 def _main(
     version: Annotated[bool, typer.Option("--version", "-V", callback=_version, is_eager=True, help="Print the version.")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress messages on stderr (warnings and errors still).")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress messages or bars on stderr (warnings and errors still); also accepted after the command.")] = False,
+    json_out: Annotated[bool, typer.Option("--json", help="The command's --json (machine-readable output on stdout), for the commands that have it.")] = False,
 ):
     set_quiet(quiet)
+    set_json(json_out)
 
 
 # ---------------------------------------------------------------------------------------------- train
@@ -172,7 +176,7 @@ def rollout(
     model: Annotated[str, typer.Argument(help="Model file.")],
     start: Annotated[Optional[List[str]], typer.Option("--start", help='Start pose "rx ry rz x y z" (rad, m); repeatable.')] = None,
     starts: Annotated[Optional[str], typer.Option("--starts", help="CSV of start poses, one per row.")] = None,
-    from_demos: Annotated[Optional[List[str]], typer.Option("--from-demos", help="Draw starts near these demonstrations' start poses (repeatable; directories and globs allowed).")] = None,
+    from_demos: Annotated[Optional[List[str]], paths_option("--from-demos", help="Draw starts near these demonstrations' start poses: files or folders, several after one flag (e.g. --from-demos data/*.csv).")] = None,
     count: Annotated[int, typer.Option(min=1, help="Number of starts drawn near the demonstrations' (or the model's stored) start poses.")] = 1,
     start_spread: Annotated[float, typer.Option("--start-spread", min=0.0, help="Std of the start perturbation in metres (rotation: 0.1 rad per 0.3 m).")] = 0.02,
     steps: Annotated[Optional[int], typer.Option(min=1, help="Integration steps (default: the demonstrations' median duration / dt).")] = None,
@@ -225,7 +229,7 @@ def rollout(
         progress(f"no start given: {len(q)} start(s) near the demonstrations' start poses stored in the model")
     q0, p0 = np.concatenate(qs), np.concatenate(ps)
     res = workflows.rollout_model(m, q0, p0, steps=steps, duration=duration, dt=dt, samples=samples, seed=seed,
-                                  with_std=not no_std, progress=lambda k, n: progress(f"step {k}/{n}"))
+                                  with_std=not no_std, progress=progress)
     trajs = res.trajectories(include_samples=samples > 0)
     extra = None
     if res.std is not None:
@@ -249,7 +253,7 @@ def rollout(
 @command
 def evaluate(
     generated: Annotated[Optional[List[str]], typer.Argument(help="Generated trajectories (CSV from rbgp rollout; '-' for stdin).")] = None,
-    demos: Annotated[Optional[List[str]], typer.Option("--demos", help="Demonstration files or directories (repeatable).")] = None,
+    demos: Annotated[Optional[List[str]], paths_option("--demos", help="Demonstration files or folders, several after one flag (e.g. --demos data/*.csv).")] = None,
     model: Annotated[Optional[str], typer.Option("--model", help="Generate --count trajectories from this model like the paper instead.")] = None,
     count: Annotated[int, typer.Option(min=1, help="With --model: number of rollouts from starts near the demonstrations'.")] = 100,
     start_spread: Annotated[float, typer.Option("--start-spread", min=0.0, help="With --model: start perturbation std in metres.")] = 0.02,
@@ -260,7 +264,7 @@ def evaluate(
     json_out: Annotated[bool, typer.Option("--json", help="Print the scores as JSON on stdout.")] = False,
     rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd).")] = None,
     plot: Annotated[Optional[str], typer.Option("--plot", help="Also write a figure (PNG) like the paper's Fig. 4/5.")] = None,
-    compare: Annotated[Optional[str], typer.Option("--compare", help="With --plot: generated trajectories of a second model (CSV, e.g. the Euler GP's rollouts) drawn in another colour and scored in the distance panel.")] = None,
+    compare: Annotated[Optional[List[str]], paths_option("--compare", help="With --plot: generated trajectories of a second model (CSV, e.g. the Euler GP's rollouts) drawn in another colour and scored in the distance panel.")] = None,
     up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.")] = "z",
     fmt: FormatOpt = "auto", columns: ColumnsOpt = None, quat_order: QuatOrderOpt = None, euler_order: EulerOrderOpt = None,
     degrees: DegreesOpt = None, length_unit: LengthUnitOpt = None, time_unit: TimeUnitOpt = None, rate: RateOpt = None,
@@ -280,6 +284,12 @@ def evaluate(
         raise InputError(f"--covariance must be diag or full, got {covariance!r}")
     if model is not None and generated:
         raise InputError("give generated trajectories or --model, not both")
+    if model is None and not generated:
+        from rbgp_cli.cli.args import took_too_much
+
+        hint = took_too_much("generated trajectories", alternative="or give --model MODEL to generate them")
+        if hint:
+            raise InputError(hint)
     opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation)
     m = None
     if model is not None:
@@ -287,7 +297,8 @@ def evaluate(
 
         m, _ = load_model(model)
     result, gen, dem = workflows.evaluate_files(generated or [], demos, options=opts, max_gap=max_gap, length=length,
-                                                covariance=covariance, model=m, count=count, spread=start_spread, seed=seed)
+                                                covariance=covariance, model=m, count=count, spread=start_spread, seed=seed,
+                                                progress=progress)
     if per_step:
         from rbgp_cli.cli.report import write_per_step
 
@@ -302,13 +313,13 @@ def evaluate(
 
         other = None
         if compare:
-            other, _, _ = workflows.load_demonstrations([compare])
+            other, _, _ = workflows.load_demonstrations(compare)
         from pathlib import Path
 
         first = (generated or ["-"])[0]
         label = f"{Path(model).stem} rollouts" if model else ("generated" if first == "-" else Path(first).stem)
         plot_evaluation(plot, result, gen, dem, compare=other,
-                        labels=(label, Path(compare).stem if compare else "compare"))
+                        labels=(label, Path(compare[0]).stem if compare else "compare"))
         progress(f"wrote {plot}")
     if json_out:
         emit_json(result.to_dict())

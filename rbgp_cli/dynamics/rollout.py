@@ -77,16 +77,19 @@ def rollout(model, start_quat, start_position, steps: int, dt: float | None = No
     durations : (B,) seconds each trajectory is meant to last (default steps·dt for all). Only a model
         with a phase input uses it: trajectory b advances its phase by dt/durations[b] per step, so a
         batch of different lengths can share the steps (each is then cut to its own duration).
+    progress : optional :class:`rbgp_cli.progress.Progress`: a task "rollout" over the steps
     """
     from rbgp_cli.gp.exact import blas_threads
 
     # Always single-threaded: per step the matrices are only B × n, and a 2-thread OpenBLAS pool
     # made 100 × 626 steps at n = 1752 take 11.0 s instead of 3.8 s on a loaded machine (measured).
-    with blas_threads(0):
-        return _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, progress, durations)
+    from rbgp_cli.progress import as_progress
+
+    with blas_threads(0), as_progress(progress).task("rollout", total=int(steps), unit="steps") as task:
+        return _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, task, durations)
 
 
-def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, progress, durations):
+def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, task, durations):
     rep, gp = model.representation, model.gp
     dt = float(model.dt if dt is None else dt)
     if not np.isfinite(dt) or dt <= 0:
@@ -97,6 +100,7 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
     q0 = quat_normalize(np.asarray(start_quat, dtype=np.float64).reshape(-1, 4))
     p0 = np.asarray(start_position, dtype=np.float64).reshape(-1, 3)
     B, K = len(q0), int(samples)
+    task.update(status=f"{B} trajectories" + (f", {K} Monte Carlo samples each" if K else ""))
     duration = np.full((B, 1), steps * dt) if durations is None else np.asarray(durations, dtype=np.float64).reshape(B, 1)
     if not np.all(np.isfinite(duration) & (duration > 0)):
         raise InputError("rollout durations must be positive numbers of seconds")
@@ -127,8 +131,8 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
                 sstate = model.advance(sstate, smu + ssd * rng.standard_normal(smu.shape), dt, np.repeat(duration, K, axis=0))
                 _check_finite(sstate, k + 1)
                 sstates[k + 1] = sstate
-        if progress is not None and (k % 100 == 0 or last):
-            progress(k, steps)
+        if not last:
+            task.advance()
     pd = model.pose_dims
     quat, pos = rep.pose_from_state(states[..., :pd].reshape(-1, pd))
     quat = quat_make_continuous(quat.reshape(steps + 1, B, 4).transpose(1, 0, 2))

@@ -406,13 +406,14 @@ def _random_start(spec: dict, free: list, rng: np.random.Generator) -> np.ndarra
     return theta
 
 
-def _fit_one(kernel, pre, y, spec, free, restarts, rng, max_iter, margin=0.0, theta_starts=None, kinds=None):
+def _fit_one(kernel, pre, y, spec, free, restarts, rng, max_iter, margin=0.0, theta_starts=None, kinds=None,
+             on_evaluation=None):
     """Minimise the NLML for one target (vector, or matrix in shared mode) from several starts.
 
     The starts are the data-driven one and ``restarts − 1`` random ones, or ``theta_starts`` (log
     values of the free hyperparameters) labelled ``kinds`` in the records. Returns (best (θ, NLML) or
     None, one record per start, evaluation counters, θ -> values, per start its optimum (θ, NLML) or
-    None if it found no feasible point)."""
+    None if it found no feasible point). ``on_evaluation()`` is called after every NLML evaluation."""
     from scipy.optimize import minimize
 
     fixed_values = {nm: h.value for nm, h in spec.items() if nm not in free}
@@ -429,6 +430,8 @@ def _fit_one(kernel, pre, y, spec, free, restarts, rng, max_iter, margin=0.0, th
     def objective(theta):
         counter["evals"] += 1
         f, g = nlml_and_gradient(kernel, pre, values_of(theta), y, free, margin)
+        if on_evaluation is not None:
+            on_evaluation()
         if f >= INFEASIBLE_NLML:
             counter["infeasible"] += 1
             if penalty["ref"] is not None:
@@ -546,7 +549,9 @@ def fit_gp(
     shared : one set of hyperparameters for all outputs, each output scaled by its root mean square
     fixed : {name: value} hyperparameters to hold fixed (signal_std, length_scale, rho_rot, noise_std)
     bounds : {name: (low, high)} to override the data-driven bounds
-    progress : optional callable(str) for progress messages (the CLI prints them to stderr)
+    progress : optional :class:`rbgp_cli.progress.Progress` (or callable(str) for the messages): a
+        task "training" over the outputs (one in shared mode) whose status counts the evaluations of
+        the output being fitted, and one message per fitted output
     """
     X = np.ascontiguousarray(np.asarray(X, dtype=np.float64))
     Y = np.asarray(Y, dtype=np.float64).reshape(len(X), -1)
@@ -558,11 +563,14 @@ def fit_gp(
     explore = SUBSAMPLE_SIZE if explore_size is None else int(explore_size)
     if explore < 0:
         raise ValueError(f"explore_size must be >= 0, got {explore_size}")
-    with blas_threads(len(X)):
-        return _fit_gp(X, Y, kernel, noise, restarts, seed, shared, fixed, bounds, max_iter, progress, explore)
+    from rbgp_cli.progress import as_progress
+
+    progress = as_progress(progress)
+    with blas_threads(len(X)), progress.task("training", total=1 if shared else Y.shape[1], unit="outputs") as task:
+        return _fit_gp(X, Y, kernel, noise, restarts, seed, shared, fixed, bounds, max_iter, progress, explore, task)
 
 
-def _fit_gp(X, Y, kernel, noise, restarts, seed, shared, fixed, bounds, max_iter, progress, explore):
+def _fit_gp(X, Y, kernel, noise, restarts, seed, shared, fixed, bounds, max_iter, progress, explore, task):
     pre = kernel.precompute(X)
     L = Y.shape[1]
     ss = np.random.SeedSequence(int(seed))
@@ -582,12 +590,19 @@ def _fit_gp(X, Y, kernel, noise, restarts, seed, shared, fixed, bounds, max_iter
         pre_sub = kernel.precompute(X[sub])
     for (y, label), rng in zip(targets, rngs):
         t0 = time.perf_counter()
+        evaluations = [0]
+
+        def tick(label=label, evaluations=evaluations):
+            evaluations[0] += 1
+            task.update(status=f"{label}: {evaluations[0]} evaluations")
+
         spec, free = _free_spec(kernel, pre, y, noise, fixed, bounds)
         sub_info = None
         if sub is not None and free:
             # Explore: every start on the subsample. On all points: the data-driven start, and a
             # polish of every optimum of a random start that lies in a basin not reached before.
-            _b, records_s, counter_s, _v, optima = _fit_one(kernel, pre_sub, y[sub], spec, free, restarts, rng, max_iter)
+            _b, records_s, counter_s, _v, optima = _fit_one(kernel, pre_sub, y[sub], spec, free, restarts, rng, max_iter,
+                                                            on_evaluation=tick)
             seen = [optima[0][0]] if optima[0] is not None else []
             polish = []
             for theta, _f in sorted((o for o in optima[1:] if o is not None), key=lambda t: t[1]):
@@ -597,11 +612,12 @@ def _fit_gp(X, Y, kernel, noise, restarts, seed, shared, fixed, bounds, max_iter
             data_start = np.array([math.log(spec[nm].value) for nm in free])
             best, records, counter, values_of, _ = _fit_one(
                 kernel, pre, y, spec, free, 1, rng, max_iter, theta_starts=[data_start, *polish],
-                kinds=["data-driven (all points)"] + ["polish (all points)"] * len(polish))
+                kinds=["data-driven (all points)"] + ["polish (all points)"] * len(polish), on_evaluation=tick)
             records = [{**r, "kind": r["kind"] + f" (subsample of {explore})"} for r in records_s] + records
             sub_info = {"size": explore, "evaluations": counter_s["evals"], "infeasible": counter_s["infeasible"]}
         else:
-            best, records, counter, values_of, _ = _fit_one(kernel, pre, y, spec, free, restarts, rng, max_iter)
+            best, records, counter, values_of, _ = _fit_one(kernel, pre, y, spec, free, restarts, rng, max_iter,
+                                                            on_evaluation=tick)
         guarded = False
         if best is not None and not _meets_margin(kernel, pre, values_of(best[0])):
             # The optimum sits where K's negative eigenvalues nearly cancel the noise (indefinite
@@ -612,7 +628,8 @@ def _fit_gp(X, Y, kernel, noise, restarts, seed, shared, fixed, bounds, max_iter
             data_start = [math.log(spec[nm].value) for nm in free]
             best2, records2, counter2, values_of, _ = _fit_one(
                 kernel, pre, y, spec, free, 1, rng, max_iter, margin=NOISE_MARGIN,
-                theta_starts=[best[0], data_start], kinds=["optimum (margin)", "data-driven (margin)"])
+                theta_starts=[best[0], data_start], kinds=["optimum (margin)", "data-driven (margin)"],
+                on_evaluation=tick)
             records += records2
             counter = {k: counter[k] + counter2[k] for k in counter}
             best = best2
@@ -640,9 +657,8 @@ def _fit_gp(X, Y, kernel, noise, restarts, seed, shared, fixed, bounds, max_iter
             subsample=sub_info,
         )
         fits.append(fit)
-        if progress is not None:
-            explored = (f" + {sub_info['evaluations']} on a {sub_info['size']}-point subset"
-                        if sub_info else "")
-            progress(f"{label}: NLML {fit.nlml:.4g} after {fit.n_evaluations} evaluations{explored}"
-                     f" ({fit.n_infeasible} infeasible), {fit.seconds:.2f} s")
+        task.advance()
+        explored = f" + {sub_info['evaluations']} on a {sub_info['size']}-point subset" if sub_info else ""
+        progress(f"{label}: NLML {fit.nlml:.4g} after {fit.n_evaluations} evaluations{explored}"
+                 f" ({fit.n_infeasible} infeasible), {fit.seconds:.2f} s")
     return GaussianProcess(kernel, X, Y, fits, shared=shared, y_scale=scale)
