@@ -28,6 +28,7 @@ __all__ = [
     "rollout_model",
     "evaluate_files",
     "generate_like_paper",
+    "predict_file",
     "crossval_configs",
     "crossval_files",
     "SAMPLE_DATA",
@@ -169,6 +170,37 @@ def read_start_poses(path, options: ReadOptions | None = None) -> tuple[np.ndarr
             hint = "check which columns hold the quaternion and their order (--columns, --quat-order)"
         raise InputError(f"pose {k + 1} {what}", path=str(path), row=line_of(trajs[j], k - offsets[j]), hint=hint)
     return q / norm[:, None], p
+
+
+def predict_file(model, path, options: ReadOptions | None = None, noisy: bool = False):
+    """``rbgp predict``: velocity mean and std at every pose of a file.
+
+    Returns (t or None, quat (m, 4), position (m, 3), mean (m, L), std (m, L)). For a model without a
+    time input the file is a list of poses (:func:`read_start_poses`); with one it holds trajectories
+    with times, and each pose gets its time since its trajectory's start (seconds, or the phase
+    t/D for a phase model, whose outputs per unit phase are divided by D: per second).
+    """
+    if not model.time_input:
+        q, p = read_start_poses(path, options)
+        mean, std = model.predict(q, p, return_std=True, noisy=noisy)
+        return None, q, p, mean, std
+    from rbgp_cli.dynamics.prepare import prepare_all
+    from rbgp_cli.io.read import read_demonstrations
+
+    raw = read_demonstrations([str(path)], options or ReadOptions())
+    trajs, _ = prepare_all(raw)
+    ts, qs, ps, means, stds = [], [], [], [], []
+    for tr in trajs:
+        tau = tr.t - tr.t[0]
+        scale = max(tr.duration, 1e-12) if model.time_input == "phase" else 1.0
+        mean, std = model.predict(tr.quat, tr.position, return_std=True, noisy=noisy,
+                                  tau=tau / scale if model.time_input == "phase" else tau)
+        ts.append(tr.t)
+        qs.append(tr.quat)
+        ps.append(tr.position)
+        means.append(mean / scale)
+        stds.append(std / scale)
+    return (np.concatenate(ts), np.concatenate(qs), np.concatenate(ps), np.concatenate(means), np.concatenate(stds))
 
 
 def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, samples=0, seed=0, with_std=True,

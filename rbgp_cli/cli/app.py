@@ -141,20 +141,26 @@ def predict(
     quat_order: QuatOrderOpt = None, length_unit: LengthUnitOpt = None, columns: ColumnsOpt = None,
     euler_order: EulerOrderOpt = None, degrees: DegreesOpt = None,
 ):
-    """Predict the velocity (mean and standard deviation) at each pose of a CSV file."""
+    """Predict the velocity (mean and standard deviation) at each pose of a CSV file.
+
+    A model trained with a time input (--time-input seconds or phase) also needs the time of each pose:
+    the file then holds trajectories (a time column; several with a demo column), and each pose's
+    time since its trajectory's start (or its phase) is what the model sees. Outputs are per second.
+    """
     from rbgp_cli import workflows
     from rbgp_cli.io.model_store import load_model
 
     m, _ = load_model(model)
-    opts = read_options("csv", columns, quat_order, euler_order, degrees, length_unit, None, 1.0)
-    q, p = workflows.read_start_poses(poses, opts)  # handles '-' too, with the same row checks
-    mean, std = m.predict(q, p, return_std=True, noisy=noisy)
+    opts = read_options("csv", columns, quat_order, euler_order, degrees, length_unit, None, None if m.time_input else 1.0)
+    t, q, p, mean, std = workflows.predict_file(m, poses, opts, noisy=noisy)  # handles '-' too, with the row checks
     names = list(m.representation.output_names)
+    time_col = ["t"] if t is not None else []
 
     def write(fh):
-        fh.write(",".join(["x", "y", "z", "qx", "qy", "qz", "qw"] + [f"mean_{n}" for n in names] + [f"std_{n}" for n in names]) + "\n")
-        for row in zip(p, q, mean, std):
-            fh.write(",".join(repr(float(v)) for part in row for v in part) + "\n")
+        fh.write(",".join(time_col + ["x", "y", "z", "qx", "qy", "qz", "qw"] + [f"mean_{n}" for n in names] + [f"std_{n}" for n in names]) + "\n")
+        for i, row in enumerate(zip(p, q, mean, std)):
+            lead = [repr(float(t[i]))] if t is not None else []
+            fh.write(",".join(lead + [repr(float(v)) for part in row for v in part]) + "\n")
 
     write_text_output(output, write)
 

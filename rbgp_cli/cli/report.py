@@ -6,7 +6,7 @@ __all__ = ["format_train_summary", "format_model_info", "write_per_step", "forma
 
 
 def _fmt_values(values: dict) -> str:
-    short = {"signal_std": "σf", "length_scale": "λ", "rho_rot": "ρ1", "noise_std": "σn"}
+    short = {"signal_std": "σf", "length_scale": "λ", "rho_rot": "ρ1", "noise_std": "σn", "time_scale": "λτ"}
     return "  ".join(f"{short.get(k, k)}={v:.4g}" for k, v in values.items())
 
 
@@ -18,6 +18,20 @@ def format_train_summary(s: dict) -> str:
         f"demonstrations: {s['demos']}   pairs: {s['pairs']}   training points: {s['points']}"
         f"   hyperparameters: {'shared' if s['shared_hyperparameters'] else 'per output'}",
     ]
+    vel = s.get("velocity")
+    if vel:
+        how = (f"local polynomial (degree {vel['degree']}) over {vel['window_s']:g} s" if vel["method"] == "local-polynomial"
+               else "forward differences")
+        grid = f"resampled to {vel['rate_hz']:g} Hz" if vel.get("rate_hz") else "at the recorded samples"
+        drift = vel.get("integration_drift") or {}
+        lines.append(f"velocities: {how}, {grid}; {vel['segments']} gap-free segments; integrating them back strays "
+                     f"≤ {drift.get('max_position_m', 0):.2g} m, {drift.get('max_rotation_rad', 0):.2g} rad")
+    if s.get("time_input") or s.get("prior"):
+        prior = s.get("prior")
+        what = {"path": "the demonstrations' mean path", "goal": "a pull toward the mean final pose"}
+        per = "per unit phase" if s.get("time_input") == "phase" else "per second"
+        lines.append(f"time input: {s.get('time_input') or 'none'}   prior mean: "
+                     + (f"{what[prior['kind']]} (gain {prior['gain']:g} {per})" if prior else "zero"))
     for o in s["outputs"]:
         flags = []
         if o["jitter"] > 0:

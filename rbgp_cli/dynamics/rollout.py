@@ -119,7 +119,7 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
         last = k == steps
         if with_std:
             mu, sd = model.predict_output(state, return_std=True, manage_threads=False)
-            std[k] = sd
+            std[k] = sd / duration if model.time_input == "phase" else sd  # per second
         elif not last:
             mu = model.predict_output(state, manage_threads=False)
         if not last:
