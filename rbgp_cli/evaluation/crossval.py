@@ -222,16 +222,29 @@ def _run_in_processes(args: list, n_jobs: int):
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
+    import signal
+    import threading
+
     ex = ProcessPoolExecutor(max_workers=n_jobs, mp_context=multiprocessing.get_context("spawn"), initializer=_worker_init)
+    previous = None
+    if threading.current_thread() is threading.main_thread():  # a kill (SIGTERM) stops the workers too
+        def _stop(signum, frame):
+            raise SystemExit(128 + signum)
+
+        previous = signal.signal(signal.SIGTERM, _stop)
     try:
         futs = {ex.submit(_task, a): i for i, a in enumerate(args)}
         for fut in as_completed(futs):
             yield futs[fut], fut.result()
     except BaseException:
+        workers = list((getattr(ex, "_processes", None) or {}).values())
         ex.shutdown(wait=False, cancel_futures=True)
-        for proc in list(getattr(ex, "_processes", {}).values()):  # do not leave fits running
+        for proc in workers:  # do not leave fits running
             proc.terminate()
         raise
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     ex.shutdown(wait=True)
 
 
