@@ -34,8 +34,11 @@ def run_demo(out, *, count: int = 100, representations=("axis-angle", "euler", "
     from rbgp_cli.evaluation import evaluate
     from rbgp_cli.io.atomic import atomic_open
     from rbgp_cli.io.csv import write_trajectories_csv
+    from rbgp_cli.progress import as_progress
 
     import numpy as np
+
+    progress = as_progress(progress)
 
     data = Path(data) if data else find_sample_data()
     os.makedirs(out, exist_ok=True)
@@ -44,29 +47,29 @@ def run_demo(out, *, count: int = 100, representations=("axis-angle", "euler", "
     q0, p0 = starts_near(base, count, 0.02, seed=seed)
     duration = float(np.median([t.duration for t in demos]))
     scores = {"data": str(data), "demonstrations": len(demos), "rollouts": count, "quick": quick, "representations": {}}
-    for rep in representations:
-        if progress:
+    with progress.task("demo", total=len(representations), unit="representations") as task:
+        for rep in representations:
+            task.update(status=rep)
             progress(f"[{rep}] training")
-        t0 = time.perf_counter()
-        extra = {"max_points": 200, "shared": True, "restarts": 1} if quick else {}
-        model, _, _ = workflows.train_from_files([str(data)], os.path.join(out, f"{rep}.rbgp"), representation=rep,
-                                                 seed=seed, progress=progress, **extra)
-        t1 = time.perf_counter()
-        if progress:
+            t0 = time.perf_counter()
+            extra = {"max_points": 200, "shared": True, "restarts": 1} if quick else {}
+            model, _, _ = workflows.train_from_files([str(data)], os.path.join(out, f"{rep}.rbgp"), representation=rep,
+                                                     seed=seed, progress=progress, **extra)
+            t1 = time.perf_counter()
             progress(f"[{rep}] {count} rollouts of {duration:.2f} s")
-        res = workflows.rollout_model(model, q0, p0, duration=duration, with_std=False)
-        t2 = time.perf_counter()
-        gen = res.trajectories()
-        write_trajectories_csv(gen, os.path.join(out, f"{rep}_rollouts.csv"))
-        result = evaluate(gen, demos)
-        with atomic_open(os.path.join(out, f"{rep}_per_step.csv"), "w") as fh:
-            write_per_step(result, fh)
-        entry = result.to_dict()
-        entry["train_seconds"] = t1 - t0
-        entry["rollout_seconds"] = t2 - t1
-        entry["training_points"] = model.summary["points"]
-        scores["representations"][rep] = entry
-        if progress:
+            res = workflows.rollout_model(model, q0, p0, duration=duration, with_std=False, progress=progress)
+            t2 = time.perf_counter()
+            gen = res.trajectories()
+            write_trajectories_csv(gen, os.path.join(out, f"{rep}_rollouts.csv"))
+            result = evaluate(gen, demos)
+            with atomic_open(os.path.join(out, f"{rep}_per_step.csv"), "w") as fh:
+                write_per_step(result, fh)
+            entry = result.to_dict()
+            entry["train_seconds"] = t1 - t0
+            entry["rollout_seconds"] = t2 - t1
+            entry["training_points"] = model.summary["points"]
+            scores["representations"][rep] = entry
             b = entry["bhattacharyya"]
             progress(f"[{rep}] Bhattacharyya mean {b['mean']:.3f} (rotation {b['rotation']:.3f}, translation {b['translation']:.3f})")
+            task.advance()
     return scores

@@ -10,7 +10,7 @@ Messages are one line and say *where* (file, row, topic) and *what to do*.
 
 from __future__ import annotations
 
-__all__ = ["RbgpError", "InputError", "RbgpRuntimeError", "RbgpWarning", "warn", "closest"]
+__all__ = ["RbgpError", "InputError", "NotPoseData", "RbgpRuntimeError", "RbgpWarning", "warn", "closest"]
 
 
 class RbgpError(Exception):
@@ -56,6 +56,17 @@ class InputError(RbgpError, ValueError):
     """The input (a file, an option, a start pose) cannot be used as given. Exit code 2."""
 
     exit_code = 2
+
+
+class NotPoseData(InputError):
+    """The file can be read but holds no pose data at all: a table without pose columns, an MCAP file
+    without pose topics, a Motive export without rigid bodies, a QTM 3D-marker export. A file named
+    explicitly is an error like any other (exit code 2, same message); a file found in a directory is
+    skipped instead, and ``reason`` (a few words) names it in the one note that lists skipped files."""
+
+    def __init__(self, message: str, *, reason: str, **kwargs) -> None:
+        self.reason = reason
+        super().__init__(message, **kwargs)
 
 
 class RbgpRuntimeError(RbgpError, RuntimeError):

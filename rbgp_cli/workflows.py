@@ -7,7 +7,6 @@ and prints the result.
 
 from __future__ import annotations
 
-import glob
 import os
 import time
 from dataclasses import asdict
@@ -29,6 +28,9 @@ __all__ = [
     "rollout_model",
     "evaluate_files",
     "generate_like_paper",
+    "predict_file",
+    "crossval_configs",
+    "crossval_files",
     "SAMPLE_DATA",
 ]
 
@@ -36,29 +38,13 @@ __all__ = [
 SAMPLE_DATA = Path(__file__).resolve().parents[1] / "sample_data"
 
 
-def expand_paths(paths) -> list[str]:
-    """Expand directories (their *.csv, *.tsv, *.mcap, sorted) and glob patterns; keep '-' as is."""
-    out: list[str] = []
-    for p in paths:
-        p = str(p)
-        if p == "-":
-            out.append(p)
-        elif os.path.isdir(p):
-            found = sorted(
-                str(f) for f in Path(p).iterdir()
-                if f.is_file() and f.suffix.lower() in (".csv", ".tsv", ".txt", ".mcap")
-            )
-            if not found:
-                raise InputError("the directory holds no .csv, .tsv or .mcap files", path=p)
-            out.extend(found)
-        elif any(ch in p for ch in "*?[") and not os.path.exists(p):
-            found = sorted(glob.glob(p))
-            if not found:
-                raise InputError("no file matches this pattern", path=p)
-            out.extend(found)
-        else:
-            out.append(p)
-    return out
+def expand_paths(paths, options: ReadOptions | None = None) -> list[str]:
+    """Expand directories (their files, sorted) and glob patterns; keep files and '-' as given. Files
+    found in a directory or through a pattern that hold no pose data are left out, with one warning
+    naming them (:func:`rbgp_cli.io.read.expand_sources`)."""
+    from rbgp_cli.io.read import expand_sources
+
+    return expand_sources(paths, options)
 
 
 def load_demonstrations(sources, options: ReadOptions | None = None, *, max_gap: float | None = None,
@@ -69,13 +55,14 @@ def load_demonstrations(sources, options: ReadOptions | None = None, *, max_gap:
     """
     from rbgp_cli.dynamics.prepare import prepare_all
     from rbgp_cli.io.model_store import file_sha256
-    from rbgp_cli.io.read import read_demonstrations
+    from rbgp_cli.io.read import read_sources
 
     options = options or ReadOptions()
-    paths = expand_paths(sources)
-    if not paths:
+    sources = list(sources or [])
+    if not sources:
         raise InputError("no demonstrations given", hint="pass one or more files or a directory")
-    raw = read_demonstrations(paths, options, stdin=stdin)
+    raw, listing = read_sources(sources, options, stdin=stdin)  # skips what is not pose data in folders
+    paths = listing.files  # the files read
     if not raw:
         raise InputError("the inputs hold no demonstrations", path=", ".join(paths))
     clean, reports = prepare_all(raw, max_gap=max_gap)
@@ -112,7 +99,8 @@ def train_from_files(sources, output, *, options: ReadOptions | None = None, max
         ],
         "read_options": {k: v for k, v in asdict(options).items() if v is not None},
         "max_gap": max_gap,
-        "train_options": {k: (v if isinstance(v, (int, float, str, bool)) or v is None else str(v))
+        "train_options": {k: (v if isinstance(v, (int, float, str, bool)) or v is None
+                              else v.to_dict() if hasattr(v, "to_dict") else str(v))
                           for k, v in train_kwargs.items()},
         "repairs": reports,
     }
@@ -184,6 +172,37 @@ def read_start_poses(path, options: ReadOptions | None = None) -> tuple[np.ndarr
     return q / norm[:, None], p
 
 
+def predict_file(model, path, options: ReadOptions | None = None, noisy: bool = False):
+    """``rbgp predict``: velocity mean and std at every pose of a file.
+
+    Returns (t or None, quat (m, 4), position (m, 3), mean (m, L), std (m, L)). For a model without a
+    time input the file is a list of poses (:func:`read_start_poses`); with one it holds trajectories
+    with times, and each pose gets its time since its trajectory's start (seconds, or the phase
+    t/D for a phase model, whose outputs per unit phase are divided by D: per second).
+    """
+    if not model.time_input:
+        q, p = read_start_poses(path, options)
+        mean, std = model.predict(q, p, return_std=True, noisy=noisy)
+        return None, q, p, mean, std
+    from rbgp_cli.dynamics.prepare import prepare_all
+    from rbgp_cli.io.read import read_demonstrations
+
+    raw = read_demonstrations([str(path)], options or ReadOptions())
+    trajs, _ = prepare_all(raw)
+    ts, qs, ps, means, stds = [], [], [], [], []
+    for tr in trajs:
+        tau = tr.t - tr.t[0]
+        scale = max(tr.duration, 1e-12) if model.time_input == "phase" else 1.0
+        mean, std = model.predict(tr.quat, tr.position, return_std=True, noisy=noisy,
+                                  tau=tau / scale if model.time_input == "phase" else tau)
+        ts.append(tr.t)
+        qs.append(tr.quat)
+        ps.append(tr.position)
+        means.append(mean / scale)
+        stds.append(std / scale)
+    return (np.concatenate(ts), np.concatenate(qs), np.concatenate(ps), np.concatenate(means), np.concatenate(stds))
+
+
 def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, samples=0, seed=0, with_std=True,
                   progress=None):
     """``rbgp rollout``: steps from --steps, or --duration / dt, or the demonstrations' median duration."""
@@ -198,7 +217,7 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
     return rollout(model, quat, pos, steps, step, samples=samples, seed=seed, with_std=with_std, progress=progress)
 
 
-def generate_like_paper(model, demos, count=100, spread=0.02, seed=0):
+def generate_like_paper(model, demos, count=100, spread=0.02, seed=0, progress=None):
     """The paper's protocol (sec. 4.3): ``count`` rollouts from unseen starts near the demonstrations'
     start poses, each as long as the demonstrations' median duration, at the model's time step."""
     from rbgp_cli.dynamics.rollout import starts_near
@@ -206,11 +225,12 @@ def generate_like_paper(model, demos, count=100, spread=0.02, seed=0):
     starts = np.array([np.concatenate([t.quat[0], t.position[0]]) for t in demos]) if demos else model.starts
     q, p = starts_near(starts, count, spread, seed=seed)
     dur = float(np.median([t.duration for t in demos])) if demos else float(np.median(model.durations))
-    return rollout_model(model, q, p, duration=dur, with_std=False)
+    return rollout_model(model, q, p, duration=dur, with_std=False, progress=progress)
 
 
 def evaluate_files(generated_sources, demo_sources, *, options: ReadOptions | None = None, max_gap=None,
-                   length=None, covariance="diag", stdin=None, model=None, count=100, spread=0.02, seed=0):
+                   length=None, covariance="diag", stdin=None, model=None, count=100, spread=0.02, seed=0,
+                   progress=None):
     """``rbgp evaluate``: Bhattacharyya distance between generated trajectories and demonstrations.
 
     ``generated_sources`` are files of generated trajectories ('-' for stdin); or, with ``model``,
@@ -220,10 +240,63 @@ def evaluate_files(generated_sources, demo_sources, *, options: ReadOptions | No
 
     demos, _, _ = load_demonstrations(demo_sources, options, max_gap=max_gap)
     if model is not None:
-        generated = generate_like_paper(model, demos, count=count, spread=spread, seed=seed).trajectories()
+        from rbgp_cli.evaluation.bhattacharyya import check_sample_sizes
+
+        refusal = check_sample_sizes(count, len(demos), covariance).refusal
+        if refusal is not None:  # before seconds of rollouts that could not be scored
+            raise InputError(refusal, hint="pass more demonstrations (e.g. a folder of takes)")
+        generated = generate_like_paper(model, demos, count=count, spread=spread, seed=seed,
+                                        progress=progress).trajectories()
     else:
         if not generated_sources:
             raise InputError("no generated trajectories given", hint="pass a file (or - for stdin) or --model MODEL")
         generated, _, _ = load_demonstrations(generated_sources, ReadOptions(), stdin=stdin)
     result = evaluate(generated, demos, length=length, covariance=covariance)
     return result, generated, demos
+
+
+def crossval_configs(representations, kernels, train_kwargs: dict, replay: bool = True):
+    """The rows of ``rbgp crossval``: every representation × kernel with the same training options,
+    plus the replay peer. ``all`` stands for the three representations; a kernel a representation does
+    not have (the chordal distance on Euler angles) is left out for it, with a note in the returned list."""
+    from rbgp_cli.dynamics.defaults import DEFAULT_KERNELS, DEFAULTS
+    from rbgp_cli.dynamics.model import KERNELS
+    from rbgp_cli.dynamics.representations import REPRESENTATIONS
+    from rbgp_cli.evaluation.crossval import REPLAY, Config
+
+    reps: list[str] = []
+    for r in representations or [DEFAULTS["representation"]]:
+        for name in (REPRESENTATIONS if r == "all" else [r]):
+            if name not in REPRESENTATIONS:
+                raise InputError(f"unknown representation {name!r}; expected one of {', '.join(REPRESENTATIONS)} or all")
+            if name not in reps:
+                reps.append(name)
+    kerns = list(dict.fromkeys(kernels or []))
+    for k in kerns:
+        if k not in KERNELS:
+            raise InputError(f"unknown kernel {k!r}; expected one of {', '.join(KERNELS)}")
+    configs, skipped = [], []
+    for r in reps:
+        for k in kerns or [DEFAULT_KERNELS[r]]:
+            if r == "euler" and k == "se-chordal":
+                skipped.append("euler with se-chordal (Euler angles have no chordal distance; euler runs with se)")
+                if "se" not in kerns:
+                    configs.append(Config(r, "se", dict(train_kwargs)))
+                continue
+            configs.append(Config(r, k, dict(train_kwargs)))
+    if replay:
+        configs.append(Config(REPLAY))
+    return configs, skipped
+
+
+def crossval_files(sources, configs, *, options: ReadOptions | None = None, max_gap=None, folds: int = 5,
+                   seed: int = 0, jobs: int | None = None, length=None, covariance="diag", progress=None) -> dict:
+    """``rbgp crossval``: read and clean the demonstrations, cross-validate every configuration on the
+    same folds (:func:`rbgp_cli.evaluation.crossval.crossval`); returns its result plus the inputs."""
+    from rbgp_cli.evaluation.crossval import crossval
+
+    demos, _, inputs = load_demonstrations(sources, options, max_gap=max_gap)
+    result = crossval(demos, configs, folds=folds, seed=seed, jobs=jobs, length=length, covariance=covariance,
+                      progress=progress)
+    result["inputs"] = [i["name"] for i in inputs]
+    return result

@@ -12,10 +12,15 @@ from typing import Annotated, List, Optional
 import typer
 
 from rbgp_cli import __version__
+from rbgp_cli.cli.args import RbgpGroup, paths_option
+from rbgp_cli.cli.train_options import (
+    ExploreOpt, MaxPointsOpt, NoiseOpt, PriorGainOpt, PriorOpt, RestartsOpt, RhoOpt, SeedOpt, ShareOpt, SmoothDegreeOpt,
+    SmoothWindowOpt, SubsampleOpt, TimeInputOpt, TrainRateOpt, defaults, kernel_help, train_kwargs,
+)
 from rbgp_cli.cli.common import (
     BodyOpt, ColumnsOpt, DegreesOpt, EulerOrderOpt, FormatOpt, FrameOpt, LengthUnitOpt, MaxGapOpt,
     QuatOrderOpt, RateOpt, RotationOpt, TimeSourceOpt, TimeUnitOpt, TopicOpt, command, emit_json,
-    progress, read_options, set_quiet, write_text_output,
+    progress, read_options, set_json, set_quiet, write_text_output,
 )
 
 app = typer.Typer(
@@ -25,10 +30,12 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    cls=RbgpGroup,  # several paths after one flag, as a shell expands a glob (rbgp_cli/cli/args.py)
 )
 
 _TRAIN = "Model"
 _OUT = "Output"
+_D = defaults()  # the training defaults (rbgp_cli/dynamics/defaults.py), spelled as the options take them
 
 
 def _version(value: bool):
@@ -40,9 +47,11 @@ def _version(value: bool):
 @app.callback()
 def _main(
     version: Annotated[bool, typer.Option("--version", "-V", callback=_version, is_eager=True, help="Print the version.")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress messages on stderr (warnings and errors still).")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress messages or bars on stderr (warnings and errors still); also accepted after the command.")] = False,
+    json_out: Annotated[bool, typer.Option("--json", help="The command's --json (machine-readable output on stdout), for the commands that have it.")] = False,
 ):
     set_quiet(quiet)
+    set_json(json_out)
 
 
 # ---------------------------------------------------------------------------------------------- train
@@ -51,17 +60,15 @@ def _main(
 def train(
     demos: Annotated[List[str], typer.Argument(help="Demonstration files or directories ('-' reads a CSV from stdin).")],
     output: Annotated[str, typer.Option("--output", "-o", help="Model file to write (written atomically).", rich_help_panel=_OUT)],
-    representation: Annotated[str, typer.Option(help="axis-angle (the paper's rigid-body GP), euler or quaternion.", rich_help_panel=_TRAIN)] = "axis-angle",
-    kernel: Annotated[str, typer.Option(help="se (paper eq. 24), se-chordal (always positive definite) or dot (eq. 22).", rich_help_panel=_TRAIN)] = "se",
-    rho_rot: Annotated[str, typer.Option("--rho-rot", help="Rotation weight ρ1 of eq. 19 in (0, 1), or 'learn'.", rich_help_panel=_TRAIN)] = "0.7",
-    restarts: Annotated[int, typer.Option(min=1, help="Optimiser starts per output (the data-driven one plus random ones).", rich_help_panel=_TRAIN)] = 3,
-    explore_size: Annotated[int, typer.Option(min=0, help="With more than twice this many training points the starts explore a random subset of this size first and only new basins are refined on all points; 0 runs every start on all points.", rich_help_panel=_TRAIN)] = 400,
-    seed: Annotated[int, typer.Option(help="Seed for subsampling and random starts.", rich_help_panel=_TRAIN)] = 0,
-    noise: Annotated[str, typer.Option(help="'learn', or a fixed noise standard deviation (the paper fixes 1).", rich_help_panel=_TRAIN)] = "learn",
-    share_hyperparameters: Annotated[bool, typer.Option("--share-hyperparameters", help="One set of hyperparameters for all outputs (faster).", rich_help_panel=_TRAIN)] = False,
-    subsample: Annotated[float, typer.Option(help="Random fraction of the training pairs to use (the paper: 0.1).", rich_help_panel=_TRAIN)] = 0.1,
-    max_points: Annotated[int, typer.Option(min=2, help="At most this many training points.", rich_help_panel=_TRAIN)] = 2000,
-    jobs: Annotated[int, typer.Option(min=0, help="Worker processes for the per-output fits (BLAS single-threaded in each; the result does not depend on it); 0 = one per output, fewer if memory is short, 1 on a single core.", rich_help_panel=_TRAIN)] = 0,
+    representation: Annotated[str, typer.Option(help="axis-angle (the paper's rigid-body GP), euler or quaternion.", rich_help_panel=_TRAIN)] = _D["representation"],
+    kernel: Annotated[Optional[str], typer.Option(help=kernel_help(), rich_help_panel=_TRAIN)] = None,
+    rho_rot: RhoOpt = _D["rho_rot"], restarts: RestartsOpt = _D["restarts"], explore_size: ExploreOpt = _D["explore_size"],
+    seed: SeedOpt = 0, noise: NoiseOpt = "learn", share_hyperparameters: ShareOpt = False,
+    subsample: SubsampleOpt = _D["subsample"], max_points: MaxPointsOpt = _D["max_points"],
+    time_input: TimeInputOpt = _D["time_input"], prior: PriorOpt = _D["prior"], prior_gain: PriorGainOpt = _D["prior_gain"],
+    train_rate: TrainRateOpt = _D["train_rate"], smooth_window: SmoothWindowOpt = _D["smooth_window"],
+    smooth_degree: SmoothDegreeOpt = _D["smooth_degree"],
+    jobs: Annotated[int, typer.Option(min=0, help="Worker processes for the per-output fits (BLAS single-threaded in each; the model does not depend on it); 0 = one per output, fewer if memory is short, 1 on a single core.", rich_help_panel=_TRAIN)] = 0,
     json_out: Annotated[bool, typer.Option("--json", help="Print the summary as JSON on stdout.", rich_help_panel=_OUT)] = False,
     rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd) of the demonstrations and training points.", rich_help_panel=_OUT)] = None,
     up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.", rich_help_panel=_OUT)] = "z",
@@ -78,17 +85,15 @@ def train(
     from rbgp_cli.errors import InputError
 
     opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation)
-    rho = rho_rot if rho_rot == "learn" else _float(rho_rot, "--rho-rot")
-    noise_v = None if noise == "learn" else _float(noise, "--noise")
-    if noise_v is not None and not noise_v > 0:
-        raise InputError(f"--noise must be 'learn' or a positive number, got {noise}")
+    kwargs = train_kwargs(rho_rot=rho_rot, restarts=restarts, explore_size=explore_size, seed=seed, noise=noise,
+                          share_hyperparameters=share_hyperparameters, subsample=subsample, max_points=max_points,
+                          train_rate=train_rate, smooth_window=smooth_window, smooth_degree=smooth_degree,
+                          time_input=time_input, prior=prior, prior_gain=prior_gain)
     if up not in ("z", "y"):
         raise InputError(f"--up must be z or y, got {up!r}")
     model, header, trajs = workflows.train_from_files(
         demos, output, options=opts, max_gap=max_gap, progress=progress,
-        representation=representation, kernel=kernel, rho_rot=rho, restarts=restarts, seed=seed, noise=noise_v,
-        shared=share_hyperparameters, subsample=subsample, max_points=max_points, explore_size=explore_size,
-        jobs=jobs or None,
+        representation=representation, kernel=kernel, jobs=jobs or None, **kwargs,
     )
     if rerun:
         from rbgp_cli.viz.recording import record_training
@@ -103,18 +108,6 @@ def train(
         from rbgp_cli.cli.report import format_train_summary
 
         print(format_train_summary(summary), file=sys.stderr)
-
-
-def _float(text: str, flag: str) -> float:
-    from rbgp_cli.errors import InputError
-
-    try:
-        v = float(text)
-    except ValueError:
-        raise InputError(f"{flag} must be a number, got {text!r}") from None
-    if v != v or v in (float("inf"), float("-inf")):
-        raise InputError(f"{flag} must be finite, got {text!r}")
-    return v
 
 
 # ---------------------------------------------------------------------------------------------- info
@@ -149,20 +142,26 @@ def predict(
     quat_order: QuatOrderOpt = None, length_unit: LengthUnitOpt = None, columns: ColumnsOpt = None,
     euler_order: EulerOrderOpt = None, degrees: DegreesOpt = None,
 ):
-    """Predict the velocity (mean and standard deviation) at each pose of a CSV file."""
+    """Predict the velocity (mean and standard deviation) at each pose of a CSV file.
+
+    A model trained with a time input (--time-input seconds or phase) also needs the time of each pose:
+    the file then holds trajectories (a time column; several with a demo column), and each pose's
+    time since its trajectory's start (or its phase) is what the model sees. Outputs are per second.
+    """
     from rbgp_cli import workflows
     from rbgp_cli.io.model_store import load_model
 
     m, _ = load_model(model)
-    opts = read_options("csv", columns, quat_order, euler_order, degrees, length_unit, None, 1.0)
-    q, p = workflows.read_start_poses(poses, opts)  # handles '-' too, with the same row checks
-    mean, std = m.predict(q, p, return_std=True, noisy=noisy)
+    opts = read_options("csv", columns, quat_order, euler_order, degrees, length_unit, None, None if m.time_input else 1.0)
+    t, q, p, mean, std = workflows.predict_file(m, poses, opts, noisy=noisy)  # handles '-' too, with the row checks
     names = list(m.representation.output_names)
+    time_col = ["t"] if t is not None else []
 
     def write(fh):
-        fh.write(",".join(["x", "y", "z", "qx", "qy", "qz", "qw"] + [f"mean_{n}" for n in names] + [f"std_{n}" for n in names]) + "\n")
-        for row in zip(p, q, mean, std):
-            fh.write(",".join(repr(float(v)) for part in row for v in part) + "\n")
+        fh.write(",".join(time_col + ["x", "y", "z", "qx", "qy", "qz", "qw"] + [f"mean_{n}" for n in names] + [f"std_{n}" for n in names]) + "\n")
+        for i, row in enumerate(zip(p, q, mean, std)):
+            lead = [repr(float(t[i]))] if t is not None else []
+            fh.write(",".join(lead + [repr(float(v)) for part in row for v in part]) + "\n")
 
     write_text_output(output, write)
 
@@ -174,7 +173,7 @@ def rollout(
     model: Annotated[str, typer.Argument(help="Model file.")],
     start: Annotated[Optional[List[str]], typer.Option("--start", help='Start pose "rx ry rz x y z" (rad, m); repeatable.')] = None,
     starts: Annotated[Optional[str], typer.Option("--starts", help="CSV of start poses, one per row.")] = None,
-    from_demos: Annotated[Optional[List[str]], typer.Option("--from-demos", help="Draw starts near these demonstrations' start poses (repeatable; directories and globs allowed).")] = None,
+    from_demos: Annotated[Optional[List[str]], paths_option("--from-demos", help="Draw starts near these demonstrations' start poses: files or folders, several after one flag (e.g. --from-demos data/*.csv).")] = None,
     count: Annotated[int, typer.Option(min=1, help="Number of starts drawn near the demonstrations' (or the model's stored) start poses.")] = 1,
     start_spread: Annotated[float, typer.Option("--start-spread", min=0.0, help="Std of the start perturbation in metres (rotation: 0.1 rad per 0.3 m).")] = 0.02,
     steps: Annotated[Optional[int], typer.Option(min=1, help="Integration steps (default: the demonstrations' median duration / dt).")] = None,
@@ -227,7 +226,7 @@ def rollout(
         progress(f"no start given: {len(q)} start(s) near the demonstrations' start poses stored in the model")
     q0, p0 = np.concatenate(qs), np.concatenate(ps)
     res = workflows.rollout_model(m, q0, p0, steps=steps, duration=duration, dt=dt, samples=samples, seed=seed,
-                                  with_std=not no_std, progress=lambda k, n: progress(f"step {k}/{n}"))
+                                  with_std=not no_std, progress=progress)
     trajs = res.trajectories(include_samples=samples > 0)
     extra = None
     if res.std is not None:
@@ -251,7 +250,7 @@ def rollout(
 @command
 def evaluate(
     generated: Annotated[Optional[List[str]], typer.Argument(help="Generated trajectories (CSV from rbgp rollout; '-' for stdin).")] = None,
-    demos: Annotated[Optional[List[str]], typer.Option("--demos", help="Demonstration files or directories (repeatable).")] = None,
+    demos: Annotated[Optional[List[str]], paths_option("--demos", help="Demonstration files or folders, several after one flag (e.g. --demos data/*.csv).")] = None,
     model: Annotated[Optional[str], typer.Option("--model", help="Generate --count trajectories from this model like the paper instead.")] = None,
     count: Annotated[int, typer.Option(min=1, help="With --model: number of rollouts from starts near the demonstrations'.")] = 100,
     start_spread: Annotated[float, typer.Option("--start-spread", min=0.0, help="With --model: start perturbation std in metres.")] = 0.02,
@@ -262,7 +261,7 @@ def evaluate(
     json_out: Annotated[bool, typer.Option("--json", help="Print the scores as JSON on stdout.")] = False,
     rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd).")] = None,
     plot: Annotated[Optional[str], typer.Option("--plot", help="Also write a figure (PNG) like the paper's Fig. 4/5.")] = None,
-    compare: Annotated[Optional[str], typer.Option("--compare", help="With --plot: generated trajectories of a second model (CSV, e.g. the Euler GP's rollouts) drawn in another colour and scored in the distance panel.")] = None,
+    compare: Annotated[Optional[List[str]], paths_option("--compare", help="With --plot: generated trajectories of a second model (CSV, e.g. the Euler GP's rollouts) drawn in another colour and scored in the distance panel.")] = None,
     up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.")] = "z",
     fmt: FormatOpt = "auto", columns: ColumnsOpt = None, quat_order: QuatOrderOpt = None, euler_order: EulerOrderOpt = None,
     degrees: DegreesOpt = None, length_unit: LengthUnitOpt = None, time_unit: TimeUnitOpt = None, rate: RateOpt = None,
@@ -282,6 +281,12 @@ def evaluate(
         raise InputError(f"--covariance must be diag or full, got {covariance!r}")
     if model is not None and generated:
         raise InputError("give generated trajectories or --model, not both")
+    if model is None and not generated:
+        from rbgp_cli.cli.args import took_too_much
+
+        hint = took_too_much("generated trajectories", alternative="or give --model MODEL to generate them")
+        if hint:
+            raise InputError(hint)
     opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation)
     m = None
     if model is not None:
@@ -289,7 +294,8 @@ def evaluate(
 
         m, _ = load_model(model)
     result, gen, dem = workflows.evaluate_files(generated or [], demos, options=opts, max_gap=max_gap, length=length,
-                                                covariance=covariance, model=m, count=count, spread=start_spread, seed=seed)
+                                                covariance=covariance, model=m, count=count, spread=start_spread, seed=seed,
+                                                progress=progress)
     if per_step:
         from rbgp_cli.cli.report import write_per_step
 
@@ -304,13 +310,13 @@ def evaluate(
 
         other = None
         if compare:
-            other, _, _ = workflows.load_demonstrations([compare])
+            other, _, _ = workflows.load_demonstrations(compare)
         from pathlib import Path
 
         first = (generated or ["-"])[0]
         label = f"{Path(model).stem} rollouts" if model else ("generated" if first == "-" else Path(first).stem)
         plot_evaluation(plot, result, gen, dem, compare=other,
-                        labels=(label, Path(compare).stem if compare else "compare"))
+                        labels=(label, Path(compare[0]).stem if compare else "compare"))
         progress(f"wrote {plot}")
     if json_out:
         emit_json(result.to_dict())
@@ -336,11 +342,64 @@ def inspect(
     from rbgp_cli.workflows import expand_paths
 
     opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation)
-    results = [inspect_file(f, opts) for f in expand_paths(files)]
+    results = [inspect_file(f, opts) for f in expand_paths(files, opts)]
     if json_out:
         emit_json(results if len(results) != 1 else results[0])
     else:
         print("\n\n".join(format_inspect(r) for r in results))
+
+
+# ---------------------------------------------------------------------------------------------- crossval
+@app.command()
+@command
+def crossval(
+    demos: Annotated[List[str], typer.Argument(help="Demonstration files or directories (a shell glob is fine).")],
+    folds: Annotated[int, typer.Option(min=2, help="Folds of the demonstrations (a demonstration is never split across folds).")] = 5,
+    representation: Annotated[Optional[List[str]], typer.Option("--representation", help="axis-angle, euler, quaternion, or all; repeatable (default: axis-angle).", rich_help_panel=_TRAIN)] = None,
+    kernel: Annotated[Optional[List[str]], typer.Option("--kernel", help="Repeatable; every representation runs with every kernel (default: each representation's own). " + kernel_help(), rich_help_panel=_TRAIN)] = None,
+    replay: Annotated[bool, typer.Option("--replay/--no-replay", help="Include the replay peer: the training demonstration with the nearest start, moved rigidly to the new start.")] = True,
+    jobs: Annotated[Optional[int], typer.Option(min=1, help="Worker processes for the fits (default: one per core); 1 runs them in this process.")] = None,
+    length: Annotated[Optional[int], typer.Option(min=2, help="Resample every trajectory to this many steps for the scores (default: the training demonstrations' median).")] = None,
+    covariance: Annotated[str, typer.Option(help="Per-step Gaussians with diag or full covariance (as rbgp evaluate).")] = "diag",
+    per_fold: Annotated[bool, typer.Option("--per-fold", help="Also print one line per fold and configuration.", rich_help_panel=_OUT)] = False,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the results as JSON on stdout.", rich_help_panel=_OUT)] = False,
+    rho_rot: RhoOpt = _D["rho_rot"], restarts: RestartsOpt = _D["restarts"], explore_size: ExploreOpt = _D["explore_size"],
+    seed: SeedOpt = 0, noise: NoiseOpt = "learn", share_hyperparameters: ShareOpt = False,
+    subsample: SubsampleOpt = _D["subsample"], max_points: MaxPointsOpt = _D["max_points"],
+    time_input: TimeInputOpt = _D["time_input"], prior: PriorOpt = _D["prior"], prior_gain: PriorGainOpt = _D["prior_gain"],
+    train_rate: TrainRateOpt = _D["train_rate"], smooth_window: SmoothWindowOpt = _D["smooth_window"],
+    smooth_degree: SmoothDegreeOpt = _D["smooth_degree"],
+    fmt: FormatOpt = "auto", columns: ColumnsOpt = None, quat_order: QuatOrderOpt = None, euler_order: EulerOrderOpt = None,
+    degrees: DegreesOpt = None, length_unit: LengthUnitOpt = None, time_unit: TimeUnitOpt = None, rate: RateOpt = None,
+    topic: TopicOpt = None, frame: FrameOpt = None, time_source: TimeSourceOpt = "header", body: BodyOpt = None,
+    rotation: RotationOpt = None, max_gap: MaxGapOpt = None,
+):
+    """How well do generated motions hold up from start poses the model has not seen? Cross-validation
+    by demonstration: train on the other folds (with exactly the options of rbgp train), roll out from
+    each held-out demonstration's start for its duration, and score against the training
+    demonstrations next to the floor (the held-out demonstrations' own score) and the replay peer.
+
+    Example: rbgp crossval sample_data/csv --representation all --folds 3
+    """
+    from rbgp_cli import workflows
+    from rbgp_cli.errors import warn
+
+    opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation)
+    kwargs = train_kwargs(rho_rot=rho_rot, restarts=restarts, explore_size=explore_size, seed=seed, noise=noise,
+                          share_hyperparameters=share_hyperparameters, subsample=subsample, max_points=max_points,
+                          train_rate=train_rate, smooth_window=smooth_window, smooth_degree=smooth_degree,
+                          time_input=time_input, prior=prior, prior_gain=prior_gain)
+    configs, skipped = workflows.crossval_configs(representation, kernel, kwargs, replay=replay)
+    for note in skipped:
+        warn(f"left out {note}")
+    result = workflows.crossval_files(demos, configs, options=opts, max_gap=max_gap, folds=folds, seed=seed, jobs=jobs,
+                                      length=length, covariance=covariance, progress=progress)
+    if json_out:
+        emit_json(result)
+    else:
+        from rbgp_cli.cli.report import format_crossval
+
+        print(format_crossval(result, per_fold=per_fold))
 
 
 # ---------------------------------------------------------------------------------------------- demo
@@ -366,6 +425,42 @@ def demo(
         for rep, s in scores["representations"].items():
             b = s["bhattacharyya"]
             print(f"{rep:<14} {b['mean']:8.3f} {b['rotation']:9.3f} {b['translation']:12.3f}  {s['train_seconds']:7.1f}  {s['rollout_seconds']:9.1f}")
+
+
+# ---------------------------------------------------------------------------------------------- bench
+bench_app = typer.Typer(help="Benchmarks that measure published claims on this machine.", no_args_is_help=True)
+app.add_typer(bench_app, name="bench")
+
+
+@bench_app.command("paper")
+@command
+def bench_paper(
+    part: Annotated[str, typer.Argument(help="all, theorem, runtime or accuracy.")] = "all",
+    quick: Annotated[bool, typer.Option("--quick", help="A smoke run of a few seconds (2 repetitions, no 200-rotation sets).")] = False,
+    repeats: Annotated[Optional[int], typer.Option(min=1, help="Repetitions of each part: random rotation sets per size, timing runs, random dynamics (default 50; 2 with --quick).")] = None,
+    seed: Annotated[int, typer.Option(help="Seed of every random draw.")] = 0,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the results as one JSON object on stdout.")] = False,
+    markdown: Annotated[Optional[str], typer.Option("--markdown", help="Also write the report as Markdown to this file.")] = None,
+):
+    """Measure the paper's Theorem 1 and its sec. 4.1 (speed) and 4.2 (accuracy) claims with rbgp's GP.
+
+    Each part runs alone too; statistics over repetitions, BLAS single-threaded for the timings.
+
+    Example: rbgp bench paper --repeats 100 --markdown paper.md
+    """
+    from rbgp_cli.bench.paper import PARTS, format_report, run_paper_bench
+    from rbgp_cli.errors import InputError
+
+    if part not in ("all", *PARTS):
+        raise InputError(f"unknown part {part!r}; expected all, {', '.join(PARTS)}")
+    res = run_paper_bench(PARTS if part == "all" else (part,), repeats=repeats, seed=seed, quick=quick, progress=progress)
+    report = format_report(res)
+    if markdown:
+        write_text_output(markdown, lambda fh: fh.write(report))
+    if json_out:
+        emit_json(res)
+    else:
+        print(report, end="")
 
 
 def main() -> None:

@@ -4,7 +4,9 @@ module level, so ``rbgp --help`` stays fast (no rerun, mcap, pandas or scipy.opt
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import inspect
 import json
 import os
 import sys
@@ -14,7 +16,10 @@ from typing import Annotated, Optional
 
 import typer
 
-__all__ = ["command", "progress", "emit_json", "read_options", "ReadOpts", "write_text_output"]
+from rbgp_cli.progress import Progress
+
+__all__ = ["command", "progress", "emit_json", "read_options", "ReadOpts", "write_text_output", "set_quiet",
+           "set_json"]
 
 
 def _stderr(text: str) -> None:
@@ -22,16 +27,60 @@ def _stderr(text: str) -> None:
 
 
 _QUIET = {"on": False}
+_JSON = {"on": False}
+#: the reporter of the running command (see :func:`_progress_session`)
+_REPORTER: dict = {"now": None}
 
 
 def set_quiet(value: bool) -> None:
     _QUIET["on"] = bool(value)
 
 
-def progress(msg: str) -> None:
-    """A progress line on stderr (never stdout: stdout carries data)."""
-    if not _QUIET["on"]:
-        _stderr(f"rbgp: {msg}")
+def set_json(value: bool) -> None:
+    """``rbgp --json COMMAND``: the same as ``rbgp COMMAND --json`` (for the commands that have it)."""
+    _JSON["on"] = bool(value)
+
+
+class _CommandProgress(Progress):
+    """``progress``: what the running command reports on stderr (never stdout: stdout carries data).
+
+    Call it with a message (``progress("wrote x.rrd")``), or pass it as ``progress=`` to a library
+    function, which may open tasks on it (``progress.task("cross-validation", total=5,
+    unit="folds")``): a progress bar on a terminal, sparse plain lines otherwise, nothing with ``-q``
+    (:mod:`rbgp_cli.cli.progress`)."""
+
+    def _now(self) -> Progress:
+        if _REPORTER["now"] is None:  # outside a command (library use, tests): lines, or nothing
+            from rbgp_cli.cli.progress import make_progress
+
+            return make_progress(quiet=_QUIET["on"], stream=sys.stderr)
+        return _REPORTER["now"]
+
+    def message(self, text: str) -> None:
+        self._now().message(text)
+
+    def task(self, description: str, *, total=None, unit: str = ""):
+        return self._now().task(description, total=total, unit=unit)
+
+
+progress = _CommandProgress()
+
+
+@contextlib.contextmanager
+def _progress_session():
+    """The reporter for one command run, chosen for the current stderr; its bars stop before the
+    command's last words (an error line, or nothing) are printed."""
+    from rbgp_cli.cli.progress import make_progress
+
+    reporter = make_progress(quiet=_QUIET["on"], stream=sys.stderr)
+    _REPORTER["now"] = reporter
+    try:
+        yield reporter
+    finally:
+        _REPORTER["now"] = None
+        stop = getattr(reporter, "stop", None)
+        if stop is not None:
+            stop()
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):
@@ -43,21 +92,37 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
         _stderr(f"rbgp: warning: {category.__name__}: {message}")
 
 
+_QUIET_HELP = "No progress messages or bars on stderr (warnings and errors still); also accepted before the command."
+
+
 def command(func):
     """Wrap a command: rbgp errors become one line on stderr with their exit code (2 for bad input,
     1 for runtime failures); any other exception is an internal error (exit 1, no traceback unless
-    RBGP_DEBUG=1). Library warnings of type RbgpWarning are printed as ``rbgp: warning: ...``."""
+    RBGP_DEBUG=1). Library warnings of type RbgpWarning are printed as ``rbgp: warning: ...``.
+
+    Every command also gets ``-q/--quiet`` (so ``rbgp train ... -q`` works as ``rbgp -q train ...``),
+    and ``rbgp --json COMMAND`` sets the command's own ``--json``. Progress reported through
+    :data:`progress` while the command runs is drawn for the current stderr."""
+    sig = inspect.signature(func, eval_str=True)
+    has_json = "json_out" in sig.parameters
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
-        from rbgp_cli.errors import RbgpError, RbgpWarning
+        from rbgp_cli.errors import InputError, RbgpError, RbgpWarning
 
+        if kwargs.pop("rbgp_quiet", False):
+            set_quiet(True)
         with warnings.catch_warnings():
             warnings.simplefilter("always", RbgpWarning)
             warnings.simplefilter("ignore", DeprecationWarning)
             warnings.showwarning = _show_warning
             try:
-                return func(*args, **kwargs)
+                if _JSON["on"]:
+                    if not has_json:
+                        raise InputError(f"rbgp {func.__name__} has no --json output", hint="leave out --json")
+                    kwargs["json_out"] = True
+                with _progress_session():
+                    return func(*args, **kwargs)
             except typer.Exit:
                 raise
             except RbgpError as exc:
@@ -83,6 +148,9 @@ def command(func):
                 _stderr(f"rbgp: internal error: {type(exc).__name__}: {text} (set RBGP_DEBUG=1 for a traceback)")
                 raise typer.Exit(1) from None
 
+    quiet = inspect.Parameter("rbgp_quiet", inspect.Parameter.KEYWORD_ONLY, default=False,
+                              annotation=Annotated[bool, typer.Option("--quiet", "-q", help=_QUIET_HELP)])
+    wrapper.__signature__ = sig.replace(parameters=[*sig.parameters.values(), quiet])
     return wrapper
 
 

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-__all__ = ["format_train_summary", "format_model_info", "write_per_step"]
+__all__ = ["format_train_summary", "format_model_info", "write_per_step", "format_crossval"]
 
 
 def _fmt_values(values: dict) -> str:
-    short = {"signal_std": "σf", "length_scale": "λ", "rho_rot": "ρ1", "noise_std": "σn"}
+    short = {"signal_std": "σf", "length_scale": "λ", "rho_rot": "ρ1", "noise_std": "σn", "time_scale": "λτ"}
     return "  ".join(f"{short.get(k, k)}={v:.4g}" for k, v in values.items())
 
 
@@ -18,6 +18,20 @@ def format_train_summary(s: dict) -> str:
         f"demonstrations: {s['demos']}   pairs: {s['pairs']}   training points: {s['points']}"
         f"   hyperparameters: {'shared' if s['shared_hyperparameters'] else 'per output'}",
     ]
+    vel = s.get("velocity")
+    if vel:
+        how = (f"local polynomial (degree {vel['degree']}) over {vel['window_s']:g} s" if vel["method"] == "local-polynomial"
+               else "forward differences")
+        grid = f"resampled to {vel['rate_hz']:g} Hz" if vel.get("rate_hz") else "at the recorded samples"
+        drift = vel.get("integration_drift") or {}
+        lines.append(f"velocities: {how}, {grid}; {vel['segments']} gap-free segments; integrating them back strays "
+                     f"≤ {drift.get('max_position_m', 0):.2g} m, {drift.get('max_rotation_rad', 0):.2g} rad")
+    if s.get("time_input") or s.get("prior"):
+        prior = s.get("prior")
+        what = {"path": "the demonstrations' mean path", "goal": "a pull toward the mean final pose"}
+        per = "per unit phase" if s.get("time_input") == "phase" else "per second"
+        lines.append(f"time input: {s.get('time_input') or 'none'}   prior mean: "
+                     + (f"{what[prior['kind']]} (gain {prior['gain']:g} {per})" if prior else "zero"))
     for o in s["outputs"]:
         flags = []
         if o["jitter"] > 0:
@@ -73,3 +87,37 @@ def write_per_step(result, fh) -> None:
     for i in range(result.steps):
         fh.write(f"{i},{result.s[i]!r},{float(result.per_step[i])!r},{float(result.per_step_rotation[i])!r},"
                  f"{float(result.per_step_translation[i])!r}\n")
+
+
+def _num(v, fmt: str = ".3f") -> str:
+    return "-" if v is None else format(v, fmt)
+
+
+def format_crossval(result: dict, per_fold: bool = False) -> str:
+    """The cross-validation table (stdout): one row per configuration, best score / floor first."""
+    sizes = ", ".join(str(n) for n in result["fold_sizes"])
+    lines = [
+        f"{result['demonstrations']} demonstrations, {result['folds']} folds ({sizes} held out), seed {result['seed']}; "
+        f"floor {result['floor']:.3f} (the held-out demonstrations scored against the same training sets)",
+        "score: Bhattacharyya distance of the rollouts from the held-out starts to the training demonstrations "
+        "(lower is better); ratio = score / floor; pos/rot: RMSE against the held-out demonstration with the "
+        "same start (m, rad); vel: relative velocity RMSE on held-out pairs (1 = predicting zero)",
+        "",
+        f"{'representation':<14} {'kernel':<10} {'score':>8} {'floor':>7} {'ratio':>7} {'rotation':>9} {'translation':>11}"
+        f" {'pos_m':>7} {'rot_rad':>7} {'vel':>6} {'train_s':>8}",
+    ]
+
+    def row(r, label_rep, label_kern):
+        flag = "" if r.get("reliable", True) else "  *"
+        return (f"{label_rep:<14} {label_kern:<10} {r['score']:8.3f} {r['floor']:7.3f} {r['ratio']:7.2f} {r['rotation']:9.3f}"
+                f" {r['translation']:11.3f} {r['position_rmse']:7.3f} {r['rotation_rmse']:7.3f} {_num(r['velocity_rmse'], '6.3f'):>6}"
+                f" {r['train_s']:8.1f}{flag}")
+
+    for r in result["results"]:
+        lines.append(row(r, r["representation"], r["kernel"] or "-"))
+        if per_fold:
+            for f in r["per_fold"]:
+                lines.append(row(f, f"  fold {f['fold'] + 1}", f"({f['n_test']} held)"))
+    if any(not r.get("reliable", True) for r in result["results"]):
+        lines.append("* some folds have too few trajectories for their per-step variances (see the warnings)")
+    return "\n".join(lines)

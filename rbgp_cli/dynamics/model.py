@@ -12,17 +12,24 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rbgp_cli.dynamics.representations import Representation, make_representation
+from rbgp_cli.dynamics.defaults import DEFAULT_KERNELS, DEFAULTS
 from rbgp_cli.dynamics.trajectory import Trajectory
+from rbgp_cli.dynamics.velocities import VelocityOptions, estimate_velocities, integration_drift, window_problem
 from rbgp_cli.errors import InputError
 from rbgp_cli.gp.exact import GaussianProcess, default_jobs, fit_gp
 from rbgp_cli.kernels import DotProduct, Kernel, SquaredExponential
 
-__all__ = ["MotionModel", "make_kernel", "training_set", "train_model", "KERNELS"]
+__all__ = ["MotionModel", "make_kernel", "training_set", "train_model", "KERNELS", "DEFAULTS", "default_velocity"]
 
 KERNELS = ("se", "se-chordal", "dot")
+#: What the GP sees besides the pose: nothing (the paper), seconds since the start, or the phase.
+TIME_INPUTS = (None, "seconds", "phase")
+#: The GP's prior mean: zero (the paper), a pull toward the goal, or the demonstrations' mean path.
+PRIORS = (None, "goal", "path")
 
 
-def make_kernel(representation: Representation, kernel: str = "se", rho_rot: float = 0.7, learn_rho: bool = False) -> Kernel:
+def make_kernel(representation: Representation, kernel: str = "se", rho_rot: float = 0.7, learn_rho: bool = False,
+                time_dims: int = 0) -> Kernel:
     """The kernel for a representation (MATH.md §6).
 
     ``se`` is the paper's squared exponential on the representation's own rotation distance: the
@@ -33,12 +40,14 @@ def make_kernel(representation: Representation, kernel: str = "se", rho_rot: flo
     rd = representation.rotation_dims
     if kernel == "se":
         metric = {"axis-angle": "arc", "euler": "euclidean", "quaternion": "s3"}[representation.name]
-        return SquaredExponential(metric, rd, rho_rot, learn_rho)
+        return SquaredExponential(metric, rd, rho_rot, learn_rho, time_dims)
     if kernel == "se-chordal":
         if representation.name == "euler":
             raise InputError("--kernel se-chordal needs a rotation representation (axis-angle or quaternion), not euler")
-        return SquaredExponential("chordal", rd, rho_rot, learn_rho)
+        return SquaredExponential("chordal", rd, rho_rot, learn_rho, time_dims)
     if kernel == "dot":
+        if time_dims:
+            raise InputError("--kernel dot takes no time input", hint="use --kernel se or se-chordal")
         return DotProduct(rd, rho_rot, learn_rho)
     raise InputError(f"unknown kernel {kernel!r}; expected one of {', '.join(KERNELS)}")
 
@@ -49,10 +58,20 @@ class MotionModel:
 
     representation : how poses become GP inputs and outputs integrate back
     gp : the fitted GP (inputs X (n, d), outputs Y (n, L))
-    dt : the demonstrations' median time step, seconds (default rollout step)
+    dt : the training step, seconds (default rollout step): 1/rate when velocities were estimated on a
+        resampled grid, else the demonstrations' median time step
     starts : demonstrations' start poses, shape (D, 7) = (qx, qy, qz, qw, x, y, z)
     durations : demonstrations' durations, seconds, shape (D,)
     summary : plain-data training summary; provenance : inputs, options, version, time
+    velocity : how the training velocities were estimated (held-out pairs are made the same way)
+    time_input : None, or ``"seconds"`` (time since the demonstration's start is a last GP input) or
+        ``"phase"`` (normalised time s = (t − t_0)/D is a last input, and the outputs are velocities
+        per unit phase, D·ξ, so that a rollout of any duration D' traverses the learned motion once)
+    mean : None (zero-mean GP, MATH.md §7), ``{"kind": "goal", "gain": a, "goal": (7,)}`` or
+        ``{"kind": "path", "gain": a, "s", "quat", "position", "velocity"}``: the prior mean of the
+        outputs (:func:`prior_mean_outputs`, per second or per unit phase) converted to the
+        representation's outputs; the GP models the residual, as in stable dynamical systems learned
+        from demonstration
     """
 
     representation: Representation
@@ -62,31 +81,182 @@ class MotionModel:
     durations: np.ndarray
     summary: dict = field(default_factory=dict)
     provenance: dict = field(default_factory=dict)
+    velocity: VelocityOptions = field(default_factory=VelocityOptions)
+    time_input: str | None = None
+    mean: dict | None = None
 
-    def predict(self, quat, position, return_std: bool = True, noisy: bool = False):
-        """Output mean and std at poses (quat (m, 4) x, y, z, w; position (m, 3))."""
+    @property
+    def pose_dims(self) -> int:
+        """Columns of the representation's state (the GP input without the time column)."""
+        return len(self.representation.input_names)
+
+    def initial_state(self, quat, position) -> np.ndarray:
+        """GP inputs (B, d) at the start of rollouts from poses (quat (B, 4) x, y, z, w; position (B, 3))."""
         X = self.representation.state_from_pose(np.asarray(quat, float).reshape(-1, 4), np.asarray(position, float).reshape(-1, 3))
-        return self.gp.predict(X, return_std=return_std, noisy=noisy)
+        if self.time_input:
+            X = np.concatenate([X, np.zeros((len(X), 1))], axis=1)
+        return X
+
+    def advance(self, X, output, dt: float, duration: float) -> np.ndarray:
+        """One rollout step from inputs X (B, d) with predicted outputs (B, L) over ``dt`` seconds of a
+        rollout lasting ``duration`` seconds (the phase mode divides by it)."""
+        d = self.pose_dims
+        if self.time_input == "phase":
+            nxt = self.representation.step(X[:, :d], output / duration, dt)
+            return np.concatenate([nxt, X[:, d:] + dt / duration], axis=1)
+        if self.time_input == "seconds":
+            nxt = self.representation.step(X[:, :d], output, dt)
+            return np.concatenate([nxt, X[:, d:] + dt], axis=1)
+        return self.representation.step(X, output, dt)
+
+    def prior_mean(self, X) -> np.ndarray | None:
+        """The prior mean of the outputs at inputs X (m, d), or None for a zero-mean GP."""
+        if not self.mean:
+            return None
+        phase = X[:, -1] if self.time_input == "phase" else None
+        return prior_mean_outputs(self.representation, X[:, : self.pose_dims], self.mean, phase)
+
+    def predict_output(self, X, return_std: bool = False, manage_threads: bool = True):
+        """Outputs (velocities in the representation's coordinates, per second or per unit phase) at
+        inputs X (m, d): the GP's prediction plus the prior mean."""
+        out = self.gp.predict(X, return_std=return_std, manage_threads=manage_threads)
+        m = self.prior_mean(np.asarray(X, dtype=np.float64))
+        if m is None:
+            return out
+        if return_std:
+            return out[0] + m, out[1]
+        return out + m
+
+    def predict(self, quat, position, return_std: bool = True, noisy: bool = False, tau=None):
+        """Output mean and std at poses (quat (m, 4) x, y, z, w; position (m, 3)); ``tau`` (m,) the
+        time since the start (seconds or phase, as the model was trained) for models with a time input."""
+        X = self.representation.state_from_pose(np.asarray(quat, float).reshape(-1, 4), np.asarray(position, float).reshape(-1, 3))
+        if self.time_input:
+            if tau is None:
+                raise InputError(f"this model takes the {'phase' if self.time_input == 'phase' else 'time since the start'} "
+                                 "as an input", hint="give a time column with the poses")
+            X = np.concatenate([X, np.asarray(tau, float).reshape(-1, 1)], axis=1)
+        mean, std = self.gp.predict(X, return_std=True, noisy=noisy)
+        m = self.prior_mean(X)
+        if m is not None:
+            mean = mean + m
+        return (mean, std) if return_std else mean
+
+
+def prior_mean_outputs(representation: Representation, state: np.ndarray, mean: dict, phase=None) -> np.ndarray:
+    """The prior mean as the representation's outputs at ``state`` (m, d).
+
+    ``goal``: ξ_m = a·(log(R_goal Rᵀ), p_goal − p), a pull toward the demonstrations' mean final
+    pose. ``path`` (phase input only): ξ_m = ξ̄(s) + a·(log(R̄(s) Rᵀ), p̄(s) − p), the velocity of the
+    demonstrations' mean path at phase s (per unit phase) plus a pull toward its pose at s
+    (:func:`mean_path`); ``phase`` (m,) gives s.
+    """
+    from rbgp_cli.dynamics.trajectory import interpolate_poses
+    from rbgp_cli.geometry.so3 import log_quat, quat_conjugate, quat_multiply
+
+    a = float(mean["gain"])
+    quat, pos = representation.pose_from_state(state)
+    if mean["kind"] == "path":
+        s_grid = np.asarray(mean["s"], dtype=np.float64)
+        s = np.clip(np.asarray(phase, dtype=np.float64), s_grid[0], s_grid[-1])
+        ref_q, ref_p = interpolate_poses(s_grid, np.asarray(mean["quat"]), np.asarray(mean["position"]), s)
+        k = np.clip(np.searchsorted(s_grid, s, side="right") - 1, 0, len(s_grid) - 2)
+        ff = np.asarray(mean["velocity"], dtype=np.float64)[k]
+    else:
+        goal = np.asarray(mean["goal"], dtype=np.float64)
+        ref_q, ref_p = np.broadcast_to(goal[:4], quat.shape), goal[4:]
+        ff = 0.0
+    rot = log_quat(quat_multiply(ref_q, quat_conjugate(quat)))
+    xi = ff + a * np.concatenate([rot, ref_p - pos], axis=1)
+    return representation.output_from_velocity(state, quat, xi)
+
+
+def mean_path(trajs: list[Trajectory], steps: int = 51) -> dict:
+    """The demonstrations' mean path over phase s = (t − t_0)/D: at ``steps`` phases the chordal mean
+    rotation (principal eigenvector of Σ q qᵀ) and the mean position, and per interval the twist per
+    unit phase that carries one mean pose to the next (ξ̄_k = (log(R̄_{k+1} R̄_kᵀ), p̄_{k+1} − p̄_k)/Δs)."""
+    from rbgp_cli.dynamics.trajectory import interpolate_poses
+    from rbgp_cli.geometry.so3 import log_quat, quat_conjugate, quat_make_continuous, quat_multiply
+
+    s = np.linspace(0.0, 1.0, steps)
+    Q, P = [], []
+    for tr in trajs:
+        q, p = interpolate_poses((tr.t - tr.t[0]) / max(tr.duration, 1e-12), quat_make_continuous(tr.quat), tr.position, s)
+        Q.append(q)
+        P.append(p)
+    Q, P = np.array(Q), np.array(P)  # (D, S, 4), (D, S, 3)
+    _, V = np.linalg.eigh(np.einsum("dsi,dsj->sij", Q, Q))
+    q_mean = quat_make_continuous(V[:, :, -1])
+    p_mean = P.mean(axis=0)
+    ds = np.diff(s)[:, None]
+    vel = np.concatenate([log_quat(quat_multiply(q_mean[1:], quat_conjugate(q_mean[:-1]))), np.diff(p_mean, axis=0)], axis=1) / ds
+    return {"s": s, "quat": q_mean, "position": p_mean, "velocity": vel}
+
+
+def goal_pose(trajs: list[Trajectory]) -> np.ndarray:
+    """The demonstrations' mean final pose (7,): chordal mean rotation (principal eigenvector of
+    Σ q qᵀ, x, y, z, w) and mean position."""
+    Q = np.array([tr.quat[-1] for tr in trajs])
+    w, V = np.linalg.eigh(Q.T @ Q)
+    q = V[:, -1]
+    q = q if q[3] >= 0 else -q
+    return np.concatenate([q, np.mean([tr.position[-1] for tr in trajs], axis=0)])
+
+
+def default_velocity() -> VelocityOptions:
+    """How training velocities are estimated unless told otherwise (:data:`DEFAULTS`)."""
+    return VelocityOptions(rate=DEFAULTS["train_rate"], window=DEFAULTS["smooth_window"], degree=DEFAULTS["smooth_degree"])
+
+
+def demonstration_pairs(trajs: list[Trajectory], representation: Representation,
+                        velocity: VelocityOptions | None = None, time_input: str | None = None):
+    """Training pairs of every demonstration (MATH.md §4, §4.1), before any subsampling.
+
+    With a ``time_input`` the inputs get a last column: seconds since the demonstration's start, or
+    its phase (t − t_0)/D with outputs multiplied by D (velocities per unit phase).
+    Returns X (n, d), Y (n, L), per-demonstration pair counts, and the velocity segments.
+    """
+    velocity = velocity or VelocityOptions()
+    Xs, Ys, per_demo, segments = [], [], [], []
+    for tr in trajs:
+        segs = estimate_velocities(tr, velocity)
+        count = 0
+        for seg in segs:
+            X, Y = representation.pairs_from_segment(seg)
+            if time_input:
+                tau = seg.traj.t[: len(X)] - seg.t0
+                if time_input == "phase":
+                    D = max(tr.duration, 1e-9)
+                    tau = tau / D
+                    Y = Y * D
+                X = np.concatenate([X, tau[:, None]], axis=1)
+            Xs.append(X)
+            Ys.append(Y)
+            count += len(X)
+        per_demo.append(count)
+        segments.extend(segs)
+    d, L = len(representation.input_names) + (1 if time_input else 0), len(representation.output_names)
+    X = np.concatenate(Xs) if Xs else np.zeros((0, d))
+    Y = np.concatenate(Ys) if Ys else np.zeros((0, L))
+    return X, Y, per_demo, segments
 
 
 def training_set(trajs: list[Trajectory], representation: Representation, *, subsample: float | None = 0.1,
-                 max_points: int | None = None, seed: int = 0):
+                 max_points: int | None = None, seed: int = 0, velocity: VelocityOptions | None = None,
+                 time_input: str | None = None):
     """All training pairs of all demonstrations, then a seeded random subset.
 
     Returns X (n, d), Y (n, L) and a dict with ``pairs`` (before subsampling), ``points`` (after),
-    ``per_demo`` pair counts and the chosen ``indices`` into the concatenated pairs.
+    ``per_demo`` pair counts, the chosen ``indices`` into the concatenated pairs and the velocity
+    ``segments``.
     """
     if not trajs:
         raise InputError("no demonstrations given", hint="pass one or more demonstration files")
     representation.prepare(trajs)
-    Xs, Ys, per_demo = [], [], []
-    for tr in trajs:
-        X, Y, _ = representation.training_pairs(tr)
-        Xs.append(X)
-        Ys.append(Y)
-        per_demo.append(len(X))
-    X = np.concatenate(Xs)
-    Y = np.concatenate(Ys)
+    problem = window_problem(trajs, velocity or VelocityOptions())
+    if problem:
+        raise InputError(problem, hint="use a longer --smooth-window or 0 for forward differences")
+    X, Y, per_demo, segments = demonstration_pairs(trajs, representation, velocity, time_input)
     n = len(X)
     if n < 2:  # two samples give one velocity: nothing for a GP to fit (nor a length scale to learn)
         sources = sorted({tr.source or tr.name for tr in trajs if tr.source or tr.name})
@@ -105,43 +275,74 @@ def training_set(trajs: list[Trajectory], representation: Representation, *, sub
     if max_points is not None:
         k = min(k, int(max_points))
     idx = np.sort(rng.choice(n, size=k, replace=False)) if k < n else np.arange(n)
-    return X[idx], Y[idx], {"pairs": int(n), "points": int(len(idx)), "per_demo": per_demo, "indices": idx}
+    return X[idx], Y[idx], {"pairs": int(n), "points": int(len(idx)), "per_demo": per_demo, "indices": idx,
+                            "segments": segments}
 
 
 def train_model(
     trajs: list[Trajectory],
     *,
-    representation: str = "axis-angle",
-    kernel: str = "se",
-    rho_rot: float | str = 0.7,
-    restarts: int = 3,
+    representation: str = DEFAULTS["representation"],
+    kernel: str | None = DEFAULTS["kernel"],
+    rho_rot: float | str = DEFAULTS["rho_rot"],
+    restarts: int = DEFAULTS["restarts"],
     seed: int = 0,
     noise=None,
     shared: bool = False,
-    subsample: float | None = 0.1,
-    max_points: int | None = 2000,
+    subsample: float | None = DEFAULTS["subsample"],
+    max_points: int | None = DEFAULTS["max_points"],
     euler_order: str = "xyz",
     progress=None,
     explore_size: int | None = None,
+    velocity: VelocityOptions | None = None,
+    time_input: str | None = DEFAULTS["time_input"],
+    prior: str | None = DEFAULTS["prior"],
+    prior_gain: float = DEFAULTS["prior_gain"],
     jobs: int | None = None,
 ) -> MotionModel:
     """Train a motion model on clean demonstrations (see :func:`rbgp_cli.dynamics.prepare.prepare_all`).
 
     ``rho_rot`` is ρ1 of eq. 19 (a number in (0, 1)) or ``"learn"``. ``noise`` is None to learn σn or
     a fixed standard deviation. ``explore_size``: the optimiser's starts explore a random subset of
-    this many training points first (see :func:`rbgp_cli.gp.exact.fit_gp`; None: its default, 0: off). ``jobs``:
+    this many training points first (see :func:`rbgp_cli.gp.exact.fit_gp`; None: its default, 0: off).
+    ``velocity``: how training velocities are estimated (:class:`VelocityOptions`). ``time_input``:
+    None, ``"seconds"`` or ``"phase"`` (see :class:`MotionModel`). ``prior``: the GP's prior mean,
+    None (zero, the paper), ``"goal"`` (a pull toward the demonstrations' mean final pose) or
+    ``"path"`` (the demonstrations' mean path over phase: its velocity plus a pull toward it; needs
+    the phase input), with the pull's gain ``prior_gain`` (per unit phase, or per second). ``jobs``:
     worker processes for the per-output fits (None: :func:`rbgp_cli.gp.exact.default_jobs`: one per
-    output if memory allows, 1 inside a worker process or on a single core). Returns the model; its ``summary`` holds demos, pairs, points, the
-    hyperparameters and NLML per output, the safeguards used and the time taken.
+    output if memory allows, 1 inside a worker process or on a single core).
+    Returns the model; its ``summary`` holds demos, pairs, points, the hyperparameters and NLML per
+    output, the safeguards used and the time taken.
     """
     t0 = time.perf_counter()
+    if representation not in DEFAULT_KERNELS:
+        raise InputError(f"unknown representation {representation!r}; expected one of {', '.join(DEFAULT_KERNELS)}")
+    kernel = kernel or DEFAULT_KERNELS[representation]
     rep = make_representation(representation, order=euler_order) if representation == "euler" else make_representation(representation)
     learn_rho = rho_rot == "learn"
     rho = 0.7 if learn_rho else float(rho_rot)
     if not learn_rho and not 0 < rho < 1:
         raise InputError(f"--rho-rot must lie strictly between 0 and 1 (or be 'learn'), got {rho_rot}")
-    kern = make_kernel(rep, kernel, rho, learn_rho)
-    X, Y, info = training_set(trajs, rep, subsample=subsample, max_points=max_points, seed=seed)
+    if time_input not in TIME_INPUTS:
+        raise InputError(f"unknown time input {time_input!r}; expected one of none, seconds, phase")
+    if prior not in PRIORS:
+        raise InputError(f"unknown prior {prior!r}; expected one of none, goal, path")
+    if prior == "path" and time_input != "phase":
+        raise InputError("the mean-path prior follows the phase", hint="use --time-input phase with --prior path")
+    if prior and not (np.isfinite(prior_gain) and prior_gain >= 0):
+        raise InputError(f"--prior-gain must be a non-negative number, got {prior_gain}")
+    kern = make_kernel(rep, kernel, rho, learn_rho, time_dims=1 if time_input else 0)
+    velocity = velocity or default_velocity()
+    X, Y, info = training_set(trajs, rep, subsample=subsample, max_points=max_points, seed=seed, velocity=velocity,
+                              time_input=time_input)
+    mean = None
+    if prior == "path":
+        mean = {"kind": "path", "gain": float(prior_gain), **mean_path(trajs)}
+    elif prior == "goal":
+        mean = {"kind": "goal", "gain": float(prior_gain), "goal": goal_pose(trajs).tolist()}
+    if mean is not None:
+        Y = Y - prior_mean_outputs(rep, X[:, : len(rep.input_names)], mean, X[:, -1] if time_input == "phase" else None)
     if progress:
         progress(f"{len(trajs)} demonstrations, {info['pairs']} pairs, training on {info['points']} points "
                  f"({rep.name}, kernel {kernel}, {'shared' if shared else 'per-output'} hyperparameters)")
@@ -149,7 +350,7 @@ def train_model(
         jobs = default_jobs(1 if shared else Y.shape[1], len(X))
     gp = fit_gp(X, Y, kern, noise=noise, restarts=restarts, seed=seed, shared=shared, progress=progress,
                 explore_size=explore_size, jobs=jobs)
-    dts = np.concatenate([np.diff(tr.t) for tr in trajs])
+    dt = 1.0 / velocity.rate if velocity.rate is not None else float(np.median(np.concatenate([np.diff(tr.t) for tr in trajs])))
     starts = np.array([np.concatenate([tr.quat[0], tr.position[0]]) for tr in trajs])
     durations = np.array([tr.duration for tr in trajs])
     names = ["all"] if shared else list(rep.output_names)
@@ -161,6 +362,8 @@ def train_model(
         "pairs": info["pairs"],
         "points": info["points"],
         "shared_hyperparameters": bool(shared),
+        "velocity": {**velocity.to_dict(), "segments": len(info["segments"]),
+                     "integration_drift": integration_drift(info["segments"])},
         "outputs": [
             {"output": nm, **{k: v for k, v in f.to_dict().items() if k not in ("starts",)}}
             for nm, f in zip(names, gp.fits)
@@ -173,4 +376,7 @@ def train_model(
         },
         "seconds": time.perf_counter() - t0,
     }
-    return MotionModel(rep, gp, float(np.median(dts)), starts, durations, summary=summary)
+    summary["time_input"] = time_input
+    summary["prior"] = None if mean is None else {"kind": mean["kind"], "gain": mean["gain"]}
+    return MotionModel(rep, gp, float(dt), starts, durations, summary=summary, velocity=velocity,
+                       time_input=time_input, mean=mean)

@@ -14,7 +14,9 @@ positions (metres) and unit quaternions (x, y, z, w) that are continuous in sign
 3. **time checks**: exact duplicate samples (same time, same pose) are dropped; the same time with a
    different pose, or time going backwards, is an error;
 4. **sign continuity**: ``q`` and ``-q`` are the same rotation; each quaternion is flipped to the
-   hemisphere of its predecessor (harmless, counted);
+   hemisphere of its predecessor (harmless, counted). The warning names what the data held
+   (:func:`sign_change_note`): recorded quaternions that flip sign, a rotation vector that wrapped at
+   π, Euler angles that wrapped at ±180°; for rotation matrices the sign is ours, so nothing is said;
 5. **step check**: consecutive samples rotating by π or more relative to each other are an error
    (the sampling is too coarse to tell which way the body turned).
 
@@ -28,7 +30,8 @@ import numpy as np
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError, warn
 
-__all__ = ["prepare_trajectory", "prepare_all", "lost_frame_mask", "line_of", "ZERO_QUAT_NORM", "STEP_LIMIT"]
+__all__ = ["prepare_trajectory", "prepare_all", "lost_frame_mask", "line_of", "sign_change_note", "ZERO_QUAT_NORM",
+           "STEP_LIMIT"]
 
 #: A quaternion with a smaller norm is "no rotation recorded" (a lost frame), not a rotation.
 ZERO_QUAT_NORM = 1e-9
@@ -59,6 +62,30 @@ def line_of(traj: Trajectory, k: int) -> int | None:
                 return int(first) + int(k)
             k -= count
     return None
+
+
+def sign_change_note(info: dict | None, count: int) -> str | None:
+    """What ``count`` repaired quaternion sign changes mean for the user's data, or None to say nothing.
+
+    The readers record the rotation columns in ``info["rotation"]`` (CSV, MCAP) or
+    ``info["rotation_source"]`` (QTM, Motive, Vicon). A quaternion computed from a rotation vector
+    r = θu with θ ≤ π changes sign when the recorded vector wraps from θ ≈ π to the opposite side
+    (u → −u); one computed from Euler angles changes sign when an angle wraps at ±180°; recorded
+    quaternions simply flip between q and −q. Quaternions computed from rotation matrices get their
+    sign from the conversion (the matrix has none), so their sign changes say nothing about the data.
+    """
+    if not count:
+        return None
+    info = info or {}
+    source = str(info.get("rotation_source") or info.get("rotation") or "quaternion").lower()
+    times = f"{count} time{'s' * (count != 1)}"
+    if "rotation vector" in source or "helical" in source or "rotvec" in source:
+        return f"rotation vector wrapped at {'180°' if 'deg' in source else 'π'} {times}, repaired"
+    if source.startswith("euler"):
+        return f"Euler angles wrapped at {'±180°' if 'deg' in source else '±π'} {times}, repaired"
+    if "matrix" in source:
+        return None
+    return f"fixed {count} quaternion sign flip{'s' * (count != 1)}"
 
 
 def _where(traj: Trajectory, k: int) -> tuple[int | None, str]:
@@ -137,6 +164,19 @@ def prepare_trajectory(
             hint="check which columns hold the quaternion, their order and units (--columns, --quat-order); "
             "a unit quaternion's components lie in [-1, 1]",
         )
+    # sample-and-hold (MATH.md §4.1): a valid sample that repeats its predecessor's pose bit for bit at
+    # a later time is the tracker holding the last pose, not motion: a lost frame like any other
+    held = np.zeros(n, dtype=bool)
+    if len(vi) > 1:
+        a, b = vi[:-1], vi[1:]
+        same_q = np.all(q[a] == q[b], axis=1) | np.all(q[a] == -q[b], axis=1)
+        held[b] = same_q & np.all(p[a] == p[b], axis=1) & (t[b] > t[a])
+    n_held = int(held.sum())
+    if n_held:
+        lost = lost | held
+        valid = ~lost
+        keep_v = ~held[vi]
+        vi, norms = vi[keep_v], norms[keep_v]
     qn = np.full_like(q, np.nan)
     qn[vi] = q[vi] / norms[:, None]
 
@@ -201,7 +241,7 @@ def prepare_trajectory(
     q_out = np.concatenate([qn[keep], fill_q])[order]
     p_out = np.concatenate([p[keep], fill_p])[order]
     t_out = t[rows]
-    n_lost = int(lost.sum())
+    n_lost = int(lost.sum()) - n_held
     n_filled = int(fill_idx.size)
     if len(rows) < 2:
         finite_q = np.all(np.isfinite(q), axis=1)
@@ -245,20 +285,25 @@ def prepare_trajectory(
         "samples_out": int(len(rows)),
         "lost": n_lost,
         "filled": n_filled,
-        "dropped": n_lost - n_filled,
+        "dropped": n_lost + n_held - n_filled,
+        "held": n_held,
         "duplicates": int(dup_raw.sum()),
         "sign_flips": int(flips.sum()),
         "max_norm_deviation": float(dev.max()) if len(vi) else 0.0,
     }
     parts = []
+    if n_held:
+        parts.append(f"{n_held} sample{'s' * (n_held != 1)} repeat{'s' * (n_held == 1)} the previous pose exactly "
+                     "(the tracker held it): treated as lost frame" + "s" * (n_held != 1))
     if report["dropped"]:
         parts.append(f"dropped {report['dropped']} lost frame{'s' * (report['dropped'] != 1)}")
     if n_filled:
         parts.append(f"filled {n_filled} lost frame{'s' * (n_filled != 1)}")
     if report["duplicates"]:
         parts.append(f"dropped {report['duplicates']} duplicate sample{'s' * (report['duplicates'] != 1)}")
-    if report["sign_flips"]:
-        parts.append(f"fixed {report['sign_flips']} quaternion sign flip{'s' * (report['sign_flips'] != 1)}")
+    sign_note = sign_change_note(traj.info, report["sign_flips"])
+    if sign_note:
+        parts.append(sign_note)
     if report["max_norm_deviation"] > _NOTE_NORM:
         parts.append(f"normalised quaternions (largest | |q| - 1 | = {report['max_norm_deviation']:.3g})")
     if parts:

@@ -29,6 +29,9 @@ from rbgp_cli.dynamics.velocities import forward_differences
 from rbgp_cli.geometry.se3 import integrate_quat
 from rbgp_cli.geometry.so3 import (
     euler_from_quat,
+    exp_quat,
+    quat_conjugate,
+    quat_multiply,
     quat_from_euler,
     quat_from_rotvec,
     quat_make_continuous,
@@ -52,6 +55,33 @@ class Representation:
 
     def training_pairs(self, traj: Trajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(X, Y, dt): inputs (N−1, d), outputs (N−1, L), time steps (N−1,) of one demonstration."""
+        raise NotImplementedError
+
+    def pairs_from_segment(self, seg) -> tuple[np.ndarray, np.ndarray]:
+        """(X, Y) of one :class:`~rbgp_cli.dynamics.velocities.VelocitySegment`.
+
+        Forward-difference segments (ξ has one row fewer than the poses) use the representation's
+        own differences of its coordinates over the segment's steps, so that integrating them back
+        reproduces the segment exactly; local-polynomial segments convert the instantaneous
+        world-frame velocity ξ = (ω, v) at each pose (:meth:`output_from_velocity`).
+        """
+        if seg.differences:
+            X, Y, _ = self.training_pairs(seg.traj)
+            return X, Y
+        state = self.state_along(seg.traj.quat, seg.traj.position)
+        return state, self.output_from_velocity(state, seg.traj.quat, seg.xi)
+
+    def state_along(self, quat: np.ndarray, position: np.ndarray) -> np.ndarray:
+        """States (K, d) along one continuous trajectory (angles unwrapped, quaternions continuous)."""
+        return self.state_from_pose(quat, position)
+
+    def output_from_velocity(self, state: np.ndarray, quat: np.ndarray, xi: np.ndarray) -> np.ndarray:
+        """The GP output (K, L) of a world-frame velocity ξ = (ω, v) (K, 6) at states (K, d)."""
+        raise NotImplementedError
+
+    def twist_from_output(self, state: np.ndarray, quat: np.ndarray, output: np.ndarray) -> np.ndarray:
+        """The world-frame velocity ξ = (ω, v) (K, 6) that a GP output (K, L) means at states (K, d)
+        with rotations ``quat`` (K, 4) (the inverse of :meth:`output_from_velocity`)."""
         raise NotImplementedError
 
     def state_from_pose(self, quat: np.ndarray, position: np.ndarray) -> np.ndarray:
@@ -86,6 +116,12 @@ class AxisAngle(Representation):
     def state_from_pose(self, quat, position):
         return np.concatenate([rotvec_from_quat(quat), position], axis=-1)
 
+    def output_from_velocity(self, state, quat, xi):
+        return np.array(xi, dtype=np.float64, copy=True)
+
+    def twist_from_output(self, state, quat, output):
+        return np.array(output, dtype=np.float64, copy=True)
+
     def step(self, state, output, dt):
         q, p = integrate_quat(quat_from_rotvec(state[..., :3]), state[..., 3:], output, dt)
         return np.concatenate([rotvec_from_quat(q), p], axis=-1)
@@ -119,6 +155,29 @@ class Euler(Representation):
 
     def state_from_pose(self, quat, position):
         return np.concatenate([euler_from_quat(quat, self.order), position], axis=-1)
+
+    def state_along(self, quat, position):
+        return np.concatenate([self._angles(quat), position], axis=-1)
+
+    def output_from_velocity(self, state, quat, xi):
+        """Euler-angle rates of ω by a central difference of the rotation, ±ε·ω about R (ε = 1e-6 s),
+        unwrapped against the state's angles; v unchanged."""
+        eps = 1e-6
+        a = state[:, :3]
+        plus = euler_from_quat(quat_multiply(exp_quat(xi[:, :3] * eps), quat), self.order)
+        minus = euler_from_quat(quat_multiply(exp_quat(-xi[:, :3] * eps), quat), self.order)
+        wrap = lambda b: a + (np.mod(b - a + np.pi, 2.0 * np.pi) - np.pi)  # noqa: E731 - nearest copy of b to a
+        rates = (wrap(plus) - wrap(minus)) / (2.0 * eps)
+        return np.concatenate([rates, xi[:, 3:]], axis=-1)
+
+    def twist_from_output(self, state, quat, output):
+        """ω = log(R(a + ȧε) R(a − ȧε)ᵀ)/(2ε) (ε = 1e-6 s) for Euler-angle rates ȧ; v unchanged."""
+        eps = 1e-6
+        a, rates = state[:, :3], output[:, :3]
+        plus = quat_from_euler(a + rates * eps, self.order)
+        minus = quat_from_euler(a - rates * eps, self.order)
+        omega = rotvec_from_quat(quat_multiply(plus, quat_conjugate(minus))) / (2.0 * eps)
+        return np.concatenate([omega, output[:, 3:]], axis=-1)
 
     def step(self, state, output, dt):
         h = np.asarray(dt, dtype=np.float64)
@@ -166,6 +225,21 @@ class Quaternion(Representation):
         if self.reference is not None:
             q = q * np.where(q @ self.reference >= 0, 1.0, -1.0)[..., None]
         return np.concatenate([q, position], axis=-1)
+
+    def state_along(self, quat, position):
+        return np.concatenate([self._continuous(quat), position], axis=-1)
+
+    def output_from_velocity(self, state, quat, xi):
+        """q̇ = ½ (ω, 0) ⊗ q for the (sign-continuous) q of the state; v unchanged."""
+        q = state[:, :4]
+        w = np.concatenate([xi[:, :3], np.zeros((len(xi), 1))], axis=-1)
+        return np.concatenate([0.5 * quat_multiply(w, q), xi[:, 3:]], axis=-1)
+
+    def twist_from_output(self, state, quat, output):
+        """ω = 2·vec(q̇ ⊗ q*) (the part of q̇ tangent to the unit sphere) at the state's unit q."""
+        q = quat_normalize(state[:, :4])
+        omega = 2.0 * quat_multiply(output[:, :4], quat_conjugate(q))[:, :3]
+        return np.concatenate([omega, output[:, 4:]], axis=-1)
 
     def step(self, state, output, dt):
         h = np.asarray(dt, dtype=np.float64)

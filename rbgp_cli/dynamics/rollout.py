@@ -62,7 +62,7 @@ def _check_finite(state, step):
 
 
 def rollout(model, start_quat, start_position, steps: int, dt: float | None = None, *, samples: int = 0,
-            seed: int = 0, with_std: bool = True, progress=None) -> RolloutResult:
+            seed: int = 0, with_std: bool = True, progress=None, durations=None) -> RolloutResult:
     """Roll out ``model`` (a :class:`~rbgp_cli.dynamics.model.MotionModel`) from B start poses.
 
     Parameters
@@ -74,16 +74,22 @@ def rollout(model, start_quat, start_position, steps: int, dt: float | None = No
     seed : seeds the Monte Carlo draws
     with_std : record the predictive std along the mean trajectories (costs one triangular solve per
         step; switch off for speed)
+    durations : (B,) seconds each trajectory is meant to last (default steps·dt for all). Only a model
+        with a phase input uses it: trajectory b advances its phase by dt/durations[b] per step, so a
+        batch of different lengths can share the steps (each is then cut to its own duration).
+    progress : optional :class:`rbgp_cli.progress.Progress`: a task "rollout" over the steps
     """
     from rbgp_cli.gp.exact import blas_threads
 
     # Always single-threaded: per step the matrices are only B × n, and a 2-thread OpenBLAS pool
     # made 100 × 626 steps at n = 1752 take 11.0 s instead of 3.8 s on a loaded machine (measured).
-    with blas_threads(0):
-        return _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, progress)
+    from rbgp_cli.progress import as_progress
+
+    with blas_threads(0), as_progress(progress).task("rollout", total=int(steps), unit="steps") as task:
+        return _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, task, durations)
 
 
-def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, progress):
+def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, task, durations):
     rep, gp = model.representation, model.gp
     dt = float(model.dt if dt is None else dt)
     if not np.isfinite(dt) or dt <= 0:
@@ -94,7 +100,11 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
     q0 = quat_normalize(np.asarray(start_quat, dtype=np.float64).reshape(-1, 4))
     p0 = np.asarray(start_position, dtype=np.float64).reshape(-1, 3)
     B, K = len(q0), int(samples)
-    state = rep.state_from_pose(q0, p0)
+    task.update(status=f"{B} trajectories" + (f", {K} Monte Carlo samples each" if K else ""))
+    duration = np.full((B, 1), steps * dt) if durations is None else np.asarray(durations, dtype=np.float64).reshape(B, 1)
+    if not np.all(np.isfinite(duration) & (duration > 0)):
+        raise InputError("rollout durations must be positive numbers of seconds")
+    state = model.initial_state(q0, p0)
     d = state.shape[1]
     L = gp.n_outputs
     states = np.empty((steps + 1, B, d))
@@ -108,22 +118,23 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
     for k in range(steps + 1):
         last = k == steps
         if with_std:
-            mu, sd = gp.predict(state, return_std=True, manage_threads=False)
-            std[k] = sd
+            mu, sd = model.predict_output(state, return_std=True, manage_threads=False)
+            std[k] = sd / duration if model.time_input == "phase" else sd  # per second
         elif not last:
-            mu = gp.predict(state, manage_threads=False)
+            mu = model.predict_output(state, manage_threads=False)
         if not last:
-            state = rep.step(state, mu, dt)
+            state = model.advance(state, mu, dt, duration)
             _check_finite(state, k + 1)
             states[k + 1] = state
             if K > 0:
-                smu, ssd = gp.predict(sstate, return_std=True, manage_threads=False)
-                sstate = rep.step(sstate, smu + ssd * rng.standard_normal(smu.shape), dt)
+                smu, ssd = model.predict_output(sstate, return_std=True, manage_threads=False)
+                sstate = model.advance(sstate, smu + ssd * rng.standard_normal(smu.shape), dt, np.repeat(duration, K, axis=0))
                 _check_finite(sstate, k + 1)
                 sstates[k + 1] = sstate
-        if progress is not None and (k % 100 == 0 or last):
-            progress(k, steps)
-    quat, pos = rep.pose_from_state(states.reshape(-1, d))
+        if not last:
+            task.advance()
+    pd = model.pose_dims
+    quat, pos = rep.pose_from_state(states[..., :pd].reshape(-1, pd))
     quat = quat_make_continuous(quat.reshape(steps + 1, B, 4).transpose(1, 0, 2))
     pos = pos.reshape(steps + 1, B, 3).transpose(1, 0, 2)
     res = RolloutResult(
@@ -131,7 +142,7 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
         std=None if std is None else std.transpose(1, 0, 2), output_names=tuple(rep.output_names),
     )
     if K > 0:
-        sq, sp = rep.pose_from_state(sstates.reshape(-1, d))
+        sq, sp = rep.pose_from_state(sstates[..., :pd].reshape(-1, pd))
         res.sample_quat = quat_make_continuous(sq.reshape(steps + 1, B, K, 4).transpose(1, 2, 0, 3))
         res.sample_position = sp.reshape(steps + 1, B, K, 3).transpose(1, 2, 0, 3)
     return res

@@ -3,13 +3,17 @@
 * :mod:`~rbgp_cli.evaluation.resample`: trajectories on normalised time s ∈ [0, 1] (slerp / linear),
   the chordal mean rotation per step, features ``(log(R̄_tᵀ R), p)`` in the tangent space at it.
 * :mod:`~rbgp_cli.evaluation.bhattacharyya`: D_B of Gaussians (full or diagonal covariance) and
-  :func:`evaluate`, the score of generated trajectories against demonstrations (paper sec. 4.3).
+  :func:`evaluate`, the score of generated trajectories against demonstrations (paper sec. 4.3), and
+  :func:`check_sample_sizes`, how many trajectories per set the fitted covariance needs.
 """
 
 from rbgp_cli.evaluation.bhattacharyya import (
+    MIN_TRAJECTORIES,
     EvaluationResult,
+    SampleSizeCheck,
     bhattacharyya_diag,
     bhattacharyya_gaussian,
+    check_sample_sizes,
     evaluate,
 )
 from rbgp_cli.evaluation.resample import mean_rotation, resample, resample_all, tangent_features
@@ -23,4 +27,7 @@ __all__ = [
     "bhattacharyya_diag",
     "EvaluationResult",
     "evaluate",
+    "check_sample_sizes",
+    "SampleSizeCheck",
+    "MIN_TRAJECTORIES",
 ]

@@ -19,6 +19,14 @@ rotation and translation parts separately.
 
 Conventions: features are (rx, ry, rz, x, y, z), rotation first, radians and metres; the ridge is
 absolute, in rad² for the rotation dimensions and m² for the translation ones.
+
+How many trajectories a score needs (:func:`check_sample_sizes`): M trajectories give a per-step sample
+covariance of rank at most M − 1, and the ridge stands in for every missing direction. ``"diag"``
+needs M >= 2 per set (one trajectory has variance 0: the ridge alone); ``"full"`` needs M >= 7 for the
+6×6 total and M >= 4 for its 3×3 rotation and translation parts. Below that the log-determinant term
+of D_B is set by the ridge, not by the motions. With one demonstration the reference distribution is
+the ridge itself and :func:`evaluate` refuses; every other shortfall (and sets whose spread is below
+the ridge) is a warning, and the result says so (``reliable``, ``warnings``).
 """
 
 from __future__ import annotations
@@ -46,6 +54,9 @@ __all__ = [
     "evaluate",
     "COVARIANCES",
     "DEFAULT_RIDGE",
+    "MIN_TRAJECTORIES",
+    "SampleSizeCheck",
+    "check_sample_sizes",
     "MAX_UPSAMPLING",
 ]
 
@@ -54,6 +65,14 @@ COVARIANCES = ("diag", "full")
 #: Default ridge added to every variance (rad² and m²): 1e-6 is (1 mrad)² and (1 mm)², below what
 #: motion capture resolves, so it only matters where a set has (almost) no spread.
 DEFAULT_RIDGE = 1e-6
+#: Trajectories per set a per-step Gaussian needs before no direction of its covariance is the ridge
+#: alone (rank M − 1 >= dimension): ``"diag"`` 2, ``"full"`` 7 (6×6) and 4 for its 3×3 parts.
+MIN_TRAJECTORIES = {"diag": 2, "full": 7, "full_parts": 4}
+#: A set whose sample variance is below the ridge in more than this fraction of its (step, dimension)
+#: entries is reported as having (almost) no spread.
+NO_SPREAD_FRACTION = 0.5
+#: How :func:`evaluate` handles too few trajectories: raise + warn, warn, or only record in the result.
+SAMPLE_SIZE_POLICIES = ("refuse", "warn", "record")
 #: ``length`` may exceed the longest demonstration's sample count by at most this factor.
 MAX_UPSAMPLING = 4
 
@@ -196,6 +215,97 @@ def bhattacharyya_gaussian(mu1, S1, mu2, S2) -> np.ndarray:
     return np.where(regular, out, np.nan)
 
 
+def _plural(n: int, word: str) -> str:
+    return f"{n} {word}" + ("" if n == 1 else "s")
+
+
+@dataclass(frozen=True)
+class SampleSizeCheck:
+    """Whether two sets of M_G generated trajectories and M_D demonstrations can be scored with a
+    covariance (plain data; see :func:`check_sample_sizes`).
+
+    Attributes
+    ----------
+    refusal : str or None
+        Why the score would be the ridge alone (one demonstration), or None.
+    warnings : tuple of str
+        One sentence per shortfall short of that, each saying how many trajectories are needed.
+    needed : dict
+        ``{"demos": k, "generated": k}``: how many of each the covariance needs.
+    """
+
+    refusal: str | None
+    warnings: tuple
+    needed: dict
+
+    @property
+    def reliable(self) -> bool:
+        """True when both sets are large enough for every covariance that is fitted."""
+        return self.refusal is None and not self.warnings
+
+
+def check_sample_sizes(n_generated: int, n_demos: int, covariance: str = "diag",
+                       ridge: float = DEFAULT_RIDGE) -> SampleSizeCheck:
+    """Are ``n_generated`` and ``n_demos`` trajectories enough for per-step Gaussians with ``covariance``?
+
+    M trajectories give a sample covariance of rank <= M − 1; the ridge fills the other directions,
+    and there the log-determinant term ½ ln(det Σ / sqrt(det S1 det S2)) of D_B measures the ridge,
+    not the motions. So ``"diag"`` needs M >= 2 per set and ``"full"`` M >= 7 (6×6 total; M >= 4 for
+    the 3×3 rotation and translation parts) (:data:`MIN_TRAJECTORIES`).
+
+    One demonstration is refused (the reference distribution is a point plus the ridge: every
+    number it gives measures the ridge); fewer generated trajectories than needed, or fewer
+    demonstrations than ``"full"`` needs, are warnings. Cheap (no data): callers such as
+    cross-validation can check a split before generating anything.
+    """
+    if covariance not in COVARIANCES:
+        raise InputError(f"unknown covariance {covariance!r}", hint="use 'diag' or 'full'")
+    need = MIN_TRAJECTORIES[covariance]
+    parts = MIN_TRAJECTORIES["full_parts"]
+    refusal = None
+    warnings_: list[str] = []
+    if n_demos < MIN_TRAJECTORIES["diag"]:
+        refusal = (
+            f"cannot score against {_plural(n_demos, 'demonstration')}: the demonstrations' per-step "
+            f"variance would be the ridge ({ridge:g} rad², m²) alone, so the score would measure the ridge, "
+            f"not the motions; --covariance {covariance} needs at least {need} demonstrations"
+        )
+    for n, what in ((n_demos, "demonstrations"), (n_generated, "generated trajectories")):
+        if what == "demonstrations" and refusal is not None:
+            continue
+        if n < MIN_TRAJECTORIES["diag"]:
+            one = "1 demonstration" if what == "demonstrations" else "1 generated trajectory"
+            few = f"only {one}" if n == 1 else f"no {what}"
+            warnings_.append(
+                f"{few}: the per-step variance is the ridge ({ridge:g}) alone, so the variance part of "
+                f"the score measures the ridge, not the motions; --covariance {covariance} needs at least "
+                f"{need} {what}"
+            )
+        elif covariance == "full" and n < need:
+            msg = (
+                f"{n} {what} give a 6×6 per-step covariance of rank at most {n - 1}, so in {need - n} of its 6 "
+                f"directions the variance is the ridge ({ridge:g}) alone and the total measures it; "
+                f"--covariance full needs at least {need} {what}"
+            )
+            if n < parts:
+                msg += f" (the rotation and translation parts at least {parts})"
+            warnings_.append(msg + "; --covariance diag needs 2")
+    return SampleSizeCheck(refusal=refusal, warnings=tuple(warnings_),
+                           needed={"demos": need, "generated": need})
+
+
+def _spread_warning(var: np.ndarray, ridge: float, what: str) -> str | None:
+    """A warning when more than :data:`NO_SPREAD_FRACTION` of a set's per-step variances (T, 6), without
+    the ridge, are below the ridge (the set barely varies, so those terms measure the ridge)."""
+    if ridge <= 0:
+        return None
+    frac = float(np.mean(var < ridge))
+    if frac <= NO_SPREAD_FRACTION:
+        return None
+    return (f"the {what} barely differ: at {100 * frac:.0f} % of the steps and dimensions their variance is "
+            f"below the ridge ({ridge:g} rad², m²), so those terms of the score measure the ridge")
+
+
 @dataclass
 class EvaluationResult:
     """Per-step and mean Bhattacharyya distances between generated trajectories and demonstrations.
@@ -227,6 +337,11 @@ class EvaluationResult:
     demo_mean, demo_std, gen_mean, gen_std : ndarray, shape (T, 6)
         Per-step sample mean and standard deviation (ddof = 1; 0 for a single trajectory; without
         the ridge) of the features of the demonstrations and of the generated trajectories.
+    warnings : tuple of str
+        Why the score is not (fully) trustworthy: too few trajectories for the covariance
+        (:func:`check_sample_sizes`), sets that barely vary, a refusal recorded instead of raised.
+    reliable : bool
+        True when there are no such warnings.
     """
 
     steps: int
@@ -246,12 +361,19 @@ class EvaluationResult:
     demo_std: np.ndarray
     gen_mean: np.ndarray
     gen_std: np.ndarray
+    warnings: tuple = ()
+
+    @property
+    def reliable(self) -> bool:
+        return not self.warnings
 
     def to_dict(self, include_series: bool = False) -> dict:
         """Plain data (floats, ints, str, lists) for JSON output.
 
         ``{"bhattacharyya": {"mean", "rotation", "translation"}, "steps", "n_generated",
-        "n_demos", "covariance", "ridge"}``, plus ``"per_step": {"s", "total", "rotation",
+        "n_demos", "covariance", "ridge", "reliable", "warnings"}`` (``reliable`` false and
+        ``warnings`` saying why and how many trajectories are needed when the sets are too small for
+        the covariance or barely vary), plus ``"per_step": {"s", "total", "rotation",
         "translation"}`` (lists of length T) when ``include_series``. Non-finite values (only
         possible with ``ridge=0``) stay ``inf``/``nan`` floats.
         """
@@ -266,6 +388,8 @@ class EvaluationResult:
             "n_demos": int(self.n_demos),
             "covariance": str(self.covariance),
             "ridge": float(self.ridge),
+            "reliable": bool(self.reliable),
+            "warnings": list(self.warnings),
         }
         if include_series:
             out["per_step"] = {
@@ -302,6 +426,7 @@ def evaluate(
     length: int | None = None,
     covariance: str = "diag",
     ridge: float = DEFAULT_RIDGE,
+    sample_size: str = "refuse",
 ) -> EvaluationResult:
     """Bhattacharyya distance between generated trajectories and demonstrations, per step (MATH.md §9).
 
@@ -340,6 +465,13 @@ def evaluate(
     covariance : {"diag", "full"}
     ridge : float
         >= 0, added to every variance; 0 can give infinite or NaN distances where a set has no spread.
+    sample_size : {"refuse", "warn", "record"}
+        Too few trajectories for ``covariance`` (:func:`check_sample_sizes`) or sets that barely vary:
+        ``"refuse"`` raises InputError for one demonstration and emits an
+        :class:`~rbgp_cli.errors.RbgpWarning` for the rest; ``"warn"`` only warns (also for one
+        demonstration); ``"record"`` emits nothing (for callers that score many small sets, e.g.
+        cross-validation folds, and report once). Every case is recorded in the result's
+        ``warnings`` and ``reliable``.
 
     Returns
     -------
@@ -349,7 +481,8 @@ def evaluate(
     ------
     InputError
         No generated trajectories or no demonstrations, a trajectory with fewer than 2 samples (or
-        not clean), ``length < 2`` or above the rule, unknown ``covariance``, negative ridge.
+        not clean), ``length < 2`` or above the rule, unknown ``covariance``, negative ridge; one
+        demonstration with ``sample_size="refuse"``.
     """
     generated = list(generated)
     demos = list(demos)
@@ -365,6 +498,11 @@ def evaluate(
         raise InputError(f"ridge must be a number, got {ridge!r}") from None
     if not (math.isfinite(ridge) and ridge >= 0):
         raise InputError(f"ridge must be finite and >= 0, got {ridge}", hint="use e.g. 1e-6")
+    if sample_size not in SAMPLE_SIZE_POLICIES:
+        raise ValueError(f"sample_size must be one of {SAMPLE_SIZE_POLICIES}, got {sample_size!r}")
+    sizes = check_sample_sizes(len(generated), len(demos), covariance, ridge)
+    if sizes.refusal is not None and sample_size == "refuse":
+        raise InputError(sizes.refusal, hint="pass more demonstrations (e.g. a folder of takes)")
 
     longest = max(len(d) for d in demos)
     if length is None:
@@ -394,6 +532,14 @@ def evaluate(
     var_d = np.diagonal(cov_d, axis1=-2, axis2=-1)  # (T, 6), without the ridge
     var_g = np.diagonal(cov_g, axis1=-2, axis2=-1)
     rot, tra = slice(0, 3), slice(3, 6)
+    notes = ([sizes.refusal] if sizes.refusal else []) + list(sizes.warnings)
+    for var, n, what in ((var_d, len(demos), "demonstrations"), (var_g, len(generated), "generated trajectories")):
+        spread = _spread_warning(var, ridge, what) if n >= 2 else None
+        if spread:
+            notes.append(spread)
+    if sample_size != "record":
+        for note in notes:
+            warn(note)
 
     if covariance == "diag":
         terms = bhattacharyya_diag(mu_d, var_d + ridge, mu_g, var_g + ridge)  # (T, 6)
@@ -425,4 +571,5 @@ def evaluate(
         demo_std=np.sqrt(var_d),
         gen_mean=mu_g,
         gen_std=np.sqrt(var_g),
+        warnings=tuple(notes),
     )

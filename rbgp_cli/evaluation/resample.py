@@ -28,7 +28,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from rbgp_cli.dynamics.trajectory import Trajectory
+from rbgp_cli.dynamics.trajectory import Trajectory, interpolate_poses
 from rbgp_cli.errors import InputError
 from rbgp_cli.geometry.so3 import (
     log_quat,
@@ -37,7 +37,6 @@ from rbgp_cli.geometry.so3 import (
     quat_make_continuous,
     quat_multiply,
     quat_normalize,
-    slerp,
 )
 
 __all__ = ["resample", "resample_all", "mean_rotation", "tangent_features", "normalised_time"]
@@ -131,16 +130,7 @@ def resample(traj: Trajectory, T: int) -> tuple[np.ndarray, np.ndarray]:
     q = quat_make_continuous(quat_normalize(traj.quat))  # (N, 4)
     p = traj.position  # (N, 3)
     s = np.linspace(0.0, 1.0, T)  # (T,)
-
-    k = np.clip(np.searchsorted(sigma, s, side="right") - 1, 0, len(t) - 2)  # (T,)
-    f = np.clip((s - sigma[k]) / (sigma[k + 1] - sigma[k]), 0.0, 1.0)  # (T,)
-
-    q_out = slerp(q[k], q[k + 1], f)  # (T, 4)
-    # On a sample (f = 0, or f = 1 at s = 1) return the sample itself, bit for bit.
-    q_out = np.where((f == 0.0)[:, None], q[k], np.where((f == 1.0)[:, None], q[k + 1], q_out))
-    q_out = quat_make_continuous(q_out)
-    p_out = (1.0 - f)[:, None] * p[k] + f[:, None] * p[k + 1]  # exact at f = 0 and f = 1
-    return q_out, p_out
+    return interpolate_poses(sigma, q, p, s)  # endpoints exact: σ_0 = s_0 = 0, σ_{N−1} = s_{T−1} = 1
 
 
 def resample_all(trajs: Sequence[Trajectory], T: int) -> tuple[np.ndarray, np.ndarray]:

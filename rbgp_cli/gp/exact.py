@@ -493,8 +493,9 @@ class _Objective:
     """NLML and its gradient in log θ for one target (vector, or matrix in shared mode) on one set of
     points, counting evaluations and infeasible ones (non-PD C, or the noise margin missed)."""
 
-    def __init__(self, kernel, pre, y, spec, free, margin=0.0):
+    def __init__(self, kernel, pre, y, spec, free, margin=0.0, on_evaluation=None):
         self.kernel, self.pre, self.y, self.free, self.margin = kernel, pre, y, list(free), margin
+        self.on_evaluation = on_evaluation
         self.fixed_values = {nm: h.value for nm, h in spec.items() if nm not in free}
         self.log_bounds = [spec[nm].log_bounds for nm in free]
         self.counter = {"evals": 0, "infeasible": 0}
@@ -513,6 +514,8 @@ class _Objective:
         self.counter["evals"] += 1
         # looked up at call time: the benchmarks time the evaluations by wrapping this function
         f, g = nlml_and_gradient(self.kernel, self.pre, self.values_of(theta), self.y, self.free, self.margin)
+        if self.on_evaluation is not None:
+            self.on_evaluation()
         if f >= INFEASIBLE_NLML:
             self.counter["infeasible"] += 1
         self._last = (theta, f, np.array(g))
@@ -520,16 +523,16 @@ class _Objective:
 
 
 def _fit_one(kernel, pre, y, spec, free, restarts, rng, max_iter, margin=0.0, theta_starts=None, kinds=None,
-             ftol=None):
+             ftol=None, on_evaluation=None):
     """Minimise the NLML for one target (vector, or matrix in shared mode) from several starts with L-BFGS-B.
 
     The starts are the data-driven one and ``restarts − 1`` random ones, or ``theta_starts`` (log
     values of the free hyperparameters) labelled ``kinds`` in the records. Returns (best (θ, NLML) or
     None, one record per start, evaluation counters, θ -> values, per start its optimum (θ, NLML) or
-    None if it found no feasible point)."""
+    None if it found no feasible point). ``on_evaluation()`` is called after every NLML evaluation."""
     from scipy.optimize import minimize
 
-    obj = _Objective(kernel, pre, y, spec, free, margin)
+    obj = _Objective(kernel, pre, y, spec, free, margin, on_evaluation)
     log_bounds = obj.log_bounds
     penalty = {"ref": None}
     seen = {"best": None}
@@ -753,13 +756,13 @@ class _FitOptions:
     max_iter: int
 
 
-def _fit_target(kernel, pre, y, label, rng, o: _FitOptions, sub=None, pre_sub=None):
+def _fit_target(kernel, pre, y, label, rng, o: _FitOptions, sub=None, pre_sub=None, on_evaluation=None):
     """Fit one target (an output, or all outputs scaled in shared mode): returns (OutputFit, L, α)
     with L the lower Cholesky factor of K + (σn² + jitter)I at the optimum and α = C⁻¹y."""
     t0 = time.perf_counter()
     n = len(y)
     spec, free = _free_spec(kernel, pre, y, o.noise, o.fixed, o.bounds)
-    obj = _Objective(kernel, pre, y, spec, free)
+    obj = _Objective(kernel, pre, y, spec, free, on_evaluation=on_evaluation)
     values_of = obj.values_of
     best, records, sub_info = None, [], None
     counter = {"evals": 0, "infeasible": 0}
@@ -767,7 +770,7 @@ def _fit_target(kernel, pre, y, label, rng, o: _FitOptions, sub=None, pre_sub=No
         # Explore: every start on the subsample. On all points: a quasi-Newton polish of the best
         # subsample optimum, and of each other optimum that lies in a basin not reached before.
         _b, records_s, counter_s, _v, optima = _fit_one(kernel, pre_sub, y[sub], spec, free, o.restarts, rng, o.max_iter,
-                                                        ftol=EXPLORE_FTOL)
+                                                        ftol=EXPLORE_FTOL, on_evaluation=on_evaluation)
         records = [{**r, "kind": r["kind"] + f" (subsample of {len(sub)})"} for r in records_s]
         basins, basin_nlml = [], []
         for theta, f_s in sorted((x for x in optima if x is not None), key=lambda t: t[1]):
@@ -776,7 +779,7 @@ def _fit_target(kernel, pre, y, label, rng, o: _FitOptions, sub=None, pre_sub=No
                     and all(abs(f_s - fb) > DISTINCT_NLML for fb in basin_nlml)):
                 basins.append(theta)
                 basin_nlml.append(f_s)
-        obj_s = _Objective(kernel, pre_sub, y[sub], spec, free)
+        obj_s = _Objective(kernel, pre_sub, y[sub], spec, free, on_evaluation=on_evaluation)
         polished = []
         for theta_s in basins:
             ev0 = obj.counter["evals"]
@@ -792,7 +795,8 @@ def _fit_target(kernel, pre, y, label, rng, o: _FitOptions, sub=None, pre_sub=No
                 # hand over to L-BFGS-B on all points (from the polish's best point, or, if it found
                 # no feasible one, from the subsample optimum with the usual infeasible-start moves)
                 b2, rec2, c2, _v, _o = _fit_one(kernel, pre, y, spec, free, 1, rng, o.max_iter, theta_starts=[th],
-                                                kinds=["L-BFGS-B after the polish (all points)"])
+                                                kinds=["L-BFGS-B after the polish (all points)"],
+                                                on_evaluation=on_evaluation)
                 records += rec2
                 counter = {k: counter[k] + c2[k] for k in counter}
                 if b2 is not None:
@@ -805,7 +809,8 @@ def _fit_target(kernel, pre, y, label, rng, o: _FitOptions, sub=None, pre_sub=No
         sub_info = {"size": len(sub), "evaluations": counter_s["evals"] + obj_s.counter["evals"],
                     "infeasible": counter_s["infeasible"] + obj_s.counter["infeasible"]}
     if best is None:
-        best, rec_full, c_full, _v, _ = _fit_one(kernel, pre, y, spec, free, o.restarts, rng, o.max_iter)
+        best, rec_full, c_full, _v, _ = _fit_one(kernel, pre, y, spec, free, o.restarts, rng, o.max_iter,
+                                                 on_evaluation=on_evaluation)
         records += rec_full
         counter = {k: counter[k] + c_full[k] for k in counter}
     guarded = False
@@ -821,7 +826,8 @@ def _fit_target(kernel, pre, y, label, rng, o: _FitOptions, sub=None, pre_sub=No
             data_start = [math.log(spec[nm].value) for nm in free]
             best2, records2, counter2, _v, _ = _fit_one(
                 kernel, pre, y, spec, free, 1, rng, o.max_iter, margin=NOISE_MARGIN,
-                theta_starts=[best[0], data_start], kinds=["optimum (margin)", "data-driven (margin)"])
+                theta_starts=[best[0], data_start], kinds=["optimum (margin)", "data-driven (margin)"],
+                on_evaluation=on_evaluation)
             records += records2
             counter = {k: counter[k] + counter2[k] for k in counter}
             best = best2
@@ -953,7 +959,7 @@ def _process_context():
     return multiprocessing.get_context("spawn")
 
 
-def _fit_outputs_in_workers(X, Y, kernel, o, seeds, sub, jobs, progress):
+def _fit_outputs_in_workers(X, Y, kernel, o, seeds, sub, jobs, progress, task):
     """Per-output fits in ``jobs`` worker processes (BLAS single-threaded in each); results in output order."""
     import os
 
@@ -968,12 +974,12 @@ def _fit_outputs_in_workers(X, Y, kernel, o, seeds, sub, jobs, progress):
         # instead of computing them once each (measured: 6 workers spent 30 % more CPU than one process)
         _WORKER["pre"] = (token, kernel.precompute(X), kernel.precompute(X[sub]) if sub is not None else None)
     try:
-        return _collect_worker_fits(tasks, jobs, ctx, progress, results, failures)
+        return _collect_worker_fits(tasks, jobs, ctx, progress, task, results, failures)
     finally:
         _WORKER.pop("pre", None)
 
 
-def _collect_worker_fits(tasks, jobs, ctx, progress, results, failures):
+def _collect_worker_fits(tasks, jobs, ctx, progress, task, results, failures):
     from concurrent.futures import ProcessPoolExecutor, as_completed
     from concurrent.futures.process import BrokenProcessPool
 
@@ -992,8 +998,12 @@ def _collect_worker_fits(tasks, jobs, ctx, progress, results, failures):
                     continue
                 l, res = fut.result()
                 results[l] = res
-                if progress is not None:
-                    _report(progress, f"output {l}", res[0])
+                fit = res[0]
+                # the worker's evaluations, counted as the fit in this process counts them
+                total = fit.n_evaluations + (fit.subsample["evaluations"] if fit.subsample else 0)
+                task.update(status=f"output {l}: {total} evaluations")
+                task.advance()
+                _report(progress, f"output {l}", fit)
         except BaseException:
             for fut in futures:
                 fut.cancel()
@@ -1053,7 +1063,10 @@ def fit_gp(
     shared : one set of hyperparameters for all outputs, each output scaled by its root mean square
     fixed : {name: value} hyperparameters to hold fixed (signal_std, length_scale, rho_rot, noise_std)
     bounds : {name: (low, high)} to override the data-driven bounds
-    progress : optional callable(str) for progress messages (the CLI prints them to stderr)
+    progress : optional :class:`rbgp_cli.progress.Progress` (or callable(str) for the messages): a
+        task "training" over the outputs (one in shared mode) whose status counts the evaluations of
+        the output being fitted (in worker processes: the outputs done), and one message per fitted
+        output
     jobs : worker processes for the per-output fits (each output in one worker, BLAS
         single-threaded there; the results do not depend on ``jobs``); 1 fits in this process.
         :func:`default_jobs` gives the usual choice. Ignored with ``shared`` or a single output.
@@ -1072,14 +1085,17 @@ def fit_gp(
     if jobs < 1:
         raise ValueError(f"jobs must be >= 1, got {jobs}")
     o = _FitOptions(noise=noise, restarts=restarts, fixed=fixed, bounds=bounds, max_iter=int(max_iter))
+    from rbgp_cli.progress import as_progress
+
+    progress = as_progress(progress)
     # BLAS single-threaded whatever the machine: the optimiser's path must not depend on how busy the
     # machine is (a 2-thread pool changes the round-off, and on the arc kernel's indefinite edge that
     # changed an optimum), and parallelism comes from the worker processes
-    with blas_threads(0):
-        return _fit_gp(X, Y, kernel, o, seed, shared, progress, explore, jobs)
+    with blas_threads(0), progress.task("training", total=1 if shared else Y.shape[1], unit="outputs") as task:
+        return _fit_gp(X, Y, kernel, o, seed, shared, progress, explore, jobs, task)
 
 
-def _fit_gp(X, Y, kernel, o, seed, shared, progress, explore, jobs):
+def _fit_gp(X, Y, kernel, o, seed, shared, progress, explore, jobs, task):
     L = Y.shape[1]
     n = len(X)
     ss = np.random.SeedSequence(int(seed))
@@ -1095,15 +1111,23 @@ def _fit_gp(X, Y, kernel, o, seed, shared, progress, explore, jobs):
         targets = [(Y[:, l], f"output {l}") for l in range(L)]
         seeds = ss.spawn(L)
     if jobs > 1 and len(targets) > 1:
-        results = _fit_outputs_in_workers(X, Y, kernel, o, seeds, sub, min(jobs, len(targets)), progress)
+        jobs = min(jobs, len(targets))
+        progress(f"fitting {len(targets)} outputs in {jobs} worker processes")
+        results = _fit_outputs_in_workers(X, Y, kernel, o, seeds, sub, jobs, progress, task)
     else:
         pre = kernel.precompute(X)
         pre_sub = kernel.precompute(X[sub]) if sub is not None else None
         results = []
         for (y, label), s in zip(targets, seeds):
-            res = _fit_target(kernel, pre, y, label, np.random.default_rng(s), o, sub, pre_sub)
+            evaluations = [0]
+
+            def tick(label=label, evaluations=evaluations):
+                evaluations[0] += 1
+                task.update(status=f"{label}: {evaluations[0]} evaluations")
+
+            res = _fit_target(kernel, pre, y, label, np.random.default_rng(s), o, sub, pre_sub, on_evaluation=tick)
             results.append(res)
-            if progress is not None:
-                _report(progress, label, res[0])
+            task.advance()
+            _report(progress, label, res[0])
     return GaussianProcess(kernel, X, Y, [r[0] for r in results], shared=shared, y_scale=scale,
                            factors=[(r[1], r[2]) for r in results])

@@ -38,10 +38,11 @@ from pathlib import Path
 import numpy as np
 
 from rbgp_cli.dynamics.trajectory import Trajectory
-from rbgp_cli.errors import InputError, closest
+from rbgp_cli.errors import InputError, NotPoseData, closest
 from rbgp_cli.io.options import LENGTH_UNITS, ReadOptions
 
-__all__ = ["read", "read_bytes", "read_text", "describe", "write_trajectories_csv", "CANONICAL_KEYS"]
+__all__ = ["read", "read_bytes", "read_text", "describe", "sniff_pose_columns", "write_trajectories_csv",
+           "CANONICAL_KEYS"]
 
 #: Keys accepted by ``ReadOptions.columns`` (``--columns KEY=NAME``).
 CANONICAL_KEYS = (
@@ -102,6 +103,15 @@ _KEY_ROLE = {"q0": "qn0", "q1": "qn1", "q2": "qn2", "q3": "qn3"}
 
 _NA_TOKENS = {"", "nan", "-nan", "null", "none", "na", "n/a", "<na>", "#n/a", "#na"}
 
+#: Tables at least this large are parsed straight from the file (or bytes): only the columns that are
+#: needed, as float64, never as one big decoded string (peak memory about the arrays read instead of
+#: ten times the file). Anything that path does not cover falls back to the in-memory text path.
+FAST_MIN_BYTES = 1 << 20
+_FAST_HEAD = 1 << 16
+# a line in the body that the text path would drop: blank, whitespace only, or a comment
+_DROPPED_LINE = re.compile(rb"\n(?=[ \t\f\v]*(?:#|\r?\n|\r?\Z))")  # at the newline before such a line
+_ODD_BREAKS = re.compile("[\r\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029]")  # splitlines() would break there
+_ISO_START = re.compile(r"\s*\d{4}-\d{2}-\d{2}[T ]\d")
 _MM_THRESHOLD = 10.0  # median |position| above this, in "metres", looks like millimetres
 _DT_MAX, _DT_MIN = 5.0, 1e-5  # plausible median sampling interval in seconds
 
@@ -442,10 +452,11 @@ def _plan(cols: list, options: ReadOptions, source: str) -> _Plan:
         col = by_name.get(fname) or by_lower.get(str(fname).strip().lower())
         if col is None:
             guess = closest(str(fname), [c.name for c in cols])
-            raise InputError(
+            raise NotPoseData(
                 f"--columns {k}={fname}: the file has no column {fname!r}; columns are {_columns_list(cols)}"
                 + (f"; did you mean {guess!r}?" if guess else ""),
                 path=source,
+                reason=f"no column {fname!r}",
             )
         roles[_KEY_ROLE.get(k, k)] = col
     explicit = set(roles)
@@ -473,25 +484,31 @@ def _plan(cols: list, options: ReadOptions, source: str) -> _Plan:
             raise _missing_error(_role_key(missing), "rotation", cols, used(), source)
         if len(cols) == 1 and re.search(r"[^\w\s\[\]()]", cols[0].name):
             # one "column" full of punctuation: the delimiter is none of those the sniffer knows
-            raise InputError(
+            raise NotPoseData(
                 f"the header line is a single column ({cols[0].name[:60]!r}): its delimiter is not a comma, "
                 "semicolon, tab or spaces",
                 path=source,
                 hint="save the file comma- or tab-separated",
+                reason="not a table",
             )
-        raise InputError(
+        raise NotPoseData(
             f"no rotation columns found; columns are {_columns_list(cols)}",
             path=source,
             hint="expected quaternion columns qx,qy,qz,qw (any order), a rotation vector rx,ry,rz, or "
             "Euler angles roll,pitch,yaw; map other names with --columns qx=NAME,...",
+            reason="no pose columns",
         )
+    no_position = not any(r in roles or _candidates(cols, r, used()) for r in ("x", "y", "z"))
     for r in _KIND_ROLES[kind] + ("x", "y", "z"):
         if r in roles:
             continue
         c = _best(cols, r, used(), source)
         if c is None:
-            raise _missing_error(_role_key(r), "rotation" if r in _KIND_ROLES[kind] else "position", cols,
+            err = _missing_error(_role_key(r), "rotation" if r in _KIND_ROLES[kind] else "position", cols,
                                  used(), source)  # fmt: skip
+            if no_position and r in ("x", "y", "z"):  # rotations only (an IMU log): not poses
+                raise NotPoseData(err.message, path=source, hint=err.hint, reason="no position columns")
+            raise err
         roles[r] = c
     if "t" not in roles:
         cands = _candidates(cols, "t", used())
@@ -551,23 +568,17 @@ def _nsec_partner(tcol: _Column, cols: list):
 # reading the numbers
 
 
-def _read_frame(table: _Table, plan: _Plan):
-    """Parse the data lines; returns {role: ndarray or list[str]}."""
-    import pandas as pd
-
-    demo_col = plan.roles.get("demo")
-    dtype = {demo_col.index: "str"} if demo_col is not None else None
-    if not table.data_text.strip():
-        return None
-    # as many columns as the header (short rows, e.g. lost frames, get NaN), or more when the first rows
-    # end with empty fields the header lacks (a trailing delimiter); other extra fields are an error
+def _row_width(table: _Table) -> int:
+    """How many fields to read per row: the header's, or more when the first rows end with empty fields
+    the header lacks (a trailing delimiter). A longer row among the first 64 is an InputError naming it
+    (pandas reports longer rows later in the file, except in the first row, whose extra fields it
+    drops with a warning)."""
     width = len(table.header)
     head = [_split_fields(row, table.delimiter) for row in table.data_text.split("\n", 64)[:64]]
     for fields in head:
         if len(fields) > width and not any(f.strip() for f in fields[width:]):
             width = len(fields)  # trailing empty fields only: ignored
     for k, fields in enumerate(head):
-        # pandas reports longer rows, except in the first row, whose extra fields it drops with a warning
         if len(fields) > width:
             raise InputError(
                 f"row has {len(fields)} fields, the header and the first rows have {width}",
@@ -575,12 +586,27 @@ def _read_frame(table: _Table, plan: _Plan):
                 row=int(table.lines[k]),
                 hint="check the delimiter and quoting of that row",
             )
-    kwargs = dict(header=None, names=list(range(width)), index_col=False, dtype=dtype, skip_blank_lines=False,
-                  decimal=table.decimal, quotechar='"', low_memory=False)  # fmt: skip
-    if table.delimiter == "whitespace":
-        kwargs["sep"] = r"\s+"
-    else:
-        kwargs["sep"] = table.delimiter
+    return width
+
+
+def _csv_kwargs(table: _Table, width: int) -> dict:
+    """pandas.read_csv arguments shared by both paths: as many columns as ``width`` (short rows, e.g.
+    lost frames, get NaN; longer rows are a ParserError), the table's delimiter and decimal mark."""
+    kwargs = dict(header=None, names=list(range(width)), index_col=False, decimal=table.decimal, quotechar='"')
+    kwargs["sep"] = r"\s+" if table.delimiter == "whitespace" else table.delimiter
+    return kwargs
+
+
+def _read_frame(table: _Table, plan: _Plan):
+    """Parse the data lines (all of them in memory); returns {role: ndarray or list[str]}."""
+    import pandas as pd
+
+    demo_col = plan.roles.get("demo")
+    dtype = {demo_col.index: "str"} if demo_col is not None else None
+    if not table.data_text.strip():
+        return None
+    width = _row_width(table)
+    kwargs = dict(_csv_kwargs(table, width), dtype=dtype, skip_blank_lines=False, low_memory=False)
     try:
         df = pd.read_csv(io.StringIO(table.data_text), **kwargs)
     except pd.errors.ParserError as exc:
@@ -595,23 +621,33 @@ def _read_frame(table: _Table, plan: _Plan):
                 hint="check the delimiter and quoting of that row",
             ) from None
         raise InputError(f"cannot parse the table: {exc}", path=table.source) from None
+    return _columns(df, table, plan)
+
+
+def _columns(df, table: _Table, plan: _Plan) -> dict:
+    """{role: float64 array, or an object array of str for ``demo``} from the parsed frame, whose
+    column labels are the file's column indices. Non-numeric cells other than the missing-value
+    tokens are an InputError naming the row."""
+    import pandas as pd
+
     n = len(df)
     out: dict = {}
     for role, col in plan.roles.items():
-        if col.index >= df.shape[1]:
-            out[role] = np.full(n, np.nan) if role != "demo" else [""] * n
+        if col.index not in df.columns:
+            out[role] = np.full(n, np.nan) if role != "demo" else np.full(n, "", dtype=object)
             continue
-        series = df.iloc[:, col.index]
+        series = df[col.index]
         if role == "demo":
-            values = series.astype(object).where(series.notna(), None).tolist()
-            for k, v in enumerate(values):
-                if v is None or not str(v).strip():
-                    raise InputError(
-                        f"empty {col.name!r} cell: every row needs a demonstration id",
-                        path=table.source,
-                        row=int(table.lines[k]),
-                    )
-            out[role] = [str(v).strip() for v in values]
+            stripped = series.astype("str").str.strip()  # read as text; missing cells stay missing
+            empty = (stripped.isna() | (stripped == "")).to_numpy(dtype=bool)
+            if empty.any():
+                k = int(np.argmax(empty))
+                raise InputError(
+                    f"empty {col.name!r} cell: every row needs a demonstration id",
+                    path=table.source,
+                    row=int(table.lines[k]),
+                )
+            out[role] = stripped.to_numpy(dtype=object)
             continue
         if series.dtype.kind in "fiub":
             out[role] = series.to_numpy(dtype=np.float64)
@@ -683,7 +719,8 @@ def _length_unit(plan: _Plan, table: _Table, options: ReadOptions, position: np.
         return table.declared["length_unit"], "file comment"
     finite = np.all(np.isfinite(position), axis=1)
     if finite.any():
-        med = float(np.median(np.linalg.norm(position[finite], axis=1)))
+        p = position if finite.all() else position[finite]  # no copy of a table without lost frames
+        med = float(np.median(np.sqrt(np.einsum("ij,ij->i", p, p))))
         if med > _MM_THRESHOLD:
             names = ",".join(plan.roles[r].name for r in "xyz")
             raise InputError(
@@ -850,6 +887,11 @@ def _stem(source: str) -> str:
 def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
     """Read one CSV/TSV file into raw trajectories (one per demo id, or one for the file).
 
+    A file of at least :data:`FAST_MIN_BYTES` is parsed from disk, only the needed columns, with fixed
+    dtypes (memory-mapped for the checks), when its layout allows (UTF-8, one header, no blank or
+    comment lines among the rows, numbers where numbers belong); otherwise, and for smaller files,
+    the whole text is parsed in memory. Both give the same trajectories and the same errors.
+
     Parameters
     ----------
     path : str or Path
@@ -861,7 +903,12 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
         Raw: seconds, metres, quaternions x, y, z, w; lost frames are NaN rows.
     """
     path = str(path)
+    options = options or ReadOptions()
     try:
+        if os.path.getsize(path) >= max(FAST_MIN_BYTES, 1):
+            out = _read_mapped(path, options)
+            if out is not None:
+                return out
         data = Path(path).read_bytes()
     except FileNotFoundError:
         raise InputError("file not found", path=path, hint="check the path") from None
@@ -872,9 +919,145 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
     return read_bytes(data, path, options)
 
 
+def _read_mapped(path: str, options: ReadOptions):
+    """The fast path on a memory map of the file (None: the text path must read it)."""
+    import mmap
+
+    try:
+        with open(path, "rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as buf:
+            fast = _fast_plan(buf, path, options)  # unmapped before parsing, so its pages leave RSS
+    except (ValueError, OSError):  # not mappable (a pipe, a special file): read it as text
+        return None
+    return _fast_parse(fast, lambda: open(path, "rb"), options, path) if fast else None
+
+
 def read_bytes(data: bytes, source: str, options: ReadOptions | None = None) -> list[Trajectory]:
     """Like :func:`read` for the bytes of a file (e.g. stdin); ``source`` names it in messages."""
+    options = options or ReadOptions()
+    if len(data) >= FAST_MIN_BYTES:
+        fast = _fast_plan(data, source, options)
+        out = _fast_parse(fast, lambda: io.BytesIO(data), options, source) if fast else None  # shares the bytes
+        if out is not None:
+            return out
     return read_text(_decode(data, source), source, options)
+
+
+def _max_fields(buf, offset: int, delimiter: bytes, chunk: int = 1 << 22) -> int:
+    """The largest number of ``delimiter``-separated fields on one line of ``buf[offset:]`` (no
+    quoting), counted in chunks of whole lines (bounded memory, numpy speed)."""
+    most, start, end = 0, offset, len(buf)
+    while start < end:
+        stop = min(start + chunk, end)
+        if stop < end:
+            cut = buf.rfind(b"\n", start, stop)
+            stop = cut + 1 if cut >= start else end
+        a = np.frombuffer(buf, dtype=np.uint8, count=stop - start, offset=start)
+        ends = np.flatnonzero(a == 10)  # each line's last byte: its newline ...
+        if a[-1] != 10:
+            ends = np.append(ends, len(a) - 1)  # ... or the end of the file
+        delims = np.flatnonzero(a == delimiter[0])
+        per_line = np.diff(np.searchsorted(delims, ends, side="right"), prepend=0)
+        most = max(most, int(per_line.max(initial=0)) + 1)
+        start = stop
+    return most
+
+
+@dataclass
+class _Fast:
+    """How to parse a table straight from its bytes (see :func:`_fast_plan`)."""
+
+    table: _Table
+    cols: list
+    plan: _Plan
+    offset: int  # byte offset of the first data row
+    kwargs: dict  # for pandas.read_csv
+
+
+def _fast_plan(buf, source: str, options: ReadOptions):
+    """How to parse the table in ``buf`` (bytes or a memory map of the file) without building its
+    text, or None when the text path must read it.
+
+    The header, the column plan and the first rows come from the first 64 KiB, through the same
+    functions as the text path (so the same errors); the rest of ``buf`` is only scanned (no line
+    the text path would drop, no row with too many fields). None (text path) for what only the text
+    path handles: UTF-16 or non-UTF-8 text, line breaks other than LF/CRLF, blank or comment lines
+    among the rows, ISO date-times, rows with too many fields (the text path names them).
+    """
+    head = bytes(buf[:_FAST_HEAD])
+    if head[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\x00" in head:
+        return None
+    cut = head.rfind(b"\n")
+    if cut < 0:
+        return None
+    head = head[: cut + 1]
+    try:
+        text = head.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        return None
+    if _ODD_BREAKS.search(text.replace("\r\n", "\n")):
+        return None
+    ctrl = sum(1 for ch in text[:4096] if ord(ch) < 32 and ch not in "\r\n\t\f\v")
+    if ctrl > 0.05 * min(len(text), 4096):
+        return None  # binary: the text path says so
+    try:
+        table = _parse_table(text, source)
+    except InputError:
+        return None  # e.g. comments longer than the head: the text path decides
+    if len(table.lines) == 0 or np.any(np.diff(table.lines) != 1):
+        return None
+    cols = [_classify(i, name) for i, name in enumerate(table.header)]
+    plan = _plan(cols, options, source)
+    width = _row_width(table)
+    if "t" in plan.roles:
+        first = _split_fields(table.data_text.split("\n", 1)[0], table.delimiter)
+        k = plan.roles["t"].index
+        if k < len(first) and _ISO_START.match(first[k]):
+            return None
+    # the byte offset of the first data row, and no line the text path would drop after it
+    first_line = int(table.lines[0])
+    offset = 0
+    for _ in range(first_line - 1):
+        offset = head.index(b"\n", offset) + 1
+    end = len(buf)
+    m = _DROPPED_LINE.search(buf, max(offset - 1, 0))
+    if m is not None and m.start() < end - 1:
+        if end - m.start() > _FAST_HEAD or bytes(buf[m.start():]).strip(b"\r\n"):
+            return None  # not just blank lines at the very end (pandas skips those)
+    used = sorted({c.index for c in plan.roles.values()})
+    demo = plan.roles.get("demo")
+    if table.delimiter != "whitespace" and buf.find(b'"', offset) < 0:
+        # only the needed columns; pandas then accepts rows with too many fields, so count them first
+        if _max_fields(buf, offset, table.delimiter.encode()) > width:
+            return None
+        usecols, numeric = used, used
+    else:  # quoted fields may hold delimiters: let pandas check the field count, on every column
+        usecols, numeric = None, range(width)
+    dtype = {j: np.float64 for j in numeric}
+    if demo is not None:
+        dtype[demo.index] = str
+    kwargs = dict(_csv_kwargs(table, width), usecols=usecols, dtype=dtype, skip_blank_lines=True,
+                  encoding="utf-8", engine="c", low_memory=True)  # fmt: skip
+    return _Fast(table=table, cols=cols, plan=plan, offset=offset, kwargs=kwargs)
+
+
+def _fast_parse(fast: _Fast, reopen, options: ReadOptions, source: str):
+    """Parse the rows as :func:`_fast_plan` planned, from the stream ``reopen()`` (positioned at the
+    first row), into raw trajectories; None when a cell is not a number or a standard missing-value
+    token, or a row is malformed (the text path then names it)."""
+    import pandas as pd
+    from dataclasses import replace
+
+    try:
+        with reopen() as stream:
+            stream.seek(fast.offset)
+            df = pd.read_csv(stream, **fast.kwargs)
+    except (ValueError, pd.errors.ParserError, UnicodeDecodeError, OverflowError):
+        return None
+    first_line = int(fast.table.lines[0])
+    table = replace(fast.table, lines=np.arange(first_line, first_line + len(df), dtype=np.int64), data_text="")
+    data = _columns(df, table, fast.plan)
+    del df
+    return _trajectories(table, fast.cols, fast.plan, data, options, source)
 
 
 def read_text(text: str, source: str, options: ReadOptions | None = None) -> list[Trajectory]:
@@ -884,18 +1067,28 @@ def read_text(text: str, source: str, options: ReadOptions | None = None) -> lis
     cols = [_classify(i, name) for i, name in enumerate(table.header)]
     plan = _plan(cols, options, source)
     data = _read_frame(table, plan)
+    return _trajectories(table, cols, plan, data, options, source)
+
+
+def _groups(demo) -> dict:
+    """{demo id: row indices (ascending)} in order of first appearance."""
+    import pandas as pd
+
+    codes, uniques = pd.factorize(np.asarray(demo, dtype=object), sort=False)
+    order = np.argsort(codes, kind="stable")
+    bounds = np.cumsum(np.bincount(codes, minlength=len(uniques)))[:-1]
+    return dict(zip(uniques.tolist(), np.split(order, bounds)))
+
+
+def _trajectories(table: _Table, cols: list, plan: _Plan, data, options: ReadOptions, source: str) -> list:
+    """Raw trajectories from the parsed columns: demonstrations split by the ``demo`` column, times,
+    units, rotations and the facts in ``info``."""
     if data is None or len(data["x"]) == 0:
         raise InputError("the file has a header but no data rows", path=source, row=table.header_line,
                          hint="the export stopped before the first sample: export or record it again")
     n = len(data["x"])
-    # groups of rows (demonstrations)
-    if "demo" in plan.roles:
-        groups: dict = {}
-        for k, v in enumerate(data["demo"]):
-            groups.setdefault(v, []).append(k)
-        groups = {k: np.asarray(v, dtype=np.int64) for k, v in groups.items()}
-    else:
-        groups = {None: np.arange(n)}
+    # groups of rows (demonstrations); one group is a slice, so its arrays are views, not copies
+    groups = _groups(data["demo"]) if "demo" in plan.roles else {None: slice(None)}
     # time
     if "t" in plan.roles:
         if data.get("t_datetime"):
@@ -931,12 +1124,13 @@ def read_text(text: str, source: str, options: ReadOptions | None = None) -> lis
             time_info = {"time_unit": "frame / rate", "time_unit_source": "frame column and --rate"}
         else:
             for idx in groups.values():
-                t[idx] = np.arange(len(idx)) / rate
+                t[idx] = np.arange(len(t[idx])) / rate
             time_info = {"time_unit": "row / rate", "time_unit_source": "--rate"}
         time_info["rate_option_hz"] = rate
     position = np.stack([data["x"], data["y"], data["z"]], axis=-1)
     length_unit, length_source = _length_unit(plan, table, options, position)
-    position = position * LENGTH_UNITS[length_unit]
+    if LENGTH_UNITS[length_unit] != 1.0:
+        position *= LENGTH_UNITS[length_unit]  # a new array (np.stack): scaled in place
     quat, rotation = _rotation(plan, data, options, source)
     colmap = {}
     order = {k: i for i, k in enumerate(("t", "t_nsec", "frame", "demo", "x", "y", "z"))}
@@ -991,13 +1185,18 @@ def describe(path, options: ReadOptions | None = None, *, text: str | None = Non
     """
     options = options or ReadOptions()
     source = str(path)
+    rows = None
     if text is None:
-        text = _decode(Path(source).read_bytes(), source)
-    table = _parse_table(text, source)
+        table, rows = _describe_big(source)
+        if table is None:
+            text = _decode(Path(source).read_bytes(), source)
+    if text is not None:
+        table = _parse_table(text, source)
     cols = [_classify(i, name) for i, name in enumerate(table.header)]
     problem = None
     taken: dict = {}
     rotation = None
+    needs = []
     try:
         plan = _plan(cols, options, source)
         rotation = plan.rotation
@@ -1005,6 +1204,11 @@ def describe(path, options: ReadOptions | None = None, *, text: str | None = Non
             taken[col.index] = _role_key(role)
         if "t" not in plan.roles and not options.rate:
             problem = "no time column; pass --rate HZ"
+            needs.append("--rate HZ (no time column)")
+        if rotation == "numbered" and (options.quat_order or "").lower() not in ("xyzw", "wxyz"):
+            needs.append("--quat-order xyzw or wxyz (the quaternion columns are numbered)")
+        if rotation in ("euler_axis", "rpy") and not options.euler_order:
+            needs.append("--euler-order (the Euler angle columns do not say their order)")
     except InputError as exc:
         problem = str(exc)
     columns = [
@@ -1014,12 +1218,86 @@ def describe(path, options: ReadOptions | None = None, *, text: str | None = Non
     return {
         "delimiter": table.delimiter,
         "header_line": table.header_line,
-        "data_rows": int(len(table.lines)),
+        "data_rows": int(len(table.lines)) if rows is None else rows,
         "declared": table.declared,
         "columns": columns,
         "rotation": rotation,
         "problem": problem,
+        "needs": needs,
     }
+
+
+def _describe_big(source: str):
+    """For a file of at least :data:`FAST_MIN_BYTES`: the table parsed from its first 64 KiB and the
+    number of data rows counted on a memory map (lines after the header that are not blank or
+    comments), without decoding the file; ``(None, None)`` when the head does not hold the header."""
+    import mmap
+
+    try:
+        if os.path.getsize(source) < max(FAST_MIN_BYTES, 1):
+            return None, None
+        with open(source, "rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as buf:
+            head = bytes(buf[:_FAST_HEAD])
+            cut = head.rfind(b"\n")
+            if cut < 0 or head[:2] in (b"\xff\xfe", b"\xfe\xff"):
+                return None, None
+            try:
+                text = head[: cut + 1].decode("utf-8-sig")
+            except UnicodeDecodeError:
+                text = head[: cut + 1].decode("latin-1")
+            try:
+                table = _parse_table(text, source)
+            except InputError:
+                return None, None
+            if len(table.lines) == 0:
+                return None, None
+            offset = 0
+            for _ in range(int(table.lines[0]) - 1):
+                offset = head.index(b"\n", offset) + 1
+            newlines = sum(bytes(buf[i : i + (1 << 22)]).count(b"\n") for i in range(offset, len(buf), 1 << 22))
+            lines = newlines + (0 if buf[len(buf) - 1 : len(buf)] == b"\n" else 1)
+            dropped = sum(1 for _ in _DROPPED_LINE.finditer(buf, offset - 1)) - (buf[-1:] == b"\n")
+            return table, int(lines - dropped)
+    except (OSError, ValueError):
+        return None, None
+
+
+def sniff_pose_columns(head: bytes, source: str, options: ReadOptions | None = None, *,
+                       complete: bool = False) -> str | None:
+    """Why a file that starts with ``head`` holds no pose data, in a few words, or None.
+
+    Judged like :func:`read` judges the whole file, on the complete lines of ``head`` (``complete``:
+    head is the whole file): "empty", "not a text file", "no table" (comments only), "no header line"
+    (numbers only), "not a table" (one column), "no pose columns" (no rotation), "no position columns".
+    None when the header names pose columns (even if reading may still fail: such a file is pose
+    data with a problem) or when the head ends before the header does.
+    """
+    options = options or ReadOptions()
+    if head[:2] in (b"\xff\xfe", b"\xfe\xff") and not complete:
+        head = head[: len(head) // 2 * 2]  # UTF-16: whole code units only
+    try:
+        text = _decode(head, source)
+    except InputError as exc:
+        return "empty" if "empty" in exc.message else "not a text file"
+    if not complete:
+        cut = max(text.rfind("\n"), text.rfind("\r"))
+        if cut < 0:
+            return None  # one line longer than the head
+        text = text[:cut]
+    try:
+        table = _parse_table(text, source)
+    except InputError as exc:
+        if not complete and "no header and no data" in exc.message:
+            return None  # comments longer than the head
+        return "no header line" if "no header line" in exc.message else "no table"
+    cols = [_classify(i, name) for i, name in enumerate(table.header)]
+    try:
+        _plan(cols, options, source)
+    except NotPoseData as exc:
+        return exc.reason
+    except InputError:
+        return None
+    return None
 
 
 # --------------------------------------------------------------------------------------------------

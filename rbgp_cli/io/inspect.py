@@ -2,14 +2,17 @@
 
 :func:`inspect_file` returns plain data (JSON-ready); :func:`format_inspect` renders it for people.
 For CSV it lists the columns and what each is taken as, for MCAP the topics (from the summary), for
-vendor formats whatever the reader's ``describe()`` returns; then per trajectory: samples, duration,
-median rate, gaps (steps longer than 1.5× the median), lost frames, units and conventions, and the
-position range. A file rbgp cannot read still gets a description with the reader's error message.
+QTM, Motive and Vicon exports what the header says (layout, bodies, rate, units, rotation source,
+time, ignored assets), in aligned rows of plain words; then per trajectory: samples, duration, median
+rate, gaps (steps longer than 1.5× the median), lost frames, units and conventions, and the position
+range; then the options still needed to train on the file (:func:`needs`). A file rbgp cannot read
+still gets a description with the reader's error message.
 """
 
 from __future__ import annotations
 
 import os
+import re
 import sys
 from pathlib import Path
 
@@ -18,7 +21,7 @@ import numpy as np
 from rbgp_cli.errors import InputError
 from rbgp_cli.io.options import ReadOptions
 
-__all__ = ["inspect_file", "format_inspect", "trajectory_summary"]
+__all__ = ["inspect_file", "format_inspect", "trajectory_summary", "needs"]
 
 _GAP_FACTOR = 1.5
 
@@ -81,10 +84,11 @@ def _describe(fmt: str, path: str, options: ReadOptions):
 def inspect_file(path, options: ReadOptions | None = None, stdin=None) -> dict:
     """Describe one file (``-``: stdin) as plain data.
 
-    Returns ``{"path", "format", "bytes", "description", "trajectories": [...], "error"}``:
+    Returns ``{"path", "format", "bytes", "description", "trajectories": [...], "error", "needs"}``:
     ``description`` is the format-specific part (CSV columns and what each is taken as, MCAP topics,
     the vendor reader's ``describe()``), ``trajectories`` one :func:`trajectory_summary` per
-    trajectory read, and ``error`` the message rbgp would stop with (None when the file reads).
+    trajectory read, ``error`` the message rbgp would stop with (None when the file reads), and
+    ``needs`` the options still needed to train on it (:func:`needs`).
     """
     options = options or ReadOptions()
     path = str(path)
@@ -101,14 +105,14 @@ def inspect_file(path, options: ReadOptions | None = None, stdin=None) -> dict:
                  "trajectories": [], "error": None}  # fmt: skip
     if out["bytes"] == 0:
         out["error"] = str(InputError("the file is empty", path=path))
-        return out
+        return _finish(out, options)
     fmt = _format_option(options)
     out["format"] = detect_format(path) if fmt == "auto" else fmt
     try:
         out["description"] = _describe(out["format"], path, options)
     except InputError as exc:
         out["error"] = str(exc)
-        return out
+        return _finish(out, options)
     try:
         if out["format"] == "mcap" and not options.topic:
             from rbgp_cli.io import mcap
@@ -124,6 +128,11 @@ def inspect_file(path, options: ReadOptions | None = None, stdin=None) -> dict:
         out["error"] = str(exc)
         trajs = []
     out["trajectories"] = [trajectory_summary(t) for t in trajs]
+    return _finish(out, options)
+
+
+def _finish(out: dict, options: ReadOptions) -> dict:
+    out["needs"] = needs(out, options)
     return out
 
 
@@ -161,7 +170,39 @@ def _inspect_stdin(options: ReadOptions, stdin) -> dict:
 
 
 # --------------------------------------------------------------------------------------------------
+# what is still needed
+
+_FLAG = re.compile(r"--[a-z][a-z-]+")
+
+
+def needs(d: dict, options: ReadOptions | None = None) -> list[str]:
+    """The options still needed to train on the file described by ``d`` (plain strings, each an
+    option and why): those the format's description names, the flags the reading error names, and
+    ``--body`` / ``--topic`` when the file holds several bodies or pose topics."""
+    options = options or ReadOptions()
+    desc = d.get("description") if isinstance(d.get("description"), dict) else {}
+    out = list(desc.get("needs") or [])
+    if d.get("format") in ("qtm", "motive", "vicon") and options.body is None and len(desc.get("bodies") or []) > 1:
+        out.append(f"--body NAME, or --body all for every body ({len(desc['bodies'])} bodies)")
+    if d.get("format") == "mcap" and not options.topic:
+        pose = [t["topic"] for t in desc.get("topics", []) if t.get("pose") and t.get("messages") != 0]
+        if len(pose) > 1:
+            out.append(f"--topic NAME, or --topic all / a pattern for one demonstration per topic ({len(pose)} pose topics)")
+    if d.get("error"):  # the options the error names (it says why, on the line below)
+        have = {n.split()[0] for n in out}
+        flags = [f for f in dict.fromkeys(_FLAG.findall(d["error"])) if f not in have]
+        if flags:
+            out.append(" or ".join(flags) + " (see the error)")
+    return out
+
+
+# --------------------------------------------------------------------------------------------------
 # text
+
+_LABEL = 14
+_DELIMITERS = {",": "comma", ";": "semicolon", "\t": "tab", "whitespace": "whitespace"}
+_FORMATS = {"csv": "generic CSV", "mcap": "MCAP", "qtm": "Qualisys QTM TSV", "motive": "OptiTrack Motive CSV",
+            "vicon": "Vicon CSV"}
 
 
 def _fmt_num(x, unit: str = "", digits: int = 4) -> str:
@@ -170,60 +211,204 @@ def _fmt_num(x, unit: str = "", digits: int = 4) -> str:
     return f"{x:.{digits}g}{unit}"
 
 
+def _plain(v) -> str:
+    """Any plain value as text people read: lists joined by commas, mappings as ``key value; ...``,
+    None as ``-`` (never a Python repr)."""
+    if v is None:
+        return "-"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return _fmt_num(v)
+    if isinstance(v, dict):
+        return "; ".join(f"{k} {_plain(x)}" for k, x in v.items()) or "-"
+    if isinstance(v, (list, tuple)):
+        return ", ".join(_plain(x) for x in v) or "-"
+    return str(v).replace("Rot[]", "Rot")  # QTM's Rot[0..8] columns, named without brackets
+
+
+def _row(label: str, value) -> str:
+    return f"  {label:<{_LABEL}}{_plain(value)}"
+
+
+def _plural(n: int, word: str) -> str:
+    return f"{n} {word}{'' if n == 1 else 's'}"
+
+
+def _rate(desc: dict) -> str:
+    r = desc.get("rate_hz")
+    return f"{_fmt_num(r)} Hz" if r else "not stated"
+
+
+def _rows_csv(desc: dict) -> list[str]:
+    lines = [_row("table", f"{_DELIMITERS.get(desc.get('delimiter'), desc.get('delimiter'))}-separated, "
+                           f"header on line {desc.get('header_line')}, {_plural(desc.get('data_rows') or 0, 'data row')}")]
+    if desc.get("declared"):
+        lines.append(_row("declared", ", ".join(f"{k} {v}" for k, v in desc["declared"].items())))
+    lines.append("  columns:")
+    for c in desc.get("columns", []):
+        taken = c.get("taken_as") or "(ignored)"
+        unit = f" [{c['unit']}]" if c.get("unit") else ""
+        lines.append(f"    {c['name']!s:<24} -> {taken}{unit}")
+    return lines
+
+
+def _rows_mcap(desc: dict) -> list[str]:
+    lines = [_row("profile", desc.get("profile") or "-"), _row("library", desc.get("library") or "-"),
+             _row("messages", f"{desc.get('messages') if desc.get('messages') is not None else '?'}"
+                              + ("" if desc.get("summary") else " (no summary: scanned)"))]
+    if desc.get("damaged"):
+        lines.append(_row("damaged", desc["damaged"]))
+    lines.append("  topics:")
+    for t in desc.get("topics", []):
+        mark = "pose" if t.get("pose") else "    "
+        n = t["messages"] if t["messages"] is not None else "?"
+        lines.append(f"    {mark} {t['topic']:<36} {t['schema'] or '(no schema)'} ({t['message_encoding']}) {n} messages")
+    return lines
+
+
+def _rows_motive(desc: dict) -> list[str]:
+    h = desc.get("header", {})
+    lines = [_row("export", f"format version {h.get('Format Version', '?')}, take {h.get('Take Name', '-')!s}"
+                            + (f", captured {h['Capture Start Time']}" if h.get("Capture Start Time") else ""))]
+    frames = f"{desc.get('frames')} exported at {_rate(desc)}"
+    if h.get("Capture Frame Rate") and h.get("Capture Frame Rate") != h.get("Export Frame Rate"):
+        frames += f" (captured at {h['Capture Frame Rate']} Hz)"
+    if h.get("Total Frames in Take"):
+        frames += f", {h['Total Frames in Take']} frames in the take"
+    lines.append(_row("frames", frames))
+    lines.append(_row("time", desc.get("time_source")))
+    bodies = desc.get("bodies") or []
+    lines.append(_row("rigid bodies", f"{len(bodies)}: " + ", ".join(bodies) if bodies else "none"))
+    kinds = set((desc.get("rotation") or {}).values())
+    if desc.get("rotation_type"):
+        stated = f"Rotation Type {desc['rotation_type']}"
+    else:
+        stated = "the header states no Rotation Type"
+    if kinds == {"quaternion"}:
+        rot = "quaternion x, y, z, w"
+    elif desc.get("euler_order"):
+        rot = f"Euler angles, degrees, order {desc['euler_order']} ({desc.get('euler_order_source')})"
+    elif kinds:
+        rot = "Euler angles, degrees, order not stated"
+    else:
+        rot = "-"
+    lines.append(_row("rotation", f"{rot}; {stated}" if kinds else rot))
+    unit = desc.get("length_unit")
+    stated_unit = desc.get("length_units_stated")
+    lines.append(_row("length unit", (unit + (f" (Length Units {stated_unit})" if stated_unit else " (option)"))
+                      if unit else ("not stated" if not stated_unit else f"unknown: {stated_unit}")))
+    others = desc.get("other_assets") or {}
+    if others:
+        lines.append(_row("ignored", ", ".join(_plural(len(v), k.lower()) for k, v in others.items())
+                          + " (only rigid bodies are poses)"))
+    lines.append(_row("up axis", desc.get("up_axis")))
+    return lines
+
+
+def _rows_qtm(desc: dict) -> list[str]:
+    h = desc.get("header", {})
+    version = h.get("FILE_VERSION")
+    layout = "current (Frame, Time, <Body> X ...)" if desc.get("layout") == "current" else \
+        "old, before 2.0.0 (no Frame/Time columns, one header block for every body)"
+    lines = [_row("layout", layout + (f", FILE_VERSION {version}" if version else ""))]
+    if h.get("TIME_STAMP"):
+        lines.append(_row("recorded", h["TIME_STAMP"] if isinstance(h["TIME_STAMP"], str) else h["TIME_STAMP"][0]))
+    freq = h.get("FREQUENCY")
+    rate = f"at {_rate(desc)}" if desc.get("rate_hz") else f"at no stated rate (FREQUENCY {freq or 'missing'})"
+    lines.append(_row("frames", f"{desc.get('frames')} {rate}"
+                                + (f", NO_OF_FRAMES {h['NO_OF_FRAMES']}" if h.get("NO_OF_FRAMES") else "")))
+    lines.append(_row("time", desc.get("time_source") or "unknown: FREQUENCY is not a number and there is no Time column"))
+    bodies = desc.get("bodies") or []
+    lines.append(_row("bodies", f"{len(bodies)}: " + ", ".join(bodies)))
+    details = desc.get("body_details") or {}
+    rotations = {b: v.get("rotation") for b, v in details.items()}
+    if len(set(rotations.values())) <= 1:
+        rot = next(iter(rotations.values()), "-")
+        angles = next(iter(details.values()), {}).get("angle_columns") or []
+        lines.append(_row("rotation", rot + (f"; angle columns {' '.join(angles)}" if angles else "")))
+    else:
+        lines.append(_row("rotation", "; ".join(f"{b}: {r}" for b, r in rotations.items())))
+    lines.append(_row("units", f"positions {desc.get('length_unit')}, angles {desc.get('angle_unit')}"))
+    events = desc.get("events") or []
+    if events:
+        lines.append(_row("events", "; ".join(" ".join(e) for e in events)))
+    return lines
+
+
+def _rows_vicon(desc: dict) -> list[str]:
+    sections = desc.get("sections") or []
+    lines = [_row("sections", "; ".join(
+        f"{s['title'] or '(untitled)'} ({_fmt_num(s['rate_hz'])} Hz, {_plural(s['frames'], 'frame')})" for s in sections))]
+    lines.append(_row("delimiter", _DELIMITERS.get(desc.get("delimiter"), desc.get("delimiter"))))
+    if desc.get("pose_section"):
+        lines.append(_row("poses from", f"section {desc['pose_section']}, {desc.get('frames')} frames at {_rate(desc)}"))
+        bodies = desc.get("bodies") or []
+        lines.append(_row("segments", f"{len(bodies)}: " + ", ".join(bodies)))
+        rot = desc.get("rotation")
+        lines.append(_row("rotation", f"RX RY RZ as {'a helical (axis-angle) rotation vector' if rot == 'helical' else 'Euler angles'}"
+                                      f" in {desc.get('angle_unit') or 'deg'}"
+                                      + (" (default; --rotation euler --euler-order ORDER if they are Euler angles)"
+                                         if rot == "helical" else "")))
+        lines.append(_row("length unit", desc.get("length_unit") or "not stated (no units line)"))
+        lines.append(_row("time", "(Frame - 1) / rate"))
+    else:
+        lines.append(_row("poses from", "no section with RX RY RZ TX TY TZ columns"))
+    return lines
+
+
+_ROWS = {"csv": _rows_csv, "mcap": _rows_mcap, "motive": _rows_motive, "qtm": _rows_qtm, "vicon": _rows_vicon}
+_SKIP_KEYS = {"format", "needs"}
+
+
+def _rows_any(desc: dict) -> list[str]:
+    """A format without its own layout: every field as an aligned row of plain text."""
+    return [_row(str(k).replace("_", " "), v) for k, v in desc.items() if k not in _SKIP_KEYS]
+
+
+def _trajectory_rows(tr: dict) -> list[str]:
+    lines = [f"  trajectory {tr['name']}:"]
+    lines.append(f"    {tr['samples']} samples, {_fmt_num(tr['duration_s'], ' s')}, "
+                 f"{_fmt_num(tr['rate_hz'], ' Hz')} median rate")
+    g = tr["gaps"]
+    gap = f"{g['count']} gaps" + (f" (largest {_fmt_num(g['largest_s'], ' s')})" if g["count"] else "")
+    lines.append(f"    {tr['lost_frames']} lost frames, {gap}"
+                 + (f", {tr['non_increasing_times']} non-increasing times" if tr["non_increasing_times"] else ""))
+    conv = []
+    if "length_unit" in tr:
+        conv.append(f"length {tr['length_unit']}" + (f" ({tr['length_unit_source']})" if "length_unit_source" in tr else ""))
+    if "time_unit" in tr:
+        conv.append(f"time {tr['time_unit']}" + (f" ({tr['time_unit_source']})" if "time_unit_source" in tr else ""))
+    if "rotation" in tr:
+        conv.append(f"rotation {tr['rotation']}")
+    elif "rotation_source" in tr:
+        conv.append(f"rotation from {tr['rotation_source']}")
+    if "time_source" in tr:
+        ts = tr["time_source"]
+        conv.append(f"{ts} time" if ts in ("header", "log") else f"time from {ts}")
+    if conv:
+        lines.append("    " + _plain(", ".join(conv)))
+    if tr.get("position_min_m") is not None:
+        rng = ", ".join(f"{a} {lo:.4g} .. {hi:.4g}" for a, lo, hi in zip("xyz", tr["position_min_m"], tr["position_max_m"]))
+        lines.append(f"    position {rng} m")
+    return lines
+
+
 def format_inspect(d: dict) -> str:
-    """Human-readable text of :func:`inspect_file`'s result."""
-    lines = [f"{d['path']}: {d.get('format') or 'unknown'} ({d.get('bytes', 0)} bytes)"]
+    """Human-readable text of :func:`inspect_file`'s result: what was recognised, then aligned rows
+    (bodies or columns or topics, units, rotation source, rate), each trajectory read (samples,
+    rate, lost frames, gaps, units, position range), the options still needed, and the error rbgp
+    would stop with. Plain words throughout: no Python reprs."""
+    fmt = d.get("format")
+    size = d.get("bytes", 0)
+    lines = [f"{d['path']}: {_FORMATS.get(fmt, fmt or 'unknown format')} ({size} bytes)"]
     desc = d.get("description")
-    if d.get("format") == "csv" and isinstance(desc, dict):
-        lines.append(f"  delimiter {desc.get('delimiter')!r}, header on line {desc.get('header_line')}, "
-                     f"{desc.get('data_rows')} data rows")  # fmt: skip
-        lines.append("  columns:")
-        for c in desc.get("columns", []):
-            taken = c.get("taken_as") or "(ignored)"
-            unit = f" [{c['unit']}]" if c.get("unit") else ""
-            lines.append(f"    {c['name']!s:<24} -> {taken}{unit}")
-        if desc.get("problem") and not d.get("error"):
-            lines.append(f"  problem: {desc['problem']}")
-    elif d.get("format") == "mcap" and isinstance(desc, dict):
-        lines.append(f"  profile {desc.get('profile')!r}, library {desc.get('library')!r}, "
-                     f"{desc.get('messages')} messages" + ("" if desc.get("summary") else " (no summary: scanned)"))  # fmt: skip
-        if desc.get("damaged"):
-            lines.append(f"  damaged: {desc['damaged']}")
-        lines.append("  topics:")
-        for t in desc.get("topics", []):
-            mark = "pose" if t.get("pose") else "    "
-            lines.append(f"    {mark} {t['topic']:<36} {t['schema'] or '(no schema)'} "
-                         f"[{t['message_encoding']}] {t['messages'] if t['messages'] is not None else '?'} messages")  # fmt: skip
-    elif isinstance(desc, dict):
-        for k, v in desc.items():
-            if isinstance(v, (list, dict)) and len(str(v)) > 200:
-                v = str(v)[:200] + "..."
-            lines.append(f"  {k}: {v}")
+    if isinstance(desc, dict):
+        lines += _ROWS.get(fmt, _rows_any)(desc)
     for tr in d.get("trajectories", []):
-        lines.append(f"  trajectory {tr['name']}:")
-        lines.append(f"    {tr['samples']} samples, {_fmt_num(tr['duration_s'], ' s')}, "
-                     f"{_fmt_num(tr['rate_hz'], ' Hz')} median rate")  # fmt: skip
-        g = tr["gaps"]
-        gap = f"{g['count']} gaps" + (f" (largest {_fmt_num(g['largest_s'], ' s')})" if g["count"] else "")
-        lines.append(f"    {tr['lost_frames']} lost frames, {gap}"
-                     + (f", {tr['non_increasing_times']} non-increasing times" if tr["non_increasing_times"] else ""))  # fmt: skip
-        conv = []
-        if "length_unit" in tr:
-            conv.append(f"length {tr['length_unit']}" + (f" ({tr['length_unit_source']})" if "length_unit_source" in tr else ""))
-        if "time_unit" in tr:
-            conv.append(f"time {tr['time_unit']}" + (f" ({tr['time_unit_source']})" if "time_unit_source" in tr else ""))
-        if "rotation" in tr:
-            conv.append(f"rotation {tr['rotation']}")
-        elif "rotation_source" in tr:
-            conv.append(f"rotation from {tr['rotation_source']}")
-        if "time_source" in tr:
-            conv.append(f"{tr['time_source']} time")
-        if conv:
-            lines.append("    " + ", ".join(conv))
-        if tr.get("position_min_m") is not None:
-            lo = ", ".join(f"{v:.4g}" for v in tr["position_min_m"])
-            hi = ", ".join(f"{v:.4g}" for v in tr["position_max_m"])
-            lines.append(f"    position range [{lo}] .. [{hi}] m")
+        lines += _trajectory_rows(tr)
+    for k, need in enumerate(d.get("needs") or []):
+        lines.append(_row("still needed" if k == 0 else "", need))
     if d.get("error"):
         lines.append(f"  error: {d['error']}")
     return "\n".join(lines)

@@ -31,15 +31,16 @@ warning saying how many; nothing usable is an :class:`~rbgp_cli.errors.InputErro
 from __future__ import annotations
 
 import contextlib
+import functools
 import io
 import struct
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from rbgp_cli.dynamics.trajectory import Trajectory
-from rbgp_cli.errors import InputError, closest, warn
+from rbgp_cli.errors import InputError, NotPoseData, closest, warn
 from rbgp_cli.io.options import ReadOptions
 
 __all__ = ["read", "read_stream", "read_all", "describe", "MAGIC", "POSE_SCHEMAS", "is_pose_schema"]
@@ -370,9 +371,12 @@ def _choose_topic(topics: dict, options: ReadOptions, source: str) -> _Topic:
         t = topics.get(want) or next(
             (x for x in topics.values() if x.topic.strip("/") == want.strip("/")), None
         )
+        if t is None or t.kind is None:
+            # a file with no pose topic at all holds no pose data (skipped when found in a directory)
+            error = InputError if pose else functools.partial(NotPoseData, reason="no pose topic")
         if t is None:
             guess = closest(want, list(topics))
-            raise InputError(
+            raise error(
                 f"no topic {want!r}"
                 + (f"; did you mean {guess!r}?" if guess else "")
                 + (f" pose topics are: {_listing(pose)}" if pose else f" (the file has no pose topic; topics are: {_listing(topics.values()) or 'none'})"),
@@ -380,7 +384,7 @@ def _choose_topic(topics: dict, options: ReadOptions, source: str) -> _Topic:
                 hint="pass --topic with one of them",
             )
         if t.kind is None:
-            raise InputError(
+            raise error(
                 f"topic {t.topic} carries {t.schema or 'schemaless'} messages, which hold no pose"
                 + (f"; pose topics are: {_listing(pose)}" if pose else "; the file has no pose topic"),
                 path=source,
@@ -389,10 +393,11 @@ def _choose_topic(topics: dict, options: ReadOptions, source: str) -> _Topic:
         return t
     if not pose:
         listing = _listing(topics.values()) if topics else "none (the file holds no messages)"
-        raise InputError(
+        raise NotPoseData(
             f"no pose topic found; topics are: {listing}",
             path=source,
             hint=f"rbgp reads {_SUPPORTED}",
+            reason="no pose topic",
         )
     nonempty = [t for t in pose if t.count != 0]
     if len(nonempty) == 1:
@@ -588,6 +593,8 @@ def _read(stream, source: str, options: ReadOptions, *, select_all: bool) -> lis
             hint="run `mcap recover` on it, or record it again",
         ) from None
     if select_all:
+        if not any(t.kind for t in topics.values()):
+            _choose_topic(topics, replace(options, topic=None), source)  # says so: no pose topic found
         out = []
         for t in topics.values():
             if t.kind is None:
@@ -633,7 +640,6 @@ def _is_pattern(topic: str | None) -> bool:
 def _read_matching(stream, source: str, options: ReadOptions) -> list[Trajectory]:
     """``--topic all`` or a glob (``'/shoe/*'``): every matching pose topic, one demonstration each."""
     import fnmatch
-    from dataclasses import replace
 
     pattern = options.topic
     trajs = _read(stream, source, replace(options, topic=None), select_all=True)

@@ -38,7 +38,7 @@ import csv
 import numpy as np
 
 from rbgp_cli.dynamics.trajectory import Trajectory
-from rbgp_cli.errors import InputError, warn
+from rbgp_cli.errors import InputError, NotPoseData, warn
 from rbgp_cli.io.options import ReadOptions
 from rbgp_cli.io.qtm import metres_per, numeric_cells, quat_from_valid, read_text, reader_guard, select_bodies
 
@@ -177,9 +177,10 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
     if not layout.bodies:
         others = layout.other_assets()
         listed = "; ".join(f"{k}: {', '.join(v)}" for k, v in others.items()) or "none"
-        raise InputError(f"no Rigid Body columns (only rigid bodies are poses); other assets: {listed}",
-                         path=path, row=layout.axis_line,
-                         hint="enable Rigid Bodies in Motive's CSV export options")
+        raise NotPoseData(f"no Rigid Body columns (only rigid bodies are poses); other assets: {listed}",
+                          path=path, row=layout.axis_line,
+                          hint="enable Rigid Bodies in Motive's CSV export options",
+                          reason="no rigid bodies, only " + (", ".join(k.lower() + "s" for k in others) or "markers"))
     chosen = select_bodies(list(layout.bodies), options.body, path=path)
     kinds = {name: layout.rotation_kind(name) for name in chosen}
     seq, seq_source = layout.euler_order(options)
@@ -284,6 +285,14 @@ def describe(path, options: ReadOptions | None = None) -> dict:
             kinds[name] = layout.rotation_kind(name)
         except InputError:
             kinds[name] = "unknown"
+    needs = []
+    if unit is None:
+        stated = layout.header.get("Length Units")
+        needs.append("--length-unit m|cm|mm (" + (f"unknown Length Units {stated!r}" if stated else
+                                                  "the header states no Length Units") + ")")
+    if seq is None and "euler" in kinds.values():
+        needs.append("--euler-order XYZ for Motive 1.6+ exports, yzx before 1.6 (the header states no Rotation Type)")
+    time_col = next((a for a in layout.meta if a.startswith("Time") and a != "TimeCode"), None)
     return {
         "format": "motive",
         "header": dict(layout.header),
@@ -296,4 +305,9 @@ def describe(path, options: ReadOptions | None = None) -> dict:
         "time_columns": list(layout.meta),
         "frames": len(layout.data),
         "rate_hz": layout.rate(),
+        "euler_order": seq,
+        "euler_order_source": seq_source or None,
+        "time_source": f"{time_col} column" if time_col else "Frame / frame rate",
+        "up_axis": "Y (Motive default; axes kept as exported)",
+        "needs": needs,
     }

@@ -44,11 +44,12 @@ from pathlib import Path
 import numpy as np
 
 from rbgp_cli.dynamics.trajectory import Trajectory
-from rbgp_cli.errors import InputError, closest, warn
+from rbgp_cli.errors import InputError, NotPoseData, closest, warn
 from rbgp_cli.io.options import LENGTH_UNITS, ReadOptions
 
 __all__ = [
     "sniff",
+    "not_6d",
     "read",
     "describe",
     # helpers shared by the vendor readers
@@ -242,6 +243,17 @@ def sniff(head: str) -> bool:
     return first in keys or lines[0].startswith("Frame\tTime\t")
 
 
+def not_6d(head: str) -> str | None:
+    """``"QTM 3D data, not 6D"`` when the header in ``head`` says the file holds no 6DOF data
+    (``DATA_INCLUDED 3D``: QTM exports the markers and the rigid bodies to separate files), else None."""
+    for line in head.lstrip("\ufeff").splitlines()[:64]:
+        cells = line.split("\t")
+        if cells[0].strip() == "DATA_INCLUDED":
+            included = " ".join(c.strip() for c in cells[1:] if c.strip()).upper()
+            return f"QTM {included} data, not 6D" if included and "6D" not in included else None
+    return None
+
+
 class _Layout:
     """What the header says: key/values, events, columns and the blocks of each body."""
 
@@ -274,8 +286,9 @@ class _Layout:
                              "'Frame, Time, <Body> X ...' column header", path=self.path, hint=_HINT)
         included = " ".join(self.header.get("DATA_INCLUDED", [])).upper()
         if included and "6D" not in included:
-            raise InputError(
-                f"this QTM file holds {included} data, not 6DOF rigid bodies", path=self.path, hint=_HINT
+            raise NotPoseData(
+                f"this QTM file holds {included} data, not 6DOF rigid bodies", path=self.path, hint=_HINT,
+                reason=f"QTM {included} data, not 6D",
             )
         if self.header_line is None:
             raise InputError("the file has a QTM header but no column header or data", path=self.path, hint=_HINT)
@@ -539,6 +552,7 @@ def describe(path, options: ReadOptions | None = None) -> dict:
     options = options or ReadOptions()
     layout = _Layout(path, read_text(path))
     bodies = {}
+    needs = []
     for name, fields in layout.blocks.items():
         rot, angles, seq, seq_source, angle_names = layout.rotation_plan(fields, options)
         bodies[name] = {
@@ -546,6 +560,17 @@ def describe(path, options: ReadOptions | None = None) -> dict:
                 f"euler {seq} ({seq_source})" if seq else "unknown (use --euler-order)"),
             "angle_columns": angle_names,
         }
+        if rot is None and not seq and not needs:
+            needs.append(f"--euler-order (body {name!r} has no Rot[] matrix and angle columns "
+                         f"{' '.join(angle_names) or 'none'} of unknown convention)")
+    if "Time" in layout.meta:
+        time_source = "Time column"
+    elif layout.frequency() or options.rate:
+        time_source = "(Frame - 1) / FREQUENCY" if "Frame" in layout.meta else "row / FREQUENCY"
+    else:
+        time_source = None
+        freq = (layout.header.get("FREQUENCY") or ["missing"])[0]
+        needs.append(f"--rate HZ (FREQUENCY is {freq} and there is no Time column)")
     return {
         "format": "qtm",
         "layout": layout.layout,
@@ -558,4 +583,6 @@ def describe(path, options: ReadOptions | None = None) -> dict:
         "angle_unit": "deg",
         "frames": len(layout.data),
         "rate_hz": layout.frequency() or options.rate,
+        "time_source": time_source,
+        "needs": needs,
     }

@@ -13,26 +13,37 @@ The format is detected from the **content**, not the file name (``ReadOptions.fo
 * ``vicon``: the first non-empty line is a section title (``Segments``, ``Model Outputs``,
   ``Trajectories``, ``Joints``, ``Devices``) followed by a rate line;
 * ``csv``: anything else (generic named columns, :mod:`rbgp_cli.io.csv`).
+
+Directories and patterns: a directory stands for the files in it (not its subdirectories), a glob
+pattern (``'data/*_6D.tsv'``) for the files it matches, both sorted by name. Among those, files that
+hold no pose data (a README, a LICENSE, notes, ``.DS_Store``, calibration files, tables without pose
+columns, MCAP files without pose topics, QTM 3D-marker exports) are skipped, and one warning counts and
+names them; a directory or pattern that leaves nothing to read is an error. Whether a file is pose data
+is decided from its content: its first 8 KiB (binary, empty, a table header without pose columns),
+else by reading it (:class:`~rbgp_cli.errors.NotPoseData`), so no file is parsed twice. A file named
+explicitly is read, and is an error if it is not pose data.
 """
 
 from __future__ import annotations
 
+import glob
 import io
 import os
 import sys
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from rbgp_cli.dynamics.trajectory import Trajectory
-from rbgp_cli.errors import InputError
+from rbgp_cli.errors import InputError, NotPoseData, warn
 from rbgp_cli.io.options import FORMATS, ReadOptions
 
-__all__ = ["read_demonstrations", "read_file", "read_stream", "detect_format", "expand_sources", "MCAP_MAGIC",
-           "DATA_SUFFIXES"]  # fmt: skip
+__all__ = ["read_demonstrations", "read_sources", "list_sources", "SourceList", "read_file", "read_stream",
+           "detect_format", "expand_sources", "skip_reason", "MCAP_MAGIC"]  # fmt: skip
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
-#: What ``expand_sources`` picks up inside a directory.
-DATA_SUFFIXES = (".csv", ".tsv", ".mcap")
 _HEAD = 8192
+#: At most this many skipped files are named in the note (the rest are counted).
+_NOTE_NAMES = 8
 _QTM_KEYS = ("NO_OF_FRAMES", "FILE_VERSION", "NO_OF_CAMERAS", "NO_OF_BODIES", "NO_OF_MARKERS", "FREQUENCY")
 _VICON_SECTIONS = ("Segments", "Model Outputs", "Trajectories", "Joints", "Devices")
 _VENDOR = ("qtm", "motive", "vicon")
@@ -83,25 +94,178 @@ def _is_mcap_head(head: bytes) -> bool:
     return head.startswith(MCAP_MAGIC) or (0 < len(head) < len(MCAP_MAGIC) and MCAP_MAGIC.startswith(head))
 
 
-def expand_sources(paths) -> list[str]:
-    """Paths with directories replaced by the data files inside them (``*.csv``, ``*.tsv``,
-    ``*.mcap``, sorted; not recursive). ``-`` (stdin) and files are kept as given; a directory
-    without data files is an :class:`InputError`."""
-    out: list[str] = []
+def _is_pattern(p: str) -> bool:
+    return any(ch in p for ch in "*?[") and not os.path.exists(p)
+
+
+@dataclass
+class SourceList:
+    """What a list of sources names: the files to read, in order, and where each came from.
+
+    Attributes
+    ----------
+    files : list of str
+        Paths to read ('-' for stdin), explicit ones as given, directories and patterns expanded.
+    found_in : dict
+        ``file -> directory or pattern`` for the files that were not named explicitly (a file there
+        that is not pose data is skipped rather than an error, unless it is also named explicitly).
+    listed : dict
+        ``directory or pattern -> number of files it listed``.
+    skipped : list of (str, str)
+        ``(file, reason)`` of the files skipped as not pose data, in the order they were listed.
+    subdirectories : dict
+        ``directory -> number of subdirectories`` (not searched; said when a directory yields nothing).
+    explicit : set
+        The paths named explicitly (never skipped).
+    order : dict
+        ``file -> position`` in the listing (orders ``skipped``).
+    """
+
+    files: list = field(default_factory=list)
+    found_in: dict = field(default_factory=dict)
+    listed: dict = field(default_factory=dict)
+    skipped: list = field(default_factory=list)
+    subdirectories: dict = field(default_factory=dict)
+    explicit: set = field(default_factory=set)
+    order: dict = field(default_factory=dict)
+
+    def may_skip(self, path: str) -> bool:
+        """True for a file found in a directory or through a pattern and not also named explicitly."""
+        return path in self.found_in and path not in self.explicit
+
+    def skip(self, path: str, reason: str) -> None:
+        self.skipped.append((path, reason))
+        self.skipped.sort(key=lambda pr: self.order.get(pr[0], 0))  # as listed, however found
+        if path in self.files:
+            self.files.remove(path)
+
+    def note(self) -> str | None:
+        """One line counting and naming the skipped files (grouped by reason), or None."""
+        if not self.skipped:
+            return None
+        groups = {self.found_in.get(p) for p, _ in self.skipped}
+        where = groups.pop() if len(groups) == 1 else None
+        total = self.listed.get(where) if where else sum(self.listed.values())
+        text = f"skipped {len(self.skipped)} of {total} files that hold no pose data: {_named(self.skipped, where)}"
+        return f"{where}: {text}" if where else text
+
+    def check_nothing_left(self, read: set) -> None:
+        """InputError for a directory or pattern none of whose files was read."""
+        for group, count in self.listed.items():
+            if any(self.found_in.get(f) == group for f in read):
+                continue
+            what = "the directory" if os.path.isdir(group) else "the files matching this pattern"
+            subdirs = self.subdirectories.get(group, 0)
+            if count == 0:
+                raise InputError(
+                    ("the directory is empty" if os.path.isdir(group) else "no file matches this pattern")
+                    + (f" (it has {subdirs} subdirectories, which are not searched)" if subdirs else ""),
+                    path=group, hint="pass the data files or the folder that holds them")
+            mine = [(p, r) for p, r in self.skipped if self.found_in.get(p) == group]
+            raise InputError(
+                f"no pose data in {what}: " + _named(mine, group)
+                + (f"; {subdirs} subdirectories are not searched" if subdirs else ""),
+                path=group,
+                hint="`rbgp inspect FILE` says how a file is read; rbgp reads CSV/TSV with pose columns, QTM, "
+                "Motive and Vicon exports and MCAP files with pose topics",
+            )
+
+
+def _named(skipped, where: str | None) -> str:
+    """``a, b (no pose columns); c (not a text file) and 3 more``: the first few files by reason, named
+    relative to their directory ``where``."""
+    base = (where if os.path.isdir(where) else os.path.dirname(where)) if where else None
+    by_reason: dict = {}
+    for p, reason in skipped[:_NOTE_NAMES]:
+        name = os.path.relpath(p, base) if base else p
+        by_reason.setdefault(reason, []).append(name)
+    text = "; ".join(f"{', '.join(names)} ({reason})" for reason, names in by_reason.items())
+    more = len(skipped) - _NOTE_NAMES
+    return text + (f" and {more} more" if more > 0 else "")
+
+
+def list_sources(paths, options: ReadOptions | None = None) -> SourceList:
+    """Expand directories (their files, sorted, not recursive) and glob patterns; keep files and ``-``
+    as given. Files found that way whose first 8 KiB show they hold no pose data
+    (:func:`skip_reason`) are skipped (``SourceList.skipped``). Raises InputError for a pattern that
+    matches nothing."""
+    options = options or ReadOptions()
+    out = SourceList()
     for p in paths:
         p = str(p)
         if p != "-" and os.path.isdir(p):
-            found = sorted(
-                str(c) for c in Path(p).iterdir() if c.is_file() and c.suffix.lower() in DATA_SUFFIXES
-            )
+            entries = sorted(Path(p).iterdir(), key=lambda c: c.name)
+            found = [str(c) for c in entries if c.is_file()]
+            out.subdirectories[p] = sum(1 for c in entries if c.is_dir())
+        elif p != "-" and _is_pattern(p):
+            found = sorted(f for f in glob.glob(p) if os.path.isfile(f))
             if not found:
-                raise InputError(
-                    "the directory holds no .csv, .tsv or .mcap files", path=p, hint="pass the data files themselves"
-                )
-            out.extend(found)
+                raise InputError("no file matches this pattern", path=p)
         else:
-            out.append(p)
+            out.files.append(p)
+            out.explicit.add(p)
+            continue
+        out.listed[p] = len(found)
+        for f in found:
+            out.found_in.setdefault(f, p)
+            out.files.append(f)
+    out.order = {f: k for k, f in reversed(list(enumerate(out.files)))}
+    for f in [f for f in out.files if out.may_skip(f)]:
+        reason = skip_reason(f, options)
+        if reason is not None:
+            out.skip(f, reason)
     return out
+
+
+def expand_sources(paths, options: ReadOptions | None = None) -> list[str]:
+    """The files :func:`list_sources` keeps, after one warning naming the skipped ones; InputError
+    for a directory or pattern that leaves nothing (files read later may still be skipped by
+    :func:`read_sources`, which reads them)."""
+    src = list_sources(paths, options)
+    src.check_nothing_left(set(src.files))
+    note = src.note()
+    if note:
+        warn(note)
+    return src.files
+
+
+def skip_reason(path, options: ReadOptions | None = None) -> str | None:
+    """Why ``path`` holds no pose data, in a few words, judged from its first 8 KiB; None when it
+    looks like pose data or its head cannot tell (reading it then decides).
+
+    Empty files, binary files (images, videos, ``.DS_Store``, zip archives), text that is not a table
+    or a table without pose columns (:func:`rbgp_cli.io.csv.sniff_pose_columns`), QTM exports of 3D
+    markers, and (with ``--format``) files that are not of that format.
+    """
+    options = options or ReadOptions()
+    path = str(path)
+    try:
+        size = os.path.getsize(path)
+        with open(path, "rb") as fh:
+            head = fh.read(_HEAD)
+    except OSError:
+        return None  # reading it says what is wrong
+    fmt = _format_option(options)
+    if fmt == "mcap" or (fmt == "auto" and _is_mcap_head(head)):
+        return None if _is_mcap_head(head) else "not an MCAP file"
+    if not head.strip(b" \t\r\n"):
+        return "empty"
+    if fmt == "auto":
+        fmt = detect_format(head)
+    if fmt == "csv":
+        from rbgp_cli.io import csv
+
+        return csv.sniff_pose_columns(head, path, options, complete=size <= len(head))
+    text = head.decode("utf-8-sig", errors="replace")
+    module = _vendor(fmt)
+    if not module.sniff(text):
+        return f"not a {_VENDOR_NAMES[fmt]} export"
+    if fmt == "qtm":
+        return module.not_6d(text)
+    return None
+
+
+_VENDOR_NAMES = {"qtm": "QTM", "motive": "Motive", "vicon": "Vicon"}
 
 
 def _format_option(options: ReadOptions) -> str:
@@ -262,13 +426,55 @@ def read_stream(stream, options: ReadOptions | None = None, source: str = "-") -
     return [t.with_(source=t.source.replace(tmp, source), name=t.name.replace(stem, "stdin")) for t in trajs]
 
 
+def read_sources(sources, options: ReadOptions | None = None, stdin=None) -> tuple[list[Trajectory], SourceList]:
+    """Read every source into raw trajectories, in order; also return what was read and skipped.
+
+    Files found in a directory or through a pattern that hold no pose data are skipped (judged from
+    their head, else by the reader raising :class:`~rbgp_cli.errors.NotPoseData`); one
+    :class:`~rbgp_cli.errors.RbgpWarning` counts and names them. A directory or pattern that leaves
+    nothing to read, and any other problem of any file, is an :class:`InputError`.
+    """
+    options = options or ReadOptions()
+    if isinstance(sources, (str, os.PathLike)):
+        sources = [sources]
+    listing = list_sources(sources, options)
+    out: list[Trajectory] = []
+    read: set = set()
+    stdin_used = False
+    for src in list(listing.files):
+        if src == "-":
+            if stdin_used:
+                raise InputError("'-' (stdin) given more than once")
+            stdin_used = True
+            stream = stdin if stdin is not None else sys.stdin.buffer
+            trajs = read_stream(stream, options, source="-")
+        else:
+            try:
+                trajs = read_file(src, options)
+            except NotPoseData as exc:
+                if not listing.may_skip(src):
+                    raise
+                listing.skip(src, exc.reason)
+                continue
+        if not trajs:
+            raise InputError("no trajectories found in the file", path=src)
+        read.add(src)
+        out.extend(trajs)
+    listing.check_nothing_left(read)
+    note = listing.note()
+    if note:
+        warn(note)
+    return out, listing
+
+
 def read_demonstrations(sources, options: ReadOptions | None = None, stdin=None) -> list[Trajectory]:
     """Read every source into raw trajectories, in order.
 
     Parameters
     ----------
     sources : list of str
-        File paths, directories (their ``*.csv``, ``*.tsv``, ``*.mcap``, sorted) or ``-`` for stdin.
+        File paths, directories (the pose-data files in them, sorted; others are skipped with one
+        warning), glob patterns, or ``-`` for stdin.
     options : ReadOptions, optional
     stdin : binary stream, optional
         What ``-`` reads (default ``sys.stdin.buffer``).
@@ -279,21 +485,4 @@ def read_demonstrations(sources, options: ReadOptions | None = None, stdin=None)
         Raw (see :mod:`rbgp_cli.io.read`); prepare them with
         :func:`rbgp_cli.dynamics.prepare.prepare_all`.
     """
-    options = options or ReadOptions()
-    if isinstance(sources, (str, os.PathLike)):
-        sources = [sources]
-    out: list[Trajectory] = []
-    stdin_used = False
-    for src in expand_sources(sources):
-        if src == "-":
-            if stdin_used:
-                raise InputError("'-' (stdin) given more than once")
-            stdin_used = True
-            stream = stdin if stdin is not None else sys.stdin.buffer
-            trajs = read_stream(stream, options, source="-")
-        else:
-            trajs = read_file(src, options)
-        if not trajs:
-            raise InputError("no trajectories found in the file", path=src)
-        out.extend(trajs)
-    return out
+    return read_sources(sources, options, stdin)[0]

@@ -32,7 +32,7 @@ import csv
 import numpy as np
 
 from rbgp_cli.dynamics.trajectory import Trajectory
-from rbgp_cli.errors import InputError, warn
+from rbgp_cli.errors import InputError, NotPoseData, warn
 from rbgp_cli.io.options import ReadOptions
 from rbgp_cli.io.qtm import metres_per, numeric_cells, quat_from_valid, read_text, reader_guard, select_bodies
 
@@ -126,11 +126,12 @@ class _Layout:
             return preferred[0]
         titles = ", ".join(s.title or "(untitled)" for s in self.sections)
         if candidates:
-            raise InputError(
+            raise NotPoseData(
                 "only the Joints section has RX..TZ columns, and joint transforms are relative to the parent "
-                "segment, not world poses", path=self.path, hint="export the Segments section (global poses)")
-        raise InputError(f"no RX,RY,RZ,TX,TY,TZ (segment pose) columns; the sections are {titles}",
-                         path=self.path, hint=_HINT)
+                "segment, not world poses", path=self.path, hint="export the Segments section (global poses)",
+                reason="joints only, no segment poses")
+        raise NotPoseData(f"no RX,RY,RZ,TX,TY,TZ (segment pose) columns; the sections are {titles}",
+                          path=self.path, hint=_HINT, reason="no segment poses")
 
 
 def _float(text: str, delimiter: str) -> float | None:
@@ -257,6 +258,18 @@ def describe(path, options: ReadOptions | None = None) -> dict:
         pose = layout.pose_section()
     except InputError:
         pose = None
+    needs, length_unit, angle_unit = [], None, None
+    if pose is not None and pose.poses:
+        first = next(iter(pose.poses.values()))
+        units = pose.units or []
+        length_unit = options.length_unit or (units[first["TX"]] if first["TX"] < len(units) else None) or None
+        angle_unit = (units[first["RX"]] if first["RX"] < len(units) else None) or None
+        if length_unit is None:
+            needs.append("--length-unit m|cm|mm (no units line under the column line)")
+        if pose.rate is None and not options.rate:
+            needs.append(f"--rate HZ (the rate line of section {pose.title!r} is not a number)")
+        if (options.rotation or "").lower() == "euler" and not options.euler_order:
+            needs.append("--euler-order (--rotation euler needs the convention of RX, RY, RZ)")
     return {
         "format": "vicon",
         "delimiter": layout.delimiter,
@@ -265,5 +278,8 @@ def describe(path, options: ReadOptions | None = None) -> dict:
         "pose_section": pose.title if pose else None,
         "rotation": (options.rotation or "helical") if pose else None,
         "frames": len(pose.data) if pose else 0,
-        "rate_hz": pose.rate if pose else None,
+        "rate_hz": (pose.rate or options.rate) if pose else None,
+        "length_unit": length_unit,
+        "angle_unit": angle_unit,
+        "needs": needs,
     }

@@ -12,7 +12,7 @@ def kernel_from_dict(d: dict) -> Kernel:
     """Rebuild a kernel from :meth:`Kernel.to_dict` output (model files)."""
     kind = d.get("kind")
     if kind == SquaredExponential.kind:
-        return SquaredExponential(d["metric"], d["rotation_dims"], d["rho_rot"], d["learn_rho"])
+        return SquaredExponential(d["metric"], d["rotation_dims"], d["rho_rot"], d["learn_rho"], d.get("time_dims", 0))
     if kind == DotProduct.kind:
         return DotProduct(d["rotation_dims"], d["rho_rot"], d["learn_rho"])
     raise ValueError(f"unknown kernel kind {kind!r}")

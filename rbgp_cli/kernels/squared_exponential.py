@@ -14,7 +14,11 @@ The rotation distance ``d_rot`` is chosen by ``metric``:
 * ``"s3"``: acos|⟨q_i, q_j⟩| on unit quaternions (the quaternion baseline; half of d_arc).
 
 Inputs X have shape (n, k + 3): rotation coordinates first (k = 3 for rotation vectors or Euler angles,
-k = 4 for quaternions x, y, z, w), translation (metres) last.
+k = 4 for quaternions x, y, z, w), translation (metres) last. With ``time_dims = 1`` a last column holds
+the time since the demonstration's start (or its phase), and the kernel is the product with a squared
+exponential on it (still positive definite when the pose kernel is):
+
+    k(x_i, x_j) = σf² · exp(−d²(g_i, g_j) / (2 λ²) − (τ_i − τ_j)² / (2 λτ²))
 
 Hyperparameters: ``signal_std`` σf, ``length_scale`` λ, ``rho_rot`` ρ1 (fixed by default at the
 paper's 0.7, or learned). Gradients with respect to their logs:
@@ -22,6 +26,7 @@ paper's 0.7, or learned). Gradients with respect to their logs:
     ∂K/∂log σf = 2 K
     ∂K/∂log λ  = K ∘ d² / λ²
     ∂K/∂log ρ1 = −K ∘ ρ1 (d_rot² − ‖Δt‖²) / (2 λ²)
+    ∂K/∂log λτ = K ∘ Δτ² / λτ²
 """
 
 from __future__ import annotations
@@ -75,11 +80,13 @@ class SquaredExponential(Kernel):
     rotation_dims : number of leading rotation columns of X (3 or 4); the last 3 are translation
     rho_rot : ρ1 in (0, 1); the rotation weight of eq. 19 (paper: 0.7)
     learn_rho : learn ρ1 (in log space, bounds [0.01, 0.99]) instead of fixing it
+    time_dims : 0, or 1 for a trailing time / phase column with its own length-scale ``time_scale`` λτ
     """
 
     kind = "squared_exponential"
 
-    def __init__(self, metric: str = "arc", rotation_dims: int = 3, rho_rot: float = 0.7, learn_rho: bool = False):
+    def __init__(self, metric: str = "arc", rotation_dims: int = 3, rho_rot: float = 0.7, learn_rho: bool = False,
+                 time_dims: int = 0):
         if metric not in ROTATION_METRICS:
             raise ValueError(f"unknown rotation metric {metric!r}; expected one of {ROTATION_METRICS}")
         if not 0.0 < rho_rot < 1.0:
@@ -88,7 +95,10 @@ class SquaredExponential(Kernel):
         self.rotation_dims = int(rotation_dims)
         self.rho_rot = float(rho_rot)
         self.learn_rho = bool(learn_rho)
-        self.names = ("signal_std", "length_scale", "rho_rot")
+        if time_dims not in (0, 1):
+            raise ValueError(f"time_dims must be 0 or 1, got {time_dims}")
+        self.time_dims = int(time_dims)
+        self.names = ("signal_std", "length_scale", "rho_rot") + (("time_scale",) if time_dims else ())
 
     # ------------------------------------------------------------------ precomputation (once per fit)
     def precompute(self, Xa, Xb=None) -> dict:
@@ -103,13 +113,14 @@ class SquaredExponential(Kernel):
         Xb = Xa if Xb is None else np.asarray(Xb, dtype=np.float64)
         k = self.rotation_dims
         rot2 = _rotation_sq_distance(self.metric, Xa[:, :k], Xb[:, :k])
-        trans2 = pairwise_sq_distance(Xa[:, k:], Xb[:, k:])
+        trans2 = pairwise_sq_distance(Xa[:, k:k + 3], Xb[:, k:k + 3])
+        extra = {"tau2": pairwise_sq_distance(Xa[:, k + 3:], Xb[:, k + 3:])} if self.time_dims else {}
         if self.learn_rho:
-            return {"rot2": rot2, "trans2": trans2}
+            return {"rot2": rot2, "trans2": trans2, **extra}
         rot2 *= self.rho_rot
         trans2 *= 1.0 - self.rho_rot
         rot2 += trans2
-        return {"d2": rot2}
+        return {"d2": rot2, **extra}
 
     def cross_plan(self, Xb) -> dict:
         """Training-side data for :meth:`cross_precompute`: unit quaternions (4, n) of the rotations
@@ -118,7 +129,9 @@ class SquaredExponential(Kernel):
 
         Xb = np.ascontiguousarray(Xb, dtype=np.float64)
         k = self.rotation_dims
-        plan = {"Xb": Xb, "trans": distance.sq_distance_plan(Xb[:, k:])}
+        plan = {"Xb": Xb, "trans": distance.sq_distance_plan(Xb[:, k:k + 3])}
+        if self.time_dims:
+            plan["tau"] = distance.sq_distance_plan(Xb[:, k + 3:])
         if self.metric == "euclidean":
             plan["rot"] = distance.sq_distance_plan(Xb[:, :k])
         else:
@@ -144,15 +157,16 @@ class SquaredExponential(Kernel):
         else:
             qa = distance.unit_quats(Xa[:, :k], k)
             rot2 = distance.gram_sq_rotation_distance(qa, plan["quat_t"], self.metric, rho)
-        trans2 = distance.planned_sq_distance(plan["trans"], Xa[:, k:], 1.0 if learn else 1.0 - rho)
+        trans2 = distance.planned_sq_distance(plan["trans"], Xa[:, k:k + 3], 1.0 if learn else 1.0 - rho)
+        extra = {"tau2": distance.planned_sq_distance(plan["tau"], Xa[:, k + 3:])} if self.time_dims else {}
         if learn:
-            return {"rot2": rot2, "trans2": trans2}
+            return {"rot2": rot2, "trans2": trans2, **extra}
         rot2 += trans2
-        return {"d2": rot2}
+        return {"d2": rot2, **extra}
 
     def cross_gram(self, plan, Xa, values) -> np.ndarray:
-        """K(Xa, Xb) = σf² exp(−d²/2λ²) for query rows Xa against the plan's Xb, fused for one set of
-        hyperparameters: the exponent ``−(1−ρ1)‖Δt‖²/2λ² + log σf²`` comes out of one matrix product
+        """K(Xa, Xb) = σf² exp(−d²/2λ² [− Δτ²/2λτ²]) for query rows Xa against the plan's Xb, fused for
+        one set of hyperparameters: the exponent ``−(1−ρ1)‖Δt‖²/2λ² + log σf²`` comes out of one matrix product
         (:func:`~rbgp_cli.geometry.distance.planned_sq_distance` with the scale and offset folded in),
         the rotation term is added from the quaternion Gram matrix, then one ``exp``. Equal to
         :meth:`gram` of :meth:`precompute` to ~1e-15·(1 + ‖t‖²)/λ² relative (see
@@ -164,8 +178,13 @@ class SquaredExponential(Kernel):
         rho = values["rho_rot"] if self.learn_rho else self.rho_rot
         a = -0.5 / values["length_scale"] ** 2
         log_sf2 = 2.0 * math.log(values["signal_std"])
-        trans = Xa[:, k:]
+        trans = Xa[:, k:k + 3]
         E = distance.planned_sq_distance(plan["trans"], trans, a * (1.0 - rho), log_sf2)
+        bound = a * (1.0 - rho) * distance.planned_max_sq_distance(plan["trans"], trans)
+        if self.time_dims:
+            at = -0.5 / values["time_scale"] ** 2
+            E += distance.planned_sq_distance(plan["tau"], Xa[:, k + 3:], at)
+            bound += at * distance.planned_max_sq_distance(plan["tau"], Xa[:, k + 3:])
         if self.metric == "euclidean":
             E += distance.planned_sq_distance(plan["rot"], Xa[:, :k], a * rho)
             rot_max = distance.planned_max_sq_distance(plan["rot"], Xa[:, :k])
@@ -174,7 +193,7 @@ class SquaredExponential(Kernel):
             E += distance.gram_sq_rotation_distance(qa, plan["quat_t"], self.metric, a * rho)
             rot_max = _MAX_SQ_ROTATION[self.metric]
         # the floor only where some exponent can fall below it (a bound from the largest distances)
-        if a * (rho * rot_max + (1.0 - rho) * distance.planned_max_sq_distance(plan["trans"], trans)) < MIN_EXPONENT:
+        if a * rho * rot_max + bound < MIN_EXPONENT:
             np.maximum(E, MIN_EXPONENT + log_sf2, out=E)
         np.exp(E, out=E)
         return E
@@ -199,6 +218,9 @@ class SquaredExponential(Kernel):
         d2 = self._d2(pre, values)
         lam = values["length_scale"]
         K = np.multiply(d2, -0.5 / (lam * lam))
+        if "tau2" in pre:
+            lt = values["time_scale"]
+            K -= (0.5 / (lt * lt)) * pre["tau2"]
         np.maximum(K, MIN_EXPONENT, out=K)
         np.exp(K, out=K)
         K *= values["signal_std"] ** 2
@@ -224,6 +246,10 @@ class SquaredExponential(Kernel):
                     WK = W * K
                 rho = values["rho_rot"]
                 out[i] = -rho / (2.0 * lam2) * (fdot(WK, pre["rot2"]) - fdot(WK, pre["trans2"]))
+            elif name == "time_scale":
+                if WK is None:
+                    WK = W * K
+                out[i] = fdot(WK, pre["tau2"]) / values["time_scale"] ** 2
             else:
                 raise KeyError(name)
         return out
@@ -241,6 +267,8 @@ class SquaredExponential(Kernel):
                 dK[..., i] = K * d2 / lam2
             elif name == "rho_rot":
                 dK[..., i] = -K * values["rho_rot"] * (pre["rot2"] - pre["trans2"]) / (2.0 * lam2)
+            elif name == "time_scale":
+                dK[..., i] = K * pre["tau2"] / values["time_scale"] ** 2
         return K, dK
 
     def diag(self, X, values) -> np.ndarray:
@@ -257,11 +285,18 @@ class SquaredExponential(Kernel):
         if not np.isfinite(med) or med <= 0:
             med = 1.0
         sy = output_scale(y)
-        return {
+        out = {
             "signal_std": Hyperparameter("signal_std", sy, (1e-3 * sy, 1e2 * sy)),
             "length_scale": Hyperparameter("length_scale", med, (1e-3 * med, 1e2 * med)),
             "rho_rot": Hyperparameter("rho_rot", self.rho_rot, (0.01, 0.99), fixed=not self.learn_rho),
         }
+        if self.time_dims:
+            tau2 = pre["tau2"]
+            mt = float(np.sqrt(np.median(tau2[iu]))) if n > 1 else 1.0
+            if not np.isfinite(mt) or mt <= 0:
+                mt = 1.0
+            out["time_scale"] = Hyperparameter("time_scale", mt, (1e-3 * mt, 1e2 * mt))
+        return out
 
     def to_dict(self) -> dict:
         return {
@@ -270,6 +305,7 @@ class SquaredExponential(Kernel):
             "rotation_dims": self.rotation_dims,
             "rho_rot": self.rho_rot,
             "learn_rho": self.learn_rho,
+            "time_dims": self.time_dims,
         }
 
 

@@ -20,13 +20,17 @@ from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError
 from rbgp_cli.io.atomic import atomic_path
 
-__all__ = ["plot_evaluation", "FIGSIZE_IN", "DPI", "MAX_LINES"]
+__all__ = ["plot_evaluation", "distance_axis_top", "FIGSIZE_IN", "DPI", "MAX_LINES", "CLIP_FACTOR"]
 
 #: Figure size in inches and resolution: 12 × 10 in at 100 dpi = 1200 × 1000 pixels.
 FIGSIZE_IN = (12.0, 10.0)
 DPI = 100
 #: At most this many generated (and compare) trajectories are drawn per panel (evenly chosen).
 MAX_LINES = 20
+#: The distance panel's axis is linear from 0; a few steps more than this many times the 90th
+#: percentile of the distances are clipped (and their largest value written in the panel), so the
+#: curve stays readable.
+CLIP_FACTOR = 10.0
 
 _DIMS = (
     ("rotation $r_x$ (tangent space at the demonstrations' mean rotation)", "$r_x$ [rad]"),
@@ -46,6 +50,23 @@ def _matplotlib():
     except ImportError:
         raise InputError("--plot needs matplotlib", hint="pip install 'rbgp-cli[plot]'") from None
     return Figure, FigureCanvasAgg
+
+
+def distance_axis_top(values) -> tuple[float, bool]:
+    """Upper limit of the linear Bhattacharyya axis (lower limit 0) and whether curves are clipped.
+
+    1.3 × the largest finite distance (room for the legend), or, when that largest value exceeds
+    ``CLIP_FACTOR`` × the 90th percentile (a few spikes), 1.3 × that bound. Never a log axis: a
+    first step scoring ~1e-30 (identical starts) would make it span 30 decades and hide the curve.
+    """
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if not len(v):
+        return 1.0, False
+    top = float(v.max())
+    bound = CLIP_FACTOR * float(np.percentile(v, 90))
+    clipped = bound > 0 and top > bound
+    return 1.3 * max(bound if clipped else top, 1e-12), clipped
 
 
 def _subset(n: int, k: int = MAX_LINES) -> np.ndarray:
@@ -114,7 +135,8 @@ def plot_evaluation(path, result, generated: Sequence[Trajectory], demos: Sequen
     x_c = _features(compare, result) if compare else None
     res_c = None
     if compare:
-        res_c = evaluate(compare, demos, length=int(result.steps), covariance=result.covariance, ridge=result.ridge)
+        res_c = evaluate(compare, demos, length=int(result.steps), covariance=result.covariance, ridge=result.ridge,
+                         sample_size="record")  # the main evaluation already said what it had to
 
     fig = Figure(figsize=FIGSIZE_IN, dpi=DPI, layout="constrained")
     FigureCanvasAgg(fig)
@@ -157,10 +179,11 @@ def plot_evaluation(path, result, generated: Sequence[Trajectory], demos: Sequen
         ax.plot(s, res_c.per_step, color="tab:blue", ls="-.", lw=2.0, label=f"{cmp_label}: total (mean {res_c.mean:.2f})")
     finite = np.concatenate([result.per_step[np.isfinite(result.per_step)],
                              res_c.per_step[np.isfinite(res_c.per_step)] if res_c is not None else []])
-    if len(finite) and finite.min() > 0 and finite.max() / finite.min() > 100:
-        ax.set_yscale("log")
-    elif len(finite):
-        ax.set_ylim(0.0, 1.3 * max(float(finite.max()), 1e-12))  # room for the legend above the curves
+    top, clipped = distance_axis_top(finite)
+    ax.set_ylim(0.0, top)
+    if clipped:
+        ax.text(0.99, 0.97, f"clipped: largest $D_B$ = {float(finite.max()):.3g}", transform=ax.transAxes,
+                ha="right", va="top", fontsize=8)
     ax.set_title(f"Bhattacharyya distance to the demonstrations per step ({result.covariance} covariance, "
                  f"{result.n_demos} demonstrations)", fontsize=10)
     ax.set_xlabel("normalised time s")

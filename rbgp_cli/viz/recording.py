@@ -209,8 +209,13 @@ def record_training(path, trajs: Sequence[Trajectory], model, up: str = "z") -> 
     names = _names(trajs, "demo_")
     parts = [_part(n) for n in names]
     colors = _colors(len(trajs))
-    quat_tr, pos_tr = model.representation.pose_from_state(np.asarray(model.gp.X, dtype=np.float64))
-    vel = np.asarray(model.gp.Y, dtype=np.float64)[:, -3:]
+    X = np.asarray(model.gp.X, dtype=np.float64)
+    quat_tr, pos_tr = model.representation.pose_from_state(X[:, : model.pose_dims])
+    # the training outputs: the GP's targets plus the prior mean it models the residual of (per second, or
+    # per unit phase for a phase model: only their directions and relative lengths are drawn)
+    prior = model.prior_mean(X)
+    Y = np.asarray(model.gp.Y, dtype=np.float64) + (0.0 if prior is None else prior)
+    vel = Y[:, -3:]
     size = _scene_size(pos_tr, *[tr.position for tr in trajs])
     speed = np.linalg.norm(vel, axis=1)
     median = float(np.median(speed)) if len(speed) else 0.0

@@ -13,6 +13,7 @@ import pytest
 from typer.testing import CliRunner
 
 from rbgp_cli.cli.app import app
+from rbgp_cli.io.model_store import FORMAT_VERSION
 
 REPO = Path(__file__).resolve().parents[2]
 CSV_DIR = REPO / "sample_data" / "csv"
@@ -57,7 +58,7 @@ def test_info_shows_provenance(model):
     res = run("info", model, "--json")
     assert res.exit_code == 0
     h = json.loads(res.stdout)
-    assert h["format"] == "rbgp-model" and h["version"] == 1
+    assert h["format"] == "rbgp-model" and h["version"] == FORMAT_VERSION
     names = [i["name"] for i in h["provenance"]["inputs"]]
     assert len(names) == 9 and all(len(i["sha256"]) == 64 for i in h["provenance"]["inputs"])
     assert h["provenance"]["train_options"]["max_points"] == 150
@@ -118,6 +119,25 @@ def test_evaluate_with_model_generates_like_the_paper(model):
     assert json.loads(res.stdout)["n_generated"] == 5
 
 
+def test_evaluate_against_one_demonstration_refuses_and_one_rollout_warns(model, tmp_path):
+    """One demonstration: the per-step spread is the ridge alone, so the score would measure the ridge
+    (the issue saw 'bhattacharyya mean 145.25'): exit 2 naming how many are needed. One generated
+    trajectory: a warning, and --json says the score is not reliable."""
+    one = tmp_path / "one_demo"
+    one.mkdir()
+    (one / "shoe_01.csv").write_bytes((CSV_DIR / "shoe_01.csv").read_bytes())
+    res = run("evaluate", "--model", model, "--count", 5, "--demos", one)
+    assert_one_line_error(res, 2, "1 demonstration", "ridge", "at least 2 demonstrations")
+    res = run("evaluate", "--model", model, "--count", 1, "--demos", CSV_DIR, "--json")
+    assert res.exit_code == 0, res.stderr
+    d = json.loads(res.stdout)
+    assert d["reliable"] is False and "only 1 generated trajectory" in d["warnings"][0]
+    assert "rbgp: warning: only 1 generated trajectory" in res.stderr and "at least 2" in res.stderr
+    res = run("evaluate", "--model", model, "--count", 5, "--demos", CSV_DIR, "--covariance", "full", "--json")
+    d = json.loads(res.stdout)
+    assert d["reliable"] is False and any("needs at least 7 generated" in w for w in d["warnings"])
+
+
 def test_real_subprocess_pipe_rollout_into_evaluate(model):
     """stdout carries only data: rollout -o - | evaluate - works through a real (non-seekable) pipe."""
     env = dict(os.environ, PYTHONWARNINGS="ignore")
@@ -139,6 +159,33 @@ def test_inspect_csv_and_mcap():
     assert d["format"] == "csv"
     res = run("inspect", MCAP)
     assert res.exit_code == 0 and "/shoe/trial_07/pose" in res.stdout
+
+
+def test_a_folder_with_a_licence_and_a_readme_trains(tmp_path):
+    """The issue's data/ folder: takes plus the dataset's LICENSE.txt and README.md. Every command that
+    takes a folder reads the takes and says once what it skipped; the LICENSE named alone is an error."""
+    data = tmp_path / "data"
+    data.mkdir()
+    for f in sorted(CSV_DIR.glob("*.csv")):
+        (data / f.name).write_bytes(f.read_bytes())
+    (data / "LICENSE.txt").write_text("Creative Commons Attribution 4.0 International\n\nBy using the Licensed Material\n")
+    (data / "README.md").write_text("# Shoe handovers\n\nNine takes at 100 Hz.\n")
+    model = tmp_path / "m.rbgp"
+    res = run("train", data, "-o", model, *FAST, "--json")
+    assert res.exit_code == 0, res.stderr
+    assert json.loads(res.stdout)["demos"] == 9
+    notes = [ln for ln in res.stderr.splitlines() if ln.startswith("rbgp: warning:")]
+    assert notes == [f"rbgp: warning: {data}: skipped 2 of 11 files that hold no pose data: "
+                     "LICENSE.txt, README.md (no pose columns)"]
+    inputs = json.loads(run("info", model, "--json").stdout)["provenance"]["inputs"]
+    assert [Path(i["name"]).name for i in inputs] == sorted(f.name for f in CSV_DIR.glob("*.csv"))
+    res = run("rollout", model, "--from-demos", data, "--count", 2, "--steps", 5, "--no-std")
+    assert res.exit_code == 0 and res.stderr.count("skipped 2 of 11") == 1
+    res = run("evaluate", "--model", model, "--count", 5, "--demos", data, "--json")
+    assert res.exit_code == 0 and json.loads(res.stdout)["n_demos"] == 9
+    res = run("inspect", data, "--json")
+    assert res.exit_code == 0 and len(json.loads(res.stdout)) == 9 and "LICENSE.txt" in res.stderr
+    assert_one_line_error(run("train", data / "LICENSE.txt", "-o", model), 2, "LICENSE.txt:", "no rotation columns")
 
 
 def test_help_does_not_import_heavy_modules():

@@ -14,9 +14,11 @@ from scipy.spatial.transform import Rotation, Slerp
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError, RbgpWarning
 from rbgp_cli.evaluation import (
+    MIN_TRAJECTORIES,
     EvaluationResult,
     bhattacharyya_diag,
     bhattacharyya_gaussian,
+    check_sample_sizes,
     evaluate,
     mean_rotation,
 )
@@ -185,7 +187,9 @@ def test_generated_equal_to_demos_scores_zero(sets):
 
 def test_single_generated_trajectory_is_finite_thanks_to_the_ridge(sets):
     demos, gen = sets
-    res = evaluate(gen[:1], demos)
+    with pytest.warns(RbgpWarning, match="only 1 generated trajectory.*needs at least 2 generated"):
+        res = evaluate(gen[:1], demos)
+    assert not res.reliable
     assert res.n_generated == 1 and np.all(res.gen_std == 0.0)  # ddof = 1 needs 2 samples: variance 0
     assert np.all(np.isfinite(res.per_step)) and res.mean > 0
     assert evaluate(gen[:1], demos, ridge=1e-3).mean < res.mean  # a larger ridge forgives more
@@ -287,7 +291,9 @@ def test_to_dict_is_plain_json(sets):
     demos, gen = sets
     res = evaluate(gen, demos, length=20)
     d = res.to_dict()
-    assert set(d) == {"bhattacharyya", "steps", "n_generated", "n_demos", "covariance", "ridge"}
+    assert set(d) == {"bhattacharyya", "steps", "n_generated", "n_demos", "covariance", "ridge", "reliable",
+                      "warnings"}
+    assert d["reliable"] is True and d["warnings"] == []
     assert d["bhattacharyya"] == {"mean": res.mean, "rotation": res.rotation, "translation": res.translation}
     assert d["steps"] == 20 and d["covariance"] == "diag" and d["ridge"] == 1e-6
     full = json.loads(json.dumps(res.to_dict(include_series=True)))
@@ -344,3 +350,82 @@ def test_length_above_the_longest_demo_warns_within_the_limit(sets):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         evaluate(gen, demos, length=longest)  # no warning at the limit
+
+
+# ---------------------------------------------------------------------------------------------
+# How many trajectories a score needs
+# ---------------------------------------------------------------------------------------------
+
+
+def test_one_demonstration_is_refused_because_the_score_would_measure_the_ridge(sets):
+    demos, gen = sets
+    for cov in ("diag", "full"):
+        with pytest.raises(InputError, match=rf"1 demonstration: .*ridge.*--covariance {cov} needs at least "
+                                             rf"{MIN_TRAJECTORIES[cov]} demonstrations") as info:
+            evaluate(gen, demos[:1], covariance=cov)
+        assert info.value.exit_code == 2 and "\n" not in str(info.value)
+    # why: with one demonstration the number follows the ridge, with six it does not
+    one = [evaluate(gen, demos[:1], ridge=r, sample_size="record").mean for r in (1e-6, 1e-7)]
+    six = [evaluate(gen, demos, ridge=r).mean for r in (1e-6, 1e-7)]
+    assert one[1] > 1.3 * one[0]  # +37 %: a tenth of the ridge adds ~ 6/4 ln 10 to the score
+    assert six[1] < 1.05 * six[0]  # +3 %
+
+
+def test_record_reports_without_raising_or_warning(sets):
+    """What cross-validation uses: the verdict is data in the result, nothing is emitted."""
+    demos, gen = sets
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        res = evaluate(gen[:1], demos[:1], sample_size="record")
+    d = json.loads(json.dumps(res.to_dict()))
+    assert d["reliable"] is False and len(d["warnings"]) == 2
+    assert "cannot score against 1 demonstration" in d["warnings"][0]
+    assert "only 1 generated trajectory" in d["warnings"][1]
+    with pytest.warns(RbgpWarning, match="cannot score against 1 demonstration"):
+        assert not evaluate(gen, demos[:1], sample_size="warn").reliable
+    with pytest.raises(ValueError, match="sample_size"):
+        evaluate(gen, demos, sample_size="ignore")
+
+
+def test_full_covariance_needs_seven_and_its_parts_four(sets):
+    demos, gen = sets  # 6 each
+    with pytest.warns(RbgpWarning) as record:
+        res = evaluate(gen[:3], demos, covariance="full")
+    texts = [str(w.message) for w in record]
+    assert len(texts) == 2 and not res.reliable
+    assert "6 demonstrations" in texts[0] and "needs at least 7 demonstrations" in texts[0]
+    assert "parts" not in texts[0]  # 6 >= 4: the 3x3 parts are fine
+    assert "3 generated trajectories" in texts[1] and "parts at least 4" in texts[1]
+    rng = np.random.default_rng(21)
+    demos7 = make_demos(rng, M=7)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        res = evaluate(jitter(rng, demos7), demos7, covariance="full")
+        assert res.reliable and res.warnings == ()
+        assert evaluate(gen[:2], demos, covariance="diag").reliable  # diag: 2 per set suffice
+
+
+@pytest.mark.parametrize("cov", ["diag", "full"])
+def test_the_rule_is_the_rank_of_the_sample_covariance(cov):
+    """Oracle: a set passes exactly when its sample covariance (of random features) has no direction of
+    zero variance: all 6 variances > 0 for diag, all 6 eigenvalues > 0 for full."""
+    rng = np.random.default_rng(22)
+    for n in range(1, 10):
+        x = rng.normal(size=(n, 6))
+        c = np.cov(x, rowvar=False, ddof=1) if n > 1 else np.zeros((6, 6))
+        if cov == "diag":
+            spread = bool(np.all(np.diag(c) > 1e-12))
+        else:
+            spread = bool(np.linalg.eigvalsh(c)[0] > 1e-12 * max(1.0, np.abs(c).max()))
+        check = check_sample_sizes(n_generated=n, n_demos=20, covariance=cov)
+        assert (not check.warnings) == spread, (cov, n)
+        assert check.refusal is None
+        assert check_sample_sizes(20, n, cov).refusal is not None if n < 2 else check.reliable == spread
+        assert check.needed == {"demos": MIN_TRAJECTORIES[cov], "generated": MIN_TRAJECTORIES[cov]}
+
+
+def test_sets_without_spread_are_flagged(sets):
+    demos, gen = sets
+    with pytest.warns(RbgpWarning, match=r"generated trajectories barely differ: at 100 % .*below the ridge"):
+        res = evaluate([gen[0]] * 5, demos)
+    assert not res.reliable and "barely differ" in res.to_dict()["warnings"][0]

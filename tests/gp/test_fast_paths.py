@@ -112,7 +112,7 @@ def test_worker_processes_give_bit_identical_fits_and_predictions():
     for a, b in zip(one.fits, two.fits):
         assert a.values == b.values and a.nlml == b.nlml
         assert a.n_evaluations == b.n_evaluations and a.starts == b.starts
-    assert sorted(line.split(":")[0] for line in lines) == ["output 0", "output 1", "output 2"]
+    assert sorted(line.split(":")[0] for line in lines if line.startswith("output")) == ["output 0", "output 1", "output 2"]
     Xs = poses(40, 5)
     m1, s1 = one.predict(Xs, return_std=True)
     m2, s2 = two.predict(Xs, return_std=True)

@@ -301,11 +301,12 @@ def test_subsample_exploration_polishes_each_new_basin(monkeypatch):
             np.log([0.3, 3.0, 0.05]) + 0.05]
 
     def fit_one(kernel_, pre, y, spec, free, restarts, rng, max_iter, margin=0.0, theta_starts=None, kinds=None,
-                ftol=None):
+                **kw):
         if theta_starts is None:  # the exploration on the subsample
-            best, records, counter, values_of, _ = real_fit_one(kernel_, pre, y, spec, free, restarts, rng, max_iter)
+            best, records, counter, values_of, _ = real_fit_one(kernel_, pre, y, spec, free, restarts, rng, max_iter,
+                                                                **kw)
             return best, records, counter, values_of, [(t, float(i)) for i, t in enumerate(fake)]
-        return real_fit_one(kernel_, pre, y, spec, free, restarts, rng, max_iter, margin, theta_starts, kinds, ftol)
+        return real_fit_one(kernel_, pre, y, spec, free, restarts, rng, max_iter, margin, theta_starts, kinds, **kw)
 
     monkeypatch.setattr(exact, "_fit_one", fit_one)
     gp = fit_gp(X, Y, kernel, restarts=4, seed=0, explore_size=60)

@@ -274,6 +274,7 @@ def test_recordings_and_figures_are_renamed_into_place(tmp_path, tiny_model, ren
     demos = tmp_path / "demos"
     demos.mkdir()
     B.write_csv(demos / "demo.csv")
+    B.write_csv(demos / "demo2.csv", B.smooth_motion(seed=1))  # one demonstration alone cannot be scored
     res = run_cli("rollout", tiny_model, "--count", "2", "--steps", "10", "-o", tmp_path / "gen.csv",
                   "--rerun", tmp_path / "rollout.rrd")  # fmt: skip
     assert res.exit_code == 0, res.stderr

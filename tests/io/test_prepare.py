@@ -232,3 +232,78 @@ def test_prepare_all_returns_lists():
     a, b = smooth(seed=1), smooth(seed=2)
     clean, reps = prepare_all([a, b], max_gap=0.1)
     assert len(clean) == len(reps) == 2 and all(r["samples_out"] == 20 for r in reps)
+
+
+# ---------------------------------------------------------------------------------------------------
+# the sign-change warning names what the data held
+
+
+def _turning(n=60, dt=0.02, rate=4.0):
+    """A body turning about z through θ = π (rotation angle 2.4 → 4.7 rad)."""
+    t = np.arange(n) * dt
+    return t, Rotation.from_rotvec(np.outer(2.4 + rate * t, [0.0, 0.0, 1.0]))
+
+
+def _write_csv(path, header, rows):
+    path.write_text(",".join(header) + "\n" + "\n".join(",".join(repr(float(v)) for v in r) for r in rows) + "\n")
+
+
+def _read_and_prepare(path, **opts):
+    from rbgp_cli.io.options import ReadOptions
+    from rbgp_cli.io.read import read_demonstrations
+
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        (raw,) = read_demonstrations([str(path)], ReadOptions(**opts))
+        clean, rep = prepare_trajectory(raw)
+    return raw, clean, rep, [str(x.message) for x in w if issubclass(x.category, RbgpWarning)]
+
+
+def test_a_rotation_vector_csv_that_wraps_at_pi_is_called_that(tmp_path):
+    t, rot = _turning()
+    rv = rot.as_rotvec()  # canonical: wraps from θ ≈ π to the opposite side once
+    assert np.sum(np.linalg.norm(np.diff(rv, axis=0), axis=1) > 3) == 1
+    path = tmp_path / "rotvec.csv"
+    _write_csv(path, ["t", "x", "y", "z", "rx", "ry", "rz"], np.column_stack([t, np.zeros((len(t), 3)), rv]))
+    raw, clean, rep, warns = _read_and_prepare(path)
+    assert raw.info["rotation"] == "rotation vector (rad)"
+    assert rep["sign_flips"] == 1
+    assert warns == [f"{path}: rotvec: rotation vector wrapped at π 1 time, repaired"]
+    assert not any("quaternion" in w for w in warns)
+    np.testing.assert_array_less(0.0, np.sum(clean.quat[1:] * clean.quat[:-1], axis=1))
+
+
+def test_euler_angles_that_wrap_at_180_degrees_are_called_that(tmp_path):
+    t, rot = _turning()
+    eul = rot.as_euler("xyz", degrees=True)  # yaw jumps from +180° to −180°
+    path = tmp_path / "euler.csv"
+    _write_csv(path, ["t", "x", "y", "z", "roll", "pitch", "yaw"], np.column_stack([t, np.zeros((len(t), 3)), eul]))
+    _, _, rep, warns = _read_and_prepare(path, euler_order="xyz", degrees=True)
+    assert rep["sign_flips"] == 1
+    assert warns == [f"{path}: euler: Euler angles wrapped at ±180° 1 time, repaired"]
+
+
+def test_recorded_quaternions_that_flip_keep_their_name(tmp_path):
+    t, rot = _turning()
+    q = rot.as_quat()
+    q[20:30] *= -1
+    path = tmp_path / "quat.csv"
+    _write_csv(path, ["t", "x", "y", "z", "qx", "qy", "qz", "qw"], np.column_stack([t, np.zeros((len(t), 3)), q]))
+    _, _, rep, warns = _read_and_prepare(path)
+    assert rep["sign_flips"] >= 2
+    assert warns == [f"{path}: quat: fixed {rep['sign_flips']} quaternion sign flips"]
+
+
+@pytest.mark.parametrize("info,expected", [
+    ({"rotation_source": "helical (rotation vector) deg"}, "rotation vector wrapped at 180° 2 times, repaired"),
+    ({"rotation_source": "helical (rotation vector) rad"}, "rotation vector wrapped at π 2 times, repaired"),
+    ({"rotation_source": "euler XYZ rad (header Roll Pitch Yaw)"}, "Euler angles wrapped at ±π 2 times, repaired"),
+    ({"rotation_source": "Rot[] matrix (column-major)"}, None),  # the sign is the conversion's, not the data's
+    ({"rotation": "quaternion xyzw"}, "fixed 2 quaternion sign flips"),
+    ({}, "fixed 2 quaternion sign flips"),
+])
+def test_sign_change_note_for_every_reader(info, expected):
+    from rbgp_cli.dynamics.prepare import sign_change_note
+
+    assert sign_change_note(info, 2) == expected
+    assert sign_change_note(info, 0) is None

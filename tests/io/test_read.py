@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from rbgp_cli.dynamics.trajectory import Trajectory
-from rbgp_cli.errors import InputError
+from rbgp_cli.errors import InputError, RbgpWarning
 from rbgp_cli.io import read as rread
 from rbgp_cli.io.csv import write_trajectories_csv
 from rbgp_cli.io.inspect import format_inspect, inspect_file
@@ -116,15 +116,22 @@ def test_directory_empty_and_unreadable_files(tmp_path):
 
 
 def test_expand_sources_and_directories(tmp_path):
+    """A directory stands for its files (sorted, not recursive); the content decides what is data, not
+    the suffix: notes.txt with pose columns is read, README.md is not."""
     d = tmp_path / "data"
     d.mkdir()
     for name in ("b.csv", "a.CSV", "c.mcap", "notes.txt"):
         (d / name).write_text(CSV_TEXT)
+    (d / "README.md").write_text("# Takes\n\nRecorded on Monday.\n")
     (d / "sub").mkdir()
-    got = rread.expand_sources([str(d), "-", "x.csv"])
-    assert got == [str(d / "a.CSV"), str(d / "b.csv"), str(d / "c.mcap"), "-", "x.csv"]
+    with pytest.warns(RbgpWarning, match=r"data: skipped 1 of 5 files that hold no pose data: README\.md \(no pose columns\)"):
+        got = rread.expand_sources([str(d), "-", "x.csv"])
+    assert got == [str(d / n) for n in ("a.CSV", "b.csv", "c.mcap", "notes.txt")] + ["-", "x.csv"]
     (tmp_path / "empty").mkdir()
-    with pytest.raises(InputError, match="no .csv, .tsv or .mcap files"):
+    with pytest.raises(InputError, match="empty: the directory is empty"):
+        rread.expand_sources([str(tmp_path / "empty")])
+    (tmp_path / "empty" / "take1").mkdir()
+    with pytest.raises(InputError, match="1 subdirectories, which are not searched"):
         rread.expand_sources([str(tmp_path / "empty")])
 
 

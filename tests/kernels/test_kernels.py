@@ -135,7 +135,13 @@ def test_kernel_description_round_trips(name, make):
     np.testing.assert_array_equal(k(X, None, values_for(k)), k2(X, None, values_for(k)))
 
 
-@pytest.mark.parametrize("name,make", ALL_KERNELS)
+TIME_KERNELS = [
+    ("se-arc-time", lambda learn: SquaredExponential("arc", 3, 0.7, learn, time_dims=1)),
+    ("se-chordal-quat-time", lambda learn: SquaredExponential("chordal", 4, 0.7, learn, time_dims=1)),
+]
+
+
+@pytest.mark.parametrize("name,make", ALL_KERNELS + TIME_KERNELS)
 @pytest.mark.parametrize("learn", [False, True])
 def test_prediction_path_matches_the_training_path(name, make, learn):
     """cross_precompute / cross_gram (matrix products, used by predictions and rollouts) give the
@@ -144,12 +150,17 @@ def test_prediction_path_matches_the_training_path(name, make, learn):
     length-scales (exponents below the underflow floor)."""
     k = make(learn)
     quat = k.rotation_dims == 4
-    Xb = poses(50, 8, quat=quat)
-    Xb[:, -3:] += np.array([3.0, -2.0, 1.0])  # metres from the origin
-    Xa = np.concatenate([Xb[:6], Xb[6:10] + 1e-9, poses(15, 9, quat=quat)[:, :] + np.r_[np.zeros(Xb.shape[1] - 3), [3.0, -2.0, 1.0]]])
+    timed = getattr(k, "time_dims", 0)
+    offset = np.r_[np.zeros(k.rotation_dims), [3.0, -2.0, 1.0]]  # metres from the origin
+    Xb = poses(50, 8, quat=quat) + offset
+    Xq = poses(15, 9, quat=quat) + offset
+    if timed:  # seconds since the start
+        Xb = np.hstack([Xb, np.random.default_rng(8).uniform(0, 5, (50, 1))])
+        Xq = np.hstack([Xq, np.random.default_rng(9).uniform(0, 5, (15, 1))])
+    Xa = np.concatenate([Xb[:6], Xb[6:10] + 1e-9, Xq])
     plan = k.cross_plan(Xb)
     for lam in (0.7, 0.02):
-        vals = {**values_for(k), "length_scale": lam}
+        vals = {**values_for(k), "length_scale": lam, **({"time_scale": 1.3} if timed else {})}
         want = k(Xa, Xb, vals)
         K_pre, _ = k.gram(k.cross_precompute(plan, Xa), vals)
         rtol = 4e-15 / lam**2

@@ -126,3 +126,45 @@ def test_missing_matplotlib_is_an_input_error(tmp_path, data, monkeypatch):
     assert "pip install 'rbgp-cli[plot]'" in str(info.value)
     assert info.value.exit_code == 2
     assert not (tmp_path / "c.png").exists()
+
+
+def test_distance_panel_stays_linear_when_the_first_step_is_almost_zero(tmp_path, data):
+    """Generated trajectories that start where the demonstrations start score ~1e-25 at the first
+    step; a log axis would span 25 decades and flatten the curve, so the axis stays linear from 0."""
+    demos, *_ = data
+    gen = [d.with_(position=d.position + 1e-13 + np.linspace(0.0, 1.0, len(d))[:, None] * 0.02 * (k + 1))
+           for k, d in enumerate(demos)]
+    result = evaluate(gen, demos)
+    assert 0 < result.per_step[0] < 1e-15 and result.per_step.max() > 1.0
+    fig = plot_evaluation(tmp_path / "near.png", result, gen, demos)
+    ax = fig.axes[6]
+    assert ax.get_yscale() == "linear"
+    low, high = ax.get_ylim()
+    assert low == 0.0 and result.per_step.max() <= high <= 1.3 * result.per_step.max() + 1e-12
+    assert not [t for t in ax.texts if "clipped" in t.get_text()]
+
+
+def test_a_few_spikes_are_clipped_and_said_so():
+    from rbgp_cli.viz.plots import CLIP_FACTOR, distance_axis_top
+
+    smooth = np.linspace(0.5, 2.0, 100)
+    assert distance_axis_top(smooth) == (pytest.approx(1.3 * 2.0), False)
+    spiky = smooth.copy()
+    spiky[[3, 50]] = 1e4
+    top, clipped = distance_axis_top(spiky)
+    assert clipped and top == pytest.approx(1.3 * CLIP_FACTOR * np.percentile(spiky, 90))
+    assert top < 1e3
+    assert distance_axis_top([np.nan, np.inf]) == (1.0, False)
+    assert distance_axis_top(np.zeros(5)) == (pytest.approx(1.3e-12), False)
+
+
+def test_the_clipped_panel_names_the_largest_distance(tmp_path, data):
+    from dataclasses import replace
+
+    demos, generated, _, result = data
+    spiky = result.per_step.copy()
+    spiky[5] = 1e6
+    fig = plot_evaluation(tmp_path / "spike.png", replace(result, per_step=spiky), generated, demos)
+    ax = fig.axes[6]
+    assert ax.get_yscale() == "linear" and ax.get_ylim()[1] < 1e5
+    assert [t.get_text() for t in ax.texts] == ["clipped: largest $D_B$ = 1e+06"]

@@ -1,0 +1,199 @@
+"""The command line as people type it: several paths after one flag, and global flags anywhere.
+
+A shell expands an unquoted glob before rbgp sees it, so ``rbgp rollout m.rbgp --from-demos
+data/*.csv --count 20`` arrives as ``--from-demos data/a.csv data/b.csv ... --count 20``. Click gives
+an option one value per flag; this module rewrites the arguments of a subcommand before Click parses
+them, so that an option declared with :func:`paths_option` takes **every path after it, up to the
+next option** (``--from-demos a b c`` becomes ``--from-demos a --from-demos b --from-demos c``), the
+same list a folder or a quoted glob gives. ``--demos=PATH`` (with ``=``) takes exactly one path, and
+``--`` ends every list.
+
+Where the list left a required argument without a value (``rbgp rollout --from-demos data/*.csv
+m.rbgp``: the model file was taken as a demonstration), the error says so and shows the command
+line to write instead (:func:`took_too_much`).
+
+:class:`RbgpGroup` is the Typer group class of the ``rbgp`` app; it applies the rewriting to every
+subcommand, so a new command gets it by declaring its path options with :func:`paths_option`.
+``-q/--quiet`` and ``--json`` are accepted before and after the subcommand; see
+:func:`rbgp_cli.cli.common.command`.
+"""
+
+from __future__ import annotations
+
+import shlex
+import sys
+
+import typer
+from typer.core import TyperGroup
+
+__all__ = ["PATHS_METAVAR", "paths_option", "RbgpGroup", "expand_path_lists", "took_too_much"]
+
+#: The metavar of an option that takes several paths after one flag. The rewriting below recognises
+#: such options by it, and ``--help`` shows it, so what the help says and what the parser does agree.
+PATHS_METAVAR = "PATH..."
+
+#: What the last rewriting did: the subcommand's name, the arguments as typed, and the runs of paths
+#: the path options took, in order (read by :func:`took_too_much` when a command finds an argument
+#: missing).
+_LAST = {"command": None, "args": [], "runs": []}
+
+
+def paths_option(*decls: str, help: str, **kwargs):
+    """A ``typer.Option`` that takes one or more paths after one flag (and may be repeated).
+
+    Use it with a ``List[str]`` parameter: ``demos: Annotated[Optional[List[str]], paths_option("--demos",
+    help="...")] = None``.
+    """
+    return typer.Option(*decls, help=help, metavar=PATHS_METAVAR, **kwargs)
+
+
+def _is_paths_option(param) -> bool:
+    return getattr(param, "param_type_name", "") == "option" and bool(getattr(param, "multiple", False)) \
+        and param.metavar == PATHS_METAVAR
+
+
+def _takes_value(param) -> bool:
+    return not (getattr(param, "is_flag", False) or getattr(param, "count", False))
+
+
+def _is_option_like(token: str) -> bool:
+    """True for ``-x``, ``--xy``, ``--`` (the end of a list); ``-`` (stdin) is a path."""
+    return token.startswith("-") and token != "-"
+
+
+def _options_by_flag(command) -> dict:
+    return {flag: p for p in command.params if getattr(p, "param_type_name", "") == "option"
+            for flag in [*p.opts, *getattr(p, "secondary_opts", [])]}
+
+
+def expand_path_lists(command, args: list[str]) -> tuple[list[str], list[tuple[str, list[str]]]]:
+    """Rewrite ``args`` of ``command`` (a Click command) so that each path option takes every path after it.
+
+    Returns the rewritten arguments and, in order, (flag as typed, the paths it took) for each
+    occurrence of a path option. Values of other options are skipped exactly as Click reads them (an
+    option that takes a value takes the next token, whatever it is), and everything after ``--`` is
+    left alone.
+    """
+    by_flag = _options_by_flag(command)
+    out: list[str] = []
+    runs: list[tuple[str, list[str]]] = []
+    i, n = 0, len(args)
+    while i < n:
+        tok = args[i]
+        if tok == "--":
+            out.extend(args[i:])
+            break
+        p = by_flag.get(tok)
+        if p is None or not _takes_value(p):
+            out.append(tok)  # a positional, a flag, --opt=value, or an unknown option (Click reports it)
+            i += 1
+            continue
+        if not _is_paths_option(p):
+            out.extend(args[i:i + 2])
+            i += 2
+            continue
+        j = i + 1
+        while j < n and not _is_option_like(args[j]):
+            j += 1
+        values = args[i + 1:j]
+        if not values:  # "--demos" at the end or before another option: Click says it needs a value
+            out.append(tok)
+        for v in values:
+            out.extend([tok, v])
+        runs.append((tok, values))
+        i = j
+    return out, runs
+
+
+def _positionals_needed(command) -> list[tuple[str, int]]:
+    """(metavar, how many) of each required argument: 1, or 1 for "one or more" (nargs=-1)."""
+    need = []
+    for p in command.params:
+        if getattr(p, "param_type_name", "") == "argument" and p.required:
+            need.append(((p.name or "ARG").upper(), 1 if p.nargs == -1 else max(int(p.nargs), 1)))
+    return need
+
+
+def _count_positionals(command, args: list[str]) -> int:
+    by_flag = _options_by_flag(command)
+    count, i = 0, 0
+    while i < len(args):
+        tok = args[i]
+        if tok == "--":
+            return count + len(args) - i - 1
+        p = by_flag.get(tok)
+        if p is not None:
+            i += 2 if _takes_value(p) else 1
+            continue
+        if not _is_option_like(tok):
+            count += 1
+        i += 1
+    return count
+
+
+def _shorten(values: list[str], keep: int = 3) -> str:
+    if len(values) <= keep + 1:
+        return " ".join(shlex.quote(v) for v in values)
+    return " ".join(shlex.quote(v) for v in values[:keep - 1]) + " … " + shlex.quote(values[-1])
+
+
+def took_too_much(what: str, missing: int = 1, *, alternative: str | None = None) -> str | None:
+    """The message for "``what`` is missing" when a path list of the last command line took the
+    last ``missing`` paths after it: which flag took them, and the command line to write instead
+    (those paths moved before the list). The last list typed is meant; None when it took no more than
+    ``missing`` paths (then it cannot have taken them from something else)."""
+    if not _LAST["runs"] or _LAST["command"] is None:
+        return None
+    flag, run = _LAST["runs"][-1]
+    if len(run) <= missing:
+        return None
+    moved = run[-missing:]
+    kept = run[:-missing]
+    typed = list(_LAST["args"])
+    # rebuild the command line: the moved paths first, the list without them where it was
+    fixed: list[str] = []
+    i = 0
+    done = False
+    while i < len(typed):
+        tok = typed[i]
+        if not done and tok == flag and typed[i + 1:i + 1 + len(run)] == run:
+            fixed.append(f"{flag} {_shorten(kept)}")
+            i += 1 + len(run)
+            done = True
+            continue
+        fixed.append(shlex.quote(tok))
+        i += 1
+    suggestion = " ".join(["rbgp", _LAST["command"], *(shlex.quote(m) for m in moved), *fixed])
+    names = " ".join(moved)
+    msg = (f"{what} missing: {flag} takes every path after it up to the next option, so it also took {names}; "
+           f"if {'that is' if missing == 1 else 'those are'} meant as {what}, write {'it' if missing == 1 else 'them'} "
+           f"before the list: {suggestion}")
+    if alternative:
+        msg += f" ({alternative})"
+    return msg
+
+
+class RbgpGroup(TyperGroup):
+    """The ``rbgp`` group: rewrites each subcommand's arguments with :func:`expand_path_lists` and
+    stops with one clear line when a path list took a required argument."""
+
+    def resolve_command(self, ctx, args):
+        name, cmd, rest = super().resolve_command(ctx, args)
+        if cmd is None:
+            return name, cmd, rest
+        rewritten, runs = expand_path_lists(cmd, list(rest))
+        _LAST.update(command=name, args=list(rest), runs=runs)
+        if runs and "--help" not in rest:
+            have = _count_positionals(cmd, rewritten)
+            unfilled, missing = [], 0
+            for metavar, count in _positionals_needed(cmd):
+                take = min(have, count)
+                have -= take
+                if take < count:
+                    unfilled.append(metavar)
+                    missing += count - take
+            msg = took_too_much(" and ".join(unfilled), missing) if missing else None
+            if msg:
+                print(f"rbgp: error: {msg}", file=sys.stderr, flush=True)
+                raise typer.Exit(2)
+        return name, cmd, rewritten

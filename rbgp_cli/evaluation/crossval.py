@@ -1,0 +1,382 @@
+"""Held-out quality: cross-validation by demonstration (``rbgp crossval``).
+
+The product is only as good as the motions it generates from start poses it has not seen. For K
+folds of the demonstrations (seeded; a demonstration is never split across folds), each fold:
+
+1. trains a model on the other folds (exactly the options of ``rbgp train``);
+2. rolls out one trajectory from each held-out demonstration's own start pose for its own duration;
+3. **score**: the Bhattacharyya distance (MATH.md §9) of the generated set against the *training*
+   demonstrations; **floor**: the same for the held-out demonstrations themselves (same counts, same
+   resampling length, same training set): what a fresh real demonstration scores;
+4. **trajectory errors**: each generated trajectory against the held-out demonstration that starts
+   where it starts, on normalised time (T steps, slerp / linear): position RMSE (m) and rotation
+   RMSE (rad, the angle of R_genᵀ R_demo);
+5. **velocity RMSE** on the held-out training pairs (estimated exactly as the model's training pairs
+   were), with each prediction mapped to a world-frame twist (ω, v): ``velocity_rmse`` is the relative
+   error √((Σ‖Δω‖²/Σ‖ω‖² + Σ‖Δv‖²/Σ‖v‖²)/2) (1 = no better than predicting zero), with the raw
+   parts in rad/s and m/s.
+
+The **replay** peer needs no model: the training demonstration whose start pose is nearest (weighted
+chordal SE(3) distance, ρ1 = 0.7) moved rigidly so that it begins at the new start,
+T_new(t) = T_start_new · T_start_demo⁻¹ · T_demo(t).
+
+Overall numbers: score, floor, rotation and translation parts are means over folds (the ratio is
+score / floor of those means); trajectory and velocity errors are pooled over all held-out
+demonstrations; ``train_s`` is the mean training time per fold.
+
+Folds of every configuration run as independent tasks, in worker processes with single-threaded BLAS
+(``jobs``), or in this process (``jobs=1``); results do not depend on ``jobs``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rbgp_cli.dynamics.trajectory import Trajectory
+from rbgp_cli.errors import InputError, warn
+from rbgp_cli.progress import as_progress
+from rbgp_cli.evaluation.bhattacharyya import evaluate
+from rbgp_cli.evaluation.resample import resample_all
+from rbgp_cli.geometry.so3 import quat_conjugate, quat_multiply, rotate
+
+__all__ = [
+    "Config",
+    "make_folds",
+    "replay_nearest",
+    "trajectory_errors",
+    "velocity_errors",
+    "run_fold",
+    "crossval",
+    "REPLAY",
+]
+
+#: The representation name of the replay peer row.
+REPLAY = "replay"
+#: Rotation weight of the start-pose distance that picks the demonstration to replay.
+REPLAY_RHO = 0.7
+
+
+@dataclass(frozen=True)
+class Config:
+    """One row of the table: a representation and kernel (or the replay peer) and train options."""
+
+    representation: str
+    kernel: str | None = None
+    train: dict = field(default_factory=dict)
+    label: str = ""
+
+    @property
+    def name(self) -> str:
+        if self.label:
+            return self.label
+        return self.representation if self.kernel is None else f"{self.representation} {self.kernel}"
+
+
+def make_folds(n: int, k: int, seed: int = 0) -> list[np.ndarray]:
+    """Held-out demonstration indices of ``k`` folds of ``n`` demonstrations (seeded permutation,
+    split into k parts whose sizes differ by at most one; each part sorted). Every index is held out
+    exactly once."""
+    if k < 2:
+        raise InputError(f"--folds must be at least 2, got {k}")
+    if n < k:
+        raise InputError(f"{n} demonstrations cannot make {k} folds", hint=f"use --folds {max(2, n)} or fewer"
+                         if n >= 2 else "cross-validation needs at least 2 demonstrations")
+    perm = np.random.default_rng(np.random.SeedSequence([int(seed), 2024])).permutation(n)
+    return [np.sort(part) for part in np.array_split(perm, k)]
+
+
+# --------------------------------------------------------------------------------------------- peers
+def replay_nearest(train: list[Trajectory], quat0: np.ndarray, pos0: np.ndarray, rho_rot: float = REPLAY_RHO) -> Trajectory:
+    """The training demonstration with the nearest start pose, moved rigidly to start at (quat0, pos0).
+
+    Nearest by d² = ρ1·d_ch² + (1 − ρ1)·‖Δp‖² (chordal rotation distance d_ch = 2·sqrt(1 − ⟨q1, q2⟩²),
+    MATH.md §5). The motion is carried by the rigid transform that maps the demonstration's start pose
+    onto the new one: R(t) ↦ R_s' R_sᵀ R(t), p(t) ↦ R_s' R_sᵀ (p(t) − p_s) + p_s'.
+    """
+    starts_q = np.array([tr.quat[0] for tr in train])
+    starts_p = np.array([tr.position[0] for tr in train])
+    c = np.clip(np.abs(starts_q @ quat0), 0.0, 1.0)
+    d2 = rho_rot * 4.0 * (1.0 - c * c) + (1.0 - rho_rot) * np.sum((starts_p - pos0) ** 2, axis=1)
+    src = train[int(np.argmin(d2))]
+    dq = quat_multiply(quat0, quat_conjugate(src.quat[0]))  # R_s' R_sᵀ
+    q = quat_multiply(np.broadcast_to(dq, src.quat.shape), src.quat)
+    p = rotate(np.broadcast_to(dq, src.quat.shape), src.position - src.position[0]) + pos0
+    return Trajectory(src.t - src.t[0], q, p, name=f"replay of {src.name}")
+
+
+# --------------------------------------------------------------------------------------------- errors
+def trajectory_errors(generated: list[Trajectory], reference: list[Trajectory], T: int) -> tuple[float, float, int]:
+    """Sums of squared position (m²) and rotation (rad²) errors between paired trajectories resampled
+    to ``T`` steps of normalised time, and the number of steps summed. RMSE = sqrt(sum / count)."""
+    qg, pg = resample_all(generated, T)  # (M, T, 4), (M, T, 3)
+    qr, pr = resample_all(reference, T)
+    dq = quat_multiply(quat_conjugate(qr), qg)
+    ang = 2.0 * np.arctan2(np.linalg.norm(dq[..., :3], axis=-1), np.abs(dq[..., 3]))
+    return float(np.sum((pg - pr) ** 2)), float(np.sum(ang**2)), int(qg.shape[0] * T)
+
+
+def velocity_errors(model, demos: list[Trajectory]) -> dict:
+    """Squared-error sums of the model's world-frame twist predictions on the held-out pairs of
+    ``demos`` (made with the model's own velocity estimator), and the sums of the pairs' squares."""
+    from rbgp_cli.dynamics.velocities import estimate_velocities
+
+    rep = model.representation
+    sums = {"dw2": 0.0, "dv2": 0.0, "w2": 0.0, "v2": 0.0, "pairs": 0}
+    states, quats, xis, scale = [], [], [], []
+    for tr in demos:
+        D = max(tr.duration, 1e-9)
+        for seg in estimate_velocities(tr, model.velocity):
+            K = len(seg.xi)
+            X = rep.state_along(seg.traj.quat, seg.traj.position)[:K]
+            tau = seg.traj.t[:K] - seg.t0
+            if model.time_input == "phase":
+                X = np.concatenate([X, tau[:, None] / D], axis=1)
+            elif model.time_input == "seconds":
+                X = np.concatenate([X, tau[:, None]], axis=1)
+            states.append(X)
+            quats.append(seg.traj.quat[:K])
+            xis.append(seg.xi)
+            scale.append(np.full(K, D if model.time_input == "phase" else 1.0))
+    if not states:
+        return sums
+    X, Q, XI = np.concatenate(states), np.concatenate(quats), np.concatenate(xis)
+    out = model.predict_output(X) / np.concatenate(scale)[:, None]  # per second
+    tw = rep.twist_from_output(X[:, : model.pose_dims], Q, out)
+    sums["dw2"] = float(np.sum((tw[:, :3] - XI[:, :3]) ** 2))
+    sums["dv2"] = float(np.sum((tw[:, 3:] - XI[:, 3:]) ** 2))
+    sums["w2"] = float(np.sum(XI[:, :3] ** 2))
+    sums["v2"] = float(np.sum(XI[:, 3:] ** 2))
+    sums["pairs"] = int(len(X))
+    return sums
+
+
+# --------------------------------------------------------------------------------------------- one fold
+def _generate(config: Config, train: list[Trajectory], test: list[Trajectory]):
+    """Generated trajectories (one per held-out demonstration), training seconds, the model or None."""
+    if config.representation == REPLAY:
+        return [replay_nearest(train, tr.quat[0], tr.position[0]) for tr in test], 0.0, None
+    from rbgp_cli.dynamics.model import train_model
+    from rbgp_cli.dynamics.rollout import rollout
+
+    t0 = time.perf_counter()
+    model = train_model(train, representation=config.representation, kernel=config.kernel, **config.train)
+    train_s = time.perf_counter() - t0
+    steps = np.array([max(1, int(round(tr.duration / model.dt))) for tr in test])
+    q0 = np.array([tr.quat[0] for tr in test])
+    p0 = np.array([tr.position[0] for tr in test])
+    res = rollout(model, q0, p0, int(steps.max()), with_std=False, durations=steps * model.dt)
+    gen = [Trajectory(res.t[: s + 1], res.quat[b, : s + 1], res.position[b, : s + 1], name=f"from {test[b].name}")
+           for b, s in enumerate(steps)]
+    return gen, train_s, model
+
+
+def run_fold(config: Config, train: list[Trajectory], test: list[Trajectory], *, length: int | None = None,
+             covariance: str = "diag") -> dict:
+    """Train (unless replay), generate from the held-out starts, and score one fold (plain data)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        t0 = time.perf_counter()
+        gen, train_s, model = _generate(config, train, test)
+        gen_s = time.perf_counter() - t0 - train_s
+        score = evaluate(gen, train, length=length, covariance=covariance, sample_size="record")
+        T = score.steps
+        sp, sr, count = trajectory_errors(gen, test, T)
+        vel = velocity_errors(model, test) if model is not None else None
+    out = {
+        "score": score.mean, "rotation": score.rotation, "translation": score.translation,
+        "reliable": bool(getattr(score, "reliable", True)),
+        "steps": T, "position_sq": sp, "rotation_sq": sr, "count": count,
+        "train_s": train_s, "rollout_s": gen_s, "velocity": vel,
+        "warnings": sorted({str(w.message) for w in caught} | set(score.warnings)),
+    }
+    if model is not None:
+        out["points"] = int(model.summary.get("points", 0))
+    return out
+
+
+def _worker_init() -> None:
+    """Worker processes: BLAS single-threaded (the folds themselves are the parallelism)."""
+    try:
+        from threadpoolctl import threadpool_limits
+
+        _worker_init.limits = threadpool_limits(limits=1)  # kept alive for the worker's lifetime
+    except ImportError:  # pragma: no cover
+        pass
+
+
+def _task(args):
+    config, train, test, length, covariance = args
+    return run_fold(config, train, test, length=length, covariance=covariance)
+
+
+def _run_in_processes(args: list, n_jobs: int):
+    """Yield (index, result) of ``_task(a)`` for every ``a`` in ``args`` as they finish, in ``n_jobs``
+    fresh (spawned) worker processes with single-threaded BLAS. On an error or Ctrl-C the pending
+    tasks are cancelled and the workers stopped."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    import signal
+    import threading
+
+    ex = ProcessPoolExecutor(max_workers=n_jobs, mp_context=multiprocessing.get_context("spawn"), initializer=_worker_init)
+    previous = None
+    if threading.current_thread() is threading.main_thread():  # a kill (SIGTERM) stops the workers too
+        def _stop(signum, frame):
+            raise SystemExit(128 + signum)
+
+        previous = signal.signal(signal.SIGTERM, _stop)
+    try:
+        futs = {ex.submit(_task, a): i for i, a in enumerate(args)}
+        for fut in as_completed(futs):
+            yield futs[fut], fut.result()
+    except BaseException:
+        workers = list((getattr(ex, "_processes", None) or {}).values())
+        ex.shutdown(wait=False, cancel_futures=True)
+        for proc in workers:  # do not leave fits running
+            proc.terminate()
+        raise
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+    ex.shutdown(wait=True)
+
+
+# --------------------------------------------------------------------------------------------- all folds
+def _pooled_rmse(total: float, count: int) -> float:
+    return math.sqrt(total / count) if count else float("nan")
+
+
+def _velocity_summary(parts: list[dict]) -> dict:
+    if not parts or any(p is None for p in parts):
+        return {"velocity_rmse": None, "velocity_rmse_angular": None, "velocity_rmse_linear": None}
+    s = {k: sum(p[k] for p in parts) for k in ("dw2", "dv2", "w2", "v2", "pairs")}
+    if s["pairs"] == 0:
+        return {"velocity_rmse": None, "velocity_rmse_angular": None, "velocity_rmse_linear": None}
+    rel_w = s["dw2"] / s["w2"] if s["w2"] > 0 else float("nan")
+    rel_v = s["dv2"] / s["v2"] if s["v2"] > 0 else float("nan")
+    return {
+        "velocity_rmse": math.sqrt(0.5 * (rel_w + rel_v)),
+        "velocity_rmse_angular": math.sqrt(s["dw2"] / s["pairs"]),
+        "velocity_rmse_linear": math.sqrt(s["dv2"] / s["pairs"]),
+    }
+
+
+def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[dict]) -> dict:
+    per_fold = []
+    for i, (test_idx, floor, r) in enumerate(zip(folds, floors, results)):
+        entry = {
+            "fold": i, "n_test": int(len(test_idx)),
+            "score": r["score"], "floor": floor.mean, "ratio": r["score"] / floor.mean if floor.mean > 0 else float("inf"),
+            "rotation": r["rotation"], "translation": r["translation"],
+            "floor_rotation": floor.rotation, "floor_translation": floor.translation,
+            "position_rmse": _pooled_rmse(r["position_sq"], r["count"]),
+            "rotation_rmse": _pooled_rmse(r["rotation_sq"], r["count"]),
+            **_velocity_summary([r["velocity"]]),
+            "train_s": r["train_s"], "rollout_s": r["rollout_s"],
+            "reliable": bool(r.get("reliable", True) and floor.reliable),
+        }
+        if "points" in r:
+            entry["points"] = r["points"]
+        per_fold.append(entry)
+    score = float(np.mean([r["score"] for r in results]))
+    floor = float(np.mean([f.mean for f in floors]))
+    count = sum(r["count"] for r in results)
+    return {
+        "representation": config.representation,
+        "kernel": config.kernel,
+        "label": config.name,
+        "score": score,
+        "floor": floor,
+        "ratio": score / floor if floor > 0 else float("inf"),
+        "rotation": float(np.mean([r["rotation"] for r in results])),
+        "translation": float(np.mean([r["translation"] for r in results])),
+        "position_rmse": _pooled_rmse(sum(r["position_sq"] for r in results), count),
+        "rotation_rmse": _pooled_rmse(sum(r["rotation_sq"] for r in results), count),
+        **_velocity_summary([r["velocity"] for r in results]),
+        "train_s": float(np.mean([r["train_s"] for r in results])),
+        "reliable": all(e["reliable"] for e in per_fold),
+        "per_fold": per_fold,
+    }
+
+
+def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, seed: int = 0,
+             jobs: int | None = None, length: int | None = None, covariance: str = "diag",
+             progress=None) -> dict:
+    """Cross-validate every configuration on the same folds (see the module docstring).
+
+    Parameters
+    ----------
+    demos : clean demonstrations (at least ``folds``)
+    configs : rows to compute (model configurations and/or ``Config(REPLAY)``)
+    folds, seed : K folds of a seeded permutation of the demonstrations
+    jobs : worker processes (None: one per core, at most the number of tasks; 1: in this process)
+    length, covariance : passed to :func:`~rbgp_cli.evaluation.bhattacharyya.evaluate`
+    progress : a :class:`rbgp_cli.progress.Progress` (or callable(str), or None): a task over the fits,
+        and one message per finished fit
+
+    Returns ``{"folds": K, "seed", "demonstrations", "fold_sizes", "results": [row, ...]}`` with the
+    rows sorted by score / floor (best first); each row as in the module docstring.
+    """
+    demos = list(demos)
+    fold_idx = make_folds(len(demos), folds, seed)
+    splits = []
+    for test_idx in fold_idx:
+        held = set(test_idx.tolist())
+        train = [d for i, d in enumerate(demos) if i not in held]
+        test = [demos[i] for i in test_idx]
+        splits.append((train, test))
+    smallest = min(len(f) for f in fold_idx)
+    if smallest < 2:
+        warn(f"with {len(fold_idx)} folds of {len(demos)} demonstrations some folds hold out only one: a score "
+             "of one trajectory rests on the ridge variance, not on the motions; use --folds "
+             f"{max(2, len(demos) // 2)} or fewer (at least 2 held out per fold)")
+    floors = [evaluate(test, train, length=length, covariance=covariance, sample_size="record") for train, test in splits]
+    tasks = [(c, f) for c in configs for f in range(len(splits))]
+    args = [(c, splits[f][0], splits[f][1], length, covariance) for c, f in tasks]
+    n_jobs = jobs if jobs is not None else min(len(tasks), os.cpu_count() or 1)
+    n_jobs = max(1, min(int(n_jobs), len(tasks)))
+    results: list = [None] * len(tasks)
+    caught: set = set()
+    progress = as_progress(progress)
+    progress(f"{len(demos)} demonstrations in {len(splits)} folds ({', '.join(str(len(f)) for f in fold_idx)} held out); "
+             f"{len(configs)} configuration{'s' * (len(configs) != 1)}, {len(tasks)} fits"
+             + (f" in {n_jobs} worker processes" if n_jobs > 1 else ""))
+
+    with progress.task("cross-validation", total=len(tasks), unit="fits") as bar:
+        def done(i, r):
+            results[i] = r
+            caught.update(r.get("warnings", []))
+            c, f = tasks[i]
+            msg = (f"{c.name}, fold {f + 1}/{len(splits)}: score {r['score']:.3f} (floor {floors[f].mean:.3f})"
+                   + (f", trained in {r['train_s']:.1f} s" if r["train_s"] else ""))
+            bar.update(status=msg)
+            bar.advance()
+            progress(msg)
+
+        if n_jobs == 1:
+            for i, a in enumerate(args):
+                done(i, _task(a))
+        else:
+            for i, r in _run_in_processes(args, n_jobs):
+                done(i, r)
+    rows = []
+    for ci, c in enumerate(configs):
+        res = [results[ci * len(splits) + f] for f in range(len(splits))]
+        rows.append(_row(c, fold_idx, floors, res))
+    rows.sort(key=lambda r: (r["ratio"], r["label"]))
+    return {
+        "folds": len(splits),
+        "seed": int(seed),
+        "demonstrations": len(demos),
+        "fold_sizes": [int(len(f)) for f in fold_idx],
+        "floor": float(np.mean([f.mean for f in floors])),
+        "results": rows,
+        "warnings": sorted(caught | {w for f in floors for w in f.warnings}),
+    }

@@ -1,0 +1,309 @@
+"""Every command line in the README's ```bash blocks runs, as typed, through a real bash.
+
+Each example line is run with ``bash -e -o pipefail -c LINE`` in one working folder (in README order,
+so files written by an example, e.g. ``shoe.rbgp``, are there for the next ones), with
+``sample_data/`` linked into it and this test environment's ``rbgp`` first on PATH. Unquoted globs
+are expanded by bash, pipes and redirections are bash's own. Four generic rules keep the run fast and
+self-contained; nothing in them knows a particular example:
+
+1. **Inputs that do not exist are made first**, from the sample data, by what the name looks like:
+   ``DIR/`` or ``DIR/*.csv`` → a folder of three sample demonstrations (CSV), ``*.csv`` → a sample
+   demonstration (it also serves as poses, starts or generated trajectories), ``*.tsv`` → a QTM
+   export of a sample demonstration, ``*.mcap`` → the sample MCAP, ``*.rbgp`` → a small model. Only
+   relative names inside the folder are made, never values of output options or redirections.
+2. **Speed options are appended** to every ``rbgp`` command (also after ``nice -n 10`` and the like)
+   that accepts them and does not set them (:data:`SPEED`): fewer training points and starts,
+   ``--quick``; and typed counts of repetitions above :data:`CAPS` are lowered to it. The command
+   line is otherwise the README's.
+3. **Installation steps** (``python3 -m venv .venv``, ``.venv/bin/pip install ...``) are the ones that
+   made this test environment: they are left out of a ``&&`` chain, and ``.venv/bin/X`` is this
+   environment's ``X``.
+4. **The test-suite command** (it runs pytest) is not run from inside pytest: it must be exactly the
+   command ``.ci/run`` runs, so CI runs it.
+
+To keep a new README example runnable: name its inputs like the rules above (or after files an
+earlier example writes), and if it is slow, give its command an option in :data:`SPEED` (or add the
+command's own fast option there, or a cap for a count it types to :data:`CAPS`); a new ``rbgp``
+subcommand needs nothing else.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import re
+import shlex
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+README = REPO / "README.md"
+SAMPLE = REPO / "sample_data"
+BIN = Path(sys.executable).parent
+
+#: Appended to an ``rbgp`` command (option, value or None for a flag) when the command has the option
+#: and the example does not set it: a smoke-test size for training, the demo's quick mode.
+SPEED = (("--max-points", "120"), ("--restarts", "1"), ("--quick", None))
+#: Typed values above these are lowered to them (repetitions of a benchmark).
+CAPS = {"--repeats": 2}
+#: Values of these options are outputs: never made beforehand.
+OUTPUT_OPTIONS = {"-o", "--output", "--out", "--per-step", "--plot", "--rerun", "--markdown"}
+#: File name endings that make an argument look like a path.
+PATH_SUFFIXES = (".csv", ".tsv", ".mcap", ".rbgp", ".txt")
+
+
+# --------------------------------------------------------------------------------------------------
+# reading the README
+def readme_examples(text: str) -> list[str]:
+    """The command lines of every ```bash block: one per line (``\\`` continuations joined), comment-
+    only and blank lines skipped."""
+    out = []
+    for block in re.findall(r"^```(?:bash|sh|shell)[ \t]*\n(.*?)^```", text, flags=re.M | re.S):
+        joined = re.sub(r"\\\n", " ", block)
+        for line in joined.splitlines():
+            if line.strip() and not line.lstrip().startswith("#"):
+                out.append(line.strip())
+    return out
+
+
+def shell_parts(line: str) -> tuple[list[tuple[int, int, int]], int]:
+    """Where the simple commands of ``line`` are: per command (start, end of its words, end), split at
+    unquoted ``|``, ``||``, ``&&``, ``;``; its words end at the first unquoted redirection. Also the
+    position where an unquoted comment starts (len(line) if none)."""
+    parts = []
+    quote = None
+    start, words_end = 0, None
+    i, n = 0, len(line)
+    comment = n
+    while i < n:
+        c = line[i]
+        if quote:
+            if c == "\\" and quote == '"':
+                i += 2
+                continue
+            if c == quote:
+                quote = None
+            i += 1
+            continue
+        if c in "'\"":
+            quote = c
+        elif c == "\\":
+            i += 2
+            continue
+        elif c == "#" and (i == 0 or line[i - 1].isspace()):
+            comment = i
+            break
+        elif line.startswith(("&&", "||"), i) or c in "|;":
+            parts.append((start, words_end if words_end is not None else i, i))
+            i += 2 if line.startswith(("&&", "||"), i) else 1
+            start, words_end = i, None
+            continue
+        elif c in "<>" and words_end is None:
+            j = i
+            while j > start and line[j - 1].isdigit():
+                j -= 1
+            words_end = j if j == start or line[j - 1].isspace() else i
+        i += 1
+    parts.append((start, words_end if words_end is not None else comment, comment))
+    return parts, comment
+
+
+def is_install_step(words: list[str]) -> bool:
+    if words[:3] in (["python3", "-m", "venv"], ["python", "-m", "venv"]):
+        return True
+    return len(words) >= 2 and Path(words[0]).name in ("pip", "pip3") and words[1] == "install"
+
+
+def runs_tests(line: str) -> bool:
+    return "pytest" in line
+
+
+# --------------------------------------------------------------------------------------------------
+# making the example runnable
+def rbgp_words(words: list[str]) -> list[str] | None:
+    """The words from ``rbgp`` on (after wrappers such as ``nice -n 10`` or ``time``), or None."""
+    for i, w in enumerate(words):
+        if Path(w).name == "rbgp":
+            return words[i:]
+    return None
+
+
+def _options_of(words: list[str]) -> set[str]:
+    """Every option the (sub)command named by ``rbgp ...`` words accepts (nested groups followed)."""
+    import typer
+
+    from rbgp_cli.cli.app import app
+
+    cmd = typer.main.get_command(app)
+    for w in words[1:]:
+        if w.startswith("-") or not hasattr(cmd, "commands"):
+            continue
+        nxt = cmd.commands.get(w)
+        if nxt is None:
+            break
+        cmd = nxt
+    if hasattr(cmd, "commands"):
+        return set()
+    return {o for p in cmd.params for o in [*getattr(p, "opts", []), *getattr(p, "secondary_opts", [])]}
+
+
+def speed_options(words: list[str]) -> list[str]:
+    words = rbgp_words(words)
+    if words is None:
+        return []
+    have = _options_of(words)
+    typed = {w.split("=", 1)[0] for w in words}
+    extra = []
+    for opt, value in SPEED:
+        if opt in have and opt not in typed:
+            extra += [opt] if value is None else [opt, value]
+    return extra
+
+
+def inputs_of(words: list[str]) -> list[str]:
+    """Relative path-like arguments of an ``rbgp`` command that are not values of output options."""
+    out = []
+    for prev, w in zip(["", *words[:-1]], words):
+        if prev in OUTPUT_OPTIONS or w.startswith("-") or w.startswith("/") or ".." in Path(w).parts:
+            continue
+        if w.endswith("/") or w.lower().endswith(PATH_SUFFIXES) or any(ch in w for ch in "*?["):
+            out.append(w)
+    return out
+
+
+def make_input(name: str, folder: Path, model_path: Path) -> None:
+    """Create ``name`` (relative to ``folder``) from the sample data unless something matches it."""
+    if glob.glob(str(folder / name)) or (folder / name).exists():
+        return
+    pattern = any(ch in name for ch in "*?[")
+    if name.endswith("/") or pattern:
+        directory = folder / (Path(name).parent if pattern else Path(name))
+        directory.mkdir(parents=True, exist_ok=True)
+        if name.lower().endswith(".mcap"):
+            shutil.copy(SAMPLE / "shoe_demos.mcap", directory)
+        else:
+            for f in sorted((SAMPLE / "csv").glob("*.csv"))[:3]:
+                shutil.copy(f, directory)
+        return
+    target = folder / name
+    target.parent.mkdir(parents=True, exist_ok=True)
+    low = name.lower()
+    if low.endswith(".mcap"):
+        shutil.copy(SAMPLE / "shoe_demos.mcap", target)
+    elif low.endswith(".rbgp"):
+        shutil.copy(model_path, target)
+    elif low.endswith(".tsv"):
+        from rbgp_cli.io.export import write_qtm_tsv
+        from rbgp_cli.workflows import load_demonstrations
+
+        demos, _, _ = load_demonstrations([str(SAMPLE / "csv" / "shoe_01.csv")])
+        write_qtm_tsv(demos, target)
+    else:
+        shutil.copy(SAMPLE / "csv" / "shoe_01.csv", target)
+
+
+def runnable(line: str, folder: Path, model_path: Path) -> str:
+    """The example line with installation steps left out, ``.venv/bin/`` pointing at this environment,
+    speed options appended, and its missing inputs made in ``folder``."""
+    parts, comment = shell_parts(line)
+    pieces = []
+    for k, (start, words_end, end) in enumerate(parts):
+        words = shlex.split(line[start:words_end])
+        if is_install_step(words):
+            continue
+        seg = line[start:end].strip()
+        rbgp = rbgp_words(words)
+        if rbgp:
+            for name in inputs_of(rbgp[1:]):
+                make_input(name, folder, model_path)
+            head = line[start:words_end].rstrip()
+            for opt, cap in CAPS.items():
+                head = re.sub(rf"(?<!\S){re.escape(opt)}(\s+|=)(\d+)(?!\S)",
+                              lambda m: f"{opt}{m.group(1)}{min(int(m.group(2)), cap)}", head)
+            extra = speed_options(words)
+            seg = (head + "".join(" " + e for e in extra) + " " + line[words_end:end]).strip()
+        sep = line[end:end + 2] if k + 1 < len(parts) else ""
+        sep = sep if sep in ("&&", "||") else sep[:1]
+        pieces.append((seg, sep))
+    text = ""
+    for seg, sep in pieces:
+        text += seg + (f" {sep} " if sep else "")
+    text = re.sub(r"\s*(&&|\|\||;)\s*$", "", text.strip())
+    return re.sub(r"(?<![\w/.])\.venv/bin/", str(BIN) + "/", text)
+
+
+# --------------------------------------------------------------------------------------------------
+EXAMPLES = readme_examples(README.read_text(encoding="utf-8"))
+
+
+def test_the_readme_has_examples_and_its_test_command_is_what_ci_runs():
+    assert len(EXAMPLES) >= 15, EXAMPLES
+    ci = (REPO / ".ci" / "run").read_text(encoding="utf-8")
+    ci_commands = [ln.strip() for ln in ci.splitlines() if "pytest" in ln]
+    tests = [e for e in EXAMPLES if runs_tests(e)]
+    assert tests and all(t in ci_commands for t in tests), (tests, ci_commands)
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("readme")
+    (folder / "sample_data").symlink_to(SAMPLE, target_is_directory=True)
+    return folder
+
+
+@pytest.fixture(scope="module")
+def small_model(tmp_path_factory):
+    from typer.testing import CliRunner
+
+    from rbgp_cli.cli.app import app
+
+    path = tmp_path_factory.mktemp("model") / "small.rbgp"
+    res = CliRunner().invoke(app, ["-q", "train", str(SAMPLE / "csv"), "-o", str(path), "--max-points", "120",
+                                   "--restarts", "1", "--share-hyperparameters"])
+    assert res.exit_code == 0, res.stderr
+    return path
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("line", [e for e in EXAMPLES if not runs_tests(e)],
+                         ids=lambda e: " ".join(e.split()[:4])[:60])
+def test_readme_example_runs(line, workdir, small_model):
+    command = runnable(line, workdir, small_model)
+    assert command, line
+    env = dict(os.environ, PATH=f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}", COLUMNS="120")
+    res = subprocess.run(["bash", "-e", "-o", "pipefail", "-c", command], cwd=workdir, env=env,
+                         capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, f"{line}\nran: {command}\nstderr:\n{res.stderr[-3000:]}"
+    assert "Traceback" not in res.stderr and "rbgp: error" not in res.stderr, res.stderr[-3000:]
+
+
+# --------------------------------------------------------------------------------------------------
+# the rules themselves
+def test_rules_keep_the_command_line_and_make_what_is_missing(tmp_path, small_model):
+    (tmp_path / "sample_data").symlink_to(SAMPLE, target_is_directory=True)
+    line = "rbgp train data/*.csv -o m.rbgp --json > summary.json   # a comment | not a pipe"
+    cmd = runnable(line, tmp_path, small_model)
+    assert cmd == "rbgp train data/*.csv -o m.rbgp --json --max-points 120 --restarts 1 > summary.json"
+    assert sorted(p.name for p in (tmp_path / "data").iterdir()) == ["shoe_01.csv", "shoe_02.csv", "shoe_03.csv"]
+    assert not (tmp_path / "m.rbgp").exists() and not (tmp_path / "summary.json").exists()
+
+    cmd = runnable("rbgp rollout m2.rbgp --count 3 -o - | rbgp evaluate - --demos sample_data/csv --plot f.png",
+                   tmp_path, small_model)
+    assert cmd == "rbgp rollout m2.rbgp --count 3 -o - | rbgp evaluate - --demos sample_data/csv --plot f.png"
+    assert (tmp_path / "m2.rbgp").read_bytes() == small_model.read_bytes() and not (tmp_path / "f.png").exists()
+
+    cmd = runnable('python3 -m venv .venv && .venv/bin/pip install . && .venv/bin/rbgp demo', tmp_path, small_model)
+    assert cmd == f"{BIN}/rbgp demo --quick"
+    cmd = runnable("rbgp train sample_data/shoe_demos.mcap --topic '/shoe/*' -o s.rbgp", tmp_path, small_model)
+    assert cmd.endswith("--topic '/shoe/*' -o s.rbgp --max-points 120 --restarts 1")
+    assert not Path("/shoe").exists()
+    cmd = runnable("nice -n 10 rbgp bench paper --repeats 300 --seed 0 --json > p.json", tmp_path, small_model)
+    assert cmd == "nice -n 10 rbgp bench paper --repeats 2 --seed 0 --json --quick > p.json"
+    runnable("rbgp inspect export.tsv poses.csv d/", tmp_path, small_model)
+    assert (tmp_path / "export.tsv").read_text().startswith("FILE_VERSION")
+    assert (tmp_path / "poses.csv").read_text().startswith("t,x,y,z")
+    assert len(list((tmp_path / "d").glob("*.csv"))) == 3
