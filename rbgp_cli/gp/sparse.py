@@ -722,7 +722,7 @@ def fit_sparse_gp(
                 st["theta"], st["kinds"], st["f"], st["bound_theta"] = [best[0]], ["previous stage"], best[1], best[0]
                 st["stages"].append({"points": int(len(idx)), "objective": "bound", "evaluations": count[0],
                                      "value": float(best[1])})
-                if last:
+                if size >= n:
                     st["evals"] = count[0]
                 st["seconds"] += time.perf_counter() - t0
                 task.advance()
