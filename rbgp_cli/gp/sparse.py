@@ -134,10 +134,13 @@ def select_inducing(X: np.ndarray, M: int, kernel: Kernel, seed: int = 0, method
         raise ValueError("at least one inducing input is needed")
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 12]))
     chosen = [int(rng.integers(n))]
-    sq = np.einsum("ij,ij->i", E, E)
-    d2 = np.maximum(sq + sq[chosen[0]] - 2.0 * (E @ E[chosen[0]]), 0.0)
-    d2[chosen[0]] = 0.0
-    scale = float(np.max(sq)) + 1.0
+
+    def sqdist(i):  # ‖E − E_i‖² directly: exactly 0 for duplicate rows
+        D = E - E[i]
+        return np.einsum("ij,ij->i", D, D)
+
+    d2 = sqdist(chosen[0])
+    scale = float(np.max(np.einsum("ij,ij->i", E, E))) + 1.0
     for _ in range(M - 1):
         total = float(np.sum(d2))
         if not total > 1e-24 * scale * n:  # every remaining row duplicates a chosen one
@@ -150,8 +153,7 @@ def select_inducing(X: np.ndarray, M: int, kernel: Kernel, seed: int = 0, method
             if d2[i] <= 0.0:  # round-off at the end of the cumulative sum
                 i = int(np.argmax(d2))
         chosen.append(i)
-        np.minimum(d2, np.maximum(sq + sq[i] - 2.0 * (E @ E[i]), 0.0), out=d2)
-        d2[i] = 0.0
+        np.minimum(d2, sqdist(i), out=d2)
     return np.array(sorted(chosen), dtype=np.int64)
 
 
