@@ -64,7 +64,8 @@ def train(
     noise: Annotated[str, typer.Option(help="'learn', or a fixed noise standard deviation (the paper fixes 1).", rich_help_panel=_TRAIN)] = "learn",
     share_hyperparameters: Annotated[bool, typer.Option("--share-hyperparameters", help="One set of hyperparameters for all outputs (faster).", rich_help_panel=_TRAIN)] = False,
     subsample: Annotated[float, typer.Option(help="Random fraction of the training pairs to use (the paper: 0.1).", rich_help_panel=_TRAIN)] = 0.1,
-    max_points: Annotated[int, typer.Option(min=2, help="At most this many training points.", rich_help_panel=_TRAIN)] = 2000,
+    max_points: Annotated[int, typer.Option(min=2, help="The exact GP's largest training set: above it a sparse GP uses all points (see --inducing).", rich_help_panel=_TRAIN)] = 2000,
+    inducing: Annotated[Optional[int], typer.Option(min=0, help="Sparse GP (Titsias 2009) with this many inducing poses on all training points; 0 forces the exact GP (on at most --max-points). Default: exact up to --max-points points, sparse with 512 above.", rich_help_panel=_TRAIN)] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print the summary as JSON on stdout.", rich_help_panel=_OUT)] = False,
     rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd) of the demonstrations and training points.", rich_help_panel=_OUT)] = None,
     up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.", rich_help_panel=_OUT)] = "z",
@@ -91,6 +92,7 @@ def train(
         demos, output, options=opts, max_gap=max_gap, progress=progress,
         representation=representation, kernel=kernel, rho_rot=rho, restarts=restarts, seed=seed, noise=noise_v,
         shared=share_hyperparameters, subsample=subsample, max_points=max_points, explore_size=explore_size,
+        inducing=inducing,
     )
     if rerun:
         from rbgp_cli.viz.recording import record_training

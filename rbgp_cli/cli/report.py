@@ -18,6 +18,11 @@ def format_train_summary(s: dict) -> str:
         f"demonstrations: {s['demos']}   pairs: {s['pairs']}   training points: {s['points']}"
         f"   hyperparameters: {'shared' if s['shared_hyperparameters'] else 'per output'}",
     ]
+    gp = s.get("gp") or {}
+    if gp.get("type") == "sparse":
+        lines.append(f"sparse GP, {gp['inducing']} inducing poses (NLML column: the negative variational bound): {gp['reason']}")
+    elif gp.get("reason"):
+        lines.append(f"exact GP: {gp['reason']}")
     for o in s["outputs"]:
         flags = []
         if o["jitter"] > 0:

@@ -18,7 +18,7 @@ from rbgp_cli.errors import InputError
 from rbgp_cli.gp.exact import GaussianProcess, fit_gp
 from rbgp_cli.kernels import DotProduct, Kernel, SquaredExponential
 
-__all__ = ["MotionModel", "make_kernel", "training_set", "train_model", "KERNELS"]
+__all__ = ["MotionModel", "make_kernel", "training_set", "train_model", "choose_gp", "KERNELS"]
 
 KERNELS = ("se", "se-chordal", "dot")
 #: What the GP sees besides the pose: nothing (the paper), seconds since the start, or the phase.
@@ -270,6 +270,40 @@ def training_set(trajs: list[Trajectory], representation: Representation, *, sub
                             "segments": segments}
 
 
+def choose_gp(points: int, inducing: int | None, max_points: int | None, kernel: str) -> dict:
+    """Which GP to train on ``points`` training points (after ``--subsample``), and why.
+
+    ``inducing`` None (automatic): the exact GP up to ``max_points`` points; above, a sparse GP with
+    DEFAULT_INDUCING inducing poses on all of them, so that none is thrown away (the dot-product kernel
+    always stays exact: its Gram matrix has rank 6). 0: the exact GP (capped at ``max_points``).
+    M > 0: a sparse GP with M inducing poses (at most ``points``).
+    Returns {"type": "exact" | "sparse", "inducing": M or None, "forced": bool, "reason": str}.
+    """
+    from rbgp_cli.gp.sparse import DEFAULT_INDUCING
+
+    if inducing is not None and int(inducing) < 0:
+        raise InputError(f"--inducing must be 0 (exact GP) or a positive number of inducing poses, got {inducing}")
+    if inducing:
+        if kernel == "dot":
+            raise InputError("--inducing needs a squared-exponential kernel: the dot-product kernel's Gram matrix "
+                             "has rank 6, so a sparse approximation gains nothing", hint="use --kernel se or se-chordal")
+        M = min(int(inducing), points)
+        return {"type": "sparse", "inducing": M, "forced": True,
+                "reason": f"--inducing {int(inducing)}: {M} inducing poses for all {points} training points"}
+    if inducing == 0:
+        capped = max_points is not None and points > max_points
+        return {"type": "exact", "inducing": None, "forced": True,
+                "reason": "--inducing 0" + (f": exact GP on a random {max_points} of {points} training points" if capped else "")}
+    if max_points is not None and points > max_points and kernel != "dot":
+        M = min(DEFAULT_INDUCING, points)
+        return {"type": "sparse", "inducing": M, "forced": False,
+                "reason": f"{points} training points exceed --max-points {max_points}, the exact GP's limit: a sparse GP "
+                          f"with {M} inducing poses uses all of them (--inducing 0: the exact GP on a random {max_points})"}
+    capped = max_points is not None and points > max_points
+    return {"type": "exact", "inducing": None, "forced": False,
+            "reason": f"exact GP on a random {max_points} of {points} training points" if capped else ""}
+
+
 def train_model(
     trajs: list[Trajectory],
     *,
@@ -289,6 +323,7 @@ def train_model(
     time_input: str | None = None,
     attractor: float | None = None,
     path_gain: float | None = None,
+    inducing: int | None = None,
 ) -> MotionModel:
     """Train a motion model on clean demonstrations (see :func:`rbgp_cli.dynamics.prepare.prepare_all`).
 
@@ -296,6 +331,12 @@ def train_model(
     a fixed standard deviation. ``explore_size``: the optimiser's starts explore a random subset of
     this many training points first (see :func:`rbgp_cli.gp.exact.fit_gp`; None: its default, 0: off). Returns the model; its ``summary`` holds demos, pairs, points, the
     hyperparameters and NLML per output, the safeguards used and the time taken.
+
+    ``inducing`` chooses the GP (:func:`choose_gp`): None (automatic) trains the exact GP while the points
+    left after ``subsample`` number at most ``max_points``, and above that a sparse GP
+    (:mod:`rbgp_cli.gp.sparse`) with DEFAULT_INDUCING inducing poses on all of them; 0 forces the exact GP
+    (on a random ``max_points`` of them, as before); M > 0 forces a sparse GP with M inducing poses on all
+    of them. ``max_points`` never drops points from a sparse GP. ``summary["gp"]`` says which and why.
     """
     t0 = time.perf_counter()
     rep = make_representation(representation, order=euler_order) if representation == "euler" else make_representation(representation)
@@ -307,8 +348,12 @@ def train_model(
         raise InputError(f"unknown time input {time_input!r}; expected one of none, seconds, phase")
     kern = make_kernel(rep, kernel, rho, learn_rho, time_dims=1 if time_input else 0)
     velocity = velocity or VelocityOptions()
-    X, Y, info = training_set(trajs, rep, subsample=subsample, max_points=max_points, seed=seed, velocity=velocity,
+    X, Y, info = training_set(trajs, rep, subsample=subsample, max_points=None, seed=seed, velocity=velocity,
                               time_input=time_input)
+    gp_choice = choose_gp(info["points"], inducing, max_points, kernel)
+    if gp_choice["type"] == "exact" and max_points is not None and info["points"] > max_points:
+        X, Y, info = training_set(trajs, rep, subsample=subsample, max_points=max_points, seed=seed, velocity=velocity,
+                                  time_input=time_input)
     mean = None
     if path_gain is not None:
         if time_input != "phase":
@@ -321,8 +366,17 @@ def train_model(
     if progress:
         progress(f"{len(trajs)} demonstrations, {info['pairs']} pairs, training on {info['points']} points "
                  f"({rep.name}, kernel {kernel}, {'shared' if shared else 'per-output'} hyperparameters)")
-    gp = fit_gp(X, Y, kern, noise=noise, restarts=restarts, seed=seed, shared=shared, progress=progress,
-                explore_size=explore_size)
+    if gp_choice["type"] == "sparse":
+        from rbgp_cli.gp.sparse import fit_sparse_gp
+
+        if progress:
+            progress(f"sparse GP: {gp_choice['reason']}")
+        gp = fit_sparse_gp(X, Y, kern, inducing=gp_choice["inducing"], noise=noise, restarts=restarts, seed=seed,
+                           shared=shared, progress=progress, explore_size=explore_size)
+        gp_choice["inducing"] = int(gp.n_inducing)
+    else:
+        gp = fit_gp(X, Y, kern, noise=noise, restarts=restarts, seed=seed, shared=shared, progress=progress,
+                    explore_size=explore_size)
     dt = 1.0 / velocity.rate if velocity.rate is not None else float(np.median(np.concatenate([np.diff(tr.t) for tr in trajs])))
     starts = np.array([np.concatenate([tr.quat[0], tr.position[0]]) for tr in trajs])
     durations = np.array([tr.duration for tr in trajs])
@@ -351,5 +405,6 @@ def train_model(
     }
     summary["time_input"] = time_input
     summary["mean"] = mean
+    summary["gp"] = gp_choice
     return MotionModel(rep, gp, float(dt), starts, durations, summary=summary, velocity=velocity,
                        time_input=time_input, mean=mean)

@@ -354,7 +354,7 @@ def _bound(kernel, blocks, pre_mm, values, Y, grad_names, jitter, want_grad):
 @dataclass
 class SparseOutputFit(OutputFit):
     """An :class:`OutputFit` of a sparse GP: ``nlml`` is the negative bound −F (≥ the exact NLML),
-    ``jitter`` is 0 (nothing is added to the noise), ``kmm_jitter`` the jitter of K_mm relative to the
+    ``jitter`` is 0 (nothing is added to the noise), ``rcond`` that of K_mm + j I, ``kmm_jitter`` the jitter of K_mm relative to the
     mean of its diagonal, ``stages`` per stage of the fit {"points", "evaluations", "objective", "nlml"}."""
 
     kmm_jitter: float = JITTER
@@ -740,10 +740,12 @@ def fit_sparse_gp(
                 raise RbgpRuntimeError(f"the fitted sparse covariance for {label} is not positive definite",
                                        hint="use --kernel se-chordal or fewer inducing poses")
             stats.append((np.tril(bstate["Lm"]), np.tril(bstate["LB"]), np.asarray(bstate["c"])))
+            Lm = stats[-1][0]
+            rcond, info = lapack.dpocon(Lm, float(np.max(np.sum(np.abs(Lm @ Lm.T), axis=0))), uplo="L")
             at_bounds = [nm for nm, t in zip(free, st["theta"][0])
                          if min(abs(t - spec[nm].log_bounds[0]), abs(t - spec[nm].log_bounds[1])) < 1e-6]
             fits.append(SparseOutputFit(
-                values=values, nlml=float(f), jitter=0.0, rcond=float("nan"), positive_definite=True,
+                values=values, nlml=float(f), jitter=0.0, rcond=float(rcond) if info == 0 else 0.0, positive_definite=True,
                 n_evaluations=st["evals"], n_infeasible=st["infeasible"], starts=st["records"], at_bounds=at_bounds,
                 free=list(free), seconds=st["seconds"], kmm_jitter=float(bstate["rel"]), stages=st["stages"]))
             progress(f"{label}: bound {f:.6g} on all {n} points; evaluations per stage "

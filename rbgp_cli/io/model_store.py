@@ -8,6 +8,12 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
 * ``X`` (n, d) training inputs, ``Y`` (n, L) outputs, ``y_scale`` (L,), ``starts`` (D, 7),
   ``durations`` (D,).
 
+A sparse GP (:mod:`rbgp_cli.gp.sparse`; header ``"gp": {"type": "sparse", "inducing": M}``, format
+version 2) also holds ``Z`` (M, d) inducing inputs and, per hyperparameter group g (one per output, or
+one shared), the posterior's factors ``Lm`` (G, M, M), ``LB`` (G, M, M) and ``c`` (M, L) (the columns of
+group g's outputs); loading checks them against k(Z, Z) instead of refactorising all n points. Exact
+models are still written as version 1, which older rbgp reads; version 1 files load as before.
+
 Loading uses ``allow_pickle=False``, checks the format name and version, verifies every checksum,
 rebuilds the GP and re-runs its Cholesky factorisation. Any failure is an :class:`InputError`
 naming the file and what to do. Files are written atomically (temporary name, then rename).
@@ -30,8 +36,10 @@ from rbgp_cli.io.atomic import atomic_open
 __all__ = ["FORMAT", "FORMAT_VERSION", "save_model", "load_model", "file_sha256", "array_sha256"]
 
 FORMAT = "rbgp-model"
-FORMAT_VERSION = 1
+#: The newest version this rbgp reads and writes (2: sparse models; exact models are written as 1).
+FORMAT_VERSION = 2
 _ARRAYS = ("X", "Y", "y_scale", "starts", "durations")
+_SPARSE_ARRAYS = ("Z", "Lm", "LB", "c")
 
 
 def array_sha256(a: np.ndarray) -> str:
@@ -79,9 +87,15 @@ def save_model(model, path) -> dict:
         "starts": np.ascontiguousarray(model.starts, dtype=np.float64).reshape(-1, 7),
         "durations": np.ascontiguousarray(model.durations, dtype=np.float64).reshape(-1),
     }
+    sparse = bool(getattr(gp, "sparse", False))
+    if sparse:
+        arrays["Z"] = np.ascontiguousarray(gp.Z, dtype=np.float64)
+        arrays["Lm"] = np.ascontiguousarray(np.stack([st[0] for st in gp.stats]), dtype=np.float64)
+        arrays["LB"] = np.ascontiguousarray(np.stack([st[1] for st in gp.stats]), dtype=np.float64)
+        arrays["c"] = np.ascontiguousarray(np.concatenate([st[2] for st in gp.stats], axis=1), dtype=np.float64)
     header = {
         "format": FORMAT,
-        "version": FORMAT_VERSION,
+        "version": 2 if sparse else 1,
         "rbgp_version": __version__,
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "representation": model.representation.to_dict(),
@@ -95,6 +109,8 @@ def save_model(model, path) -> dict:
         "provenance": _jsonable(model.provenance),
         "checksums": {k: array_sha256(v) for k, v in arrays.items()},
     }
+    if sparse:
+        header["gp"] = {"type": "sparse", "inducing": int(len(gp.Z))}
     raw = json.dumps(header, sort_keys=True, allow_nan=True).encode("utf-8")
     try:
         with atomic_open(path, "wb") as fh:
@@ -134,7 +150,7 @@ def read_header(path) -> tuple[dict, dict]:
             if "header" not in names:
                 raise _bad(path, "not an rbgp model file (no header)", "pass a file written by rbgp train")
             header_bytes = z["header"].tobytes()
-            arrays = {k: z[k] for k in _ARRAYS if k in names}
+            arrays = {k: z[k] for k in _ARRAYS + _SPARSE_ARRAYS if k in names}
     except RbgpError:
         raise
     except FileNotFoundError:
@@ -161,7 +177,10 @@ def read_header(path) -> tuple[dict, dict]:
     if version < 1:
         raise _bad(path, f"unknown model format version {version}")
     sums = header.get("checksums") or {}
-    for name in _ARRAYS:
+    gp = header.get("gp") or {}
+    if not isinstance(gp, dict) or gp.get("type", "exact") not in ("exact", "sparse"):
+        raise _bad(path, f"unknown GP type in the model header: {gp!r}")
+    for name in _ARRAYS + (_SPARSE_ARRAYS if gp.get("type") == "sparse" else ()):
         if name not in arrays:
             raise _bad(path, f"array {name!r} is missing from the model file")
         if sums.get(name) != array_sha256(arrays[name]):
@@ -174,13 +193,15 @@ def load_model(path):
     from rbgp_cli.dynamics.model import MotionModel
     from rbgp_cli.dynamics.representations import representation_from_dict
     from rbgp_cli.gp.exact import GaussianProcess, OutputFit
+    from rbgp_cli.gp.sparse import SparseGP, SparseOutputFit
     from rbgp_cli.kernels import kernel_from_dict
 
     header, arrays = read_header(path)
     try:
         rep = representation_from_dict(header["representation"])
         kernel = kernel_from_dict(header["kernel"])
-        fits = [OutputFit.from_dict(f) for f in header["fits"]]
+        sparse = (header.get("gp") or {}).get("type") == "sparse"
+        fits = [(SparseOutputFit if sparse else OutputFit).from_dict(f) for f in header["fits"]]
         for f in fits:  # every hyperparameter is positive (they are optimised in log space)
             for k, v in f.values.items():
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < float("inf"):
@@ -197,7 +218,21 @@ def load_model(path):
             raise ValueError("number of fitted outputs disagrees with the data")
         if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
             raise ValueError("non-finite training data")
-        gp = GaussianProcess(kernel, X, Y, fits, shared=header["shared"], y_scale=arrays["y_scale"])
+        if sparse:
+            Z, Lm, LB, c = (arrays[k] for k in _SPARSE_ARRAYS)
+            G, M = len(fits), len(Z)
+            if (Z.ndim != 2 or Z.shape[1] != X.shape[1] or Lm.shape != (G, M, M) or LB.shape != (G, M, M)
+                    or c.shape != (M, Y.shape[1]) or not all(np.all(np.isfinite(a)) for a in (Z, Lm, LB, c))):
+                raise ValueError("the sparse GP's arrays disagree with each other")
+            for f in fits:
+                kj = f.kmm_jitter
+                if isinstance(kj, bool) or not isinstance(kj, (int, float)) or not 0 <= kj < 1:
+                    raise ValueError(f"kmm_jitter = {kj!r} is not a number in [0, 1)")
+            cols = [[0, Y.shape[1]]] if header["shared"] else [[g, g + 1] for g in range(G)]
+            stats = [(Lm[g], LB[g], c[:, a:b]) for g, (a, b) in enumerate(cols)]
+            gp = SparseGP(kernel, X, Y, Z, fits, shared=header["shared"], y_scale=arrays["y_scale"], stats=stats)
+        else:
+            gp = GaussianProcess(kernel, X, Y, fits, shared=header["shared"], y_scale=arrays["y_scale"])
         dt = float(header["dt"])
         if not (np.isfinite(dt) and dt > 0):
             raise ValueError("invalid time step")
