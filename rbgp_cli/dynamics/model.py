@@ -270,19 +270,29 @@ def training_set(trajs: list[Trajectory], representation: Representation, *, sub
                             "segments": segments}
 
 
+#: Automatic choice: above this many training points (and above ``max_points``) a sparse GP on all of
+#: them replaces the exact GP on a random ``max_points`` (benchmarks/bench_sparse.py measures where the
+#: exact GP stops being affordable).
+SPARSE_ABOVE = 3000
+
+
 def choose_gp(points: int, inducing: int | None, max_points: int | None, kernel: str) -> dict:
     """Which GP to train on ``points`` training points (after ``--subsample``), and why.
 
-    ``inducing`` None (automatic): the exact GP up to ``max_points`` points; above, a sparse GP with
-    DEFAULT_INDUCING inducing poses on all of them, so that none is thrown away (the dot-product kernel
-    always stays exact: its Gram matrix has rank 6). 0: the exact GP (capped at ``max_points``).
-    M > 0: a sparse GP with M inducing poses (at most ``points``).
+    ``inducing`` None (automatic): the exact GP on at most ``max_points`` of them (as before) unless
+    there are more than both ``max_points`` and SPARSE_ABOVE; then a sparse GP with DEFAULT_INDUCING
+    inducing poses on all of them, so that most of the data is not thrown away (the dot-product kernel
+    always stays exact: its Gram matrix has rank 6). 0: the exact GP (on at most ``max_points``).
+    M > 0: a sparse GP with M inducing poses (at most ``points``) on all points; ``max_points`` never
+    drops points from a sparse GP.
     Returns {"type": "exact" | "sparse", "inducing": M or None, "forced": bool, "reason": str}.
     """
     from rbgp_cli.gp.sparse import DEFAULT_INDUCING
 
     if inducing is not None and int(inducing) < 0:
         raise InputError(f"--inducing must be 0 (exact GP) or a positive number of inducing poses, got {inducing}")
+    capped = max_points is not None and points > max_points
+    cap = f": exact GP on a random {max_points} of {points} training points" if capped else ""
     if inducing:
         if kernel == "dot":
             raise InputError("--inducing needs a squared-exponential kernel: the dot-product kernel's Gram matrix "
@@ -291,17 +301,14 @@ def choose_gp(points: int, inducing: int | None, max_points: int | None, kernel:
         return {"type": "sparse", "inducing": M, "forced": True,
                 "reason": f"--inducing {int(inducing)}: {M} inducing poses for all {points} training points"}
     if inducing == 0:
-        capped = max_points is not None and points > max_points
-        return {"type": "exact", "inducing": None, "forced": True,
-                "reason": "--inducing 0" + (f": exact GP on a random {max_points} of {points} training points" if capped else "")}
-    if max_points is not None and points > max_points and kernel != "dot":
+        return {"type": "exact", "inducing": None, "forced": True, "reason": "--inducing 0" + cap}
+    if points > max(SPARSE_ABOVE, max_points or 0) and kernel != "dot":
         M = min(DEFAULT_INDUCING, points)
+        keep = f"a random {max_points}" if max_points is not None else f"all {points}"
         return {"type": "sparse", "inducing": M, "forced": False,
-                "reason": f"{points} training points exceed --max-points {max_points}, the exact GP's limit: a sparse GP "
-                          f"with {M} inducing poses uses all of them (--inducing 0: the exact GP on a random {max_points})"}
-    capped = max_points is not None and points > max_points
-    return {"type": "exact", "inducing": None, "forced": False,
-            "reason": f"exact GP on a random {max_points} of {points} training points" if capped else ""}
+                "reason": f"{points} training points are more than the exact GP affords (above {SPARSE_ABOVE}): a "
+                          f"sparse GP with {M} inducing poses uses all of them (--inducing 0: the exact GP on {keep})"}
+    return {"type": "exact", "inducing": None, "forced": False, "reason": cap[2:]}
 
 
 def train_model(
@@ -332,11 +339,11 @@ def train_model(
     this many training points first (see :func:`rbgp_cli.gp.exact.fit_gp`; None: its default, 0: off). Returns the model; its ``summary`` holds demos, pairs, points, the
     hyperparameters and NLML per output, the safeguards used and the time taken.
 
-    ``inducing`` chooses the GP (:func:`choose_gp`): None (automatic) trains the exact GP while the points
-    left after ``subsample`` number at most ``max_points``, and above that a sparse GP
-    (:mod:`rbgp_cli.gp.sparse`) with DEFAULT_INDUCING inducing poses on all of them; 0 forces the exact GP
-    (on a random ``max_points`` of them, as before); M > 0 forces a sparse GP with M inducing poses on all
-    of them. ``max_points`` never drops points from a sparse GP. ``summary["gp"]`` says which and why.
+    ``inducing`` chooses the GP (:func:`choose_gp`): None (automatic) trains the exact GP on at most
+    ``max_points`` points (as before) unless more than both ``max_points`` and SPARSE_ABOVE are left after
+    ``subsample``, and then a sparse GP (:mod:`rbgp_cli.gp.sparse`) with DEFAULT_INDUCING inducing poses
+    on all of them; 0 forces the exact GP; M > 0 forces a sparse GP with M inducing poses on all points.
+    ``max_points`` never drops points from a sparse GP. ``summary["gp"]`` says which and why.
     """
     t0 = time.perf_counter()
     rep = make_representation(representation, order=euler_order) if representation == "euler" else make_representation(representation)
