@@ -25,13 +25,13 @@ score / floor of those means); trajectory and velocity errors are pooled over al
 demonstrations; ``train_s`` is the mean training time per fold.
 
 Folds of every configuration run as independent tasks, in worker processes with single-threaded BLAS
-(``jobs``), or in this process (``jobs=1``); results do not depend on ``jobs``.
+(``jobs``), in this process (``jobs=1``), or on a Dask cluster (``scheduler``; :mod:`rbgp_cli.parallel`);
+results do not depend on where they ran.
 """
 
 from __future__ import annotations
 
 import math
-import os
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -198,16 +198,6 @@ def run_fold(config: Config, train: list[Trajectory], test: list[Trajectory], *,
     return out
 
 
-def _worker_init() -> None:
-    """Worker processes: BLAS single-threaded (the folds themselves are the parallelism)."""
-    try:
-        from threadpoolctl import threadpool_limits
-
-        _worker_init.limits = threadpool_limits(limits=1)  # kept alive for the worker's lifetime
-    except ImportError:  # pragma: no cover
-        pass
-
-
 def _task(args):
     config, train, test, length, covariance = args
     return run_fold(config, train, test, length=length, covariance=covariance)
@@ -271,7 +261,7 @@ def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[di
 
 def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, seed: int = 0,
              jobs: int | None = None, length: int | None = None, covariance: str = "diag",
-             progress=None) -> dict:
+             progress=None, scheduler: str | None = None) -> dict:
     """Cross-validate every configuration on the same folds (see the module docstring).
 
     Parameters
@@ -282,6 +272,8 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
     jobs : worker processes (None: one per core, at most the number of tasks; 1: in this process)
     length, covariance : passed to :func:`~rbgp_cli.evaluation.bhattacharyya.evaluate`
     progress : optional callable(done, total, message)
+    scheduler : None, ``"local"`` or a Dask scheduler's address: run the fold tasks on a Dask cluster
+        (:func:`rbgp_cli.parallel.run_tasks`; same results)
 
     Returns ``{"folds": K, "seed", "demonstrations", "fold_sizes", "results": [row, ...]}`` with the
     rows sorted by score / floor (best first); each row as in the module docstring.
@@ -297,32 +289,21 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
     floors = [evaluate(test, train, length=length, covariance=covariance) for train, test in splits]
     tasks = [(c, f) for c in configs for f in range(len(splits))]
     args = [(c, splits[f][0], splits[f][1], length, covariance) for c, f in tasks]
-    n_jobs = jobs if jobs is not None else min(len(tasks), os.cpu_count() or 1)
-    n_jobs = max(1, min(int(n_jobs), len(tasks)))
-    results: list = [None] * len(tasks)
+    from rbgp_cli.parallel import run_tasks
+
+    finished = [0]
     caught: set = set()
 
     def done(i, r):
-        results[i] = r
+        finished[0] += 1
         caught.update(r.get("warnings", []))
         if progress is not None:
             c, f = tasks[i]
-            progress(sum(x is not None for x in results), len(tasks),
+            progress(finished[0], len(tasks),
                      f"{c.name}, fold {f + 1}/{len(splits)}: score {r['score']:.3f} (floor {floors[f].mean:.3f})"
                      + (f", trained in {r['train_s']:.1f} s" if r["train_s"] else ""))
 
-    if n_jobs == 1:
-        for i, a in enumerate(args):
-            done(i, _task(a))
-    else:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=n_jobs, mp_context=ctx, initializer=_worker_init) as ex:
-            futs = {ex.submit(_task, a): i for i, a in enumerate(args)}
-            for fut in as_completed(futs):
-                done(futs[fut], fut.result())
+    results = run_tasks(_task, args, jobs=jobs, scheduler=scheduler, on_result=done)
     rows = []
     for ci, c in enumerate(configs):
         res = [results[ci * len(splits) + f] for f in range(len(splits))]

@@ -1,0 +1,122 @@
+"""Run independent tasks in order-preserving fashion: in this process, in local worker processes
+(the standard library's ``ProcessPoolExecutor``), or on a Dask distributed cluster.
+
+Studies (``rbgp crossval``: configurations × folds) are lists of independent fits. :func:`run_tasks`
+hands them to one of three executors and returns the results in the order of the tasks, whatever the
+order they finish in; BLAS runs single-threaded inside every worker (the tasks are the parallelism).
+
+Dask (``pip install "rbgp-cli[distributed]"``) is imported only when a ``scheduler`` is given:
+``"local"`` starts a ``LocalCluster`` of ``jobs`` single-threaded worker processes for the call;
+anything else is the address of a running scheduler (``tcp://host:8786``). Each task runs under
+threadpoolctl's one-thread limit on whatever worker takes it, so workers need no special start-up.
+Results are the same as in this process: every task is a pure function of its arguments (seeded).
+"""
+
+from __future__ import annotations
+
+import os
+
+__all__ = ["run_tasks", "single_threaded"]
+
+#: How long to wait for a Dask scheduler given by address.
+CONNECT_TIMEOUT = "10s"
+
+
+def single_threaded(fn, args):
+    """``fn(args)`` with BLAS/OpenMP pools limited to one thread (for workers)."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
+        return fn(args)
+    with threadpool_limits(limits=1):
+        return fn(args)
+
+
+def _worker_init() -> None:
+    """Local worker processes: BLAS single-threaded for the worker's lifetime."""
+    try:
+        from threadpoolctl import threadpool_limits
+
+        _worker_init.limits = threadpool_limits(limits=1)
+    except ImportError:  # pragma: no cover
+        pass
+
+
+def run_tasks(fn, args: list, *, jobs: int | None = None, scheduler: str | None = None, on_result=None) -> list:
+    """``[fn(a) for a in args]``, possibly in parallel; results in the order of ``args``.
+
+    Parameters
+    ----------
+    fn : a module-level function (picklable), called once per element of ``args``
+    jobs : local worker processes (None: one per core, at most len(args); 1: in this process, unless a
+        ``scheduler`` is given); with ``scheduler="local"`` the number of Dask workers
+    scheduler : None (standard library executors), ``"local"`` (a Dask ``LocalCluster`` for this call)
+        or the address of a Dask scheduler
+    on_result : optional ``callable(index, result)``, called in this process as each task finishes
+    """
+    args = list(args)
+    results: list = [None] * len(args)
+
+    def done(i, r):
+        results[i] = r
+        if on_result is not None:
+            on_result(i, r)
+
+    if not args:
+        return results
+    if scheduler:
+        _run_dask(fn, args, jobs, scheduler, done)
+        return results
+    n_jobs = jobs if jobs is not None else min(len(args), os.cpu_count() or 1)
+    n_jobs = max(1, min(int(n_jobs), len(args)))
+    if n_jobs == 1:
+        for i, a in enumerate(args):
+            done(i, fn(a))
+        return results
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=n_jobs, mp_context=ctx, initializer=_worker_init) as ex:
+        futs = {ex.submit(fn, a): i for i, a in enumerate(args)}
+        for fut in as_completed(futs):
+            done(futs[fut], fut.result())
+    return results
+
+
+def _run_dask(fn, args, jobs, scheduler, done) -> None:
+    from rbgp_cli.errors import InputError, RbgpRuntimeError
+
+    try:
+        from distributed import Client, LocalCluster, as_completed
+    except ImportError:
+        raise InputError("--scheduler needs Dask's distributed scheduler, which is not installed",
+                         hint='pip install "rbgp-cli[distributed]"') from None
+    cluster = None
+    try:
+        if scheduler == "local":
+            n = max(1, min(int(jobs or os.cpu_count() or 1), len(args)))
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
+            client = Client(cluster)
+        else:
+            try:
+                client = Client(scheduler, timeout=CONNECT_TIMEOUT)
+            except (OSError, TimeoutError, ValueError) as exc:
+                raise InputError(f"cannot reach the Dask scheduler at {scheduler!r} ({type(exc).__name__})",
+                                 hint="start one with 'dask scheduler' (and workers with 'dask worker ADDRESS'), "
+                                      "or use --scheduler local") from None
+        with client:
+            # pure=False: identical arguments (two configurations that happen to be equal) still run
+            futs = [client.submit(single_threaded, fn, a, pure=False) for a in args]
+            index = {f.key: i for i, f in enumerate(futs)}
+            for fut in as_completed(futs):
+                try:
+                    r = fut.result()
+                except Exception as exc:  # a task that failed on a worker fails the study, as in-process
+                    if isinstance(exc, (InputError, RbgpRuntimeError)):
+                        raise
+                    raise RbgpRuntimeError(f"a task failed on a Dask worker: {type(exc).__name__}: {exc}") from exc
+                done(index[fut.key], r)
+    finally:
+        if cluster is not None:
+            cluster.close()
