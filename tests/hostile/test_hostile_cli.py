@@ -850,9 +850,9 @@ CASES = [
          lambda c: ["predict", _cut_model_file(c), text(c, GOOD_POSES, "poses.csv"), "-o", c.out / "pred.csv"],
          error=("tiny.rbgp", "not a readable rbgp model file")),
     Case("evaluate_with_future_model",
-         lambda c: ["evaluate", "--model", _edited_model_file(c, _set("version", 2)), "--demos", _demos(c),
+         lambda c: ["evaluate", "--model", _edited_model_file(c, _set("version", 99)), "--demos", _demos(c),
                     "--count", "3", "--per-step", c.out / "steps.csv"],
-         error=("tiny.rbgp", "version 2 is newer", "upgrade rbgp")),
+         error=("tiny.rbgp", "version 99 is newer", "upgrade rbgp")),
     # --- start poses
     Case("start_pose_three_numbers", _rollout_start("1 2 3"), error=("start pose '1 2 3'", "rx ry rz x y z")),
     Case("start_pose_nan", _rollout_start("nan 0 0 0.3 0 0.8"), error=("start pose", "finite")),
