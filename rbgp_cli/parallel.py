@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["run_tasks", "single_threaded"]
+__all__ = ["run_tasks", "iter_dask", "single_threaded"]
 
 #: How long to wait for a Dask scheduler given by address.
 CONNECT_TIMEOUT = "10s"
@@ -51,40 +51,50 @@ def run_tasks(fn, args: list, *, jobs: int | None = None, scheduler: str | None 
     jobs : local worker processes (None: one per core, at most len(args); 1: in this process, unless a
         ``scheduler`` is given); with ``scheduler="local"`` the number of Dask workers
     scheduler : None (standard library executors), ``"local"`` (a Dask ``LocalCluster`` for this call)
-        or the address of a Dask scheduler
+        or the address of a Dask scheduler (:func:`iter_dask`)
     on_result : optional ``callable(index, result)``, called in this process as each task finishes
     """
     args = list(args)
     results: list = [None] * len(args)
-
-    def done(i, r):
-        results[i] = r
-        if on_result is not None:
-            on_result(i, r)
-
     if not args:
         return results
     if scheduler:
-        _run_dask(fn, args, jobs, scheduler, done)
-        return results
-    n_jobs = jobs if jobs is not None else min(len(args), os.cpu_count() or 1)
-    n_jobs = max(1, min(int(n_jobs), len(args)))
-    if n_jobs == 1:
-        for i, a in enumerate(args):
-            done(i, fn(a))
-        return results
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
-    ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=n_jobs, mp_context=ctx, initializer=_worker_init) as ex:
-        futs = {ex.submit(fn, a): i for i, a in enumerate(args)}
-        for fut in as_completed(futs):
-            done(futs[fut], fut.result())
+        pairs = iter_dask(fn, args, jobs=jobs, scheduler=scheduler)
+    else:
+        n_jobs = jobs if jobs is not None else min(len(args), os.cpu_count() or 1)
+        n_jobs = max(1, min(int(n_jobs), len(args)))
+        pairs = ((i, fn(a)) for i, a in enumerate(args)) if n_jobs == 1 else _iter_processes(fn, args, n_jobs)
+    for i, r in pairs:
+        results[i] = r
+        if on_result is not None:
+            on_result(i, r)
     return results
 
 
-def _run_dask(fn, args, jobs, scheduler, done) -> None:
+def _iter_processes(fn, args, n_jobs):
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    ex = ProcessPoolExecutor(max_workers=n_jobs, mp_context=multiprocessing.get_context("spawn"), initializer=_worker_init)
+    try:
+        futs = {ex.submit(fn, a): i for i, a in enumerate(args)}
+        for fut in as_completed(futs):
+            yield futs[fut], fut.result()
+    except BaseException:
+        ex.shutdown(wait=False, cancel_futures=True)
+        raise
+    ex.shutdown(wait=True)
+
+
+def iter_dask(fn, args: list, *, jobs: int | None = None, scheduler: str = "local"):
+    """Yield ``(index, fn(args[index]))`` as the tasks finish on a Dask cluster.
+
+    ``scheduler="local"``: a ``LocalCluster`` of ``jobs`` (default: one per core, at most len(args))
+    single-threaded worker processes, closed afterwards; otherwise the address of a running scheduler.
+    Every task runs with BLAS limited to one thread (:func:`single_threaded`). On an error, or when the
+    caller stops iterating, the pending tasks are cancelled. Raises :class:`InputError` when
+    ``distributed`` is not installed or the scheduler cannot be reached.
+    """
     from rbgp_cli.errors import InputError, RbgpRuntimeError
 
     try:
@@ -106,17 +116,20 @@ def _run_dask(fn, args, jobs, scheduler, done) -> None:
                                  hint="start one with 'dask scheduler' (and workers with 'dask worker ADDRESS'), "
                                       "or use --scheduler local") from None
         with client:
-            # pure=False: identical arguments (two configurations that happen to be equal) still run
+            # pure=False: identical arguments (two configurations that happen to be equal) still both run
             futs = [client.submit(single_threaded, fn, a, pure=False) for a in args]
             index = {f.key: i for i, f in enumerate(futs)}
-            for fut in as_completed(futs):
-                try:
-                    r = fut.result()
-                except Exception as exc:  # a task that failed on a worker fails the study, as in-process
-                    if isinstance(exc, (InputError, RbgpRuntimeError)):
+            try:
+                for fut in as_completed(futs):
+                    try:
+                        r = fut.result()
+                    except (InputError, RbgpRuntimeError):
                         raise
-                    raise RbgpRuntimeError(f"a task failed on a Dask worker: {type(exc).__name__}: {exc}") from exc
-                done(index[fut.key], r)
+                    except Exception as exc:  # a task that failed on a worker fails the study, as in-process
+                        raise RbgpRuntimeError(f"a task failed on a Dask worker: {type(exc).__name__}: {exc}") from exc
+                    yield index[fut.key], r
+            finally:
+                client.cancel([f for f in futs if not f.done()])
     finally:
         if cluster is not None:
             cluster.close()

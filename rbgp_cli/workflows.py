@@ -28,6 +28,8 @@ __all__ = [
     "rollout_model",
     "evaluate_files",
     "generate_like_paper",
+    "crossval_configs",
+    "crossval_files",
     "SAMPLE_DATA",
 ]
 
@@ -96,7 +98,8 @@ def train_from_files(sources, output, *, options: ReadOptions | None = None, max
         ],
         "read_options": {k: v for k, v in asdict(options).items() if v is not None},
         "max_gap": max_gap,
-        "train_options": {k: (v if isinstance(v, (int, float, str, bool)) or v is None else str(v))
+        "train_options": {k: (v if isinstance(v, (int, float, str, bool)) or v is None
+                              else v.to_dict() if hasattr(v, "to_dict") else str(v))
                           for k, v in train_kwargs.items()},
         "repairs": reports,
     }
@@ -218,3 +221,51 @@ def evaluate_files(generated_sources, demo_sources, *, options: ReadOptions | No
         generated, _, _ = load_demonstrations(generated_sources, ReadOptions(), stdin=stdin)
     result = evaluate(generated, demos, length=length, covariance=covariance)
     return result, generated, demos
+
+
+def crossval_configs(representations, kernels, train_kwargs: dict, replay: bool = True):
+    """The rows of ``rbgp crossval``: every representation × kernel with the same training options,
+    plus the replay peer. ``all`` stands for the three representations; a kernel a representation does
+    not have (the chordal distance on Euler angles) is left out for it, with a note in the returned list."""
+    from rbgp_cli.dynamics.defaults import DEFAULT_KERNELS, DEFAULTS
+    from rbgp_cli.dynamics.model import KERNELS
+    from rbgp_cli.dynamics.representations import REPRESENTATIONS
+    from rbgp_cli.evaluation.crossval import REPLAY, Config
+
+    reps: list[str] = []
+    for r in representations or [DEFAULTS["representation"]]:
+        for name in (REPRESENTATIONS if r == "all" else [r]):
+            if name not in REPRESENTATIONS:
+                raise InputError(f"unknown representation {name!r}; expected one of {', '.join(REPRESENTATIONS)} or all")
+            if name not in reps:
+                reps.append(name)
+    kerns = list(dict.fromkeys(kernels or []))
+    for k in kerns:
+        if k not in KERNELS:
+            raise InputError(f"unknown kernel {k!r}; expected one of {', '.join(KERNELS)}")
+    configs, skipped = [], []
+    for r in reps:
+        for k in kerns or [DEFAULT_KERNELS[r]]:
+            if r == "euler" and k == "se-chordal":
+                skipped.append("euler with se-chordal (Euler angles have no chordal distance; euler runs with se)")
+                if "se" not in kerns:
+                    configs.append(Config(r, "se", dict(train_kwargs)))
+                continue
+            configs.append(Config(r, k, dict(train_kwargs)))
+    if replay:
+        configs.append(Config(REPLAY))
+    return configs, skipped
+
+
+def crossval_files(sources, configs, *, options: ReadOptions | None = None, max_gap=None, folds: int = 5,
+                   seed: int = 0, jobs: int | None = None, length=None, covariance="diag", progress=None,
+                   scheduler: str | None = None) -> dict:
+    """``rbgp crossval``: read and clean the demonstrations, cross-validate every configuration on the
+    same folds (:func:`rbgp_cli.evaluation.crossval.crossval`); returns its result plus the inputs."""
+    from rbgp_cli.evaluation.crossval import crossval
+
+    demos, _, inputs = load_demonstrations(sources, options, max_gap=max_gap)
+    result = crossval(demos, configs, folds=folds, seed=seed, jobs=jobs, length=length, covariance=covariance,
+                      progress=progress, scheduler=scheduler)
+    result["inputs"] = [i["name"] for i in inputs]
+    return result

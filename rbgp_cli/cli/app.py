@@ -13,6 +13,10 @@ import typer
 
 from rbgp_cli import __version__
 from rbgp_cli.cli.args import RbgpGroup, paths_option
+from rbgp_cli.cli.train_options import (
+    ExploreOpt, MaxPointsOpt, NoiseOpt, PriorGainOpt, PriorOpt, RestartsOpt, RhoOpt, SeedOpt, ShareOpt, SmoothDegreeOpt,
+    InducingOpt, SmoothWindowOpt, SubsampleOpt, TimeInputOpt, TrainRateOpt, defaults, kernel_help, train_kwargs,
+)
 from rbgp_cli.cli.common import (
     BodyOpt, ColumnsOpt, DegreesOpt, EulerOrderOpt, FormatOpt, FrameOpt, LengthUnitOpt, MaxGapOpt,
     QuatOrderOpt, RateOpt, RotationOpt, TimeSourceOpt, TimeUnitOpt, TopicOpt, command, emit_json,
@@ -31,6 +35,7 @@ app = typer.Typer(
 
 _TRAIN = "Model"
 _OUT = "Output"
+_D = defaults()  # the training defaults (rbgp_cli/dynamics/defaults.py), spelled as the options take them
 
 
 def _version(value: bool):
@@ -55,17 +60,14 @@ def _main(
 def train(
     demos: Annotated[List[str], typer.Argument(help="Demonstration files or directories ('-' reads a CSV from stdin).")],
     output: Annotated[str, typer.Option("--output", "-o", help="Model file to write (written atomically).", rich_help_panel=_OUT)],
-    representation: Annotated[str, typer.Option(help="axis-angle (the paper's rigid-body GP), euler or quaternion.", rich_help_panel=_TRAIN)] = "axis-angle",
-    kernel: Annotated[str, typer.Option(help="se (paper eq. 24), se-chordal (always positive definite) or dot (eq. 22).", rich_help_panel=_TRAIN)] = "se",
-    rho_rot: Annotated[str, typer.Option("--rho-rot", help="Rotation weight ρ1 of eq. 19 in (0, 1), or 'learn'.", rich_help_panel=_TRAIN)] = "0.7",
-    restarts: Annotated[int, typer.Option(min=1, help="Optimiser starts per output (the data-driven one plus random ones).", rich_help_panel=_TRAIN)] = 3,
-    explore_size: Annotated[int, typer.Option(min=0, help="With more than twice this many training points the starts explore a random subset of this size first and only new basins are refined on all points; 0 runs every start on all points.", rich_help_panel=_TRAIN)] = 400,
-    seed: Annotated[int, typer.Option(help="Seed for subsampling and random starts.", rich_help_panel=_TRAIN)] = 0,
-    noise: Annotated[str, typer.Option(help="'learn', or a fixed noise standard deviation (the paper fixes 1).", rich_help_panel=_TRAIN)] = "learn",
-    share_hyperparameters: Annotated[bool, typer.Option("--share-hyperparameters", help="One set of hyperparameters for all outputs (faster).", rich_help_panel=_TRAIN)] = False,
-    subsample: Annotated[float, typer.Option(help="Random fraction of the training pairs to use (the paper: 0.1).", rich_help_panel=_TRAIN)] = 0.1,
-    max_points: Annotated[int, typer.Option(min=2, help="At most this many training points for the exact GP (a sparse GP uses all; see --inducing).", rich_help_panel=_TRAIN)] = 2000,
-    inducing: Annotated[Optional[int], typer.Option(min=0, help="Sparse GP (Titsias 2009) with this many inducing poses on all training points; 0 forces the exact GP (on at most --max-points). Default: the exact GP, unless more than 3000 and more than --max-points points remain: then 512 inducing poses.", rich_help_panel=_TRAIN)] = None,
+    representation: Annotated[str, typer.Option(help="axis-angle (the paper's rigid-body GP), euler or quaternion.", rich_help_panel=_TRAIN)] = _D["representation"],
+    kernel: Annotated[Optional[str], typer.Option(help=kernel_help(), rich_help_panel=_TRAIN)] = None,
+    rho_rot: RhoOpt = _D["rho_rot"], restarts: RestartsOpt = _D["restarts"], explore_size: ExploreOpt = _D["explore_size"],
+    seed: SeedOpt = 0, noise: NoiseOpt = "learn", share_hyperparameters: ShareOpt = False,
+    subsample: SubsampleOpt = _D["subsample"], max_points: MaxPointsOpt = _D["max_points"],
+    time_input: TimeInputOpt = _D["time_input"], prior: PriorOpt = _D["prior"], prior_gain: PriorGainOpt = _D["prior_gain"],
+    train_rate: TrainRateOpt = _D["train_rate"], smooth_window: SmoothWindowOpt = _D["smooth_window"],
+    smooth_degree: SmoothDegreeOpt = _D["smooth_degree"], inducing: InducingOpt = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print the summary as JSON on stdout.", rich_help_panel=_OUT)] = False,
     rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd) of the demonstrations and training points.", rich_help_panel=_OUT)] = None,
     up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.", rich_help_panel=_OUT)] = "z",
@@ -82,17 +84,15 @@ def train(
     from rbgp_cli.errors import InputError
 
     opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation)
-    rho = rho_rot if rho_rot == "learn" else _float(rho_rot, "--rho-rot")
-    noise_v = None if noise == "learn" else _float(noise, "--noise")
-    if noise_v is not None and not noise_v > 0:
-        raise InputError(f"--noise must be 'learn' or a positive number, got {noise}")
+    kwargs = train_kwargs(rho_rot=rho_rot, restarts=restarts, explore_size=explore_size, seed=seed, noise=noise,
+                          share_hyperparameters=share_hyperparameters, subsample=subsample, max_points=max_points,
+                          train_rate=train_rate, smooth_window=smooth_window, smooth_degree=smooth_degree,
+                          time_input=time_input, prior=prior, prior_gain=prior_gain, inducing=inducing)
     if up not in ("z", "y"):
         raise InputError(f"--up must be z or y, got {up!r}")
     model, header, trajs = workflows.train_from_files(
         demos, output, options=opts, max_gap=max_gap, progress=progress,
-        representation=representation, kernel=kernel, rho_rot=rho, restarts=restarts, seed=seed, noise=noise_v,
-        shared=share_hyperparameters, subsample=subsample, max_points=max_points, explore_size=explore_size,
-        inducing=inducing,
+        representation=representation, kernel=kernel, **kwargs,
     )
     if rerun:
         from rbgp_cli.viz.recording import record_training
@@ -107,18 +107,6 @@ def train(
         from rbgp_cli.cli.report import format_train_summary
 
         print(format_train_summary(summary), file=sys.stderr)
-
-
-def _float(text: str, flag: str) -> float:
-    from rbgp_cli.errors import InputError
-
-    try:
-        v = float(text)
-    except ValueError:
-        raise InputError(f"{flag} must be a number, got {text!r}") from None
-    if v != v or v in (float("inf"), float("-inf")):
-        raise InputError(f"{flag} must be finite, got {text!r}")
-    return v
 
 
 # ---------------------------------------------------------------------------------------------- info
@@ -352,6 +340,60 @@ def inspect(
         emit_json(results if len(results) != 1 else results[0])
     else:
         print("\n\n".join(format_inspect(r) for r in results))
+
+
+# ---------------------------------------------------------------------------------------------- crossval
+@app.command()
+@command
+def crossval(
+    demos: Annotated[List[str], typer.Argument(help="Demonstration files or directories (a shell glob is fine).")],
+    folds: Annotated[int, typer.Option(min=2, help="Folds of the demonstrations (a demonstration is never split across folds).")] = 5,
+    representation: Annotated[Optional[List[str]], typer.Option("--representation", help="axis-angle, euler, quaternion, or all; repeatable (default: axis-angle).", rich_help_panel=_TRAIN)] = None,
+    kernel: Annotated[Optional[List[str]], typer.Option("--kernel", help="Repeatable; every representation runs with every kernel (default: each representation's own). " + kernel_help(), rich_help_panel=_TRAIN)] = None,
+    replay: Annotated[bool, typer.Option("--replay/--no-replay", help="Include the replay peer: the training demonstration with the nearest start, moved rigidly to the new start.")] = True,
+    jobs: Annotated[Optional[int], typer.Option(min=1, help="Worker processes for the fits (default: one per core); 1 runs them in this process.")] = None,
+    scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Run the fits on a Dask cluster: the scheduler's address (tcp://host:8786), or 'local' for a LocalCluster of --jobs single-threaded workers. Needs pip install \"rbgp-cli[distributed]\"; the results are the same.")] = None,
+    length: Annotated[Optional[int], typer.Option(min=2, help="Resample every trajectory to this many steps for the scores (default: the training demonstrations' median).")] = None,
+    covariance: Annotated[str, typer.Option(help="Per-step Gaussians with diag or full covariance (as rbgp evaluate).")] = "diag",
+    per_fold: Annotated[bool, typer.Option("--per-fold", help="Also print one line per fold and configuration.", rich_help_panel=_OUT)] = False,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the results as JSON on stdout.", rich_help_panel=_OUT)] = False,
+    rho_rot: RhoOpt = _D["rho_rot"], restarts: RestartsOpt = _D["restarts"], explore_size: ExploreOpt = _D["explore_size"],
+    seed: SeedOpt = 0, noise: NoiseOpt = "learn", share_hyperparameters: ShareOpt = False,
+    subsample: SubsampleOpt = _D["subsample"], max_points: MaxPointsOpt = _D["max_points"],
+    time_input: TimeInputOpt = _D["time_input"], prior: PriorOpt = _D["prior"], prior_gain: PriorGainOpt = _D["prior_gain"],
+    train_rate: TrainRateOpt = _D["train_rate"], smooth_window: SmoothWindowOpt = _D["smooth_window"],
+    smooth_degree: SmoothDegreeOpt = _D["smooth_degree"], inducing: InducingOpt = None,
+    fmt: FormatOpt = "auto", columns: ColumnsOpt = None, quat_order: QuatOrderOpt = None, euler_order: EulerOrderOpt = None,
+    degrees: DegreesOpt = None, length_unit: LengthUnitOpt = None, time_unit: TimeUnitOpt = None, rate: RateOpt = None,
+    topic: TopicOpt = None, frame: FrameOpt = None, time_source: TimeSourceOpt = "header", body: BodyOpt = None,
+    rotation: RotationOpt = None, max_gap: MaxGapOpt = None,
+):
+    """How well do generated motions hold up from start poses the model has not seen? Cross-validation
+    by demonstration: train on the other folds (with exactly the options of rbgp train), roll out from
+    each held-out demonstration's start for its duration, and score against the training
+    demonstrations next to the floor (the held-out demonstrations' own score) and the replay peer.
+
+    Example: rbgp crossval sample_data/csv --representation all --folds 3
+    """
+    from rbgp_cli import workflows
+    from rbgp_cli.errors import warn
+
+    opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation)
+    kwargs = train_kwargs(rho_rot=rho_rot, restarts=restarts, explore_size=explore_size, seed=seed, noise=noise,
+                          share_hyperparameters=share_hyperparameters, subsample=subsample, max_points=max_points,
+                          train_rate=train_rate, smooth_window=smooth_window, smooth_degree=smooth_degree,
+                          time_input=time_input, prior=prior, prior_gain=prior_gain, inducing=inducing)
+    configs, skipped = workflows.crossval_configs(representation, kernel, kwargs, replay=replay)
+    for note in skipped:
+        warn(f"left out {note}")
+    result = workflows.crossval_files(demos, configs, options=opts, max_gap=max_gap, folds=folds, seed=seed, jobs=jobs,
+                                      length=length, covariance=covariance, progress=progress, scheduler=scheduler)
+    if json_out:
+        emit_json(result)
+    else:
+        from rbgp_cli.cli.report import format_crossval
+
+        print(format_crossval(result, per_fold=per_fold))
 
 
 # ---------------------------------------------------------------------------------------------- demo

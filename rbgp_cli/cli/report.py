@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["format_train_summary", "format_model_info", "write_per_step"]
+__all__ = ["format_train_summary", "format_model_info", "write_per_step", "format_crossval"]
 
 
 def _fmt_values(values: dict) -> str:
@@ -78,3 +78,37 @@ def write_per_step(result, fh) -> None:
     for i in range(result.steps):
         fh.write(f"{i},{result.s[i]!r},{float(result.per_step[i])!r},{float(result.per_step_rotation[i])!r},"
                  f"{float(result.per_step_translation[i])!r}\n")
+
+
+def _num(v, fmt: str = ".3f") -> str:
+    return "-" if v is None else format(v, fmt)
+
+
+def format_crossval(result: dict, per_fold: bool = False) -> str:
+    """The cross-validation table (stdout): one row per configuration, best score / floor first."""
+    sizes = ", ".join(str(n) for n in result["fold_sizes"])
+    lines = [
+        f"{result['demonstrations']} demonstrations, {result['folds']} folds ({sizes} held out), seed {result['seed']}; "
+        f"floor {result['floor']:.3f} (the held-out demonstrations scored against the same training sets)",
+        "score: Bhattacharyya distance of the rollouts from the held-out starts to the training demonstrations "
+        "(lower is better); ratio = score / floor; pos/rot: RMSE against the held-out demonstration with the "
+        "same start (m, rad); vel: relative velocity RMSE on held-out pairs (1 = predicting zero)",
+        "",
+        f"{'representation':<14} {'kernel':<10} {'score':>8} {'floor':>7} {'ratio':>7} {'rotation':>9} {'translation':>11}"
+        f" {'pos_m':>7} {'rot_rad':>7} {'vel':>6} {'train_s':>8}",
+    ]
+
+    def row(r, label_rep, label_kern):
+        flag = "" if r.get("reliable", True) else "  *"
+        return (f"{label_rep:<14} {label_kern:<10} {r['score']:8.3f} {r['floor']:7.3f} {r['ratio']:7.2f} {r['rotation']:9.3f}"
+                f" {r['translation']:11.3f} {r['position_rmse']:7.3f} {r['rotation_rmse']:7.3f} {_num(r['velocity_rmse'], '6.3f'):>6}"
+                f" {r['train_s']:8.1f}{flag}")
+
+    for r in result["results"]:
+        lines.append(row(r, r["representation"], r["kernel"] or "-"))
+        if per_fold:
+            for f in r["per_fold"]:
+                lines.append(row(f, f"  fold {f['fold'] + 1}", f"({f['n_test']} held)"))
+    if any(not r.get("reliable", True) for r in result["results"]):
+        lines.append("* some folds have too few trajectories for their per-step variances (see the warnings)")
+    return "\n".join(lines)

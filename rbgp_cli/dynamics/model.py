@@ -12,17 +12,20 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rbgp_cli.dynamics.representations import Representation, make_representation
+from rbgp_cli.dynamics.defaults import DEFAULT_KERNELS, DEFAULTS
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.dynamics.velocities import VelocityOptions, estimate_velocities, integration_drift, window_problem
 from rbgp_cli.errors import InputError
 from rbgp_cli.gp.exact import GaussianProcess, fit_gp
 from rbgp_cli.kernels import DotProduct, Kernel, SquaredExponential
 
-__all__ = ["MotionModel", "make_kernel", "training_set", "train_model", "choose_gp", "KERNELS"]
+__all__ = ["MotionModel", "make_kernel", "training_set", "train_model", "choose_gp", "KERNELS", "DEFAULTS", "default_velocity"]
 
 KERNELS = ("se", "se-chordal", "dot")
 #: What the GP sees besides the pose: nothing (the paper), seconds since the start, or the phase.
 TIME_INPUTS = (None, "seconds", "phase")
+#: The GP's prior mean: zero (the paper), a pull toward the goal, or the demonstrations' mean path.
+PRIORS = (None, "goal", "path")
 
 
 def make_kernel(representation: Representation, kernel: str = "se", rho_rot: float = 0.7, learn_rho: bool = False,
@@ -64,10 +67,11 @@ class MotionModel:
     time_input : None, or ``"seconds"`` (time since the demonstration's start is a last GP input) or
         ``"phase"`` (normalised time s = (t − t_0)/D is a last input, and the outputs are velocities
         per unit phase, D·ξ, so that a rollout of any duration D' traverses the learned motion once)
-    mean : None (zero-mean GP, MATH.md §7) or ``{"kind": "attractor", "gain": a, "goal": (7,)}``: the
-        prior mean ξ_m = −a·(log(R R_goalᵀ), p − p_goal) (per second, or per unit phase) converted to
-        the representation's outputs; the GP models the residual, as in stable dynamical systems
-        learned from demonstration
+    mean : None (zero-mean GP, MATH.md §7), ``{"kind": "goal", "gain": a, "goal": (7,)}`` or
+        ``{"kind": "path", "gain": a, "s", "quat", "position", "velocity"}``: the prior mean of the
+        outputs (:func:`prior_mean_outputs`, per second or per unit phase) converted to the
+        representation's outputs; the GP models the residual, as in stable dynamical systems learned
+        from demonstration
     """
 
     representation: Representation
@@ -110,7 +114,7 @@ class MotionModel:
         if not self.mean:
             return None
         phase = X[:, -1] if self.time_input == "phase" else None
-        return attractor_mean(self.representation, X[:, : self.pose_dims], self.mean, phase)
+        return prior_mean_outputs(self.representation, X[:, : self.pose_dims], self.mean, phase)
 
     def predict_output(self, X, return_std: bool = False, manage_threads: bool = True):
         """Outputs (velocities in the representation's coordinates, per second or per unit phase) at
@@ -139,10 +143,10 @@ class MotionModel:
         return (mean, std) if return_std else mean
 
 
-def attractor_mean(representation: Representation, state: np.ndarray, mean: dict, phase=None) -> np.ndarray:
+def prior_mean_outputs(representation: Representation, state: np.ndarray, mean: dict, phase=None) -> np.ndarray:
     """The prior mean as the representation's outputs at ``state`` (m, d).
 
-    ``attractor``: ξ_m = a·(log(R_goal Rᵀ), p_goal − p), a pull toward the demonstrations' mean final
+    ``goal``: ξ_m = a·(log(R_goal Rᵀ), p_goal − p), a pull toward the demonstrations' mean final
     pose. ``path`` (phase input only): ξ_m = ξ̄(s) + a·(log(R̄(s) Rᵀ), p̄(s) − p), the velocity of the
     demonstrations' mean path at phase s (per unit phase) plus a pull toward its pose at s
     (:func:`mean_path`); ``phase`` (m,) gives s.
@@ -186,7 +190,7 @@ def mean_path(trajs: list[Trajectory], steps: int = 51) -> dict:
     p_mean = P.mean(axis=0)
     ds = np.diff(s)[:, None]
     vel = np.concatenate([log_quat(quat_multiply(q_mean[1:], quat_conjugate(q_mean[:-1]))), np.diff(p_mean, axis=0)], axis=1) / ds
-    return {"s": s.tolist(), "quat": q_mean.tolist(), "position": p_mean.tolist(), "velocity": vel.tolist()}
+    return {"s": s, "quat": q_mean, "position": p_mean, "velocity": vel}
 
 
 def goal_pose(trajs: list[Trajectory]) -> np.ndarray:
@@ -197,6 +201,11 @@ def goal_pose(trajs: list[Trajectory]) -> np.ndarray:
     q = V[:, -1]
     q = q if q[3] >= 0 else -q
     return np.concatenate([q, np.mean([tr.position[-1] for tr in trajs], axis=0)])
+
+
+def default_velocity() -> VelocityOptions:
+    """How training velocities are estimated unless told otherwise (:data:`DEFAULTS`)."""
+    return VelocityOptions(rate=DEFAULTS["train_rate"], window=DEFAULTS["smooth_window"], degree=DEFAULTS["smooth_degree"])
 
 
 def demonstration_pairs(trajs: list[Trajectory], representation: Representation,
@@ -314,30 +323,36 @@ def choose_gp(points: int, inducing: int | None, max_points: int | None, kernel:
 def train_model(
     trajs: list[Trajectory],
     *,
-    representation: str = "axis-angle",
-    kernel: str = "se",
-    rho_rot: float | str = 0.7,
-    restarts: int = 3,
+    representation: str = DEFAULTS["representation"],
+    kernel: str | None = DEFAULTS["kernel"],
+    rho_rot: float | str = DEFAULTS["rho_rot"],
+    restarts: int = DEFAULTS["restarts"],
     seed: int = 0,
     noise=None,
     shared: bool = False,
-    subsample: float | None = 0.1,
-    max_points: int | None = 2000,
+    subsample: float | None = DEFAULTS["subsample"],
+    max_points: int | None = DEFAULTS["max_points"],
     euler_order: str = "xyz",
     progress=None,
     explore_size: int | None = None,
     velocity: VelocityOptions | None = None,
-    time_input: str | None = None,
-    attractor: float | None = None,
-    path_gain: float | None = None,
+    time_input: str | None = DEFAULTS["time_input"],
+    prior: str | None = DEFAULTS["prior"],
+    prior_gain: float = DEFAULTS["prior_gain"],
     inducing: int | None = None,
 ) -> MotionModel:
     """Train a motion model on clean demonstrations (see :func:`rbgp_cli.dynamics.prepare.prepare_all`).
 
     ``rho_rot`` is ρ1 of eq. 19 (a number in (0, 1)) or ``"learn"``. ``noise`` is None to learn σn or
     a fixed standard deviation. ``explore_size``: the optimiser's starts explore a random subset of
-    this many training points first (see :func:`rbgp_cli.gp.exact.fit_gp`; None: its default, 0: off). Returns the model; its ``summary`` holds demos, pairs, points, the
-    hyperparameters and NLML per output, the safeguards used and the time taken.
+    this many training points first (see :func:`rbgp_cli.gp.exact.fit_gp`; None: its default, 0: off).
+    ``velocity``: how training velocities are estimated (:class:`VelocityOptions`). ``time_input``:
+    None, ``"seconds"`` or ``"phase"`` (see :class:`MotionModel`). ``prior``: the GP's prior mean,
+    None (zero, the paper), ``"goal"`` (a pull toward the demonstrations' mean final pose) or
+    ``"path"`` (the demonstrations' mean path over phase: its velocity plus a pull toward it; needs
+    the phase input), with the pull's gain ``prior_gain`` (per unit phase, or per second).
+    Returns the model; its ``summary`` holds demos, pairs, points, the hyperparameters and NLML per
+    output, the safeguards used and the time taken.
 
     ``inducing`` chooses the GP (:func:`choose_gp`): None (automatic) trains the exact GP on at most
     ``max_points`` points (as before) unless more than both ``max_points`` and SPARSE_ABOVE are left after
@@ -346,6 +361,9 @@ def train_model(
     ``max_points`` never drops points from a sparse GP. ``summary["gp"]`` says which and why.
     """
     t0 = time.perf_counter()
+    if representation not in DEFAULT_KERNELS:
+        raise InputError(f"unknown representation {representation!r}; expected one of {', '.join(DEFAULT_KERNELS)}")
+    kernel = kernel or DEFAULT_KERNELS[representation]
     rep = make_representation(representation, order=euler_order) if representation == "euler" else make_representation(representation)
     learn_rho = rho_rot == "learn"
     rho = 0.7 if learn_rho else float(rho_rot)
@@ -353,8 +371,14 @@ def train_model(
         raise InputError(f"--rho-rot must lie strictly between 0 and 1 (or be 'learn'), got {rho_rot}")
     if time_input not in TIME_INPUTS:
         raise InputError(f"unknown time input {time_input!r}; expected one of none, seconds, phase")
+    if prior not in PRIORS:
+        raise InputError(f"unknown prior {prior!r}; expected one of none, goal, path")
+    if prior == "path" and time_input != "phase":
+        raise InputError("the mean-path prior follows the phase", hint="use --time-input phase with --prior path")
+    if prior and not (np.isfinite(prior_gain) and prior_gain >= 0):
+        raise InputError(f"--prior-gain must be a non-negative number, got {prior_gain}")
     kern = make_kernel(rep, kernel, rho, learn_rho, time_dims=1 if time_input else 0)
-    velocity = velocity or VelocityOptions()
+    velocity = velocity or default_velocity()
     X, Y, info = training_set(trajs, rep, subsample=subsample, max_points=None, seed=seed, velocity=velocity,
                               time_input=time_input)
     gp_choice = choose_gp(info["points"], inducing, max_points, kernel)
@@ -362,14 +386,12 @@ def train_model(
         X, Y, info = training_set(trajs, rep, subsample=subsample, max_points=max_points, seed=seed, velocity=velocity,
                                   time_input=time_input)
     mean = None
-    if path_gain is not None:
-        if time_input != "phase":
-            raise InputError("a mean-path prior needs the phase input", hint="add --time-input phase")
-        mean = {"kind": "path", "gain": float(path_gain), **mean_path(trajs)}
-    elif attractor:
-        mean = {"kind": "attractor", "gain": float(attractor), "goal": goal_pose(trajs).tolist()}
+    if prior == "path":
+        mean = {"kind": "path", "gain": float(prior_gain), **mean_path(trajs)}
+    elif prior == "goal":
+        mean = {"kind": "goal", "gain": float(prior_gain), "goal": goal_pose(trajs).tolist()}
     if mean is not None:
-        Y = Y - attractor_mean(rep, X[:, : len(rep.input_names)], mean, X[:, -1] if time_input == "phase" else None)
+        Y = Y - prior_mean_outputs(rep, X[:, : len(rep.input_names)], mean, X[:, -1] if time_input == "phase" else None)
     if progress:
         progress(f"{len(trajs)} demonstrations, {info['pairs']} pairs, training on {info['points']} points "
                  f"({rep.name}, kernel {kernel}, {'shared' if shared else 'per-output'} hyperparameters)")
@@ -411,7 +433,7 @@ def train_model(
         "seconds": time.perf_counter() - t0,
     }
     summary["time_input"] = time_input
-    summary["mean"] = mean
     summary["gp"] = gp_choice
+    summary["prior"] = None if mean is None else {"kind": mean["kind"], "gain": mean["gain"]}
     return MotionModel(rep, gp, float(dt), starts, durations, summary=summary, velocity=velocity,
                        time_input=time_input, mean=mean)

@@ -25,13 +25,13 @@ score / floor of those means); trajectory and velocity errors are pooled over al
 demonstrations; ``train_s`` is the mean training time per fold.
 
 Folds of every configuration run as independent tasks, in worker processes with single-threaded BLAS
-(``jobs``), in this process (``jobs=1``), or on a Dask cluster (``scheduler``; :mod:`rbgp_cli.parallel`);
-results do not depend on where they ran.
+(``jobs``), or in this process (``jobs=1``); results do not depend on ``jobs``.
 """
 
 from __future__ import annotations
 
 import math
+import os
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -39,7 +39,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rbgp_cli.dynamics.trajectory import Trajectory
-from rbgp_cli.errors import InputError
+from rbgp_cli.errors import InputError, warn
+from rbgp_cli.progress import as_progress
 from rbgp_cli.evaluation.bhattacharyya import evaluate
 from rbgp_cli.evaluation.resample import resample_all
 from rbgp_cli.geometry.so3 import quat_conjugate, quat_multiply, rotate
@@ -183,24 +184,55 @@ def run_fold(config: Config, train: list[Trajectory], test: list[Trajectory], *,
         t0 = time.perf_counter()
         gen, train_s, model = _generate(config, train, test)
         gen_s = time.perf_counter() - t0 - train_s
-        score = evaluate(gen, train, length=length, covariance=covariance)
+        score = evaluate(gen, train, length=length, covariance=covariance, sample_size="record")
         T = score.steps
         sp, sr, count = trajectory_errors(gen, test, T)
         vel = velocity_errors(model, test) if model is not None else None
     out = {
         "score": score.mean, "rotation": score.rotation, "translation": score.translation,
+        "reliable": bool(getattr(score, "reliable", True)),
         "steps": T, "position_sq": sp, "rotation_sq": sr, "count": count,
         "train_s": train_s, "rollout_s": gen_s, "velocity": vel,
-        "warnings": sorted({str(w.message) for w in caught}),
+        "warnings": sorted({str(w.message) for w in caught} | set(score.warnings)),
     }
     if model is not None:
         out["points"] = int(model.summary.get("points", 0))
     return out
 
 
+def _worker_init() -> None:
+    """Worker processes: BLAS single-threaded (the folds themselves are the parallelism)."""
+    try:
+        from threadpoolctl import threadpool_limits
+
+        _worker_init.limits = threadpool_limits(limits=1)  # kept alive for the worker's lifetime
+    except ImportError:  # pragma: no cover
+        pass
+
+
 def _task(args):
     config, train, test, length, covariance = args
     return run_fold(config, train, test, length=length, covariance=covariance)
+
+
+def _run_in_processes(args: list, n_jobs: int):
+    """Yield (index, result) of ``_task(a)`` for every ``a`` in ``args`` as they finish, in ``n_jobs``
+    fresh (spawned) worker processes with single-threaded BLAS. On an error or Ctrl-C the pending
+    tasks are cancelled and the workers stopped."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    ex = ProcessPoolExecutor(max_workers=n_jobs, mp_context=multiprocessing.get_context("spawn"), initializer=_worker_init)
+    try:
+        futs = {ex.submit(_task, a): i for i, a in enumerate(args)}
+        for fut in as_completed(futs):
+            yield futs[fut], fut.result()
+    except BaseException:
+        ex.shutdown(wait=False, cancel_futures=True)
+        for proc in list(getattr(ex, "_processes", {}).values()):  # do not leave fits running
+            proc.terminate()
+        raise
+    ex.shutdown(wait=True)
 
 
 # --------------------------------------------------------------------------------------------- all folds
@@ -235,6 +267,7 @@ def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[di
             "rotation_rmse": _pooled_rmse(r["rotation_sq"], r["count"]),
             **_velocity_summary([r["velocity"]]),
             "train_s": r["train_s"], "rollout_s": r["rollout_s"],
+            "reliable": bool(r.get("reliable", True) and floor.reliable),
         }
         if "points" in r:
             entry["points"] = r["points"]
@@ -255,6 +288,7 @@ def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[di
         "rotation_rmse": _pooled_rmse(sum(r["rotation_sq"] for r in results), count),
         **_velocity_summary([r["velocity"] for r in results]),
         "train_s": float(np.mean([r["train_s"] for r in results])),
+        "reliable": all(e["reliable"] for e in per_fold),
         "per_fold": per_fold,
     }
 
@@ -271,9 +305,10 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
     folds, seed : K folds of a seeded permutation of the demonstrations
     jobs : worker processes (None: one per core, at most the number of tasks; 1: in this process)
     length, covariance : passed to :func:`~rbgp_cli.evaluation.bhattacharyya.evaluate`
-    progress : optional callable(done, total, message)
-    scheduler : None, ``"local"`` or a Dask scheduler's address: run the fold tasks on a Dask cluster
-        (:func:`rbgp_cli.parallel.run_tasks`; same results)
+    progress : a :class:`rbgp_cli.progress.Progress` (or callable(str), or None): a task over the fits,
+        and one message per finished fit
+    scheduler : None, ``"local"`` (a Dask ``LocalCluster`` of ``jobs`` workers) or the address of a Dask
+        scheduler: the fits run there (:func:`rbgp_cli.parallel.iter_dask`); the results are the same
 
     Returns ``{"folds": K, "seed", "demonstrations", "fold_sizes", "results": [row, ...]}`` with the
     rows sorted by score / floor (best first); each row as in the module docstring.
@@ -286,24 +321,45 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
         train = [d for i, d in enumerate(demos) if i not in held]
         test = [demos[i] for i in test_idx]
         splits.append((train, test))
-    floors = [evaluate(test, train, length=length, covariance=covariance) for train, test in splits]
+    smallest = min(len(f) for f in fold_idx)
+    if smallest < 2:
+        warn(f"with {len(fold_idx)} folds of {len(demos)} demonstrations some folds hold out only one: a score "
+             "of one trajectory rests on the ridge variance, not on the motions; use --folds "
+             f"{max(2, len(demos) // 2)} or fewer (at least 2 held out per fold)")
+    floors = [evaluate(test, train, length=length, covariance=covariance, sample_size="record") for train, test in splits]
     tasks = [(c, f) for c in configs for f in range(len(splits))]
     args = [(c, splits[f][0], splits[f][1], length, covariance) for c, f in tasks]
-    from rbgp_cli.parallel import run_tasks
-
-    finished = [0]
+    n_jobs = jobs if jobs is not None else min(len(tasks), os.cpu_count() or 1)
+    n_jobs = max(1, min(int(n_jobs), len(tasks)))
+    results: list = [None] * len(tasks)
     caught: set = set()
+    progress = as_progress(progress)
+    progress(f"{len(demos)} demonstrations in {len(splits)} folds ({', '.join(str(len(f)) for f in fold_idx)} held out); "
+             f"{len(configs)} configuration{'s' * (len(configs) != 1)}, {len(tasks)} fits"
+             + (f" on the Dask cluster {scheduler!r}" if scheduler else f" in {n_jobs} worker processes" if n_jobs > 1 else ""))
 
-    def done(i, r):
-        finished[0] += 1
-        caught.update(r.get("warnings", []))
-        if progress is not None:
+    with progress.task("cross-validation", total=len(tasks), unit="fits") as bar:
+        def done(i, r):
+            results[i] = r
+            caught.update(r.get("warnings", []))
             c, f = tasks[i]
-            progress(finished[0], len(tasks),
-                     f"{c.name}, fold {f + 1}/{len(splits)}: score {r['score']:.3f} (floor {floors[f].mean:.3f})"
-                     + (f", trained in {r['train_s']:.1f} s" if r["train_s"] else ""))
+            msg = (f"{c.name}, fold {f + 1}/{len(splits)}: score {r['score']:.3f} (floor {floors[f].mean:.3f})"
+                   + (f", trained in {r['train_s']:.1f} s" if r["train_s"] else ""))
+            bar.update(status=msg)
+            bar.advance()
+            progress(msg)
 
-    results = run_tasks(_task, args, jobs=jobs, scheduler=scheduler, on_result=done)
+        if scheduler:
+            from rbgp_cli.parallel import iter_dask
+
+            for i, r in iter_dask(_task, args, jobs=jobs, scheduler=scheduler):
+                done(i, r)
+        elif n_jobs == 1:
+            for i, a in enumerate(args):
+                done(i, _task(a))
+        else:
+            for i, r in _run_in_processes(args, n_jobs):
+                done(i, r)
     rows = []
     for ci, c in enumerate(configs):
         res = [results[ci * len(splits) + f] for f in range(len(splits))]
@@ -316,5 +372,5 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
         "fold_sizes": [int(len(f)) for f in fold_idx],
         "floor": float(np.mean([f.mean for f in floors])),
         "results": rows,
-        "warnings": sorted(caught),
+        "warnings": sorted(caught | {w for f in floors for w in f.warnings}),
     }

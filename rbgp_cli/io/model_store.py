@@ -6,13 +6,16 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
   representation, kernel, per-output hyperparameters and fit diagnostics, shared mode, time step,
   training summary, provenance (input names and SHA-256, options), and the SHA-256 of every array.
 * ``X`` (n, d) training inputs, ``Y`` (n, L) outputs, ``y_scale`` (L,), ``starts`` (D, 7),
-  ``durations`` (D,).
-
-A sparse GP (:mod:`rbgp_cli.gp.sparse`; header ``"gp": {"type": "sparse", "inducing": M}``, format
-version 2) also holds ``Z`` (M, d) inducing inputs and, per hyperparameter group g (one per output, or
-one shared), the posterior's factors ``Lm`` (G, M, M), ``LB`` (G, M, M) and ``c`` (M, L) (the columns of
-group g's outputs); loading checks them against k(Z, Z) instead of refactorising all n points. Exact
-models are still written as version 1, which older rbgp reads; version 1 files load as before.
+  ``durations`` (D,); with a mean-path prior also ``prior_s`` (S,), ``prior_quat`` (S, 4),
+  ``prior_position`` (S, 3), ``prior_velocity`` (S − 1, 6).
+* Version 2 adds to the header how velocities were estimated (``velocity``), the time input
+  (``time_input``: null, "seconds" or "phase") and the prior mean (``prior``: null or kind, gain and
+  the goal pose). Version 1 files load as models without them (zero mean, no time input).
+* Version 3: a sparse GP (:mod:`rbgp_cli.gp.sparse`; header ``"gp": {"type": "sparse", "inducing": M}``)
+  also holds ``Z`` (M, d) inducing inputs and, per hyperparameter set g (one per output, or one shared),
+  the posterior's factors ``Lm`` (G, M, M), ``LB`` (G, M, M) and ``c`` (M, L) (the columns of set g's
+  outputs); loading checks them against k(Z, Z) instead of refactorising all n points. Exact models
+  are still written as version 2, which older rbgp reads.
 
 Loading uses ``allow_pickle=False``, checks the format name and version, verifies every checksum,
 rebuilds the GP and re-runs its Cholesky factorisation. Any failure is an :class:`InputError`
@@ -36,10 +39,13 @@ from rbgp_cli.io.atomic import atomic_open
 __all__ = ["FORMAT", "FORMAT_VERSION", "save_model", "load_model", "file_sha256", "array_sha256"]
 
 FORMAT = "rbgp-model"
-#: The newest version this rbgp reads and writes (2: sparse models; exact models are written as 1).
-FORMAT_VERSION = 2
+#: The newest version this rbgp reads and writes (3: sparse GPs; exact models are written as 2).
+FORMAT_VERSION = 3
 _ARRAYS = ("X", "Y", "y_scale", "starts", "durations")
+#: Arrays of a sparse GP (version 3).
 _SPARSE_ARRAYS = ("Z", "Lm", "LB", "c")
+#: Arrays of the mean-path prior (present only when the model has one).
+_PRIOR_ARRAYS = {"prior_s": "s", "prior_quat": "quat", "prior_position": "position", "prior_velocity": "velocity"}
 
 
 def array_sha256(a: np.ndarray) -> str:
@@ -87,6 +93,15 @@ def save_model(model, path) -> dict:
         "starts": np.ascontiguousarray(model.starts, dtype=np.float64).reshape(-1, 7),
         "durations": np.ascontiguousarray(model.durations, dtype=np.float64).reshape(-1),
     }
+    mean = model.mean
+    prior = None
+    if mean:
+        prior = {"kind": mean["kind"], "gain": float(mean["gain"])}
+        if mean["kind"] == "goal":
+            prior["goal"] = [float(v) for v in mean["goal"]]
+        else:
+            for name, key in _PRIOR_ARRAYS.items():
+                arrays[name] = np.ascontiguousarray(mean[key], dtype=np.float64)
     sparse = bool(getattr(gp, "sparse", False))
     if sparse:
         arrays["Z"] = np.ascontiguousarray(gp.Z, dtype=np.float64)
@@ -95,7 +110,7 @@ def save_model(model, path) -> dict:
         arrays["c"] = np.ascontiguousarray(np.concatenate([st[2] for st in gp.stats], axis=1), dtype=np.float64)
     header = {
         "format": FORMAT,
-        "version": 2 if sparse else 1,
+        "version": 3 if sparse else 2,
         "rbgp_version": __version__,
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "representation": model.representation.to_dict(),
@@ -103,6 +118,9 @@ def save_model(model, path) -> dict:
         "shared": bool(gp.shared),
         "fits": [f.to_dict() for f in gp.fits],
         "dt": float(model.dt),
+        "velocity": model.velocity.to_dict(),
+        "time_input": model.time_input,
+        "prior": prior,
         "input_names": list(model.representation.input_names),
         "output_names": list(model.representation.output_names),
         "summary": _jsonable(model.summary),
@@ -150,7 +168,7 @@ def read_header(path) -> tuple[dict, dict]:
             if "header" not in names:
                 raise _bad(path, "not an rbgp model file (no header)", "pass a file written by rbgp train")
             header_bytes = z["header"].tobytes()
-            arrays = {k: z[k] for k in _ARRAYS + _SPARSE_ARRAYS if k in names}
+            arrays = {k: z[k] for k in (*_ARRAYS, *_PRIOR_ARRAYS, *_SPARSE_ARRAYS) if k in names}
     except RbgpError:
         raise
     except FileNotFoundError:
@@ -183,6 +201,7 @@ def read_header(path) -> tuple[dict, dict]:
     for name in _ARRAYS + (_SPARSE_ARRAYS if gp.get("type") == "sparse" else ()):
         if name not in arrays:
             raise _bad(path, f"array {name!r} is missing from the model file")
+    for name in arrays:
         if sums.get(name) != array_sha256(arrays[name]):
             raise _bad(path, f"checksum mismatch in array {name!r}: the file is corrupted")
     return header, arrays
@@ -212,7 +231,9 @@ def load_model(path):
                 raise ValueError(f"jitter = {j!r} is not a non-negative finite number")
             f.jitter = float(j)
         X, Y = arrays["X"], arrays["Y"]
-        if X.ndim != 2 or Y.ndim != 2 or len(X) != len(Y) or X.shape[1] != len(rep.input_names) or Y.shape[1] != len(rep.output_names):
+        extra = 1 if header.get("time_input") else 0
+        if (X.ndim != 2 or Y.ndim != 2 or len(X) != len(Y) or X.shape[1] != len(rep.input_names) + extra
+                or Y.shape[1] != len(rep.output_names)):
             raise ValueError("array shapes disagree with the representation")
         if len(fits) != (1 if header["shared"] else Y.shape[1]):
             raise ValueError("number of fitted outputs disagrees with the data")
@@ -228,7 +249,7 @@ def load_model(path):
                 kj = f.kmm_jitter
                 if isinstance(kj, bool) or not isinstance(kj, (int, float)) or not 0 <= kj < 1:
                     raise ValueError(f"kmm_jitter = {kj!r} is not a number in [0, 1)")
-            cols = [[0, Y.shape[1]]] if header["shared"] else [[g, g + 1] for g in range(G)]
+            cols = [(0, Y.shape[1])] if header["shared"] else [(g, g + 1) for g in range(G)]
             stats = [(Lm[g], LB[g], c[:, a:b]) for g, (a, b) in enumerate(cols)]
             gp = SparseGP(kernel, X, Y, Z, fits, shared=header["shared"], y_scale=arrays["y_scale"], stats=stats)
         else:
@@ -236,9 +257,48 @@ def load_model(path):
         dt = float(header["dt"])
         if not (np.isfinite(dt) and dt > 0):
             raise ValueError("invalid time step")
+        velocity, time_input, mean = _model_extras(header, arrays, rep, X)
     except RbgpError as exc:
         raise _bad(path, f"the model cannot be rebuilt: {exc.message}") from None
     except (KeyError, TypeError, ValueError, IndexError, AttributeError, ArithmeticError) as exc:
         raise _bad(path, f"the model header is inconsistent ({type(exc).__name__}: {str(exc)[:80]})") from None
     return MotionModel(rep, gp, dt, arrays["starts"], arrays["durations"],
-                       summary=header.get("summary", {}), provenance=header.get("provenance", {})), header
+                       summary=header.get("summary", {}), provenance=header.get("provenance", {}),
+                       velocity=velocity, time_input=time_input, mean=mean), header
+
+
+def _model_extras(header: dict, arrays: dict, rep, X):
+    """Velocity options, time input and prior mean of a version-2 header (version 1: defaults), checked."""
+    from rbgp_cli.dynamics.velocities import VelocityOptions
+
+    v = header.get("velocity") or {}
+    velocity = VelocityOptions(rate=v.get("rate_hz"), window=float(v.get("window_s", 0.0)), degree=int(v.get("degree", 2)))
+    time_input = header.get("time_input")
+    if time_input not in (None, "seconds", "phase"):
+        raise ValueError(f"unknown time input {time_input!r}")
+    if X.shape[1] != len(rep.input_names) + (1 if time_input else 0):
+        raise ValueError("the training inputs disagree with the time input")
+    prior = header.get("prior")
+    if not prior:
+        return velocity, time_input, None
+    gain = float(prior["gain"])
+    if not (np.isfinite(gain) and gain >= 0):
+        raise ValueError(f"prior gain {gain!r} is not a non-negative number")
+    if prior["kind"] == "goal":
+        goal = np.asarray(prior["goal"], dtype=np.float64)
+        if goal.shape != (7,) or not np.all(np.isfinite(goal)):
+            raise ValueError("the prior's goal pose is not 7 finite numbers")
+        return velocity, time_input, {"kind": "goal", "gain": gain, "goal": goal.tolist()}
+    if prior["kind"] != "path" or time_input != "phase":
+        raise ValueError(f"unknown prior {prior['kind']!r} for time input {time_input!r}")
+    mean = {"kind": "path", "gain": gain}
+    for name, key in _PRIOR_ARRAYS.items():
+        if name not in arrays:
+            raise ValueError(f"array {name!r} of the mean-path prior is missing")
+        mean[key] = np.asarray(arrays[name], dtype=np.float64)
+    S = len(mean["s"])
+    if (S < 2 or mean["quat"].shape != (S, 4) or mean["position"].shape != (S, 3)
+            or mean["velocity"].shape != (S - 1, 6) or not all(np.all(np.isfinite(a)) for a in mean.values() if isinstance(a, np.ndarray))
+            or not np.all(np.diff(mean["s"]) > 0)):
+        raise ValueError("the mean-path prior's arrays are inconsistent")
+    return velocity, time_input, mean

@@ -13,6 +13,7 @@ import pytest
 from typer.testing import CliRunner
 
 from rbgp_cli.cli.app import app
+from rbgp_cli.io.model_store import FORMAT_VERSION
 
 REPO = Path(__file__).resolve().parents[2]
 CSV_DIR = REPO / "sample_data" / "csv"
@@ -57,7 +58,7 @@ def test_info_shows_provenance(model):
     res = run("info", model, "--json")
     assert res.exit_code == 0
     h = json.loads(res.stdout)
-    assert h["format"] == "rbgp-model" and h["version"] == 1
+    assert h["format"] == "rbgp-model" and h["version"] == FORMAT_VERSION
     names = [i["name"] for i in h["provenance"]["inputs"]]
     assert len(names) == 9 and all(len(i["sha256"]) == 64 for i in h["provenance"]["inputs"])
     assert h["provenance"]["train_options"]["max_points"] == 150

@@ -1,0 +1,26 @@
+"""The default training options of ``rbgp train``, ``rbgp crossval`` and ``rbgp demo``, in one place.
+
+They were chosen by held-out evaluation (``rbgp crossval``) on real recordings and the bundled sample
+data; the README's table "How the defaults were chosen" gives the numbers. Imports nothing, so the
+command line can read them without loading numpy.
+"""
+
+#: Keyword arguments of :func:`rbgp_cli.dynamics.model.train_model` (velocity estimation spelled out).
+DEFAULTS = {
+    "representation": "axis-angle",
+    "kernel": None,  # the representation's own: DEFAULT_KERNELS
+    "rho_rot": 0.7,
+    "restarts": 3,
+    "explore_size": 400,
+    "subsample": 0.1,
+    "max_points": 2000,
+    "train_rate": None,  # Hz; None keeps the recorded samples
+    "smooth_window": 0.0,  # seconds; 0 = forward differences
+    "smooth_degree": 2,
+    "time_input": None,
+    "prior": None,
+    "prior_gain": 10.0,
+}
+
+#: The kernel each representation trains with unless one is named (``kernel=None``).
+DEFAULT_KERNELS = {"axis-angle": "se", "quaternion": "se", "euler": "se"}
