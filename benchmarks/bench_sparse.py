@@ -12,11 +12,12 @@ time to the exact GP's at 2000 points measured in the same run.
 Part 2 (``--crossval``), real recordings: ``rbgp_cli.evaluation.crossval`` on
 ``../shared/realdata/handover_object_csv`` (30 handovers) and on ``sample_data/csv`` (9 shoe
 demonstrations), 5 folds, seed 0, axis-angle with the chordal kernel, shared hyperparameters, 2
-starts, all pairs (``subsample=1``) at a velocity rate of 10 Hz and at the recorded rate: the exact GP
+starts, all pairs (``subsample=1``) at a velocity rate of 10 Hz and at the recorded rate (sample_data:
+recorded rate only, ``--sample-rates``): the exact GP
 on at most 2000 points (``inducing=0``) against the sparse GP on all points (``inducing=512``), the
 same options otherwise.
 
-    .venv/bin/python benchmarks/bench_sparse.py                      # part 1 (~10 min here)
+    .venv/bin/python benchmarks/bench_sparse.py --blas-threads 1     # part 1 (~15 min here, loaded)
     .venv/bin/python benchmarks/bench_sparse.py --quick              # n = 1000 exact vs 20 000 sparse
     .venv/bin/python benchmarks/bench_sparse.py --crossval           # part 2 (~15 min here)
 """
@@ -76,7 +77,9 @@ print(json.dumps({{"kind": kind, "n": n, "M": M, "fit_s": fit_s, "rmse": rmse.to
 def run_child(kind: str, n: int, M: int, threads) -> dict:
     code = _CHILD.format(here=str(HERE), threads=threads, kind=kind, n=n, M=M)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    print(json.dumps(result), file=sys.stderr, flush=True)  # each run as it ends (a long run may be stopped)
+    return result
 
 
 def part1(args) -> str:
@@ -114,17 +117,19 @@ def part2(args) -> str:
     from rbgp_cli.evaluation.crossval import Config, crossval
     from rbgp_cli.workflows import load_demonstrations
 
-    sets = [("sample_data/csv", str(HERE.parent / "sample_data" / "csv"))]
+    sets = []
     real = HERE.parent.parent / "shared" / "realdata" / "handover_object_csv"
-    if real.is_dir():
-        sets.insert(0, ("handover_object_csv (30)", str(real)))
+    if real.is_dir() and "handover" in args.sets:
+        sets.append(("handover_object_csv (30)", str(real), args.rates))
+    if "sample" in args.sets:
+        sets.append(("sample_data/csv", str(HERE.parent / "sample_data" / "csv"), args.sample_rates))
     lines = [f"Measured {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; {machine_line()}", "",
              "| data | velocities | GP | points per fold | score / floor | score | position RMSE (m) | rotation RMSE (rad) | "
              "velocity RMSE (rel.) | ω RMSE (rad/s) | v RMSE (m/s) | train (s/fold) |",
              "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
-    for name, path in sets:
+    for name, path, rates in sets:
         demos, _r, _i = load_demonstrations([path])
-        for rate in (10.0, None):
+        for rate in [None if r == "recorded" else float(r) for r in rates.split(",")]:
             base = {"velocity": VelocityOptions(rate=rate), "subsample": 1.0, "shared": True, "restarts": 2, "seed": 0}
             configs = [Config("axis-angle", "se-chordal", train={**base, "inducing": 0, "max_points": 2000}, label="exact, ≤ 2000 points"),
                        Config("axis-angle", "se-chordal", train={**base, "inducing": args.inducing}, label=f"sparse M = {args.inducing}, all points")]
@@ -144,10 +149,13 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--crossval", action="store_true", help="part 2: held-out quality on real recordings")
-    ap.add_argument("--sizes", default="1000,2000,3000", help="exact GP sizes")
-    ap.add_argument("--sparse-sizes", default="3000,10000,100000", help="sparse GP sizes")
+    ap.add_argument("--sizes", default="1000,2000", help="exact GP sizes")
+    ap.add_argument("--sparse-sizes", default="10000,100000", help="sparse GP sizes")
     ap.add_argument("--inducing", type=int, default=512)
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--sets", default="handover,sample", help="part 2: handover and/or sample")
+    ap.add_argument("--rates", default="10,recorded", help="part 2: velocity rates for the handover set")
+    ap.add_argument("--sample-rates", default="recorded", help="part 2: velocity rates for sample_data")
     ap.add_argument("--blas-threads", type=int, default=None)
     ap.add_argument("--json")
     ap.add_argument("--markdown")

@@ -103,3 +103,23 @@ def test_a_running_cluster_by_address_single_threaded_blas_and_failures():
         assert run_tasks(_blas_threads, [0, 1, 2], scheduler=address) == [1, 1, 1]
         with pytest.raises(Exception, match="boom"):
             run_tasks(_fail, [1, 2, 3], scheduler=address)
+
+
+def test_crossval_command_passes_scheduler_and_inducing(monkeypatch):
+    """The command line hands --scheduler to the executor (an unreachable one is a one-line input
+    error) and --inducing to every fold's training."""
+    pytest.importorskip("distributed")
+    from typer.testing import CliRunner
+
+    from rbgp_cli.cli.app import app
+    from rbgp_cli.cli.train_options import train_kwargs
+
+    monkeypatch.setattr("rbgp_cli.parallel.CONNECT_TIMEOUT", "1s")
+    res = CliRunner().invoke(app, ["crossval", str(REPO / "sample_data" / "csv"), "--folds", "3", "--max-points", "50",
+                                   "--restarts", "1", "--scheduler", "tcp://127.0.0.1:9", "--inducing", "16"])
+    assert res.exit_code == 2, res.stderr
+    assert "cannot reach the Dask scheduler" in res.stderr and "Traceback" not in res.stderr
+    kw = train_kwargs(rho_rot="0.7", restarts=1, explore_size=0, seed=0, noise="learn", share_hyperparameters=True,
+                      subsample=1.0, max_points=50, train_rate=0.0, smooth_window=0.0, smooth_degree=2,
+                      time_input="none", prior="none", prior_gain=1.0, inducing=16)
+    assert kw["inducing"] == 16
