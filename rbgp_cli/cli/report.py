@@ -59,7 +59,8 @@ def format_model_info(path: str, h: dict) -> str:
         f"representation: {h['representation'].get('name')}   kernel: {h['kernel']}",
         f"inputs: {', '.join(h.get('input_names', []))}   outputs: {', '.join(h.get('output_names', []))}",
         f"training points: {h.get('training_points', '?')}   time step: {h['dt']:.6g} s   shared hyperparameters: {h['shared']}",
-    ]
+    ] + ([f"sparse GP: {h['gp']['inducing']} inducing poses (NLML: the negative variational bound)"]
+         if (h.get("gp") or {}).get("type") == "sparse" else [])
     names = ["all"] if h["shared"] else h.get("output_names", [])
     for nm, f in zip(names, h["fits"]):
         lines.append(f"  {nm:<7} NLML {f['nlml']:11.4g}  {_fmt_values(f['values'])}  jitter {f['jitter']:.2g}")

@@ -59,7 +59,7 @@ def test_loaded_sparse_model_predicts_as_when_trained_and_rolls_out(sparse_model
     rows = [r for r in out.read_text().splitlines() if not r.startswith("#")]
     assert len(rows) > 3 and "std_wx" in rows[0]
     res = run("info", path)
-    assert res.exit_code == 0 and "version 3" in res.stdout
+    assert res.exit_code == 0 and "version 3" in res.stdout and "sparse GP: 40 inducing poses" in res.stdout
 
 
 def test_damaged_sparse_factors_are_refused(sparse_model, tmp_path):
