@@ -15,7 +15,7 @@ from rbgp_cli import __version__
 from rbgp_cli.cli.args import RbgpGroup, paths_option
 from rbgp_cli.cli.train_options import (
     ExploreOpt, MaxPointsOpt, NoiseOpt, PriorGainOpt, PriorOpt, RestartsOpt, RhoOpt, SeedOpt, ShareOpt, SmoothDegreeOpt,
-    SmoothWindowOpt, SubsampleOpt, TimeInputOpt, TrainRateOpt, defaults, kernel_help, train_kwargs,
+    InducingOpt, SmoothWindowOpt, SubsampleOpt, TimeInputOpt, TrainRateOpt, defaults, kernel_help, train_kwargs,
 )
 from rbgp_cli.cli.common import (
     BodyOpt, ColumnsOpt, DegreesOpt, EulerOrderOpt, FormatOpt, FrameOpt, LengthUnitOpt, MaxGapOpt,
@@ -67,7 +67,7 @@ def train(
     subsample: SubsampleOpt = _D["subsample"], max_points: MaxPointsOpt = _D["max_points"],
     time_input: TimeInputOpt = _D["time_input"], prior: PriorOpt = _D["prior"], prior_gain: PriorGainOpt = _D["prior_gain"],
     train_rate: TrainRateOpt = _D["train_rate"], smooth_window: SmoothWindowOpt = _D["smooth_window"],
-    smooth_degree: SmoothDegreeOpt = _D["smooth_degree"],
+    smooth_degree: SmoothDegreeOpt = _D["smooth_degree"], inducing: InducingOpt = None,
     jobs: Annotated[int, typer.Option(min=0, help="Worker processes for the per-output fits (BLAS single-threaded in each; the model does not depend on it); 0 = one per output, fewer if memory is short, 1 on a single core.", rich_help_panel=_TRAIN)] = 0,
     json_out: Annotated[bool, typer.Option("--json", help="Print the summary as JSON on stdout.", rich_help_panel=_OUT)] = False,
     rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd) of the demonstrations and training points.", rich_help_panel=_OUT)] = None,
@@ -88,7 +88,7 @@ def train(
     kwargs = train_kwargs(rho_rot=rho_rot, restarts=restarts, explore_size=explore_size, seed=seed, noise=noise,
                           share_hyperparameters=share_hyperparameters, subsample=subsample, max_points=max_points,
                           train_rate=train_rate, smooth_window=smooth_window, smooth_degree=smooth_degree,
-                          time_input=time_input, prior=prior, prior_gain=prior_gain)
+                          time_input=time_input, prior=prior, prior_gain=prior_gain, inducing=inducing)
     if up not in ("z", "y"):
         raise InputError(f"--up must be z or y, got {up!r}")
     model, header, trajs = workflows.train_from_files(
@@ -359,6 +359,7 @@ def crossval(
     kernel: Annotated[Optional[List[str]], typer.Option("--kernel", help="Repeatable; every representation runs with every kernel (default: each representation's own). " + kernel_help(), rich_help_panel=_TRAIN)] = None,
     replay: Annotated[bool, typer.Option("--replay/--no-replay", help="Include the replay peer: the training demonstration with the nearest start, moved rigidly to the new start.")] = True,
     jobs: Annotated[Optional[int], typer.Option(min=1, help="Worker processes for the fits (default: one per core); 1 runs them in this process.")] = None,
+    scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Run the fits on a Dask cluster: the scheduler's address (tcp://host:8786), or 'local' for a LocalCluster of --jobs single-threaded workers. Needs pip install \"rbgp-cli[distributed]\"; the results are the same.")] = None,
     length: Annotated[Optional[int], typer.Option(min=2, help="Resample every trajectory to this many steps for the scores (default: the training demonstrations' median).")] = None,
     covariance: Annotated[str, typer.Option(help="Per-step Gaussians with diag or full covariance (as rbgp evaluate).")] = "diag",
     per_fold: Annotated[bool, typer.Option("--per-fold", help="Also print one line per fold and configuration.", rich_help_panel=_OUT)] = False,
@@ -368,7 +369,7 @@ def crossval(
     subsample: SubsampleOpt = _D["subsample"], max_points: MaxPointsOpt = _D["max_points"],
     time_input: TimeInputOpt = _D["time_input"], prior: PriorOpt = _D["prior"], prior_gain: PriorGainOpt = _D["prior_gain"],
     train_rate: TrainRateOpt = _D["train_rate"], smooth_window: SmoothWindowOpt = _D["smooth_window"],
-    smooth_degree: SmoothDegreeOpt = _D["smooth_degree"],
+    smooth_degree: SmoothDegreeOpt = _D["smooth_degree"], inducing: InducingOpt = None,
     fmt: FormatOpt = "auto", columns: ColumnsOpt = None, quat_order: QuatOrderOpt = None, euler_order: EulerOrderOpt = None,
     degrees: DegreesOpt = None, length_unit: LengthUnitOpt = None, time_unit: TimeUnitOpt = None, rate: RateOpt = None,
     topic: TopicOpt = None, frame: FrameOpt = None, time_source: TimeSourceOpt = "header", body: BodyOpt = None,
@@ -388,12 +389,12 @@ def crossval(
     kwargs = train_kwargs(rho_rot=rho_rot, restarts=restarts, explore_size=explore_size, seed=seed, noise=noise,
                           share_hyperparameters=share_hyperparameters, subsample=subsample, max_points=max_points,
                           train_rate=train_rate, smooth_window=smooth_window, smooth_degree=smooth_degree,
-                          time_input=time_input, prior=prior, prior_gain=prior_gain)
+                          time_input=time_input, prior=prior, prior_gain=prior_gain, inducing=inducing)
     configs, skipped = workflows.crossval_configs(representation, kernel, kwargs, replay=replay)
     for note in skipped:
         warn(f"left out {note}")
     result = workflows.crossval_files(demos, configs, options=opts, max_gap=max_gap, folds=folds, seed=seed, jobs=jobs,
-                                      length=length, covariance=covariance, progress=progress)
+                                      length=length, covariance=covariance, progress=progress, scheduler=scheduler)
     if json_out:
         emit_json(result)
     else:

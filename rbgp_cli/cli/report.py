@@ -32,6 +32,11 @@ def format_train_summary(s: dict) -> str:
         per = "per unit phase" if s.get("time_input") == "phase" else "per second"
         lines.append(f"time input: {s.get('time_input') or 'none'}   prior mean: "
                      + (f"{what[prior['kind']]} (gain {prior['gain']:g} {per})" if prior else "zero"))
+    gp = s.get("gp") or {}
+    if gp.get("type") == "sparse":
+        lines.append(f"sparse GP, {gp['inducing']} inducing poses (NLML column: the negative variational bound): {gp['reason']}")
+    elif gp.get("reason"):
+        lines.append(f"exact GP: {gp['reason']}")
     for o in s["outputs"]:
         flags = []
         if o["jitter"] > 0:
@@ -68,7 +73,8 @@ def format_model_info(path: str, h: dict) -> str:
         f"representation: {h['representation'].get('name')}   kernel: {h['kernel']}",
         f"inputs: {', '.join(h.get('input_names', []))}   outputs: {', '.join(h.get('output_names', []))}",
         f"training points: {h.get('training_points', '?')}   time step: {h['dt']:.6g} s   shared hyperparameters: {h['shared']}",
-    ]
+    ] + ([f"sparse GP: {h['gp']['inducing']} inducing poses (NLML: the negative variational bound)"]
+         if (h.get("gp") or {}).get("type") == "sparse" else [])
     names = ["all"] if h["shared"] else h.get("output_names", [])
     for nm, f in zip(names, h["fits"]):
         lines.append(f"  {nm:<7} NLML {f['nlml']:11.4g}  {_fmt_values(f['values'])}  jitter {f['jitter']:.2g}")

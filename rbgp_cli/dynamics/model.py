@@ -19,7 +19,7 @@ from rbgp_cli.errors import InputError
 from rbgp_cli.gp.exact import GaussianProcess, default_jobs, fit_gp
 from rbgp_cli.kernels import DotProduct, Kernel, SquaredExponential
 
-__all__ = ["MotionModel", "make_kernel", "training_set", "train_model", "KERNELS", "DEFAULTS", "default_velocity"]
+__all__ = ["MotionModel", "make_kernel", "training_set", "train_model", "choose_gp", "KERNELS", "DEFAULTS", "default_velocity"]
 
 KERNELS = ("se", "se-chordal", "dot")
 #: What the GP sees besides the pose: nothing (the paper), seconds since the start, or the phase.
@@ -279,6 +279,47 @@ def training_set(trajs: list[Trajectory], representation: Representation, *, sub
                             "segments": segments}
 
 
+#: Automatic choice: above this many training points (and above ``max_points``) a sparse GP on all of
+#: them replaces the exact GP on a random ``max_points`` (benchmarks/bench_sparse.py measures where the
+#: exact GP stops being affordable).
+SPARSE_ABOVE = 3000
+
+
+def choose_gp(points: int, inducing: int | None, max_points: int | None, kernel: str) -> dict:
+    """Which GP to train on ``points`` training points (after ``--subsample``), and why.
+
+    ``inducing`` None (automatic): the exact GP on at most ``max_points`` of them (as before) unless
+    there are more than both ``max_points`` and SPARSE_ABOVE; then a sparse GP with DEFAULT_INDUCING
+    inducing poses on all of them, so that most of the data is not thrown away (the dot-product kernel
+    always stays exact: its Gram matrix has rank 6). 0: the exact GP (on at most ``max_points``).
+    M > 0: a sparse GP with M inducing poses (at most ``points``) on all points; ``max_points`` never
+    drops points from a sparse GP.
+    Returns {"type": "exact" | "sparse", "inducing": M or None, "forced": bool, "reason": str}.
+    """
+    from rbgp_cli.gp.sparse import DEFAULT_INDUCING
+
+    if inducing is not None and int(inducing) < 0:
+        raise InputError(f"--inducing must be 0 (exact GP) or a positive number of inducing poses, got {inducing}")
+    capped = max_points is not None and points > max_points
+    cap = f": exact GP on a random {max_points} of {points} training points" if capped else ""
+    if inducing:
+        if kernel == "dot":
+            raise InputError("--inducing needs a squared-exponential kernel: the dot-product kernel's Gram matrix "
+                             "has rank 6, so a sparse approximation gains nothing", hint="use --kernel se or se-chordal")
+        M = min(int(inducing), points)
+        return {"type": "sparse", "inducing": M, "forced": True,
+                "reason": f"--inducing {int(inducing)}: {M} inducing poses for all {points} training points"}
+    if inducing == 0:
+        return {"type": "exact", "inducing": None, "forced": True, "reason": "--inducing 0" + cap}
+    if points > max(SPARSE_ABOVE, max_points or 0) and kernel != "dot":
+        M = min(DEFAULT_INDUCING, points)
+        keep = f"a random {max_points}" if max_points is not None else f"all {points}"
+        return {"type": "sparse", "inducing": M, "forced": False,
+                "reason": f"{points} training points are more than the exact GP affords (above {SPARSE_ABOVE}): a "
+                          f"sparse GP with {M} inducing poses uses all of them (--inducing 0: the exact GP on {keep})"}
+    return {"type": "exact", "inducing": None, "forced": False, "reason": cap[2:]}
+
+
 def train_model(
     trajs: list[Trajectory],
     *,
@@ -299,6 +340,7 @@ def train_model(
     prior: str | None = DEFAULTS["prior"],
     prior_gain: float = DEFAULTS["prior_gain"],
     jobs: int | None = None,
+    inducing: int | None = None,
 ) -> MotionModel:
     """Train a motion model on clean demonstrations (see :func:`rbgp_cli.dynamics.prepare.prepare_all`).
 
@@ -314,6 +356,12 @@ def train_model(
     output if memory allows, 1 inside a worker process or on a single core).
     Returns the model; its ``summary`` holds demos, pairs, points, the hyperparameters and NLML per
     output, the safeguards used and the time taken.
+
+    ``inducing`` chooses the GP (:func:`choose_gp`): None (automatic) trains the exact GP on at most
+    ``max_points`` points (as before) unless more than both ``max_points`` and SPARSE_ABOVE are left after
+    ``subsample``, and then a sparse GP (:mod:`rbgp_cli.gp.sparse`) with DEFAULT_INDUCING inducing poses
+    on all of them; 0 forces the exact GP; M > 0 forces a sparse GP with M inducing poses on all points.
+    ``max_points`` never drops points from a sparse GP. ``summary["gp"]`` says which and why.
     """
     t0 = time.perf_counter()
     if representation not in DEFAULT_KERNELS:
@@ -334,8 +382,12 @@ def train_model(
         raise InputError(f"--prior-gain must be a non-negative number, got {prior_gain}")
     kern = make_kernel(rep, kernel, rho, learn_rho, time_dims=1 if time_input else 0)
     velocity = velocity or default_velocity()
-    X, Y, info = training_set(trajs, rep, subsample=subsample, max_points=max_points, seed=seed, velocity=velocity,
+    X, Y, info = training_set(trajs, rep, subsample=subsample, max_points=None, seed=seed, velocity=velocity,
                               time_input=time_input)
+    gp_choice = choose_gp(info["points"], inducing, max_points, kernel)
+    if gp_choice["type"] == "exact" and max_points is not None and info["points"] > max_points:
+        X, Y, info = training_set(trajs, rep, subsample=subsample, max_points=max_points, seed=seed, velocity=velocity,
+                                  time_input=time_input)
     mean = None
     if prior == "path":
         mean = {"kind": "path", "gain": float(prior_gain), **mean_path(trajs)}
@@ -346,10 +398,19 @@ def train_model(
     if progress:
         progress(f"{len(trajs)} demonstrations, {info['pairs']} pairs, training on {info['points']} points "
                  f"({rep.name}, kernel {kernel}, {'shared' if shared else 'per-output'} hyperparameters)")
-    if jobs is None:
-        jobs = default_jobs(1 if shared else Y.shape[1], len(X))
-    gp = fit_gp(X, Y, kern, noise=noise, restarts=restarts, seed=seed, shared=shared, progress=progress,
-                explore_size=explore_size, jobs=jobs)
+    if gp_choice["type"] == "sparse":
+        from rbgp_cli.gp.sparse import fit_sparse_gp
+
+        if progress:
+            progress(f"sparse GP: {gp_choice['reason']}")
+        gp = fit_sparse_gp(X, Y, kern, inducing=gp_choice["inducing"], noise=noise, restarts=restarts, seed=seed,
+                           shared=shared, progress=progress, explore_size=explore_size)
+        gp_choice["inducing"] = int(gp.n_inducing)
+    else:
+        if jobs is None:
+            jobs = default_jobs(1 if shared else Y.shape[1], len(X))
+        gp = fit_gp(X, Y, kern, noise=noise, restarts=restarts, seed=seed, shared=shared, progress=progress,
+                    explore_size=explore_size, jobs=jobs)
     dt = 1.0 / velocity.rate if velocity.rate is not None else float(np.median(np.concatenate([np.diff(tr.t) for tr in trajs])))
     starts = np.array([np.concatenate([tr.quat[0], tr.position[0]]) for tr in trajs])
     durations = np.array([tr.duration for tr in trajs])
@@ -377,6 +438,7 @@ def train_model(
         "seconds": time.perf_counter() - t0,
     }
     summary["time_input"] = time_input
+    summary["gp"] = gp_choice
     summary["prior"] = None if mean is None else {"kind": mean["kind"], "gain": mean["gain"]}
     return MotionModel(rep, gp, float(dt), starts, durations, summary=summary, velocity=velocity,
                        time_input=time_input, mean=mean)

@@ -308,7 +308,7 @@ def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[di
 
 def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, seed: int = 0,
              jobs: int | None = None, length: int | None = None, covariance: str = "diag",
-             progress=None) -> dict:
+             progress=None, scheduler: str | None = None) -> dict:
     """Cross-validate every configuration on the same folds (see the module docstring).
 
     Parameters
@@ -320,6 +320,8 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
     length, covariance : passed to :func:`~rbgp_cli.evaluation.bhattacharyya.evaluate`
     progress : a :class:`rbgp_cli.progress.Progress` (or callable(str), or None): a task over the fits,
         and one message per finished fit
+    scheduler : None, ``"local"`` (a Dask ``LocalCluster`` of ``jobs`` workers) or the address of a Dask
+        scheduler: the fits run there (:func:`rbgp_cli.parallel.iter_dask`); the results are the same
 
     Returns ``{"folds": K, "seed", "demonstrations", "fold_sizes", "results": [row, ...]}`` with the
     rows sorted by score / floor (best first); each row as in the module docstring.
@@ -347,7 +349,7 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
     progress = as_progress(progress)
     progress(f"{len(demos)} demonstrations in {len(splits)} folds ({', '.join(str(len(f)) for f in fold_idx)} held out); "
              f"{len(configs)} configuration{'s' * (len(configs) != 1)}, {len(tasks)} fits"
-             + (f" in {n_jobs} worker processes" if n_jobs > 1 else ""))
+             + (f" on the Dask cluster {scheduler!r}" if scheduler else f" in {n_jobs} worker processes" if n_jobs > 1 else ""))
 
     with progress.task("cross-validation", total=len(tasks), unit="fits") as bar:
         def done(i, r):
@@ -360,7 +362,12 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
             bar.advance()
             progress(msg)
 
-        if n_jobs == 1:
+        if scheduler:
+            from rbgp_cli.parallel import iter_dask
+
+            for i, r in iter_dask(_task, args, jobs=jobs, scheduler=scheduler):
+                done(i, r)
+        elif n_jobs == 1:
             for i, a in enumerate(args):
                 done(i, _task(a))
         else:

@@ -11,6 +11,11 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
 * Version 2 adds to the header how velocities were estimated (``velocity``), the time input
   (``time_input``: null, "seconds" or "phase") and the prior mean (``prior``: null or kind, gain and
   the goal pose). Version 1 files load as models without them (zero mean, no time input).
+* Version 3: a sparse GP (:mod:`rbgp_cli.gp.sparse`; header ``"gp": {"type": "sparse", "inducing": M}``)
+  also holds ``Z`` (M, d) inducing inputs and, per hyperparameter set g (one per output, or one shared),
+  the posterior's factors ``Lm`` (G, M, M), ``LB`` (G, M, M) and ``c`` (M, L) (the columns of set g's
+  outputs); loading checks them against k(Z, Z) instead of refactorising all n points. Exact models
+  are still written as version 2, which older rbgp reads.
 
 Loading uses ``allow_pickle=False``, checks the format name and version, verifies every checksum,
 rebuilds the GP and re-runs its Cholesky factorisation. Any failure is an :class:`InputError`
@@ -34,8 +39,11 @@ from rbgp_cli.io.atomic import atomic_open
 __all__ = ["FORMAT", "FORMAT_VERSION", "save_model", "load_model", "file_sha256", "array_sha256"]
 
 FORMAT = "rbgp-model"
-FORMAT_VERSION = 2
+#: The newest version this rbgp reads and writes (3: sparse GPs; exact models are written as 2).
+FORMAT_VERSION = 3
 _ARRAYS = ("X", "Y", "y_scale", "starts", "durations")
+#: Arrays of a sparse GP (version 3).
+_SPARSE_ARRAYS = ("Z", "Lm", "LB", "c")
 #: Arrays of the mean-path prior (present only when the model has one).
 _PRIOR_ARRAYS = {"prior_s": "s", "prior_quat": "quat", "prior_position": "position", "prior_velocity": "velocity"}
 
@@ -94,9 +102,15 @@ def save_model(model, path) -> dict:
         else:
             for name, key in _PRIOR_ARRAYS.items():
                 arrays[name] = np.ascontiguousarray(mean[key], dtype=np.float64)
+    sparse = bool(getattr(gp, "sparse", False))
+    if sparse:
+        arrays["Z"] = np.ascontiguousarray(gp.Z, dtype=np.float64)
+        arrays["Lm"] = np.ascontiguousarray(np.stack([st[0] for st in gp.stats]), dtype=np.float64)
+        arrays["LB"] = np.ascontiguousarray(np.stack([st[1] for st in gp.stats]), dtype=np.float64)
+        arrays["c"] = np.ascontiguousarray(np.concatenate([st[2] for st in gp.stats], axis=1), dtype=np.float64)
     header = {
         "format": FORMAT,
-        "version": FORMAT_VERSION,
+        "version": 3 if sparse else 2,
         "rbgp_version": __version__,
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "representation": model.representation.to_dict(),
@@ -113,6 +127,8 @@ def save_model(model, path) -> dict:
         "provenance": _jsonable(model.provenance),
         "checksums": {k: array_sha256(v) for k, v in arrays.items()},
     }
+    if sparse:
+        header["gp"] = {"type": "sparse", "inducing": int(len(gp.Z))}
     raw = json.dumps(header, sort_keys=True, allow_nan=True).encode("utf-8")
     try:
         with atomic_open(path, "wb") as fh:
@@ -152,7 +168,7 @@ def read_header(path) -> tuple[dict, dict]:
             if "header" not in names:
                 raise _bad(path, "not an rbgp model file (no header)", "pass a file written by rbgp train")
             header_bytes = z["header"].tobytes()
-            arrays = {k: z[k] for k in (*_ARRAYS, *_PRIOR_ARRAYS) if k in names}
+            arrays = {k: z[k] for k in (*_ARRAYS, *_PRIOR_ARRAYS, *_SPARSE_ARRAYS) if k in names}
     except RbgpError:
         raise
     except FileNotFoundError:
@@ -179,7 +195,10 @@ def read_header(path) -> tuple[dict, dict]:
     if version < 1:
         raise _bad(path, f"unknown model format version {version}")
     sums = header.get("checksums") or {}
-    for name in _ARRAYS:
+    gp = header.get("gp") or {}
+    if not isinstance(gp, dict) or gp.get("type", "exact") not in ("exact", "sparse"):
+        raise _bad(path, f"unknown GP type in the model header: {gp!r}")
+    for name in _ARRAYS + (_SPARSE_ARRAYS if gp.get("type") == "sparse" else ()):
         if name not in arrays:
             raise _bad(path, f"array {name!r} is missing from the model file")
     for name in arrays:
@@ -193,13 +212,15 @@ def load_model(path):
     from rbgp_cli.dynamics.model import MotionModel
     from rbgp_cli.dynamics.representations import representation_from_dict
     from rbgp_cli.gp.exact import GaussianProcess, OutputFit
+    from rbgp_cli.gp.sparse import SparseGP, SparseOutputFit
     from rbgp_cli.kernels import kernel_from_dict
 
     header, arrays = read_header(path)
     try:
         rep = representation_from_dict(header["representation"])
         kernel = kernel_from_dict(header["kernel"])
-        fits = [OutputFit.from_dict(f) for f in header["fits"]]
+        sparse = (header.get("gp") or {}).get("type") == "sparse"
+        fits = [(SparseOutputFit if sparse else OutputFit).from_dict(f) for f in header["fits"]]
         for f in fits:  # every hyperparameter is positive (they are optimised in log space)
             for k, v in f.values.items():
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < float("inf"):
@@ -218,7 +239,21 @@ def load_model(path):
             raise ValueError("number of fitted outputs disagrees with the data")
         if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
             raise ValueError("non-finite training data")
-        gp = GaussianProcess(kernel, X, Y, fits, shared=header["shared"], y_scale=arrays["y_scale"])
+        if sparse:
+            Z, Lm, LB, c = (arrays[k] for k in _SPARSE_ARRAYS)
+            G, M = len(fits), len(Z)
+            if (Z.ndim != 2 or Z.shape[1] != X.shape[1] or Lm.shape != (G, M, M) or LB.shape != (G, M, M)
+                    or c.shape != (M, Y.shape[1]) or not all(np.all(np.isfinite(a)) for a in (Z, Lm, LB, c))):
+                raise ValueError("the sparse GP's arrays disagree with each other")
+            for f in fits:
+                kj = f.kmm_jitter
+                if isinstance(kj, bool) or not isinstance(kj, (int, float)) or not 0 <= kj < 1:
+                    raise ValueError(f"kmm_jitter = {kj!r} is not a number in [0, 1)")
+            cols = [(0, Y.shape[1])] if header["shared"] else [(g, g + 1) for g in range(G)]
+            stats = [(Lm[g], LB[g], c[:, a:b]) for g, (a, b) in enumerate(cols)]
+            gp = SparseGP(kernel, X, Y, Z, fits, shared=header["shared"], y_scale=arrays["y_scale"], stats=stats)
+        else:
+            gp = GaussianProcess(kernel, X, Y, fits, shared=header["shared"], y_scale=arrays["y_scale"])
         dt = float(header["dt"])
         if not (np.isfinite(dt) and dt > 0):
             raise ValueError("invalid time step")

@@ -1,0 +1,755 @@
+"""Sparse GP regression: the collapsed variational bound of Titsias (2009) (SGPR / VFE).
+
+For n training inputs X, M inducing inputs Z chosen among them, K_mm = k(Z, Z), K_nm = k(X, Z),
+Q_nn = K_nm K_mm⁻¹ K_mn and noise variance s = σn², the bound on the log marginal likelihood is
+(Titsias 2009, eq. 9)
+
+    F = log N(y | 0, Q_nn + s I) − tr(K_nn − Q_nn) / (2 s)  ≤  log p(y),
+
+and the fit minimises −F (``nlml`` in the fit records: an upper bound on the exact NLML, equal to it
+when Z = X). With P = L_m⁻¹ (K_mm + j I = L_m L_mᵀ, j a small jitter), Φ = K_mn K_nm (M × M),
+b = K_mn y, C = P Φ Pᵀ, B = I + C / s = L_B L_Bᵀ, c = P b and β = B⁻¹ c (Woodbury and the matrix
+determinant lemma):
+
+    −F = n/2 log 2π + n/2 log s + Σ log diag L_B + ½ yᵀy / s − ½ cᵀβ / s² + ½ tr K_nn / s − ½ tr C / s
+
+Gradient (derived here; R&W eq. 5.9 in spirit): with α = Pᵀβ, the derivative of −F with respect to
+K_nm, K_mm and diag K_nn is, as matrices to contract with ∂K/∂log θ (:meth:`Kernel.grad_contract`),
+
+    W_nm = 2 K_nm G − y αᵀ / s²,        G    = Pᵀ (B⁻¹ + ββᵀ/s² − I) P / (2 s)
+    W_mm = Pᵀ (B⁻¹ + ββᵀ/s² + B − 2 I) P / 2,      ∂(−F)/∂K_ii = 1 / (2 s)
+
+and for s:  ∂(−F)/∂s = n/(2s) − tr(B⁻¹C)/(2s²) − ½ yᵀy/s² − ½ βᵀCβ/s⁴ + cᵀβ/s³ − tr K_nn/(2s²) + tr C/(2s²).
+With L outputs sharing one set of hyperparameters (``shared``) every per-output term is summed.
+
+Cost per evaluation: Φ and b in one pass over row blocks of K_nm (n M² for the rank-k update), the
+M × M algebra (M³), and a second pass for the gradient (K_nm G per block, 2 n M²): O(n M²) time; the
+kernel's hyperparameter-free pairwise arrays for K_nm are cached block by block (O(n M) memory,
+recomputed per block instead above ``cache_bytes``) and the temporaries are one block (``block_rows``
+× M) at a time. All BLAS calls in the loop go through ``scipy.linalg.blas`` (ECOSYSTEM.md §7).
+
+Prediction (Titsias 2009, eq. 6; the SGPR posterior): mean μ(x) = k_xmᵀ w with w = α / s (O(M) per
+pose), latent variance k(x,x) − ‖L_m⁻¹ k_xm‖² + ‖L_B⁻¹ L_m⁻¹ k_xm‖² (O(M²) per pose).
+
+Inducing inputs are M distinct training inputs chosen by k-means++ seeding (D² sampling; Arthur &
+Vassilvitskii 2007) or greedy farthest-point selection, seeded, in a Euclidean embedding of the
+kernel's distance (:func:`inducing_embedding`); they are not optimised.
+
+The hyperparameters are fitted in stages of growing size (:func:`fit_sparse_gp`): the starts on a
+small random subset with the exact NLML (as the exact GP explores), then the bound on random subsets
+of growing size from the previous optimum, the last one all points.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.linalg import blas, lapack
+
+from rbgp_cli.errors import RbgpRuntimeError
+from rbgp_cli.gp.exact import INFEASIBLE_NLML, NOISE, OutputFit, blas_threads
+from rbgp_cli.kernels.base import Kernel, output_scale
+
+__all__ = [
+    "SparseGP",
+    "SparseOutputFit",
+    "fit_sparse_gp",
+    "sparse_bound_and_gradient",
+    "select_inducing",
+    "inducing_embedding",
+    "RowBlocks",
+    "DEFAULT_INDUCING",
+    "INDUCING_METHODS",
+]
+
+#: Default number of inducing poses.
+DEFAULT_INDUCING = 512
+INDUCING_METHODS = ("kmeans++", "farthest")
+#: Jitter added to K_mm, relative to the mean of its diagonal (its derivative is part of the gradient).
+JITTER = 1e-8
+#: Jitters tried, in this order, when K_mm + j I fails its Cholesky.
+_JITTER_LADDER = (1e-8, 1e-6, 1e-4)
+#: Elements of one row block of K_nm (block_rows = this / M): 8 MB per temporary.
+BLOCK_ELEMENTS = 1 << 20
+#: Cache the hyperparameter-free pairwise arrays of K_nm up to this many bytes (else recompute per block).
+CACHE_BYTES = 1 << 30
+_LOG2PI = math.log(2.0 * math.pi)
+
+
+# ----------------------------------------------------------------------------- inducing inputs
+def inducing_embedding(kernel: Kernel, X: np.ndarray) -> np.ndarray:
+    """Rows of X mapped to a Euclidean space whose distances approximate the kernel's, shape (n, D).
+
+    Squared-exponential kernels on rotations: the chordal embedding of SO(3), e(q) = √2 vec(q qᵀ) with
+    ‖e(q1) − e(q2)‖² = 4 (1 − ⟨q1, q2⟩²) = d_ch² (MATH.md §5; it approximates d_arc to O(d³), and is
+    halved for the S³ angle of the quaternion baseline), weighted √ρ1, beside √(1 − ρ1) t; Euclidean
+    rotation coordinates (Euler angles) and the dot-product kernel use the coordinates as they are.
+    A time / phase column is appended scaled by the ratio of the median pose distance to the median
+    time difference (the kernel's data-driven length-scales), so that both count alike.
+    """
+    from rbgp_cli.geometry.so3 import quat_from_rotvec
+
+    X = np.asarray(X, dtype=np.float64)
+    k = int(getattr(kernel, "rotation_dims", 3))
+    rho = float(getattr(kernel, "rho_rot", 0.5))
+    metric = getattr(kernel, "metric", "euclidean")
+    rot = X[:, :k]
+    if metric in ("arc", "chordal", "s3"):
+        q = rot if k == 4 else quat_from_rotvec(rot)
+        q = q / np.linalg.norm(q, axis=1, keepdims=True)
+        iu = np.triu_indices(4)
+        w = np.where(iu[0] == iu[1], 1.0, math.sqrt(2.0))  # Frobenius norm over the 10 unique entries
+        rot = math.sqrt(2.0) * (q[:, iu[0]] * q[:, iu[1]]) * w
+        if metric == "s3":
+            rot = 0.5 * rot
+    pose = np.concatenate([math.sqrt(rho) * rot, math.sqrt(1.0 - rho) * X[:, k:k + 3]], axis=1)
+    if getattr(kernel, "time_dims", 0):
+        tau = X[:, k + 3:k + 4]
+        rng = np.random.default_rng(12345)
+        i, j = rng.integers(0, len(X), (2, min(20000, 4 * len(X))))
+        dp = float(np.median(np.sum((pose[i] - pose[j]) ** 2, axis=1))) ** 0.5
+        dt = float(np.median(np.abs(tau[i, 0] - tau[j, 0])))
+        scale = dp / dt if dt > 0 and dp > 0 else 1.0
+        pose = np.concatenate([pose, scale * tau], axis=1)
+    return np.ascontiguousarray(pose)
+
+
+def select_inducing(X: np.ndarray, M: int, kernel: Kernel, seed: int = 0, method: str = "kmeans++") -> np.ndarray:
+    """Indices of at most M distinct rows of X to serve as inducing inputs, shape (m,), m ≤ M.
+
+    ``kmeans++``: the first uniformly at random, each next with probability ∝ its squared distance
+    to the nearest one chosen (D² sampling); ``farthest``: the first at random, each next the farthest
+    from all chosen. Both in :func:`inducing_embedding`, O(n M) time, seeded. Fewer than M come back
+    when X has fewer distinct rows (in the embedding).
+    """
+    if method not in INDUCING_METHODS:
+        raise ValueError(f"unknown inducing method {method!r}; expected one of {INDUCING_METHODS}")
+    E = inducing_embedding(kernel, X)
+    n = len(E)
+    M = int(min(M, n))
+    if M < 1:
+        raise ValueError("at least one inducing input is needed")
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 12]))
+    chosen = [int(rng.integers(n))]
+
+    def sqdist(i):  # ‖E − E_i‖² directly: exactly 0 for duplicate rows
+        D = E - E[i]
+        return np.einsum("ij,ij->i", D, D)
+
+    d2 = sqdist(chosen[0])
+    scale = float(np.max(np.einsum("ij,ij->i", E, E))) + 1.0
+    for _ in range(M - 1):
+        total = float(np.sum(d2))
+        if not total > 1e-24 * scale * n:  # every remaining row duplicates a chosen one
+            break
+        if method == "farthest":
+            i = int(np.argmax(d2))
+        else:
+            i = int(np.searchsorted(np.cumsum(d2), rng.uniform(0.0, total), side="right"))
+            i = min(i, n - 1)
+            if d2[i] <= 0.0:  # round-off at the end of the cumulative sum
+                i = int(np.argmax(d2))
+        chosen.append(i)
+        np.minimum(d2, sqdist(i), out=d2)
+    return np.array(sorted(chosen), dtype=np.int64)
+
+
+# ----------------------------------------------------------------------------- row blocks of K_nm
+class RowBlocks:
+    """The rows of X in blocks, with the kernel's hyperparameter-free arrays of each block against Z.
+
+    ``pre(i)`` is ``kernel.precompute(X[a:b], Z)`` for block i (cached while the cache stays below
+    ``cache_bytes``); ``rows(i)`` its slice.
+    """
+
+    def __init__(self, kernel: Kernel, X: np.ndarray, Z: np.ndarray, block_rows: int | None = None,
+                 cache_bytes: int = CACHE_BYTES):
+        self.kernel = kernel
+        self.X = X
+        self.Z = Z
+        n, M = len(X), len(Z)
+        rows = int(block_rows) if block_rows else max(64, BLOCK_ELEMENTS // max(M, 1))
+        self.slices = [slice(a, min(a + rows, n)) for a in range(0, n, rows)]
+        self._cache: dict = {}
+        self._cache_bytes = int(cache_bytes)
+        self._used = 0
+
+    def __len__(self) -> int:
+        return len(self.slices)
+
+    def pre(self, i: int) -> dict:
+        hit = self._cache.get(i)
+        if hit is not None:
+            return hit
+        sl = self.slices[i]
+        p = self.kernel.precompute(self.X[sl], self.Z)
+        size = sum(v.nbytes for v in p.values() if isinstance(v, np.ndarray))
+        if self._used + size <= self._cache_bytes:
+            self._cache[i] = p
+            self._used += size
+        return p
+
+    @property
+    def cached_bytes(self) -> int:
+        return self._used
+
+
+def _diag_sum_grad(kernel: Kernel, X: np.ndarray, values: dict, names) -> np.ndarray:
+    """Σ_i ∂k(x_i, x_i)/∂log θ for θ in ``names``, shape (p,)."""
+    from rbgp_cli.kernels.dot_product import DotProduct
+    from rbgp_cli.kernels.squared_exponential import SquaredExponential
+
+    out = np.zeros(len(names))
+    if isinstance(kernel, SquaredExponential):  # k(x, x) = σf²
+        for i, nm in enumerate(names):
+            if nm == "signal_std":
+                out[i] = 2.0 * len(X) * values["signal_std"] ** 2
+        return out
+    if isinstance(kernel, DotProduct):  # k(x, x) = σf² (ρ |r|² + (1 − ρ) |t|²)
+        k = kernel.rotation_dims
+        r2, t2 = float(np.sum(X[:, :k] ** 2)), float(np.sum(X[:, k:] ** 2))
+        sf2, rho = values["signal_std"] ** 2, values["rho_rot"]
+        for i, nm in enumerate(names):
+            out[i] = 2.0 * sf2 * (rho * r2 + (1 - rho) * t2) if nm == "signal_std" else sf2 * rho * (r2 - t2)
+        return out
+    for a in range(0, len(X), 64):  # any other kernel: contract each small diagonal block with I
+        Xb = X[a:a + 64]
+        pre = kernel.precompute(Xb)
+        K, st = kernel.gram(pre, values)
+        out += kernel.grad_contract(pre, values, K, st, np.eye(len(Xb)), names)
+    return out
+
+
+def _chol(A: np.ndarray):
+    c, info = lapack.dpotrf(np.array(A, order="F", copy=True), lower=1, clean=1, overwrite_a=1)
+    return c if info == 0 else None
+
+
+def _sandwich_inv(Lm: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """Lm⁻ᵀ A Lm⁻¹ for symmetric A (M × M), symmetrised."""
+    Y = blas.dtrsm(1.0, Lm, np.asfortranarray(A), side=0, lower=1, trans_a=1)
+    Y = blas.dtrsm(1.0, Lm, Y, side=1, lower=1, trans_a=0, overwrite_b=1)
+    return 0.5 * (Y + Y.T)
+
+
+def _kmm_factor(kernel, pre_mm, values, jitter):
+    """(K_mm, state, j, L_m) with K_mm + j I = L_m L_mᵀ, j = rel · mean diag K_mm for the first rel of
+    the ladder starting at ``jitter`` that passes; (K_mm, state, None, None) if none does."""
+    Kmm, st = kernel.gram(pre_mm, values)
+    scale = float(np.mean(np.diagonal(Kmm)))
+    for rel in [jitter] + [r for r in _JITTER_LADDER if r > jitter]:
+        j = rel * scale
+        Lm = _chol(Kmm + j * np.eye(len(Kmm)))
+        if Lm is not None:
+            return Kmm, st, rel, Lm
+    return Kmm, st, None, None
+
+
+def _statistics(kernel, blocks: RowBlocks, values, Y, Lm):
+    """C = A Aᵀ (M × M) and c = A Y (M × L) with A = L_m⁻¹ K_mn, in one pass over the row blocks.
+
+    A is formed block by block (a triangular solve, n M² in all) rather than C = L_m⁻¹ Φ L_m⁻ᵀ from
+    Φ = K_mn K_nm: when K_mm is ill-conditioned (long length-scales) the rounding of Φ is amplified by
+    ‖L_m⁻¹‖² and C came out indefinite (eigenvalue −2.6e-3 where the direct way gives +2e-8, measured
+    at n = 1500, M = 256), which made I + C/s fail its Cholesky.
+    """
+    M = len(blocks.Z)
+    C = np.zeros((M, M), order="F")
+    c = np.zeros((M, Y.shape[1]), order="F")
+    for i, sl in enumerate(blocks.slices):
+        Kb, _ = kernel.gram(blocks.pre(i), values)  # (rows, M), C-ordered: Kb.T is Fortran (M, rows)
+        A = blas.dtrsm(1.0, Lm, Kb.T, side=0, lower=1, overwrite_b=1)  # L_m⁻¹ K_mb, written over Kb
+        C = blas.dsyrk(1.0, A, beta=1.0, c=C, trans=0, lower=1, overwrite_c=1)
+        c = blas.dgemm(1.0, A, np.asfortranarray(Y[sl]), beta=1.0, c=c, overwrite_c=1)
+    C = np.tril(C)
+    C = C + np.tril(C, -1).T
+    return C, c
+
+
+def sparse_bound_and_gradient(kernel: Kernel, blocks: RowBlocks, pre_mm: dict, values: dict, Y: np.ndarray,
+                              grad_names, jitter: float = JITTER) -> tuple[float, np.ndarray]:
+    """−F (the negative collapsed bound, ≥ NLML) and its gradient with respect to log θ.
+
+    Parameters
+    ----------
+    blocks : :class:`RowBlocks` of the training inputs X (n, d) against the inducing inputs Z (M, d)
+    pre_mm : kernel.precompute(Z)
+    values : {name: value} for every hyperparameter plus ``noise_std``
+    Y : shape (n,) or (n, L); with L columns the bound is summed over them (one shared set)
+    grad_names : free hyperparameters in theta order (``noise_std`` included)
+    jitter : K_mm + j I with j = jitter · mean diag K_mm (larger from a ladder if that fails)
+
+    Returns (INFEASIBLE_NLML, zeros) if a Cholesky fails.
+    """
+    f, g, _ = _bound(kernel, blocks, pre_mm, values, Y, grad_names, jitter, True)
+    return f, g
+
+
+def _bound(kernel, blocks, pre_mm, values, Y, grad_names, jitter, want_grad):
+    Y = np.asarray(Y, dtype=np.float64)
+    Y = Y.reshape(len(Y), -1)
+    n, L = Y.shape
+    s = values[NOISE] ** 2
+    Kmm, st_mm, rel, Lm = _kmm_factor(kernel, pre_mm, values, jitter)
+    if Lm is None:
+        return INFEASIBLE_NLML, np.zeros(len(grad_names)), None
+    M = len(Kmm)
+    C, c = _statistics(kernel, blocks, values, Y, Lm)                   # L_m⁻¹ Φ L_m⁻ᵀ, L_m⁻¹ K_mn y
+    B = C / s
+    B[np.diag_indices(M)] += 1.0
+    LB = _chol(B)
+    if LB is None:
+        return INFEASIBLE_NLML, np.zeros(len(grad_names)), None
+    beta, _ = lapack.dpotrs(LB, c, lower=1)                              # B⁻¹ c
+    tr_knn = float(np.sum(kernel.diag(blocks.X, values)))
+    tr_c = float(np.trace(C))
+    yy = float(np.sum(Y * Y))
+    cb = float(np.sum(c * beta))
+    f = (0.5 * n * L * (_LOG2PI + math.log(s)) + L * float(np.sum(np.log(np.diagonal(LB))))
+         + 0.5 * yy / s - 0.5 * cb / s**2 + 0.5 * L * (tr_knn - tr_c) / s)
+    state = {"Lm": Lm, "LB": LB, "c": c, "rel": rel, "s": s}
+    if not want_grad or len(grad_names) == 0:
+        return f, np.zeros(len(grad_names)), state
+    Binv, _ = lapack.dpotri(LB, lower=1)
+    Binv = np.tril(Binv)
+    Binv = Binv + np.tril(Binv, -1).T
+    bb = beta @ beta.T
+    eye = np.eye(M)
+    mid = L * Binv + bb / s**2 - L * eye
+    G = _sandwich_inv(Lm, mid) / (2.0 * s)                               # (M, M)
+    Wmm = 0.5 * _sandwich_inv(Lm, mid + L * C / s)
+    alpha = np.asfortranarray(blas.dtrsm(1.0, Lm, beta, side=0, lower=1, trans_a=1))  # Pᵀ β, (M, L)
+    names_k = [nm for nm in grad_names if nm != NOISE]
+    gk = np.zeros(len(names_k))
+    if names_k:
+        Gf = np.asfortranarray(G)
+        for i, sl in enumerate(blocks.slices):
+            pre = blocks.pre(i)
+            Kb, st = kernel.gram(pre, values)
+            # W_b = 2 K_b G − y_b αᵀ/s², built transposed (M, rows) in Fortran order = (rows, M) C order
+            Wt = blas.dgemm(-1.0 / s**2, alpha, np.asfortranarray(Y[sl]), trans_b=1)
+            Wt = blas.dgemm(2.0, Gf, Kb.T, beta=1.0, c=Wt, overwrite_c=1)
+            gk += kernel.grad_contract(pre, values, Kb, st, Wt.T, names_k)
+        gk += kernel.grad_contract(pre_mm, values, Kmm, st_mm, Wmm, names_k)
+        gk += (0.5 * L / s) * _diag_sum_grad(kernel, blocks.X, values, names_k)
+        # the jitter j = rel · tr(K_mm)/M moves with the hyperparameters: ∂(−F)/∂j = tr(W_mm)
+        gk += rel * float(np.trace(Wmm)) / M * kernel.grad_contract(pre_mm, values, Kmm, st_mm, eye, names_k)
+    grad = np.empty(len(grad_names))
+    it = iter(gk)
+    for i, nm in enumerate(grad_names):
+        if nm == NOISE:
+            bcb = float(np.sum(beta * (C @ beta)))
+            dfds = (0.5 * n * L / s - 0.5 * L * float(np.sum(Binv * C)) / s**2 - 0.5 * yy / s**2
+                    - 0.5 * bcb / s**4 + cb / s**3 - 0.5 * L * tr_knn / s**2 + 0.5 * L * tr_c / s**2)
+            grad[i] = 2.0 * s * dfds
+        else:
+            grad[i] = next(it)
+    return f, grad, state
+
+
+# ----------------------------------------------------------------------------- the fitted model
+@dataclass
+class SparseOutputFit(OutputFit):
+    """An :class:`OutputFit` of a sparse GP: ``nlml`` is the negative bound −F (≥ the exact NLML),
+    ``jitter`` is 0 (nothing is added to the noise), ``rcond`` that of K_mm + j I, ``kmm_jitter`` the jitter of K_mm relative to the
+    mean of its diagonal, ``stages`` per stage of the fit {"points", "evaluations", "objective", "nlml"}."""
+
+    kmm_jitter: float = JITTER
+    stages: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {**super().to_dict(), "kmm_jitter": float(self.kmm_jitter), "stages": self.stages}
+
+
+class SparseGP:
+    """A fitted sparse GP (SGPR posterior) with L outputs on training inputs X (n, d) and inducing
+    inputs Z (M, d); the same interface as :class:`~rbgp_cli.gp.exact.GaussianProcess`.
+
+    ``fits`` holds one :class:`OutputFit` per output (or one, ``shared``); its ``nlml`` is the negative
+    bound −F and its ``jitter`` the relative jitter of K_mm. ``stats`` optionally gives the
+    posterior's factors per group, ``[(L_m, L_B (M, M), c (M, L_g)), ...]`` (what model files store),
+    so that nothing is recomputed from X; otherwise they are computed in one pass over X.
+    Per group the posterior is kept as L_m, L_B (M × M) and the mean weights w = α / s (M, L_g).
+    """
+
+    sparse = True
+
+    def __init__(self, kernel: Kernel, X: np.ndarray, Y: np.ndarray, Z: np.ndarray, fits: list, shared: bool,
+                 y_scale=None, stats=None):
+        self.kernel = kernel
+        self.X = np.ascontiguousarray(X, dtype=np.float64)
+        self.Y = np.ascontiguousarray(np.asarray(Y, dtype=np.float64).reshape(len(self.X), -1))
+        self.Z = np.ascontiguousarray(Z, dtype=np.float64)
+        self.fits = list(fits)
+        self.shared = bool(shared)
+        self.y_scale = np.ones(self.Y.shape[1]) if y_scale is None else np.asarray(y_scale, dtype=np.float64)
+        self.last_clipped = 0
+        with blas_threads(0):
+            self._factorise(stats)
+
+    @property
+    def n_outputs(self) -> int:
+        return self.Y.shape[1]
+
+    @property
+    def n_inducing(self) -> int:
+        return len(self.Z)
+
+    def _group_outputs(self):
+        if self.shared:
+            return [(self.fits[0], list(range(self.n_outputs)))]
+        return [(f, [l]) for l, f in enumerate(self.fits)]
+
+    def _factorise(self, stats) -> None:
+        """L_m, L_B and the mean weights w = L_m⁻ᵀ L_B⁻ᵀ L_B⁻¹ c / s per group.
+
+        Without ``stats`` they are computed from X, Y (one pass, n M² per group). With ``stats`` =
+        ``[(L_m, L_B, c), ...]`` (model files) they are checked instead: L_m L_mᵀ must reproduce
+        k(Z, Z) + j I from the stored hyperparameters (relative error below 1e-8, an M³ check), and L_B
+        must be a lower Cholesky factor of I + (something positive semi-definite): positive diagonal and
+        every eigenvalue of L_B L_Bᵀ at least 1 − 1e-8.
+        """
+        pre_mm = self.kernel.precompute(self.Z)
+        blocks = None
+        M = len(self.Z)
+        self._Lm, self._LB, self._w, self.stats = [], [], [], []
+        bad = RbgpRuntimeError("the stored hyperparameters, inducing poses and posterior factors disagree",
+                               hint="refit the model (rbgp train)")
+        for g, (fit, outs) in enumerate(self._group_outputs()):
+            s = fit.values[NOISE] ** 2
+            Kmm, _ = self.kernel.gram(pre_mm, fit.values)
+            j = float(getattr(fit, "kmm_jitter", JITTER)) * float(np.mean(np.diagonal(Kmm)))
+            Kj = Kmm + j * np.eye(M)
+            if stats is None:
+                Lm = _chol(Kj)
+                if Lm is None:
+                    raise bad
+                Lm = np.tril(Lm)
+                y = self.Y[:, outs] / self.y_scale[outs]
+                blocks = blocks or RowBlocks(self.kernel, self.X, self.Z, cache_bytes=0)
+                C, c = _statistics(self.kernel, blocks, fit.values, y, Lm)
+                B = C / s
+                B[np.diag_indices(M)] += 1.0
+                LB = _chol(B)
+                if LB is None:
+                    raise bad
+                LB = np.tril(LB)
+            else:
+                Lm, LB, c = (np.asarray(a, dtype=np.float64) for a in stats[g])
+                if Lm.shape != (M, M) or LB.shape != (M, M) or c.shape != (M, len(outs)):
+                    raise bad
+                Lm, LB = np.tril(Lm), np.tril(LB)
+                if (np.max(np.abs(Lm @ Lm.T - Kj)) > 1e-8 * float(np.max(np.abs(Kj)))
+                        or not np.all(np.diagonal(LB) > 0)
+                        or _chol(LB @ LB.T - (1.0 - 1e-8) * np.eye(M)) is None):
+                    raise bad
+            beta, _ = lapack.dpotrs(LB, np.asfortranarray(c), lower=1)
+            alpha = blas.dtrsm(1.0, Lm, beta, side=0, lower=1, trans_a=1)
+            self._Lm.append(np.ascontiguousarray(Lm))
+            self._LB.append(np.ascontiguousarray(LB))
+            self._w.append(np.asarray(alpha) / s)
+            self.stats.append((self._Lm[-1], self._LB[-1], np.asarray(c)))
+
+    def predict(self, Xs, return_std: bool = False, noisy: bool = False, chunk_elements: int = 2_000_000,
+                manage_threads: bool = True):
+        """Predictive mean (and standard deviation) at query inputs Xs (m, d); see
+        :meth:`GaussianProcess.predict` for the arguments. Mean k_xmᵀ w: O(M) per pose; latent variance
+        k(x, x) − ‖L_m⁻¹ k_xm‖² + ‖L_B⁻¹ L_m⁻¹ k_xm‖²: O(M²) per pose."""
+        if not manage_threads:
+            return self._predict(Xs, return_std, noisy, chunk_elements)
+        with blas_threads(0):  # single-threaded, as the fit (see fit_sparse_gp)
+            return self._predict(Xs, return_std, noisy, chunk_elements)
+
+    def _predict(self, Xs, return_std, noisy, chunk_elements):
+        from scipy.linalg import solve_triangular
+
+        Xs = np.ascontiguousarray(np.asarray(Xs, dtype=np.float64).reshape(-1, self.X.shape[1]))
+        m, M = len(Xs), self.n_inducing
+        mean = np.empty((m, self.n_outputs))
+        std = np.empty((m, self.n_outputs)) if return_std else None
+        step = max(1, int(chunk_elements // max(M, 1)))
+        clipped = 0
+        for a in range(0, m, step):
+            Xc = Xs[a:a + step]
+            pre = self.kernel.precompute(Xc, self.Z)
+            for (fit, outs), Lm, LB, w in zip(self._group_outputs(), self._Lm, self._LB, self._w):
+                Ks, _ = self.kernel.gram(pre, fit.values)  # (mc, M)
+                scale = self.y_scale[outs]
+                mean[a:a + step, outs] = (Ks @ w) * scale
+                if std is not None:
+                    v = solve_triangular(Lm, Ks.T, lower=True, check_finite=False)
+                    u = solve_triangular(LB, v, lower=True, check_finite=False)
+                    var = (self.kernel.diag(Xc, fit.values) - np.einsum("ij,ij->j", v, v)
+                           + np.einsum("ij,ij->j", u, u))
+                    clipped += int(np.sum(var < 0))
+                    var = np.maximum(var, 0.0)
+                    if noisy:
+                        var = var + fit.values[NOISE] ** 2
+                    std[a:a + step, outs] = np.sqrt(var)[:, None] * scale
+        self.last_clipped = clipped
+        return (mean, std) if return_std else mean
+
+    def predict_mean(self, Xs) -> np.ndarray:
+        return self.predict(Xs)
+
+
+# ----------------------------------------------------------------------------- fitting
+#: The bound stages run on nested random subsets of STAGE_FACTOR·M, STAGE_FACTOR·GROWTH·M, ... points, the
+#: last one all n; each stage starts from the previous optimum.
+STAGE_FACTOR = 4
+STAGE_GROWTH = 4
+#: L-BFGS-B stops when the relative change of −F is below this (the bound is O(n), so L-BFGS-B's
+#: default ~2e-9 asks for changes far below what matters at n = 10⁵).
+STAGE_FTOL = 1e-7
+#: Each bound stage may cost at most the time of this many evaluations on all n points: a stage on
+#: k points gets at most max(STAGE_MIN_EVALUATIONS, STAGE_BUDGET · n / k) evaluations (and ``max_iter``).
+STAGE_BUDGET = 2.0
+STAGE_MIN_EVALUATIONS = 3
+#: At most this many bound evaluations in the stage on all points.
+FINAL_EVALUATIONS = 3
+#: An output's hyperparameters are settled when no log-hyperparameter moved by more than this between
+#: two consecutive bound stages; it then skips the larger stages (the posterior always uses all n).
+SETTLED_LOG = 0.05
+
+
+def _stage_sizes(n: int, M: int, top: int) -> list[int]:
+    """Nested subset sizes 4M, 16M, ... below min(n, top), then min(n, top)."""
+    top = min(n, max(int(top), 2))
+    sizes = []
+    k = STAGE_FACTOR * M
+    while k < top:
+        sizes.append(k)
+        k *= STAGE_GROWTH
+    return sizes + [top]
+
+
+def _minimise(objective, theta0, log_bounds, max_evals, ftol):
+    """L-BFGS-B from theta0 with an infeasible-point penalty as in :mod:`rbgp_cli.gp.exact`; returns
+    (θ, f, evaluations, message)."""
+    from scipy.optimize import minimize
+
+    count = {"n": 0, "ref": None}
+
+    def fun(theta):
+        count["n"] += 1
+        f, g = objective(theta)
+        if f >= INFEASIBLE_NLML and count["ref"] is not None:
+            return count["ref"] + max(10.0, abs(count["ref"])), np.zeros_like(g)
+        if count["ref"] is None and f < INFEASIBLE_NLML:
+            count["ref"] = f
+        return f, g
+
+    theta0 = np.clip(theta0, [b[0] for b in log_bounds], [b[1] for b in log_bounds])
+    if not len(theta0):
+        f, _ = objective(theta0)
+        return theta0, f, 1, "no free hyperparameters"
+    res = minimize(fun, theta0, jac=True, method="L-BFGS-B", bounds=log_bounds,
+                   options={"maxfun": int(max_evals), "maxiter": int(max_evals), "ftol": ftol})
+    f = float(res.fun)
+    return np.array(res.x), f, count["n"], str(res.message)
+
+
+def fit_sparse_gp(
+    X,
+    Y,
+    kernel: Kernel,
+    *,
+    inducing: int = DEFAULT_INDUCING,
+    inducing_method: str = "kmeans++",
+    noise=None,
+    restarts: int = 3,
+    seed: int = 0,
+    shared: bool = False,
+    fixed: dict | None = None,
+    bounds: dict | None = None,
+    max_iter: int = 200,
+    progress=None,
+    explore_size: int | None = None,
+    final_evaluations: int = FINAL_EVALUATIONS,
+    hyper_points: int | None = None,
+    jitter: float = JITTER,
+) -> SparseGP:
+    """Fit a sparse GP (SGPR) with ``inducing`` inducing inputs chosen among the rows of X.
+
+    Parameters as :func:`rbgp_cli.gp.exact.fit_gp`, plus
+
+    inducing : M, the number of inducing inputs (at most the number of distinct rows of X)
+    inducing_method : "kmeans++" or "farthest" (:func:`select_inducing`), seeded by ``seed``
+    final_evaluations : at most this many bound evaluations in the last stage
+    hyper_points : the largest stage (default and ``0``: all n points); the posterior always uses all n
+    jitter : relative jitter of K_mm (:func:`sparse_bound_and_gradient`)
+
+    Hyperparameters, per output or shared (MATH.md §7), in stages:
+
+    1. *explore*: every start (the data-driven one and ``restarts − 1`` random ones) minimises the
+       exact NLML on a random subset of ``explore_size`` points (default 400, as the exact GP);
+       ``explore_size=0`` runs the starts on the first bound stage instead;
+    2. *bound stages*: −F on nested random subsets of 4M, 16M, … points and finally on all n, each
+       from the previous stage's best optimum (L-BFGS-B, relative tolerance STAGE_FTOL; a stage on k
+       points at most max(3, STAGE_BUDGET·n/k) evaluations, the one on all points ``final_evaluations``,
+       so that each costs about as much as two evaluations on all points). An output whose hyperparameters moved by less than
+       SETTLED_LOG (in log) between two bound stages stops there: small subsets cost little, and once
+       a subset holds enough points per inducing input its optimum is the full one. Where the optimum
+       still moves it does not stop (measured at n = 10⁵, M = 512: one of three outputs of a synthetic
+       field kept moving, and stopping it at 8192 points left its held-out RMSE 2.4× higher and its
+       bound on all points 1.7·10⁴ nats worse).
+
+    Stages run for all outputs before the next begins, so only one stage's cached arrays (at most
+    n × M per array of the kernel's precomputation) live at a time. Same data, options and seed →
+    the same inducing inputs and bit-identical hyperparameters.
+    """
+    from rbgp_cli.gp.exact import _fit_one, _free_spec
+    from rbgp_cli.progress import as_progress
+
+    X = np.ascontiguousarray(np.asarray(X, dtype=np.float64))
+    Y = np.asarray(Y, dtype=np.float64).reshape(len(X), -1)
+    if len(X) < 2:
+        raise ValueError("a GP needs at least 2 training points")
+    if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
+        raise ValueError("training inputs and outputs must be finite")
+    if int(inducing) < 1:
+        raise ValueError(f"the number of inducing inputs must be positive, got {inducing}")
+    restarts = max(1, int(restarts))
+    explore = 400 if explore_size is None else int(explore_size)
+    progress = as_progress(progress)
+    n, L = Y.shape
+    t_start = time.perf_counter()
+    with blas_threads(0):
+        Z = X[select_inducing(X, int(inducing), kernel, seed=seed, method=inducing_method)]
+    M = len(Z)
+    pre_mm = kernel.precompute(Z)
+    ss = np.random.SeedSequence(int(seed))
+    perm = np.random.default_rng(np.random.SeedSequence([int(seed), 3])).permutation(n)
+    sub = np.sort(perm[: min(n, 600)])
+    pre_sub = kernel.precompute(X[sub])
+    if shared:
+        scale = np.array([output_scale(Y[:, l]) for l in range(L)])
+        targets = [(Y / scale, "all outputs")]
+        rngs = [np.random.default_rng(ss)]
+    else:
+        scale = None
+        targets = [(Y[:, l], f"output {l}") for l in range(L)]
+        rngs = [np.random.default_rng(s) for s in ss.spawn(L)]
+    specs = [_free_spec(kernel, pre_sub, y, noise, fixed, bounds) for y, _ in targets]
+    progress(f"sparse GP: {M} inducing poses ({inducing_method}) for {n} points")
+    top = n if hyper_points is None or int(hyper_points) <= 0 else int(hyper_points)
+    sizes = _stage_sizes(n, M, top)
+    state = []  # per target: {"theta", "f", "records", "stages", "evals", "infeasible", "t"}
+    for (y, label), (spec, free) in zip(targets, specs):
+        state.append({"theta": [np.array([math.log(spec[nm].value) for nm in free])], "kinds": ["data-driven"],
+                      "records": [], "stages": [], "evals": 0, "infeasible": 0, "seconds": 0.0})
+    # BLAS single-threaded throughout: on this shared 2-core machine (load ~12) one bound evaluation at
+    # n = 2000, M = 256 took 3.8 s with OpenBLAS's 2-thread pools and 0.16 s with one thread (measured;
+    # the M × M Cholesky factorisations suffered most, 0.48 s each).
+    with blas_threads(0), progress.task("training", total=len(targets) * (len(sizes) + (explore > 1)),
+                                        unit="stages") as task:
+        # 1. explore: every start on a small subset with the exact NLML
+        if explore > 1:
+            idx = np.sort(perm[: min(n, explore)])
+            pre_e = kernel.precompute(X[idx])
+            for (y, label), (spec, free), rng, st in zip(targets, specs, rngs, state):
+                t0 = time.perf_counter()
+                count = [0]
+
+                def tick(label=label, count=count):
+                    count[0] += 1
+                    task.update(status=f"{label}: exploring, {count[0]} evaluations on {len(idx)} points")
+
+                _b, recs, counter, _v, optima = _fit_one(kernel, pre_e, y[idx], spec, free, restarts, rng, max_iter,
+                                                         on_evaluation=tick)
+                ok = [o for o in optima if o is not None]
+                if ok:
+                    st["theta"] = [min(ok, key=lambda o: o[1])[0]]
+                    st["kinds"] = ["best explored optimum"]
+                st["records"] += [{**r, "kind": r["kind"] + f" (exact NLML, {len(idx)} points)"} for r in recs]
+                st["stages"].append({"points": int(len(idx)), "objective": "exact NLML", "evaluations": counter["evals"],
+                                     "value": float(min((o[1] for o in ok), default=float("nan")))})
+                st["infeasible"] += counter["infeasible"]
+                st["seconds"] += time.perf_counter() - t0
+                task.advance()
+        else:
+            for (y, label), (spec, free), rng, st in zip(targets, specs, rngs, state):
+                from rbgp_cli.gp.exact import _random_start
+
+                st["theta"] += [_random_start(spec, free, rng) for _ in range(restarts - 1)]
+                st["kinds"] += ["random"] * (restarts - 1)
+        # 2. the bound on growing subsets, the last one all points
+        blocks = None
+        for k, size in enumerate(sizes):
+            idx = np.arange(n) if size >= n else np.sort(perm[:size])
+            blocks = None
+            for (y, label), (spec, free), st in zip(targets, specs, state):
+                if st.get("settled"):
+                    task.advance()
+                    continue
+                blocks = blocks or RowBlocks(kernel, X[idx], Z)
+                t0 = time.perf_counter()
+                fixed_values = {nm: h.value for nm, h in spec.items() if nm not in free}
+                log_bounds = [spec[nm].log_bounds for nm in free]
+                yk = y[idx]
+                count = [0]
+
+                def values_of(theta, fixed_values=fixed_values, free=free):
+                    v = dict(fixed_values)
+                    v.update({nm: math.exp(t) for nm, t in zip(free, theta)})
+                    return v
+
+                def objective(theta, values_of=values_of, yk=yk, free=free, label=label, count=count, st=st):
+                    count[0] += 1
+                    task.update(status=f"{label}: bound on {len(yk)} points, {count[0]} evaluations")
+                    f, g = sparse_bound_and_gradient(kernel, blocks, pre_mm, values_of(theta), yk, free, jitter)
+                    if f >= INFEASIBLE_NLML:
+                        st["infeasible"] += 1
+                    return f, g
+
+                best = None
+                for theta0, kind in zip(st["theta"], st["kinds"]):
+                    ev0 = count[0]
+                    cap = max(STAGE_MIN_EVALUATIONS, int(STAGE_BUDGET * n / len(idx)))
+                    th, f, _ne, msg = _minimise(objective, theta0, log_bounds,
+                                                final_evaluations if size >= n else min(max_iter, cap), STAGE_FTOL)
+                    st["records"].append({"start": {nm: float(math.exp(t)) for nm, t in zip(free, theta0)},
+                                          "nlml": float(f), "status": msg, "evaluations": count[0] - ev0,
+                                          "kind": f"{kind} (bound, {len(idx)} points)"})
+                    if f < INFEASIBLE_NLML and (best is None or f < best[1]):
+                        best = (th, f)
+                if best is None:
+                    raise RbgpRuntimeError(f"no hyperparameters gave a positive definite sparse covariance for {label}",
+                                           hint="use --kernel se-chordal, more noise, or fewer inducing poses")
+                prev = st.get("bound_theta")
+                st["settled"] = prev is not None and float(np.max(np.abs(best[0] - prev), initial=0.0)) < SETTLED_LOG
+                st["theta"], st["kinds"], st["f"], st["bound_theta"] = [best[0]], ["previous stage"], best[1], best[0]
+                st["stages"].append({"points": int(len(idx)), "objective": "bound", "evaluations": count[0],
+                                     "value": float(best[1])})
+                if size >= n:
+                    st["evals"] = count[0]
+                st["seconds"] += time.perf_counter() - t0
+                task.advance()
+        # the posterior on all points at the optimum (the last stage's cached blocks if it had them all)
+        if blocks is None or len(blocks.X) < n:
+            blocks = RowBlocks(kernel, X, Z)  # cached (O(n M)) and shared by the outputs
+        fits, stats = [], []
+        for (y, label), (spec, free), st in zip(targets, specs, state):
+            values = {nm: h.value for nm, h in spec.items() if nm not in free}
+            values.update({nm: math.exp(t) for nm, t in zip(free, st["theta"][0])})
+            f, _g, bstate = _bound(kernel, blocks, pre_mm, values, y, [], jitter, False)
+            if bstate is None:
+                raise RbgpRuntimeError(f"the fitted sparse covariance for {label} is not positive definite",
+                                       hint="use --kernel se-chordal or fewer inducing poses")
+            stats.append((np.tril(bstate["Lm"]), np.tril(bstate["LB"]), np.asarray(bstate["c"])))
+            Lm = stats[-1][0]
+            rcond, info = lapack.dpocon(Lm, float(np.max(np.sum(np.abs(Lm @ Lm.T), axis=0))), uplo="L")
+            at_bounds = [nm for nm, t in zip(free, st["theta"][0])
+                         if min(abs(t - spec[nm].log_bounds[0]), abs(t - spec[nm].log_bounds[1])) < 1e-6]
+            fits.append(SparseOutputFit(
+                values=values, nlml=float(f), jitter=0.0, rcond=float(rcond) if info == 0 else 0.0, positive_definite=True,
+                n_evaluations=st["evals"], n_infeasible=st["infeasible"], starts=st["records"], at_bounds=at_bounds,
+                free=list(free), seconds=st["seconds"], kmm_jitter=float(bstate["rel"]), stages=st["stages"]))
+            progress(f"{label}: bound {f:.6g} on all {n} points; evaluations per stage "
+                     + ", ".join(f"{s['evaluations']} on {s['points']}" for s in st["stages"]))
+    gp = SparseGP(kernel, X, Y, Z, fits, shared=shared, y_scale=scale, stats=stats)
+    gp.fit_seconds = time.perf_counter() - t_start
+    return gp

@@ -1,0 +1,125 @@
+"""Studies on a Dask cluster: the same results as in this process, in task order; the executors."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+from rbgp_cli.errors import InputError
+from rbgp_cli.parallel import run_tasks
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _square(x):
+    return x * x
+
+
+def _blas_threads(_):
+    from threadpoolctl import threadpool_info
+
+    return max(p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas")
+
+
+def _fail(x):
+    if x == 2:
+        raise ValueError("boom")
+    return x
+
+
+def test_in_process_keeps_order_and_reports_each_result():
+    seen = []
+    assert run_tasks(_square, [3, 1, 2], jobs=1, on_result=lambda i, r: seen.append((i, r))) == [9, 1, 4]
+    assert sorted(seen) == [(0, 9), (1, 1), (2, 4)]
+    assert run_tasks(_square, [], jobs=4) == []
+
+
+def test_unknown_scheduler_address_is_an_input_error(monkeypatch):
+    pytest.importorskip("distributed")
+    monkeypatch.setattr("rbgp_cli.parallel.CONNECT_TIMEOUT", "1s")
+    with pytest.raises(InputError, match="cannot reach the Dask scheduler"):
+        run_tasks(_square, [1], scheduler="tcp://127.0.0.1:9")
+
+
+@pytest.fixture(scope="module")
+def demos():
+    from rbgp_cli.workflows import load_demonstrations
+
+    clean, _reports, _inputs = load_demonstrations([str(REPO / "sample_data" / "csv")])
+    return clean[:6]
+
+
+def _strip_times(result):
+    """The crossval result without wall-clock times (the only thing allowed to differ)."""
+    out = dict(result)
+    rows = []
+    for row in result["results"]:
+        row = {k: v for k, v in row.items() if k not in ("train_s",)}
+        row["per_fold"] = [{k: v for k, v in f.items() if k not in ("train_s", "rollout_s")} for f in row["per_fold"]]
+        rows.append(row)
+    out["results"] = rows
+    return out
+
+
+def _assert_same(a, b, path="result"):
+    if isinstance(a, dict):
+        assert a.keys() == b.keys(), path
+        for k in a:
+            _assert_same(a[k], b[k], f"{path}.{k}")
+    elif isinstance(a, list):
+        assert len(a) == len(b), path
+        for i, (x, y) in enumerate(zip(a, b)):
+            _assert_same(x, y, f"{path}[{i}]")
+    elif isinstance(a, float) and not (math.isnan(a) and math.isnan(b)):
+        # BLAS runs single-threaded on the workers and as configured here: round-off may differ
+        assert a == pytest.approx(b, rel=1e-6, abs=1e-9), path
+    else:
+        assert a == b, path
+
+
+def test_crossval_on_a_local_dask_cluster_matches_in_process(demos):
+    pytest.importorskip("distributed")
+    from rbgp_cli.evaluation.crossval import REPLAY, Config, crossval
+
+    configs = [
+        Config("axis-angle", "se-chordal", train={"max_points": 60, "restarts": 1, "shared": True}),
+        Config(REPLAY),
+    ]
+    here = crossval(demos, configs, folds=3, seed=4, jobs=1)
+    messages = []
+    dask = crossval(demos, configs, folds=3, seed=4, jobs=2, scheduler="local", progress=messages.append)
+    _assert_same(_strip_times(here), _strip_times(dask))
+    assert "on the Dask cluster 'local'" in messages[0]
+    assert sum(", fold " in m for m in messages) == 6  # one message per finished fit
+
+
+def test_a_running_cluster_by_address_single_threaded_blas_and_failures():
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        address = cluster.scheduler_address
+        assert run_tasks(_square, list(range(7)), scheduler=address) == [x * x for x in range(7)]
+        assert run_tasks(_blas_threads, [0, 1, 2], scheduler=address) == [1, 1, 1]
+        with pytest.raises(Exception, match="boom"):
+            run_tasks(_fail, [1, 2, 3], scheduler=address)
+
+
+def test_crossval_command_passes_scheduler_and_inducing(monkeypatch):
+    """The command line hands --scheduler to the executor (an unreachable one is a one-line input
+    error) and --inducing to every fold's training."""
+    pytest.importorskip("distributed")
+    from typer.testing import CliRunner
+
+    from rbgp_cli.cli.app import app
+    from rbgp_cli.cli.train_options import train_kwargs
+
+    monkeypatch.setattr("rbgp_cli.parallel.CONNECT_TIMEOUT", "1s")
+    res = CliRunner().invoke(app, ["crossval", str(REPO / "sample_data" / "csv"), "--folds", "3", "--max-points", "50",
+                                   "--restarts", "1", "--scheduler", "tcp://127.0.0.1:9", "--inducing", "16"])
+    assert res.exit_code == 2, res.stderr
+    assert "cannot reach the Dask scheduler" in res.stderr and "Traceback" not in res.stderr
+    kw = train_kwargs(rho_rot="0.7", restarts=1, explore_size=0, seed=0, noise="learn", share_hyperparameters=True,
+                      subsample=1.0, max_points=50, train_rate=0.0, smooth_window=0.0, smooth_degree=2,
+                      time_input="none", prior="none", prior_gain=1.0, inducing=16)
+    assert kw["inducing"] == 16

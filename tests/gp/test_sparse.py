@@ -1,0 +1,180 @@
+"""Sparse GP (SGPR): bound gradient by finite differences, the bound against the exact NLML,
+predictions against the exact GP, stored factors, seeded determinism."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from rbgp_cli.errors import RbgpRuntimeError
+from rbgp_cli.gp.exact import GaussianProcess, OutputFit, fit_gp, nlml_and_gradient
+from rbgp_cli.gp.sparse import (
+    RowBlocks,
+    SparseGP,
+    SparseOutputFit,
+    fit_sparse_gp,
+    inducing_embedding,
+    select_inducing,
+    sparse_bound_and_gradient,
+)
+from rbgp_cli.kernels import SquaredExponential
+
+
+def poses(n, seed, time_column=False):
+    rng = np.random.default_rng(seed)
+    X = np.hstack([Rotation.random(n, random_state=seed).as_rotvec(), rng.normal(0, 0.3, (n, 3))])
+    if time_column:
+        X = np.hstack([X, rng.uniform(0, 1, (n, 1))])
+    return X
+
+
+def field(X, rng=None, noise=0.03):
+    R = Rotation.from_rotvec(X[:, :3]).as_matrix()
+    Y = np.stack([R[:, 0, 1] + X[:, 3], R[:, 2, 2] * X[:, 4], np.sin(2 * X[:, 5])], 1)
+    return Y if rng is None else Y + noise * rng.normal(size=Y.shape)
+
+
+VALUES = {"signal_std": 1.1, "length_scale": 0.8, "rho_rot": 0.6, "noise_std": 0.3, "time_scale": 0.5}
+
+KERNELS = [
+    ("chordal-learn-rho", lambda: SquaredExponential("chordal", 3, 0.6, learn_rho=True), False),
+    ("arc", lambda: SquaredExponential("arc", 3, 0.6), False),
+    ("chordal-time", lambda: SquaredExponential("chordal", 3, 0.6, learn_rho=True, time_dims=1), True),
+]
+
+
+def _names(k):
+    return [nm for nm in k.names if nm != "rho_rot" or k.learn_rho] + ["noise_std"]
+
+
+@pytest.mark.parametrize("name,make,time_column", KERNELS)
+@pytest.mark.parametrize("shared", [False, True])
+def test_bound_gradient_matches_finite_differences(name, make, time_column, shared):
+    k = make()
+    X = poses(60, 1, time_column)
+    Y = field(X, np.random.default_rng(2))
+    y = Y if shared else Y[:, 0]
+    Z = X[select_inducing(X, 15, k, seed=0)]
+    blocks = RowBlocks(k, X, Z, block_rows=7)  # several blocks, the last one short
+    pre_mm = k.precompute(Z)
+    names = _names(k)
+    f, g = sparse_bound_and_gradient(k, blocks, pre_mm, VALUES, y, names)
+    assert np.isfinite(f)
+    for i, nm in enumerate(names):
+        h = 1e-5
+        up, dn = dict(VALUES), dict(VALUES)
+        up[nm] *= math.exp(h)
+        dn[nm] *= math.exp(-h)
+        fd = (sparse_bound_and_gradient(k, blocks, pre_mm, up, y, [])[0]
+              - sparse_bound_and_gradient(k, blocks, pre_mm, dn, y, [])[0]) / (2 * h)
+        assert g[i] == pytest.approx(fd, rel=1e-6, abs=1e-6), nm
+
+
+@pytest.mark.parametrize("name,make,time_column", KERNELS)
+def test_bound_equals_exact_nlml_when_inducing_set_is_training_set(name, make, time_column):
+    k = make()
+    X = poses(50, 3, time_column)
+    y = field(X, np.random.default_rng(4))[:, 1]
+    names = _names(k)
+    f_s, g_s = sparse_bound_and_gradient(k, RowBlocks(k, X, X, block_rows=16), k.precompute(X), VALUES, y, names,
+                                         jitter=1e-12)
+    f_e, g_e = nlml_and_gradient(k, k.precompute(X), VALUES, y, names)
+    assert f_s == pytest.approx(f_e, rel=1e-9)
+    np.testing.assert_allclose(g_s, g_e, rtol=1e-7, atol=1e-7)
+
+
+def test_bound_is_an_upper_bound_on_the_nlml_and_tightens_with_more_inducing_inputs():
+    k = SquaredExponential("chordal", 3, 0.7)
+    X = poses(120, 5)
+    y = field(X, np.random.default_rng(6))[:, 0]
+    vals = {"signal_std": 1.0, "length_scale": 0.6, "rho_rot": 0.7, "noise_std": 0.1}
+    exact, _ = nlml_and_gradient(k, k.precompute(X), vals, y, [])
+    order = select_inducing(X, 120, k, seed=1, method="farthest")
+    bounds = []
+    for M in (5, 20, 60, 120):
+        Z = X[np.sort(order[:M])] if M < 120 else X
+        bounds.append(sparse_bound_and_gradient(k, RowBlocks(k, X, Z), k.precompute(Z), vals, y, [], jitter=1e-12)[0])
+    assert all(b >= exact - 1e-6 for b in bounds)
+    assert bounds[-1] == pytest.approx(exact, rel=1e-9)
+    assert bounds[0] > bounds[1] > bounds[2] > exact  # nested sets: the bound only improves
+
+
+@pytest.mark.parametrize("shared", [False, True])
+def test_predictions_equal_the_exact_gp_when_inducing_set_is_training_set(shared):
+    k = SquaredExponential("chordal", 3, 0.7)
+    X = poses(70, 7)
+    Y = field(X, np.random.default_rng(8))
+    vals = {"signal_std": 1.1, "length_scale": 0.8, "rho_rot": 0.7, "noise_std": 0.2}
+    count = 1 if shared else 3
+    scale = np.sqrt(np.mean(Y**2, 0)) if shared else None
+    exact = GaussianProcess(k, X, Y, [OutputFit(values=dict(vals), nlml=0.0) for _ in range(count)], shared, scale)
+    sparse = SparseGP(k, X, Y, X, [SparseOutputFit(values=dict(vals), nlml=0.0, kmm_jitter=1e-13) for _ in range(count)],
+                      shared, scale)
+    Xs = poses(40, 9)
+    for noisy in (False, True):
+        m_e, s_e = exact.predict(Xs, return_std=True, noisy=noisy)
+        m_s, s_s = sparse.predict(Xs, return_std=True, noisy=noisy)
+        np.testing.assert_allclose(m_s, m_e, atol=1e-8)
+        np.testing.assert_allclose(s_s, s_e, atol=1e-7)
+    np.testing.assert_allclose(sparse.predict(Xs), sparse.predict(Xs, chunk_elements=70 * 3), atol=1e-12)
+
+
+def test_stored_factors_rebuild_the_same_posterior_and_are_checked():
+    k = SquaredExponential("chordal", 3, 0.7)
+    X = poses(300, 10)
+    Y = field(X, np.random.default_rng(11))
+    gp = fit_sparse_gp(X, Y, k, inducing=40, restarts=1, seed=3)
+    Xs = poses(25, 12)
+    again = SparseGP(k, X, Y, gp.Z, gp.fits, gp.shared, gp.y_scale, stats=gp.stats)
+    recomputed = SparseGP(k, X, Y, gp.Z, gp.fits, gp.shared, gp.y_scale)
+    np.testing.assert_array_equal(again.predict(Xs), gp.predict(Xs))
+    np.testing.assert_allclose(recomputed.predict(Xs, return_std=True)[1], gp.predict(Xs, return_std=True)[1], atol=1e-9)
+    np.testing.assert_allclose(recomputed.predict(Xs), gp.predict(Xs), atol=1e-8)
+    bad = [(Lm.copy(), LB, c) for Lm, LB, c in gp.stats]
+    bad[1][0][5, 3] += 1e-3  # a factor that no longer matches k(Z, Z)
+    with pytest.raises(RbgpRuntimeError):
+        SparseGP(k, X, Y, gp.Z, gp.fits, gp.shared, gp.y_scale, stats=bad)
+
+
+def test_fit_is_seeded_and_learns_the_field_from_all_points():
+    k = SquaredExponential("chordal", 3, 0.7)
+    X = poses(1500, 13)
+    Y = field(X, np.random.default_rng(14))
+    a = fit_sparse_gp(X, Y, k, inducing=150, restarts=2, seed=5, explore_size=200)
+    b = fit_sparse_gp(X, Y, k, inducing=150, restarts=2, seed=5, explore_size=200)
+    np.testing.assert_array_equal(a.Z, b.Z)
+    assert [f.values for f in a.fits] == [f.values for f in b.fits]
+    assert all(f.stages and f.stages[-1]["points"] <= 1500 for f in a.fits)
+    Xs = poses(400, 15)
+    truth = field(Xs)
+    rmse = np.sqrt(np.mean((a.predict(Xs) - truth) ** 2, 0))
+    assert np.all(rmse < 0.3 * np.sqrt(np.mean(truth**2, 0)))  # far better than predicting zero
+    # the same options on a 150-point subsample, exact: the sparse model on all points is better
+    idx = np.random.default_rng(0).choice(1500, 150, replace=False)
+    ex = fit_gp(X[idx], Y[idx], k, restarts=2, seed=5)
+    assert np.mean(rmse) < np.mean(np.sqrt(np.mean((ex.predict(Xs) - truth) ** 2, 0)))
+    m, s = a.predict(Xs, return_std=True)
+    assert np.all(s > 0) and np.all(np.isfinite(s))
+
+
+@pytest.mark.parametrize("method", ["kmeans++", "farthest"])
+def test_inducing_selection_is_seeded_distinct_and_spread(method):
+    k = SquaredExponential("arc", 3, 0.7)
+    X = poses(500, 16)
+    X = np.vstack([X, X[:100]])  # duplicates must never be chosen twice
+    a = select_inducing(X, 50, k, seed=2, method=method)
+    assert np.array_equal(a, select_inducing(X, 50, k, seed=2, method=method))
+    assert len(a) == 50 and len(np.unique(a)) == 50
+    E = inducing_embedding(k, X)
+    assert len({tuple(np.round(E[i], 12)) for i in a}) == 50
+    # at most as many as there are distinct rows
+    assert len(select_inducing(np.repeat(X[:7], 3, axis=0), 50, k, method=method)) == 7
+    # the chordal embedding reproduces the chordal distance (MATH.md §5), weighted by rho
+    kc = SquaredExponential("chordal", 3, 0.7)
+    Ec = inducing_embedding(kc, X[:20])
+    d2 = np.sum((Ec[:, None] - Ec[None]) ** 2, -1)
+    ref = kc.precompute(X[:20])["d2"]
+    np.testing.assert_allclose(d2, ref, atol=1e-10)
