@@ -204,7 +204,7 @@ def prepare_trajectory(
             raise _error(
                 traj,
                 int(b[j]),
-                f"{{where}} has the same time as the sample before it but a different pose",
+                "{where} has the same time as the sample before it but a different pose",
                 hint="remove one of them, or split interleaved demonstrations or bodies with a demo column",
             )
         dup_raw[b] = True

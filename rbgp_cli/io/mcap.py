@@ -465,7 +465,7 @@ def _trajectory(scan: _Scan, topic: _Topic, key, time_source: str, source: str) 
     used = time_source
     if time_source == "header" and not np.any(stamps):
         used = "log"
-        warn(f"all message stamps are zero; using the log time instead", path=source, topic=name)
+        warn("all message stamps are zero; using the log time instead", path=source, topic=name)
     ns = stamps if used == "header" else logs
     order = np.argsort(ns, kind="stable")
     ns = ns[order]

@@ -19,7 +19,7 @@ from rbgp_cli.dynamics.model import MotionModel
 from rbgp_cli.dynamics.rollout import rollout, starts_near
 from rbgp_cli.errors import RbgpRuntimeError
 from rbgp_cli.gp import exact
-from rbgp_cli.gp.exact import INFEASIBLE_NLML, GaussianProcess, default_jobs, fit_gp, nlml_and_gradient
+from rbgp_cli.gp.exact import INFEASIBLE_NLML, GaussianProcess, default_jobs, fit_gp
 from rbgp_cli.kernels import Kernel, SquaredExponential
 from tests.gp.test_gp import poses, smooth_outputs
 

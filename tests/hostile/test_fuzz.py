@@ -226,8 +226,7 @@ def test_fuzz_mcap_file(case, fuzz_dir):
 @given(case=mutated(MCAP_SEEDS))
 def test_fuzz_mcap_pipe(case):
     """The same on a non-seekable stream (``rbgp train - < rec.mcap`` through a pipe)."""
-    name, data = case.name, case.data
-    read_and_prepare(["-"], stdin=io.BufferedReader(_Pipe(data)))
+    read_and_prepare(["-"], stdin=io.BufferedReader(_Pipe(case.data)))
 
 
 @fuzz_settings
