@@ -1,6 +1,6 @@
 """``rbgp demo``: the main job on the bundled sample data, for each representation:
-train (paper settings: 10 % subsample, ρ1 = 0.7) → 100 rollouts from unseen starts near the
-demonstrations' → Bhattacharyya distance to the demonstrations (MATH.md §9)."""
+train (rbgp's defaults, :mod:`rbgp_cli.dynamics.defaults`) → 100 rollouts from unseen starts near
+the demonstrations' → Bhattacharyya distance to the demonstrations (MATH.md §9)."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ def run_demo(out, *, count: int = 100, representations=("axis-angle", "euler", "
     ``out``; return the scores as plain data.
 
     ``quick`` trains on at most 200 points with one shared set of hyperparameters (a smoke test of
-    the whole path in seconds; the scores are then not the paper-setting ones)."""
+    the whole path in seconds; the scores are then not the default ones)."""
     from rbgp_cli import workflows
     from rbgp_cli.cli.report import write_per_step
     from rbgp_cli.dynamics.rollout import starts_near

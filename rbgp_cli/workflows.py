@@ -187,7 +187,15 @@ def predict_file(model, path, options: ReadOptions | None = None, noisy: bool = 
     from rbgp_cli.dynamics.prepare import prepare_all
     from rbgp_cli.io.read import read_demonstrations
 
-    raw = read_demonstrations([str(path)], options or ReadOptions())
+    try:
+        raw = read_demonstrations([str(path)], options or ReadOptions())
+    except InputError as e:
+        if "no time column" not in str(e) or (options and options.rate):
+            raise
+        what = "the phase (t − t0)/duration" if model.time_input == "phase" else "the time since the start"
+        raise InputError(f"this model takes {what} as an input, and the poses have no time column", path=str(path),
+                         hint="give the poses as trajectories with a time column t (or --rate HZ), or train a model of "
+                              "the pose alone with --time-input none --prior none") from None
     trajs, _ = prepare_all(raw)
     ts, qs, ps, means, stds = [], [], [], [], []
     for tr in trajs:

@@ -12,15 +12,15 @@ DEFAULTS = {
     "rho_rot": 0.7,
     "restarts": 3,
     "explore_size": 400,
-    "subsample": 0.1,
+    "subsample": 1.0,
     "max_points": 2000,
-    "train_rate": None,  # Hz; None keeps the recorded samples
+    "train_rate": 10.0,  # Hz; None keeps the recorded samples
     "smooth_window": 0.0,  # seconds; 0 = forward differences
     "smooth_degree": 2,
-    "time_input": None,
-    "prior": None,
+    "time_input": "phase",
+    "prior": "path",
     "prior_gain": 10.0,
 }
 
 #: The kernel each representation trains with unless one is named (``kernel=None``).
-DEFAULT_KERNELS = {"axis-angle": "se", "quaternion": "se", "euler": "se"}
+DEFAULT_KERNELS = {"axis-angle": "se-chordal", "quaternion": "se-chordal", "euler": "se"}

@@ -262,9 +262,12 @@ def training_set(trajs: list[Trajectory], representation: Representation, *, sub
         sources = sorted({tr.source or tr.name for tr in trajs if tr.source or tr.name})
         raise InputError(
             f"the demonstrations give {n} training pair{'s' * (n != 1)} (one velocity per two consecutive "
-            "samples); a GP needs at least 2",
+            + (f"samples of the {velocity.rate:g} Hz training grid" if velocity and velocity.rate else "samples")
+            + "); a GP needs at least 2",
             path=", ".join(sources) or None,
-            hint="train on demonstrations with 3 or more samples",
+            hint="train on demonstrations with 3 or more samples"
+                 + (f" spanning at least {2 / velocity.rate:g} s, or keep the recorded samples with --train-rate 0"
+                    if velocity and velocity.rate else ""),
         )
     rng = np.random.default_rng(seed)
     k = n
@@ -377,7 +380,8 @@ def train_model(
     if prior not in PRIORS:
         raise InputError(f"unknown prior {prior!r}; expected one of none, goal, path")
     if prior == "path" and time_input != "phase":
-        raise InputError("the mean-path prior follows the phase", hint="use --time-input phase with --prior path")
+        raise InputError(f"--prior path (the default) follows the phase, but --time-input is {time_input or 'none'}",
+                         hint="add --prior none (or goal), or use --time-input phase")
     if prior and not (np.isfinite(prior_gain) and prior_gain >= 0):
         raise InputError(f"--prior-gain must be a non-negative number, got {prior_gain}")
     kern = make_kernel(rep, kernel, rho, learn_rho, time_dims=1 if time_input else 0)

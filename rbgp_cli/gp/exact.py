@@ -457,9 +457,9 @@ def _free_spec(kernel: Kernel, pre: dict, y: np.ndarray, noise, fixed: dict | No
 
 
 def _random_start(spec: dict, free: list, rng: np.random.Generator) -> np.ndarray:
-    """A random start in log space around the data-driven one: λ × e^U(−1.5,1), σf × e^U(−1,1),
+    """A random start in log space around the data-driven one: λ and λτ × e^U(−1.5,1), σf × e^U(−1,1),
     σn × e^U(−3,1), ρ1 ~ U(0.1, 0.9), each clipped into its bounds."""
-    widths = {"length_scale": (-1.5, 1.0), "signal_std": (-1.0, 1.0), NOISE: (-3.0, 1.0)}
+    widths = {"length_scale": (-1.5, 1.0), "signal_std": (-1.0, 1.0), NOISE: (-3.0, 1.0), "time_scale": (-1.5, 1.0)}
     theta = np.empty(len(free))
     for i, nm in enumerate(free):
         h = spec[nm]

@@ -40,7 +40,7 @@ def test_train_inducing_writes_a_sparse_model_that_says_so(sparse_model):
     assert summary["points"] == round(0.3 * summary["pairs"])  # --max-points (2000) dropped nothing
     header, arrays = read_header(path)
     assert header["version"] == 3 and header["gp"] == {"type": "sparse", "inducing": 40}
-    assert arrays["Z"].shape == (40, 6) and arrays["Lm"].shape == (1, 40, 40) and arrays["c"].shape == (40, 6)
+    assert arrays["Z"].shape == (40, 7) and arrays["Lm"].shape  # inducing inputs: pose and phase == (1, 40, 40) and arrays["c"].shape == (40, 6)
     assert arrays["X"].shape[0] == summary["points"]  # every training point is kept
     # the inducing poses are training poses
     assert all(np.any(np.all(arrays["X"] == z, axis=1)) for z in arrays["Z"])
@@ -113,5 +113,6 @@ def test_automatic_choice_rule():
 
 
 def test_inducing_with_the_dot_kernel_is_a_one_line_error(tmp_path):
-    res = run("train", CSV_DIR, "-o", tmp_path / "d.rbgp", "--kernel", "dot", "--inducing", "32")
+    res = run("train", CSV_DIR, "-o", tmp_path / "d.rbgp", "--kernel", "dot", "--inducing", "32",
+              "--time-input", "none", "--prior", "none")
     assert res.exit_code == 2 and "dot-product" in res.stderr and "Traceback" not in res.stderr

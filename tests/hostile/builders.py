@@ -23,7 +23,9 @@ N = 120  # samples of one demonstration
 COLUMNS = ("t", "x", "y", "z", "qx", "qy", "qz", "qw")
 TOPIC = "/shoe/pose"
 #: Cheap but real training, as the CLI tests use it.
-FAST = ("--max-points", "40", "--subsample", "0.3", "--restarts", "1", "--share-hyperparameters")
+# pose-only models (no time input, zero prior mean): these tests feed bare poses to predict and rollout
+FAST = ("--max-points", "40", "--subsample", "0.3", "--restarts", "1", "--share-hyperparameters", "--time-input", "none",
+        "--prior", "none")
 
 
 def smooth_motion(n: int = N, rate: float = RATE, seed: int = 0, name: str = "demo") -> Trajectory:

@@ -243,7 +243,8 @@ def test_fuzz_model_loader(case, fuzz_dir):
         event("InputError")
         return
     event("loaded")
-    mean, std = model.predict(model.starts[:, :4], model.starts[:, 4:])
+    tau = np.zeros(len(model.starts)) if model.time_input else None  # the default model takes the phase
+    mean, std = model.predict(model.starts[:, :4], model.starts[:, 4:], tau=tau)
     assert np.all(np.isfinite(mean)) and np.all(np.isfinite(std)) and np.all(std >= 0)
 
 
@@ -296,7 +297,8 @@ def test_fuzz_model_header_values(edit, fuzz_dir):
         event("InputError")
         return
     event("loaded")
-    mean, std = model.predict(model.starts[:, :4], model.starts[:, 4:])
+    tau = np.zeros(len(model.starts)) if model.time_input else None  # the default model takes the phase
+    mean, std = model.predict(model.starts[:, :4], model.starts[:, 4:], tau=tau)
     assert np.all(np.isfinite(mean)) and np.all(np.isfinite(std))
 
 

@@ -546,7 +546,7 @@ def _model_zip_field(offset_in_entry: int, value: int):
 def _model_tampered_array(ctx: Ctx):
     header, arrays = B.read_model_npz(ctx.model_src)
     arrays["Y"] = arrays["Y"].copy()
-    arrays["Y"][3, 1] += 1e-9
+    arrays["Y"][-1, 1] += 1e-9
     p = B.write_model_npz(ctx.inp / "tiny.rbgp", header, arrays, checksums=False)
     return ["rollout", p, "--steps", "5", "-o", ctx.out / "gen.csv"]
 
@@ -749,7 +749,7 @@ CASES = [
          check=same_model_as(rows, exact=False)),
     # --- too little data
     Case("one_sample", train_on(_first(1)), error=("demo.csv", "at least 2 samples for a velocity")),
-    Case("two_samples_one_velocity", train_on(_first(2)), error=("demo.csv", "1 training pair", "3 or more samples")),
+    Case("two_samples_one_velocity", train_on(_first(2)), error=("demo.csv", "0 training pairs", "10 Hz training grid", "3 or more samples", "--train-rate 0")),
     # --- units
     Case("millimetres_assumed_metres", train_on(_length_scaled(1e3)),
          error=("demo.csv", "looks like millimetres", "--length-unit mm")),

@@ -264,7 +264,7 @@ def test_training_recording_demos_points_and_arrows(tmp_path, demos, tiny_model)
 
     rrd.assert_blueprint("time", {f"/metrics/position/{a}" for a in "xyz"})
 
-    _, pos = tiny_model.representation.pose_from_state(tiny_model.gp.X)
+    _, pos = tiny_model.representation.pose_from_state(tiny_model.gp.X[:, : tiny_model.pose_dims])
     points = np.array(rrd.static("/world/training/points", "Points3D:positions"))
     assert points.shape == (len(tiny_model.gp.X), 3)
     assert_f32_equal(points, pos)
@@ -273,7 +273,9 @@ def test_training_recording_demos_points_and_arrows(tmp_path, demos, tiny_model)
     assert_f32_equal(origins, pos)
     scale = rrd.static("/__properties/rbgp", "arrow_seconds")[0]
     assert scale > 0
-    assert_f32_equal(vectors, tiny_model.gp.Y[:, -3:] * scale)  # the linear velocity, one common scale
+    # the linear velocity of the training pairs (the GP's targets plus the prior mean), one common scale
+    prior = tiny_model.prior_mean(tiny_model.gp.X)
+    assert_f32_equal(vectors, (tiny_model.gp.Y + (0 if prior is None else prior))[:, -3:] * scale)
     extent = np.ptp(np.concatenate([tr.position for tr in demos]), axis=0)
     median = np.median(np.linalg.norm(vectors, axis=1))
     assert 0.01 * np.linalg.norm(extent) < median < 0.1 * np.linalg.norm(extent)  # visible, not dominating
