@@ -158,10 +158,17 @@ def prior_mean_outputs(representation: Representation, state: np.ndarray, mean: 
     quat, pos = representation.pose_from_state(state)
     if mean["kind"] == "path":
         s_grid = np.asarray(mean["s"], dtype=np.float64)
-        s = np.clip(np.asarray(phase, dtype=np.float64), s_grid[0], s_grid[-1])
+        s = np.clip(np.asarray(phase, dtype=np.float64).reshape(-1), s_grid[0], s_grid[-1])
+        m = len(s)
+        if m > 1 and np.all(s == s[0]):
+            # a rollout's trajectories share their phase (unless their durations differ): the
+            # reference pose once, for every row (the same numbers as row by row)
+            s = s[:1]
         ref_q, ref_p = interpolate_poses(s_grid, np.asarray(mean["quat"]), np.asarray(mean["position"]), s)
         k = np.clip(np.searchsorted(s_grid, s, side="right") - 1, 0, len(s_grid) - 2)
         ff = np.asarray(mean["velocity"], dtype=np.float64)[k]
+        if len(s) < m:
+            ref_q, ref_p = np.broadcast_to(ref_q, (m, 4)), np.broadcast_to(ref_p, (m, 3))
     else:
         goal = np.asarray(mean["goal"], dtype=np.float64)
         ref_q, ref_p = np.broadcast_to(goal[:4], quat.shape), goal[4:]
