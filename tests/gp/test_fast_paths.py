@@ -302,3 +302,19 @@ def test_squared_quaternion_dot_products_are_one_product_of_features():
     got = quat_square_features(qa, weighted=True) @ quat_square_features(qb).T
     assert np.max(np.abs(got - want)) <= 1e-15
     np.testing.assert_allclose(np.diag(got[:5, 40:]), 1.0, rtol=0, atol=1e-15)
+
+
+def test_path_reference_is_the_slerp_of_the_mean_path():
+    """PathReference (the slerp's per-interval parts computed once) gives interpolate_poses' poses
+    and the interval's velocity bit for bit: between grid points, on them, at the ends and beyond."""
+    from rbgp_cli.dynamics.model import PathReference
+    from rbgp_cli.dynamics.trajectory import interpolate_poses
+
+    mean = _phase_model("se-chordal", n=20).mean
+    s = np.concatenate([np.random.default_rng(4).uniform(0, 1, 30), mean["s"][[0, 7, 50]], [-0.2, 1.3]])
+    q, p, v = PathReference(mean).at(s)
+    want_q, want_p = interpolate_poses(mean["s"], mean["quat"], mean["position"], np.clip(s, 0, 1))
+    np.testing.assert_array_equal(q, want_q)
+    np.testing.assert_array_equal(p, want_p)
+    k = np.clip(np.searchsorted(mean["s"], np.clip(s, 0, 1), side="right") - 1, 0, len(mean["s"]) - 2)
+    np.testing.assert_array_equal(v, mean["velocity"][k])
