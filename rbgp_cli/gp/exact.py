@@ -139,10 +139,13 @@ def blas_threads(n: int):
     return _CONTROLLER[0].limit(limits=1, user_api="blas")
 
 
-#: Predictions with at least this many query × training pairs are spread over the cores, in row
-#: chunks on threads (numpy's ufuncs and BLAS release the GIL; the kernel's arccos and exp dominate):
-#: one rollout step of 100 trajectories against 1752 training points is 175 200 pairs.
-PARALLEL_PREDICT_MIN = 100_000
+#: Predictions with at least this many query × training pairs are spread over the free cores, in row
+#: chunks on threads (numpy's ufuncs and BLAS release the GIL; the kernel's exp, arccos and products
+#: dominate). One rollout step of 100 trajectories against 1752 training points (175 200 pairs) stays
+#: on one thread: its chunks are ~0.2 ms of work each, and handing them over cost more than it saved
+#: (the same rollout of 100 × 626 steps, chordal kernel, load 2.4 on 2 cores: 0.44 s wall / 0.53 s
+#: CPU on two threads, 0.32–0.34 s on one).
+PARALLEL_PREDICT_MIN = 1_000_000
 _PREDICT_POOL = []
 
 
@@ -150,10 +153,9 @@ def _prediction_workers(work: int) -> int:
     """Threads for a prediction of ``work`` query × training pairs: the cores free right now (at
     most 4; :func:`free_cores`, looked up at most every FREE_CORES_TTL seconds) above
     PARALLEL_PREDICT_MIN, else 1 (and 1 in worker processes, which run one per core already).
-    These threads do not spin, but handing a rollout step's halves to them and waiting costs more
-    than it saves when the second core is taken: at load 2 on 2 cores a rollout of 100 × 626 steps
-    at n = 1752 took 0.44 s (0.55 s CPU) on two threads and 0.33 s on one (chordal kernel;
-    0.66 s / 0.63 s with the arc kernel, measured)."""
+    These threads do not spin, but they only pay where a core is free: at load 2 on 2 cores a
+    rollout of 100 × 626 steps at n = 1752 took 0.44 s (0.55 s CPU) on two threads and 0.33 s on
+    one (chordal kernel; 0.66 s / 0.63 s with the arc kernel, measured)."""
     if work < PARALLEL_PREDICT_MIN or _in_worker_process():
         return 1
     return max(1, min(4, _free_cores_recently()))
