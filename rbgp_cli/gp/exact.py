@@ -403,6 +403,11 @@ class GaussianProcess:
         mean = np.empty((m, self.n_outputs))
         std = np.empty((m, self.n_outputs)) if return_std else None
         step = max(1, int(chunk_elements // max(n, 1)))
+        block = getattr(self.kernel, "mean_block_elements", None)
+        if block and not return_std and m * n > block:
+            # cache-sized row blocks of equal size for a kernel that makes several elementwise passes
+            # (not with the std, whose triangular solve prefers wide right-hand sides)
+            step = min(step, -(-m // -(-m * n // block)))
         workers = _prediction_workers(m * n)
         if workers > 1:
             # at least one chunk per worker, so that large predictions use every core
