@@ -1,13 +1,16 @@
 """Rollout benchmark: 100 trajectories × 626 steps from a model with 1752 training pairs, batched vs one at a time.
 
-    .venv/bin/python benchmarks/bench_rollout.py            # the full run (a few minutes on a busy machine)
+    .venv/bin/python benchmarks/bench_rollout.py            # the full run, chordal then arc kernel (a few minutes)
     .venv/bin/python benchmarks/bench_rollout.py --quick    # 20 rollouts × 100 steps from n = 500
+    .venv/bin/python benchmarks/bench_rollout.py --time-input phase   # models with the phase input and the mean-path prior
 
-Model: a shared-hyperparameter exact GP (``fit_gp(..., shared=True, restarts=1)``, the paper's arc
-kernel unless ``--kernel chordal``) on n synthetic training pairs (benchmarks/_common.py: random
-poses, outputs a smooth velocity field ξ = (ω, v) plus noise), wrapped in a ``MotionModel`` with the
-axis-angle representation and Δt = 0.01 s. Starts: ``starts_near`` (spread 0.02 m, ~0.007 rad)
-around 10 random poses.
+Model (:func:`build_model`): a shared-hyperparameter exact GP (``fit_gp(..., shared=True,
+restarts=1)``) on n synthetic training pairs (benchmarks/_common.py: random poses, outputs a smooth
+velocity field ξ = (ω, v) plus noise), wrapped in a ``MotionModel`` with the axis-angle
+representation and Δt = 0.01 s, for each kernel of ``--kernel`` in turn: ``chordal`` (the product's
+default kernel, se-chordal; its length-scale bounded at 2, see :func:`build_model`) and ``arc`` (the
+paper's). With ``--time-input phase`` the model also takes the phase as a last input and has the
+mean-path prior. Starts: ``starts_near`` (spread 0.02 m, ~0.007 rad) around 10 random poses.
 
 Measured in one run:
 
@@ -31,8 +34,9 @@ same batched rollout, with ``with_std=True`` and with ``samples=5``; times and t
 difference.
 
 Targets: batched ≥ 3× faster than one at a time; (issue 11) batched ≥ 3× faster than the batched
-rollout of the baseline (or, without one, of the old distance path) with the same poses to 1e-9, and
-with ``samples`` the same per-sample cost.
+rollout of the baseline (``--baseline 991b91e``, the library before issue 11; without one, the old
+distance path) with the same poses to 1e-9, and with ``samples`` the same per-sample cost. A last
+table puts the kernels side by side against the baseline (wall and CPU time).
 """
 
 from __future__ import annotations
@@ -48,7 +52,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import numpy as np  # noqa: E402
 
-from _common import blas_line, fmt_s, limit_blas_threads, machine_line, median_time, synthetic_data, synthetic_poses  # noqa: E402
+from _common import (blas_line, fmt_s, limit_blas_threads, machine_line, median_time, synthetic_data,  # noqa: E402
+                     synthetic_poses, velocity_field)
 
 from rbgp_cli.dynamics.model import MotionModel  # noqa: E402
 from rbgp_cli.dynamics.representations import AxisAngle  # noqa: E402
@@ -59,19 +64,74 @@ from rbgp_cli.kernels import SquaredExponential  # noqa: E402
 DT = 0.01
 
 
-def build_model(n: int, metric: str, seed: int = 0):
-    """A MotionModel on n synthetic training pairs (shared hyperparameters, one start). Returns (model, info)."""
+#: Upper bound of the chordal model's length-scale (see build_model).
+CHORDAL_MAX_LENGTH_SCALE = 2.0
+
+
+def build_model(n: int, metric: str, seed: int = 0, time_input: str | None = None):
+    """A MotionModel on n training pairs (shared hyperparameters, one start). Returns (model, info).
+
+    Without a time input: n synthetic pairs (random poses, the smooth velocity field plus noise).
+    With ``time_input="phase"``: the product's coming default, the phase input and the mean-path
+    prior: the same poses with a random phase each (uniform on [0, 1]) as a last input, the outputs
+    per unit phase (D·ξ, D = 6.26 s, as ``train_model`` makes them) minus the prior mean, which is
+    :func:`~rbgp_cli.dynamics.model.mean_path` (gain 10) of 10 demonstrations that follow the same
+    velocity field from 10 random poses for 6.26 s; the kernel is the product with a squared
+    exponential on the phase. (Fitting ``train_model`` on those noise-free demonstrations' own pairs
+    drives σn to its lower bound: a model too ill-conditioned for poses to 1e-9, see below.)
+
+    The chordal kernel's length-scale is bounded at CHORDAL_MAX_LENGTH_SCALE: the synthetic field
+    is linear in the rotation matrix's entries, i.e. quadratic in the quaternion, which is what the
+    chordal kernel becomes for λ → ∞, and unbounded the shared fit ends at λ = 63, σf = 74 with
+    rcond(K + σn²I) = 7e-10. On such a model round-off of 1e-16 in K grows to ~2e-9 in the poses
+    between any two correct implementations (measured: 991b91e against c3c4624), below which "the
+    same poses to 1e-9" cannot be asked. At λ = 2 (rotation distances are at most 2): rcond 2e-6.
+    The bound changes no cost of a rollout step.
+    """
+    from rbgp_cli.dynamics.model import mean_path, prior_mean_outputs
+
+    bounds = {"length_scale": (1e-3, CHORDAL_MAX_LENGTH_SCALE)} if metric == "chordal" else None
+    rep = AxisAngle()
     q, X, Y = synthetic_data(n, seed=seed)
+    trajs = synthetic_demonstrations(10, 626, seed=seed + 5)
+    starts = np.array([np.concatenate([tr.quat[0], tr.position[0]]) for tr in trajs])
+    durations = np.array([tr.duration for tr in trajs])
+    mean = None
+    if time_input == "phase":
+        phase = np.random.default_rng(seed + 7).uniform(0.0, 1.0, n)
+        mean = {"kind": "path", "gain": 10.0, **mean_path(trajs)}
+        Y = durations[0] * Y - prior_mean_outputs(rep, X, mean, phase)
+        X = np.concatenate([X, phase[:, None]], axis=1)
+    elif time_input is not None:
+        raise ValueError(f"time_input must be None or 'phase', got {time_input!r}")
+    kernel = SquaredExponential(metric, 3, 0.7, time_dims=1 if time_input else 0)
     t0 = time.perf_counter()
-    gp = fit_gp(X, Y, SquaredExponential(metric, 3, 0.7), restarts=1, seed=seed, shared=True)
+    gp = fit_gp(X, Y, kernel, restarts=1, seed=seed, shared=True, bounds=bounds)
     fit_s = time.perf_counter() - t0
-    qb, Xb = synthetic_poses(10, seed=seed + 5)
-    base = np.concatenate([qb, Xb[:, 3:]], axis=1)
-    model = MotionModel(AxisAngle(), gp, DT, base, np.full(len(base), 6.26))
+    model = MotionModel(rep, gp, DT, starts, durations, time_input=time_input, mean=mean)
     f = gp.fits[0]
-    info = {"n": n, "kernel": metric, "fit_s": fit_s, "evaluations": f.n_evaluations, "infeasible": f.n_infeasible,
-            "values": {k: float(v) for k, v in f.values.items()}, "jitter": f.jitter}
+    info = {"n": n, "kernel": metric, "time_input": time_input, "prior": "path" if time_input else None,
+            "fit_s": fit_s, "evaluations": f.n_evaluations, "infeasible": f.n_infeasible,
+            "values": {k: float(v) for k, v in f.values.items()}, "jitter": f.jitter, "rcond": f.rcond}
     return model, info
+
+
+def synthetic_demonstrations(count: int, steps: int, seed: int = 0):
+    """``count`` demonstrations (Trajectory) following :func:`velocity_field` from random poses for
+    ``steps`` steps of DT (the exp map of ξ·Δt each step)."""
+    from rbgp_cli.dynamics.trajectory import Trajectory
+    from rbgp_cli.geometry.se3 import integrate_quat
+
+    q, X = synthetic_poses(count, seed=seed)
+    p = X[:, 3:].copy()
+    Q, P = [q], [p]
+    for _ in range(steps):
+        q, p = integrate_quat(q, p, velocity_field(q, p), DT)
+        Q.append(q)
+        P.append(p)
+    Q, P = np.stack(Q, axis=1), np.stack(P, axis=1)
+    t = np.arange(steps + 1) * DT
+    return [Trajectory(t, Q[b], P[b], name=f"synthetic{b}") for b in range(count)]
 
 
 class OldDistancePath:
@@ -97,7 +157,8 @@ def with_old_distance_path(model):
     gp = model.gp
     twin = GaussianProcess(OldDistancePath(gp.kernel), gp.X, gp.Y, gp.fits, shared=gp.shared, y_scale=gp.y_scale,
                            factors=list(zip(gp._L, gp._alpha)))
-    return MotionModel(model.representation, twin, model.dt, model.starts, model.durations)
+    return MotionModel(model.representation, twin, model.dt, model.starts, model.durations,
+                       time_input=model.time_input, mean=model.mean)
 
 
 BASELINE_SCRIPT = r"""
@@ -154,8 +215,8 @@ def run_baseline(src: str, model_path: str, starts_path: str, poses_path: str, b
 
 def step_profile(model, q0, p0, repeats: int = 50) -> dict:
     """Median time of the parts of one batched step (B = len(q0)) at the start poses."""
-    gp, rep = model.gp, model.representation
-    state = rep.state_from_pose(q0, p0)
+    gp = model.gp
+    state = model.initial_state(q0, p0)
     fit = gp.fits[0]
     out = {}
     out["predict_mean_ms"] = median_time(lambda: gp.predict(state), repeats)[0] * 1e3
@@ -169,8 +230,11 @@ def step_profile(model, q0, p0, repeats: int = 50) -> dict:
     alpha = gp._alpha[0] if hasattr(gp, "_alpha") else None
     if alpha is not None:
         out["mean_matmul_ms"] = median_time(lambda: Ks @ alpha, repeats)[0] * 1e3
-    mu = gp.predict(state)
-    out["integration_ms"] = median_time(lambda: rep.step(state, mu, DT), repeats)[0] * 1e3
+    if model.mean:
+        out["prior_mean_ms"] = median_time(lambda: model.prior_mean(state), repeats)[0] * 1e3
+    mu = model.predict_output(state)
+    duration = len(q0) and float(model.durations[0])
+    out["integration_ms"] = median_time(lambda: model.advance(state, mu, DT, duration), repeats)[0] * 1e3
     return out
 
 
@@ -180,7 +244,12 @@ def main(argv=None) -> int:
     ap.add_argument("--count", type=int, default=None, help="rollouts (default 100; --quick: 20)")
     ap.add_argument("--steps", type=int, default=None, help="steps per rollout (default 626; --quick: 100)")
     ap.add_argument("--sample-starts", type=int, default=None, help="starts for the samples=5 run (default 20)")
-    ap.add_argument("--kernel", choices=("arc", "chordal"), default="arc")
+    ap.add_argument("--kernel", default="chordal,arc",
+                    help="comma-separated kernels, each measured in turn: chordal (se-chordal, the product's "
+                         "default kernel) and/or arc (the paper's; default: chordal,arc)")
+    ap.add_argument("--time-input", choices=("none", "phase"), default="none",
+                    help="phase: the model takes the phase as a last input and has the mean-path prior "
+                         "(see build_model; default none)")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--json", default=None)
     ap.add_argument("--markdown", default=None)
@@ -196,10 +265,53 @@ def main(argv=None) -> int:
     steps = args.steps or (100 if args.quick else 626)
     sample_starts = args.sample_starts or (5 if args.quick else 20)
 
+    kernels = [k.strip() for k in args.kernel.split(",") if k.strip()]
+    for k in kernels:
+        if k not in ("chordal", "arc"):
+            ap.error(f"--kernel: unknown kernel {k!r} (chordal, arc)")
+    time_input = None if args.time_input == "none" else args.time_input
+    all_lines, summaries, ok = [], [], True
+    for metric in kernels:
+        res, lines = run_kernel(args, metric, n, count, steps, sample_starts, time_input)
+        all_lines += [f"#### {metric} kernel" + (", phase input and mean-path prior" if time_input else ""), ""] + lines + [""]
+        summaries.append(res)
+        ok = ok and res["same_poses"] and res["old_same_poses"]
+    if args.baseline and len(summaries) > 1:
+        all_lines += summary_table(summaries, count, steps)
+    text = "\n".join(all_lines)
+    print("\n" + text)
+    if args.markdown:
+        Path(args.markdown).write_text(text + "\n")
+    if args.json:
+        Path(args.json).write_text(json.dumps(summaries, indent=1))
+    return 0 if ok else 1
+
+
+def summary_table(summaries, count, steps) -> list:
+    """One row per kernel: the batched mean rollout against the baseline (best of the rounds)."""
+    rev = summaries[0]["baseline"]["rev"]
+    out = [f"**Batched `with_std=False`, {count} rollouts × {steps} steps, against `{rev}`** (best of the rounds)", "",
+           f"| kernel | model | `{rev}` (s) | today (s) | ratio | `{rev}`, CPU (s) | today, CPU (s) | ratio of CPU times "
+           "| max \\|Δ\\| | load (1 min) |", "|---|---|---:|---:|---:|---:|---:|---:|---:|---|"]
+    for res in summaries:
+        rows = res["baseline"]["rounds"]
+        best = lambda who, key: min(r[who][key] for r in rows)  # noqa: E731
+        model = "phase + path prior" if res["model"]["time_input"] else "pose only"
+        loads = ", ".join(f"{r['load']:.1f}" for r in rows)
+        out.append(f"| {res['model']['kernel']} | {model} | {fmt_s(best('baseline', 'batched_s'))} "
+                   f"| {fmt_s(best('today', 'batched_s'))} | {best('baseline', 'batched_s') / best('today', 'batched_s'):.1f}× "
+                   f"| {fmt_s(best('baseline', 'batched_cpu_s'))} | {fmt_s(best('today', 'batched_cpu_s'))} "
+                   f"| {best('baseline', 'batched_cpu_s') / best('today', 'batched_cpu_s'):.1f}× "
+                   f"| {max(r['max_abs_diff'] for r in rows):.1e} | {loads} |")
+    return out
+
+
+def run_kernel(args, metric, n, count, steps, sample_starts, time_input):
+    """The whole measurement for one kernel; returns (results, markdown lines)."""
     started = time.strftime("%H:%M")
     print(f"bench_rollout — {time.strftime('%Y-%m-%d %H:%M %Z')}; {machine_line()}\n{blas_line()}", flush=True)
-    model, info = build_model(n, args.kernel)
-    print(f"model: n = {n}, kernel {args.kernel}, shared fit {info['fit_s']:.1f} s ({info['evaluations']} evaluations, "
+    model, info = build_model(n, metric, time_input=time_input)
+    print(f"model: n = {n}, kernel {metric}, time input {time_input}, shared fit {info['fit_s']:.1f} s ({info['evaluations']} evaluations, "
           f"{info['infeasible']} infeasible), hyperparameters {info['values']}", flush=True)
     q0, p0 = starts_near(model.starts, count, 0.02, seed=0)
 
@@ -292,8 +404,8 @@ def main(argv=None) -> int:
 
     kevals = count * steps * n
     lines = [f"Measured {time.strftime('%Y-%m-%d %H:%M %Z')} (run started {started}); {machine_line()}. {blas_line()}.", "",
-             f"Model: n = {n} training pairs, {args.kernel} kernel, shared hyperparameters (fit {fmt_s(info['fit_s'])} s, "
-             f"{info['evaluations']} evaluations); Δt = {DT} s; median distance travelled {res['median_travel_m']:.2f} m.", "",
+             f"Model: n = {n} training pairs, {metric} kernel" + (" with the phase input and the mean-path prior" if time_input else "") + f", shared hyperparameters (fit {fmt_s(info['fit_s'])} s, "
+             f"{info['evaluations']} evaluations, λ = {info['values']['length_scale']:.3g}, rcond {info['rcond']:.1e}); Δt = {DT} s; median distance travelled {res['median_travel_m']:.2f} m.", "",
              f"| {count} rollouts × {steps} steps | time (s) | per step (ms) |",
              "|---|---:|---:|",
              f"| batched, `with_std=False` | {fmt_s(res['batched_s'])} | {res['batched_s'] / steps * 1e3:.2f} |",
@@ -350,13 +462,7 @@ def main(argv=None) -> int:
                   f"`samples=5` run (mean + samples): {per_old:.1f} ms at `{b['rev']}`, {per_new:.1f} ms today; a mean "
                   f"trajectory without std: {best('today', 'batched_s') / count * 1e3:.1f} ms today. "
                   "Load average (1 min) after each round: " + ", ".join(f"{x['load']:.1f}" for x in rows) + "."]
-    text = "\n".join(lines)
-    print("\n" + text)
-    if args.markdown:
-        Path(args.markdown).write_text(text + "\n")
-    if args.json:
-        Path(args.json).write_text(json.dumps(res, indent=1))
-    return 0 if res["same_poses"] and res["old_same_poses"] else 1
+    return res, lines
 
 
 if __name__ == "__main__":

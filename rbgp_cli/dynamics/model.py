@@ -114,7 +114,14 @@ class MotionModel:
         if not self.mean:
             return None
         phase = X[:, -1] if self.time_input == "phase" else None
-        return prior_mean_outputs(self.representation, X[:, : self.pose_dims], self.mean, phase)
+        path = None
+        if self.mean.get("kind") == "path":
+            cached = self.__dict__.get("_path_reference")
+            if cached is None or cached[0] is not self.mean:
+                cached = (self.mean, PathReference(self.mean))
+                self.__dict__["_path_reference"] = cached
+            path = cached[1]
+        return prior_mean_outputs(self.representation, X[:, : self.pose_dims], self.mean, phase, path=path)
 
     def predict_output(self, X, return_std: bool = False, manage_threads: bool = True):
         """Outputs (velocities in the representation's coordinates, per second or per unit phase) at
@@ -143,25 +150,66 @@ class MotionModel:
         return (mean, std) if return_std else mean
 
 
-def prior_mean_outputs(representation: Representation, state: np.ndarray, mean: dict, phase=None) -> np.ndarray:
+class PathReference:
+    """The mean path's pose and velocity at phases (``mean["kind"] == "path"``, :func:`mean_path`):
+    :func:`~rbgp_cli.dynamics.trajectory.interpolate_poses` (slerp of the rotation, linear
+    position) with the per-interval parts of the slerp computed once, ``q(f) = q̂_k ⊗ exp(f·φ_k)``
+    with ``q̂_k`` the normalised k-th quaternion and ``φ_k = log(q̂_k* ⊗ ±q̂_{k+1})`` — the same
+    arithmetic as :func:`~rbgp_cli.geometry.so3.slerp` (a rollout asks for it every step)."""
+
+    def __init__(self, mean: dict):
+        from rbgp_cli.geometry.so3 import _log_quat_unit, quat_conjugate, quat_multiply, quat_normalize
+
+        self.s = np.asarray(mean["s"], dtype=np.float64)
+        self.quat = np.asarray(mean["quat"], dtype=np.float64)
+        self.position = np.asarray(mean["position"], dtype=np.float64)
+        self.velocity = np.asarray(mean["velocity"], dtype=np.float64)
+        q0, q1 = quat_normalize(self.quat[:-1]), quat_normalize(self.quat[1:])
+        q1 = q1 * np.where(np.sum(q0 * q1, axis=-1, keepdims=True) < 0, -1.0, 1.0)
+        self._q0 = q0
+        self._phi = _log_quat_unit(quat_normalize(quat_multiply(quat_conjugate(q0), q1)))
+
+    def at(self, s: np.ndarray):
+        """(quat (T, 4), position (T, 3), velocity (T, 6)) at phases s (T,), clamped to the path."""
+        from rbgp_cli.geometry.so3 import exp_quat, quat_make_continuous, quat_multiply
+
+        x = self.s
+        s = np.clip(np.asarray(s, dtype=np.float64).reshape(-1), x[0], x[-1])
+        k = np.clip(np.searchsorted(x, s, side="right") - 1, 0, len(x) - 2)
+        f = np.clip((s - x[k]) / (x[k + 1] - x[k]), 0.0, 1.0)
+        q = quat_multiply(self._q0[k], exp_quat(f[..., None] * self._phi[k]))
+        q = np.where((f == 0.0)[:, None], self.quat[k], np.where((f == 1.0)[:, None], self.quat[k + 1], q))
+        p = (1.0 - f)[:, None] * self.position[k] + f[:, None] * self.position[k + 1]
+        if len(s) > 1:
+            q = quat_make_continuous(q)
+        return q, p, self.velocity[k]
+
+
+def prior_mean_outputs(representation: Representation, state: np.ndarray, mean: dict, phase=None,
+                       path: PathReference | None = None) -> np.ndarray:
     """The prior mean as the representation's outputs at ``state`` (m, d).
 
     ``goal``: ξ_m = a·(log(R_goal Rᵀ), p_goal − p), a pull toward the demonstrations' mean final
     pose. ``path`` (phase input only): ξ_m = ξ̄(s) + a·(log(R̄(s) Rᵀ), p̄(s) − p), the velocity of the
     demonstrations' mean path at phase s (per unit phase) plus a pull toward its pose at s
-    (:func:`mean_path`); ``phase`` (m,) gives s.
+    (:func:`mean_path`); ``phase`` (m,) gives s. ``path``: the :class:`PathReference` of ``mean``
+    if the caller keeps one (built here otherwise).
     """
-    from rbgp_cli.dynamics.trajectory import interpolate_poses
     from rbgp_cli.geometry.so3 import log_quat, quat_conjugate, quat_multiply
 
     a = float(mean["gain"])
     quat, pos = representation.pose_from_state(state)
     if mean["kind"] == "path":
-        s_grid = np.asarray(mean["s"], dtype=np.float64)
-        s = np.clip(np.asarray(phase, dtype=np.float64), s_grid[0], s_grid[-1])
-        ref_q, ref_p = interpolate_poses(s_grid, np.asarray(mean["quat"]), np.asarray(mean["position"]), s)
-        k = np.clip(np.searchsorted(s_grid, s, side="right") - 1, 0, len(s_grid) - 2)
-        ff = np.asarray(mean["velocity"], dtype=np.float64)[k]
+        path = path or PathReference(mean)
+        s = np.asarray(phase, dtype=np.float64).reshape(-1)
+        m = len(s)
+        if m > 1 and np.all(s == s[0]):
+            # a rollout's trajectories share their phase (unless their durations differ): the
+            # reference pose once, for every row (the same numbers as row by row)
+            s = s[:1]
+        ref_q, ref_p, ff = path.at(s)
+        if len(s) < m:
+            ref_q, ref_p = np.broadcast_to(ref_q, (m, 4)), np.broadcast_to(ref_p, (m, 3))
     else:
         goal = np.asarray(mean["goal"], dtype=np.float64)
         ref_q, ref_p = np.broadcast_to(goal[:4], quat.shape), goal[4:]

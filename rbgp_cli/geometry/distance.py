@@ -55,6 +55,7 @@ __all__ = [
     "unit_quats",
     "unit_quats_transposed",
     "gram_sq_rotation_distance",
+    "quat_square_features",
     "sq_distance_plan",
     "planned_sq_distance",
     "planned_max_sq_distance",
@@ -440,6 +441,27 @@ def gram_sq_rotation_distance(qa, qbt, metric: str = "arc", scale: float = 1.0, 
     if factor != 1.0:
         G *= factor
     return G
+
+
+#: The 10 index pairs (i <= j) of the symmetric products q_i q_j of a quaternion, and the weight of
+#: each pair in ⟨qa, qb⟩² = Σ_i qa_i² qb_i² + 2 Σ_{i<j} qa_i qa_j qb_i qb_j.
+_PAIRS_I, _PAIRS_J = np.triu_indices(4)
+_PAIR_WEIGHTS = np.where(_PAIRS_I == _PAIRS_J, 1.0, 2.0)
+
+
+def quat_square_features(q, weighted: bool = False, out=None) -> np.ndarray:
+    """The 10 products ``q_i q_j`` (i <= j) of each quaternion, shape (m, 10) (into ``out`` if given):
+    with the weights (1 on the diagonal, 2 off it) on one side, ``⟨qa, qb⟩² = feat(qa, weighted=True)
+    · feat(qb)``, so ``G² = ⟨qa_i, qb_j⟩²`` of all pairs, and with it the squared chordal distance
+    ``4(1 − G²)``, is ONE matrix product, linear in the features: scales, other squared distances
+    and constants fold into the same product (:meth:`SquaredExponential.cross_gram`). Each product
+    of two unit quaternions' features is a sum of 10 terms of magnitude ≤ 2, so G² has an absolute
+    error of a few 1e-16, like the square of the 4-term dot product."""
+    q = np.asarray(q, dtype=np.float64)
+    f = np.multiply(q[:, _PAIRS_I], q[:, _PAIRS_J], out=out)
+    if weighted:
+        f *= _PAIR_WEIGHTS
+    return f
 
 
 def sq_distance_plan(b) -> dict:

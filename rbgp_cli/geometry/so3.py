@@ -114,6 +114,8 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _sin_half_over_angle(theta: np.ndarray) -> np.ndarray:
     """sin(θ/2)/θ, with its Taylor series 1/2 − θ²/48 + θ⁴/3840 below ``SMALL_ANGLE``."""
     small = theta < SMALL_ANGLE
+    if not np.any(small):
+        return np.sin(0.5 * theta) / theta
     safe = np.where(small, 1.0, theta)
     t2 = theta * theta
     return np.where(small, 0.5 - t2 / 48.0 + t2 * t2 / 3840.0, np.sin(0.5 * safe) / safe)
@@ -144,6 +146,8 @@ def _log_quat_unit(q: np.ndarray) -> np.ndarray:
     s = _norm(v)
     theta = 2.0 * np.arctan2(s, w)
     small = (s < SMALL_ANGLE) & (w > 0)
+    if not np.any(small):
+        return v * (theta / s)[..., None]
     safe_s = np.where(small, 1.0, s)
     safe_w = np.where(small, w, 1.0)
     x2 = (s / safe_w) ** 2
@@ -163,6 +167,8 @@ def quat_normalize(q) -> np.ndarray:
     """
     q = _as_array(q, 4, "quat_normalize")
     n = _norm(q)[..., None]
+    if np.all(n > 0):  # the usual case, without the masks (rollouts call this every step)
+        return q / n
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(n > 0, q / np.where(n > 0, n, 1.0), np.nan)
 
@@ -202,11 +208,15 @@ def quat_multiply(q2, q1) -> np.ndarray:
     """
     q2 = _as_array(q2, 4, "quat_multiply q2")
     q1 = _as_array(q1, 4, "quat_multiply q1")
-    v2, w2 = q2[..., :3], q2[..., 3:]
-    v1, w1 = q1[..., :3], q1[..., 3:]
-    w = w2 * w1 - np.sum(v2 * v1, axis=-1, keepdims=True)
-    v = w2 * v1 + w1 * v2 + np.cross(v2, v1)
-    return np.concatenate([v, w], axis=-1)
+    x2, y2, z2, w2 = q2[..., 0], q2[..., 1], q2[..., 2], q2[..., 3]
+    x1, y1, z1, w1 = q1[..., 0], q1[..., 1], q1[..., 2], q1[..., 3]
+    out = np.empty(np.broadcast_shapes(q2.shape, q1.shape))
+    # component by component (np.cross and the concatenation cost more than the arithmetic here)
+    out[..., 0] = w2 * x1 + w1 * x2 + (y2 * z1 - z2 * y1)
+    out[..., 1] = w2 * y1 + w1 * y2 + (z2 * x1 - x2 * z1)
+    out[..., 2] = w2 * z1 + w1 * z2 + (x2 * y1 - y2 * x1)
+    out[..., 3] = w2 * w1 - (x2 * x1 + y2 * y1 + z2 * z1)
+    return out
 
 
 def quat_make_continuous(q, axis: int = -2) -> np.ndarray:
@@ -245,9 +255,10 @@ def exp_quat(omega) -> np.ndarray:
     """
     omega = _as_array(omega, 3, "exp_quat")
     theta = _norm(omega)
-    return np.concatenate(
-        [omega * _sin_half_over_angle(theta)[..., None], np.cos(0.5 * theta)[..., None]], axis=-1
-    )
+    out = np.empty(omega.shape[:-1] + (4,))
+    np.multiply(omega, _sin_half_over_angle(theta)[..., None], out=out[..., :3])
+    np.cos(0.5 * theta, out=out[..., 3])
+    return out
 
 
 def quat_from_rotvec(r) -> np.ndarray:
@@ -277,6 +288,8 @@ def rotvec_from_quat(q) -> np.ndarray:
 def _tie_break(r: np.ndarray) -> np.ndarray:
     """Apply the eq. 7 tie-break to rotation vectors with ``θ >= π − PI_TOLERANCE`` (``θ <= π``)."""
     near_pi = _norm(r) >= np.pi - PI_TOLERANCE
+    if not np.any(near_pi):
+        return r
     return np.where(near_pi[..., None], r * _eq7_sign(r)[..., None], r)
 
 

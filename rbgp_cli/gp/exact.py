@@ -139,21 +139,39 @@ def blas_threads(n: int):
     return _CONTROLLER[0].limit(limits=1, user_api="blas")
 
 
-#: Predictions with at least this many query × training pairs are spread over the cores, in row
-#: chunks on threads (numpy's ufuncs and BLAS release the GIL; the kernel's arccos and exp dominate):
-#: one rollout step of 100 trajectories against 1752 training points is 175 200 pairs.
-PARALLEL_PREDICT_MIN = 100_000
+#: Predictions with at least this many query × training pairs are spread over the free cores, in row
+#: chunks on threads (numpy's ufuncs and BLAS release the GIL; the kernel's exp, arccos and products
+#: dominate). One rollout step of 100 trajectories against 1752 training points (175 200 pairs) stays
+#: on one thread: its chunks are ~0.2 ms of work each, and handing them over cost more than it saved
+#: (the same rollout of 100 × 626 steps, chordal kernel, load 2.4 on 2 cores: 0.44 s wall / 0.53 s
+#: CPU on two threads, 0.32–0.34 s on one).
+PARALLEL_PREDICT_MIN = 1_000_000
 _PREDICT_POOL = []
 
 
 def _prediction_workers(work: int) -> int:
-    """Threads for a prediction of ``work`` query × training pairs: the usable cores (at most 4)
-    above PARALLEL_PREDICT_MIN, else 1 (and 1 in worker processes, which run one per core already).
-    Unlike a BLAS pool these threads do not spin: on a machine whose cores are busy two of them took
-    the time of one (a rollout step at n = 1752, B = 100: 1.1–1.2 ms either way at load 9)."""
+    """Threads for a prediction of ``work`` query × training pairs: the cores free right now (at
+    most 4; :func:`free_cores`, looked up at most every FREE_CORES_TTL seconds) above
+    PARALLEL_PREDICT_MIN, else 1 (and 1 in worker processes, which run one per core already).
+    These threads do not spin, but they only pay where a core is free: at load 2 on 2 cores a
+    rollout of 100 × 626 steps at n = 1752 took 0.44 s (0.55 s CPU) on two threads and 0.33 s on
+    one (chordal kernel; 0.66 s / 0.63 s with the arc kernel, measured)."""
     if work < PARALLEL_PREDICT_MIN or _in_worker_process():
         return 1
-    return max(1, min(4, usable_cores()))
+    return max(1, min(4, _free_cores_recently()))
+
+
+#: Seconds for which :func:`_free_cores_recently` reuses a look-up (a rollout step takes ~0.5 ms).
+FREE_CORES_TTL = 0.2
+_FREE_CORES = [float("-inf"), 1]
+
+
+def _free_cores_recently() -> int:
+    """:func:`free_cores`, reused for FREE_CORES_TTL seconds (reading /proc/loadavg costs ~7 µs)."""
+    now = time.monotonic()
+    if now - _FREE_CORES[0] > FREE_CORES_TTL:
+        _FREE_CORES[:] = [now, free_cores()]
+    return _FREE_CORES[1]
 
 
 def _predict_pool():
@@ -323,6 +341,7 @@ class GaussianProcess:
             self._L = [np.asarray(Lc) for Lc, _a in factors]
             self._alpha = [np.asarray(a) for _Lc, a in factors]
         self._cross = None
+        self._scaled = {}
 
     @property
     def n_outputs(self) -> int:
@@ -384,6 +403,11 @@ class GaussianProcess:
         mean = np.empty((m, self.n_outputs))
         std = np.empty((m, self.n_outputs)) if return_std else None
         step = max(1, int(chunk_elements // max(n, 1)))
+        block = getattr(self.kernel, "mean_block_elements", None)
+        if block and not return_std and m * n > block:
+            # cache-sized row blocks of equal size for a kernel that makes several elementwise passes
+            # (not with the std, whose triangular solve prefers wide right-hand sides)
+            step = min(step, -(-m // -(-m * n // block)))
         workers = _prediction_workers(m * n)
         if workers > 1:
             # at least one chunk per worker, so that large predictions use every core
@@ -412,13 +436,17 @@ class GaussianProcess:
         # the pairwise distances once for all groups; with one group, distances and kernel fused
         pre = self.kernel.cross_precompute(plan, Xc) if len(groups) > 1 else None
         clipped = 0
-        for (fit, outs), Lc, alpha in zip(groups, self._L, self._alpha):
+        for g, ((fit, outs), Lc, alpha) in enumerate(zip(groups, self._L, self._alpha)):
             if pre is None:
                 Ks = self.kernel.cross_gram(plan, Xc, fit.values)  # (mc, n)
             else:
                 Ks, _ = self.kernel.gram(pre, fit.values)
             scale = self.y_scale[outs]
-            mean[a:b, outs] = (Ks @ alpha) * scale
+            alpha_scaled = self._alpha_scaled(g, alpha, scale)
+            if len(outs) == mean.shape[1]:  # shared: all outputs at once, straight into the result
+                np.matmul(Ks, alpha_scaled, out=mean[a:b])
+            else:
+                mean[a:b, outs] = Ks @ alpha_scaled
             if std is not None:
                 # v = L⁻¹ k*, written over Ks (its transpose is the Fortran-ordered right-hand side)
                 v = solve_triangular(Lc, Ks.T, lower=True, check_finite=False, overwrite_b=True)
@@ -429,6 +457,13 @@ class GaussianProcess:
                     var = var + fit.values[NOISE] ** 2 + fit.jitter
                 std[a:b, outs] = np.sqrt(var)[:, None] * scale
         return clipped
+
+    def _alpha_scaled(self, group: int, alpha, scale) -> np.ndarray:
+        """α · scale of a group (the outputs' scale folded into the mean's weights), built once."""
+        cache = self._scaled
+        if group not in cache:
+            cache[group] = np.ascontiguousarray(alpha * scale)
+        return cache[group]
 
     def predict_mean(self, Xs) -> np.ndarray:
         """Predictive mean, shape (m, L) (single-step mean prediction, MATH.md §8)."""

@@ -216,3 +216,105 @@ def test_rollouts_equal_the_precise_distance_path(kernel, shared):
     np.testing.assert_allclose(fast.std, slow.std, rtol=1e-6, atol=1e-9)
     travelled = np.linalg.norm(fast.position[:, -1] - fast.position[:, 0], axis=1)
     assert np.all(travelled > 0.1)  # the rollouts go somewhere: the comparison means something
+
+
+def _phase_model(kernel: str, n: int = 300):
+    """The product's coming default: a phase input (last column) and the mean-path prior, on the
+    synthetic poses of :func:`_synthetic_model` with random phases; the path is that of three
+    demonstrations following the same field (outputs per unit phase, D = 3 s, minus the prior)."""
+    from rbgp_cli.dynamics.model import mean_path, prior_mean_outputs
+    from rbgp_cli.dynamics.representations import make_representation
+    from rbgp_cli.dynamics.trajectory import Trajectory
+    from rbgp_cli.geometry.se3 import integrate_quat
+    from scipy.spatial.transform import Rotation
+    from tests.gp.test_gp import vector_field
+
+    rng = np.random.default_rng(13)
+    X = poses(n, 13)
+    q = Rotation.from_rotvec(X[:, :3]).as_quat()
+    D = 3.0
+    qd, pd = q[:3], X[:3, 3:]
+    Q, P = [qd], [pd]
+    for _ in range(150):
+        qd, pd = integrate_quat(qd, pd, vector_field(qd, pd), D / 150)
+        Q.append(qd)
+        P.append(pd)
+    t = np.linspace(0.0, D, 151)
+    demos = [Trajectory(t, np.array(Q)[:, b], np.array(P)[:, b]) for b in range(3)]
+    rep = make_representation("axis-angle")
+    mean = {"kind": "path", "gain": 10.0, **mean_path(demos)}
+    phase = rng.uniform(0.0, 1.0, n)
+    Y = D * (vector_field(q, X[:, 3:]) + 0.05 * rng.normal(size=(n, 6))) - prior_mean_outputs(rep, X, mean, phase)
+    metric = "arc" if kernel == "se" else "chordal"
+    gp = fit_gp(np.hstack([X, phase[:, None]]), Y, SquaredExponential(metric, 3, 0.7, time_dims=1), restarts=1,
+                seed=0, shared=True)
+    starts = np.concatenate([q[:3], X[:3, 3:]], axis=1)
+    return MotionModel(rep, gp, D / 150, starts, np.full(3, D), time_input="phase", mean=mean)
+
+
+@pytest.mark.parametrize("kernel", ["se", "se-chordal"])
+def test_rollouts_with_phase_and_path_prior_equal_the_precise_path(kernel):
+    """A model with the phase input and the mean-path prior: the fast path (the phase term in the
+    same matrix product; the prior's reference pose computed once per step for trajectories that
+    share their phase) gives the precise path's poses to 1e-9, also for a batch whose trajectories
+    have different durations (phases), and each trajectory of a batch is the one rolled out alone."""
+    model = _phase_model(kernel)
+    k = model.gp.kernel
+    twin = _with_kernel(model, PreciseDistances(k.metric, k.rotation_dims, k.rho_rot, k.learn_rho, k.time_dims))
+    precise = MotionModel(twin.representation, twin.gp, model.dt, model.starts, model.durations,
+                          time_input="phase", mean=model.mean)
+    q0, p0 = starts_near(model.starts, 8, 0.02, seed=5)
+    for durations in (None, np.linspace(2.5, 3.5, 8)):
+        fast = rollout(model, q0, p0, 150, durations=durations, with_std=False)
+        slow = rollout(precise, q0, p0, 150, durations=durations, with_std=False)
+        assert np.max(np.abs(fast.position - slow.position)) <= 1e-9
+        assert np.max(1.0 - np.abs(np.sum(fast.quat * slow.quat, -1))) <= 1e-15
+        travelled = np.linalg.norm(fast.position[:, -1] - fast.position[:, 0], axis=1)
+        assert np.all(travelled > 0.05)
+    alone = rollout(model, q0[2:3], p0[2:3], 150, with_std=False)
+    batched = rollout(model, q0, p0, 150, with_std=False)
+    assert np.max(np.abs(alone.position[0] - batched.position[2])) <= 1e-9
+
+
+def test_prior_mean_of_a_shared_phase_is_the_rowwise_one():
+    """prior_mean_outputs computes the path's reference pose once when all rows share the phase:
+    bit for bit what each row gives alone."""
+    from rbgp_cli.dynamics.model import prior_mean_outputs
+
+    model = _phase_model("se-chordal", n=20)
+    X = poses(7, 3)
+    for s in (0.0, 0.37, 1.0):
+        together = prior_mean_outputs(model.representation, X, model.mean, np.full(7, s))
+        rowwise = np.concatenate([prior_mean_outputs(model.representation, X[i:i + 1], model.mean, np.array([s]))
+                                  for i in range(7)])
+        np.testing.assert_array_equal(together, rowwise)
+
+
+def test_squared_quaternion_dot_products_are_one_product_of_features():
+    """⟨qa, qb⟩² of all pairs = weighted square features of qa @ square features of qb (the chordal
+    kernel's one-product exponent), to 1e-15, for unit quaternions of either sign."""
+    from rbgp_cli.geometry.distance import quat_square_features
+    from scipy.spatial.transform import Rotation
+
+    qa = Rotation.random(30, random_state=1).as_quat() * np.where(np.arange(30) % 2, -1.0, 1.0)[:, None]
+    qb = np.concatenate([Rotation.random(40, random_state=2).as_quat(), qa[:5]])
+    want = (qa @ qb.T) ** 2
+    got = quat_square_features(qa, weighted=True) @ quat_square_features(qb).T
+    assert np.max(np.abs(got - want)) <= 1e-15
+    np.testing.assert_allclose(np.diag(got[:5, 40:]), 1.0, rtol=0, atol=1e-15)
+
+
+def test_path_reference_is_the_slerp_of_the_mean_path():
+    """PathReference (the slerp's per-interval parts computed once) gives interpolate_poses' poses
+    and the interval's velocity bit for bit: between grid points, on them, at the ends and beyond."""
+    from rbgp_cli.dynamics.model import PathReference
+    from rbgp_cli.dynamics.trajectory import interpolate_poses
+
+    mean = _phase_model("se-chordal", n=20).mean
+    s = np.concatenate([np.random.default_rng(4).uniform(0, 1, 30), mean["s"][[0, 7, 50]], [-0.2, 1.3]])
+    q, p, v = PathReference(mean).at(s)
+    want_q, want_p = interpolate_poses(mean["s"], mean["quat"], mean["position"], np.clip(s, 0, 1))
+    np.testing.assert_array_equal(q, want_q)
+    np.testing.assert_array_equal(p, want_p)
+    k = np.clip(np.searchsorted(mean["s"], np.clip(s, 0, 1), side="right") - 1, 0, len(mean["s"]) - 2)
+    np.testing.assert_array_equal(v, mean["velocity"][k])
