@@ -359,7 +359,7 @@ def crossval(
     kernel: Annotated[Optional[List[str]], typer.Option("--kernel", help="Repeatable; every representation runs with every kernel (default: each representation's own). " + kernel_help(), rich_help_panel=_TRAIN)] = None,
     replay: Annotated[bool, typer.Option("--replay/--no-replay", help="Include the replay peer: the training demonstration with the nearest start, moved rigidly to the new start.")] = True,
     jobs: Annotated[Optional[int], typer.Option(min=1, help="Worker processes for the fits (default: one per core); 1 runs them in this process.")] = None,
-    scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Run the fits on a Dask cluster: the scheduler's address (tcp://host:8786), or 'local' for a LocalCluster of --jobs single-threaded workers. Needs pip install \"rbgp-cli[distributed]\"; the results are the same.")] = None,
+    scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Run the fits on a Dask cluster: the scheduler's address (tcp://host:8786), or 'local' for a LocalCluster of --jobs single-threaded workers. Needs pip install \"rbgp-cli\\[distributed]\"; the results are the same.")] = None,
     length: Annotated[Optional[int], typer.Option(min=2, help="Resample every trajectory to this many steps for the scores (default: the training demonstrations' median).")] = None,
     covariance: Annotated[str, typer.Option(help="Per-step Gaussians with diag or full covariance (as rbgp evaluate).")] = "diag",
     per_fold: Annotated[bool, typer.Option("--per-fold", help="Also print one line per fold and configuration.", rich_help_panel=_OUT)] = False,

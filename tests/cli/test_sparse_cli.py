@@ -116,3 +116,9 @@ def test_inducing_with_the_dot_kernel_is_a_one_line_error(tmp_path):
     res = run("train", CSV_DIR, "-o", tmp_path / "d.rbgp", "--kernel", "dot", "--inducing", "32",
               "--time-input", "none", "--prior", "none")
     assert res.exit_code == 2 and "dot-product" in res.stderr and "Traceback" not in res.stderr
+
+
+def test_crossval_help_names_the_distributed_extra():
+    """Rich markup would read "[distributed]" as a style tag and print `pip install "rbgp-cli"`."""
+    res = runner.invoke(app, ["crossval", "--help"], env={"COLUMNS": "400"})
+    assert res.exit_code == 0 and 'pip install "rbgp-cli[distributed]"' in res.stdout, res.stdout
