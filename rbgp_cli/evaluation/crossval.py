@@ -358,8 +358,7 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
             c, f = tasks[i]
             msg = (f"{c.name}, fold {f + 1}/{len(splits)}: score {r['score']:.3f} (floor {floors[f].mean:.3f})"
                    + (f", trained in {r['train_s']:.1f} s" if r["train_s"] else ""))
-            bar.update(status=msg)
-            bar.advance()
+            bar.update(completed=sum(x is not None for x in results), status=msg)  # the count includes this fit
             progress(msg)
 
         if scheduler:
