@@ -50,7 +50,7 @@ import numpy as np
 from scipy.linalg import blas, lapack
 
 from rbgp_cli.errors import RbgpRuntimeError
-from rbgp_cli.gp.exact import INFEASIBLE_NLML, NOISE, OutputFit, blas_threads
+from rbgp_cli.gp.exact import BASIN_GAP, INFEASIBLE_NLML, NOISE, OutputFit, blas_threads
 from rbgp_cli.kernels.base import Kernel, output_scale
 
 __all__ = [
@@ -514,9 +514,6 @@ STAGE_MIN_EVALUATIONS = 3
 #: handover recordings (n ≈ 970, M = 512).
 FINAL_EVALUATIONS = 3
 FIRST_STAGE_EVALUATIONS = 100
-#: Explored optima whose exact NLML on the exploration subset is within this of the best also start
-#: the first bound stage (the exact GP's exploration keeps basins within the same window).
-EXPLORE_WINDOW = 10.0
 #: An output's hyperparameters are settled when no log-hyperparameter moved by more than this between
 #: two consecutive bound stages; it then skips the larger stages (the posterior always uses all n).
 SETTLED_LOG = 0.05
@@ -689,12 +686,12 @@ def fit_sparse_gp(
                                                          on_evaluation=tick)
                 ok = sorted((o for o in optima if o is not None), key=lambda o: o[1])
                 if ok:
-                    # every distinct basin nearly as good as the best goes on to the bound on more points
+                    # every distinct basin within BASIN_GAP of the best goes on to the bound on more points
                     # (as the exact GP's polish does): on 400 points the all-noise basin (σf ≪ σn, λ → 0)
                     # can be the best, and only more points tell it from the structured one (measured)
                     keep = [ok[0]]
                     for o in ok[1:]:
-                        if o[1] <= ok[0][1] + EXPLORE_WINDOW and all(np.max(np.abs(o[0] - k[0])) > 0.1 for k in keep):
+                        if o[1] <= ok[0][1] + BASIN_GAP and all(np.max(np.abs(o[0] - k[0])) > 0.1 for k in keep):
                             keep.append(o)
                     st["theta"] = [o[0] for o in keep]
                     st["kinds"] = ["best explored optimum"] + ["another explored basin"] * (len(keep) - 1)

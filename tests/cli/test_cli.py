@@ -66,21 +66,29 @@ def test_info_shows_provenance(model):
     assert text.exit_code == 0 and "axis-angle" in text.stdout
 
 
-def test_predict_writes_mean_and_std_per_pose(model, tmp_path):
-    """The default model takes the phase: poses come with times (a trajectory), one row out per pose."""
+BARE_POSES = "rx,ry,rz,x,y,z\n0.1,0.2,0.3,0.3,0.0,1.1\n0.0,0.0,0.0,0.5,0.1,0.8\n"
+
+
+def predict_table(model, tmp_path, text):
+    """``rbgp predict`` on a poses CSV holding ``text``: (header line, values (rows, columns))."""
     poses = tmp_path / "poses.csv"
-    poses.write_text("t,rx,ry,rz,x,y,z\n0.0,0.1,0.2,0.3,0.3,0.0,1.1\n1.0,0.0,0.0,0.0,0.5,0.1,0.8\n")
+    poses.write_text(text)
     res = run("predict", model, poses)
     assert res.exit_code == 0, res.stderr
     lines = res.stdout.strip().splitlines()
-    assert lines[0].startswith("t,x,y,z,qx,qy,qz,qw,mean_wx") and "std_vz" in lines[0]
-    vals = np.array([[float(v) for v in ln.split(",")] for ln in lines[1:]])
+    return lines[0], np.array([[float(v) for v in ln.split(",")] for ln in lines[1:]])
+
+
+def test_predict_writes_mean_and_std_per_pose(model, tmp_path):
+    """The default model takes the phase: poses come with times (a trajectory), one row out per pose."""
+    header, vals = predict_table(model, tmp_path, "t,rx,ry,rz,x,y,z\n0.0,0.1,0.2,0.3,0.3,0.0,1.1\n1.0,0.0,0.0,0.0,0.5,0.1,0.8\n")
+    assert header.startswith("t,x,y,z,qx,qy,qz,qw,mean_wx") and "std_vz" in header
     assert vals.shape == (2, 8 + 12) and np.all(np.isfinite(vals)) and np.all(vals[:, -6:] >= 0)
 
 
 def test_predict_without_times_for_a_phase_model_says_what_to_give(model, tmp_path):
     poses = tmp_path / "poses.csv"
-    poses.write_text("rx,ry,rz,x,y,z\n0.1,0.2,0.3,0.3,0.0,1.1\n0.0,0.0,0.0,0.5,0.1,0.8\n")
+    poses.write_text(BARE_POSES)
     res = run("predict", model, poses)
     assert res.exit_code == 2 and "Traceback" not in res.stderr
     assert "phase" in res.stderr and "time column" in res.stderr and "--time-input none" in res.stderr, res.stderr
@@ -90,13 +98,8 @@ def test_predict_at_bare_poses_with_a_model_of_the_pose_alone(tmp_path):
     model = tmp_path / "pose_only.rbgp"
     res = run("train", CSV_DIR, "-o", model, *FAST, "--time-input", "none", "--prior", "none")
     assert res.exit_code == 0, res.stderr
-    poses = tmp_path / "poses.csv"
-    poses.write_text("rx,ry,rz,x,y,z\n0.1,0.2,0.3,0.3,0.0,1.1\n0.0,0.0,0.0,0.5,0.1,0.8\n")
-    res = run("predict", model, poses)
-    assert res.exit_code == 0, res.stderr
-    lines = res.stdout.strip().splitlines()
-    assert lines[0].startswith("x,y,z,qx,qy,qz,qw,mean_wx") and "std_vz" in lines[0]
-    vals = np.array([[float(v) for v in ln.split(",")] for ln in lines[1:]])
+    header, vals = predict_table(model, tmp_path, BARE_POSES)
+    assert header.startswith("x,y,z,qx,qy,qz,qw,mean_wx") and "std_vz" in header
     assert vals.shape == (2, 7 + 12) and np.all(np.isfinite(vals)) and np.all(vals[:, -6:] >= 0)
 
 
