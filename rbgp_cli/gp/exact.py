@@ -669,15 +669,16 @@ def _fd_hessian(obj: _Objective, theta) -> np.ndarray | None:
     return H if np.all(np.isfinite(H)) else None
 
 
-def _polish(obj: _Objective, theta0, H, n: int, known=()) -> dict:
+def _polish(obj: _Objective, theta0, H, n: int, known=(), max_evals: int = POLISH_MAX_EVALS,
+            atol: float | None = None) -> dict:
     """Minimise ``obj`` from ``theta0`` (near the optimum) by a projected quasi-Newton method.
 
     Steps p = −H⁻¹g on the hyperparameters that are not held at a bound by their gradient (H made
     positive definite by taking |eigenvalues|), at most _MAX_STEP in any log θ, with backtracking
     until the NLML decreases (Armijo); H starts from ``H`` (the subsample's Hessian scaled to n
     points: the NLML is a sum over the points) and is updated by damped BFGS. Stops when the
-    predicted decrease −½gᵀp < POLISH_RTOL · max(|NLML|, n) ("converged"), when the line search
-    cannot decrease the NLML ("stalled"), after POLISH_MAX_EVALS evaluations ("budget"), or when it
+    predicted decrease −½gᵀp < POLISH_RTOL · max(|NLML|, n) (or < ``atol`` nats if given) ("converged"), when the line search
+    cannot decrease the NLML ("stalled"), after ``max_evals`` evaluations ("budget"), or when it
     comes within DISTINCT_LOG of an optimum in ``known`` (θ, NLML) without being better than it
     ("joined an earlier basin").
 
@@ -701,7 +702,7 @@ def _polish(obj: _Objective, theta0, H, n: int, known=()) -> dict:
     w = np.maximum(np.abs(w), 1e-10 * max(float(np.max(np.abs(w))), 1e-300))
     H = (V * w) @ V.T
     status = "budget"
-    while obj.counter["evals"] - ev0 < POLISH_MAX_EVALS:
+    while obj.counter["evals"] - ev0 < max_evals:
         held = ((theta <= lo + 1e-12) & (g > 0)) | ((theta >= hi - 1e-12) & (g < 0))
         F = ~held
         p = np.zeros_like(theta)
@@ -711,13 +712,13 @@ def _polish(obj: _Objective, theta0, H, n: int, known=()) -> dict:
             w = np.maximum(w, 1e-10 * max(float(np.max(w)), 1e-300))
             p[F] = -(V @ ((V.T @ g[F]) / w))
         decrease = -0.5 * float(g @ p)
-        if decrease <= POLISH_RTOL * max(abs(f), n):
+        if decrease <= (POLISH_RTOL * max(abs(f), n) if atol is None else atol):
             status = "converged"
             break
         p *= min(1.0, _MAX_STEP / float(np.max(np.abs(p))))
         a = 1.0
         accepted = False
-        while obj.counter["evals"] - ev0 < POLISH_MAX_EVALS:
+        while obj.counter["evals"] - ev0 < max_evals:
             t_new = np.clip(theta + a * p, lo, hi)
             d = t_new - theta
             if float(np.max(np.abs(d))) < 1e-10:
@@ -732,7 +733,7 @@ def _polish(obj: _Objective, theta0, H, n: int, known=()) -> dict:
             else:  # minimum of the quadratic through f, g·d and f_new, kept within [0.1a, 0.5a]
                 a *= min(0.5, max(0.1, -gd / (2.0 * (f_new - f - gd))))
         if not accepted:
-            status = "stalled" if obj.counter["evals"] - ev0 < POLISH_MAX_EVALS else "budget"
+            status = "stalled" if obj.counter["evals"] - ev0 < max_evals else "budget"
             break
         s, yv = d, g_new - g
         Hs = H @ s

@@ -16,7 +16,9 @@ distances, inner products) are computed once per fit:
 * ``gram_with_gradient(Xa, values, names)``: K and the full dK/dlogθ, shape (n, n, p), for tests;
 * ``cross_plan(Xb)`` and ``cross_precompute(plan, Xa)``: the same pairwise arrays as
   ``precompute(Xa, Xb)`` for many query blocks Xa against one fixed Xb (predictions, rollouts),
-  with Xb's part computed once; ``cross_gram(plan, Xa, values)``: K(Xa, Xb) directly.
+  with Xb's part computed once; ``cross_gram(plan, Xa, values)``: K(Xa, Xb) directly, and
+  ``cross_grad_contract(plan, Xa, values, K, W, names)``: its gradient contraction, so that a sparse GP
+  needs no (n, M) pairwise arrays at all where the kernel fuses both (``fused_cross_gradient``).
 """
 
 from __future__ import annotations
@@ -109,6 +111,18 @@ class Kernel:
         (kernels may fuse the two for one set of hyperparameters)."""
         K, _ = self.gram(self.cross_precompute(plan, Xa), values)
         return K
+
+    #: True where :meth:`cross_grad_contract` needs no pairwise arrays (it is then cheaper to call per
+    #: evaluation than to cache :meth:`precompute`'s arrays; the sparse GP's row blocks use it).
+    fused_cross_gradient: bool = False
+
+    def cross_grad_contract(self, plan: dict, Xa: np.ndarray, values: dict, K: np.ndarray, W: np.ndarray,
+                            names) -> np.ndarray:
+        """``Σ_ij W_ij ∂K_ij/∂log θ`` for ``K = cross_gram(plan, Xa, values)`` (shape (m, n)), as
+        :meth:`grad_contract` of :meth:`cross_precompute`; kernels may fuse it."""
+        pre = self.cross_precompute(plan, Xa)
+        _K, state = self.gram(pre, values)
+        return self.grad_contract(pre, values, K, state, W, names)
 
     def default_hyperparameters(self, pre: dict, y: np.ndarray) -> dict:
         """Data-driven start values (MATH.md §7) and bounds, as ``{name: Hyperparameter}``."""

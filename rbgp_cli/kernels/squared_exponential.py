@@ -84,6 +84,8 @@ class SquaredExponential(Kernel):
     """
 
     kind = "squared_exponential"
+    #: k = σf² k̃ with k̃ free of σf (the sparse GP's bound has a closed-form σf gradient then)
+    signal_scaled = True
 
     @property
     def mean_block_elements(self) -> int | None:
@@ -250,6 +252,60 @@ class SquaredExponential(Kernel):
             np.maximum(E, MIN_EXPONENT + log_sf2, out=E)
         np.exp(E, out=E)
         return E
+
+    @property
+    def fused_cross_gradient(self) -> bool:
+        """The chordal kernel's exponent is one product of features (:meth:`cross_gram`), and so is
+        its gradient contraction (:meth:`cross_grad_contract`)."""
+        return self.metric == "chordal"
+
+    def cross_grad_contract(self, plan, Xa, values, K, W, names) -> np.ndarray:
+        """Σ_ij W_ij ∂K_ij/∂log θ for K = :meth:`cross_gram` (plan, Xa, values), shape (m, n).
+
+        The gradients (module docstring) need S_q = Σ_ij E_ij q_ij with E = W ∘ K for the pair arrays
+        q ∈ {1, d_rot², ‖Δt‖², Δτ²}. For the chordal kernel each q is bilinear in the features whose
+        product is :meth:`cross_gram`'s exponent (``lhs_q @ rhs`` with the plan's ``exponent_rhs``), so
+        with P = E rhsᵀ (ONE product, (m, F), F ≤ 17) every S_q = Σ_i ⟨lhs_q,i, P_i⟩:
+
+            d_rot² = 4 − 4 w∘sq(qa) · sq(qb),   ‖Δt‖² = ‖t_a,c‖² − 2 t_a,c · t_b,c + ‖t_b,c‖²  (Δτ² alike)
+
+        and then ∂/∂log σf: 2 S_1, ∂/∂log λ: (ρ1 S_rot + (1 − ρ1) S_t) / λ², ∂/∂log ρ1:
+        −ρ1 (S_rot − S_t) / (2λ²), ∂/∂log λτ: S_τ / λτ². No (m, n) pairwise arrays; the round-off is
+        that of :meth:`cross_gram`'s exponent (~1e-15 of Σ|E| per S_q). Other metrics: the base
+        class's route through :meth:`cross_precompute`."""
+        if self.metric != "chordal":
+            return super().cross_grad_contract(plan, Xa, values, K, W, names)
+        from rbgp_cli.geometry import distance
+
+        Xa = np.asarray(Xa, dtype=np.float64)
+        k = self.rotation_dims
+        E = np.multiply(W, K)
+        rhs = plan["exponent_rhs"]  # rows: sq(qb) (10), −2 t_b,c (3), ‖t_b,c‖², [−2 τ_b,c, τ_b,c²,] 1
+        P = np.matmul(E, rhs.T)
+        one = P[:, -1]
+        s_one = float(np.sum(one))
+        qa = distance.unit_quats(Xa[:, :k], k)
+        s_rot = 4.0 * s_one - 4.0 * float(np.einsum("ij,ij->", distance.quat_square_features(qa, weighted=True), P[:, :10]))
+        tc = Xa[:, k:k + 3] - plan["trans"]["centre"]
+        s_t = (float(np.einsum("ij,ij->", tc, P[:, 10:13])) + float(np.sum(P[:, 13]))
+               + float(np.dot(np.einsum("ij,ij->i", tc, tc), one)))
+        lam2 = values["length_scale"] ** 2
+        rho = values["rho_rot"] if self.learn_rho else self.rho_rot
+        out = np.empty(len(names))
+        for i, name in enumerate(names):
+            if name == "signal_std":
+                out[i] = 2.0 * s_one
+            elif name == "length_scale":
+                out[i] = (rho * s_rot + (1.0 - rho) * s_t) / lam2
+            elif name == "rho_rot":
+                out[i] = -rho / (2.0 * lam2) * (s_rot - s_t)
+            elif name == "time_scale":
+                tau_c = Xa[:, k + 3] - plan["tau"]["centre"][0]
+                s_tau = float(np.dot(tau_c, P[:, 14])) + float(np.sum(P[:, 15])) + float(np.dot(tau_c * tau_c, one))
+                out[i] = s_tau / values["time_scale"] ** 2
+            else:
+                raise KeyError(name)
+        return out
 
     def _d2(self, pre: dict, values: dict) -> np.ndarray:
         if "d2" in pre:
