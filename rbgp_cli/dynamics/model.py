@@ -392,6 +392,7 @@ def train_model(
     prior_gain: float = DEFAULTS["prior_gain"],
     jobs: int | None = None,
     inducing: int | None = None,
+    hyper_points: int | None = None,
 ) -> MotionModel:
     """Train a motion model on clean demonstrations (see :func:`rbgp_cli.dynamics.prepare.prepare_all`).
 
@@ -413,6 +414,9 @@ def train_model(
     ``subsample``, and then a sparse GP (:mod:`rbgp_cli.gp.sparse`) with DEFAULT_INDUCING inducing poses
     on all of them; 0 forces the exact GP; M > 0 forces a sparse GP with M inducing poses on all points.
     ``max_points`` never drops points from a sparse GP. ``summary["gp"]`` says which and why.
+    ``hyper_points`` (sparse GP only): the bound that chooses the hyperparameters covers at most this
+    many random points (None: 4 × the inducing poses, at least 2000; 0: all); ``summary["gp"]["hyper_points"]`` is
+    how many it covered.
     """
     t0 = time.perf_counter()
     if representation not in DEFAULT_KERNELS:
@@ -456,8 +460,13 @@ def train_model(
         if progress:
             progress(f"sparse GP: {gp_choice['reason']}")
         gp = fit_sparse_gp(X, Y, kern, inducing=gp_choice["inducing"], noise=noise, restarts=restarts, seed=seed,
-                           shared=shared, progress=progress, explore_size=explore_size)
+                           shared=shared, progress=progress, explore_size=explore_size, hyper_points=hyper_points)
         gp_choice["inducing"] = int(gp.n_inducing)
+        covered = max((int(st["points"]) for f in gp.fits for st in f.stages if st["objective"] == "bound"), default=len(X))
+        gp_choice["hyper_points"] = covered
+        if covered < len(X):
+            gp_choice["reason"] += (f"; hyperparameters from the bound on a random {covered} of them "
+                                    "(--hyper-points 0: all), the posterior on all")
     else:
         if jobs is None:
             jobs = default_jobs(1 if shared else Y.shape[1], len(X))

@@ -752,6 +752,35 @@ def _polish(obj: _Objective, theta0, H, n: int, known=(), max_evals: int = POLIS
     return {"theta": theta, "nlml": f, "status": status, "start": start}
 
 
+def _smooth_start(spec: dict, free: list) -> np.ndarray | None:
+    """A start at long length scales (4 × the data-driven λ, 10 × λτ, σf = RMS(y), σn = RMS(y)/2) for
+    fits whose best optimum is the all-noise basin (:func:`_all_noise`); None if σf or σn is fixed.
+    On 400-point subsets of recorded motions every start of some outputs ends in an optimum that on
+    more points is the all-noise basin (σf ≪ σn, λ and λτ at their lower bounds), which neither
+    L-BFGS-B nor the polish leaves, while a structured optimum at long length scales is far better:
+    handover recordings, 964 points: 1742 against 1199; sample_data at the recorded rate, 2000 points
+    of a crossval fold (the exact GP): vx 711, vy 763, vz 528 against 320, 332, 239 from this start."""
+    if "signal_std" not in free or NOISE not in free:
+        return None
+    sy = spec["signal_std"].value
+    start = {"signal_std": sy, NOISE: 0.5 * sy}
+    if "length_scale" in spec:
+        start["length_scale"] = 4.0 * spec["length_scale"].value
+    if "time_scale" in spec:
+        start["time_scale"] = 10.0 * spec["time_scale"].value
+    theta = np.array([math.log(start.get(nm, spec[nm].value)) for nm in free])
+    lo = np.array([spec[nm].log_bounds[0] for nm in free])
+    hi = np.array([spec[nm].log_bounds[1] for nm in free])
+    return np.clip(theta, lo, hi)
+
+
+def _all_noise(free, theta) -> bool:
+    """σf < σn at log hyperparameters θ: the optimum explains less than the noise (False when either
+    is fixed)."""
+    v = dict(zip(free, theta))
+    return "signal_std" in v and NOISE in v and v["signal_std"] < v[NOISE]
+
+
 def _optima_best(optima) -> float:
     """The lowest NLML among a list of optima (θ, NLML) or None entries (inf if there is none)."""
     return min((o[1] for o in optima if o is not None), default=math.inf)
@@ -849,6 +878,16 @@ def _fit_target(kernel, pre, y, label, rng, o: _FitOptions, sub=None, pre_sub=No
                                                  on_evaluation=on_evaluation)
         records += rec_full
         counter = {k: counter[k] + c_full[k] for k in counter}
+    smooth = _smooth_start(spec, free)
+    if best is not None and smooth is not None and _all_noise(free, best[0]):
+        # the all-noise basin: one more start at long length scales, on all points, kept if better
+        b2, rec2, c2, _v, _ = _fit_one(kernel, pre, y, spec, free, 1, rng, o.max_iter, theta_starts=[smooth],
+                                       kinds=["smooth start, the best optimum being all noise (all points)"],
+                                       on_evaluation=on_evaluation)
+        records += rec2
+        counter = {k: counter[k] + c2[k] for k in counter}
+        if b2 is not None and b2[1] < best[1]:
+            best = b2
     guarded = False
     K = None
     if best is not None:

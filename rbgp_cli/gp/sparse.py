@@ -22,11 +22,15 @@ K_nm, K_mm and diag K_nn is, as matrices to contract with ∂K/∂log θ (:meth:
 and for s:  ∂(−F)/∂s = n/(2s) − tr(B⁻¹C)/(2s²) − ½ yᵀy/s² − ½ βᵀCβ/s⁴ + cᵀβ/s³ − tr K_nn/(2s²) + tr C/(2s²).
 With L outputs sharing one set of hyperparameters (``shared``) every per-output term is summed.
 
-Cost per evaluation: Φ and b in one pass over row blocks of K_nm (n M² for the rank-k update), the
-M × M algebra (M³), and a second pass for the gradient (K_nm G per block, 2 n M²): O(n M²) time; the
-kernel's hyperparameter-free pairwise arrays for K_nm are cached block by block (O(n M) memory,
-recomputed per block instead above ``cache_bytes``) and the temporaries are one block (``block_rows``
-× M) at a time. All BLAS calls in the loop go through ``scipy.linalg.blas`` (ECOSYSTEM.md §7).
+Cost per evaluation: C and c in one pass over row blocks of K_nm (A = L_m⁻¹ K_mb by a triangular
+product and the rank-k update: 2 n M²), the M × M algebra (M³), and for the gradient K_nm G per block
+(2 n M²) contracted with ∂K_nm/∂log θ: O(n M²) time. The chordal kernel builds each block of K_nm and
+its contraction from a few features per row and one matrix product (``Kernel.cross_gram``,
+``cross_grad_contract``), so its memory is one block (``block_rows`` × M) of temporaries, and the
+blocks of one evaluation are kept for its gradient pass up to KEEP_BYTES; other kernels cache their
+hyperparameter-free pairwise arrays per block (O(n M), recomputed per block above ``cache_bytes``).
+The σf component of the gradient is the closed form of the M × M terms (k = σf² k̃). All BLAS calls
+in the loop go through ``scipy.linalg.blas`` (ECOSYSTEM.md §7).
 
 Prediction (Titsias 2009, eq. 6; the SGPR posterior): mean μ(x) = k_xmᵀ w with w = α / s (O(M) per
 pose), latent variance k(x,x) − ‖L_m⁻¹ k_xm‖² + ‖L_B⁻¹ L_m⁻¹ k_xm‖² (O(M²) per pose).
@@ -35,9 +39,10 @@ Inducing inputs are M distinct training inputs chosen by k-means++ seeding (D² 
 Vassilvitskii 2007) or greedy farthest-point selection, seeded, in a Euclidean embedding of the
 kernel's distance (:func:`inducing_embedding`); they are not optimised.
 
-The hyperparameters are fitted in stages of growing size (:func:`fit_sparse_gp`): the starts on a
-small random subset with the exact NLML (as the exact GP explores), then the bound on random subsets
-of growing size from the previous optimum, the last one all points.
+The hyperparameters are fitted in stages (:func:`fit_sparse_gp`): the starts on a small random subset
+with the exact NLML (as the exact GP explores), then the bound on a random 4M of the points (by
+default; up to all of them with ``hyper_points``), polished from the explored optima as the exact GP
+polishes; the posterior then uses all points.
 """
 
 from __future__ import annotations
@@ -50,7 +55,7 @@ import numpy as np
 from scipy.linalg import blas, lapack
 
 from rbgp_cli.errors import RbgpRuntimeError
-from rbgp_cli.gp.exact import BASIN_GAP, INFEASIBLE_NLML, NOISE, OutputFit, blas_threads
+from rbgp_cli.gp.exact import BASIN_GAP, INFEASIBLE_NLML, NOISE, OutputFit, _all_noise, _smooth_start, blas_threads
 from rbgp_cli.kernels.base import Kernel, output_scale
 
 __all__ = [
@@ -565,6 +570,8 @@ STAGE_GROWTH = 4
 #: bound on more points keeps moving the hyperparameters (towards longer length-scales: with n ≫ M the
 #: complexity term of the bound fades) without making the posterior better.
 HYPER_FACTOR = 4
+#: ... and never fewer than the exact GP's default ``--max-points`` (few inducing poses are cheap).
+HYPER_MIN_POINTS = 2000
 #: Several starts in one bound stage race: each gets this many evaluations, then only the best goes on
 #: (in the polish of the first stage: every start after the best explored optimum gets this many).
 RACE_EVALUATIONS = 5
@@ -591,31 +598,11 @@ FIRST_STAGE_EVALUATIONS = 100
 SETTLED_LOG = 0.05
 
 
-def _smooth_start(spec: dict, free: list) -> np.ndarray | None:
-    """One more start for the first bound stage, at long length scales (4 × the data-driven λ, 10 ×
-    λτ, σf = RMS(y), σn = RMS(y)/2); None if σf or σn is fixed. On a 400-point subset of the handover
-    recordings every start of one output ended in an optimum that on more points becomes the all-noise
-    basin (σf ≪ σn, λ → 0; bound 1742 on 964 points), from which L-BFGS-B never leaves; the structured
-    optimum (λ ≈ 2.5, λτ ≈ 29, exact NLML 1199) lies at long length scales."""
-    if "signal_std" not in free or NOISE not in free:
-        return None
-    sy = spec["signal_std"].value
-    start = {"signal_std": sy, NOISE: 0.5 * sy}
-    if "length_scale" in spec:
-        start["length_scale"] = 4.0 * spec["length_scale"].value
-    if "time_scale" in spec:
-        start["time_scale"] = 10.0 * spec["time_scale"].value
-    theta = np.array([math.log(start.get(nm, spec[nm].value)) for nm in free])
-    lo = np.array([spec[nm].log_bounds[0] for nm in free])
-    hi = np.array([spec[nm].log_bounds[1] for nm in free])
-    return np.clip(theta, lo, hi)
-
-
 def _stage_sizes(n: int, M: int, top: int) -> list[int]:
-    """Nested subset sizes 4M, 16M, ... below min(n, top), then min(n, top)."""
+    """Nested subset sizes k, 4k, 16k, ... below min(n, top), then min(n, top), from k = max(4M, 2000)."""
     top = min(n, max(int(top), 2))
     sizes = []
-    k = STAGE_FACTOR * M
+    k = max(STAGE_FACTOR * M, HYPER_MIN_POINTS)
     while k < top:
         sizes.append(k)
         k *= STAGE_GROWTH
@@ -683,8 +670,11 @@ def _polish_starts(objective, st, free, log_bounds, hessians, scale, points, cap
     early where it joins a basin polished before); a polish that runs out of evaluations or stalls
     hands over to L-BFGS-B (at most ``cap`` evaluations) if it is the first or the best so far. On a
     random ``subset`` of the points the polish stops once less than SUBSET_ATOL nats are left to gain.
-    The smooth start is tried only where the best optimum so far explains less than the noise
-    (σf < σn, the all-noise basin it is there for). Returns (θ, −F) of the best, or None."""
+    The smooth start runs with L-BFGS-B to convergence: always where the stage covers all points (on
+    the handover fold of the tests it finds an optimum 3 nats better than the structured one the
+    explored optima lead to), on a random subset (large n, where it would cost most) only where the best
+    optimum so far explains less than the noise (σf < σn, the all-noise basin). Returns (θ, −F) of the
+    best, or None."""
     from rbgp_cli.gp.exact import POLISH_MAX_EVALS, _polish
 
     obj = _StageObjective(objective, free, log_bounds)
@@ -692,18 +682,26 @@ def _polish_starts(objective, st, free, log_bounds, hessians, scale, points, cap
     polished, best = [], None
     where = f"(bound, {points} points)"
     for i, (theta0, kind, H) in enumerate(zip(st["theta"], st["kinds"], hessians)):
-        if kind == "smooth start" and best is not None and not _all_noise(free, best[0]):
-            _record(st, free, theta0, float("nan"), "not tried: the best optimum has σf ≥ σn", 0, f"{kind} {where}")
+        if kind == "smooth start" and subset and best is not None and not _all_noise(free, best[0]):
+            _record(st, free, theta0, float("nan"), "not tried: on a subset, and the best optimum has σf ≥ σn", 0,
+                    f"{kind} {where}")
             continue
         ev0 = count[0]
         budget = POLISH_MAX_EVALS if i == 0 else RACE_EVALUATIONS
-        if H is None:  # no Hessian on the subset (an infeasible neighbour): L-BFGS-B from the start
+        if kind == "smooth start":
+            # far from every explored optimum, where the subset's Hessian says little: L-BFGS-B to
+            # convergence (measured on sample_data: after 5 polish steps it was still 100 nats behind
+            # the all-noise basin, and at convergence 790 nats ahead of it on all points)
+            th, f, _ok, msg = _minimise(objective, theta0, log_bounds, cap, STAGE_FTOL)
+            res = {"theta": th, "nlml": f, "status": msg, "start": theta0}
+        elif H is None:  # no Hessian on the subset (an infeasible neighbour): L-BFGS-B from the start
             th, f, _ok, msg = _minimise(objective, theta0, log_bounds, cap if i == 0 else budget, STAGE_FTOL)
             res = {"theta": th, "nlml": f, "status": msg, "start": theta0}
         else:
             res = _polish(obj, theta0, H * scale, points, polished, max_evals=budget, atol=atol)
         th, f, status = res["theta"], res["nlml"], res["status"]
-        _record(st, free, res["start"], f, status, count[0] - ev0, f"{kind}, polish {where}")
+        method = "polish" if H is not None and kind != "smooth start" else "L-BFGS-B"
+        _record(st, free, res["start"], f, status, count[0] - ev0, f"{kind}, {method} {where}")
         if status in ("budget", "stalled") and (i == 0 or (best is not None and f < best[1])):
             ev0 = count[0]
             ftol = max(STAGE_FTOL, SUBSET_ATOL / max(abs(f), 1.0)) if subset and f < INFEASIBLE_NLML else STAGE_FTOL
@@ -716,12 +714,6 @@ def _polish_starts(objective, st, free, log_bounds, hessians, scale, points, cap
             if best is None or f < best[1]:
                 best = (np.array(th), f)
     return best
-
-
-def _all_noise(free, theta) -> bool:
-    """σf < σn at log hyperparameters θ (False when either is fixed)."""
-    v = dict(zip(free, theta))
-    return "signal_std" in v and NOISE in v and v["signal_std"] < v[NOISE]
 
 
 def _race_starts(objective, st, free, log_bounds, cap, count, points):
@@ -774,28 +766,39 @@ def fit_sparse_gp(
 
     inducing : M, the number of inducing inputs (at most the number of distinct rows of X)
     inducing_method : "kmeans++" or "farthest" (:func:`select_inducing`), seeded by ``seed``
-    final_evaluations : at most this many bound evaluations in the last stage
-    hyper_points : the largest stage (default and ``0``: all n points); the posterior always uses all n
+    final_evaluations : at most this many bound evaluations in the last stage (when stages before it ran)
+    hyper_points : the bound that chooses the hyperparameters covers at most this many random points
+        (default max(HYPER_FACTOR·M, HYPER_MIN_POINTS); ``0``: all n); the posterior always uses all n
     jitter : relative jitter of K_mm (:func:`sparse_bound_and_gradient`)
 
     Hyperparameters, per output or shared (MATH.md §7), in stages:
 
     1. *explore*: every start (the data-driven one and ``restarts − 1`` random ones) minimises the
-       exact NLML on a random subset of ``explore_size`` points (default 400, as the exact GP);
-       ``explore_size=0`` runs the starts on the first bound stage instead;
-    2. *bound stages*: −F on nested random subsets of 4M, 16M, … points and finally on all n, each
-       from the previous stage's best optimum (L-BFGS-B, relative tolerance STAGE_FTOL; a stage on k
-       points at most max(3, STAGE_BUDGET·n/k) evaluations, the one on all points ``final_evaluations``,
-       so that each costs about as much as two evaluations on all points). An output whose hyperparameters moved by less than
-       SETTLED_LOG (in log) between two bound stages stops there: small subsets cost little, and once
-       a subset holds enough points per inducing input its optimum is the full one. Where the optimum
-       still moves it does not stop (measured at n = 10⁵, M = 512: one of three outputs of a synthetic
-       field kept moving, and stopping it at 8192 points left its held-out RMSE 2.4× higher and its
-       bound on all points 1.7·10⁴ nats worse).
+       exact NLML on a random subset of ``explore_size`` points (default 400, the exact GP's tolerance
+       EXPLORE_FTOL), and each distinct optimum within BASIN_GAP of the best gets its Hessian there
+       by finite differences, as in the exact GP; ``explore_size=0`` runs the starts on the first
+       bound stage instead (L-BFGS-B, racing);
+    2. *the first bound stage*, on min(n, ``hyper_points``, max(4M, 2000)) random points: each explored optimum
+       is polished as the exact GP polishes on all points (:func:`_polish_starts`: quasi-Newton from
+       the subset's Hessian scaled to the stage, L-BFGS-B if that stalls); on a subset it stops with
+       less than SUBSET_ATOL nats left to gain. Measured at n = 10⁵, M = 512 (synthetic field): 2–5
+       bound evaluations per output;
+    3. only with ``hyper_points`` above 4M: −F on nested random subsets of 16M, 64M, … points up to
+       ``hyper_points``, each from the previous stage's best optimum (L-BFGS-B, relative tolerance
+       STAGE_FTOL; a stage on k points at most max(3, STAGE_BUDGET·top/k) evaluations, the one on
+       ``hyper_points`` ``final_evaluations``). An output whose hyperparameters moved by less than
+       SETTLED_LOG (in log) between two bound stages stops there.
 
-    Stages run for all outputs before the next begins, so only one stage's cached arrays (at most
-    n × M per array of the kernel's precomputation) live at a time. Same data, options and seed →
-    the same inducing inputs and bit-identical hyperparameters.
+    Then one pass over all n points per output gives the posterior's statistics (O(n M²)). Why the
+    hyperparameters come from 4M points by default: optimising the bound on all 10⁵ points of two
+    synthetic fields (benchmarks/README.md) took 3.4× as long and moved the hyperparameters towards
+    longer length-scales (with n ≫ M the bound's complexity term fades) without changing the held-out
+    RMSE by more than 0.3 %; the exact GP's 2000 points are the comparison users care about, and 4M
+    points with M inducing poses is nearly that exact GP's likelihood.
+
+    Stages run for all outputs before the next begins. Kernels with a fused cross gradient (the chordal
+    kernel) keep nothing of size n × M; others keep one stage's pairwise arrays (n × M each). Same data,
+    options and seed → the same inducing inputs and bit-identical hyperparameters.
     """
     from rbgp_cli.gp.exact import EXPLORE_FTOL, _fd_hessian, _fit_one, _free_spec, _Objective
     from rbgp_cli.progress import as_progress
@@ -832,7 +835,7 @@ def fit_sparse_gp(
     specs = [_free_spec(kernel, pre_sub, y, noise, fixed, bounds) for y, _ in targets]
     progress(f"sparse GP: {M} inducing poses ({inducing_method}) for {n} points")
     if hyper_points is None:
-        top = HYPER_FACTOR * M
+        top = max(HYPER_FACTOR * M, HYPER_MIN_POINTS)
     else:
         top = n if int(hyper_points) <= 0 else int(hyper_points)
     sizes = _stage_sizes(n, M, top)

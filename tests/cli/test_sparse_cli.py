@@ -46,6 +46,22 @@ def test_train_inducing_writes_a_sparse_model_that_says_so(sparse_model):
     assert all(np.any(np.all(arrays["X"] == z, axis=1)) for z in arrays["Z"])
 
 
+def test_hyper_points_choose_how_many_points_the_bound_covers_and_the_summary_says_so(tmp_path):
+    base = ["train", CSV_DIR, *FAST, "--train-rate", "30", "--inducing", "32", "--json"]
+    res = run(*base, "-o", tmp_path / "a.rbgp", "--hyper-points", "300")
+    assert res.exit_code == 0, res.stderr
+    gp = json.loads(res.stdout)["gp"]
+    points = json.loads(res.stdout)["points"]
+    assert points > 300 and gp["hyper_points"] == 300 and "random 300 of them" in gp["reason"]
+    header, arrays = read_header(tmp_path / "a.rbgp")
+    assert arrays["X"].shape[0] == points  # the posterior keeps every point
+    assert header["provenance"]["train_options"]["hyper_points"] == 300
+    # the default covers max(4 M, 2000) points: here all of them, and the summary adds nothing
+    res = run(*base, "-o", tmp_path / "b.rbgp")
+    gp = json.loads(res.stdout)["gp"]
+    assert gp["hyper_points"] == points and "random" not in gp["reason"]
+
+
 def test_loaded_sparse_model_predicts_as_when_trained_and_rolls_out(sparse_model, tmp_path):
     path, _ = sparse_model
     model, _ = load_model(path)

@@ -166,3 +166,33 @@ def test_prediction_path_matches_the_training_path(name, make, learn):
         rtol = 4e-15 / lam**2
         np.testing.assert_allclose(K_pre, want, rtol=rtol, atol=1e-15)
         np.testing.assert_allclose(k.cross_gram(plan, Xa, vals), want, rtol=rtol, atol=1e-15)
+
+
+@pytest.mark.parametrize("name,make", ALL_KERNELS + TIME_KERNELS + [
+    ("se-chordal-time", lambda learn: SquaredExponential("chordal", 3, 0.6, learn, time_dims=1))])
+@pytest.mark.parametrize("learn", [False, True])
+def test_cross_gradient_contraction_matches_the_training_path(name, make, learn):
+    """cross_grad_contract (the sparse GP's row blocks; for the chordal kernel sums of features times
+    one matrix product, no pairwise arrays) equals grad_contract of the precise pairwise distances,
+    with translations metres from the origin and query points on and next to the second set."""
+    k = make(learn)
+    quat = k.rotation_dims == 4
+    timed = getattr(k, "time_dims", 0)
+    offset = np.r_[np.zeros(k.rotation_dims), [3.0, -2.0, 1.0]]
+    Xb = poses(40, 18, quat=quat) + offset
+    Xq = poses(25, 19, quat=quat) + offset
+    if timed:
+        Xb = np.hstack([Xb, np.random.default_rng(18).uniform(0, 5, (40, 1))])
+        Xq = np.hstack([Xq, np.random.default_rng(19).uniform(0, 5, (25, 1))])
+    Xa = np.concatenate([Xb[:5], Xb[5:8] + 1e-9, Xq])
+    vals = {**values_for(k), **({"time_scale": 1.3} if timed else {})}
+    names = [nm for nm in k.names if nm != "rho_rot" or learn]
+    W = np.random.default_rng(20).normal(size=(len(Xa), len(Xb)))
+    pre = k.precompute(Xa, Xb)
+    K, state = k.gram(pre, vals)
+    want = k.grad_contract(pre, vals, K, state, W, names)
+    plan = k.cross_plan(Xb)
+    got = k.cross_grad_contract(plan, Xa, vals, k.cross_gram(plan, Xa, vals), W, names)
+    scale = float(np.sum(np.abs(W * K)))  # the sums the contraction is made of
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-13 * scale * 30)
+    assert k.fused_cross_gradient == (getattr(k, "metric", None) == "chordal")
