@@ -55,7 +55,8 @@ import numpy as np
 from scipy.linalg import blas, lapack
 
 from rbgp_cli.errors import RbgpRuntimeError
-from rbgp_cli.gp.exact import BASIN_GAP, INFEASIBLE_NLML, NOISE, OutputFit, _all_noise, _smooth_start, blas_threads
+from rbgp_cli.gp.exact import (BASIN_GAP, INFEASIBLE_NLML, NOISE, OutputFit, _all_noise, _Objective, _smooth_start,
+                               blas_threads)
 from rbgp_cli.kernels.base import Kernel, output_scale
 
 __all__ = [
@@ -635,26 +636,17 @@ def _minimise(objective, theta0, log_bounds, max_evals, ftol):
     return np.array(res.x), f, bool(res.success), str(res.message)
 
 
-class _StageObjective:
-    """−F on one stage's points as a function of log θ, in the form :func:`rbgp_cli.gp.exact._polish`
-    takes (``counter``, ``log_bounds``, ``free``); the last point is remembered, so that a method that
-    starts where another stopped does not pay for it twice."""
+class _StageObjective(_Objective):
+    """−F on one stage's points (``fn(θ) -> (−F, gradient)``) as the exact GP's objective, for
+    :func:`rbgp_cli.gp.exact._polish`: the same counting and memory of the last point."""
 
     def __init__(self, fn, free, log_bounds):
         self.fn, self.free, self.log_bounds = fn, list(free), log_bounds
         self.counter = {"evals": 0, "infeasible": 0}
-        self._last = None
+        self.on_evaluation = None
 
-    def __call__(self, theta):
-        theta = np.array(theta, dtype=np.float64)
-        if self._last is not None and np.array_equal(self._last[0], theta):
-            return self._last[1], self._last[2].copy()
-        self.counter["evals"] += 1
-        f, g = self.fn(theta)
-        if f >= INFEASIBLE_NLML:
-            self.counter["infeasible"] += 1
-        self._last = (theta, f, np.array(g))
-        return f, g
+    def _evaluate(self, theta):
+        return self.fn(theta)
 
 
 def _record(st, free, theta0, f, status, evaluations, kind):
@@ -688,19 +680,19 @@ def _polish_starts(objective, st, free, log_bounds, hessians, scale, points, cap
             continue
         ev0 = count[0]
         budget = POLISH_MAX_EVALS if i == 0 else RACE_EVALUATIONS
-        if kind == "smooth start":
-            # far from every explored optimum, where the subset's Hessian says little: L-BFGS-B to
-            # convergence (measured on sample_data: after 5 polish steps it was still 100 nats behind
-            # the all-noise basin, and at convergence 790 nats ahead of it on all points)
-            th, f, _ok, msg = _minimise(objective, theta0, log_bounds, cap, STAGE_FTOL)
-            res = {"theta": th, "nlml": f, "status": msg, "start": theta0}
-        elif H is None:  # no Hessian on the subset (an infeasible neighbour): L-BFGS-B from the start
-            th, f, _ok, msg = _minimise(objective, theta0, log_bounds, cap if i == 0 else budget, STAGE_FTOL)
+        # L-BFGS-B from the smooth start (far from every explored optimum, where the subset's Hessian
+        # says little; on sample_data after 5 polish steps it was still 100 nats behind the all-noise
+        # basin, and at convergence 790 nats ahead of it on all points) and where the subset gave no
+        # Hessian (an infeasible neighbour); the polish otherwise
+        lbfgs = kind == "smooth start" or H is None
+        if lbfgs:
+            th, f, _ok, msg = _minimise(objective, theta0, log_bounds, cap if i == 0 or kind == "smooth start" else budget,
+                                        STAGE_FTOL)
             res = {"theta": th, "nlml": f, "status": msg, "start": theta0}
         else:
             res = _polish(obj, theta0, H * scale, points, polished, max_evals=budget, atol=atol)
         th, f, status = res["theta"], res["nlml"], res["status"]
-        method = "polish" if H is not None and kind != "smooth start" else "L-BFGS-B"
+        method = "L-BFGS-B" if lbfgs else "polish"
         _record(st, free, res["start"], f, status, count[0] - ev0, f"{kind}, {method} {where}")
         if status in ("budget", "stalled") and (i == 0 or (best is not None and f < best[1])):
             ev0 = count[0]
@@ -800,7 +792,7 @@ def fit_sparse_gp(
     kernel) keep nothing of size n × M; others keep one stage's pairwise arrays (n × M each). Same data,
     options and seed → the same inducing inputs and bit-identical hyperparameters.
     """
-    from rbgp_cli.gp.exact import EXPLORE_FTOL, _fd_hessian, _fit_one, _free_spec, _Objective
+    from rbgp_cli.gp.exact import EXPLORE_FTOL, _fd_hessian, _fit_one, _free_spec
     from rbgp_cli.progress import as_progress
 
     X = np.ascontiguousarray(np.asarray(X, dtype=np.float64))
