@@ -190,6 +190,22 @@ def test_hyperparameters_come_from_a_random_subset_and_the_posterior_from_all_po
     assert r_sub < 1.2 * r_all
 
 
+def test_with_every_hyperparameter_fixed_only_the_posterior_is_computed():
+    """fixed= covering every hyperparameter (σn included): no bound is optimised, the values are kept, and
+    the posterior is the one a fit ending at those values has."""
+    k = SquaredExponential("chordal", 3, 0.7)
+    X = poses(500, 31)
+    Y = field(X, np.random.default_rng(32))[:, :2]
+    gp = fit_sparse_gp(X, Y, k, inducing=30, restarts=1, seed=2, explore_size=100, shared=True)
+    fixed = fit_sparse_gp(X, Y, k, inducing=30, seed=2, shared=True, fixed=gp.fits[0].values)
+    f = fixed.fits[0]
+    assert f.values == gp.fits[0].values and f.free == [] and f.stages == [] and f.n_evaluations == 0
+    np.testing.assert_array_equal(fixed.Z, gp.Z)
+    Xs = poses(50, 33)
+    np.testing.assert_allclose(fixed.predict(Xs), gp.predict(Xs), rtol=1e-9, atol=1e-12)
+    assert f.nlml == pytest.approx(gp.fits[0].nlml, rel=1e-9)
+
+
 def test_inducing_poses_come_from_a_seeded_random_candidate_set_when_there_are_many_rows():
     from rbgp_cli.gp.sparse import CANDIDATES_PER_INDUCING
 
