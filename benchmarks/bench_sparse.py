@@ -134,8 +134,13 @@ def part2(args) -> str:
         for rate in [None if r == "recorded" else float(r) for r in rates.split(",")]:
             # every other option the default of rbgp train (per-output hyperparameters, 3 starts, ...)
             base = {"velocity": VelocityOptions(rate=rate), "subsample": 1.0, "seed": 0}
-            configs = [Config("axis-angle", "se-chordal", train={**base, "inducing": 0, "max_points": 2000}, label="exact, ≤ 2000 points"),
-                       Config("axis-angle", "se-chordal", train={**base, "inducing": args.inducing}, label=f"sparse M = {args.inducing}, all points")]
+            configs = []
+            for cal in {"off": [False], "both": [False, True], "only": [True]}[args.calibrate]:
+                extra, tag = ({"calibrate": True}, ", calibrated") if cal else ({}, "")
+                configs += [Config("axis-angle", "se-chordal", train={**base, **extra, "inducing": 0, "max_points": 2000},
+                                   label=f"exact, ≤ 2000 points{tag}"),
+                            Config("axis-angle", "se-chordal", train={**base, **extra, "inducing": args.inducing},
+                                   label=f"sparse M = {args.inducing}, all points{tag}")]
             if rate is not None and args.every_pose:
                 configs.append(Config("axis-angle", "se-chordal", train={**base, "inducing": 10**6}, label="sparse, every pose inducing"))
             t0 = time.perf_counter()
@@ -162,6 +167,8 @@ def main():
     ap.add_argument("--rates", default="10,recorded", help="part 2: velocity rates for the handover set")
     ap.add_argument("--sample-rates", default="recorded", help="part 2: velocity rates for sample_data")
     ap.add_argument("--every-pose", action="store_true", help="part 2: also a sparse GP with every pose inducing (at fixed rates)")
+    ap.add_argument("--calibrate", choices=["off", "both", "only"], default="both",
+                    help="part 2: without and/or with the noise calibration by held-out demonstrations (rbgp train --calibrate-noise)")
     ap.add_argument("--blas-threads", type=int, default=None)
     ap.add_argument("--json")
     ap.add_argument("--markdown")

@@ -15,7 +15,7 @@ from rbgp_cli import __version__
 from rbgp_cli.cli.args import RbgpGroup, paths_option
 from rbgp_cli.cli.train_options import (
     ExploreOpt, MaxPointsOpt, NoiseOpt, PriorGainOpt, PriorOpt, RestartsOpt, RhoOpt, SeedOpt, ShareOpt, SmoothDegreeOpt,
-    HyperPointsOpt, InducingOpt, SmoothWindowOpt, SubsampleOpt, TimeInputOpt, TrainRateOpt, defaults, kernel_help, train_kwargs,
+    CalibrateOpt, HyperPointsOpt, InducingOpt, SmoothWindowOpt, SubsampleOpt, TimeInputOpt, TrainRateOpt, defaults, kernel_help, train_kwargs,
 )
 from rbgp_cli.cli.common import (
     BodyOpt, ColumnsOpt, DegreesOpt, EulerOrderOpt, FormatOpt, FrameOpt, LengthUnitOpt, MaxGapOpt,
@@ -68,7 +68,7 @@ def train(
     time_input: TimeInputOpt = _D["time_input"], prior: PriorOpt = _D["prior"], prior_gain: PriorGainOpt = _D["prior_gain"],
     train_rate: TrainRateOpt = _D["train_rate"], smooth_window: SmoothWindowOpt = _D["smooth_window"],
     smooth_degree: SmoothDegreeOpt = _D["smooth_degree"], inducing: InducingOpt = None,
-    hyper_points: HyperPointsOpt = None,
+    hyper_points: HyperPointsOpt = None, calibrate_noise: CalibrateOpt = False,
     jobs: Annotated[int, typer.Option(min=0, help="Worker processes for the per-output fits (BLAS single-threaded in each; the model does not depend on it); 0 = one per output, fewer if memory is short, 1 on a single core.", rich_help_panel=_TRAIN)] = 0,
     json_out: Annotated[bool, typer.Option("--json", help="Print the summary as JSON on stdout.", rich_help_panel=_OUT)] = False,
     rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd) of the demonstrations and training points.", rich_help_panel=_OUT)] = None,
@@ -90,7 +90,7 @@ def train(
                           share_hyperparameters=share_hyperparameters, subsample=subsample, max_points=max_points,
                           train_rate=train_rate, smooth_window=smooth_window, smooth_degree=smooth_degree,
                           time_input=time_input, prior=prior, prior_gain=prior_gain, inducing=inducing,
-                          hyper_points=hyper_points)
+                          hyper_points=hyper_points, calibrate_noise=calibrate_noise)
     if up not in ("z", "y"):
         raise InputError(f"--up must be z or y, got {up!r}")
     model, header, trajs = workflows.train_from_files(
@@ -372,7 +372,7 @@ def crossval(
     time_input: TimeInputOpt = _D["time_input"], prior: PriorOpt = _D["prior"], prior_gain: PriorGainOpt = _D["prior_gain"],
     train_rate: TrainRateOpt = _D["train_rate"], smooth_window: SmoothWindowOpt = _D["smooth_window"],
     smooth_degree: SmoothDegreeOpt = _D["smooth_degree"], inducing: InducingOpt = None,
-    hyper_points: HyperPointsOpt = None,
+    hyper_points: HyperPointsOpt = None, calibrate_noise: CalibrateOpt = False,
     fmt: FormatOpt = "auto", columns: ColumnsOpt = None, quat_order: QuatOrderOpt = None, euler_order: EulerOrderOpt = None,
     degrees: DegreesOpt = None, length_unit: LengthUnitOpt = None, time_unit: TimeUnitOpt = None, rate: RateOpt = None,
     topic: TopicOpt = None, frame: FrameOpt = None, time_source: TimeSourceOpt = "header", body: BodyOpt = None,
@@ -393,7 +393,7 @@ def crossval(
                           share_hyperparameters=share_hyperparameters, subsample=subsample, max_points=max_points,
                           train_rate=train_rate, smooth_window=smooth_window, smooth_degree=smooth_degree,
                           time_input=time_input, prior=prior, prior_gain=prior_gain, inducing=inducing,
-                          hyper_points=hyper_points)
+                          hyper_points=hyper_points, calibrate_noise=calibrate_noise)
     configs, skipped = workflows.crossval_configs(representation, kernel, kwargs, replay=replay)
     for note in skipped:
         warn(f"left out {note}")

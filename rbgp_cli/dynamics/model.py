@@ -393,6 +393,7 @@ def train_model(
     jobs: int | None = None,
     inducing: int | None = None,
     hyper_points: int | None = None,
+    calibrate: bool = False,
 ) -> MotionModel:
     """Train a motion model on clean demonstrations (see :func:`rbgp_cli.dynamics.prepare.prepare_all`).
 
@@ -414,6 +415,9 @@ def train_model(
     ``subsample``, and then a sparse GP (:mod:`rbgp_cli.gp.sparse`) with DEFAULT_INDUCING inducing poses
     on all of them; 0 forces the exact GP; M > 0 forces a sparse GP with M inducing poses on all points.
     ``max_points`` never drops points from a sparse GP. ``summary["gp"]`` says which and why.
+    ``calibrate``: after the fit, scale σn² of the posterior by the factor that predicts held-out
+    demonstrations best (:func:`rbgp_cli.gp.calibration.calibrate_to_demonstrations`; the fitted σn is
+    kept in each output's ``calibration``); ``summary["gp"]["calibration"]`` gives the factors.
     ``hyper_points`` (sparse GP only): the bound that chooses the hyperparameters covers at most this
     many random points (None: 4 × the inducing poses, at least 2000; 0: all); ``summary["gp"]["hyper_points"]`` is
     how many it covered.
@@ -472,6 +476,18 @@ def train_model(
             jobs = default_jobs(1 if shared else Y.shape[1], len(X))
         gp = fit_gp(X, Y, kern, noise=noise, restarts=restarts, seed=seed, shared=shared, progress=progress,
                     explore_size=explore_size, jobs=jobs)
+    if calibrate:
+        from rbgp_cli.gp.calibration import calibrate_to_demonstrations
+
+        groups = np.repeat(np.arange(len(info["per_demo"])), info["per_demo"])[info["indices"]]
+        gp, records = calibrate_to_demonstrations(gp, groups, seed=seed)
+        gp_choice["calibration"] = None if records is None else {
+            "noise_variance_factors": [round(r["factor"], 3) for r in records],
+            "points": records[0]["points"], "folds": records[0]["folds"]}
+        if progress:
+            progress("noise calibration: " + ("needs at least two demonstrations; skipped" if records is None else
+                     "sigma_n^2 x " + ", ".join(f"{r['factor']:.3g}" for r in records)
+                     + f" (leaving demonstrations out, {records[0]['folds']} folds on {records[0]['points']} points)"))
     dt = 1.0 / velocity.rate if velocity.rate is not None else float(np.median(np.concatenate([np.diff(tr.t) for tr in trajs])))
     starts = np.array([np.concatenate([tr.quat[0], tr.position[0]]) for tr in trajs])
     durations = np.array([tr.duration for tr in trajs])

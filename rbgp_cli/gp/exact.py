@@ -277,6 +277,9 @@ class OutputFit:
         only with an indefinite kernel) and the output was refit with the margin enforced
     subsample : None, or {"size", "evaluations", "infeasible"} when the starts explored a random
         subsample first (n > 2·SUBSAMPLE_SIZE; see :func:`fit_gp`)
+    calibration : None, or how σn² was scaled for the posterior by leaving demonstrations out
+        (:func:`rbgp_cli.gp.calibration.demonstration_noise_factors`): then ``values[noise_std]`` is the
+        posterior's √c σn and ``calibration["noise_std_fitted"]`` the σn at which ``nlml`` was found
     """
 
     values: dict
@@ -292,6 +295,7 @@ class OutputFit:
     seconds: float = 0.0
     guarded: bool = False
     subsample: dict | None = None
+    calibration: dict | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -308,6 +312,7 @@ class OutputFit:
             "seconds": float(self.seconds),
             "guarded": bool(self.guarded),
             "subsample": self.subsample,
+            "calibration": self.calibration,
         }
 
     @classmethod

@@ -1,0 +1,60 @@
+"""rbgp train --calibrate-noise: the summary gives the factors, the model file keeps the fitted σn and
+predicts with the scaled one after loading; crossval takes the option too."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from rbgp_cli.cli.app import app
+from rbgp_cli.io.model_store import load_model, read_header
+
+REPO = Path(__file__).resolve().parents[2]
+CSV_DIR = REPO / "sample_data" / "csv"
+runner = CliRunner()
+FAST = ["--restarts", "1", "--share-hyperparameters", "--explore-size", "100", "--max-points", "400"]
+
+
+def run(*args):
+    return runner.invoke(app, [str(a) for a in args], catch_exceptions=False)
+
+
+@pytest.mark.parametrize("gp", ["exact", "sparse"])
+def test_train_calibrate_noise_scales_the_posterior_noise_and_the_model_file_says_how(tmp_path, gp):
+    path = tmp_path / "m.rbgp"
+    extra = ["--inducing", "48"] if gp == "sparse" else []
+    res = run("train", CSV_DIR, "-o", path, *FAST, *extra, "--calibrate-noise", "--json")
+    assert res.exit_code == 0, res.stderr
+    summary = json.loads(res.stdout)
+    cal = summary["gp"]["calibration"]
+    assert len(cal["noise_variance_factors"]) == 1 and cal["noise_variance_factors"][0] >= 1
+    assert cal["folds"] == 5 and cal["points"] <= 1000
+    assert "noise calibration: sigma_n^2 x" in res.stderr
+    out = summary["outputs"][0]
+    fitted = out["calibration"]["noise_std_fitted"]
+    assert out["values"]["noise_std"] == pytest.approx(fitted * np.sqrt(out["calibration"]["factor"]))
+    header, _arrays = read_header(path)
+    assert header["provenance"]["train_options"]["calibrate"] is True
+    model, _ = load_model(path)
+    stored = model.gp.fits[0].calibration
+    assert stored["factor"] == pytest.approx(out["calibration"]["factor"]) and stored["errors"] == out["calibration"]["errors"]
+    # the loaded posterior is the one with the scaled noise, recomputed from the training points
+    kind = type(model.gp)
+    args = (model.gp.kernel, model.gp.X, model.gp.Y) + ((model.gp.Z,) if gp == "sparse" else ())
+    again = kind(*args, model.gp.fits, shared=True, y_scale=model.gp.y_scale)
+    np.testing.assert_allclose(model.gp.predict(model.gp.X[:40]), again.predict(model.gp.X[:40]), atol=1e-8)
+    # without the option: no calibration, the fitted σn
+    res = run("train", CSV_DIR, "-o", tmp_path / "plain.rbgp", *FAST, *extra, "--json")
+    plain = json.loads(res.stdout)
+    assert plain["gp"].get("calibration") is None and plain["outputs"][0]["calibration"] is None
+
+
+def test_crossval_takes_the_option():
+    res = run("crossval", CSV_DIR, "--folds", "3", *FAST, "--representation", "axis-angle", "--calibrate-noise", "--json")
+    assert res.exit_code == 0, res.stderr
+    rows = json.loads(res.stdout)["results"]
+    assert any(r.get("velocity_rmse") is not None and np.isfinite(r["score"]) for r in rows)
