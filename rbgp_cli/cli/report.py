@@ -49,6 +49,9 @@ def format_train_summary(s: dict) -> str:
             flags.append("refit with the noise margin (indefinite kernel)")
         if o["n_infeasible"]:
             flags.append(f"{o['n_infeasible']}/{o['n_evaluations']} evaluations infeasible")
+        if o.get("calibration"):
+            cal = o["calibration"]
+            flags.append(f"σn² × {cal['factor']:.3g} by held-out demonstrations (fitted σn={cal['noise_std_fitted']:.4g})")
         lines.append(f"  {o['output']:<7} NLML {o['nlml']:11.4g}  {_fmt_values(o['values'])}" + (f"  [{'; '.join(flags)}]" if flags else ""))
     explored = [o["subsample"] for o in s["outputs"] if o.get("subsample")]
     if explored:

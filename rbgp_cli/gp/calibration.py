@@ -89,7 +89,7 @@ def demonstration_noise_factors(kernel: Kernel, X: np.ndarray, Y: np.ndarray, gr
                 sse[i] += float(np.sum((y[h] - mean) ** 2))
         best = int(np.argmin(sse))
         c_s = float(c_grid[best])
-        out.append({"factor": 1.0 + (c_s - 1.0) * n / len(idx), "subset_factor": c_s, "points": int(len(idx)),
+        out.append({"factor": 1.0 + (c_s - 1.0) * n / len(idx), "subset_factor": c_s, "points": len(idx),
                     "folds": int(k), "errors": (sse / (len(idx) * len(outs))).tolist(), "grid": c_grid.tolist()})
     return out
 

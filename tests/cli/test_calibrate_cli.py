@@ -11,6 +11,7 @@ import pytest
 from typer.testing import CliRunner
 
 from rbgp_cli.cli.app import app
+from rbgp_cli.cli.report import format_train_summary
 from rbgp_cli.io.model_store import load_model, read_header
 
 REPO = Path(__file__).resolve().parents[2]
@@ -34,6 +35,7 @@ def test_train_calibrate_noise_scales_the_posterior_noise_and_the_model_file_say
     assert len(cal["noise_variance_factors"]) == 1 and cal["noise_variance_factors"][0] >= 1
     assert cal["folds"] == 5 and cal["points"] <= 1000
     assert "noise calibration: sigma_n^2 x" in res.stderr
+    assert "by held-out demonstrations (fitted σn=" in format_train_summary(summary)
     out = summary["outputs"][0]
     fitted = out["calibration"]["noise_std_fitted"]
     assert out["values"]["noise_std"] == pytest.approx(fitted * np.sqrt(out["calibration"]["factor"]))

@@ -8,7 +8,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rbgp_cli.gp.calibration import FACTOR_GRID, calibrate_to_demonstrations, demonstration_noise_factors
+from rbgp_cli.gp.calibration import (
+    FACTOR_GRID,
+    calibrate_to_demonstrations,
+    demonstration_noise_factors,
+)
 from rbgp_cli.gp.exact import GaussianProcess, OutputFit, fit_gp
 from rbgp_cli.gp.sparse import SparseGP, fit_sparse_gp
 from rbgp_cli.kernels import SquaredExponential
@@ -91,7 +95,7 @@ def test_the_calibrated_gp_is_the_gp_with_the_scaled_noise_and_records_the_fitte
     Xs = gp.X[::37]
     np.testing.assert_allclose(cal.predict(Xs), direct.predict(Xs), rtol=1e-9, atol=1e-12)
     # seeded
-    again, rec2 = calibrate_to_demonstrations(gp, groups, seed=0)
+    _again, rec2 = calibrate_to_demonstrations(gp, groups, seed=0)
     assert rec2 == records
     # one demonstration: nothing to hold out
     same, none = calibrate_to_demonstrations(gp, np.zeros(len(gp.X), int))
