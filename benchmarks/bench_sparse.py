@@ -15,7 +15,9 @@ demonstrations, 3 folds), seed 0, axis-angle with the chordal kernel and every o
 default of ``rbgp train`` (per-output hyperparameters, phase input, mean-path prior), all pairs
 (``subsample=1``) at a velocity rate of 10 Hz and at the recorded rate (sample_data: recorded rate
 only, ``--sample-rates``): the exact GP on at most 2000 points (``inducing=0``) against the sparse GP
-on all points (``inducing=512``; ``--every-pose`` adds M = n at the fixed rates).
+on all points (``inducing=512``; ``--every-pose`` adds M = n at the fixed rates), each without and
+with the noise calibration by held-out demonstrations (``rbgp train --calibrate-noise``;
+``--calibrate off|both|only``).
 
     .venv/bin/python benchmarks/bench_sparse.py --blas-threads 1     # part 1 (~15 min here, loaded)
     .venv/bin/python benchmarks/bench_sparse.py --quick              # n = 1000 exact vs 20 000 sparse
