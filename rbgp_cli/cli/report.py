@@ -80,7 +80,10 @@ def format_model_info(path: str, h: dict) -> str:
          if (h.get("gp") or {}).get("type") == "sparse" else [])
     names = ["all"] if h["shared"] else h.get("output_names", [])
     for nm, f in zip(names, h["fits"]):
-        lines.append(f"  {nm:<7} NLML {f['nlml']:11.4g}  {_fmt_values(f['values'])}  jitter {f['jitter']:.2g}")
+        cal = f.get("calibration")
+        lines.append(f"  {nm:<7} NLML {f['nlml']:11.4g}  {_fmt_values(f['values'])}  jitter {f['jitter']:.2g}"
+                     + (f"  [σn² × {cal['factor']:.3g} by held-out demonstrations; fitted σn={cal['noise_std_fitted']:.4g}]"
+                        if cal else ""))
     for inp in prov.get("inputs", []):
         lines.append(f"input: {inp.get('name')}  sha256 {inp.get('sha256', '-')[:16]}…")
     if prov.get("train_options"):

@@ -76,6 +76,7 @@ def demonstration_noise_factors(kernel: Kernel, X: np.ndarray, Y: np.ndarray, gr
     for fit, outs in targets:
         K, _ = kernel.gram(pre, fit.values)
         s2 = float(fit.values[NOISE]) ** 2
+        jitter = float(getattr(fit, "jitter", 0.0) or 0.0)  # the exact posterior's K + (σn² + jitter) I
         y = Y[idx][:, outs] / scale[outs]
         sse = np.zeros(len(c_grid))
         for j in range(k):
@@ -85,7 +86,7 @@ def demonstration_noise_factors(kernel: Kernel, X: np.ndarray, Y: np.ndarray, gr
             KQ = K[np.ix_(h, t)] @ Q  # (n_h, n_t)
             for i, c in enumerate(c_grid):
                 # K_tt + c σn² I is positive definite for c ≥ 1: K + σn² I is (the fit checked it)
-                mean = KQ @ (Qy / np.maximum(w + c * s2, 1e-300)[:, None])
+                mean = KQ @ (Qy / np.maximum(w + c * s2 + jitter, 1e-300)[:, None])
                 sse[i] += float(np.sum((y[h] - mean) ** 2))
         best = int(np.argmin(sse))
         c_s = float(c_grid[best])

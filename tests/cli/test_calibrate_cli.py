@@ -49,6 +49,8 @@ def test_train_calibrate_noise_scales_the_posterior_noise_and_the_model_file_say
     args = (model.gp.kernel, model.gp.X, model.gp.Y) + ((model.gp.Z,) if gp == "sparse" else ())
     again = kind(*args, model.gp.fits, shared=True, y_scale=model.gp.y_scale)
     np.testing.assert_allclose(model.gp.predict(model.gp.X[:40]), again.predict(model.gp.X[:40]), atol=1e-8)
+    res = run("info", path)
+    assert res.exit_code == 0 and "by held-out demonstrations; fitted σn=" in res.stdout + res.stderr
     # without the option: no calibration, the fitted σn
     res = run("train", CSV_DIR, "-o", tmp_path / "plain.rbgp", *FAST, *extra, "--json")
     plain = json.loads(res.stdout)
