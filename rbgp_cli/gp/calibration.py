@@ -28,7 +28,6 @@ from __future__ import annotations
 import numpy as np
 
 from rbgp_cli.gp.exact import NOISE
-from rbgp_cli.kernels.base import Kernel
 
 #: The factors c_s tried on the subset: 1 to 4096 in steps of √2.
 FACTOR_GRID = tuple(float(2 ** (k / 2)) for k in range(25))
@@ -38,15 +37,14 @@ CALIBRATION_POINTS = 1000
 CALIBRATION_FOLDS = 5
 
 
-def demonstration_noise_factors(kernel: Kernel, X: np.ndarray, Y: np.ndarray, groups: np.ndarray, fits: list,
-                                shared: bool, y_scale=None, *, points: int = CALIBRATION_POINTS,
+def demonstration_noise_factors(gp, groups: np.ndarray, *, points: int = CALIBRATION_POINTS,
                                 folds: int = CALIBRATION_FOLDS, seed: int = 0,
                                 grid: tuple = FACTOR_GRID) -> list[dict] | None:
     """Per fitted hyperparameter set, the factor c ≥ 1 on σn² that predicts held-out demonstrations best.
 
-    X (n, d), Y (n, L): the training set the GP was fitted on; ``groups`` (n,) the demonstration of each
-    row; ``fits``: one :class:`~rbgp_cli.gp.exact.OutputFit` per output, or one for all outputs when
-    ``shared`` (then on Y / y_scale, errors summed over outputs). On a seeded random subset of at most
+    ``gp``: a fitted :class:`~rbgp_cli.gp.exact.GaussianProcess` or :class:`~rbgp_cli.gp.sparse.SparseGP`
+    on X (n, d), Y (n, L), one hyperparameter set per output or one for all (``shared``: on Y / y_scale,
+    errors summed over outputs); ``groups`` (n,) the demonstration of each row. On a seeded random subset of at most
     ``points`` rows, folds of whole demonstrations are held out in turn; for each factor c_s of ``grid``
     the posterior mean K_ht (K_tt + c_s σn² I)⁻¹ y_t (from K_tt = Q diag(w) Qᵀ) predicts the held-out
     rows. With the best c_s, c = 1 + (c_s − 1) n / n_s (module docstring).
@@ -55,9 +53,7 @@ def demonstration_noise_factors(kernel: Kernel, X: np.ndarray, Y: np.ndarray, gr
     ``subset_factor`` c_s, ``points`` n_s, ``folds``, ``errors`` (held-out mean squared error per factor
     of ``grid``, on the outputs as fitted) and ``grid``.
     """
-    X = np.asarray(X, dtype=np.float64)
-    Y = np.asarray(Y, dtype=np.float64).reshape(len(X), -1)
-    groups = np.asarray(groups)
+    X, Y, groups = gp.X, gp.Y, np.asarray(groups)
     n = len(X)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 11]))
     idx = np.sort(rng.permutation(n)[: min(n, int(points))])
@@ -66,18 +62,17 @@ def demonstration_noise_factors(kernel: Kernel, X: np.ndarray, Y: np.ndarray, gr
     if len(names) < 2:
         return None
     k = min(int(folds), len(names))
-    fold_of = dict(zip(rng.permutation(names).tolist(), np.arange(len(names)) % k))
-    fold = np.array([fold_of[v] for v in g.tolist()])
-    pre = kernel.precompute(X[idx])
-    scale = np.ones(Y.shape[1]) if y_scale is None else np.asarray(y_scale, dtype=np.float64)
-    targets = [(fits[0], list(range(Y.shape[1])))] if shared else [(f, [l]) for l, f in enumerate(fits)]
+    fold_of_name = np.empty(len(names), dtype=int)
+    fold_of_name[rng.permutation(len(names))] = np.arange(len(names)) % k  # demonstrations dealt to folds
+    fold = fold_of_name[np.searchsorted(names, g)]
+    pre = gp.kernel.precompute(X[idx])
     c_grid = np.asarray(grid, dtype=np.float64)
     out = []
-    for fit, outs in targets:
-        K, _ = kernel.gram(pre, fit.values)
+    for fit, outs in gp._group_outputs():
+        K, _ = gp.kernel.gram(pre, fit.values)
         s2 = float(fit.values[NOISE]) ** 2
-        jitter = float(getattr(fit, "jitter", 0.0) or 0.0)  # the exact posterior's K + (σn² + jitter) I
-        y = Y[idx][:, outs] / scale[outs]
+        jitter = float(fit.jitter)  # the exact posterior's K + (σn² + jitter) I (0 for a sparse GP)
+        y = Y[idx][:, outs] / gp.y_scale[outs]
         sse = np.zeros(len(c_grid))
         for j in range(k):
             h, t = fold == j, fold != j
@@ -102,8 +97,7 @@ def calibrate_to_demonstrations(gp, groups: np.ndarray, *, seed: int = 0, points
     there are fewer than two demonstrations. Costs the cross-validation plus one posterior."""
     from dataclasses import replace
 
-    records = demonstration_noise_factors(gp.kernel, gp.X, gp.Y, groups, gp.fits, gp.shared, gp.y_scale,
-                                          seed=seed, points=points)
+    records = demonstration_noise_factors(gp, groups, seed=seed, points=points)
     if records is None:
         return gp, None
     fits = []

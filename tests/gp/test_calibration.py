@@ -80,7 +80,7 @@ def test_independent_samples_keep_a_factor_near_one():
     X, Y, groups = demonstrations(14, 120, seed=1, deviation=0.0)
     groups = rng.permutation(groups)  # no demonstration structure: the same data, groups at random
     gp = fitted(X, Y)
-    rec = demonstration_noise_factors(KERNEL, gp.X, gp.Y, groups, gp.fits, False)[0]
+    rec = demonstration_noise_factors(gp, groups)[0]
     assert rec["subset_factor"] <= 2 ** 0.5
 
 
