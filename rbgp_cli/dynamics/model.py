@@ -418,9 +418,10 @@ def train_model(
     ``calibrate``: after the fit, scale σn² of the posterior by the factor that predicts held-out
     demonstrations best (:func:`rbgp_cli.gp.calibration.calibrate_to_demonstrations`; the fitted σn is
     kept in each output's ``calibration``); ``summary["gp"]["calibration"]`` gives the factors.
-    ``hyper_points`` (sparse GP only): the bound that chooses the hyperparameters covers at most this
-    many random points (None: 4 × the inducing poses, at least 2000; 0: all); ``summary["gp"]["hyper_points"]`` is
-    how many it covered.
+    ``hyper_points`` (sparse GP only): the hyperparameters are the exact GP's fit on at most this many
+    random points (None: 2000, the exact GP's default ``max_points``; 0: all), and the posterior uses all
+    (:func:`rbgp_cli.gp.sparse.fit_sparse_gp`, ``hyper="exact"``); ``summary["gp"]["hyper_points"]`` is
+    how many the fit covered and ``summary["gp"]["hyperparameters"]`` says which objective chose them.
     """
     t0 = time.perf_counter()
     if representation not in DEFAULT_KERNELS:
@@ -459,18 +460,28 @@ def train_model(
         progress(f"{len(trajs)} demonstrations, {info['pairs']} pairs, training on {info['points']} points "
                  f"({rep.name}, kernel {kernel}, {'shared' if shared else 'per-output'} hyperparameters)")
     if gp_choice["type"] == "sparse":
-        from rbgp_cli.gp.sparse import fit_sparse_gp
+        from rbgp_cli.gp.sparse import HYPER_MIN_POINTS, fit_sparse_gp
 
         if progress:
             progress(f"sparse GP: {gp_choice['reason']}")
+        if jobs is None:  # worker processes for the exact fit that chooses the hyperparameters
+            hp = len(X) if hyper_points == 0 else min(len(X), hyper_points or HYPER_MIN_POINTS)
+            jobs = default_jobs(1 if shared else Y.shape[1], hp)
         gp = fit_sparse_gp(X, Y, kern, inducing=gp_choice["inducing"], noise=noise, restarts=restarts, seed=seed,
-                           shared=shared, progress=progress, explore_size=explore_size, hyper_points=hyper_points)
+                           shared=shared, progress=progress, explore_size=explore_size, hyper_points=hyper_points,
+                           jobs=jobs)
         gp_choice["inducing"] = int(gp.n_inducing)
-        covered = max((int(st["points"]) for f in gp.fits for st in f.stages if st["objective"] == "bound"), default=len(X))
+        # the stage that chose the hyperparameters: the exact GP's fit on a subset (the default) or the bound
+        stages = [st for f in gp.fits for st in f.stages]
+        last = "bound" if any(st["objective"] == "bound" for st in stages) else "exact NLML"
+        covered = max((int(st["points"]) for st in stages if st["objective"] == last), default=len(X))
         gp_choice["hyper_points"] = covered
+        gp_choice["hyperparameters"] = "the bound" if last == "bound" else "the exact GP's NLML"
         if covered < len(X):
-            gp_choice["reason"] += (f"; hyperparameters from the bound on a random {covered} of them "
+            gp_choice["reason"] += (f"; hyperparameters from {gp_choice['hyperparameters']} on a random {covered} of them "
                                     "(--hyper-points 0: all), the posterior on all")
+        else:
+            gp_choice["reason"] += f"; hyperparameters from {gp_choice['hyperparameters']} on all of them"
     else:
         if jobs is None:
             jobs = default_jobs(1 if shared else Y.shape[1], len(X))
