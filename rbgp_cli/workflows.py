@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from rbgp_cli import __version__
-from rbgp_cli.errors import InputError
+from rbgp_cli.errors import InputError, warn
 from rbgp_cli.io.options import ReadOptions
 
 __all__ = [
@@ -238,20 +238,24 @@ def generate_like_paper(model, demos, count=100, spread=0.02, seed=0, progress=N
 
 def evaluate_files(generated_sources, demo_sources, *, options: ReadOptions | None = None, max_gap=None,
                    length=None, covariance="diag", stdin=None, model=None, count=100, spread=0.02, seed=0,
-                   progress=None):
+                   progress=None, unscored=False):
     """``rbgp evaluate``: Bhattacharyya distance between generated trajectories and demonstrations.
 
     ``generated_sources`` are files of generated trajectories ('-' for stdin); or, with ``model``,
     ``count`` trajectories are generated like the paper. Returns (EvaluationResult, generated, demos).
+
+    Too few demonstrations for a score (one: :func:`rbgp_cli.evaluation.check_sample_sizes`) raise
+    InputError, before any rollout; with ``unscored`` (a figure is wanted all the same) the result
+    is returned instead, with the refusal recorded in it (:func:`score_refusal` tells), and the
+    other sample-size warnings are still emitted.
     """
     from rbgp_cli.evaluation import evaluate
+    from rbgp_cli.evaluation.bhattacharyya import check_sample_sizes
 
     demos, _, _ = load_demonstrations(demo_sources, options, max_gap=max_gap)
     if model is not None:
-        from rbgp_cli.evaluation.bhattacharyya import check_sample_sizes
-
         refusal = check_sample_sizes(count, len(demos), covariance).refusal
-        if refusal is not None:  # before seconds of rollouts that could not be scored
+        if refusal is not None and not unscored:  # before seconds of rollouts that could not be scored
             raise InputError(refusal, hint="pass more demonstrations (e.g. a folder of takes)")
         generated = generate_like_paper(model, demos, count=count, spread=spread, seed=seed,
                                         progress=progress).trajectories()
@@ -259,8 +263,20 @@ def evaluate_files(generated_sources, demo_sources, *, options: ReadOptions | No
         if not generated_sources:
             raise InputError("no generated trajectories given", hint="pass a file (or - for stdin) or --model MODEL")
         generated, _, _ = load_demonstrations(generated_sources, ReadOptions(), stdin=stdin)
+    if unscored and check_sample_sizes(len(generated), len(demos), covariance).refusal is not None:
+        result = evaluate(generated, demos, length=length, covariance=covariance, sample_size="record")
+        for note in result.warnings[1:]:  # [0] is the refusal, which the caller reports as the error
+            warn(note)
+        return result, generated, demos
     result = evaluate(generated, demos, length=length, covariance=covariance)
     return result, generated, demos
+
+
+def score_refusal(result) -> str | None:
+    """Why ``result`` is no score (one demonstration, recorded by ``evaluate_files(unscored=True)``), or None."""
+    from rbgp_cli.evaluation.bhattacharyya import check_sample_sizes
+
+    return check_sample_sizes(result.n_generated, result.n_demos, result.covariance, result.ridge).refusal
 
 
 def crossval_configs(representations, kernels, train_kwargs: dict, replay: bool = True):

@@ -3,17 +3,16 @@
 paper's Fig. 4/5 (deterministic: every seed is fixed).
 
 1. Read the nine demonstrations in ``sample_data/csv``.
-2. Train an axis-angle model (the paper's rigid-body GP) and an Euler-angle model with the demo's
-   settings: 10 % random subsample of the training pairs, seed 0, kernel se, ρ1 = 0.7, but *one shared
-   set of hyperparameters for all six outputs* (``shared=True``) to keep this fast; the figure title
-   says so. ``rbgp demo`` fits each output separately.
+2. Train an axis-angle model (the paper's rigid-body GP) and an Euler-angle model with rbgp's
+   defaults (as ``rbgp demo`` does; :mod:`rbgp_cli.dynamics.defaults`), seed 0.
 3. Roll out COUNT trajectories from each model, from the same starts near the demonstrations'
    (``starts_near``, spread 0.02 m, seed 0), each as long as the demonstrations' median duration
    (``workflows.generate_like_paper``).
 4. Evaluate both sets against the demonstrations (Bhattacharyya distance per step, diagonal
-   covariances, MATH.md §9) and draw the figure (``viz.plots.plot_evaluation``): 1200 × 1000 px.
+   covariances, MATH.md §9) and draw the figure (``viz.plots.plot_evaluation``): 1200 × 1000 px, each
+   set's per-step mean ± 2σ band, at most 20 of its rollouts as lines, the distance per step.
 
-Run:  python scripts/make_figure.py [--out docs/figure.png] [--count 20]
+Run:  python scripts/make_figure.py [--out docs/figure.png] [--count 100]
 """
 
 from __future__ import annotations
@@ -31,8 +30,8 @@ from rbgp_cli.dynamics.model import train_model  # noqa: E402
 from rbgp_cli.evaluation import evaluate  # noqa: E402
 from rbgp_cli.viz.plots import plot_evaluation  # noqa: E402
 
-COUNT = 20
-SETTINGS = dict(subsample=0.1, seed=0, shared=True)
+COUNT = 100
+SETTINGS = dict(seed=0)
 
 
 def main(argv=None) -> int:
@@ -57,8 +56,8 @@ def main(argv=None) -> int:
     title = (f"Sample data ({len(demos)} shoe-passing demonstrations): {args.count} rollouts each, "
              f"mean Bhattacharyya distance rigid-body GP {results['axis-angle'].mean:.2f}, "
              f"Euler GP {results['euler'].mean:.2f}\n"
-             f"(both trained on a 10 % subsample, {points['axis-angle']} points, seed 0, "
-             f"one shared set of hyperparameters for all outputs to keep this script fast)")
+             f"(both trained with rbgp's defaults on {points['axis-angle']} points, seed 0; "
+             f"starts near the demonstrations', spread 0.02 m)")
     plot_evaluation(args.out, results["axis-angle"], generated["axis-angle"], demos, compare=generated["euler"],
                     labels=("rigid-body GP (axis-angle)", "Euler GP"), title=title)
     print(f"wrote {args.out}", file=sys.stderr)

@@ -262,7 +262,7 @@ def evaluate(
     per_step: Annotated[Optional[str], typer.Option("--per-step", help="Write the per-step series to this CSV.")] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print the scores as JSON on stdout.")] = False,
     rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd).")] = None,
-    plot: Annotated[Optional[str], typer.Option("--plot", help="Also write a figure (PNG) like the paper's Fig. 4/5.")] = None,
+    plot: Annotated[Optional[str], typer.Option("--plot", help="Also write a figure (PNG) like the paper's Fig. 4/5: per dimension both sets' mean ± 2σ bands and at most 20 lines of each, axes clipped to the demonstrations and the bulk of the rollouts (clipped ones counted), and the per-step score. With one demonstration there is no score: the figure is still written, without the score panels, and the command exits 2 with the reason.")] = None,
     compare: Annotated[Optional[List[str]], paths_option("--compare", help="With --plot: generated trajectories of a second model (CSV, e.g. the Euler GP's rollouts) drawn in another colour and scored in the distance panel.")] = None,
     up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.")] = "z",
     fmt: FormatOpt = "auto", columns: ColumnsOpt = None, quat_order: QuatOrderOpt = None, euler_order: EulerOrderOpt = None,
@@ -297,12 +297,13 @@ def evaluate(
         m, _ = load_model(model)
     result, gen, dem = workflows.evaluate_files(generated or [], demos, options=opts, max_gap=max_gap, length=length,
                                                 covariance=covariance, model=m, count=count, spread=start_spread, seed=seed,
-                                                progress=progress)
-    if per_step:
+                                                progress=progress, unscored=plot is not None)
+    refusal = workflows.score_refusal(result)  # only with --plot: the figure is drawn, then the error
+    if per_step and not refusal:
         from rbgp_cli.cli.report import write_per_step
 
         write_text_output(per_step, lambda fh: write_per_step(result, fh))
-    if rerun:
+    if rerun and not refusal:
         from rbgp_cli.viz.recording import record_evaluation
 
         record_evaluation(rerun, result, gen, dem, up=up)
@@ -319,6 +320,8 @@ def evaluate(
         label = f"{Path(model).stem} rollouts" if model else ("generated" if first == "-" else Path(first).stem)
         plot_evaluation(plot, result, gen, dem, compare=other,
                         labels=(label, Path(compare[0]).stem if compare else "compare"))
+        if refusal:
+            raise InputError(refusal, hint=f"the figure {plot} was written without a score; pass more demonstrations")
         progress(f"wrote {plot}")
     if json_out:
         emit_json(result.to_dict())

@@ -7,11 +7,22 @@ global (backend, open figures) changes in the calling process, and no display is
 Conventions: rotations are drawn as the features of the evaluation (MATH.md §9), the rotation vector
 ``log(R̄_sᵀ R)`` in the tangent space at the demonstrations' mean rotation R̄_s of each step
 (``result.reference``), so a rotation through θ = π does not jump; translations as they are, metres;
-the horizontal axis is normalised time s ∈ [0, 1].
+the horizontal axis is normalised time s ∈ [0, 1] (no unit). Every curve and band is drawn on the
+series the score uses: each trajectory resampled to ``result.steps`` steps
+(:func:`rbgp_cli.evaluation.resample_all`) and mapped to those features
+(:func:`rbgp_cli.evaluation.tangent_features`); the bands are the per-step sample mean ± 2 sample
+standard deviations (ddof = 1) that the score's Gaussians are fitted with.
+
+Large sets stay readable: at most :data:`MAX_LINES` individual lines per set are drawn (evenly
+chosen, lighter, the counts in the legend) over the sets' ±2σ bands, and each feature axis spans the
+demonstrations and the bulk of the generated trajectories (:func:`feature_axis_limits`), so one
+divergent rollout is clipped (and counted in the panel) instead of squashing the axis.
 """
 
 from __future__ import annotations
 
+import re
+import textwrap
 from collections.abc import Sequence
 
 import numpy as np
@@ -20,17 +31,33 @@ from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError
 from rbgp_cli.io.atomic import atomic_path
 
-__all__ = ["plot_evaluation", "distance_axis_top", "FIGSIZE_IN", "DPI", "MAX_LINES", "CLIP_FACTOR"]
+__all__ = ["plot_evaluation", "distance_axis_top", "feature_axis_limits", "is_monte_carlo_sample", "FIGSIZE_IN",
+           "DPI", "MAX_LINES", "CLIP_FACTOR", "NEAR_ZERO", "AXIS_MARGIN", "BULK_WIDTH", "TIME_LABEL"]
 
 #: Figure size in inches and resolution: 12 × 10 in at 100 dpi = 1200 × 1000 pixels.
 FIGSIZE_IN = (12.0, 10.0)
 DPI = 100
-#: At most this many generated (and compare) trajectories are drawn per panel (evenly chosen).
+#: At most this many individual trajectories of each set (demonstrations, generated, compare) are
+#: drawn per panel, evenly chosen; above it they are drawn lighter and the legend gives the counts.
 MAX_LINES = 20
-#: The distance panel's axis is linear from 0; a few steps more than this many times the 90th
+#: The distance panels' axes are linear from 0; a few steps more than this many times the 90th
 #: percentile of the distances are clipped (and their largest value written in the panel), so the
 #: curve stays readable.
 CLIP_FACTOR = 10.0
+#: A distance curve whose largest value is below this fraction of its panel's axis (another set's
+#: curve sets the scale) gets its largest value written in the panel.
+NEAR_ZERO = 0.03
+#: Each feature axis is widened by this fraction of its span on both sides.
+AXIS_MARGIN = 0.08
+#: The bulk of a generated set, per step: median ± this many robust standard deviations
+#: (1.4826 × the median absolute deviation), which one divergent trajectory barely moves.
+BULK_WIDTH = 4.0
+#: The horizontal axis label: normalised time has no unit.
+TIME_LABEL = "normalised time (0–1)"
+
+#: Names of Monte Carlo rollouts as ``rbgp rollout --samples K`` writes them (``<start>.s<k>``), also
+#: after reading them back from a CSV (``file#<start>.s<k>``).
+_SAMPLE_NAME = re.compile(r"(?:^|[#/\\:])\d+\.s\d+$")
 
 _DIMS = (
     ("rotation $r_x$ (tangent space at the demonstrations' mean rotation)", "$r_x$ [rad]"),
@@ -40,6 +67,10 @@ _DIMS = (
     ("translation $y$", "$y$ [m]"),
     ("translation $z$", "$z$ [m]"),
 )
+
+# colours: demonstrations red, generated (mean rollouts) near-black, their Monte Carlo samples
+# purple, the compare set blue
+_DEMO, _GEN, _SAMPLES, _CMP = "red", "0.15", "tab:purple", "tab:blue"
 
 
 def _matplotlib():
@@ -52,8 +83,13 @@ def _matplotlib():
     return Figure, FigureCanvasAgg
 
 
+def is_monte_carlo_sample(traj: Trajectory) -> bool:
+    """True for a Monte Carlo rollout as ``rbgp rollout --samples`` names it (``3.s0``, ``file#3.s0``)."""
+    return bool(_SAMPLE_NAME.search(traj.name or ""))
+
+
 def distance_axis_top(values) -> tuple[float, bool]:
-    """Upper limit of the linear Bhattacharyya axis (lower limit 0) and whether curves are clipped.
+    """Upper limit of a linear Bhattacharyya axis (lower limit 0) and whether curves are clipped.
 
     1.3 × the largest finite distance (room for the legend), or, when that largest value exceeds
     ``CLIP_FACTOR`` × the 90th percentile (a few spikes), 1.3 × that bound. Never a log axis: a
@@ -67,6 +103,34 @@ def distance_axis_top(values) -> tuple[float, bool]:
     bound = CLIP_FACTOR * float(np.percentile(v, 90))
     clipped = bound > 0 and top > bound
     return 1.3 * max(bound if clipped else top, 1e-12), clipped
+
+
+def feature_axis_limits(demos, band_low, band_high, groups=()) -> tuple[float, float]:
+    """Limits of one feature axis: the demonstrations and the bulk of each generated set, plus a margin.
+
+    The range covers every demonstration (``demos``, shape (M_D, T)), their ±2σ band
+    (``band_low``, ``band_high``, shape (T,)) and, for each generated set in ``groups`` (arrays
+    (M, T)), its bulk per step, ``median ± BULK_WIDTH · 1.4826 · MAD`` (about ±4σ for Gaussian
+    spread, moved little by a few divergent trajectories) but no further than the set's own extremes
+    at that step; it is then widened by ``AXIS_MARGIN`` of
+    its span on each side (at least 1e-3, a milliradian or millimetre, so a constant feature gets a
+    visible axis). Trajectories beyond it are clipped by the axes, not allowed to stretch them.
+    """
+    parts = [np.ravel(demos), np.ravel(band_low), np.ravel(band_high)]
+    for x in groups:
+        x = np.asarray(x, dtype=np.float64)
+        if x.size == 0:
+            continue
+        med = np.median(x, axis=0)  # (T,)
+        wide = BULK_WIDTH * 1.4826 * np.median(np.abs(x - med), axis=0)
+        parts += [np.maximum(med - wide, x.min(axis=0)), np.minimum(med + wide, x.max(axis=0))]
+    v = np.concatenate(parts)
+    v = v[np.isfinite(v)]
+    if not len(v):
+        return -1.0, 1.0
+    lo, hi = float(v.min()), float(v.max())
+    pad = max(AXIS_MARGIN * (hi - lo), 1e-3)
+    return lo - pad, hi + pad
 
 
 def _subset(n: int, k: int = MAX_LINES) -> np.ndarray:
@@ -84,19 +148,56 @@ def _features(trajs, result) -> np.ndarray:
     return tangent_features(q, p, result.reference)
 
 
+def _band(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-step mean and standard deviation (T, 6) of features (M, T, 6), as the evaluation fits them."""
+    from rbgp_cli.evaluation.bhattacharyya import _moments
+
+    mu, cov = _moments(x)
+    return mu, np.sqrt(np.diagonal(cov, axis1=-2, axis2=-1))
+
+
+def _count_label(what: str, n: int) -> str:
+    """Legend name of a set's individual lines: its size, and how many are drawn when it is thinned."""
+    drawn = len(_subset(n))
+    return f"{what} ({n})" if drawn == n else f"{what} ({drawn} of {n} drawn)"
+
+
+class _Set:
+    """One set of trajectories as drawn: features (M, T, 6), band (mean, std (T, 6)), style."""
+
+    def __init__(self, key, label, x, mean, std, color, ls, lines=True):
+        self.key, self.label, self.x, self.mean, self.std = key, label, x, mean, std
+        self.color, self.ls, self.lines = color, ls, lines
+
+    @property
+    def n(self) -> int:
+        return self.x.shape[0]
+
+
 def plot_evaluation(path, result, generated: Sequence[Trajectory], demos: Sequence[Trajectory],
                     compare: Sequence[Trajectory] | None = None, labels=("generated", "compare"),
                     title: str | None = None):
-    """Draw demonstrations, generated trajectories (and a second set) per dimension, and the per-step
-    Bhattacharyya distance; save a 1200 × 1000 px PNG atomically.
+    """Draw demonstrations, generated trajectories (and a second set) per dimension with their ±2σ
+    bands, and the per-step Bhattacharyya distance; save a 1200 × 1000 px PNG atomically.
 
-    Seven panels over normalised time s: rotation r_x, r_y, r_z (rad, tangent space at the
-    demonstrations' per-step mean rotation) in the left column, translation x, y, z (m) in the
-    right column, and across the bottom the per-step Bhattacharyya distance (total, rotation,
-    translation) of ``generated``, plus the total of ``compare`` (evaluated against the same
-    demonstrations with the same length, covariance and ridge) when given. Demonstrations are thin
-    dotted coloured lines and their mean a solid red one; ``generated`` dashed black, ``compare``
-    blue dash-dotted (at most :data:`MAX_LINES` of each, evenly chosen).
+    Six feature panels over normalised time s ∈ [0, 1]: rotation r_x, r_y, r_z (rad, tangent space at
+    the demonstrations' per-step mean rotation) in the left column, translation x, y, z (m) in the
+    right one. In each: the demonstrations' band, per-step mean ± 2σ (``result.demo_mean``,
+    ``result.demo_std``), filled red, with its mean as a solid red line; the generated set's band,
+    light grey outlined dashed, with its mean dashed black (``result.gen_mean``, ``result.gen_std``);
+    ``compare`` likewise in blue, dash-dotted. When ``generated`` holds Monte Carlo rollouts (names ``<start>.s<k>``, from
+    ``rbgp rollout --samples``), the mean rollouts and the samples get separate bands (samples
+    purple) and only the mean rollouts are drawn as lines; the score still uses them all. Individual
+    lines: at most :data:`MAX_LINES` per set, evenly chosen, thin and light. The axis covers the
+    demonstrations and the bulk of each generated set (:func:`feature_axis_limits`); the panel says
+    how many generated trajectories leave it.
+
+    Bottom row: the per-step distance, total, rotation part and translation part in separate panels
+    with their own linear axes from 0 (so a part near zero is still readable), ``generated`` solid
+    and ``compare`` (evaluated against the same demonstrations with the same length, covariance
+    and ridge) dash-dotted. When ``result`` cannot be a score (one demonstration: the refusal of
+    :func:`rbgp_cli.evaluation.check_sample_sizes`, recorded with ``evaluate(...,
+    sample_size="record")``), the bottom row is left out and the figure says why.
 
     Parameters
     ----------
@@ -116,9 +217,12 @@ def plot_evaluation(path, result, generated: Sequence[Trajectory], demos: Sequen
     Returns
     -------
     matplotlib.figure.Figure
-        The figure (7 axes), for callers that want to inspect or re-save it.
+        The figure, for callers that want to inspect or re-save it: 6 feature axes then 3 distance
+        axes (6 axes without a score). Bands are ``PolyCollection`` objects with the gid
+        ``band:<set>`` and set means lines with the gid ``mean:<set>``, individual lines
+        ``line:<set>``, where ``<set>`` is ``demonstrations``, ``generated``, ``samples`` or ``compare``.
     """
-    from rbgp_cli.evaluation import evaluate
+    from rbgp_cli.evaluation import check_sample_sizes, evaluate
 
     Figure, FigureCanvasAgg = _matplotlib()
     generated, demos = list(generated), list(demos)
@@ -128,83 +232,145 @@ def plot_evaluation(path, result, generated: Sequence[Trajectory], demos: Sequen
             f"the evaluation was computed from {result.n_generated} generated trajectories and {result.n_demos} "
             f"demonstrations, but {len(generated)} and {len(demos)} were given to plot")
     gen_label, cmp_label = (list(labels) + ["compare"])[:2]
+    refusal = check_sample_sizes(result.n_generated, result.n_demos, result.covariance, result.ridge).refusal
 
     s = np.asarray(result.s)
-    x_d = _features(demos, result)  # (M_D, T, 6)
+    sets = [_Set("demonstrations", "demonstrations", _features(demos, result), result.demo_mean, result.demo_std,
+                 _DEMO, "-")]
     x_g = _features(generated, result)  # (M_G, T, 6)
-    x_c = _features(compare, result) if compare else None
+    is_sample = np.array([is_monte_carlo_sample(t) for t in generated])
+    if is_sample.any() and not is_sample.all():
+        n_s = int(is_sample.sum())
+        sets.append(_Set("generated", f"{gen_label}: mean rollouts", x_g[~is_sample], *_band(x_g[~is_sample]),
+                         _GEN, "--"))
+        sets.append(_Set("samples", f"Monte Carlo samples ({n_s})", x_g[is_sample],
+                         *_band(x_g[is_sample]), _SAMPLES, ":", lines=False))
+    else:
+        sets.append(_Set("generated", gen_label, x_g, result.gen_mean, result.gen_std, _GEN, "--"))
     res_c = None
     if compare:
         res_c = evaluate(compare, demos, length=int(result.steps), covariance=result.covariance, ridge=result.ridge,
                          sample_size="record")  # the main evaluation already said what it had to
+        sets.append(_Set("compare", cmp_label, _features(compare, result), res_c.gen_mean, res_c.gen_std, _CMP, "-."))
+    demo_set, others = sets[0], sets[1:]
 
     fig = Figure(figsize=FIGSIZE_IN, dpi=DPI, layout="constrained")
     FigureCanvasAgg(fig)
-    grid = fig.add_gridspec(4, 2, height_ratios=[1, 1, 1, 1.1])
-    demo_colors = _demo_colors(len(demos))
-    axes = []
+    scored = refusal is None
+    grid = fig.add_gridspec(4 if scored else 3, 6)  # 6 columns: 2 × 3 feature panels, 3 × 2 distance panels
+    handles: dict = {}
     for j, (name, ylabel) in enumerate(_DIMS):
-        ax = fig.add_subplot(grid[j % 3, j // 3])
-        axes.append(ax)
-        if x_c is not None:
-            for n, i in enumerate(_subset(len(compare))):
-                ax.plot(s, x_c[i, :, j], ls="-.", lw=0.8, color="tab:blue", alpha=0.75,
-                        label=cmp_label if n == 0 else None)
-        for n, i in enumerate(_subset(len(generated))):
-            ax.plot(s, x_g[i, :, j], ls="--", lw=0.8, color="0.15", alpha=0.7, label=gen_label if n == 0 else None)
-        for m in range(len(demos)):  # on top, so the reference stays visible
-            ax.plot(s, x_d[m, :, j], ls=":", lw=1.3, color=demo_colors[m],
-                    label="demonstrations" if m == 0 else None)
-        ax.plot(s, result.demo_mean[:, j], ls="-", lw=2.2, color="red", label="demonstrations' mean")
+        ax = fig.add_subplot(grid[j % 3, 3 * (j // 3):3 * (j // 3) + 3])
+        _feature_panel(ax, j, s, demo_set, others, handles)
         ax.set_title(name, fontsize=10)
         ax.set_ylabel(ylabel)
-        ax.grid(True, lw=0.3, alpha=0.5)
-        ax.set_xlim(0.0, 1.0)
         if j % 3 == 2:
-            ax.set_xlabel("normalised time s")
+            ax.set_xlabel(TIME_LABEL)
         else:
             ax.tick_params(labelbottom=False)
-    handles = dict(zip(*reversed(axes[0].get_legend_handles_labels())))
-    order = ["demonstrations", "demonstrations' mean", gen_label, cmp_label]
-    fig.legend([handles[k] for k in order if k in handles], [k for k in order if k in handles],
-               loc="outside lower center", ncols=4, fontsize=9, frameon=False)
+    order = [k for st in sets for k in (f"line:{st.key}", f"band:{st.key}") if k in handles]
+    fig.legend([handles[k][0] for k in order], [handles[k][1] for k in order], loc="outside lower center",
+               ncols=4 if len(order) <= 4 else 3, fontsize=9, frameon=False)
 
-    ax = fig.add_subplot(grid[3, :])
-    axes.append(ax)
-    ax.plot(s, result.per_step, color="black", lw=2.0, label=f"{gen_label}: total (mean {result.mean:.2f})")
-    ax.plot(s, result.per_step_rotation, color="tab:red", lw=1.2, label=f"{gen_label}: rotation ({result.rotation:.2f})")
-    ax.plot(s, result.per_step_translation, color="tab:green", lw=1.2,
-            label=f"{gen_label}: translation ({result.translation:.2f})")
-    if res_c is not None:
-        ax.plot(s, res_c.per_step, color="tab:blue", ls="-.", lw=2.0, label=f"{cmp_label}: total (mean {res_c.mean:.2f})")
-    finite = np.concatenate([result.per_step[np.isfinite(result.per_step)],
-                             res_c.per_step[np.isfinite(res_c.per_step)] if res_c is not None else []])
-    top, clipped = distance_axis_top(finite)
-    ax.set_ylim(0.0, top)
-    if clipped:
-        ax.text(0.99, 0.97, f"clipped: largest $D_B$ = {float(finite.max()):.3g}", transform=ax.transAxes,
-                ha="right", va="top", fontsize=8)
-    ax.set_title(f"Bhattacharyya distance to the demonstrations per step ({result.covariance} covariance, "
-                 f"{result.n_demos} demonstrations)", fontsize=10)
-    ax.set_xlabel("normalised time s")
-    ax.set_ylabel("$D_B$ [–]")
-    ax.set_xlim(0.0, 1.0)
-    ax.grid(True, lw=0.3, alpha=0.5)
-    ax.legend(fontsize=8, ncols=2, loc="upper left")
+    if scored:
+        parts = (("per_step", "mean", f"Bhattacharyya distance per step ({result.covariance}, "
+                                       f"{result.n_demos} demos)"),
+                 ("per_step_rotation", "rotation", "its rotation part"),
+                 ("per_step_translation", "translation", "its translation part"))
+        for k, (series, mean, heading) in enumerate(parts):
+            ax = fig.add_subplot(grid[3, 2 * k:2 * k + 2])
+            curves = [(getattr(result, series), getattr(result, mean), gen_label, "-", "black")]
+            if res_c is not None:
+                curves.append((getattr(res_c, series), getattr(res_c, mean), cmp_label, "-.", _CMP))
+            _distance_panel(ax, s, curves)
+            ax.set_title(heading, fontsize=10)
+            ax.set_xlabel(TIME_LABEL)
+            if k == 0:
+                ax.set_ylabel("$D_B$ [–]")
 
     if title is None:
-        title = f"{gen_label}: mean Bhattacharyya distance {result.mean:.2f}"
-        if res_c is not None:
-            title += f"   {cmp_label}: {res_c.mean:.2f}"
+        if scored:
+            title = f"{gen_label}: mean Bhattacharyya distance {result.mean:.2f}"
+            if res_c is not None:
+                title += f"   {cmp_label}: {res_c.mean:.2f}"
+        else:
+            title = f"{gen_label} against {result.n_demos} demonstration{'s' if result.n_demos != 1 else ''}"
+    if not scored:
+        why = refusal.split(":")[0] + (";" + refusal.rsplit(";", 1)[1] if ";" in refusal else "")
+        title += "\n" + textwrap.fill(f"no score: {why}", 140)
     fig.suptitle(title, fontsize=12)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=DPI)
     return fig
 
 
-def _demo_colors(n: int) -> list:
-    """n distinct colours for the demonstrations (a perceptual colour map, red-free at the ends)."""
-    from matplotlib import colormaps
+def _feature_panel(ax, j, s, demo_set, others, handles) -> None:
+    """One feature dimension j: bands (beneath), thinned individual lines, the sets' means, clipped axis."""
+    from matplotlib.colors import to_rgba
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
 
-    cmap = colormaps["viridis"]
-    return [cmap(v) for v in np.linspace(0.05, 0.9, max(n, 1))][:n]
+    for st in [demo_set] + others:  # bands first, beneath every line
+        if st.n < 2:  # one trajectory has no spread: its mean is the line itself
+            continue
+        lo, hi = st.mean[:, j] - 2.0 * st.std[:, j], st.mean[:, j] + 2.0 * st.std[:, j]
+        alpha = 0.2 if st.key == "demonstrations" else 0.07
+        ax.fill_between(s, lo, hi, color=st.color, alpha=alpha, lw=0, gid=f"band:{st.key}")
+        if st.key != "demonstrations":  # the reference band is filled, the others also outlined
+            for edge in (lo, hi):
+                ax.plot(s, edge, ls=st.ls, lw=0.9, color=st.color, alpha=0.8, gid=f"edge:{st.key}")
+        handles.setdefault(f"band:{st.key}", (
+            (Patch(facecolor=to_rgba(st.color, alpha + 0.1), lw=0.9, linestyle=st.ls,
+                   edgecolor="none" if st.key == "demonstrations" else st.color),
+             Line2D([], [], color=st.color, ls=st.ls, lw=1.6)),
+            f"{st.label}: mean ± 2σ"))
+    for st in others + [demo_set]:  # the demonstrations' lines on top, so the reference stays visible
+        if not st.lines:
+            continue
+        idx = _subset(st.n)
+        thinned = len(idx) < st.n
+        width = 0.6 if thinned else 0.9
+        alpha = 0.35 if thinned else 0.6
+        ls = "-" if st.key == "demonstrations" else st.ls
+        for i in idx:
+            ax.plot(s, st.x[i, :, j], ls=ls, lw=width, color=st.color, alpha=alpha, gid=f"line:{st.key}")
+        handles.setdefault(f"line:{st.key}", (Line2D([], [], color=st.color, ls=ls, lw=width, alpha=alpha),
+                                              _count_label(st.label, st.n)))
+    for st in others + [demo_set]:
+        lw = 2.2 if st.key == "demonstrations" else 1.6
+        ax.plot(s, st.mean[:, j], ls=st.ls, lw=lw, color=st.color, gid=f"mean:{st.key}")
+
+    lo, hi = feature_axis_limits(demo_set.x[:, :, j], demo_set.mean[:, j] - 2 * demo_set.std[:, j],
+                                 demo_set.mean[:, j] + 2 * demo_set.std[:, j], [st.x[:, :, j] for st in others])
+    ax.set_ylim(lo, hi)
+    ax.set_xlim(0.0, 1.0)
+    ax.grid(True, lw=0.3, alpha=0.5)
+    out = []
+    for st in others:
+        v = st.x[:, :, j]
+        k = int(np.sum(np.any((v < lo) | (v > hi), axis=1)))
+        if k:
+            out.append(f"{k} of {st.n} {st.label}")
+    if out:
+        ax.text(0.995, 0.02, "beyond this axis (clipped): " + ", ".join(out), transform=ax.transAxes, ha="right",
+                va="bottom", fontsize=7.5, gid="clip-note",
+                bbox=dict(boxstyle="round,pad=0.2", facecolor="white", edgecolor="0.6", alpha=0.85))
+
+
+def _distance_panel(ax, s, curves) -> None:
+    """Per-step distances ``curves`` [(series (T,), mean, label, linestyle, colour)] on a linear axis from 0."""
+    finite = np.concatenate([np.asarray(c[0])[np.isfinite(c[0])] for c in curves])
+    top, clipped = distance_axis_top(finite)
+    for series, mean, label, ls, color in curves:
+        text = f"{label} (mean {mean:.3g})"
+        v = np.asarray(series)[np.isfinite(series)]
+        if len(v) and float(v.max()) < NEAR_ZERO * top:  # flattened against 0 by a larger curve: say its size
+            text = f"{label} (mean {mean:.3g}, at most {float(v.max()):.2g}: flat at this scale)"
+        ax.plot(s, series, ls=ls, lw=1.8, color=color, label=text)
+    ax.set_ylim(0.0, top)
+    if clipped:
+        ax.text(0.99, 0.97, f"clipped: largest $D_B$ = {float(finite.max()):.3g}", transform=ax.transAxes,
+                ha="right", va="top", fontsize=8)
+    ax.set_xlim(0.0, 1.0)
+    ax.grid(True, lw=0.3, alpha=0.5)
+    ax.legend(fontsize=7.5, loc="upper left")
