@@ -33,6 +33,14 @@ class ReadOptions:
     topic : MCAP topic; frame : child frame (TF); time_source : ``header`` or ``log``.
     body : rigid body / segment name in vendor exports with several bodies.
     rotation : Vicon RX,RY,RZ meaning: ``helical`` (axis-angle, default) or ``euler``.
+
+    How the samples read are cut into demonstrations (:func:`rbgp_cli.dynamics.prepare.prepare_all`):
+
+    split_gap : seconds; a step with no sample longer than this splits a demonstration (None: 20 ×
+        its median step and at least 2 s; ``inf``: never).
+    crop_from, crop_to : seconds since each take's first sample; keep only the samples in between.
+    split_at_rest : cut each take into repetitions separated by rests (speed below ``rest_speed``
+        m/s, angular speed below 0.3 rad/s, for at least ``rest_time`` s).
     """
 
     format: str = "auto"
@@ -48,3 +56,21 @@ class ReadOptions:
     time_source: str = "header"
     body: str | None = None
     rotation: str | None = None
+    split_gap: float | None = None
+    crop_from: float | None = None
+    crop_to: float | None = None
+    split_at_rest: bool = False
+    rest_speed: float | None = None
+    rest_time: float | None = None
+
+    def prepare_kwargs(self) -> dict:
+        """Keyword arguments of :func:`rbgp_cli.dynamics.prepare.prepare_all` (crop, split_gap, rest)."""
+        out: dict = {"split_gap": self.split_gap}
+        if self.crop_from is not None or self.crop_to is not None:
+            out["crop"] = (self.crop_from, self.crop_to)
+        if self.split_at_rest:
+            from rbgp_cli.dynamics.prepare import RestSplit
+
+            kw = {k: v for k, v in (("speed", self.rest_speed), ("min_rest", self.rest_time)) if v is not None}
+            out["rest"] = RestSplit(**kw)
+        return out
