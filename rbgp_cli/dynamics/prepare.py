@@ -360,6 +360,13 @@ def split_at_breaks(traj: Trajectory, split_gap: float | None = None, *, quiet: 
     dt = np.diff(t)
     cut = np.flatnonzero(dt > thr)
     if not cut.size:
+        if split_gap is not None and not quiet and len(dt):
+            kept = dt[dt > break_threshold(t)]
+            if kept.size:  # kept whole on request: say what that means for the planned duration
+                warn(f"{(traj.name + ': ') if traj.name else ''}kept whole with --split-gap {split_gap:g}: its "
+                     f"duration {t[-1] - t[0]:.4g} s includes {kept.size} stretch{'es' * (kept.size != 1)} without a "
+                     f"sample (up to {kept.max():.4g} s), and so do the rollouts planned from it",
+                     path=traj.source or None)
         return [traj], []
     t0 = float(t[0])
     breaks = [{"after_s": float(t[k] - t0), "gap_s": float(dt[k])} for k in cut]
