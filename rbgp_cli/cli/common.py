@@ -192,7 +192,7 @@ def write_text_output(path: Optional[str], writer) -> None:
 _READ = "Reading demonstrations"
 FormatOpt = Annotated[str, typer.Option("--format", help="auto|csv|qtm|motive|vicon|mcap (auto sniffs the content).", rich_help_panel=_READ)]
 ColumnsOpt = Annotated[Optional[str], typer.Option("--columns", help="Explicit CSV column mapping, e.g. 't=stamp,qw=w,x=px'.", rich_help_panel=_READ)]
-QuatOrderOpt = Annotated[Optional[str], typer.Option("--quat-order", help="xyzw or wxyz, for quaternion columns named q0..q3.", rich_help_panel=_READ)]
+QuatOrderOpt = Annotated[Optional[str], typer.Option("--quat-order", help="xyzw or wxyz: the order of quaternion columns named q0..q3; for columns named qx..qw it overrides the names (the four columns in file order).", rich_help_panel=_READ)]
 EulerOrderOpt = Annotated[Optional[str], typer.Option("--euler-order", help="Euler sequence, scipy style: xyz extrinsic, XYZ intrinsic.", rich_help_panel=_READ)]
 DegreesOpt = Annotated[Optional[bool], typer.Option("--degrees/--radians", help="Euler angles in degrees or radians (default: from the file).", rich_help_panel=_READ)]
 LengthUnitOpt = Annotated[Optional[str], typer.Option("--length-unit", help="m, cm or mm (default: from the file).", rich_help_panel=_READ)]

@@ -23,7 +23,8 @@ class ReadOptions:
     columns : explicit column mapping for CSV, e.g. ``{"t": "stamp", "qx": "ox", ...}``; keys among
         t, x, y, z, qx, qy, qz, qw, rx, ry, rz, roll, pitch, yaw, demo.
     quat_order : ``xyzw`` or ``wxyz``, for columns named q0..q3 (or quaternion columns in a vendor
-        export whose order is not stated).
+        export whose order is not stated); for CSV columns named qx, qy, qz, qw it overrides the
+        names: the four columns, in file order, are taken in this order.
     euler_order : scipy-style sequence (``xyz`` extrinsic, ``XYZ`` intrinsic) for Euler columns.
     degrees : Euler angles in degrees (None: from the file's header/unit suffixes, else radians).
     length_unit : ``m``, ``cm`` or ``mm`` (None: from the file, else metres with a hint if values
