@@ -51,7 +51,10 @@ def load_demonstrations(sources, options: ReadOptions | None = None, *, max_gap:
                         stdin=None) -> tuple[list, list[dict], list[dict]]:
     """Read and clean demonstrations.
 
-    Returns (trajectories, repair reports, provenance of the inputs: name, format, sha256).
+    Returns (demonstrations, repair reports, provenance of the inputs: name, format, sha256). The
+    options' cropping and splitting (``split_gap``, ``crop_from``/``crop_to``, ``split_at_rest``) may
+    cut one trajectory read into several demonstrations, each said in a warning; the reports are one per
+    trajectory read (:func:`rbgp_cli.dynamics.prepare.prepare_all`).
     """
     from rbgp_cli.dynamics.prepare import prepare_all
     from rbgp_cli.io.model_store import file_sha256
@@ -65,7 +68,7 @@ def load_demonstrations(sources, options: ReadOptions | None = None, *, max_gap:
     paths = listing.files  # the files read
     if not raw:
         raise InputError("the inputs hold no demonstrations", path=", ".join(paths))
-    clean, reports = prepare_all(raw, max_gap=max_gap)
+    clean, reports = prepare_all(raw, max_gap=max_gap, **options.prepare_kwargs())
     inputs = []
     for p in paths:
         entry = {"name": p}

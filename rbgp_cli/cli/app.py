@@ -19,7 +19,7 @@ from rbgp_cli.cli.train_options import (
 )
 from rbgp_cli.cli.common import (
     BodyOpt, ColumnsOpt, DegreesOpt, EulerOrderOpt, FormatOpt, FrameOpt, LengthUnitOpt, MaxGapOpt,
-    QuatOrderOpt, RateOpt, RotationOpt, TimeSourceOpt, TimeUnitOpt, TopicOpt, command, emit_json,
+    CropFromOpt, CropToOpt, RestSpeedOpt, RestTimeOpt, SplitAtRestOpt, SplitGapOpt, QuatOrderOpt, RateOpt, RotationOpt, TimeSourceOpt, TimeUnitOpt, TopicOpt, command, emit_json,
     progress, read_options, set_json, set_quiet, write_text_output,
 )
 
@@ -77,6 +77,8 @@ def train(
     degrees: DegreesOpt = None, length_unit: LengthUnitOpt = None, time_unit: TimeUnitOpt = None, rate: RateOpt = None,
     topic: TopicOpt = None, frame: FrameOpt = None, time_source: TimeSourceOpt = "header", body: BodyOpt = None,
     rotation: RotationOpt = None, max_gap: MaxGapOpt = None,
+    split_gap: SplitGapOpt = None, crop_from: CropFromOpt = None, crop_to: CropToOpt = None,
+    split_at_rest: SplitAtRestOpt = False, rest_speed: RestSpeedOpt = None, rest_time: RestTimeOpt = None,
 ):
     """Train a motion model on demonstrations.
 
@@ -85,7 +87,9 @@ def train(
     from rbgp_cli import workflows
     from rbgp_cli.errors import InputError
 
-    opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation)
+    opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation,
+                        split_gap=split_gap, crop_from=crop_from, crop_to=crop_to, split_at_rest=split_at_rest,
+                        rest_speed=rest_speed, rest_time=rest_time)
     kwargs = train_kwargs(rho_rot=rho_rot, restarts=restarts, explore_size=explore_size, seed=seed, noise=noise,
                           share_hyperparameters=share_hyperparameters, subsample=subsample, max_points=max_points,
                           train_rate=train_rate, smooth_window=smooth_window, smooth_degree=smooth_degree,
@@ -269,6 +273,8 @@ def evaluate(
     degrees: DegreesOpt = None, length_unit: LengthUnitOpt = None, time_unit: TimeUnitOpt = None, rate: RateOpt = None,
     topic: TopicOpt = None, frame: FrameOpt = None, time_source: TimeSourceOpt = "header", body: BodyOpt = None,
     rotation: RotationOpt = None, max_gap: MaxGapOpt = None,
+    split_gap: SplitGapOpt = None, crop_from: CropFromOpt = None, crop_to: CropToOpt = None,
+    split_at_rest: SplitAtRestOpt = False, rest_speed: RestSpeedOpt = None, rest_time: RestTimeOpt = None,
 ):
     """Score generated trajectories against demonstrations: per-step Bhattacharyya distance (MATH.md §9).
 
@@ -289,7 +295,9 @@ def evaluate(
         hint = took_too_much("generated trajectories", alternative="or give --model MODEL to generate them")
         if hint:
             raise InputError(hint)
-    opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation)
+    opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation,
+                        split_gap=split_gap, crop_from=crop_from, crop_to=crop_to, split_at_rest=split_at_rest,
+                        rest_speed=rest_speed, rest_time=rest_time)
     m = None
     if model is not None:
         from rbgp_cli.io.model_store import load_model
@@ -337,21 +345,43 @@ def evaluate(
 def inspect(
     files: Annotated[List[str], typer.Argument(help="Files to describe ('-' for stdin).")],
     json_out: Annotated[bool, typer.Option("--json", help="Print the description as JSON.")] = False,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Full detail for every file (the default for up to 5 files; above that one line per file).")] = False,
     fmt: FormatOpt = "auto", columns: ColumnsOpt = None, quat_order: QuatOrderOpt = None, euler_order: EulerOrderOpt = None,
     degrees: DegreesOpt = None, length_unit: LengthUnitOpt = None, time_unit: TimeUnitOpt = None, rate: RateOpt = None,
     topic: TopicOpt = None, frame: FrameOpt = None, time_source: TimeSourceOpt = "header", body: BodyOpt = None,
-    rotation: RotationOpt = None,
+    rotation: RotationOpt = None, max_gap: MaxGapOpt = None,
+    split_gap: SplitGapOpt = None, crop_from: CropFromOpt = None, crop_to: CropToOpt = None,
+    split_at_rest: SplitAtRestOpt = False, rest_speed: RestSpeedOpt = None, rest_time: RestTimeOpt = None,
 ):
-    """Describe what files hold (columns or topics, rate, duration, gaps, units) without training."""
-    from rbgp_cli.io.inspect import format_inspect, inspect_file
+    """Describe what files hold (columns or topics, rate, duration, gaps, units) without training.
+
+    Runs train's preparation with the same options and says what it would do: sample-and-hold
+    repeats and lost frames dropped, gaps no training pair crosses, breaks that split a take
+    (--split-gap), repetitions found with --split-at-rest, a suspect quaternion order. Up to 5 files
+    in full, more one line each (-v: in full), then a summary line. Exit code 2 when a file could not
+    be read (the others are still described).
+    """
+    from rbgp_cli.io.inspect import COMPACT_ABOVE, format_compact, format_inspect, format_summary, inspect_file
     from rbgp_cli.workflows import expand_paths
 
-    opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation)
-    results = [inspect_file(f, opts) for f in expand_paths(files, opts)]
+    opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation,
+                        split_gap=split_gap, crop_from=crop_from, crop_to=crop_to, split_at_rest=split_at_rest,
+                        rest_speed=rest_speed, rest_time=rest_time)
+    results = [inspect_file(f, opts, max_gap=max_gap) for f in expand_paths(files, opts)]
     if json_out:
         emit_json(results if len(results) != 1 else results[0])
-    else:
+    elif verbose or len(results) <= COMPACT_ABOVE:
         print("\n\n".join(format_inspect(r) for r in results))
+    else:
+        print("\n".join(format_compact(r) for r in results))
+    if len(results) > 1 and not json_out:
+        print(("\n" if verbose or len(results) <= COMPACT_ABOVE else "") + format_summary(results))
+    unreadable = [r["path"] for r in results if r.get("error")]
+    if unreadable:  # described above; the exit code says that not every file could be read
+        names = ", ".join(unreadable[:5]) + (f" and {len(unreadable) - 5} more" if len(unreadable) > 5 else "")
+        print(f"rbgp: error: {len(unreadable)} of {len(results)} file{'s' * (len(results) != 1)} could not be read: "
+              f"{names}", file=sys.stderr)
+        raise typer.Exit(2)
 
 
 # ---------------------------------------------------------------------------------------------- crossval
@@ -380,6 +410,8 @@ def crossval(
     degrees: DegreesOpt = None, length_unit: LengthUnitOpt = None, time_unit: TimeUnitOpt = None, rate: RateOpt = None,
     topic: TopicOpt = None, frame: FrameOpt = None, time_source: TimeSourceOpt = "header", body: BodyOpt = None,
     rotation: RotationOpt = None, max_gap: MaxGapOpt = None,
+    split_gap: SplitGapOpt = None, crop_from: CropFromOpt = None, crop_to: CropToOpt = None,
+    split_at_rest: SplitAtRestOpt = False, rest_speed: RestSpeedOpt = None, rest_time: RestTimeOpt = None,
 ):
     """How well do generated motions hold up from start poses the model has not seen? Cross-validation
     by demonstration: train on the other folds (with exactly the options of rbgp train), roll out from
@@ -391,7 +423,9 @@ def crossval(
     from rbgp_cli import workflows
     from rbgp_cli.errors import warn
 
-    opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation)
+    opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation,
+                        split_gap=split_gap, crop_from=crop_from, crop_to=crop_to, split_at_rest=split_at_rest,
+                        rest_speed=rest_speed, rest_time=rest_time)
     kwargs = train_kwargs(rho_rot=rho_rot, restarts=restarts, explore_size=explore_size, seed=seed, noise=noise,
                           share_hyperparameters=share_hyperparameters, subsample=subsample, max_points=max_points,
                           train_rate=train_rate, smooth_window=smooth_window, smooth_degree=smooth_degree,

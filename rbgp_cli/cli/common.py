@@ -192,7 +192,7 @@ def write_text_output(path: Optional[str], writer) -> None:
 _READ = "Reading demonstrations"
 FormatOpt = Annotated[str, typer.Option("--format", help="auto|csv|qtm|motive|vicon|mcap (auto sniffs the content).", rich_help_panel=_READ)]
 ColumnsOpt = Annotated[Optional[str], typer.Option("--columns", help="Explicit CSV column mapping, e.g. 't=stamp,qw=w,x=px'.", rich_help_panel=_READ)]
-QuatOrderOpt = Annotated[Optional[str], typer.Option("--quat-order", help="xyzw or wxyz, for quaternion columns named q0..q3.", rich_help_panel=_READ)]
+QuatOrderOpt = Annotated[Optional[str], typer.Option("--quat-order", help="xyzw or wxyz: the order of quaternion columns named q0..q3; for columns named qx..qw it overrides the names (the four columns in file order).", rich_help_panel=_READ)]
 EulerOrderOpt = Annotated[Optional[str], typer.Option("--euler-order", help="Euler sequence, scipy style: xyz extrinsic, XYZ intrinsic.", rich_help_panel=_READ)]
 DegreesOpt = Annotated[Optional[bool], typer.Option("--degrees/--radians", help="Euler angles in degrees or radians (default: from the file).", rich_help_panel=_READ)]
 LengthUnitOpt = Annotated[Optional[str], typer.Option("--length-unit", help="m, cm or mm (default: from the file).", rich_help_panel=_READ)]
@@ -204,6 +204,12 @@ TimeSourceOpt = Annotated[str, typer.Option("--time", help="MCAP time: header (m
 BodyOpt = Annotated[Optional[str], typer.Option("--body", help="Rigid body / segment name in vendor exports ('all' for every body).", rich_help_panel=_READ)]
 RotationOpt = Annotated[Optional[str], typer.Option("--rotation", help="Vicon RX,RY,RZ: helical (axis-angle, default) or euler.", rich_help_panel=_READ)]
 MaxGapOpt = Annotated[Optional[float], typer.Option("--max-gap", help="Fill runs of lost frames up to this many seconds by slerp (default: drop them).", rich_help_panel=_READ)]
+SplitGapOpt = Annotated[Optional[float], typer.Option("--split-gap", metavar="SECONDS", help="Split a demonstration where no sample arrives for longer than this: a break between takes or a tracker outage (default: 20 × its median sampling interval and at least 2 s; inf keeps it whole).", rich_help_panel=_READ)]
+CropFromOpt = Annotated[Optional[float], typer.Option("--crop-from", metavar="SECONDS", help="Keep only the samples from this many seconds after each take's first sample.", rich_help_panel=_READ)]
+CropToOpt = Annotated[Optional[float], typer.Option("--crop-to", metavar="SECONDS", help="Keep only the samples up to this many seconds after each take's first sample.", rich_help_panel=_READ)]
+SplitAtRestOpt = Annotated[bool, typer.Option("--split-at-rest", help="Cut each take into repetitions separated by rests (see --rest-speed, --rest-time); each repetition is a demonstration.", rich_help_panel=_READ)]
+RestSpeedOpt = Annotated[Optional[float], typer.Option("--rest-speed", metavar="M/S", help="With --split-at-rest: at rest below this speed (and 0.3 rad/s), measured over 0.1 s (default 0.03 m/s).", rich_help_panel=_READ)]
+RestTimeOpt = Annotated[Optional[float], typer.Option("--rest-time", metavar="SECONDS", help="With --split-at-rest: the shortest rest that separates repetitions; shorter motions are left out (default 0.5 s).", rich_help_panel=_READ)]
 
 
 def parse_columns(text: Optional[str]) -> Optional[dict]:
@@ -223,7 +229,8 @@ def parse_columns(text: Optional[str]) -> Optional[dict]:
 
 
 def read_options(fmt="auto", columns=None, quat_order=None, euler_order=None, degrees=None, length_unit=None,
-                 time_unit=None, rate=None, topic=None, frame=None, time_source="header", body=None, rotation=None):
+                 time_unit=None, rate=None, topic=None, frame=None, time_source="header", body=None, rotation=None,
+                 *, split_gap=None, crop_from=None, crop_to=None, split_at_rest=False, rest_speed=None, rest_time=None):
     """Validate the flags and build :class:`rbgp_cli.io.options.ReadOptions`."""
     from rbgp_cli.errors import InputError
     from rbgp_cli.io.options import FORMATS, LENGTH_UNITS, ReadOptions
@@ -242,10 +249,22 @@ def read_options(fmt="auto", columns=None, quat_order=None, euler_order=None, de
         raise InputError(f"--time must be header or log, got {time_source!r}")
     if rotation is not None and rotation not in ("helical", "euler"):
         raise InputError(f"--rotation must be helical or euler, got {rotation!r}")
+    for name, v in (("--split-gap", split_gap), ("--rest-speed", rest_speed), ("--rest-time", rest_time)):
+        if v is not None and not v > 0:
+            raise InputError(f"{name} must be a positive number, got {v}")
+    for name, v in (("--crop-from", crop_from), ("--crop-to", crop_to)):
+        if v is not None and not (0 <= v < float("inf")):
+            raise InputError(f"{name} must be a non-negative number of seconds, got {v}")
+    if crop_from is not None and crop_to is not None and crop_to <= crop_from:
+        raise InputError(f"--crop-to {crop_to:g} must be later than --crop-from {crop_from:g}")
+    if not split_at_rest and (rest_speed is not None or rest_time is not None):
+        raise InputError("--rest-speed and --rest-time apply to --split-at-rest", hint="add --split-at-rest")
     return ReadOptions(
         format=fmt, columns=parse_columns(columns), quat_order=None if quat_order is None else quat_order.lower(),
         euler_order=euler_order, degrees=degrees, length_unit=length_unit, time_unit=time_unit, rate=rate,
         topic=topic, frame=frame, time_source=time_source, body=body, rotation=rotation,
+        split_gap=split_gap, crop_from=crop_from, crop_to=crop_to, split_at_rest=bool(split_at_rest),
+        rest_speed=rest_speed, rest_time=rest_time,
     )
 
 

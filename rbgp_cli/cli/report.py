@@ -68,14 +68,37 @@ def format_train_summary(s: dict) -> str:
     return "\n".join(lines)
 
 
+def _value(v) -> str:
+    """A header value as text people read: nested mappings as ``(key value, ...)``, lists joined by
+    commas, None as ``-``, booleans yes/no, floats to 4 digits (never a Python repr)."""
+    if v is None:
+        return "-"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    if isinstance(v, dict):
+        return "(" + ", ".join(f"{k} {_value(x)}" for k, x in v.items()) + ")" if v else "-"
+    if isinstance(v, (list, tuple)):
+        return ", ".join(_value(x) for x in v) or "-"
+    return str(v)
+
+
+def _kernel_text(k) -> str:
+    if not isinstance(k, dict):
+        return _value(k)
+    rest = {key: v for key, v in k.items() if key != "kind"}
+    return f"{k.get('kind', '?')} {_value(rest)}" if rest else str(k.get("kind", "?"))
+
+
 def format_model_info(path: str, h: dict) -> str:
     s = h.get("summary", {})
     prov = h.get("provenance", {})
     lines = [
         f"{path}: {h['format']} version {h['version']}, written by rbgp {h.get('rbgp_version', '?')} at {h.get('created', '?')}",
-        f"representation: {h['representation'].get('name')}   kernel: {h['kernel']}",
+        f"representation: {h['representation'].get('name')}   kernel: {_kernel_text(h['kernel'])}",
         f"inputs: {', '.join(h.get('input_names', []))}   outputs: {', '.join(h.get('output_names', []))}",
-        f"training points: {h.get('training_points', '?')}   time step: {h['dt']:.6g} s   shared hyperparameters: {h['shared']}",
+        f"training points: {h.get('training_points', '?')}   time step: {h['dt']:.6g} s   shared hyperparameters: {_value(h['shared'])}",
     ] + ([f"sparse GP: {h['gp']['inducing']} inducing poses (NLML: the negative variational bound)"]
          if (h.get("gp") or {}).get("type") == "sparse" else [])
     names = ["all"] if h["shared"] else h.get("output_names", [])
@@ -87,7 +110,13 @@ def format_model_info(path: str, h: dict) -> str:
     for inp in prov.get("inputs", []):
         lines.append(f"input: {inp.get('name')}  sha256 {inp.get('sha256', '-')[:16]}…")
     if prov.get("train_options"):
-        lines.append("options: " + ", ".join(f"{k}={v}" for k, v in prov["train_options"].items()))
+        lines.append("options: " + ", ".join(f"{k}={_value(v)}" for k, v in prov["train_options"].items()))
+    if prov.get("read_options"):
+        lines.append("read options: " + ", ".join(f"{k}={_value(v)}" for k, v in prov["read_options"].items()))
+    demos = prov.get("demonstrations") or []
+    if demos:
+        durs = [d.get("duration_s") or 0.0 for d in demos]
+        lines.append(f"demonstrations: {len(demos)}, {min(durs):.3g}–{max(durs):.3g} s")
     if s.get("seconds") is not None:
         lines.append(f"training took {s['seconds']:.1f} s")
     return "\n".join(lines)

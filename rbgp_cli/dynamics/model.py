@@ -15,7 +15,7 @@ from rbgp_cli.dynamics.representations import Representation, make_representatio
 from rbgp_cli.dynamics.defaults import DEFAULT_KERNELS, DEFAULTS
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.dynamics.velocities import VelocityOptions, estimate_velocities, integration_drift, window_problem
-from rbgp_cli.errors import InputError
+from rbgp_cli.errors import InputError, warn
 from rbgp_cli.gp.exact import GaussianProcess, default_jobs, fit_gp
 from rbgp_cli.kernels import DotProduct, Kernel, SquaredExponential
 
@@ -445,6 +445,16 @@ def train_model(
     velocity = velocity or default_velocity()
     X, Y, info = training_set(trajs, rep, subsample=subsample, max_points=None, seed=seed, velocity=velocity,
                               time_input=time_input)
+    empty = [k for k, c in enumerate(info["per_demo"]) if c == 0]
+    if empty:  # no training pair: not a demonstration of the motion (no start, duration or path of its own)
+        names = [trajs[k].name or trajs[k].source or f"demonstration {k + 1}" for k in empty]
+        shown = ", ".join(names[:8]) + (f" and {len(names) - 8} more" if len(names) > 8 else "")
+        grid = f"the {velocity.rate:g} Hz training grid" if velocity.rate else "the recorded samples"
+        warn(f"left out {len(empty)} of {len(trajs)} demonstrations that give no training pair on {grid} "
+             f"(too few samples or too short): {shown}")
+        keep = [k for k, c in enumerate(info["per_demo"]) if c > 0]
+        trajs = [trajs[k] for k in keep]
+        info["per_demo"] = [info["per_demo"][k] for k in keep]
     gp_choice = choose_gp(info["points"], inducing, max_points, kernel)
     if gp_choice["type"] == "exact" and max_points is not None and info["points"] > max_points:
         X, Y, info = training_set(trajs, rep, subsample=subsample, max_points=max_points, seed=seed, velocity=velocity,

@@ -25,13 +25,16 @@ This module is core: it uses numpy and :mod:`rbgp_cli.errors` only.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError, warn
 
 __all__ = ["prepare_trajectory", "prepare_all", "lost_frame_mask", "line_of", "sign_change_note", "ZERO_QUAT_NORM",
-           "STEP_LIMIT"]
+           "STEP_LIMIT", "split_at_breaks", "break_threshold", "crop_trajectory", "RestSplit", "split_at_rest",
+           "speeds", "quaternion_order_note", "BREAK_FACTOR", "BREAK_SECONDS"]
 
 #: A quaternion with a smaller norm is "no rotation recorded" (a lost frame), not a rotation.
 ZERO_QUAT_NORM = 1e-9
@@ -172,6 +175,7 @@ def prepare_trajectory(
         same_q = np.all(q[a] == q[b], axis=1) | np.all(q[a] == -q[b], axis=1)
         held[b] = same_q & np.all(p[a] == p[b], axis=1) & (t[b] > t[a])
     n_held = int(held.sum())
+    held_runs = int(np.sum(held[1:] & ~held[:-1]) + held[0]) if n else 0
     if n_held:
         lost = lost | held
         valid = ~lost
@@ -287,6 +291,7 @@ def prepare_trajectory(
         "filled": n_filled,
         "dropped": n_lost + n_held - n_filled,
         "held": n_held,
+        "held_runs": held_runs,
         "duplicates": int(dup_raw.sum()),
         "sign_flips": int(flips.sum()),
         "max_norm_deviation": float(dev.max()) if len(vi) else 0.0,
@@ -313,11 +318,288 @@ def prepare_trajectory(
     return clean, report
 
 
-def prepare_all(trajectories, **kwargs) -> tuple[list[Trajectory], list[dict]]:
-    """:func:`prepare_trajectory` for each trajectory; returns (clean trajectories, reports)."""
+#: A step between clean samples longer than BREAK_FACTOR × the median step *and* longer than
+#: BREAK_SECONDS is a break (between takes, or a tracker outage), not a pause in one motion: the
+#: demonstration is split there (``split_gap`` sets an absolute threshold instead).
+BREAK_FACTOR = 20.0
+BREAK_SECONDS = 2.0
+
+
+def break_threshold(t: np.ndarray, split_gap: float | None = None) -> float:
+    """Seconds: a step longer than this splits a demonstration (:func:`split_at_breaks`).
+
+    ``split_gap`` None: max(BREAK_FACTOR × median step, BREAK_SECONDS); a number: that number
+    (``inf``: never split). ``t`` (N,) strictly increasing."""
+    if split_gap is not None:
+        if not (split_gap > 0):
+            raise InputError(f"--split-gap must be a positive number of seconds (or inf), got {split_gap!r}")
+        return float(split_gap)
+    dt = np.diff(t)
+    med = float(np.median(dt)) if len(dt) else 0.0
+    return max(BREAK_FACTOR * med, BREAK_SECONDS)
+
+
+def _piece(traj: Trajectory, a: int, b: int, label: str, k: int) -> Trajectory:
+    info = dict(traj.info or {})
+    info["piece_of"] = traj.name
+    return traj.with_(t=traj.t[a:b], quat=traj.quat[a:b], position=traj.position[a:b],
+                      name=f"{traj.name}#{label}{k}", info=info)
+
+
+def split_at_breaks(traj: Trajectory, split_gap: float | None = None, *, quiet: bool = False):
+    """Split a clean trajectory where no sample arrives for longer than :func:`break_threshold`.
+
+    Returns ``(pieces, breaks)``: the pieces with at least 2 samples (named ``NAME#part1``, ...;
+    the trajectory itself when there is no break) and one plain-data record per break
+    (``after_s``: time since the start where it begins, ``gap_s``). Pieces of a single sample are
+    left out. Unless ``quiet``, one warning names the file, where and how long the breaks are, and
+    the option that decides (``--split-gap``).
+    """
+    t = traj.t
+    thr = break_threshold(t, split_gap)
+    dt = np.diff(t)
+    cut = np.flatnonzero(dt > thr)
+    if not cut.size:
+        if split_gap is not None and not quiet and len(dt):
+            kept = dt[dt > break_threshold(t)]
+            if kept.size:  # kept whole on request: say what that means for the planned duration
+                warn(f"{(traj.name + ': ') if traj.name else ''}kept whole with --split-gap {split_gap:g}: its "
+                     f"duration {t[-1] - t[0]:.4g} s includes {kept.size} stretch{'es' * (kept.size != 1)} without a "
+                     f"sample (up to {kept.max():.4g} s), and so do the rollouts planned from it",
+                     path=traj.source or None)
+        return [traj], []
+    t0 = float(t[0])
+    breaks = [{"after_s": float(t[k] - t0), "gap_s": float(dt[k])} for k in cut]
+    bounds = np.concatenate([[0], cut + 1, [len(t)]])
+    pieces, lone = [], 0
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        if b - a < 2:
+            lone += 1
+            continue
+        pieces.append((int(a), int(b)))
+    out = [_piece(traj, a, b, "part", k + 1) for k, (a, b) in enumerate(pieces)]
+    if not quiet:
+        med = float(np.median(dt))
+        where = "; ".join(f"{_secs(r['gap_s'])} after t = {_secs(r['after_s'])}" for r in breaks[:3])
+        more = f" and {len(breaks) - 3} more" if len(breaks) > 3 else ""
+        label = f"{traj.name}: " if traj.name else ""
+        how = (f"--split-gap {thr:g} s" if split_gap is not None else
+               f"longer than {BREAK_FACTOR:g} × the median step {med:.3g} s and {BREAK_SECONDS:g} s; --split-gap SECONDS "
+               "sets the threshold, --split-gap inf keeps it whole")
+        warn(f"{label}no sample for {where}{more}: a break, not motion; split into {len(out)} demonstration"
+             f"{'s' * (len(out) != 1)} there" + (f" ({lone} lone sample{'s' * (lone != 1)} left out)" if lone else "")
+             + f" ({how})", path=traj.source or None)
+    return out, breaks
+
+
+def _secs(x: float) -> str:
+    return f"{x:.4g} s"
+
+
+def crop_trajectory(traj: Trajectory, start: float | None = None, end: float | None = None) -> Trajectory:
+    """The raw samples whose time since the take's start (its first finite time) lies in
+    [``start``, ``end``] seconds (None: unbounded). Rows without a finite time are kept inside the
+    kept span (lost frames there). Raises InputError when nothing is left."""
+    if start is None and end is None:
+        return traj
+    for name, v in (("--crop-from", start), ("--crop-to", end)):
+        if v is not None and not (np.isfinite(v) and v >= 0):
+            raise InputError(f"{name} must be a non-negative number of seconds, got {v!r}")
+    if start is not None and end is not None and end <= start:
+        raise InputError(f"--crop-to {end:g} s must be later than --crop-from {start:g} s")
+    t = traj.t
+    fin = np.isfinite(t)
+    if not fin.any():
+        return traj
+    t0 = float(t[fin][0])
+    rel = t - t0
+    lo = -np.inf if start is None else start
+    hi = np.inf if end is None else end
+    inside = fin & (rel >= lo) & (rel <= hi)
+    if inside.sum() < 2:
+        span = float(np.nanmax(rel))
+        raise InputError(f"{traj.name + ': ' if traj.name else ''}cropping to {lo if start is not None else 0:g} .. "
+                         f"{'end' if end is None else format(end, 'g')} s leaves {int(inside.sum())} sample(s); the take "
+                         f"lasts {span:.4g} s", path=traj.source or None,
+                         hint="times of --crop-from / --crop-to are seconds since the take's first sample")
+    idx = np.flatnonzero(inside)
+    a, b = int(idx[0]), int(idx[-1]) + 1
+    info = {k: v for k, v in (traj.info or {}).items() if k not in ("first_data_line", "line_runs")}
+    info["cropped_s"] = [float(lo if start is not None else 0.0), float(rel[b - 1])]
+    lines = [line_of(traj, k) for k in (a, b - 1)]
+    if lines[0] is not None and lines[1] - lines[0] == b - 1 - a:
+        info["first_data_line"] = int(lines[0])
+    from dataclasses import replace
+
+    return replace(traj, t=t[a:b], quat=traj.quat[a:b], position=traj.position[a:b], info=info)
+
+
+#: A quaternion order is suspect when, on every row, the component that would be the scalar in the
+#: other order has |value| >= this (cos 15°): the labelled order then reads a rotation within 30° of a
+#: half-turn about one axis throughout, the other order a motion within 30° of the identity.
+SUSPECT_COMPONENT = float(np.cos(np.radians(15.0)))
+
+
+def quaternion_order_note(traj: Trajectory) -> str | None:
+    """A warning text when the quaternion columns' labelled order looks swapped, else None.
+
+    Only for quaternions read from named CSV columns (``info["rotation"]`` = ``quaternion xyzw`` or
+    ``quaternion wxyz``, not chosen by ``--quat-order``). Permuting a quaternion's components keeps
+    every dot product, so both orders give the same step angles (the same angular speed and
+    continuity); what differs is where the motion sits. w-first data labelled x, y, z, w reads as a
+    near-constant half-turn about x (|qx| ≈ 1 on every row, |qw| small), x-first data labelled
+    w, x, y, z as one about z; the other order then reads a motion near the identity, which is where
+    calibrated rigid bodies usually are. Warn when every row is within 30° of that half-turn
+    (:data:`SUSPECT_COMPONENT`); a body that really stays upside down about that axis looks the same,
+    so the text says how to confirm the order.
+    """
+    rot = str((traj.info or {}).get("rotation") or "")
+    if (traj.info or {}).get("format") != "csv" or not rot.startswith("quaternion ") or "--quat-order" in rot or len(traj) < 2:
+        return None
+    labelled = rot.split()[1]
+    if labelled not in ("xyzw", "wxyz"):
+        return None
+    comp = 0 if labelled == "xyzw" else 2  # ours (x, y, z, w): the other order's scalar
+    q = traj.quat
+    if float(np.min(np.abs(q[:, comp]))) < SUSPECT_COMPONENT:
+        return None
+    other = "wxyz" if labelled == "xyzw" else "xyzw"
+    axis = "xyz"[comp]
+    names = ", ".join(f"q{c}" for c in labelled)
+    return (f"the quaternion columns ({names}) put every row within 30° of a half-turn about {axis} "
+            f"(|q{axis}| >= {SUSPECT_COMPONENT:.3f}, |qw| <= {np.sqrt(1 - SUSPECT_COMPONENT ** 2):.2f}); read as "
+            f"{', '.join(other)} they are a motion near the identity: if the columns are really in that order, "
+            f"pass --quat-order {other}; if the body does stay turned, --quat-order {labelled} confirms the labels")
+
+
+@dataclass(frozen=True)
+class RestSplit:
+    """Split one long take into repetitions at rests (``--split-at-rest``).
+
+    speed : m/s. A sample is at rest when the body's speed, measured over ``window`` seconds around
+        it, is below this, and its angular speed below ``angular_speed`` rad/s.
+    min_rest : seconds. Only rests at least this long separate repetitions; a motion shorter than
+        this between two rests is a twitch, not a repetition, and is left out.
+    """
+
+    speed: float = 0.03
+    angular_speed: float = 0.3
+    min_rest: float = 0.5
+    window: float = 0.1
+
+    def __post_init__(self):
+        for name, v in (("--rest-speed", self.speed), ("--rest-time", self.min_rest)):
+            if not (np.isfinite(v) and v > 0):
+                raise InputError(f"{name} must be a positive number, got {v!r}")
+
+
+def speeds(traj: Trajectory, window: float) -> tuple[np.ndarray, np.ndarray]:
+    """Linear (m/s) and angular (rad/s) speed at each sample, shapes (N,), by central differences of
+    the interpolated pose over ``window`` seconds (clamped to the take): |p(t+w/2) − p(t−w/2)| / Δ and
+    angle(R(t+w/2) R(t−w/2)ᵀ) / Δ, Δ the clamped span."""
+    from rbgp_cli.dynamics.trajectory import interpolate_poses
+    from rbgp_cli.geometry.so3 import quat_make_continuous
+
+    t = traj.t
+    lo = np.clip(t - 0.5 * window, t[0], t[-1])
+    hi = np.clip(t + 0.5 * window, t[0], t[-1])
+    q = quat_make_continuous(traj.quat)
+    qa, pa = interpolate_poses(t, q, traj.position, lo)
+    qb, pb = interpolate_poses(t, q, traj.position, hi)
+    span = np.maximum(hi - lo, 1e-12)
+    v = np.linalg.norm(pb - pa, axis=1) / span
+    dot = np.abs(np.sum(qa * qb, axis=1))
+    ang = 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
+    return v, ang / span
+
+
+def _runs_of(mask: np.ndarray) -> list[tuple[int, int]]:
+    """[a, b) index ranges of the True runs of ``mask``."""
+    m = np.concatenate([[False], mask, [False]]).astype(np.int8)
+    d = np.diff(m)
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
+
+
+def split_at_rest(traj: Trajectory, rest: RestSplit, *, quiet: bool = False):
+    """Cut a clean take into repetitions separated by rests (MATH.md §4.1 conventions).
+
+    Rest samples: linear speed < ``rest.speed`` and angular speed < ``rest.angular_speed``
+    (:func:`speeds` over ``rest.window``). Rest runs shorter than ``rest.min_rest`` count as motion;
+    each remaining motion run, widened by one sample on each side (so it starts and ends at rest), is a
+    repetition named ``NAME#rep1``, ...; motion runs shorter than ``rest.min_rest`` are left out.
+    Returns ``(repetitions, record)``, record = plain data (``repetitions``, ``rests``,
+    ``twitches``, ``spans_s``: [start, end] of each repetition, seconds since the take's start). With
+    no rest found the take comes back whole (and, unless ``quiet``, a warning says so).
+    """
+    t = traj.t
+    n = len(t)
+    v, w = speeds(traj, rest.window)
+    still = (v < rest.speed) & (w < rest.angular_speed)
+    rests = [(a, b) for a, b in _runs_of(still) if t[b - 1] - t[a] >= rest.min_rest]
+    moving = np.ones(n, dtype=bool)
+    for a, b in rests:
+        moving[a:b] = False
+    reps, twitches = [], 0
+    for a, b in _runs_of(moving):
+        a0, b0 = max(a - 1, 0), min(b + 1, n)
+        if t[b0 - 1] - t[a0] < rest.min_rest or b0 - a0 < 3:
+            twitches += 1
+            continue
+        reps.append((a0, b0))
+    t0 = float(t[0])
+    label = f"{traj.name}: " if traj.name else ""
+    how = (f"rest: speed below {rest.speed:g} m/s and {rest.angular_speed:g} rad/s for at least {rest.min_rest:g} s; "
+           "--rest-speed and --rest-time decide")
+    record = {"repetitions": len(reps), "rests": len(rests), "twitches": twitches,
+              "spans_s": [[float(t[a] - t0), float(t[b - 1] - t0)] for a, b in reps]}
+    if len(reps) <= 1 and not rests:
+        if not quiet:
+            warn(f"{label}--split-at-rest found no rest: kept as one demonstration ({how})", path=traj.source or None)
+        record["repetitions"] = 1
+        record["spans_s"] = [[0.0, float(t[-1] - t0)]]
+        return [traj], record
+    if not reps:
+        raise InputError(f"{label}--split-at-rest found only rest, no motion ({how})", path=traj.source or None)
+    out = [_piece(traj, a, b, "rep", k + 1) for k, (a, b) in enumerate(reps)]
+    if not quiet:
+        spans = ", ".join(f"{s:.3g}–{e:.3g} s" for s, e in record["spans_s"][:6]) + (" …" if len(reps) > 6 else "")
+        warn(f"{label}split at rest into {len(out)} repetition{'s' * (len(out) != 1)} ({spans})"
+             + (f"; left out {twitches} motion{'s' * (twitches != 1)} shorter than {rest.min_rest:g} s" if twitches else "")
+             + f" ({how})", path=traj.source or None)
+    return out, record
+
+
+def prepare_all(trajectories, *, max_gap: float | None = None, unit_tolerance: float = 0.1,
+                crop: tuple | None = None, split_gap: float | None = None, rest: RestSplit | None = None,
+                quiet: bool = False) -> tuple[list[Trajectory], list[dict]]:
+    """Clean each trajectory and cut it into demonstrations; returns (demonstrations, reports).
+
+    Per raw trajectory: :func:`crop_trajectory` (``crop`` = (start, end) seconds since the take's
+    start, or None), :func:`prepare_trajectory`, :func:`split_at_breaks` (``split_gap``), then with
+    ``rest`` :func:`split_at_rest`; and :func:`quaternion_order_note` warns about a suspect
+    quaternion order. ``reports`` has one entry per *raw* trajectory (its repair report plus
+    ``breaks`` and ``pieces``, and ``repetitions`` with ``rest``); the demonstrations list may be
+    longer. ``quiet`` suppresses the warnings of splitting (``rbgp inspect`` reports them itself).
+    """
     clean, reports = [], []
     for traj in trajectories:
-        c, r = prepare_trajectory(traj, **kwargs)
-        clean.append(c)
+        if crop is not None:
+            traj = crop_trajectory(traj, *crop)
+        c, r = prepare_trajectory(traj, max_gap=max_gap, unit_tolerance=unit_tolerance)
+        note = quaternion_order_note(c)
+        r["quat_order_suspect"] = note
+        if note and not quiet:
+            warn((f"{c.name}: " if c.name else "") + note, path=c.source or None)
+        pieces, breaks = split_at_breaks(c, split_gap, quiet=quiet)
+        r["breaks"] = breaks
+        if rest is not None:
+            reps, r["rest"] = [], []
+            for piece in pieces:
+                got, rec = split_at_rest(piece, rest, quiet=quiet)
+                reps += got
+                r["rest"].append(rec)
+            pieces = reps
+        r["pieces"] = len(pieces)
+        clean.extend(pieces)
         reports.append(r)
     return clean, reports

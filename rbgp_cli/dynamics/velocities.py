@@ -24,6 +24,7 @@ from rbgp_cli.geometry.so3 import exp_quat, log_quat, quat_conjugate, quat_make_
 __all__ = [
     "forward_differences", "MAX_STEP_ANGLE", "VelocityOptions", "VelocitySegment", "estimate_velocities",
     "local_polynomial", "integration_drift", "window_problem", "SEGMENT_GAP_FACTOR",
+    "segment_split",
 ]
 
 #: A step rotating by (nearly) π cannot tell its direction: the sampling is too coarse (MATH.md §4).
@@ -132,6 +133,13 @@ class VelocitySegment:
         return len(self.xi) == len(self.traj) - 1
 
 
+def segment_split(t: np.ndarray, rate: float | None = None) -> float:
+    """Seconds: a step of a clean demonstration longer than this separates velocity segments (no
+    training pair crosses it): max(SEGMENT_GAP_FACTOR × the median step, two training steps 2/rate)."""
+    med = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    return max(SEGMENT_GAP_FACTOR * med, 2.0 / rate if rate else 0.0)
+
+
 def _segments(t: np.ndarray, split: float) -> list[tuple[int, int]]:
     """Index ranges [a, b) of stretches without a step longer than ``split`` seconds."""
     cuts = np.flatnonzero(np.diff(t) > split) + 1
@@ -227,9 +235,7 @@ def estimate_velocities(traj: Trajectory, options: VelocityOptions | None = None
     if len(t) < 2:
         raise InputError(f"needs at least 2 samples for a velocity, has {len(t)}", path=traj.source or traj.name or None)
     q = quat_make_continuous(traj.quat)
-    med = float(np.median(np.diff(t)))
-    h = None if options.rate is None else 1.0 / options.rate
-    split = max(SEGMENT_GAP_FACTOR * med, 2.0 * (h or 0.0))
+    split = segment_split(t, options.rate)
     out = []
     for a, b in _segments(t, split):
         ts, qs, ps = t[a:b], q[a:b], traj.position[a:b]

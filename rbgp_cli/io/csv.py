@@ -814,7 +814,13 @@ def _rotation(plan: _Plan, data: dict, options: ReadOptions, source: str):
     if kind == "quaternion":
         q = np.stack([data["qx"], data["qy"], data["qz"], data["qw"]], axis=-1)
         order = "".join(sorted("xyzw", key=lambda c: plan.roles[f"q{c}"].index))
-        return q, f"quaternion {order}"
+        chosen = (options.quat_order or "").lower()
+        if chosen in ("xyzw", "wxyz") and chosen != order:
+            # --quat-order overrides the labels: the four columns, in file order, are `chosen`
+            in_file = np.stack([data[f"q{c}"] for c in order], axis=-1)
+            q = in_file if chosen == "xyzw" else in_file[:, [1, 2, 3, 0]]
+            return q, f"quaternion {chosen} (--quat-order, over columns labelled {order})"
+        return q, f"quaternion {order}" + (" (--quat-order)" if chosen == order else "")
     if kind == "numbered":
         names = ", ".join(plan.roles[r].name for r in _KIND_ROLES[kind])
         order = (options.quat_order or "").lower()

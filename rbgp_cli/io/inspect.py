@@ -81,7 +81,56 @@ def _describe(fmt: str, path: str, options: ReadOptions):
     return fn(path, options) if fn is not None else None
 
 
-def inspect_file(path, options: ReadOptions | None = None, stdin=None) -> dict:
+def prepared_summary(traj, options: ReadOptions, max_gap: float | None = None) -> dict:
+    """What train's preparation (:func:`rbgp_cli.dynamics.prepare.prepare_all`, the same call with the
+    same options) does to one raw trajectory, as plain data: sample-and-hold repeats and their runs,
+    lost frames dropped or filled, duplicates, breaks that split it, gaps no training pair crosses (at
+    the default training rate), the demonstrations and repetitions it becomes, a suspect quaternion
+    order, or the error train would stop with (``prepare_error``)."""
+    from rbgp_cli.dynamics.defaults import DEFAULTS
+    from rbgp_cli.dynamics.prepare import prepare_all
+    from rbgp_cli.dynamics.velocities import segment_split
+
+    import warnings
+
+    from rbgp_cli.errors import RbgpWarning
+
+    try:
+        with warnings.catch_warnings():  # the repairs are reported below, not warned about
+            warnings.simplefilter("ignore", RbgpWarning)
+            pieces, (rep,) = prepare_all([traj], max_gap=max_gap, quiet=True, **options.prepare_kwargs())
+    except InputError as exc:
+        return {"prepare_error": str(exc)}
+    gaps = []
+    thr = None
+    for c in pieces:
+        if len(c) > 1:
+            thr = segment_split(c.t, DEFAULTS["train_rate"])
+            d = np.diff(c.t)
+            gaps += d[d > thr].tolist()
+    brk = [b["gap_s"] for b in rep.get("breaks", [])]
+    steps = np.concatenate([np.diff(c.t) for c in pieces]) if pieces else np.empty(0)
+    med = float(np.median(steps)) if len(steps) else None
+    clean_gaps = steps[steps > _GAP_FACTOR * med] if med else np.empty(0)
+    out = {
+        # the steps of what train keeps (held and lost samples dropped), breaks apart
+        "gaps": {"count": int(len(clean_gaps)), "largest_s": _float(clean_gaps.max()) if len(clean_gaps) else None},
+        "held": rep["held"], "held_runs": rep["held_runs"], "lost": rep["lost"], "dropped": rep["dropped"],
+        "filled": rep["filled"], "duplicates": rep["duplicates"], "sign_flips": rep["sign_flips"],
+        "breaks": {"count": len(brk), "largest_s": max(brk) if brk else None,
+                   "after_s": [b["after_s"] for b in rep.get("breaks", [])]},
+        "training_gaps": {"count": len(gaps), "largest_s": max(gaps) if gaps else None, "longer_than_s": thr},
+        "demonstrations": len(pieces),
+        "samples_used": int(sum(len(c) for c in pieces)),
+        "quat_order_suspect": rep.get("quat_order_suspect"),
+    }
+    if "rest" in rep:
+        out["repetitions"] = int(sum(r["repetitions"] for r in rep["rest"]))
+        out["repetition_spans_s"] = [s for r in rep["rest"] for s in r["spans_s"]]
+    return out
+
+
+def inspect_file(path, options: ReadOptions | None = None, stdin=None, *, max_gap: float | None = None) -> dict:
     """Describe one file (``-``: stdin) as plain data.
 
     Returns ``{"path", "format", "bytes", "description", "trajectories": [...], "error", "needs"}``:
@@ -93,7 +142,7 @@ def inspect_file(path, options: ReadOptions | None = None, stdin=None) -> dict:
     options = options or ReadOptions()
     path = str(path)
     if path == "-":
-        return _inspect_stdin(options, stdin)
+        return _inspect_stdin(options, stdin, max_gap)
     from rbgp_cli.io.read import _format_option, detect_format, read_file
 
     p = Path(path)
@@ -127,7 +176,7 @@ def inspect_file(path, options: ReadOptions | None = None, stdin=None) -> dict:
     except InputError as exc:
         out["error"] = str(exc)
         trajs = []
-    out["trajectories"] = [trajectory_summary(t) for t in trajs]
+    out["trajectories"] = [{**trajectory_summary(t), **prepared_summary(t, options, max_gap)} for t in trajs]
     return _finish(out, options)
 
 
@@ -136,7 +185,7 @@ def _finish(out: dict, options: ReadOptions) -> dict:
     return out
 
 
-def _inspect_stdin(options: ReadOptions, stdin) -> dict:
+def _inspect_stdin(options: ReadOptions, stdin, max_gap=None) -> dict:
     import tempfile
 
     from rbgp_cli.io.read import MCAP_MAGIC, detect_format
@@ -153,7 +202,7 @@ def _inspect_stdin(options: ReadOptions, stdin) -> dict:
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
-        out = inspect_file(tmp, options)
+        out = inspect_file(tmp, options, max_gap=max_gap)
     finally:
         os.unlink(tmp)
 
@@ -372,8 +421,15 @@ def _trajectory_rows(tr: dict) -> list[str]:
                  f"{_fmt_num(tr['rate_hz'], ' Hz')} median rate")
     g = tr["gaps"]
     gap = f"{g['count']} gaps" + (f" (largest {_fmt_num(g['largest_s'], ' s')})" if g["count"] else "")
-    lines.append(f"    {tr['lost_frames']} lost frames, {gap}"
+    held = tr.get("held") or 0
+    lost = f"{tr['lost_frames'] + held} lost frames" + (
+        f" ({held} repeat the previous pose exactly, sample-and-hold in {_plural(tr.get('held_runs') or 0, 'run')})"
+        if held else "")
+    lines.append(f"    {lost}, {gap}"
                  + (f", {tr['non_increasing_times']} non-increasing times" if tr["non_increasing_times"] else ""))
+    acts = _train_acts(tr)
+    if acts:
+        lines.append("    train: " + "; ".join(acts))
     conv = []
     if "length_unit" in tr:
         conv.append(f"length {tr['length_unit']}" + (f" ({tr['length_unit_source']})" if "length_unit_source" in tr else ""))
@@ -391,7 +447,38 @@ def _trajectory_rows(tr: dict) -> list[str]:
     if tr.get("position_min_m") is not None:
         rng = ", ".join(f"{a} {lo:.4g} .. {hi:.4g}" for a, lo, hi in zip("xyz", tr["position_min_m"], tr["position_max_m"]))
         lines.append(f"    position {rng} m")
+    if tr.get("quat_order_suspect"):
+        lines.append(f"    warning: {tr['quat_order_suspect']}")
+    if tr.get("prepare_error"):
+        lines.append(f"    train would stop: {tr['prepare_error']}")
     return lines
+
+
+def _train_acts(tr: dict) -> list[str]:
+    """What train's preparation does to the trajectory (:func:`prepared_summary`), in words."""
+    acts = []
+    if tr.get("dropped"):
+        acts.append(f"drops {_plural(tr['dropped'], 'lost frame')}")
+    if tr.get("filled"):
+        acts.append(f"fills {_plural(tr['filled'], 'lost frame')} (--max-gap)")
+    if tr.get("duplicates"):
+        acts.append(f"drops {_plural(tr['duplicates'], 'duplicate sample')}")
+    used = tr.get("samples_used")
+    if used is not None and tr.get("samples") and used < tr["samples"] - (tr.get("dropped") or 0) - (tr.get("duplicates") or 0):
+        acts.append(f"uses {used} of {tr['samples']} samples")
+    b = tr.get("breaks") or {}
+    if b.get("count"):
+        acts.append(f"splits it at {_plural(b['count'], 'break')} (up to {_fmt_num(b['largest_s'], ' s')} without a sample; "
+                    f"--split-gap decides) into {_plural(tr['demonstrations'], 'demonstration')}")
+    if "repetitions" in tr:
+        spans = ", ".join(f"{_fmt_num(a, '', 3)}–{_fmt_num(e, ' s', 3)}" for a, e in tr["repetition_spans_s"][:6])
+        acts.append(f"splits it at rest into {_plural(tr['repetitions'], 'repetition')} ({spans}"
+                    + (" …" if len(tr["repetition_spans_s"]) > 6 else "") + ")")
+    g = tr.get("training_gaps") or {}
+    if g.get("count"):
+        acts.append(f"{_plural(g['count'], 'gap')} longer than {_fmt_num(g['longer_than_s'], ' s', 3)} (largest "
+                    f"{_fmt_num(g['largest_s'], ' s')}) that no training pair crosses")
+    return acts
 
 
 def format_inspect(d: dict) -> str:
@@ -412,3 +499,73 @@ def format_inspect(d: dict) -> str:
     if d.get("error"):
         lines.append(f"  error: {d['error']}")
     return "\n".join(lines)
+
+
+#: ``rbgp inspect`` on more files than this prints one line per file (full detail with -v).
+COMPACT_ABOVE = 5
+
+
+def _problems(d: dict) -> list[str]:
+    """Short words for what train would act on or stop at in one file's description."""
+    out = []
+    if d.get("error"):
+        out.append("unreadable")
+    trs = d.get("trajectories") or []
+    held = sum(t.get("held") or 0 for t in trs)
+    lost = sum(t.get("lost_frames") or 0 for t in trs)
+    gaps = sum((t.get("training_gaps") or {}).get("count") or 0 for t in trs)
+    breaks = sum((t.get("breaks") or {}).get("count") or 0 for t in trs)
+    if held:
+        out.append(f"{held} sample-and-hold")
+    if lost:
+        out.append(_plural(lost, "lost frame"))
+    if gaps:
+        out.append(_plural(gaps, "gap"))
+    if breaks:
+        out.append(_plural(breaks, "break"))
+    if any(t.get("quat_order_suspect") for t in trs):
+        out.append("quaternion order?")
+    if any(t.get("prepare_error") for t in trs):
+        out.append("train would stop")
+    return out
+
+
+def format_compact(d: dict) -> str:
+    """One line for one file: format, trajectories, samples, duration, rate, problems (or the error)."""
+    trs = d.get("trajectories") or []
+    rates = [t["rate_hz"] for t in trs if t.get("rate_hz")]
+    dur = sum(t.get("duration_s") or 0.0 for t in trs)
+    head = (f"{d['path']}: {_FORMATS.get(d.get('format'), d.get('format') or 'unknown format')}, "
+            f"{_plural(len(trs), 'trajectory').replace('trajectorys', 'trajectories')}, "
+            f"{sum(t['samples'] for t in trs)} samples, {_fmt_num(dur, ' s')}"
+            + (f", {_fmt_num(float(np.median(rates)), ' Hz')}" if rates else ""))
+    probs = _problems(d)
+    line = head + (f"; {', '.join(probs)}" if probs else "")
+    if d.get("error"):
+        line += f"\n  error: {d['error']}"
+    for t in trs:
+        if t.get("prepare_error"):
+            line += f"\n  train would stop: {t['prepare_error']}"
+    return line
+
+
+def format_summary(results: list[dict]) -> str:
+    """The last line of ``rbgp inspect`` on several files: files, trajectories and demonstrations,
+    total duration, rates, and how many files have each problem."""
+    trs = [t for d in results for t in d.get("trajectories") or []]
+    rates = [t["rate_hz"] for t in trs if t.get("rate_hz")]
+    dur = sum(t.get("duration_s") or 0.0 for t in trs)
+    demos = sum(t.get("demonstrations", 1) for t in trs if not t.get("prepare_error"))
+    counts: dict = {}
+    for d in results:
+        for p in _problems(d):
+            key = p.split(" ", 1)[1] if p[0].isdigit() else p
+            key = {"lost frame": "lost frames", "gap": "gaps", "break": "breaks"}.get(key, key)
+            counts[key] = counts.get(key, 0) + 1
+    rate = ("" if not rates else f", {_fmt_num(min(rates), ' Hz')}" if _fmt_num(min(rates)) == _fmt_num(max(rates))
+            else f", {_fmt_num(min(rates))}–{_fmt_num(max(rates), ' Hz')}")
+    probs = "; problems: " + ", ".join(f"{v} with {k}" if k not in ("unreadable", "train would stop") else
+                                       f"{v} {'unreadable' if k == 'unreadable' else 'that train would stop at'}"
+                                       for k, v in counts.items()) if counts else "; no problems"
+    return (f"{_plural(len(results), 'file')}, {_plural(len(trs), 'trajectory').replace('trajectorys', 'trajectories')}"
+            f" -> {_plural(demos, 'demonstration')}, {_fmt_num(dur, ' s')} in all{rate}{probs}")

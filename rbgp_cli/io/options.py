@@ -23,7 +23,8 @@ class ReadOptions:
     columns : explicit column mapping for CSV, e.g. ``{"t": "stamp", "qx": "ox", ...}``; keys among
         t, x, y, z, qx, qy, qz, qw, rx, ry, rz, roll, pitch, yaw, demo.
     quat_order : ``xyzw`` or ``wxyz``, for columns named q0..q3 (or quaternion columns in a vendor
-        export whose order is not stated).
+        export whose order is not stated); for CSV columns named qx, qy, qz, qw it overrides the
+        names: the four columns, in file order, are taken in this order.
     euler_order : scipy-style sequence (``xyz`` extrinsic, ``XYZ`` intrinsic) for Euler columns.
     degrees : Euler angles in degrees (None: from the file's header/unit suffixes, else radians).
     length_unit : ``m``, ``cm`` or ``mm`` (None: from the file, else metres with a hint if values
@@ -33,6 +34,14 @@ class ReadOptions:
     topic : MCAP topic; frame : child frame (TF); time_source : ``header`` or ``log``.
     body : rigid body / segment name in vendor exports with several bodies.
     rotation : Vicon RX,RY,RZ meaning: ``helical`` (axis-angle, default) or ``euler``.
+
+    How the samples read are cut into demonstrations (:func:`rbgp_cli.dynamics.prepare.prepare_all`):
+
+    split_gap : seconds; a step with no sample longer than this splits a demonstration (None: 20 ×
+        its median step and at least 2 s; ``inf``: never).
+    crop_from, crop_to : seconds since each take's first sample; keep only the samples in between.
+    split_at_rest : cut each take into repetitions separated by rests (speed below ``rest_speed``
+        m/s, angular speed below 0.3 rad/s, for at least ``rest_time`` s).
     """
 
     format: str = "auto"
@@ -48,3 +57,21 @@ class ReadOptions:
     time_source: str = "header"
     body: str | None = None
     rotation: str | None = None
+    split_gap: float | None = None
+    crop_from: float | None = None
+    crop_to: float | None = None
+    split_at_rest: bool = False
+    rest_speed: float | None = None
+    rest_time: float | None = None
+
+    def prepare_kwargs(self) -> dict:
+        """Keyword arguments of :func:`rbgp_cli.dynamics.prepare.prepare_all` (crop, split_gap, rest)."""
+        out: dict = {"split_gap": self.split_gap}
+        if self.crop_from is not None or self.crop_to is not None:
+            out["crop"] = (self.crop_from, self.crop_to)
+        if self.split_at_rest:
+            from rbgp_cli.dynamics.prepare import RestSplit
+
+            kw = {k: v for k, v in (("speed", self.rest_speed), ("min_rest", self.rest_time)) if v is not None}
+            out["rest"] = RestSplit(**kw)
+        return out

@@ -73,7 +73,9 @@ def test_vendor_exports_inspect_and_train(realdata, tmp_path):
         res = run("train", f, "--body", "Upper Leg IMU", "-o", tmp_path / "q.rbgp", *FAST)
         assert res.exit_code == 0, res.stderr
     f = realdata / "motive_csv" / "optitrack_euler.csv"
-    assert run("inspect", f).exit_code == 0
+    res = run("inspect", f)  # described, with the options it still needs; exit 2: it cannot be read as is
+    assert res.exit_code == 2 and "still needed" in res.stdout and "--length-unit" in res.stdout
+    assert run("inspect", f, "--length-unit", "cm", "--euler-order", "XYZ").exit_code == 0
     res = run("train", f, "--body", "RigidBody 01", "--length-unit", "cm", "--euler-order", "XYZ", "-o", tmp_path / "m.rbgp", *FAST)
     assert res.exit_code == 0, res.stderr
 

@@ -664,7 +664,14 @@ def _cut_mcap_described(d):
     assert tr["topic"] == B.TOPIC and 2 < tr["samples"] < N and tr["lost_frames"] == 0
 
 
-def _garbage_described(d):
+def test_inspect_describes_binary_garbage_and_exits_2(tmp_path, tiny_model_path):
+    """A file inspect cannot read is described (JSON on stdout) and the exit code is 2 (it was 0)."""
+    ctx = Ctx(tmp_path, tiny_model_path)
+    ctx.inp.mkdir()
+    res = run_cli("inspect", _binary_file(ctx), "--json")
+    assert res.exit_code == 2 and "Traceback" not in res.stderr
+    assert res.stderr.strip().splitlines() == [f"rbgp: error: 1 of 1 file could not be read: {_binary_file(ctx)}"]
+    d = json.loads(res.stdout)
     assert d["trajectories"] == [] and "not a text file" in d["error"]
 
 
@@ -875,8 +882,6 @@ CASES = [
     Case("starts_file_binary", _rollout_starts(b"\x00\x01\x02" * 50), error=("starts.csv", "not a text file")),
     # --- inspect describes damage instead of failing
     Case("inspect_truncated_mcap", _inspect_cut_mcap, check=_inspect_json(_cut_mcap_described)),
-    Case("inspect_binary_garbage", lambda c: ["inspect", _binary_file(c), "--json"],
-         check=_inspect_json(_garbage_described)),
     # --- evaluate
     Case("evaluate_no_generated", _evaluate(), error=("no generated trajectories", "--model")),
     Case("evaluate_generated_header_only", _evaluate(gen_text=",".join(B.COLUMNS) + "\n"),
