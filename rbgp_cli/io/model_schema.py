@@ -314,14 +314,14 @@ def _agree(h: dict) -> None:
 # ---------------------------------------------------------------------------------------------- arrays
 
 
-def expected_arrays(h: dict) -> tuple[set, set]:
-    """(required, allowed) array names of a validated header."""
+def expected_arrays(h: dict) -> set:
+    """The array names a validated header needs (exactly these are allowed)."""
     req = {"X", "Y", "y_scale", "starts", "durations"}
     if (h.get("gp") or {}).get("type") == "sparse":
         req |= {"Z", "Lm", "LB", "c"}
     if (h.get("prior") or {}).get("kind") == "path":
         req |= {"prior_s", "prior_quat", "prior_position", "prior_velocity"}
-    return req, req
+    return req
 
 
 def _shape(arrays, name, want, what):
@@ -341,11 +341,11 @@ def _finite(arrays, name, positive_values=False):
 def validate_arrays(h: dict, arrays: dict) -> None:
     """Every array against the validated header ``h``: present or absent as it says, float64, its
     shape, finite (and positive where it is a scale or a duration)."""
-    req, allowed = expected_arrays(h)
+    req = expected_arrays(h)
     for name in sorted(req):
         if name not in arrays:
             raise SchemaError(f"array {name!r} is missing from the model file")
-    for name in sorted(set(arrays) - allowed):
+    for name in sorted(set(arrays) - req):
         raise SchemaError(f"array {name!r} does not belong to this model (its header has no use for it)")
     for name, a in arrays.items():
         if a.dtype.kind != "f" or a.dtype.itemsize != 8:

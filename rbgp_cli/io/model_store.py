@@ -14,12 +14,22 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
 * Version 3: a sparse GP (:mod:`rbgp_cli.gp.sparse`; header ``"gp": {"type": "sparse", "inducing": M}``)
   also holds ``Z`` (M, d) inducing inputs and, per hyperparameter set g (one per output, or one shared),
   the posterior's factors ``Lm`` (G, M, M), ``LB`` (G, M, M) and ``c`` (M, L) (the columns of set g's
-  outputs); loading checks them against k(Z, Z) instead of refactorising all n points. Exact models
-  are still written as version 2, which older rbgp reads.
+  outputs); loading checks them against k(Z, Z) instead of refactorising all n points.
+* Version 4 (what this rbgp writes, exact and sparse): ``checksums.header`` is the SHA-256 of the
+  header's :func:`canonical_json` without that entry, and ``gp`` is always present (``{"type":
+  "exact"}`` or the sparse one). Versions 1–3 have no header checksum and still load (a header
+  checksum is verified wherever present; a version-4 file without one is refused).
 
-Loading uses ``allow_pickle=False``, checks the format name and version, verifies every checksum,
-rebuilds the GP and re-runs its Cholesky factorisation. Any failure is an :class:`InputError`
-naming the file and what to do. Files are written atomically (temporary name, then rename).
+Loading reads the zip itself (never unpickling: .npy members of plain numbers only) with limits
+checked before anything large is decompressed: a member may decompress to at most
+:data:`MAX_RATIO` × its compressed size + :data:`RATIO_SLACK` (zip bombs reach ~1000×), its .npy
+header's shape × itemsize must equal the member's size (a declared 10¹⁰ rows is refused before any
+allocation), the header JSON is at most :data:`MAX_HEADER_BYTES`, nested at most
+:data:`MAX_HEADER_DEPTH` deep (counted without recursion) with numbers of at most 40 digits. Then
+the format name, the header checksum, the version, every array's checksum, every header field
+(:mod:`rbgp_cli.io.model_schema`) and every array against the header; finally the GP is rebuilt
+(Cholesky re-run). Any failure is an :class:`InputError` naming the file and what to do. Files are
+written atomically (temporary name, then rename).
 """
 
 from __future__ import annotations
@@ -400,6 +410,11 @@ def load_model(path):
         velocity, time_input, mean = _model_extras(header, arrays, rep, X)
     except RbgpError as exc:
         raise _bad(path, f"the model cannot be rebuilt: {exc.message}") from None
+    except MemoryError:  # not --max-points of a training: this file's GP needs more memory than there is
+        n = len(arrays["X"])
+        raise _bad(path, f"not enough memory to rebuild the model's GP on {n} training points "
+                         f"(an {n} × {n} matrix: {8 * n * n / 2**30:.3g} GiB)",
+                   "use a machine with more memory, or retrain with fewer --max-points") from None
     except (KeyError, TypeError, ValueError, IndexError, AttributeError, ArithmeticError) as exc:
         raise _bad(path, f"the model header is inconsistent ({type(exc).__name__}: {str(exc)[:80]})") from None
     return MotionModel(rep, gp, dt, arrays["starts"], arrays["durations"],

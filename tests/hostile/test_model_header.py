@@ -403,3 +403,16 @@ def test_every_single_field_mutation_is_refused_or_gives_a_working_model(tiny_mo
             assert np.all(np.isfinite(mean)) and np.all(np.isfinite(std)), (p, value)
             format_model_info(str(f), {**loaded, "training_points": len(model.gp.X)})
     assert outcomes["refused"] > 0 and outcomes["loaded"] > 0, outcomes
+
+
+def test_a_gp_too_large_for_memory_is_refused_naming_the_file(tiny_model, monkeypatch):
+    """Not the training's "use --max-points" hint: the file is what is too big."""
+    from rbgp_cli.gp import exact
+
+    def no_memory(self, *a, **k):
+        raise MemoryError
+
+    monkeypatch.setattr(exact.GaussianProcess, "_factorise", no_memory)
+    res = run_cli("rollout", tiny_model, "--steps", "3")
+    assert res.exit_code == 2 and res.stderr.startswith(f"rbgp: error: {tiny_model}: not enough memory to rebuild")
+    assert "--max-points" in res.stderr and "out of memory; use --max-points or --subsample" not in res.stderr
