@@ -416,3 +416,20 @@ def test_a_gp_too_large_for_memory_is_refused_naming_the_file(tiny_model, monkey
     res = run_cli("rollout", tiny_model, "--steps", "3")
     assert res.exit_code == 2 and res.stderr.startswith(f"rbgp: error: {tiny_model}: not enough memory to rebuild")
     assert "--max-points" in res.stderr and "out of memory; use --max-points or --subsample" not in res.stderr
+
+
+def test_an_old_sparse_file_version_3_loads_and_gives_the_same_outputs(tmp_path):
+    folder = tmp_path / "demos"
+    folder.mkdir()
+    for k in range(2):
+        B.write_csv(folder / f"demo_{k}.csv", B.smooth_motion(seed=k, name=f"demo_{k}"))
+    path = tmp_path / "sparse.rbgp"
+    res = run_cli("train", folder, "-o", path, *B.FAST, "--inducing", "12")
+    assert res.exit_code == 0, res.stderr
+    header, arrays = B.read_model_npz(path)
+    assert header["version"] == 4 and header["gp"]["type"] == "sparse" and "Z" in arrays  # (at most 12 inducing poses)
+    old = B.write_model_npz(tmp_path / "v3.rbgp", B.as_old_version(header, 3), arrays, header_checksum=False)
+    assert rollout_csv(old) == rollout_csv(path)
+    h = B.as_old_version(header, 3)
+    del h["gp"]  # version 3 always says what GP it holds: without it the sparse arrays would be ignored
+    refused(B.write_model_npz(tmp_path / "nogp.rbgp", h, arrays, header_checksum=False), "gp is missing")
