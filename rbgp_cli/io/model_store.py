@@ -280,7 +280,7 @@ def _read_array(zf: zipfile.ZipFile, info: zipfile.ZipInfo, path, name: str) -> 
         buf = np.empty(nbytes, dtype=np.uint8)
         view, pos = memoryview(buf), 0
         while pos < nbytes:
-            k = fp.readinto(view[pos:pos + (1 << 24)])
+            k = fp.readinto(view[pos:pos + (1 << 20)])  # 1 MiB: faster than larger reads (measured)
             if not k:
                 raise _bad(path, f"array {name!r} is cut short")
             pos += k
