@@ -123,12 +123,13 @@ def info(
     model: Annotated[str, typer.Argument(help="Model file written by rbgp train.")],
     json_out: Annotated[bool, typer.Option("--json", help="Print the header as JSON.")] = False,
 ):
-    """Show what a model file holds and how it was made (verifies its checksums)."""
-    from rbgp_cli.io.model_store import read_header
+    """Show what a model file holds and how it was made (verifies it as every command loading it does:
+    checksums of the header and the arrays, every field, the GP rebuilt)."""
+    from rbgp_cli.io.model_store import load_model
 
-    header, arrays = read_header(model)
+    m, header = load_model(model)
     header = dict(header)
-    header["training_points"] = int(arrays["X"].shape[0])
+    header["training_points"] = int(m.gp.X.shape[0])
     if json_out:
         emit_json(header)
     else:

@@ -14,12 +14,22 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
 * Version 3: a sparse GP (:mod:`rbgp_cli.gp.sparse`; header ``"gp": {"type": "sparse", "inducing": M}``)
   also holds ``Z`` (M, d) inducing inputs and, per hyperparameter set g (one per output, or one shared),
   the posterior's factors ``Lm`` (G, M, M), ``LB`` (G, M, M) and ``c`` (M, L) (the columns of set g's
-  outputs); loading checks them against k(Z, Z) instead of refactorising all n points. Exact models
-  are still written as version 2, which older rbgp reads.
+  outputs); loading checks them against k(Z, Z) instead of refactorising all n points.
+* Version 4 (what this rbgp writes, exact and sparse): ``checksums.header`` is the SHA-256 of the
+  header's :func:`canonical_json` without that entry, and ``gp`` is always present (``{"type":
+  "exact"}`` or the sparse one). Versions 1–3 have no header checksum and still load (a header
+  checksum is verified wherever present; a version-4 file without one is refused).
 
-Loading uses ``allow_pickle=False``, checks the format name and version, verifies every checksum,
-rebuilds the GP and re-runs its Cholesky factorisation. Any failure is an :class:`InputError`
-naming the file and what to do. Files are written atomically (temporary name, then rename).
+Loading reads the zip itself (never unpickling: .npy members of plain numbers only) with limits
+checked before anything large is decompressed: a member may decompress to at most
+:data:`MAX_RATIO` × its compressed size + :data:`RATIO_SLACK` (zip bombs reach ~1000×), its .npy
+header's shape × itemsize must equal the member's size (a declared 10¹⁰ rows is refused before any
+allocation), the header JSON is at most :data:`MAX_HEADER_BYTES`, nested at most
+:data:`MAX_HEADER_DEPTH` deep (counted without recursion) with numbers of at most 40 digits. Then
+the format name, the header checksum, the version, every array's checksum, every header field
+(:mod:`rbgp_cli.io.model_schema`) and every array against the header; finally the GP is rebuilt
+(Cholesky re-run). Any failure is an :class:`InputError` naming the file and what to do. Files are
+written atomically (temporary name, then rename).
 """
 
 from __future__ import annotations
@@ -27,6 +37,9 @@ from __future__ import annotations
 import datetime as _dt
 import hashlib
 import json
+import math
+import os
+import re
 import zipfile
 import zlib
 
@@ -36,11 +49,23 @@ from rbgp_cli import __version__
 from rbgp_cli.errors import InputError, RbgpError
 from rbgp_cli.io.atomic import atomic_open
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "save_model", "load_model", "file_sha256", "array_sha256"]
+__all__ = ["FORMAT", "FORMAT_VERSION", "save_model", "load_model", "read_header", "file_sha256", "array_sha256",
+           "header_sha256", "canonical_json"]
 
 FORMAT = "rbgp-model"
-#: The newest version this rbgp reads and writes (3: sparse GPs; exact models are written as 2).
-FORMAT_VERSION = 3
+#: The version this rbgp writes (4: the header checksummed, ``gp`` always present); it reads 1–4.
+FORMAT_VERSION = 4
+#: Limits checked before anything large is read (a model of 10⁶ training points is ~100 MB).
+MAX_HEADER_BYTES = 16 << 20
+MAX_HEADER_DEPTH = 32
+MAX_ARRAY_BYTES = 8 << 30
+#: an array may decompress to at most MAX_RATIO × its compressed size + RATIO_SLACK (float data
+#: compress ~1.1–3×; deflate's limit, reached by zip bombs of zeros, is ~1030×)
+MAX_RATIO = 20
+RATIO_SLACK = 8 << 20
+MAX_MEMBERS = 64
+#: digits of a JSON number (a float's repr has at most 17; Python refuses ints beyond 4300)
+_MAX_DIGITS = 40
 _ARRAYS = ("X", "Y", "y_scale", "starts", "durations")
 #: Arrays of a sparse GP (version 3).
 _SPARSE_ARRAYS = ("Z", "Lm", "LB", "c")
@@ -110,7 +135,7 @@ def save_model(model, path) -> dict:
         arrays["c"] = np.ascontiguousarray(np.concatenate([st[2] for st in gp.stats], axis=1), dtype=np.float64)
     header = {
         "format": FORMAT,
-        "version": 3 if sparse else 2,
+        "version": FORMAT_VERSION,
         "rbgp_version": __version__,
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "representation": model.representation.to_dict(),
@@ -127,9 +152,10 @@ def save_model(model, path) -> dict:
         "provenance": _jsonable(model.provenance),
         "checksums": {k: array_sha256(v) for k, v in arrays.items()},
     }
-    if sparse:
-        header["gp"] = {"type": "sparse", "inducing": int(len(gp.Z))}
-    raw = json.dumps(header, sort_keys=True, allow_nan=True).encode("utf-8")
+    header["gp"] = {"type": "sparse", "inducing": int(len(gp.Z))} if sparse else {"type": "exact"}
+    header = json.loads(canonical_json(header))  # as a reader will parse it (keys as strings, tuples as lists)
+    header["checksums"]["header"] = header_sha256(header)
+    raw = canonical_json(header)
     try:
         with atomic_open(path, "wb") as fh:
             np.savez_compressed(fh, header=np.frombuffer(raw, dtype=np.uint8), **arrays)
@@ -143,6 +169,20 @@ def _bad(path, what, hint="retrain it with rbgp train or restore it from a backu
     return InputError(what, path=str(path), hint=hint)
 
 
+def canonical_json(header: dict) -> bytes:
+    """The header's canonical serialisation (what its checksum covers): keys sorted, no spaces,
+    ASCII only, non-finite numbers as NaN / Infinity, floats as Python's shortest repr."""
+    return json.dumps(header, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=True).encode("ascii")
+
+
+def header_sha256(header: dict) -> str:
+    """SHA-256 of the header's :func:`canonical_json` without its own entry ``checksums.header``."""
+    h = dict(header)
+    if isinstance(h.get("checksums"), dict):
+        h["checksums"] = {k: v for k, v in h["checksums"].items() if k != "header"}
+    return hashlib.sha256(canonical_json(h)).hexdigest()
+
+
 def _head(path, n: int) -> bytes:
     """The first ``n`` bytes of a path or an open binary file (left where it was)."""
     if hasattr(path, "read"):
@@ -154,38 +194,182 @@ def _head(path, n: int) -> bytes:
         return fh.read(n)
 
 
-def read_header(path) -> tuple[dict, dict]:
-    """Header and arrays of a model file, verified (format, version, checksums); no GP rebuilt."""
+def _file_size(path) -> int:
+    if hasattr(path, "seek"):
+        pos = path.tell()
+        size = path.seek(0, 2)
+        path.seek(pos)
+        return size
+    return os.path.getsize(path)
+
+
+_STRING = re.compile(rb'"(?:[^"\\]|\\.)*"')
+
+
+def _json_depth(raw: bytes) -> int:
+    """Deepest nesting of ``[`` / ``{`` in JSON text, strings skipped (no recursion, vectorised)."""
+    b = np.frombuffer(_STRING.sub(b'""', raw), dtype=np.uint8)
+    step = (np.isin(b, (ord("["), ord("{"))).astype(np.int32) - np.isin(b, (ord("]"), ord("}"))))
+    return int(np.max(np.cumsum(step), initial=0))
+
+
+def _parse_int(text: str) -> int:
+    if len(text.lstrip("-")) > _MAX_DIGITS:
+        raise ValueError(f"an integer of {len(text)} digits")
+    return int(text)
+
+
+def _parse_float(text: str) -> float:
+    if len(text) > _MAX_DIGITS + 30:
+        raise ValueError(f"a number of {len(text)} characters")
+    return float(text)
+
+
+def _parse_header(path, raw: bytes) -> dict:
+    """The header JSON, parsed with bounded size, depth and number lengths."""
+    if len(raw) > MAX_HEADER_BYTES:
+        raise _bad(path, f"the model header is {len(raw)} bytes, more than the {MAX_HEADER_BYTES >> 20} MiB a model header may have")
+    if _json_depth(raw) > MAX_HEADER_DEPTH:
+        raise _bad(path, f"the model header is nested more than {MAX_HEADER_DEPTH} levels deep: not a header rbgp wrote")
     try:
-        magic = _head(path, 4)
-        if not magic:
-            raise _bad(path, "the model file is empty")
-        if magic != b"PK\x03\x04":  # np.load would try to unpickle it and suggest allowing that, which misleads
-            raise _bad(path, "not an rbgp model file (.rbgp files are zip archives; this one is not)",
-                       "pass a file written by rbgp train")
-        with np.load(path, allow_pickle=False) as z:
-            names = set(z.files)
+        header = json.loads(raw.decode("utf-8"), parse_int=_parse_int, parse_float=_parse_float)
+    except UnicodeDecodeError:
+        raise _bad(path, "the model header is damaged (not UTF-8)") from None
+    except RecursionError:  # not reached after the depth check; kept as a guard
+        raise _bad(path, "the model header is nested too deeply") from None
+    except ValueError as exc:  # json.JSONDecodeError, and the number limits above
+        raise _bad(path, f"the model header is damaged ({str(exc)[:80]})") from None
+    return header
+
+
+def _member_info(zf: zipfile.ZipFile, path, name: str, disk: int) -> zipfile.ZipInfo:
+    """The zip entry of array ``name``, refused before reading if it declares more than a model
+    file can hold: beyond the file, beyond :data:`MAX_RATIO` × its compressed size (+ slack), or
+    beyond :data:`MAX_ARRAY_BYTES`."""
+    info = zf.getinfo(f"{name}.npy")
+    if info.compress_size > disk or info.header_offset > disk:
+        raise _bad(path, f"array {name!r}: its zip entry claims more bytes than the file has (the file is cut or damaged)")
+    limit = min(MAX_ARRAY_BYTES, MAX_RATIO * info.compress_size + RATIO_SLACK)
+    if info.file_size > limit:
+        raise _bad(path, f"array {name!r} would decompress to {info.file_size} bytes from {info.compress_size}, more than "
+                         f"{'the limit' if limit == MAX_ARRAY_BYTES else f'{MAX_RATIO}× its compressed size'}: "
+                         "not a model rbgp wrote (a zip bomb?)")
+    return info
+
+
+def _read_array(zf: zipfile.ZipFile, info: zipfile.ZipInfo, path, name: str) -> np.ndarray:
+    """One .npy member: its header (dtype, shape) checked against the member's size before the data
+    are read, then exactly that many bytes read into a new array (never pickled)."""
+    with zf.open(info) as fp:
+        version = np.lib.format.read_magic(fp)
+        if version == (1, 0):
+            shape, fortran, dtype = np.lib.format.read_array_header_1_0(fp)
+        elif version == (2, 0):
+            shape, fortran, dtype = np.lib.format.read_array_header_2_0(fp)
+        else:
+            raise _bad(path, f"array {name!r} uses .npy format version {version}, which rbgp does not write")
+        if dtype.hasobject or dtype.kind not in "fiub" or dtype.fields is not None:
+            raise _bad(path, f"array {name!r} has dtype {dtype}; a model file holds numbers only")
+        if len(shape) > 3 or any(not isinstance(s, int) or s < 0 for s in shape):
+            raise _bad(path, f"array {name!r} declares the shape {shape}, not one a model file holds")
+        nbytes = math.prod(shape) * dtype.itemsize
+        data_bytes = info.file_size - fp.tell()
+        if nbytes != data_bytes:
+            raise _bad(path, f"array {name!r} declares the shape {shape} ({nbytes} bytes) but holds {data_bytes} bytes: "
+                             "the file is damaged or not written by rbgp")
+        buf = np.empty(nbytes, dtype=np.uint8)
+        view, pos = memoryview(buf), 0
+        while pos < nbytes:
+            k = fp.readinto(view[pos:pos + (1 << 20)])  # 1 MiB: faster than larger reads (measured)
+            if not k:
+                raise _bad(path, f"array {name!r} is cut short")
+            pos += k
+        fp.read(1)  # reach the end of the member, so that zipfile checks its CRC
+    return buf.view(dtype).reshape(shape, order="F" if fortran else "C")
+
+
+def _open_zip(path) -> zipfile.ZipFile:
+    magic = _head(path, 4)
+    if not magic:
+        raise _bad(path, "the model file is empty")
+    if magic != b"PK\x03\x04":  # np.load would try to unpickle it and suggest allowing that, which misleads
+        raise _bad(path, "not an rbgp model file (.rbgp files are zip archives; this one is not)",
+                   "pass a file written by rbgp train")
+    return zipfile.ZipFile(path)
+
+
+def read_header(path) -> tuple[dict, dict]:
+    """Header and arrays of a model file, verified; no GP rebuilt.
+
+    Order: sizes from the zip directory (before anything is decompressed), the header (size, depth,
+    numbers, format, its checksum, version), every array's declared shape against its member's
+    size, the arrays' checksums, then every header field and every array against the header
+    (:mod:`rbgp_cli.io.model_schema`). Raises :class:`InputError` naming the file."""
+    from rbgp_cli.io.model_schema import SchemaError, validate_arrays, validate_header
+
+    try:
+        disk = _file_size(path)
+        with _open_zip(path) as zf:
+            names = {n[:-4] for n in zf.namelist() if n.endswith(".npy")}
+            if len(zf.infolist()) > MAX_MEMBERS:
+                raise _bad(path, f"the model file has {len(zf.infolist())} members, more than a model file holds")
             if "header" not in names:
                 raise _bad(path, "not an rbgp model file (no header)", "pass a file written by rbgp train")
-            header_bytes = z["header"].tobytes()
-            arrays = {k: z[k] for k in (*_ARRAYS, *_PRIOR_ARRAYS, *_SPARSE_ARRAYS) if k in names}
+            info = _member_info(zf, path, "header", disk)
+            if info.file_size > MAX_HEADER_BYTES + 1024:
+                raise _bad(path, f"the model header is {info.file_size} bytes, more than the "
+                                 f"{MAX_HEADER_BYTES >> 20} MiB a model header may have")
+            raw = _read_array(zf, info, path, "header")
+            if raw.dtype != np.uint8 or raw.ndim != 1:
+                raise _bad(path, "the model header is damaged (not a byte string)")
+            header, version = _check_header(path, _parse_header(path, raw.tobytes()))
+            known = (*_ARRAYS, *_PRIOR_ARRAYS, *_SPARSE_ARRAYS)
+            infos = {k: _member_info(zf, path, k, disk) for k in known if k in names}
+            total = sum(i.file_size for i in infos.values())
+            if total > MAX_RATIO * disk + RATIO_SLACK:
+                raise _bad(path, f"the arrays would decompress to {total} bytes from a {disk}-byte file: "
+                                 "not a model rbgp wrote (a zip bomb?)")
+            arrays = {k: _read_array(zf, i, path, k) for k, i in infos.items()}
     except RbgpError:
         raise
     except FileNotFoundError:
         raise InputError("model file not found", path=str(path), hint="check the path") from None
     except IsADirectoryError:
         raise InputError("is a directory, not a model file", path=str(path)) from None
+    except MemoryError:
+        raise _bad(path, "not enough memory to read the model file's arrays") from None
     except (zipfile.BadZipFile, zlib.error, EOFError, ValueError, OSError, KeyError, TypeError,
             NotImplementedError, RuntimeError) as exc:  # zipfile: unknown compression / "encrypted" flag
         raise _bad(path, f"not a readable rbgp model file ({type(exc).__name__}: {str(exc)[:80]})") from None
+    sums = header.get("checksums")
+    if not isinstance(sums, dict):
+        raise _bad(path, "the model header is inconsistent: checksums is missing or not an object")
+    gp = header.get("gp") or {}
+    sparse = isinstance(gp, dict) and gp.get("type") == "sparse"
+    for name in _ARRAYS + (_SPARSE_ARRAYS if sparse else ()):
+        if name not in arrays:
+            raise _bad(path, f"array {name!r} is missing from the model file")
+    for name in arrays:
+        if sums.get(name) != array_sha256(arrays[name]):
+            raise _bad(path, f"checksum mismatch in array {name!r}: the file is corrupted")
     try:
-        header = json.loads(header_bytes.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError):
-        raise _bad(path, "the model header is damaged") from None
+        header = validate_header(header, version)
+        validate_arrays(header, arrays)
+    except SchemaError as exc:
+        raise _bad(path, f"the model header is inconsistent: {exc}") from None
+    return header, arrays
+
+
+def _check_header(path, header) -> tuple[dict, int]:
+    """Format, header checksum and version of a parsed header."""
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise _bad(path, "not an rbgp model file", "pass a file written by rbgp train")
+    sums = header.get("checksums")
+    stored = sums.get("header") if isinstance(sums, dict) else None
+    if stored is not None and stored != header_sha256(header):
+        raise _bad(path, "checksum mismatch in the model header: it was edited or is corrupted")
     version = header.get("version")
-    if not isinstance(version, int):
+    if not isinstance(version, int) or isinstance(version, bool):
         raise _bad(path, "the model header has no valid format version")
     if version > FORMAT_VERSION:
         raise InputError(
@@ -194,17 +378,10 @@ def read_header(path) -> tuple[dict, dict]:
         )
     if version < 1:
         raise _bad(path, f"unknown model format version {version}")
-    sums = header.get("checksums") or {}
-    gp = header.get("gp") or {}
-    if not isinstance(gp, dict) or gp.get("type", "exact") not in ("exact", "sparse"):
-        raise _bad(path, f"unknown GP type in the model header: {gp!r}")
-    for name in _ARRAYS + (_SPARSE_ARRAYS if gp.get("type") == "sparse" else ()):
-        if name not in arrays:
-            raise _bad(path, f"array {name!r} is missing from the model file")
-    for name in arrays:
-        if sums.get(name) != array_sha256(arrays[name]):
-            raise _bad(path, f"checksum mismatch in array {name!r}: the file is corrupted")
-    return header, arrays
+    if version >= 4 and stored is None:
+        raise _bad(path, f"the model header has no header checksum (format version {version} always has one): "
+                         "it was edited or is corrupted")
+    return header, version
 
 
 def load_model(path):
@@ -215,51 +392,29 @@ def load_model(path):
     from rbgp_cli.gp.sparse import SparseGP, SparseOutputFit
     from rbgp_cli.kernels import kernel_from_dict
 
-    header, arrays = read_header(path)
+    header, arrays = read_header(path)  # every field and array checked against the header
     try:
         rep = representation_from_dict(header["representation"])
         kernel = kernel_from_dict(header["kernel"])
         sparse = (header.get("gp") or {}).get("type") == "sparse"
         fits = [(SparseOutputFit if sparse else OutputFit).from_dict(f) for f in header["fits"]]
-        for f in fits:  # every hyperparameter is positive (they are optimised in log space)
-            for k, v in f.values.items():
-                if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < float("inf"):
-                    raise ValueError(f"hyperparameter {k} = {v!r} is not a positive finite number")
-                f.values[k] = float(v)  # JSON may hold an integer, which numpy would square into an object
-            j = f.jitter
-            if isinstance(j, bool) or not isinstance(j, (int, float)) or not 0 <= j < float("inf"):
-                raise ValueError(f"jitter = {j!r} is not a non-negative finite number")
-            f.jitter = float(j)
         X, Y = arrays["X"], arrays["Y"]
-        extra = 1 if header.get("time_input") else 0
-        if (X.ndim != 2 or Y.ndim != 2 or len(X) != len(Y) or X.shape[1] != len(rep.input_names) + extra
-                or Y.shape[1] != len(rep.output_names)):
-            raise ValueError("array shapes disagree with the representation")
-        if len(fits) != (1 if header["shared"] else Y.shape[1]):
-            raise ValueError("number of fitted outputs disagrees with the data")
-        if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
-            raise ValueError("non-finite training data")
         if sparse:
             Z, Lm, LB, c = (arrays[k] for k in _SPARSE_ARRAYS)
-            G, M = len(fits), len(Z)
-            if (Z.ndim != 2 or Z.shape[1] != X.shape[1] or Lm.shape != (G, M, M) or LB.shape != (G, M, M)
-                    or c.shape != (M, Y.shape[1]) or not all(np.all(np.isfinite(a)) for a in (Z, Lm, LB, c))):
-                raise ValueError("the sparse GP's arrays disagree with each other")
-            for f in fits:
-                kj = f.kmm_jitter
-                if isinstance(kj, bool) or not isinstance(kj, (int, float)) or not 0 <= kj < 1:
-                    raise ValueError(f"kmm_jitter = {kj!r} is not a number in [0, 1)")
-            cols = [(0, Y.shape[1])] if header["shared"] else [(g, g + 1) for g in range(G)]
+            cols = [(0, Y.shape[1])] if header["shared"] else [(g, g + 1) for g in range(len(fits))]
             stats = [(Lm[g], LB[g], c[:, a:b]) for g, (a, b) in enumerate(cols)]
             gp = SparseGP(kernel, X, Y, Z, fits, shared=header["shared"], y_scale=arrays["y_scale"], stats=stats)
         else:
             gp = GaussianProcess(kernel, X, Y, fits, shared=header["shared"], y_scale=arrays["y_scale"])
         dt = float(header["dt"])
-        if not (np.isfinite(dt) and dt > 0):
-            raise ValueError("invalid time step")
         velocity, time_input, mean = _model_extras(header, arrays, rep, X)
     except RbgpError as exc:
         raise _bad(path, f"the model cannot be rebuilt: {exc.message}") from None
+    except MemoryError:  # not --max-points of a training: this file's GP needs more memory than there is
+        n = len(arrays["X"])
+        raise _bad(path, f"not enough memory to rebuild the model's GP on {n} training points "
+                         f"(an {n} × {n} matrix: {8 * n * n / 2**30:.3g} GiB)",
+                   "use a machine with more memory, or retrain with fewer --max-points") from None
     except (KeyError, TypeError, ValueError, IndexError, AttributeError, ArithmeticError) as exc:
         raise _bad(path, f"the model header is inconsistent ({type(exc).__name__}: {str(exc)[:80]})") from None
     return MotionModel(rep, gp, dt, arrays["starts"], arrays["durations"],

@@ -1,5 +1,5 @@
 """A sparse model through the command line and the model file: train --inducing, the automatic
-choice and what the summary says, the stored posterior, exact models still version 2, damaged sparse files."""
+choice and what the summary says, the stored posterior, exact models marked exact, damaged sparse files."""
 
 from __future__ import annotations
 
@@ -39,7 +39,7 @@ def test_train_inducing_writes_a_sparse_model_that_says_so(sparse_model):
     assert summary["gp"]["type"] == "sparse" and summary["gp"]["inducing"] == 40 and summary["gp"]["forced"]
     assert summary["points"] == round(0.3 * summary["pairs"])  # --max-points (2000) dropped nothing
     header, arrays = read_header(path)
-    assert header["version"] == 3 and header["gp"] == {"type": "sparse", "inducing": 40}
+    assert header["version"] == 4 and header["gp"] == {"type": "sparse", "inducing": 40}
     assert arrays["Z"].shape == (40, 7) and arrays["Lm"].shape  # inducing inputs: pose and phase == (1, 40, 40) and arrays["c"].shape == (40, 6)
     assert arrays["X"].shape[0] == summary["points"]  # every training point is kept
     # the inducing poses are training poses
@@ -75,7 +75,7 @@ def test_loaded_sparse_model_predicts_as_when_trained_and_rolls_out(sparse_model
     rows = [r for r in out.read_text().splitlines() if not r.startswith("#")]
     assert len(rows) > 3 and "std_wx" in rows[0]
     res = run("info", path)
-    assert res.exit_code == 0 and "version 3" in res.stdout and "sparse GP: 40 inducing poses" in res.stdout
+    assert res.exit_code == 0 and "version 4" in res.stdout and "sparse GP: 40 inducing poses" in res.stdout
 
 
 def test_damaged_sparse_factors_are_refused(sparse_model, tmp_path):
@@ -96,14 +96,14 @@ def test_damaged_sparse_factors_are_refused(sparse_model, tmp_path):
     assert res.exit_code == 2 and "'Lm' is missing" in res.stderr
 
 
-def test_exact_models_keep_format_version_2(tmp_path):
+def test_exact_models_are_written_as_exact(tmp_path):
     path = tmp_path / "e.rbgp"
     res = run("train", CSV_DIR, "-o", path, *FAST, "--max-points", "120", "--json")
     assert res.exit_code == 0, res.stderr
     summary = json.loads(res.stdout)
     assert summary["gp"]["type"] == "exact" and "random 120 of" in summary["gp"]["reason"]
     header, arrays = read_header(path)
-    assert header["version"] == 2 and "gp" not in header and "Z" not in arrays
+    assert header["version"] == 4 and header["gp"] == {"type": "exact"} and "Z" not in arrays
     model, _ = load_model(path)
     assert not getattr(model.gp, "sparse", False)
 

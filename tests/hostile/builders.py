@@ -222,17 +222,94 @@ def messages_in_first_chunks(path, k: int) -> int:
 
 
 # ---------------------------------------------------------------------------------------------- models
-def write_model_npz(path, header: dict, arrays: dict, *, checksums: bool = True) -> Path:
+def write_model_npz(path, header: dict, arrays: dict, *, checksums: bool = True, header_checksum: bool | None = None,
+                    raw_header: bytes | None = None) -> Path:
     """An rbgp model file with the given header and arrays; ``checksums`` recomputes the header's
-    array checksums (so only what the test changed on purpose is wrong)."""
-    from rbgp_cli.io.model_store import array_sha256
+    array checksums and (``header_checksum``, by default as ``checksums``) the header's own, so only
+    what the test changed on purpose is wrong; ``header_checksum=False`` keeps the header's stored
+    checksum entry as it is (what a hand edit does). ``raw_header``: these bytes as the header instead."""
+    from rbgp_cli.io.model_store import array_sha256, header_sha256
 
     header = dict(header)
     if checksums:
+        old = header.get("checksums") if isinstance(header.get("checksums"), dict) else {}
         header["checksums"] = {k: array_sha256(np.asarray(v)) for k, v in arrays.items()}
-    raw = json.dumps(header, sort_keys=True, allow_nan=True).encode("utf-8")
+        if "header" in old:
+            header["checksums"]["header"] = old["header"]
+    if checksums if header_checksum is None else header_checksum:
+        header["checksums"] = {**header.get("checksums", {}), "header": header_sha256(header)}
+    raw = json.dumps(header, sort_keys=True, allow_nan=True).encode("utf-8") if raw_header is None else raw_header
     with open(path, "wb") as fh:
         np.savez(fh, header=np.frombuffer(raw, dtype=np.uint8), **arrays)
+    return Path(path)
+
+
+def as_old_version(header: dict, version: int = 2) -> dict:
+    """The header as rbgp wrote it before the header checksum (format versions 1–3): no
+    ``checksums.header`` and, for an exact GP, no ``gp`` entry; version 1 also lacks velocity, time
+    input and prior (only valid for a model without them)."""
+    header = json.loads(json.dumps(header))
+    header["version"] = version
+    header["checksums"].pop("header", None)
+    if (header.get("gp") or {}).get("type") != "sparse":
+        header.pop("gp", None)
+    if version == 1:
+        for key in ("velocity", "time_input", "prior"):
+            header.pop(key, None)
+    return header
+
+
+class _RepeatingDeflate:
+    """A deflate compressor for :func:`write_zip_bomb`: after the second identical all-zero chunk it
+    returns the same compressed block without compressing again (deflate's output for a chunk of
+    zeros after zeros, with a sync flush, does not change), so a 2 GB member takes ~1 s to write."""
+
+    def __init__(self, zero_chunk: bytes):
+        import zlib
+
+        self.zero, self.c, self.prev, self.block = zero_chunk, zlib.compressobj(9, zlib.DEFLATED, -15), None, None
+
+    def compress(self, data):
+        import zlib
+
+        if self.block is not None and data is self.zero:
+            return self.block
+        out = self.c.compress(data) + self.c.flush(zlib.Z_SYNC_FLUSH)
+        if data is self.zero:
+            if out == self.prev:
+                self.block = out
+            self.prev = out
+        return out
+
+    def flush(self):
+        return self.c.flush()
+
+
+def write_zip_bomb(path, header: dict, arrays: dict, *, member: str = "X", shape=None, data_bytes: int | None = None,
+                   chunk: int = 1 << 24) -> Path:
+    """A model file whose ``member`` array is replaced by a float64 .npy of ``shape`` (default: the
+    array's own) whose data are ``data_bytes`` zero bytes (default: as many as the shape needs),
+    deflated: ~1000:1, so a 2 GB array takes ~2 MB on disk. ``data_bytes`` smaller than the shape
+    makes a file that declares more than it holds. The other members and the header are as given."""
+    import zipfile
+
+    shape = tuple(np.asarray(arrays[member]).shape if shape is None else shape)
+    nbytes = int(np.prod(shape, dtype=object)) * 8 if data_bytes is None else int(data_bytes)
+    raw = json.dumps(header, sort_keys=True, allow_nan=True).encode("utf-8")
+    zero = bytes(chunk)
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        members = {"header": np.frombuffer(raw, dtype=np.uint8), **{k: v for k, v in arrays.items() if k != member}}
+        for name, a in members.items():
+            with zf.open(f"{name}.npy", "w", force_zip64=True) as fh:
+                np.lib.format.write_array(fh, np.asarray(a), allow_pickle=False)
+        fh = zf.open(f"{member}.npy", "w", force_zip64=True)
+        fh._compressor = _RepeatingDeflate(zero)
+        np.lib.format.write_array_header_1_0(fh, {"descr": "<f8", "fortran_order": False, "shape": shape})
+        left = nbytes
+        while left > 0:
+            fh.write(zero if left >= chunk else bytes(left))
+            left -= chunk
+        fh.close()
     return Path(path)
 
 

@@ -251,7 +251,7 @@ def test_fuzz_model_loader(case, fuzz_dir):
 @st.composite
 def model_headers(draw):
     """A valid model whose JSON header has one value replaced (or removed), with correct array
-    checksums: the header is not checksummed, so this is what a hand edit or a buggy writer makes."""
+    checksums, the header's own recomputed: what a buggy writer makes, which only the field checks catch."""
     header, _ = B.read_model_npz(seeds()["tiny.rbgp"])
     paths = []
 

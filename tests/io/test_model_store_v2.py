@@ -12,7 +12,7 @@ from rbgp_cli.dynamics.model import train_model
 from rbgp_cli.dynamics.rollout import rollout
 from rbgp_cli.dynamics.velocities import VelocityOptions
 from rbgp_cli.errors import InputError
-from rbgp_cli.io.model_store import FORMAT_VERSION, load_model, save_model
+from rbgp_cli.io.model_store import FORMAT_VERSION, header_sha256, load_model, save_model
 from tests.evaluation.test_crossval import reaching_demos
 
 SMALL = {"subsample": 1.0, "max_points": 80, "restarts": 1, "shared": True, "kernel": "se-chordal"}
@@ -28,7 +28,7 @@ def test_round_trip_keeps_what_prediction_needs(tmp_path, options):
     model = train_model(demos, **SMALL, **options)
     path = tmp_path / "m.rbgp"
     header = save_model(model, path)
-    assert header["version"] == 2 < FORMAT_VERSION  # exact models stay version 2 (sparse ones are 3)
+    assert header["version"] == FORMAT_VERSION == 4  # every model since the header checksum (version 4)
     loaded, h = load_model(path)
     assert loaded.time_input == model.time_input and loaded.velocity == model.velocity
     assert (loaded.mean is None) == (model.mean is None)
@@ -48,6 +48,8 @@ def _rewrite(path, out, change_header=None, drop=()):
     header = json.loads(arrays.pop("header").tobytes().decode())
     if change_header:
         change_header(header)
+        if "header" in header["checksums"]:  # as a writer would: the edit is what the test checks, not the checksum
+            header["checksums"]["header"] = header_sha256(header)
     raw = json.dumps(header).encode()
     with open(out, "wb") as fh:  # a file object: savez would append .npz to the name
         np.savez_compressed(fh, header=np.frombuffer(raw, dtype=np.uint8), **arrays)
@@ -58,10 +60,11 @@ def test_version_1_files_still_load(tmp_path):
     model = train_model(demos, **SMALL, time_input=None, prior=None, velocity=VelocityOptions())
     save_model(model, tmp_path / "v2.rbgp")
 
-    def as_v1(h):
+    def as_v1(h):  # what rbgp wrote as version 1: no velocity, time input, prior, gp entry or header checksum
         h["version"] = 1
-        for key in ("velocity", "time_input", "prior"):
+        for key in ("velocity", "time_input", "prior", "gp"):
             h.pop(key)
+        h["checksums"].pop("header")
 
     _rewrite(tmp_path / "v2.rbgp", tmp_path / "v1.rbgp", as_v1)
     old, header = load_model(tmp_path / "v1.rbgp")
@@ -76,7 +79,7 @@ def test_damaged_prior_is_refused(tmp_path):
     model = train_model(demos, **SMALL, time_input="phase", prior="path", velocity=VelocityOptions(rate=8.0))
     save_model(model, tmp_path / "m.rbgp")
     _rewrite(tmp_path / "m.rbgp", tmp_path / "nogain.rbgp", lambda h: h["prior"].update(gain=float("nan")))
-    with pytest.raises(InputError, match="prior gain"):
+    with pytest.raises(InputError, match=r"prior\.gain = nan"):
         load_model(tmp_path / "nogain.rbgp")
     _rewrite(tmp_path / "m.rbgp", tmp_path / "noarr.rbgp", drop=("prior_s",))
     with pytest.raises(InputError, match="prior_s"):
