@@ -336,6 +336,34 @@ def training_set(trajs: list[Trajectory], representation: Representation, *, sub
 SPARSE_ABOVE = 3000
 
 
+def _keep_sparse_if_no_worse(gp, gp_choice: dict, info: dict, seed: int, progress):
+    """The automatic choice's check (issue 21): the sparse GP on all points is kept only where, on
+    demonstrations left out (:func:`rbgp_cli.gp.selection.held_out_comparison`), it predicts no worse
+    than the exact GP on the subset that chose its hyperparameters; otherwise that exact GP is the model."""
+    from rbgp_cli.gp.selection import held_out_comparison
+
+    groups = np.repeat(np.arange(len(info["per_demo"])), info["per_demo"])[info["indices"]]
+    check = held_out_comparison(gp, groups, seed=seed)
+    if check is None:
+        return gp, gp_choice
+    gp_choice = dict(gp_choice, check={"held_out_error_exact": round(check["exact"], 4),
+                                       "held_out_error_sparse": round(check["sparse"], 4), "folds": check["folds"]})
+    verdict = (f"held out by demonstration ({check['folds']} folds), relative error {check['sparse']:.4f} "
+               f"sparse on all points against {check['exact']:.4f} exact on {len(gp.hyper_rows)}")
+    if check["sparse"] <= check["exact"]:
+        gp_choice["reason"] += f"; kept: {verdict}"
+        if progress:
+            progress(f"sparse GP kept: {verdict}")
+        return gp, gp_choice
+    exact = gp.hyper_gp
+    exact.fit_seconds = getattr(gp, "fit_seconds", 0.0)
+    if progress:
+        progress(f"the exact GP instead: {verdict}")
+    return exact, {"type": "exact", "inducing": None, "forced": False, "check": gp_choice["check"],
+                   "reason": f"{gp_choice['reason']}; the exact GP on the {len(gp.hyper_rows)} points that chose the "
+                             f"hyperparameters instead: {verdict} (--inducing {gp.n_inducing} keeps the sparse GP)"}
+
+
 def choose_gp(points: int, inducing: int | None, max_points: int | None, kernel: str) -> dict:
     """Which GP to train on ``points`` training points (after ``--subsample``), and why.
 
@@ -492,6 +520,11 @@ def train_model(
                                     "(--hyper-points 0: all), the posterior on all")
         else:
             gp_choice["reason"] += f"; hyperparameters from {gp_choice['hyperparameters']} on all of them"
+        if not gp_choice["forced"] and getattr(gp, "hyper_gp", None) is not None:
+            rows = gp.hyper_rows
+            gp, gp_choice = _keep_sparse_if_no_worse(gp, gp_choice, info, seed, progress)
+            if gp_choice["type"] == "exact":  # the training points are now the subset's
+                info = dict(info, indices=np.asarray(info["indices"])[rows], points=int(len(rows)))
     else:
         if jobs is None:
             jobs = default_jobs(1 if shared else Y.shape[1], len(X))

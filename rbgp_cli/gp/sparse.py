@@ -751,6 +751,7 @@ def _exact_hyperparameters(X, Y, kernel, idx, targets, specs, state, **fit_optio
     t0 = time.perf_counter()
     exact = fit_gp(X[idx], Y[idx], kernel, **fit_options)
     seconds = (time.perf_counter() - t0) / max(len(state), 1)
+    state[0]["exact_gp"] = (exact, idx)  # kept on the result: the automatic choice of GP compares with it
     for fit, (spec, free), st in zip(exact.fits, specs, state):
         st["theta"] = [np.array([math.log(fit.values[nm]) for nm in free])]
         st["kinds"] = ["the exact GP's optimum"]
@@ -1020,4 +1021,6 @@ def fit_sparse_gp(
                      + ", ".join(f"{s['evaluations']} on {s['points']}" for s in st["stages"]))
     gp = SparseGP(kernel, X, Y, Z, fits, shared=shared, y_scale=scale, stats=stats)
     gp.fit_seconds = time.perf_counter() - t_start
+    # hyper="exact": the exact GP whose fit chose the hyperparameters, and its rows (not stored in model files)
+    gp.hyper_gp, gp.hyper_rows = state[0].get("exact_gp", (None, None)) if state else (None, None)
     return gp
