@@ -273,7 +273,7 @@ def rollout(
 @command
 @with_read_options
 def evaluate(
-    generated: Annotated[Optional[List[str]], typer.Argument(help="Generated trajectories (CSV from rbgp rollout; '-' for stdin).")] = None,
+    generated: Annotated[Optional[List[str]], typer.Argument(help="Generated trajectories (CSV from rbgp rollout, read as rbgp writes it, as are --compare's: the read options apply to --demos; '-' for stdin).")] = None,
     demos: Annotated[Optional[List[str]], paths_option("--demos", help="Demonstration files or folders, several after one flag (e.g. --demos data/*.csv).")] = None,
     model: Annotated[Optional[str], typer.Option("--model", help="Generate --count trajectories from this model like the paper instead.")] = None,
     count: Annotated[int, typer.Option(min=1, help="With --model: number of rollouts from starts near the demonstrations'.")] = 100,
