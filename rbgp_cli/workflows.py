@@ -242,34 +242,26 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
     """``rbgp rollout``: steps from --steps, or --duration / dt, or the demonstrations' median duration.
 
     ``durations`` (B,) seconds: each trajectory its own duration instead (``steps``/``duration`` are
-    then ignored): trajectory b takes S_b = round(D_b / dt) steps (at least 1); all are integrated
-    together for max S_b steps (a phase model advances trajectory b's phase by dt / (S_b dt) per step,
-    :func:`~rbgp_cli.dynamics.rollout.rollout`) and each is cut to its own S_b + 1 samples.
+    then ignored; :func:`~rbgp_cli.dynamics.rollout.rollout_for`).
 
     ``rate`` (Hz): write the result at this rate instead of the integration grid: the integration
     stays on the step ``dt`` (the model's training step by default: the dynamics were learned for
     it), and the poses and stds are interpolated between the steps
     (:meth:`~rbgp_cli.dynamics.rollout.RolloutResult.resampled`); None keeps the integration grid.
     """
-    from rbgp_cli.dynamics.rollout import rollout
+    from rbgp_cli.dynamics.rollout import rollout, rollout_for
 
     step = float(model.dt if dt is None else dt)
-    cut = None
+    kwargs = {"samples": samples, "seed": seed, "with_std": with_std, "progress": progress}
     if durations is not None:
-        durations = np.asarray(durations, dtype=np.float64).reshape(-1)
-        if not np.all(np.isfinite(durations) & (durations > 0)):
-            raise InputError("every rollout duration must be a positive number of seconds")
-        cut = np.maximum(1, np.round(durations / step).astype(int))  # (B,) steps of each trajectory
-        steps = int(cut.max())
-    elif steps is None:
-        dur = float(np.median(model.durations)) if duration is None else float(duration)
-        if not np.isfinite(dur) or dur <= 0:
-            raise InputError(f"--duration must be a positive number of seconds, got {dur}")
-        steps = max(1, int(round(dur / step)))
-    res = rollout(model, quat, pos, steps, step, samples=samples, seed=seed, with_std=with_std, progress=progress,
-                  durations=None if cut is None else cut * step)
-    if cut is not None:
-        res.lengths = cut + 1
+        res = rollout_for(model, quat, pos, durations, step, **kwargs)
+    else:
+        if steps is None:
+            dur = float(np.median(model.durations)) if duration is None else float(duration)
+            if not np.isfinite(dur) or dur <= 0:
+                raise InputError(f"--duration must be a positive number of seconds, got {dur}")
+            steps = max(1, int(round(dur / step)))
+        res = rollout(model, quat, pos, steps, step, **kwargs)
     if rate is not None and abs(float(rate) * step - 1.0) > 1e-9:  # at 1/dt the grid is the integration grid
         res = res.resampled(rate)
     return res

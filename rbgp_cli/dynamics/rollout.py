@@ -20,7 +20,7 @@ from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError, RbgpRuntimeError
 from rbgp_cli.geometry.so3 import quat_make_continuous, quat_normalize
 
-__all__ = ["RolloutResult", "rollout", "rollout_one_at_a_time", "starts_near"]
+__all__ = ["RolloutResult", "rollout", "rollout_for", "rollout_one_at_a_time", "starts_near"]
 
 
 @dataclass
@@ -191,6 +191,25 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
         sq, sp = rep.pose_from_state(sstates[..., :pd].reshape(-1, pd))
         res.sample_quat = quat_make_continuous(sq.reshape(steps + 1, B, K, 4).transpose(1, 2, 0, 3))
         res.sample_position = sp.reshape(steps + 1, B, K, 3).transpose(1, 2, 0, 3)
+    return res
+
+
+def rollout_for(model, start_quat, start_position, durations, dt: float | None = None, **kwargs) -> RolloutResult:
+    """Roll out B starts, each for its own duration ``durations`` (B,) seconds.
+
+    Trajectory b takes S_b = round(D_b / dt) steps (at least 1; dt the model's step by default); all
+    are advanced together for max S_b steps (a phase model advances trajectory b's phase by
+    dt / (S_b dt) per step, see :func:`rollout`), and ``lengths`` = S_b + 1 cuts each of them (and its
+    Monte Carlo samples) to its own duration in :meth:`RolloutResult.trajectories`. ``kwargs`` go to
+    :func:`rollout` (samples, seed, with_std, progress).
+    """
+    dt = float(model.dt if dt is None else dt)
+    durations = np.asarray(durations, dtype=np.float64).reshape(-1)
+    if not np.all(np.isfinite(durations) & (durations > 0)):
+        raise InputError("every rollout duration must be a positive number of seconds")
+    steps = np.maximum(1, np.round(durations / dt).astype(int))  # (B,)
+    res = rollout(model, start_quat, start_position, int(steps.max()), dt, durations=steps * dt, **kwargs)
+    res.lengths = steps + 1
     return res
 
 

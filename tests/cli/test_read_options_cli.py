@@ -32,8 +32,8 @@ def _reads_demonstrations(cmd) -> bool:
 
     for p in cmd.params:
         help_text = (getattr(p, "help", None) or "").lower()
-        if p.name in _READS or getattr(p, "metavar", None) == PATHS_METAVAR or "demonstration" in help_text \
-                and p.param_type_name == "argument":
+        if p.name in _READS or getattr(p, "metavar", None) == PATHS_METAVAR \
+                or (p.param_type_name == "argument" and "demonstration" in help_text):
             return True
     return False
 
