@@ -24,6 +24,7 @@ __all__ = [
     "load_demonstrations",
     "train_from_files",
     "parse_pose",
+    "parse_pose_quat",
     "read_start_poses",
     "rollout_model",
     "evaluate_files",
@@ -122,18 +123,42 @@ def check_writable(path) -> None:
         raise InputError("the output folder is not writable", path=str(path))
 
 
+_WORDS = {6: "six", 7: "seven"}
+
+
+def _pose_numbers(text: str, n: int, flag: str, hint: str) -> np.ndarray:
+    """The ``n`` finite numbers of a pose typed after ``flag`` (spaces or commas between them)."""
+    try:
+        vals = np.array([float(v) for v in text.replace(",", " ").split()])
+    except ValueError:
+        raise InputError(f"start pose {text!r} ({flag}) is not {_WORDS[n]} numbers", hint=hint) from None
+    if vals.shape != (n,) or not np.all(np.isfinite(vals)):
+        raise InputError(f"start pose {text!r} ({flag}) must be {_WORDS[n]} finite numbers", hint=hint)
+    return vals
+
+
 def parse_pose(text: str) -> tuple[np.ndarray, np.ndarray]:
     """Parse a start pose "rx ry rz x y z" (rotation vector in rad, position in m; commas allowed)."""
-    parts = text.replace(",", " ").split()
-    try:
-        vals = np.array([float(v) for v in parts])
-    except ValueError:
-        raise InputError(f"start pose {text!r} is not six numbers", hint='write it as "rx ry rz x y z" (rad, m)') from None
-    if vals.shape != (6,) or not np.all(np.isfinite(vals)):
-        raise InputError(f"start pose {text!r} must be six finite numbers", hint='write it as "rx ry rz x y z" (rad, m)')
     from rbgp_cli.geometry.so3 import quat_from_rotvec
 
+    vals = _pose_numbers(text, 6, "--start", 'write it as "rx ry rz x y z" (rotation vector in rad, m), or a quaternion '
+                         'with --start-quat "qx qy qz qw x y z"')
     return quat_from_rotvec(vals[:3]), vals[3:]
+
+
+def parse_pose_quat(text: str) -> tuple[np.ndarray, np.ndarray]:
+    """Parse a start pose "qx qy qz qw x y z" (quaternion x, y, z, w; position in m; commas allowed).
+
+    The quaternion is normalised (q / |q|); a zero one (|q| below the reader's zero threshold) is refused.
+    """
+    from rbgp_cli.dynamics.prepare import ZERO_QUAT_NORM
+
+    vals = _pose_numbers(text, 7, "--start-quat", 'write it as "qx qy qz qw x y z" (quaternion x, y, z, w; m)')
+    norm = float(np.linalg.norm(vals[:4]))
+    if norm < ZERO_QUAT_NORM:
+        raise InputError(f"start pose {text!r} (--start-quat) has a zero quaternion, which is no rotation",
+                         hint='give a unit quaternion x y z w first, e.g. "0 0 0 1 x y z" for no rotation')
+    return vals[:4] / norm, vals[4:]
 
 
 def read_start_poses(path, options: ReadOptions | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -175,13 +200,14 @@ def read_start_poses(path, options: ReadOptions | None = None) -> tuple[np.ndarr
     return q / norm[:, None], p
 
 
-def predict_file(model, path, options: ReadOptions | None = None, noisy: bool = False):
+def predict_file(model, path, options: ReadOptions | None = None, noisy: bool = False, max_gap: float | None = None):
     """``rbgp predict``: velocity mean and std at every pose of a file.
 
     Returns (t or None, quat (m, 4), position (m, 3), mean (m, L), std (m, L)). For a model without a
     time input the file is a list of poses (:func:`read_start_poses`); with one it holds trajectories
     with times, and each pose gets its time since its trajectory's start (seconds, or the phase
-    t/D for a phase model, whose outputs per unit phase are divided by D: per second).
+    t/D for a phase model, whose outputs per unit phase are divided by D: per second); ``max_gap``
+    fills their lost frames as in training (:func:`load_demonstrations`).
     """
     if not model.time_input:
         q, p = read_start_poses(path, options)
@@ -199,7 +225,7 @@ def predict_file(model, path, options: ReadOptions | None = None, noisy: bool = 
         raise InputError(f"this model takes {what} as an input, and the poses have no time column", path=str(path),
                          hint="give the poses as trajectories with a time column t (or --rate HZ), or train a model of "
                               "the pose alone with --time-input none --prior none") from None
-    trajs, _ = prepare_all(raw)
+    trajs, _ = prepare_all(raw, max_gap=max_gap)
     ts, qs, ps, means, stds = [], [], [], [], []
     for tr in trajs:
         tau = tr.t - tr.t[0]
@@ -215,17 +241,33 @@ def predict_file(model, path, options: ReadOptions | None = None, noisy: bool = 
 
 
 def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, samples=0, seed=0, with_std=True,
-                  progress=None):
-    """``rbgp rollout``: steps from --steps, or --duration / dt, or the demonstrations' median duration."""
-    from rbgp_cli.dynamics.rollout import rollout
+                  progress=None, durations=None, rate=None):
+    """``rbgp rollout``: steps from --steps, or --duration / dt, or the demonstrations' median duration.
+
+    ``durations`` (B,) seconds: each trajectory its own duration instead (``steps``/``duration`` are
+    then ignored; :func:`~rbgp_cli.dynamics.rollout.rollout_for`).
+
+    ``rate`` (Hz): write the result at this rate instead of the integration grid: the integration
+    stays on the step ``dt`` (the model's training step by default: the dynamics were learned for
+    it), and the poses and stds are interpolated between the steps
+    (:meth:`~rbgp_cli.dynamics.rollout.RolloutResult.resampled`); None keeps the integration grid.
+    """
+    from rbgp_cli.dynamics.rollout import rollout, rollout_for
 
     step = float(model.dt if dt is None else dt)
-    if steps is None:
-        dur = float(np.median(model.durations)) if duration is None else float(duration)
-        if not np.isfinite(dur) or dur <= 0:
-            raise InputError(f"--duration must be a positive number of seconds, got {dur}")
-        steps = max(1, int(round(dur / step)))
-    return rollout(model, quat, pos, steps, step, samples=samples, seed=seed, with_std=with_std, progress=progress)
+    kwargs = {"samples": samples, "seed": seed, "with_std": with_std, "progress": progress}
+    if durations is not None:
+        res = rollout_for(model, quat, pos, durations, step, **kwargs)
+    else:
+        if steps is None:
+            dur = float(np.median(model.durations)) if duration is None else float(duration)
+            if not np.isfinite(dur) or dur <= 0:
+                raise InputError(f"--duration must be a positive number of seconds, got {dur}")
+            steps = max(1, int(round(dur / step)))
+        res = rollout(model, quat, pos, steps, step, **kwargs)
+    if rate is not None and abs(float(rate) * step - 1.0) > 1e-9:  # at 1/dt the grid is the integration grid
+        res = res.resampled(rate)
+    return res
 
 
 def generate_like_paper(model, demos, count=100, spread=0.02, seed=0, progress=None):

@@ -18,9 +18,7 @@ from rbgp_cli.cli.train_options import (
     CalibrateOpt, HyperPointsOpt, InducingOpt, SmoothWindowOpt, SubsampleOpt, TimeInputOpt, TrainRateOpt, defaults, kernel_help, train_kwargs,
 )
 from rbgp_cli.cli.common import (
-    BodyOpt, ColumnsOpt, DegreesOpt, EulerOrderOpt, FormatOpt, FrameOpt, LengthUnitOpt, MaxGapOpt,
-    CropFromOpt, CropToOpt, RestSpeedOpt, RestTimeOpt, SplitAtRestOpt, SplitGapOpt, QuatOrderOpt, RateOpt, RotationOpt, TimeSourceOpt, TimeUnitOpt, TopicOpt, command, emit_json,
-    progress, read_options, set_json, set_quiet, write_text_output,
+    ReadArgs, command, emit_json, progress, set_json, set_quiet, with_read_options, write_text_output,
 )
 
 app = typer.Typer(
@@ -57,6 +55,7 @@ def _main(
 # ---------------------------------------------------------------------------------------------- train
 @app.command()
 @command
+@with_read_options
 def train(
     demos: Annotated[List[str], typer.Argument(help="Demonstration files or directories ('-' reads a CSV from stdin).")],
     output: Annotated[str, typer.Option("--output", "-o", help="Model file to write (written atomically).", rich_help_panel=_OUT)],
@@ -73,12 +72,7 @@ def train(
     json_out: Annotated[bool, typer.Option("--json", help="Print the summary as JSON on stdout.", rich_help_panel=_OUT)] = False,
     rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd) of the demonstrations and training points.", rich_help_panel=_OUT)] = None,
     up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.", rich_help_panel=_OUT)] = "z",
-    fmt: FormatOpt = "auto", columns: ColumnsOpt = None, quat_order: QuatOrderOpt = None, euler_order: EulerOrderOpt = None,
-    degrees: DegreesOpt = None, length_unit: LengthUnitOpt = None, time_unit: TimeUnitOpt = None, rate: RateOpt = None,
-    topic: TopicOpt = None, frame: FrameOpt = None, time_source: TimeSourceOpt = "header", body: BodyOpt = None,
-    rotation: RotationOpt = None, max_gap: MaxGapOpt = None,
-    split_gap: SplitGapOpt = None, crop_from: CropFromOpt = None, crop_to: CropToOpt = None,
-    split_at_rest: SplitAtRestOpt = False, rest_speed: RestSpeedOpt = None, rest_time: RestTimeOpt = None,
+    read: ReadArgs = None,
 ):
     """Train a motion model on demonstrations.
 
@@ -87,9 +81,7 @@ def train(
     from rbgp_cli import workflows
     from rbgp_cli.errors import InputError
 
-    opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation,
-                        split_gap=split_gap, crop_from=crop_from, crop_to=crop_to, split_at_rest=split_at_rest,
-                        rest_speed=rest_speed, rest_time=rest_time)
+    opts, max_gap = read.options, read.max_gap
     kwargs = train_kwargs(rho_rot=rho_rot, restarts=restarts, explore_size=explore_size, seed=seed, noise=noise,
                           share_hyperparameters=share_hyperparameters, subsample=subsample, max_points=max_points,
                           train_rate=train_rate, smooth_window=smooth_window, smooth_degree=smooth_degree,
@@ -141,13 +133,13 @@ def info(
 # ---------------------------------------------------------------------------------------------- predict
 @app.command()
 @command
+@with_read_options
 def predict(
     model: Annotated[str, typer.Argument(help="Model file.")],
-    poses: Annotated[str, typer.Argument(help="CSV of poses (any pose columns the reader knows; '-' for stdin).")],
+    poses: Annotated[str, typer.Argument(help="Poses: a CSV (any pose columns the reader knows; '-' for stdin), or any file rbgp train reads.")],
     output: Annotated[Optional[str], typer.Option("--output", "-o", help="CSV to write (default: stdout).")] = None,
     noisy: Annotated[bool, typer.Option("--noisy", help="Std of a new noisy observation instead of the latent function's.")] = False,
-    quat_order: QuatOrderOpt = None, length_unit: LengthUnitOpt = None, columns: ColumnsOpt = None,
-    euler_order: EulerOrderOpt = None, degrees: DegreesOpt = None,
+    read: ReadArgs = None,
 ):
     """Predict the velocity (mean and standard deviation) at each pose of a CSV file.
 
@@ -159,8 +151,7 @@ def predict(
     from rbgp_cli.io.model_store import load_model
 
     m, _ = load_model(model)
-    opts = read_options("csv", columns, quat_order, euler_order, degrees, length_unit, None, None if m.time_input else 1.0)
-    t, q, p, mean, std = workflows.predict_file(m, poses, opts, noisy=noisy)  # handles '-' too, with the row checks
+    t, q, p, mean, std = workflows.predict_file(m, poses, read.options, noisy=noisy, max_gap=read.max_gap)  # '-' too
     names = list(m.representation.output_names)
     time_col = ["t"] if t is not None else []
 
@@ -176,16 +167,20 @@ def predict(
 # ---------------------------------------------------------------------------------------------- rollout
 @app.command()
 @command
+@with_read_options
 def rollout(
     model: Annotated[str, typer.Argument(help="Model file.")],
-    start: Annotated[Optional[List[str]], typer.Option("--start", help='Start pose "rx ry rz x y z" (rad, m); repeatable.')] = None,
-    starts: Annotated[Optional[str], typer.Option("--starts", help="CSV of start poses, one per row.")] = None,
-    from_demos: Annotated[Optional[List[str]], paths_option("--from-demos", help="Draw starts near these demonstrations' start poses: files or folders, several after one flag (e.g. --from-demos data/*.csv).")] = None,
+    start: Annotated[Optional[List[str]], typer.Option("--start", help='Start pose "rx ry rz x y z" (rotation vector in rad, m); repeatable.')] = None,
+    start_quat: Annotated[Optional[List[str]], typer.Option("--start-quat", help='Start pose "qx qy qz qw x y z" (quaternion x, y, z, w, normalised here; m); repeatable.')] = None,
+    starts: Annotated[Optional[str], typer.Option("--starts", help="File of start poses, one per row (read with the read options below).")] = None,
+    from_demos: Annotated[Optional[List[str]], paths_option("--from-demos", help="Draw starts near these demonstrations' start poses: files or folders, several after one flag (e.g. --from-demos data/*.csv), read with the read options below (--topic for an MCAP with several pose topics).")] = None,
     count: Annotated[int, typer.Option(min=1, help="Number of starts drawn near the demonstrations' (or the model's stored) start poses.")] = 1,
     start_spread: Annotated[float, typer.Option("--start-spread", min=0.0, help="Std of the start perturbation in metres (rotation: 0.1 rad per 0.3 m).")] = 0.02,
     steps: Annotated[Optional[int], typer.Option(min=1, help="Integration steps (default: the demonstrations' median duration / dt).")] = None,
     duration: Annotated[Optional[float], typer.Option(help="Duration in seconds instead of --steps.")] = None,
-    dt: Annotated[Optional[float], typer.Option(help="Time step in seconds (default: the model's).")] = None,
+    each_duration: Annotated[bool, typer.Option("--each-duration", help="With --from-demos: each start lasts as long as the demonstration it was drawn near (other starts: --duration, or the median).")] = False,
+    dt: Annotated[Optional[float], typer.Option(help="Integration step in seconds (default: the model's training step, which its dynamics were learned for; a finer step changes the motion, while --output-rate only writes more points of the same one).")] = None,
+    output_rate: Annotated[Optional[float], typer.Option("--output-rate", min=0.0, help="Rate (Hz) of the written trajectories. Default: the demonstrations' recorded rate (their median sample rate, stored in the model; model files from before rbgp stored it: the integration grid). The motion is integrated on --dt either way and resampled, slerp for the rotation and linear for the position and the stds, so the poses at the integration steps do not depend on the rate. 0 writes the integration grid. (--rate is the sample rate of input files without a time column, as in every command.)")] = None,
     samples: Annotated[int, typer.Option(min=0, help="Monte Carlo rollouts per start, drawing velocities from the predictive Gaussian.")] = 0,
     seed: Annotated[int, typer.Option(help="Seed for start perturbations and Monte Carlo draws.")] = 0,
     no_std: Annotated[bool, typer.Option("--no-std", help="Skip the predictive standard deviations (faster).")] = False,
@@ -193,6 +188,7 @@ def rollout(
     json_out: Annotated[bool, typer.Option("--json", help="Print a JSON summary on stdout (requires -o FILE).")] = False,
     rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd).")] = None,
     up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.")] = "z",
+    read: ReadArgs = None,
 ):
     """Generate new motions from start poses by single-step mean prediction (MATH.md §8).
 
@@ -210,36 +206,54 @@ def rollout(
         raise InputError("--json prints a summary on stdout, so the CSV needs -o FILE")
     if steps is not None and duration is not None:
         raise InputError("give --steps or --duration, not both")
+    if each_duration and not from_demos:
+        raise InputError("--each-duration gives each start its demonstration's duration", hint="add --from-demos FILES")
+    if each_duration and steps is not None:
+        raise InputError("give --each-duration or --steps, not both", hint="--duration sets the starts not drawn near a demonstration")
+    opts = read.options
+    if opts.rate is not None and not (starts or from_demos):
+        raise InputError("--rate is the sample rate of input files without a time column, and rollout reads none here",
+                         hint="set the rate of the written trajectories with --output-rate HZ")
     m, _ = load_model(model)
-    qs, ps = [], []
+    qs, ps, durs = [], [], []
     for s in start or []:
         q, p = workflows.parse_pose(s)
         qs.append(q[None])
         ps.append(p[None])
+    for s in start_quat or []:
+        q, p = workflows.parse_pose_quat(s)
+        qs.append(q[None])
+        ps.append(p[None])
     if starts:
-        q, p = workflows.read_start_poses(starts)
+        q, p = workflows.read_start_poses(starts, opts)
         qs.append(q)
         ps.append(p)
+    given = sum(len(q) for q in qs)  # starts that are not drawn near a demonstration
     if from_demos:
-        demos, _, _ = workflows.load_demonstrations(from_demos)
+        demos, _, _ = workflows.load_demonstrations(from_demos, opts, max_gap=read.max_gap)
         base = np.array([np.concatenate([t.quat[0], t.position[0]]) for t in demos])
-        q, p = starts_near(base, count, start_spread, seed=seed)
+        q, p, near = starts_near(base, count, start_spread, seed=seed, return_index=True)
         qs.append(q)
         ps.append(p)
+        durs = [demos[i].duration for i in near]
     if not qs:
         q, p = starts_near(m.starts, count, start_spread, seed=seed) if count > 1 or start_spread > 0 else (m.starts[:1, :4], m.starts[:1, 4:])
         qs.append(q)
         ps.append(p)
         progress(f"no start given: {len(q)} start(s) near the demonstrations' start poses stored in the model")
     q0, p0 = np.concatenate(qs), np.concatenate(ps)
+    durations = None
+    if each_duration:
+        other = float(np.median(m.durations)) if duration is None else float(duration)
+        durations = np.concatenate([np.full(given, other), durs])
+    rate = m.recorded_rate if output_rate is None else (output_rate or None)
     res = workflows.rollout_model(m, q0, p0, steps=steps, duration=duration, dt=dt, samples=samples, seed=seed,
-                                  with_std=not no_std, progress=progress)
+                                  with_std=not no_std, progress=progress, durations=durations, rate=rate)
     trajs = res.trajectories(include_samples=samples > 0)
     extra = None
     if res.std is not None:
         B = res.count
-        nan = np.full_like(res.std[0], np.nan)
-        per = [res.std[b] for b in range(B)] + [nan for _ in range(len(trajs) - B)]
+        per = [res.std[b, :res.length(b)] for b in range(B)] + [np.full((len(tr), res.std.shape[2]), np.nan) for tr in trajs[B:]]
         extra = {f"std_{n}": [a[:, j] for a in per] for j, n in enumerate(res.output_names)}
     write_text_output(output, lambda fh: write_trajectories_csv(trajs, fh, extra=extra))
     if rerun:
@@ -248,15 +262,19 @@ def rollout(
         record_rollout(rerun, res, up=up)
         progress(f"wrote {rerun}")
     if json_out:
-        emit_json({"trajectories": res.count, "samples_per_start": samples, "steps": len(res.t) - 1,
-                   "dt": float(res.t[1] - res.t[0]), "output": output, "std": res.std is not None})
+        n_steps, step = res.integration or (len(res.t) - 1, float(res.t[1] - res.t[0]))
+        emit_json({"trajectories": res.count, "samples_per_start": samples, "steps": n_steps, "dt": step,
+                   "output_rate_hz": float(rate) if res.integration else 1.0 / step,
+                   "durations_s": [float(tr.t[-1]) for tr in trajs[:res.count]],
+                   "output": output, "std": res.std is not None})
 
 
 # ---------------------------------------------------------------------------------------------- evaluate
 @app.command()
 @command
+@with_read_options
 def evaluate(
-    generated: Annotated[Optional[List[str]], typer.Argument(help="Generated trajectories (CSV from rbgp rollout; '-' for stdin).")] = None,
+    generated: Annotated[Optional[List[str]], typer.Argument(help="Generated trajectories (CSV from rbgp rollout, read as rbgp writes it, as are --compare's: the read options apply to --demos; '-' for stdin).")] = None,
     demos: Annotated[Optional[List[str]], paths_option("--demos", help="Demonstration files or folders, several after one flag (e.g. --demos data/*.csv).")] = None,
     model: Annotated[Optional[str], typer.Option("--model", help="Generate --count trajectories from this model like the paper instead.")] = None,
     count: Annotated[int, typer.Option(min=1, help="With --model: number of rollouts from starts near the demonstrations'.")] = 100,
@@ -270,12 +288,7 @@ def evaluate(
     plot: Annotated[Optional[str], typer.Option("--plot", help="Also write a figure (PNG) like the paper's Fig. 4/5: per dimension both sets' mean ± 2σ bands and at most 20 lines of each, axes clipped to the demonstrations and the bulk of the rollouts (clipped ones counted), and the per-step score. With one demonstration there is no score: the figure is still written, without the score panels, and the command exits 2 with the reason.")] = None,
     compare: Annotated[Optional[List[str]], paths_option("--compare", help="With --plot: generated trajectories of a second model (CSV, e.g. the Euler GP's rollouts) drawn in another colour and scored in the distance panel.")] = None,
     up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.")] = "z",
-    fmt: FormatOpt = "auto", columns: ColumnsOpt = None, quat_order: QuatOrderOpt = None, euler_order: EulerOrderOpt = None,
-    degrees: DegreesOpt = None, length_unit: LengthUnitOpt = None, time_unit: TimeUnitOpt = None, rate: RateOpt = None,
-    topic: TopicOpt = None, frame: FrameOpt = None, time_source: TimeSourceOpt = "header", body: BodyOpt = None,
-    rotation: RotationOpt = None, max_gap: MaxGapOpt = None,
-    split_gap: SplitGapOpt = None, crop_from: CropFromOpt = None, crop_to: CropToOpt = None,
-    split_at_rest: SplitAtRestOpt = False, rest_speed: RestSpeedOpt = None, rest_time: RestTimeOpt = None,
+    read: ReadArgs = None,
 ):
     """Score generated trajectories against demonstrations: per-step Bhattacharyya distance (MATH.md §9).
 
@@ -296,9 +309,7 @@ def evaluate(
         hint = took_too_much("generated trajectories", alternative="or give --model MODEL to generate them")
         if hint:
             raise InputError(hint)
-    opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation,
-                        split_gap=split_gap, crop_from=crop_from, crop_to=crop_to, split_at_rest=split_at_rest,
-                        rest_speed=rest_speed, rest_time=rest_time)
+    opts, max_gap = read.options, read.max_gap
     m = None
     if model is not None:
         from rbgp_cli.io.model_store import load_model
@@ -343,16 +354,12 @@ def evaluate(
 # ---------------------------------------------------------------------------------------------- inspect
 @app.command()
 @command
+@with_read_options
 def inspect(
     files: Annotated[List[str], typer.Argument(help="Files to describe ('-' for stdin).")],
     json_out: Annotated[bool, typer.Option("--json", help="Print the description as JSON.")] = False,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Full detail for every file (the default for up to 5 files; above that one line per file).")] = False,
-    fmt: FormatOpt = "auto", columns: ColumnsOpt = None, quat_order: QuatOrderOpt = None, euler_order: EulerOrderOpt = None,
-    degrees: DegreesOpt = None, length_unit: LengthUnitOpt = None, time_unit: TimeUnitOpt = None, rate: RateOpt = None,
-    topic: TopicOpt = None, frame: FrameOpt = None, time_source: TimeSourceOpt = "header", body: BodyOpt = None,
-    rotation: RotationOpt = None, max_gap: MaxGapOpt = None,
-    split_gap: SplitGapOpt = None, crop_from: CropFromOpt = None, crop_to: CropToOpt = None,
-    split_at_rest: SplitAtRestOpt = False, rest_speed: RestSpeedOpt = None, rest_time: RestTimeOpt = None,
+    read: ReadArgs = None,
 ):
     """Describe what files hold (columns or topics, rate, duration, gaps, units) without training.
 
@@ -365,10 +372,8 @@ def inspect(
     from rbgp_cli.io.inspect import COMPACT_ABOVE, format_compact, format_inspect, format_summary, inspect_file
     from rbgp_cli.workflows import expand_paths
 
-    opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation,
-                        split_gap=split_gap, crop_from=crop_from, crop_to=crop_to, split_at_rest=split_at_rest,
-                        rest_speed=rest_speed, rest_time=rest_time)
-    results = [inspect_file(f, opts, max_gap=max_gap) for f in expand_paths(files, opts)]
+    opts = read.options
+    results = [inspect_file(f, opts, max_gap=read.max_gap) for f in expand_paths(files, opts)]
     if json_out:
         emit_json(results if len(results) != 1 else results[0])
     elif verbose or len(results) <= COMPACT_ABOVE:
@@ -388,6 +393,7 @@ def inspect(
 # ---------------------------------------------------------------------------------------------- crossval
 @app.command()
 @command
+@with_read_options
 def crossval(
     demos: Annotated[List[str], typer.Argument(help="Demonstration files or directories (a shell glob is fine).")],
     folds: Annotated[int, typer.Option(min=2, help="Folds of the demonstrations (a demonstration is never split across folds).")] = 5,
@@ -407,12 +413,7 @@ def crossval(
     train_rate: TrainRateOpt = _D["train_rate"], smooth_window: SmoothWindowOpt = _D["smooth_window"],
     smooth_degree: SmoothDegreeOpt = _D["smooth_degree"], inducing: InducingOpt = None,
     hyper_points: HyperPointsOpt = None, calibrate_noise: CalibrateOpt = False,
-    fmt: FormatOpt = "auto", columns: ColumnsOpt = None, quat_order: QuatOrderOpt = None, euler_order: EulerOrderOpt = None,
-    degrees: DegreesOpt = None, length_unit: LengthUnitOpt = None, time_unit: TimeUnitOpt = None, rate: RateOpt = None,
-    topic: TopicOpt = None, frame: FrameOpt = None, time_source: TimeSourceOpt = "header", body: BodyOpt = None,
-    rotation: RotationOpt = None, max_gap: MaxGapOpt = None,
-    split_gap: SplitGapOpt = None, crop_from: CropFromOpt = None, crop_to: CropToOpt = None,
-    split_at_rest: SplitAtRestOpt = False, rest_speed: RestSpeedOpt = None, rest_time: RestTimeOpt = None,
+    read: ReadArgs = None,
 ):
     """How well do generated motions hold up from start poses the model has not seen? Cross-validation
     by demonstration: train on the other folds (with exactly the options of rbgp train), roll out from
@@ -424,9 +425,7 @@ def crossval(
     from rbgp_cli import workflows
     from rbgp_cli.errors import warn
 
-    opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation,
-                        split_gap=split_gap, crop_from=crop_from, crop_to=crop_to, split_at_rest=split_at_rest,
-                        rest_speed=rest_speed, rest_time=rest_time)
+    opts, max_gap = read.options, read.max_gap
     kwargs = train_kwargs(rho_rot=rho_rot, restarts=restarts, explore_size=explore_size, seed=seed, noise=noise,
                           share_hyperparameters=share_hyperparameters, subsample=subsample, max_points=max_points,
                           train_rate=train_rate, smooth_window=smooth_window, smooth_degree=smooth_degree,

@@ -5,6 +5,7 @@ module level, so ``rbgp --help`` stays fast (no rerun, mcap, pandas or scipy.opt
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import inspect
 import json
@@ -18,8 +19,8 @@ import typer
 
 from rbgp_cli.progress import Progress
 
-__all__ = ["command", "progress", "emit_json", "read_options", "ReadOpts", "write_text_output", "set_quiet",
-           "set_json"]
+__all__ = ["command", "progress", "emit_json", "read_options", "with_read_options", "ReadArgs", "READ_PANEL",
+           "write_text_output", "set_quiet", "set_json"]
 
 
 def _stderr(text: str) -> None:
@@ -189,7 +190,7 @@ def write_text_output(path: Optional[str], writer) -> None:
 # ---------------------------------------------------------------------------------------------
 # Read options: one Annotated alias per flag, so every command that reads demonstrations spells them
 # the same way.
-_READ = "Reading demonstrations"
+_READ = READ_PANEL = "Reading demonstrations"
 FormatOpt = Annotated[str, typer.Option("--format", help="auto|csv|qtm|motive|vicon|mcap (auto sniffs the content).", rich_help_panel=_READ)]
 ColumnsOpt = Annotated[Optional[str], typer.Option("--columns", help="Explicit CSV column mapping, e.g. 't=stamp,qw=w,x=px'.", rich_help_panel=_READ)]
 QuatOrderOpt = Annotated[Optional[str], typer.Option("--quat-order", help="xyzw or wxyz: the order of quaternion columns named q0..q3; for columns named qx..qw it overrides the names (the four columns in file order).", rich_help_panel=_READ)]
@@ -268,4 +269,65 @@ def read_options(fmt="auto", columns=None, quat_order=None, euler_order=None, de
     )
 
 
-ReadOpts = dict  # marker for readability in signatures
+#: The read options, in the order --help shows them: (parameter name, annotated type, default).
+#: :func:`with_read_options` gives a command all of them; add a new read option here and every
+#: command that reads demonstrations gets it (tests/cli/test_read_options_cli.py checks that).
+_READ_PARAMS = (
+    ("fmt", FormatOpt, "auto"), ("columns", ColumnsOpt, None), ("quat_order", QuatOrderOpt, None),
+    ("euler_order", EulerOrderOpt, None), ("degrees", DegreesOpt, None), ("length_unit", LengthUnitOpt, None),
+    ("time_unit", TimeUnitOpt, None), ("rate", RateOpt, None), ("topic", TopicOpt, None), ("frame", FrameOpt, None),
+    ("time_source", TimeSourceOpt, "header"), ("body", BodyOpt, None), ("rotation", RotationOpt, None),
+    ("max_gap", MaxGapOpt, None), ("split_gap", SplitGapOpt, None), ("crop_from", CropFromOpt, None),
+    ("crop_to", CropToOpt, None), ("split_at_rest", SplitAtRestOpt, False), ("rest_speed", RestSpeedOpt, None),
+    ("rest_time", RestTimeOpt, None),
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class ReadArgs:
+    """What a command's read options say: ``options`` (:class:`rbgp_cli.io.options.ReadOptions`,
+    checked by :func:`read_options`) and ``max_gap`` (seconds, or None: drop lost frames)."""
+
+    options: object
+    max_gap: Optional[float] = None
+
+
+def with_read_options(func=None, *, max_gap: bool = True):
+    """Give a command every read option (``--format`` … ``--max-gap``), declared once.
+
+    The command declares one parameter ``read`` instead of the flags; this decorator replaces it in
+    the signature Typer sees by the flags of :data:`_READ_PARAMS` (after the command's own options,
+    in the "Reading demonstrations" panel of --help) and calls the command with
+    ``read=ReadArgs(read_options(...), max_gap)``. Put it under :func:`command`, so that a bad value
+    is a one-line error::
+
+        @app.command()
+        @command
+        @with_read_options
+        def train(demos: ..., read: ReadArgs = None): ...
+
+    ``max_gap=False`` leaves ``--max-gap`` out (for a command that reads but does not clean).
+    """
+    if func is None:
+        return functools.partial(with_read_options, max_gap=max_gap)
+    sig = inspect.signature(func, eval_str=True)
+    if "read" not in sig.parameters:
+        raise TypeError(f"{func.__name__}: with_read_options needs a parameter named 'read'")
+    specs = [s for s in _READ_PARAMS if max_gap or s[0] != "max_gap"]
+    names = [name for name, _, _ in specs]
+
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        values = {name: kwargs.pop(name, default) for name, _, default in specs}
+        gap = values.pop("max_gap", None)
+        kwargs["read"] = ReadArgs(read_options(**values), gap)
+        return func(*args, **kwargs)
+
+    own = [p for name, p in sig.parameters.items() if name != "read"]
+    clash = set(names) & {p.name for p in own}
+    if clash:
+        raise TypeError(f"{func.__name__}: parameters {sorted(clash)} clash with the read options")
+    added = [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=default, annotation=annotation)
+             for name, annotation, default in specs]
+    wrapper.__signature__ = sig.replace(parameters=[*own, *added])
+    return wrapper

@@ -86,6 +86,13 @@ class MotionModel:
     mean: dict | None = None
 
     @property
+    def recorded_rate(self) -> float | None:
+        """The demonstrations' recorded sample rate, Hz (1 / their median time step, after cleaning),
+        or None for a model file written before rbgp stored it (``summary["recorded_rate_hz"]``)."""
+        rate = self.summary.get("recorded_rate_hz") if isinstance(self.summary, dict) else None
+        return float(rate) if isinstance(rate, (int, float)) and np.isfinite(rate) and rate > 0 else None
+
+    @property
     def pose_dims(self) -> int:
         """Columns of the representation's state (the GP input without the time column)."""
         return len(self.representation.input_names)
@@ -542,7 +549,8 @@ def train_model(
             progress("noise calibration: " + ("needs at least two demonstrations; skipped" if records is None else
                      "sigma_n^2 x " + ", ".join(f"{r['factor']:.3g}" for r in records)
                      + f" (leaving demonstrations out, {records[0]['folds']} folds on {records[0]['points']} points)"))
-    dt = 1.0 / velocity.rate if velocity.rate is not None else float(np.median(np.concatenate([np.diff(tr.t) for tr in trajs])))
+    recorded_dt = float(np.median(np.concatenate([np.diff(tr.t) for tr in trajs])))
+    dt = 1.0 / velocity.rate if velocity.rate is not None else recorded_dt
     starts = np.array([np.concatenate([tr.quat[0], tr.position[0]]) for tr in trajs])
     durations = np.array([tr.duration for tr in trajs])
     names = ["all"] if shared else list(rep.output_names)
@@ -569,6 +577,7 @@ def train_model(
         "seconds": time.perf_counter() - t0,
     }
     summary["time_input"] = time_input
+    summary["recorded_rate_hz"] = 1.0 / recorded_dt  # rollouts are written at this rate by default
     summary["gp"] = gp_choice
     summary["prior"] = None if mean is None else {"kind": mean["kind"], "gain": mean["gain"]}
     return MotionModel(rep, gp, float(dt), starts, durations, summary=summary, velocity=velocity,

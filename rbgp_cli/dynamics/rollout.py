@@ -20,7 +20,7 @@ from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError, RbgpRuntimeError
 from rbgp_cli.geometry.so3 import quat_make_continuous, quat_normalize
 
-__all__ = ["RolloutResult", "rollout", "rollout_one_at_a_time", "starts_near"]
+__all__ = ["RolloutResult", "rollout", "rollout_for", "rollout_one_at_a_time", "starts_near"]
 
 
 @dataclass
@@ -32,6 +32,9 @@ class RolloutResult:
     std : (B, S+1, L) latent predictive std of each output at each state, or None
     output_names : names of the L outputs (e.g. wx ... vz)
     sample_quat : (B, K, S+1, 4) and sample_position : (B, K, S+1, 3) Monte Carlo rollouts, or None
+    integration : (steps S, dt seconds) of the integration behind a resampled result, or None
+    lengths : (B,) samples each trajectory keeps (its own duration; its Monte Carlo samples alike), or
+        None: all S+1. The arrays hold every step for every trajectory; :meth:`trajectories` cuts them.
     """
 
     t: np.ndarray
@@ -41,19 +44,62 @@ class RolloutResult:
     output_names: tuple
     sample_quat: np.ndarray | None = None
     sample_position: np.ndarray | None = None
+    lengths: np.ndarray | None = None
+    #: (S, dt) of the integration when :meth:`resampled` put the result on another grid, else None
+    integration: tuple | None = None
 
     @property
     def count(self) -> int:
         return self.quat.shape[0]
 
+    def length(self, b: int) -> int:
+        """Samples trajectory ``b`` keeps."""
+        return len(self.t) if self.lengths is None else int(self.lengths[b])
+
     def trajectories(self, include_samples: bool = False) -> list[Trajectory]:
-        """The mean rollouts (names ``0``, ``1``, …) and, optionally, the samples (``0.s0``, …)."""
-        out = [Trajectory(self.t, self.quat[b], self.position[b], name=str(b)) for b in range(self.count)]
+        """The mean rollouts (names ``0``, ``1``, …) and, optionally, the samples (``0.s0``, …), each
+        cut to its own length."""
+        n = [self.length(b) for b in range(self.count)]
+        out = [Trajectory(self.t[:n[b]], self.quat[b, :n[b]], self.position[b, :n[b]], name=str(b)) for b in range(self.count)]
         if include_samples and self.sample_quat is not None:
             for b in range(self.count):
                 for k in range(self.sample_quat.shape[1]):
-                    out.append(Trajectory(self.t, self.sample_quat[b, k], self.sample_position[b, k], name=f"{b}.s{k}"))
+                    out.append(Trajectory(self.t[:n[b]], self.sample_quat[b, k, :n[b]], self.sample_position[b, k, :n[b]],
+                                          name=f"{b}.s{k}"))
         return out
+
+    def resampled(self, rate: float) -> "RolloutResult":
+        """The same rollouts at ``rate`` Hz: times t'_j = j / rate for t'_j <= t_S (each trajectory up
+        to its own end), poses by slerp (rotation) and linear interpolation (position) between the
+        integration steps around t'_j (:func:`~rbgp_cli.dynamics.trajectory.interpolate_poses`), the
+        predictive std linearly. Output times on a step (t'_j = t_k) give that step's state exactly, so
+        resampling changes nothing the integration computed; it only adds points between the steps.
+        """
+        from rbgp_cli.dynamics.trajectory import interpolate_poses
+
+        rate = float(rate)
+        if not (np.isfinite(rate) and rate > 0):
+            raise InputError(f"the output rate must be a positive number of Hz, got {rate}")
+        t = self.t
+        ends = t[np.asarray([self.length(b) for b in range(self.count)]) - 1]  # (B,) seconds
+        tol = 1e-9 * max(1.0, float(t[-1]))
+        count = np.floor((ends + tol) * rate).astype(int) + 1  # (B,) output samples of each trajectory
+        t_new = np.arange(int(count.max())) / rate  # (T,) the times written
+        # a target that is a step up to rounding is that step, so those samples are copied bit for bit
+        near = np.clip(np.round(t_new / (t[1] - t[0])).astype(int), 0, len(t) - 1)
+        x_new = np.where(np.abs(t[near] - t_new) <= tol, t[near], t_new)  # where to interpolate
+        quat, pos = interpolate_poses(t, self.quat, self.position, x_new)
+        std = None
+        if self.std is not None:  # linear, with the same brackets k and fractions f as the poses
+            k = np.clip(np.searchsorted(t, x_new, side="right") - 1, 0, len(t) - 2)
+            f = np.clip((x_new - t[k]) / (t[k + 1] - t[k]), 0.0, 1.0)[:, None]
+            std = (1.0 - f) * self.std[:, k] + f * self.std[:, k + 1]
+        res = RolloutResult(t=t_new, quat=quat, position=pos, std=std, output_names=self.output_names,
+                            lengths=None if self.lengths is None else count,
+                            integration=self.integration or (len(t) - 1, float(t[1] - t[0])))
+        if self.sample_quat is not None:
+            res.sample_quat, res.sample_position = interpolate_poses(t, self.sample_quat, self.sample_position, x_new)
+        return res
 
 
 def _check_finite(state, step):
@@ -148,6 +194,25 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
     return res
 
 
+def rollout_for(model, start_quat, start_position, durations, dt: float | None = None, **kwargs) -> RolloutResult:
+    """Roll out B starts, each for its own duration ``durations`` (B,) seconds.
+
+    Trajectory b takes S_b = round(D_b / dt) steps (at least 1; dt the model's step by default); all
+    are advanced together for max S_b steps (a phase model advances trajectory b's phase by
+    dt / (S_b dt) per step, see :func:`rollout`), and ``lengths`` = S_b + 1 cuts each of them (and its
+    Monte Carlo samples) to its own duration in :meth:`RolloutResult.trajectories`. ``kwargs`` go to
+    :func:`rollout` (samples, seed, with_std, progress).
+    """
+    dt = float(model.dt if dt is None else dt)
+    durations = np.asarray(durations, dtype=np.float64).reshape(-1)
+    if not np.all(np.isfinite(durations) & (durations > 0)):
+        raise InputError("every rollout duration must be a positive number of seconds")
+    steps = np.maximum(1, np.round(durations / dt).astype(int))  # (B,)
+    res = rollout(model, start_quat, start_position, int(steps.max()), dt, durations=steps * dt, **kwargs)
+    res.lengths = steps + 1
+    return res
+
+
 def rollout_one_at_a_time(model, start_quat, start_position, steps: int, dt: float | None = None) -> RolloutResult:
     """The unbatched reference: each start rolled out alone (for benchmarks and tests)."""
     parts = [rollout(model, q[None], p[None], steps, dt, with_std=False) for q, p in zip(start_quat, start_position)]
@@ -155,7 +220,8 @@ def rollout_one_at_a_time(model, start_quat, start_position, steps: int, dt: flo
                          None, parts[0].output_names)
 
 
-def starts_near(starts: np.ndarray, count: int, spread: float, seed: int = 0, spread_rot: float | None = None):
+def starts_near(starts: np.ndarray, count: int, spread: float, seed: int = 0, spread_rot: float | None = None,
+                return_index: bool = False):
     """``count`` start poses near the given ones (paper sec. 4.3: 100 unseen starts near the demos').
 
     Each new start takes a demonstration start (cycling through them in a seeded random order) and
@@ -163,7 +229,8 @@ def starts_near(starts: np.ndarray, count: int, spread: float, seed: int = 0, sp
     rotation vector with s_r = spread_rot (radians; default spread / 0.3 m × 0.1 rad, i.e. about
     0.1 rad per 0.3 m of translation spread, matching the scale of human start-pose variation).
 
-    starts : (D, 7) = (qx, qy, qz, qw, x, y, z). Returns (quat (count, 4), position (count, 3)).
+    starts : (D, 7) = (qx, qy, qz, qw, x, y, z). Returns (quat (count, 4), position (count, 3)), and
+    with ``return_index`` also the index (count,) of the start each one was drawn near.
     """
     from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
 
@@ -181,4 +248,4 @@ def starts_near(starts: np.ndarray, count: int, spread: float, seed: int = 0, sp
     dq = exp_quat(rng.normal(0.0, 1.0, (count, 3)) * s_r)
     q = quat_multiply(dq, base[:, :4])
     p = base[:, 4:] + rng.normal(0.0, 1.0, (count, 3)) * spread
-    return q, p
+    return (q, p, order) if return_index else (q, p)

@@ -98,16 +98,17 @@ class Trajectory:
 def interpolate_poses(x: np.ndarray, quat: np.ndarray, position: np.ndarray, x_new: np.ndarray):
     """Poses at new abscissae by slerp (rotation, shortest arc) and linear interpolation (position).
 
-    ``x`` (N,) strictly increasing sample abscissae (times, or normalised time), ``quat`` (N, 4)
-    x, y, z, w unit quaternions, sign-continuous, ``position`` (N, 3); ``x_new`` (T,) inside
-    ``[x_0, x_{N−1}]`` (values outside are clamped to the ends). With ``k`` such that
-    ``x_k <= x_new < x_{k+1}`` and ``f = (x_new − x_k)/(x_{k+1} − x_k)``:
+    ``x`` (N,) strictly increasing sample abscissae (times, or normalised time), ``quat`` (..., N, 4)
+    x, y, z, w unit quaternions, sign-continuous, ``position`` (..., N, 3) (leading axes: several
+    trajectories on the same abscissae); ``x_new`` (T,) inside ``[x_0, x_{N−1}]`` (values outside are
+    clamped to the ends). With ``k`` such that ``x_k <= x_new < x_{k+1}`` and
+    ``f = (x_new − x_k)/(x_{k+1} − x_k)``:
 
         q = slerp(q_k, q_{k+1}; f),    p = (1 − f) p_k + f p_{k+1}.
 
     A target that falls on a sample (f = 0, or the last sample) returns that sample bit for bit.
-    Returns ``(quat (T, 4), position (T, 3))``; quaternions sign-continuous along ``x_new`` when
-    ``x_new`` is increasing.
+    Returns ``(quat (..., T, 4), position (..., T, 3))``; quaternions sign-continuous along ``x_new``
+    when ``x_new`` is increasing.
     """
     from rbgp_cli.geometry.so3 import quat_make_continuous, slerp
 
@@ -115,9 +116,9 @@ def interpolate_poses(x: np.ndarray, quat: np.ndarray, position: np.ndarray, x_n
     x_new = np.asarray(x_new, dtype=np.float64)
     k = np.clip(np.searchsorted(x, x_new, side="right") - 1, 0, len(x) - 2)  # (T,)
     f = np.clip((x_new - x[k]) / (x[k + 1] - x[k]), 0.0, 1.0)  # (T,)
-    q = slerp(quat[k], quat[k + 1], f)
-    q = np.where((f == 0.0)[:, None], quat[k], np.where((f == 1.0)[:, None], quat[k + 1], q))
-    p = (1.0 - f)[:, None] * position[k] + f[:, None] * position[k + 1]
+    q = slerp(quat[..., k, :], quat[..., k + 1, :], f)
+    q = np.where((f == 0.0)[:, None], quat[..., k, :], np.where((f == 1.0)[:, None], quat[..., k + 1, :], q))
+    p = (1.0 - f)[:, None] * position[..., k, :] + f[:, None] * position[..., k + 1, :]
     if len(x_new) > 1:
         q = quat_make_continuous(q)
     return q, p

@@ -162,17 +162,15 @@ def _generate(config: Config, train: list[Trajectory], test: list[Trajectory]):
     if config.representation == REPLAY:
         return [replay_nearest(train, tr.quat[0], tr.position[0]) for tr in test], 0.0, None
     from rbgp_cli.dynamics.model import train_model
-    from rbgp_cli.dynamics.rollout import rollout
+    from rbgp_cli.dynamics.rollout import rollout_for
 
     t0 = time.perf_counter()
     model = train_model(train, representation=config.representation, kernel=config.kernel, **config.train)
     train_s = time.perf_counter() - t0
-    steps = np.array([max(1, int(round(tr.duration / model.dt))) for tr in test])
     q0 = np.array([tr.quat[0] for tr in test])
     p0 = np.array([tr.position[0] for tr in test])
-    res = rollout(model, q0, p0, int(steps.max()), with_std=False, durations=steps * model.dt)
-    gen = [Trajectory(res.t[: s + 1], res.quat[b, : s + 1], res.position[b, : s + 1], name=f"from {test[b].name}")
-           for b, s in enumerate(steps)]
+    res = rollout_for(model, q0, p0, [tr.duration for tr in test], with_std=False)  # each its own duration
+    gen = [g.with_(name=f"from {tr.name}") for g, tr in zip(res.trajectories(), test)]
     return gen, train_s, model
 
 

@@ -297,17 +297,21 @@ def record_rollout(path, res, up: str = "z") -> None:
         rec.send_property("rbgp", rr.AnyValues(kind="rollout", trajectories=int(B), steps=int(len(t) - 1),
                                                samples_per_start=int(res.sample_position.shape[1]) if has_samples else 0))
         index = rr.TimeColumn("time", duration=t)
+        # each trajectory up to its own length (res.lengths, rollouts of different durations)
+        lengths = [len(t) if getattr(res, "lengths", None) is None else int(res.lengths[b]) for b in range(B)]
+        after = np.arange(len(t))[None, :] >= np.asarray(lengths)[:, None]  # (B, S+1): past a trajectory's end
         for b in range(B):
-            base = f"/world/rollouts/{b}"
-            rec.log(f"{base}/path", rr.LineStrips3D([pos[b]], colors=[colors[b]], radii=_LINE, labels=[names[b]]),
+            base, n = f"/world/rollouts/{b}", lengths[b]
+            rec.log(f"{base}/path", rr.LineStrips3D([pos[b, :n]], colors=[colors[b]], radii=_LINE, labels=[names[b]]),
                     static=True)
-            _log_body(rec, f"{base}/body", index, quat[b], pos[b], 0.04 * size)
+            _log_body(rec, f"{base}/body", rr.TimeColumn("time", duration=t[:n]), quat[b, :n], pos[b, :n], 0.04 * size)
             if has_samples:
                 rec.log(f"{base}/samples",
-                        rr.LineStrips3D(np.asarray(res.sample_position[b], dtype=np.float64),
+                        rr.LineStrips3D(np.asarray(res.sample_position[b][:, :n], dtype=np.float64),
                                         colors=[_SAMPLE_RGBA], radii=_THIN), static=True)
+        pos = np.where(after[..., None], np.nan, pos)  # the series end where their trajectory ends
         if has_std:
-            std = np.asarray(res.std, dtype=np.float64)  # (B, S+1, L)
+            std = np.where(after[..., None], np.nan, np.asarray(res.std, dtype=np.float64))  # (B, S+1, L)
             for j, out in enumerate(outputs):
                 _log_series(rec, f"/metrics/std/{_part(out)}", index, std[:, :, j].T, names, colors)
         for j, axis in enumerate(_AXES):

@@ -105,7 +105,7 @@ def test_predict_at_bare_poses_with_a_model_of_the_pose_alone(tmp_path):
 
 def test_rollout_csv_reads_back(model, tmp_path):
     out = tmp_path / "gen.csv"
-    res = run("rollout", model, "--count", 4, "--steps", 50, "--samples", 2, "-o", out, "--json")
+    res = run("rollout", model, "--count", 4, "--steps", 50, "--samples", 2, "--output-rate", 0, "-o", out, "--json")
     assert res.exit_code == 0, res.stderr
     meta = json.loads(res.stdout)
     assert meta["trajectories"] == 4 and meta["steps"] == 50
@@ -119,9 +119,9 @@ def test_rollout_csv_reads_back(model, tmp_path):
 
 
 def test_rollout_from_explicit_start_and_demos(model, tmp_path):
-    res = run("rollout", model, "--start", "0.1 0.2 0.3 0.3 0.0 1.1", "--steps", 10, "--no-std")
+    res = run("rollout", model, "--start", "0.1 0.2 0.3 0.3 0.0 1.1", "--steps", 10, "--no-std", "--output-rate", 0)
     assert res.exit_code == 0 and res.stdout.count("\n") == 1 + 1 + 11  # comment, header, 11 rows
-    res = run("rollout", model, "--from-demos", CSV_DIR, "--count", 3, "--steps", 5, "--no-std")
+    res = run("rollout", model, "--from-demos", CSV_DIR, "--count", 3, "--steps", 5, "--no-std", "--output-rate", 0)
     assert res.exit_code == 0 and res.stdout.count("\n") == 2 + 3 * 6
 
 

@@ -76,13 +76,13 @@ def test_evaluate_with_model_and_an_unquoted_glob(work):
 def test_a_list_that_took_the_model_says_what_to_write_and_that_works(work):
     """--from-demos data/*.csv m.rbgp: the model file went into the list; the one-line error shows the
     command line to type instead, and running that line succeeds."""
-    res = bash("rbgp rollout --from-demos data/*.csv m.rbgp --count 2 --steps 3 --no-std -o fixed.csv", work)
+    res = bash("rbgp rollout --from-demos data/*.csv m.rbgp --count 2 --steps 3 --no-std --output-rate 0 -o fixed.csv", work)
     assert res.returncode == 2
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("rbgp: error: MODEL missing: --from-demos"), res.stderr
     suggested = re.search(r"write it before the list: (rbgp rollout .*)$", lines[0]).group(1)
     assert suggested == ("rbgp rollout m.rbgp --from-demos data/shoe_01.csv data/shoe_02.csv data/shoe_03.csv "
-                         "--count 2 --steps 3 --no-std -o fixed.csv")
+                         "--count 2 --steps 3 --no-std --output-rate 0 -o fixed.csv")
     again = bash(suggested, work)
     assert again.returncode == 0, again.stderr
     assert (work / "fixed.csv").read_text().count("\n") == 2 + 2 * 4

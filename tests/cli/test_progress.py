@@ -262,13 +262,13 @@ def _run_on_a_terminal(args, timeout=240):
 
 
 def test_on_a_terminal_a_progress_bar_with_times_and_stdout_stays_data(model):
-    code, out, term = _run_on_a_terminal(["rollout", model, "--steps", 400, "--count", 3, "--no-std", "-o", "-"])
+    code, out, term = _run_on_a_terminal(["rollout", model, "--steps", 400, "--count", 3, "--no-std", "--output-rate", 0, "-o", "-"])
     assert code == 0, term
     assert "━" in term and "400/400" in term and "steps" in term and "3 trajectories" in term
     assert "0:00:0" in term  # elapsed / remaining
     assert "step 100/400" not in term
     assert out.startswith("#") and "\x1b" not in out and out.count("\n") == 2 + 3 * 401
-    code, out, term = _run_on_a_terminal(["rollout", model, "--steps", 400, "--count", 3, "--no-std", "-q", "-o", "-"])
+    code, out, term = _run_on_a_terminal(["rollout", model, "--steps", 400, "--count", 3, "--no-std", "-q", "--output-rate", 0, "-o", "-"])
     assert code == 0 and term.strip() == "" and out.count("\n") == 2 + 3 * 401
 
 

@@ -574,7 +574,7 @@ def _rollout_start(pose):
 def _rollout_starts(content):
     def build(ctx: Ctx):
         p = text(ctx, content, "starts.csv")
-        return ["rollout", ctx.model(), "--starts", p, "--steps", "5", "-o", ctx.out / "gen.csv"]
+        return ["rollout", ctx.model(), "--starts", p, "--steps", "5", "--output-rate", "0", "-o", ctx.out / "gen.csv"]
 
     return build
 

@@ -415,7 +415,7 @@ def test_cli_flags_write_readable_files(tmp_path):
     runner = CliRunner()
     runs = [
         ["train", d + "/demos.csv", "-o", d + "/m.rbgp", "--rerun", d + "/train.rrd", "--up", "y"] + TRAIN,
-        ["rollout", d + "/m.rbgp", "--count", "3", "--steps", "8", "--samples", "1", "-o", d + "/out.csv",
+        ["rollout", d + "/m.rbgp", "--count", "3", "--steps", "8", "--samples", "1", "--output-rate", "0", "-o", d + "/out.csv",
          "--rerun", d + "/rollout.rrd"],
         ["rollout", d + "/m.rbgp", "--count", "3", "--steps", "8", "--seed", "1", "-o", d + "/other.csv"],
         ["evaluate", d + "/out.csv", "--demos", d + "/demos.csv", "--rerun", d + "/eval.rrd",
