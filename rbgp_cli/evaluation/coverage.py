@@ -1,0 +1,114 @@
+"""Do the bands hold? The calibration of sampled rollouts against a real motion from the same start
+(MATH.md §11, "Calibration measure"; issue 20).
+
+K sampled rollouts from one start and the real motion from that start are resampled to the same T
+steps of normalised time (:func:`rbgp_cli.evaluation.resample.resample_all`). At every step:
+
+- **position**, per axis: the 90 % prediction interval for a new draw from the samples' Gaussian,
+  x̄ ± t_{K−1, 0.95} · s · √(1 + 1/K) (s the samples' standard deviation, ddof = 1);
+- **rotation**: tangent vectors v_k = log(R̄ᵀ R_k) at the samples' chordal mean R̄
+  (:func:`rbgp_cli.evaluation.resample.mean_rotation`), and the real motion's v inside the 90 %
+  prediction ellipsoid (v − v̄)ᵀ S⁻¹ (v − v̄) ≤ (K+1)(K−1)·3 / (K(K−3)) · F_{0.90}(3, K−3)
+  (Hotelling; S the samples' covariance, ddof = 1).
+
+Coverage is the fraction of steps (position: steps × axes) inside; a perfect Gaussian model has 0.90.
+It comes with the band's width (position: the mean half-width in metres; rotation: the mean radius
+√(threshold · λ) of the ellipsoid, averaged over its three axes, in radians): a band is useful only when
+it is both honest and narrow.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from rbgp_cli.dynamics.trajectory import Trajectory
+from rbgp_cli.evaluation.resample import mean_rotation, resample_all, tangent_features
+
+__all__ = ["Coverage", "prediction_coverage", "band_thresholds", "LEVEL", "MIN_SAMPLES"]
+
+#: The nominal level of the prediction region.
+LEVEL = 0.90
+#: The rotation's Hotelling region needs K − 3 > 0 degrees of freedom (and a covariance of rank 3).
+MIN_SAMPLES = 4
+#: Ridge added to the samples' rotation covariance, relative to its trace / 3 (and at least 1e-12 rad²),
+#: so that K samples that coincide give a finite (tiny) region rather than a singular one.
+RIDGE = 1e-9
+
+
+@dataclass
+class Coverage:
+    """Calibration of K samples against one or more real motions (sums, so that starts pool).
+
+    ``position_inside`` / ``position_count``: steps × axes inside the position intervals, out of;
+    ``rotation_inside`` / ``rotation_count``: steps inside the rotation ellipsoid, out of;
+    ``position_width_sum``, ``rotation_width_sum``: sums of the half-widths (m, rad) over the same counts
+    (the rotation's over steps). Add two with ``+``.
+    """
+
+    position_inside: int = 0
+    position_count: int = 0
+    rotation_inside: int = 0
+    rotation_count: int = 0
+    position_width_sum: float = 0.0
+    rotation_width_sum: float = 0.0
+
+    def __add__(self, other: "Coverage") -> "Coverage":
+        return Coverage(*(a + b for a, b in zip(self.astuple(), other.astuple())))
+
+    def astuple(self) -> tuple:
+        return (self.position_inside, self.position_count, self.rotation_inside, self.rotation_count,
+                self.position_width_sum, self.rotation_width_sum)
+
+    def to_dict(self) -> dict:
+        """``coverage_position``, ``coverage_rotation`` (fractions, NaN without data) and the bands' mean
+        half-widths ``band_position`` (m) and ``band_rotation`` (rad)."""
+        def frac(a, b):
+            return float(a) / b if b else float("nan")
+
+        return {"coverage_position": frac(self.position_inside, self.position_count),
+                "coverage_rotation": frac(self.rotation_inside, self.rotation_count),
+                "band_position": frac(self.position_width_sum, self.position_count),
+                "band_rotation": frac(self.rotation_width_sum, self.rotation_count)}
+
+
+def band_thresholds(K: int, level: float = LEVEL) -> tuple[float, float]:
+    """(t factor, Hotelling threshold) of the level-``level`` prediction regions for a new draw given K
+    samples: t_{K−1, (1+level)/2} · √(1 + 1/K) for one axis, and (K+1)(K−1)·3 / (K(K−3)) · F_level(3, K−3)
+    for the squared Mahalanobis distance of a 3-vector."""
+    from scipy import stats
+
+    if K < MIN_SAMPLES:
+        raise ValueError(f"prediction regions need at least {MIN_SAMPLES} samples, got {K}")
+    t = float(stats.t.ppf(0.5 + level / 2.0, K - 1)) * np.sqrt(1.0 + 1.0 / K)
+    h = (K + 1) * (K - 1) * 3.0 / (K * (K - 3)) * float(stats.f.ppf(level, 3, K - 3))
+    return t, h
+
+
+def prediction_coverage(samples: list[Trajectory], reference: Trajectory, T: int, level: float = LEVEL) -> Coverage:
+    """Coverage of ``reference`` by the prediction regions of ``samples`` (K ≥ MIN_SAMPLES trajectories
+    from its start), all resampled to ``T`` steps of normalised time. See the module docstring."""
+    K = len(samples)
+    t_factor, h = band_thresholds(K, level)
+    qs, ps = resample_all(samples, T)  # (K, T, 4), (K, T, 3)
+    qr, pr = resample_all([reference], T)  # (1, T, 4), (1, T, 3)
+    # position, per axis
+    mean = ps.mean(axis=0)
+    half = t_factor * ps.std(axis=0, ddof=1)  # (T, 3)
+    pos_in = int(np.sum(np.abs(pr[0] - mean) <= half))
+    # rotation, in the tangent space at the samples' chordal mean
+    ref = mean_rotation(qs)  # (T, 4)
+    v = tangent_features(qs, ps, ref)[..., :3]  # (K, T, 3)
+    v0 = tangent_features(qr, pr, ref)[0, :, :3]  # (T, 3)
+    vbar = v.mean(axis=0)
+    D = v - vbar
+    S = np.einsum("kti,ktj->tij", D, D) / (K - 1)  # (T, 3, 3)
+    ridge = np.maximum(RIDGE * np.trace(S, axis1=1, axis2=2) / 3.0, 1e-12)
+    S = S + ridge[:, None, None] * np.eye(3)
+    e = v0 - vbar
+    m2 = np.einsum("ti,ti->t", e, np.linalg.solve(S, e[..., None])[..., 0])
+    rot_in = int(np.sum(m2 <= h))
+    radius = np.sqrt(h * np.clip(np.linalg.eigvalsh(S), 0.0, None)).mean(axis=1)  # (T,)
+    return Coverage(position_inside=pos_in, position_count=int(half.size), rotation_inside=rot_in,
+                    rotation_count=int(T), position_width_sum=float(np.sum(half)), rotation_width_sum=float(np.sum(radius)))
