@@ -324,9 +324,10 @@ def score_refusal(result) -> str | None:
     return check_sample_sizes(result.n_generated, result.n_demos, result.covariance, result.ridge).refusal
 
 
-def crossval_configs(representations, kernels, train_kwargs: dict, replay: bool = True):
+def crossval_configs(representations, kernels, train_kwargs: dict, replay: bool = True, peers: bool = True):
     """The rows of ``rbgp crossval``: every representation × kernel with the same training options,
-    plus the replay peer. ``all`` stands for the three representations; a kernel a representation does
+    plus the replay peer and (``peers``, when movement-primitives is installed, else a note) the ProMP
+    and DMP peers of :mod:`rbgp_cli.evaluation.peers`. ``all`` stands for the three representations; a kernel a representation does
     not have (the chordal distance on Euler angles) is left out for it, with a note in the returned list."""
     from rbgp_cli.dynamics.defaults import DEFAULT_KERNELS, DEFAULTS
     from rbgp_cli.dynamics.model import KERNELS
@@ -355,6 +356,14 @@ def crossval_configs(representations, kernels, train_kwargs: dict, replay: bool 
             configs.append(Config(r, k, dict(train_kwargs)))
     if replay:
         configs.append(Config(REPLAY))
+    if peers:
+        from rbgp_cli.evaluation.peers import PEERS, missing
+
+        note = missing()
+        if note:
+            skipped.append(note)
+        else:
+            configs.extend(Config(name) for name in PEERS)
     return configs, skipped
 
 

@@ -400,6 +400,7 @@ def crossval(
     representation: Annotated[Optional[List[str]], typer.Option("--representation", help="axis-angle, euler, quaternion, or all; repeatable (default: axis-angle).", rich_help_panel=_TRAIN)] = None,
     kernel: Annotated[Optional[List[str]], typer.Option("--kernel", help="Repeatable; every representation runs with every kernel (default: each representation's own). " + kernel_help(), rich_help_panel=_TRAIN)] = None,
     replay: Annotated[bool, typer.Option("--replay/--no-replay", help="Include the replay peer: the training demonstration with the nearest start, moved rigidly to the new start.")] = True,
+    peers: Annotated[bool, typer.Option("--peers/--no-peers", help="Include the ProMP (conditioned on the start) and Cartesian DMP (of the nearest-start demonstration) peers of the movement-primitives package; left out with a note when it is not installed (pip install \"rbgp-cli\\[peers]\").")] = True,
     jobs: Annotated[Optional[int], typer.Option(min=1, help="Worker processes for the fits (default: one per core); 1 runs them in this process.")] = None,
     scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Run the fits on a Dask cluster: the scheduler's address (tcp://host:8786), or 'local' for a LocalCluster of --jobs single-threaded workers. Needs pip install \"rbgp-cli\\[distributed]\"; the results are the same.")] = None,
     length: Annotated[Optional[int], typer.Option(min=2, help="Resample every trajectory to this many steps for the scores (default: the training demonstrations' median).")] = None,
@@ -418,7 +419,8 @@ def crossval(
     """How well do generated motions hold up from start poses the model has not seen? Cross-validation
     by demonstration: train on the other folds (with exactly the options of rbgp train), roll out from
     each held-out demonstration's start for its duration, and score against the training
-    demonstrations next to the floor (the held-out demonstrations' own score) and the replay peer.
+    demonstrations next to the floor (the held-out demonstrations' own score) and the peers: replay,
+    and a ProMP and a DMP from the field's own library (movement-primitives, optional).
 
     Example: rbgp crossval sample_data/csv --representation all --folds 3
     """
@@ -431,11 +433,12 @@ def crossval(
                           train_rate=train_rate, smooth_window=smooth_window, smooth_degree=smooth_degree,
                           time_input=time_input, prior=prior, prior_gain=prior_gain, inducing=inducing,
                           hyper_points=hyper_points, calibrate_noise=calibrate_noise)
-    configs, skipped = workflows.crossval_configs(representation, kernel, kwargs, replay=replay)
+    configs, skipped = workflows.crossval_configs(representation, kernel, kwargs, replay=replay, peers=peers)
     for note in skipped:
         warn(f"left out {note}")
     result = workflows.crossval_files(demos, configs, options=opts, max_gap=max_gap, folds=folds, seed=seed, jobs=jobs,
                                       length=length, covariance=covariance, progress=progress, scheduler=scheduler)
+    result["skipped"] = list(skipped)
     if json_out:
         emit_json(result)
     else:

@@ -18,7 +18,8 @@ folds of the demonstrations (seeded; a demonstration is never split across folds
 
 The **replay** peer needs no model: the training demonstration whose start pose is nearest (weighted
 chordal SE(3) distance, ρ1 = 0.7) moved rigidly so that it begins at the new start,
-T_new(t) = T_start_new · T_start_demo⁻¹ · T_demo(t).
+T_new(t) = T_start_new · T_start_demo⁻¹ · T_demo(t). The **promp** and **dmp** peers (the field's own
+library, optional) are in :mod:`rbgp_cli.evaluation.peers`; their ``train_s`` is their fitting time.
 
 Overall numbers: score, floor, rotation and translation parts are means over folds (the ratio is
 score / floor of those means); trajectory and velocity errors are pooled over all held-out
@@ -42,6 +43,7 @@ from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError, warn
 from rbgp_cli.progress import as_progress
 from rbgp_cli.evaluation.bhattacharyya import evaluate
+from rbgp_cli.evaluation.peers import PEERS, PROMP
 from rbgp_cli.evaluation.resample import resample_all
 from rbgp_cli.geometry.so3 import quat_conjugate, quat_multiply, rotate
 
@@ -49,6 +51,7 @@ __all__ = [
     "Config",
     "make_folds",
     "replay_nearest",
+    "nearest_index",
     "trajectory_errors",
     "velocity_errors",
     "run_fold",
@@ -92,6 +95,16 @@ def make_folds(n: int, k: int, seed: int = 0) -> list[np.ndarray]:
 
 
 # --------------------------------------------------------------------------------------------- peers
+def nearest_index(train: list[Trajectory], quat0: np.ndarray, pos0: np.ndarray, rho_rot: float = REPLAY_RHO) -> int:
+    """Index of the training demonstration whose start pose is nearest to (quat0, pos0):
+    d² = ρ1·d_ch² + (1 − ρ1)·‖Δp‖² (chordal rotation distance d_ch = 2·sqrt(1 − ⟨q1, q2⟩²), MATH.md §5)."""
+    starts_q = np.array([tr.quat[0] for tr in train])
+    starts_p = np.array([tr.position[0] for tr in train])
+    c = np.clip(np.abs(starts_q @ quat0), 0.0, 1.0)
+    d2 = rho_rot * 4.0 * (1.0 - c * c) + (1.0 - rho_rot) * np.sum((starts_p - pos0) ** 2, axis=1)
+    return int(np.argmin(d2))
+
+
 def replay_nearest(train: list[Trajectory], quat0: np.ndarray, pos0: np.ndarray, rho_rot: float = REPLAY_RHO) -> Trajectory:
     """The training demonstration with the nearest start pose, moved rigidly to start at (quat0, pos0).
 
@@ -99,11 +112,7 @@ def replay_nearest(train: list[Trajectory], quat0: np.ndarray, pos0: np.ndarray,
     MATH.md §5). The motion is carried by the rigid transform that maps the demonstration's start pose
     onto the new one: R(t) ↦ R_s' R_sᵀ R(t), p(t) ↦ R_s' R_sᵀ (p(t) − p_s) + p_s'.
     """
-    starts_q = np.array([tr.quat[0] for tr in train])
-    starts_p = np.array([tr.position[0] for tr in train])
-    c = np.clip(np.abs(starts_q @ quat0), 0.0, 1.0)
-    d2 = rho_rot * 4.0 * (1.0 - c * c) + (1.0 - rho_rot) * np.sum((starts_p - pos0) ** 2, axis=1)
-    src = train[int(np.argmin(d2))]
+    src = train[nearest_index(train, quat0, pos0, rho_rot)]
     dq = quat_multiply(quat0, quat_conjugate(src.quat[0]))  # R_s' R_sᵀ
     q = quat_multiply(np.broadcast_to(dq, src.quat.shape), src.quat)
     p = rotate(np.broadcast_to(dq, src.quat.shape), src.position - src.position[0]) + pos0
@@ -161,6 +170,14 @@ def _generate(config: Config, train: list[Trajectory], test: list[Trajectory]):
     """Generated trajectories (one per held-out demonstration), training seconds, the model or None."""
     if config.representation == REPLAY:
         return [replay_nearest(train, tr.quat[0], tr.position[0]) for tr in test], 0.0, None
+    if config.representation in PEERS:  # ProMP / DMP from movement-primitives (rbgp_cli.evaluation.peers)
+        from rbgp_cli.evaluation import peers
+
+        run = peers.promp_rollouts if config.representation == PROMP else peers.dmp_rollouts
+        t0 = time.perf_counter()
+        gen = run(train, [tr.quat[0] for tr in test], [tr.position[0] for tr in test], [tr.duration for tr in test])
+        gen = [g.with_(name=f"{config.representation} from {tr.name}") for g, tr in zip(gen, test)]
+        return gen, time.perf_counter() - t0, None
     from rbgp_cli.dynamics.model import train_model
     from rbgp_cli.dynamics.rollout import rollout_for
 

@@ -85,7 +85,7 @@ def test_crossval_on_the_real_demonstration_sets(realdata, folder):
     """rbgp crossval runs on every real set with at least 4 demonstrations (a quick configuration: the
     README has the full table), and its rows hold what the issue asks for."""
     res = run("crossval", realdata / folder, "--folds", 3, "--representation", "axis-angle",
-              "--representation", "euler", *FAST, "--jobs", 1, "--json", "-q")
+              "--representation", "euler", *FAST, "--jobs", 1, "--no-peers", "--json", "-q")
     assert res.exit_code == 0, res.stderr
     out = json.loads(res.stdout)
     assert out["folds"] == 3 and out["demonstrations"] >= 30
@@ -100,7 +100,7 @@ def test_crossval_on_the_real_demonstration_sets(realdata, folder):
 def test_crossval_on_the_sample_data():
     from rbgp_cli.workflows import SAMPLE_DATA
 
-    res = run("crossval", SAMPLE_DATA / "csv", "--folds", 3, *FAST, "--jobs", 1, "--json", "-q")
+    res = run("crossval", SAMPLE_DATA / "csv", "--folds", 3, *FAST, "--jobs", 1, "--no-peers", "--json", "-q")
     assert res.exit_code == 0, res.stderr
     out = json.loads(res.stdout)
     assert out["demonstrations"] == 9 and out["fold_sizes"] == [3, 3, 3]

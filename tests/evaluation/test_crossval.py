@@ -170,7 +170,7 @@ def test_cli_json_has_the_documented_keys(tmp_path):
     folder = _write(reaching_demos(6), tmp_path / "demos")
     res = CliRunner().invoke(app, ["crossval", str(folder), "--folds", "3", "--representation", "all", "--kernel", "se",
                                    "--max-points", "100", "--restarts", "1", "--share-hyperparameters", "--jobs", "1",
-                                   "--json", "-q"])
+                                   "--no-peers", "--json", "-q"])
     assert res.exit_code == 0, res.stderr
     out = json.loads(res.stdout)
     assert out["folds"] == 3
@@ -188,7 +188,7 @@ def test_cli_table_and_bad_options(tmp_path):
     folder = _write(reaching_demos(4), tmp_path / "demos")
     runner = CliRunner()
     res = runner.invoke(app, ["crossval", str(folder), "--folds", "2", "--max-points", "80", "--restarts", "1",
-                              "--jobs", "1", "--per-fold"])
+                              "--jobs", "1", "--per-fold", "--no-peers"])
     assert res.exit_code == 0, res.stderr
     assert "representation" in res.stdout and "replay" in res.stdout and "fold 2" in res.stdout
     assert "cross-validation" in res.stderr  # progress on stderr
