@@ -404,6 +404,7 @@ def crossval(
     scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Run the fits on a Dask cluster: the scheduler's address (tcp://host:8786), or 'local' for a LocalCluster of --jobs single-threaded workers. Needs pip install \"rbgp-cli\\[distributed]\"; the results are the same.")] = None,
     length: Annotated[Optional[int], typer.Option(min=2, help="Resample every trajectory to this many steps for the scores (default: the training demonstrations' median).")] = None,
     covariance: Annotated[str, typer.Option(help="Per-step Gaussians with diag or full covariance (as rbgp evaluate).")] = "diag",
+    samples: Annotated[int, typer.Option("--samples", min=0, help="Sampled rollouts per held-out start (as rbgp rollout --samples) for the columns sample (one sample per start scored like score, over the floor) and cov_pos / cov_rot (how often the held-out motion lies inside the samples' 90 % prediction region: 0.90 for honest bands) with the bands' half-widths in --json; 0: none; at least 4 for the coverage.")] = 20,
     per_fold: Annotated[bool, typer.Option("--per-fold", help="Also print one line per fold and configuration.", rich_help_panel=_OUT)] = False,
     json_out: Annotated[bool, typer.Option("--json", help="Print the results as JSON on stdout.", rich_help_panel=_OUT)] = False,
     rho_rot: RhoOpt = _D["rho_rot"], restarts: RestartsOpt = _D["restarts"], explore_size: ExploreOpt = _D["explore_size"],
@@ -435,7 +436,8 @@ def crossval(
     for note in skipped:
         warn(f"left out {note}")
     result = workflows.crossval_files(demos, configs, options=opts, max_gap=max_gap, folds=folds, seed=seed, jobs=jobs,
-                                      length=length, covariance=covariance, progress=progress, scheduler=scheduler)
+                                      length=length, covariance=covariance, progress=progress, scheduler=scheduler,
+                                      samples=samples)
     if json_out:
         emit_json(result)
     else:

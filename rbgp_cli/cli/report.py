@@ -142,17 +142,20 @@ def format_crossval(result: dict, per_fold: bool = False) -> str:
         f"floor {result['floor']:.3f} (the held-out demonstrations scored against the same training sets)",
         "score: Bhattacharyya distance of the rollouts from the held-out starts to the training demonstrations "
         "(lower is better); ratio = score / floor; pos/rot: RMSE against the held-out demonstration with the "
-        "same start (m, rad); vel: relative velocity RMSE on held-out pairs (1 = predicting zero)",
+        "same start (m, rad); vel: relative velocity RMSE on held-out pairs (1 = predicting zero); sample: one "
+        "sampled rollout per start scored like score, over the floor; cov_pos/cov_rot: how often the held-out "
+        "motion lies inside the samples' 90 % prediction region (0.90 = honest bands)",
         "",
         f"{'representation':<14} {'kernel':<10} {'score':>8} {'floor':>7} {'ratio':>7} {'rotation':>9} {'translation':>11}"
-        f" {'pos_m':>7} {'rot_rad':>7} {'vel':>6} {'train_s':>8}",
+        f" {'pos_m':>7} {'rot_rad':>7} {'vel':>6} {'sample':>7} {'cov_pos':>7} {'cov_rot':>7} {'train_s':>8}",
     ]
 
     def row(r, label_rep, label_kern):
         flag = "" if r.get("reliable", True) else "  *"
         return (f"{label_rep:<14} {label_kern:<10} {r['score']:8.3f} {r['floor']:7.3f} {r['ratio']:7.2f} {r['rotation']:9.3f}"
                 f" {r['translation']:11.3f} {r['position_rmse']:7.3f} {r['rotation_rmse']:7.3f} {_num(r['velocity_rmse'], '6.3f'):>6}"
-                f" {r['train_s']:8.1f}{flag}")
+                f" {_num(r.get('sample_ratio'), '7.2f'):>7} {_num(r.get('coverage_position'), '7.2f'):>7}"
+                f" {_num(r.get('coverage_rotation'), '7.2f'):>7} {r['train_s']:8.1f}{flag}")
 
     for r in result["results"]:
         lines.append(row(r, r["representation"], r["kernel"] or "-"))

@@ -157,10 +157,16 @@ def velocity_errors(model, demos: list[Trajectory]) -> dict:
 
 
 # --------------------------------------------------------------------------------------------- one fold
-def _generate(config: Config, train: list[Trajectory], test: list[Trajectory]):
-    """Generated trajectories (one per held-out demonstration), training seconds, the model or None."""
+#: Sampled rollouts per held-out start for the sample columns (MATH.md §11: K = 20).
+SAMPLES = 20
+
+
+def _generate(config: Config, train: list[Trajectory], test: list[Trajectory], samples: int = 0):
+    """Generated trajectories (one per held-out demonstration), training seconds, the model or None,
+    and per held-out start its ``samples`` sampled rollouts (a list of lists; None for the replay peer or
+    without samples)."""
     if config.representation == REPLAY:
-        return [replay_nearest(train, tr.quat[0], tr.position[0]) for tr in test], 0.0, None
+        return [replay_nearest(train, tr.quat[0], tr.position[0]) for tr in test], 0.0, None, None
     from rbgp_cli.dynamics.model import train_model
     from rbgp_cli.dynamics.rollout import rollout_for
 
@@ -169,23 +175,49 @@ def _generate(config: Config, train: list[Trajectory], test: list[Trajectory]):
     train_s = time.perf_counter() - t0
     q0 = np.array([tr.quat[0] for tr in test])
     p0 = np.array([tr.position[0] for tr in test])
-    res = rollout_for(model, q0, p0, [tr.duration for tr in test], with_std=False)  # each its own duration
-    gen = [g.with_(name=f"from {tr.name}") for g, tr in zip(res.trajectories(), test)]
-    return gen, train_s, model
+    res = rollout_for(model, q0, p0, [tr.duration for tr in test], with_std=False,  # each its own duration
+                      samples=samples, seed=int(config.train.get("seed", 0)))
+    trajs = res.trajectories(include_samples=samples > 0)
+    gen = [g.with_(name=f"from {tr.name}") for g, tr in zip(trajs[: len(test)], test)]
+    drawn = None
+    if samples > 0:  # trajectories() lists the samples start by start after the means
+        rest = trajs[len(test):]
+        drawn = [rest[b * samples:(b + 1) * samples] for b in range(len(test))]
+    return gen, train_s, model, drawn
+
+
+def _sample_columns(drawn, train: list[Trajectory], test: list[Trajectory], T: int, covariance: str) -> dict | None:
+    """The variety and calibration columns of one fold (MATH.md §11): ``sample_score``, one sampled
+    rollout per held-out start scored against the training demonstrations as ``score`` is, and the
+    coverage of each held-out motion by its start's samples (:func:`rbgp_cli.evaluation.coverage.prediction_coverage`,
+    sums that pool over folds)."""
+    from rbgp_cli.evaluation.coverage import MIN_SAMPLES, Coverage, prediction_coverage
+
+    if not drawn:
+        return None
+    one = [d[0] for d in drawn]
+    sample_score = evaluate(one, train, length=T, covariance=covariance, sample_size="record").mean
+    cov = Coverage()
+    if len(drawn[0]) >= MIN_SAMPLES:
+        for d, real in zip(drawn, test):
+            cov = cov + prediction_coverage(d, real, T)
+    return {"sample_score": float(sample_score), "coverage": list(cov.astuple())}
 
 
 def run_fold(config: Config, train: list[Trajectory], test: list[Trajectory], *, length: int | None = None,
-             covariance: str = "diag") -> dict:
-    """Train (unless replay), generate from the held-out starts, and score one fold (plain data)."""
+             covariance: str = "diag", samples: int = SAMPLES) -> dict:
+    """Train (unless replay), generate from the held-out starts, and score one fold (plain data);
+    ``samples`` sampled rollouts per held-out start give the sample columns (0: none)."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         t0 = time.perf_counter()
-        gen, train_s, model = _generate(config, train, test)
+        gen, train_s, model, drawn = _generate(config, train, test, samples=samples)
         gen_s = time.perf_counter() - t0 - train_s
         score = evaluate(gen, train, length=length, covariance=covariance, sample_size="record")
         T = score.steps
         sp, sr, count = trajectory_errors(gen, test, T)
         vel = velocity_errors(model, test) if model is not None else None
+        sampled = _sample_columns(drawn, train, test, T, covariance)
     out = {
         "score": score.mean, "rotation": score.rotation, "translation": score.translation,
         "reliable": bool(getattr(score, "reliable", True)),
@@ -195,6 +227,8 @@ def run_fold(config: Config, train: list[Trajectory], test: list[Trajectory], *,
     }
     if model is not None:
         out["points"] = int(model.summary.get("points", 0))
+    if sampled is not None:
+        out.update(sampled)
     return out
 
 
@@ -209,8 +243,8 @@ def _worker_init() -> None:
 
 
 def _task(args):
-    config, train, test, length, covariance = args
-    return run_fold(config, train, test, length=length, covariance=covariance)
+    config, train, test, length, covariance, samples = args
+    return run_fold(config, train, test, length=length, covariance=covariance, samples=samples)
 
 
 def _run_in_processes(args: list, n_jobs: int):
@@ -282,6 +316,7 @@ def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[di
         }
         if "points" in r:
             entry["points"] = r["points"]
+        entry.update(_sampled_summary([r], [floor.mean]))
         per_fold.append(entry)
     score = float(np.mean([r["score"] for r in results]))
     floor = float(np.mean([f.mean for f in floors]))
@@ -299,14 +334,32 @@ def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[di
         "rotation_rmse": _pooled_rmse(sum(r["rotation_sq"] for r in results), count),
         **_velocity_summary([r["velocity"] for r in results]),
         "train_s": float(np.mean([r["train_s"] for r in results])),
+        **_sampled_summary(results, [f.mean for f in floors]),
         "reliable": all(e["reliable"] for e in per_fold),
         "per_fold": per_fold,
     }
 
 
+def _sampled_summary(results: list[dict], floors: list[float]) -> dict:
+    """sample_score (mean over folds), sample_ratio (over the mean floor) and the pooled coverage
+    columns, or all None where the row has no samples (the replay peer, or samples=0)."""
+    from rbgp_cli.evaluation.coverage import Coverage
+
+    keys = ("sample_score", "sample_ratio", "coverage_position", "coverage_rotation", "band_position", "band_rotation")
+    if not results or any("sample_score" not in r for r in results):
+        return dict.fromkeys(keys)
+    score = float(np.mean([r["sample_score"] for r in results]))
+    floor = float(np.mean(floors))
+    total = Coverage()
+    for r in results:
+        total = total + Coverage(*r["coverage"])
+    cov = {k: (None if not math.isfinite(v) else v) for k, v in total.to_dict().items()}
+    return {"sample_score": score, "sample_ratio": score / floor if floor > 0 else float("inf"), **cov}
+
+
 def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, seed: int = 0,
              jobs: int | None = None, length: int | None = None, covariance: str = "diag",
-             progress=None, scheduler: str | None = None) -> dict:
+             progress=None, scheduler: str | None = None, samples: int = SAMPLES) -> dict:
     """Cross-validate every configuration on the same folds (see the module docstring).
 
     Parameters
@@ -320,6 +373,11 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
         and one message per finished fit
     scheduler : None, ``"local"`` (a Dask ``LocalCluster`` of ``jobs`` workers) or the address of a Dask
         scheduler: the fits run there (:func:`rbgp_cli.parallel.iter_dask`); the results are the same
+    samples : sampled rollouts per held-out start (``rbgp rollout --samples``, seeded by the train
+        options' seed) for the columns of MATH.md §11: ``sample_score`` / ``sample_ratio`` (one sample per
+        start, scored as ``score``), ``coverage_position`` / ``coverage_rotation`` (the held-out motion
+        inside the samples' 90 % prediction regions; 0.90 for a perfect Gaussian model) and the bands'
+        mean half-widths ``band_position`` (m) / ``band_rotation`` (rad); 0: none (those columns None)
 
     Returns ``{"folds": K, "seed", "demonstrations", "fold_sizes", "results": [row, ...]}`` with the
     rows sorted by score / floor (best first); each row as in the module docstring.
@@ -339,7 +397,7 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
              f"{max(2, len(demos) // 2)} or fewer (at least 2 held out per fold)")
     floors = [evaluate(test, train, length=length, covariance=covariance, sample_size="record") for train, test in splits]
     tasks = [(c, f) for c in configs for f in range(len(splits))]
-    args = [(c, splits[f][0], splits[f][1], length, covariance) for c, f in tasks]
+    args = [(c, splits[f][0], splits[f][1], length, covariance, samples) for c, f in tasks]
     n_jobs = jobs if jobs is not None else min(len(tasks), os.cpu_count() or 1)
     n_jobs = max(1, min(int(n_jobs), len(tasks)))
     results: list = [None] * len(tasks)
