@@ -67,6 +67,7 @@ class MotionModel:
     time_input : None, or ``"seconds"`` (time since the demonstration's start is a last GP input) or
         ``"phase"`` (normalised time s = (t − t_0)/D is a last input, and the outputs are velocities
         per unit phase, D·ξ, so that a rollout of any duration D' traverses the learned motion once)
+    variation : the demonstrations' deviation process over phase (MATH.md §11 (a)), or None
     mean : None (zero-mean GP, MATH.md §7), ``{"kind": "goal", "gain": a, "goal": (7,)}`` or
         ``{"kind": "path", "gain": a, "s", "quat", "position", "velocity"}``: the prior mean of the
         outputs (:func:`prior_mean_outputs`, per second or per unit phase) converted to the
@@ -84,6 +85,9 @@ class MotionModel:
     velocity: VelocityOptions = field(default_factory=VelocityOptions)
     time_input: str | None = None
     mean: dict | None = None
+    #: how the demonstrations differ (:class:`rbgp_cli.dynamics.variation.Variation`), for sampled
+    #: rollouts that are new demonstrations; None for fewer than three or an older model file
+    variation: object | None = None
 
     @property
     def recorded_rate(self) -> float | None:
@@ -580,5 +584,9 @@ def train_model(
     summary["recorded_rate_hz"] = 1.0 / recorded_dt  # rollouts are written at this rate by default
     summary["gp"] = gp_choice
     summary["prior"] = None if mean is None else {"kind": mean["kind"], "gain": mean["gain"]}
+    from rbgp_cli.dynamics.variation import demonstration_variation
+
+    variation = demonstration_variation(trajs)
+    summary["variation"] = None if variation is None else {"demos": variation.demos, "dof": variation.dof}
     return MotionModel(rep, gp, float(dt), starts, durations, summary=summary, velocity=velocity,
-                       time_input=time_input, mean=mean)
+                       time_input=time_input, mean=mean, variation=variation)

@@ -107,8 +107,14 @@ def _check_finite(state, step):
         raise RbgpRuntimeError(f"the rollout diverged (non-finite state) at step {step}", hint="check the model with rbgp info")
 
 
+#: How sampled rollouts are drawn: ``path`` (one coherent deviation of the demonstrations' kind per
+#: sample, :mod:`rbgp_cli.dynamics.variation`; the default where the model has it) or ``step``
+#: (independent draws of the velocity from the predictive Gaussian at every step, MATH.md §8).
+SAMPLINGS = ("path", "step")
+
+
 def rollout(model, start_quat, start_position, steps: int, dt: float | None = None, *, samples: int = 0,
-            seed: int = 0, with_std: bool = True, progress=None, durations=None) -> RolloutResult:
+            seed: int = 0, with_std: bool = True, progress=None, durations=None, sampling: str | None = None) -> RolloutResult:
     """Roll out ``model`` (a :class:`~rbgp_cli.dynamics.model.MotionModel`) from B start poses.
 
     Parameters
@@ -116,8 +122,13 @@ def rollout(model, start_quat, start_position, steps: int, dt: float | None = No
     start_quat : (B, 4) x, y, z, w;  start_position : (B, 3) metres
     steps : number of integration steps S (the result has S + 1 samples)
     dt : step in seconds (default: the model's, i.e. the demonstrations' median time step)
-    samples : K Monte Carlo rollouts per start (ξ drawn from the latent predictive Gaussian each step)
-    seed : seeds the Monte Carlo draws
+    samples : K sampled rollouts per start, drawn as ``sampling`` says
+    sampling : ``"path"`` (default when the model has a :attr:`~MotionModel.variation`): sample k of
+        start b is the mean rollout from b displaced by one draw η of the demonstrations' deviation
+        process at the trajectory's phase t/duration_b, R = exp(η_rot) R̄_b, p = p̄_b + η_pos (zero at
+        the start; :mod:`rbgp_cli.dynamics.variation`); ``"step"`` (the default without one): Monte Carlo
+        rollouts drawing ξ from the latent predictive Gaussian at every step
+    seed : seeds the draws
     with_std : record the predictive std along the mean trajectories (costs one triangular solve per
         step; switch off for speed)
     durations : (B,) seconds each trajectory is meant to last (default steps·dt for all). Only a model
@@ -132,7 +143,33 @@ def rollout(model, start_quat, start_position, steps: int, dt: float | None = No
     from rbgp_cli.progress import as_progress
 
     with blas_threads(0), as_progress(progress).task("rollout", total=int(steps), unit="steps") as task:
+        if sampling is None:
+            sampling = "path" if getattr(model, "variation", None) is not None else "step"
+        if sampling not in SAMPLINGS:
+            raise InputError(f"unknown sampling {sampling!r}; expected one of {', '.join(SAMPLINGS)}")
+        if sampling == "path" and samples:
+            if getattr(model, "variation", None) is None:
+                raise InputError("this model has no model of how its demonstrations differ (fewer than three, or "
+                                 "an older model file)", hint="sample with sampling 'step', or retrain")
+            res = _rollout(model, start_quat, start_position, steps, dt, 0, seed, with_std, task, durations)
+            return _path_samples(model.variation, res, int(samples), seed, durations)
         return _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, task, durations)
+
+
+def _path_samples(variation, res: RolloutResult, K: int, seed: int, durations) -> RolloutResult:
+    """``res`` with K path samples per trajectory: the mean rollout displaced by draws of the deviation
+    process at each trajectory's phase (see :func:`rollout`), batched over trajectories and samples."""
+    from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
+
+    B = res.count
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 20]))
+    dur = np.full(B, res.t[-1]) if durations is None else np.asarray(durations, dtype=np.float64).reshape(B)
+    phase = res.t[None, :] / dur[:, None]  # (B, T)
+    eta = variation.draw(B * K, rng).reshape(B, K, len(variation.s), 6)
+    dev = variation.at(eta, np.broadcast_to(phase[:, None, :], (B, K, len(res.t))))  # (B, K, T, 6)
+    res.sample_quat = quat_make_continuous(quat_multiply(exp_quat(dev[..., :3]), res.quat[:, None]))
+    res.sample_position = res.position[:, None] + dev[..., 3:]
+    return res
 
 
 def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, task, durations):
