@@ -20,7 +20,7 @@ from rbgp_cli.cli.train_options import (
 from rbgp_cli.cli.common import (
     BodyOpt, ColumnsOpt, DegreesOpt, EulerOrderOpt, FormatOpt, FrameOpt, LengthUnitOpt, MaxGapOpt,
     QuatOrderOpt, RateOpt, RotationOpt, TimeSourceOpt, TimeUnitOpt, TopicOpt, command, emit_json,
-    progress, read_options, set_json, set_quiet, write_text_output,
+    check_outputs, progress, read_options, set_json, set_quiet, write_text_output,
 )
 
 app = typer.Typer(
@@ -93,6 +93,7 @@ def train(
                           hyper_points=hyper_points, calibrate_noise=calibrate_noise)
     if up not in ("z", "y"):
         raise InputError(f"--up must be z or y, got {up!r}")
+    check_outputs(output, rerun)
     model, header, trajs = workflows.train_from_files(
         demos, output, options=opts, max_gap=max_gap, progress=progress,
         representation=representation, kernel=kernel, jobs=jobs or None, **kwargs,
@@ -153,6 +154,7 @@ def predict(
     from rbgp_cli import workflows
     from rbgp_cli.io.model_store import load_model
 
+    check_outputs(output)
     m, _ = load_model(model)
     opts = read_options("csv", columns, quat_order, euler_order, degrees, length_unit, None, None if m.time_input else 1.0)
     t, q, p, mean, std = workflows.predict_file(m, poses, opts, noisy=noisy)  # handles '-' too, with the row checks
@@ -205,6 +207,7 @@ def rollout(
         raise InputError("--json prints a summary on stdout, so the CSV needs -o FILE")
     if steps is not None and duration is not None:
         raise InputError("give --steps or --duration, not both")
+    check_outputs(output, rerun)
     m, _ = load_model(model)
     qs, ps = [], []
     for s in start or []:
@@ -290,6 +293,11 @@ def evaluate(
         if hint:
             raise InputError(hint)
     opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation)
+    check_outputs(per_step, rerun, plot)
+    if plot:
+        from rbgp_cli.viz.plots import _matplotlib
+
+        _matplotlib()  # not installed: say so now, not after the scoring
     m = None
     if model is not None:
         from rbgp_cli.io.model_store import load_model
@@ -458,6 +466,7 @@ def bench_paper(
 
     if part not in ("all", *PARTS):
         raise InputError(f"unknown part {part!r}; expected all, {', '.join(PARTS)}")
+    check_outputs(markdown)
     res = run_paper_bench(PARTS if part == "all" else (part,), repeats=repeats, seed=seed, quick=quick, progress=progress)
     report = format_report(res)
     if markdown:

@@ -18,8 +18,8 @@ import typer
 
 from rbgp_cli.progress import Progress
 
-__all__ = ["command", "progress", "emit_json", "read_options", "ReadOpts", "write_text_output", "set_quiet",
-           "set_json"]
+__all__ = ["command", "progress", "emit_json", "read_options", "ReadOpts", "write_text_output", "check_outputs",
+           "set_quiet", "set_json"]
 
 
 def _stderr(text: str) -> None:
@@ -170,6 +170,17 @@ def _json_default(o):
     if isinstance(o, Path):
         return str(o)
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def check_outputs(*paths: Optional[str]) -> None:
+    """Refuse output paths that cannot be written, before any work (reading, training, rolling out):
+    each must name a file whose folder exists and is writable (:func:`rbgp_cli.workflows.check_writable`,
+    the check of ``train -o``). None (option not given) and '-' (stdout) pass."""
+    from rbgp_cli.workflows import check_writable
+
+    for path in paths:
+        if path is not None and str(path) != "-":
+            check_writable(path)
 
 
 def write_text_output(path: Optional[str], writer) -> None:
