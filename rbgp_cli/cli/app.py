@@ -191,7 +191,10 @@ def rollout(
     rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd).")] = None,
     up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.")] = "z",
 ):
-    """Generate new motions from start poses by single-step mean prediction (MATH.md §8).
+    """Generate new motions from start poses by single-step mean prediction.
+
+    Each step takes the model's mean velocity at the current pose and integrates it over one time
+    step (with the exponential map for axis-angle; by addition for the euler and quaternion baselines).
 
     Example: rbgp rollout shoe.rbgp --count 100 --samples 5 -o rollouts.csv
     """
@@ -273,7 +276,11 @@ def evaluate(
     topic: TopicOpt = None, frame: FrameOpt = None, time_source: TimeSourceOpt = "header", body: BodyOpt = None,
     rotation: RotationOpt = None, max_gap: MaxGapOpt = None,
 ):
-    """Score generated trajectories against demonstrations: per-step Bhattacharyya distance (MATH.md §9).
+    """Score generated trajectories against demonstrations: per-step Bhattacharyya distance.
+
+    At each step of a common normalised time, the distance between a Gaussian of the generated set
+    and one of the demonstrations (rotation relative to the demonstrations' mean rotation, and
+    position), averaged over the steps; lower is closer.
 
     Example: rbgp rollout shoe.rbgp --count 100 -o - | rbgp evaluate - --demos sample_data/csv
     """

@@ -235,3 +235,60 @@ def test_a_file_size_limit_is_one_line_in_a_real_process(model, tmp_path):
     assert lines[-1] == f"rbgp: error: cannot write {gen}: File too large", res.stderr
     assert "Traceback" not in res.stderr and "internal error" not in res.stderr
     assert gen.read_text() == "old\n" and no_temp_files(tmp_path)
+
+
+# --------------------------------------------------------------------------- concatenated CSVs (22.11a)
+def test_concatenated_csvs_on_stdin_name_the_second_header_line(tmp_path):
+    """``cat a.csv b.csv | rbgp train -`` said "non-numeric value 'qx' in column 'qx'"."""
+    a, b = (CSV_DIR / "shoe_01.csv").read_text(), (CSV_DIR / "shoe_02.csv").read_text()
+    second = len(a.splitlines()) + 1
+    res = run("train", "-", "-o", tmp_path / "m.rbgp", *FAST, input=a + b)
+    assert_one_line_error(res, 2, f"-:{second}:", "a second header line", "concatenated files?",
+                          "give them as separate files")
+    assert "non-numeric" not in res.stderr and not (tmp_path / "m.rbgp").exists()
+    from rbgp_cli.errors import InputError
+    from rbgp_cli.io.csv import read_text
+
+    with pytest.raises(InputError, match=rf"x\.csv:{second + 1}: a second header line"):  # after a comment line
+        read_text("# rbgp trajectories: time_unit=s\n" + a + b, "x.csv")
+    with pytest.raises(InputError, match=r"x\.csv:3: non-numeric value 'qx' in column 'qx'"):  # one stray cell
+        read_text("t,x,y,z,qx,qy,qz,qw\n0,0,0,0,0,0,0,1\n0.1,0,0,0,qx,0,0,1\n", "x.csv")
+
+
+# --------------------------------------------------------------------------- README and --help (22.11b, c)
+def test_the_quick_start_installs_what_the_first_plot_example_needs():
+    import re
+    import tomllib
+
+    text = (REPO / "README.md").read_text(encoding="utf-8")
+    install = next(line for line in text.splitlines() if "pip install" in line)
+    assert text.index(install) < text.index("rbgp evaluate gen.csv --demos sample_data/csv/*.csv --plot")
+    extras = re.search(r"""pip install ["']?\.\[([\w,-]+)\]""", install)
+    assert extras and "plot" in extras.group(1).split(","), install
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
+    assert any(d.startswith("matplotlib") for d in project["optional-dependencies"]["plot"])
+
+
+def _all_help_texts():
+    import typer
+
+    from rbgp_cli.cli.app import app
+
+    def walk(cmd, path):
+        yield path, cmd
+        if hasattr(cmd, "commands"):  # a group (typer's own click)
+            for name, sub in cmd.commands.items():
+                yield from walk(sub, path + [name])
+
+    for path, _cmd in walk(typer.main.get_command(app), []):
+        res = run(*path, "--help")
+        assert res.exit_code == 0, (path, res.stderr)
+        yield path, res.stdout
+
+
+def test_help_texts_cite_no_file_the_user_does_not_have():
+    """MATH.md is not shipped: --help says in words what it meant."""
+    texts = dict((" ".join(p), t) for p, t in _all_help_texts())
+    assert {"", "train", "rollout", "evaluate", "crossval", "bench paper"} <= set(texts)
+    assert [p for p, t in texts.items() if "MATH.md" in t] == []
+    assert "exponential map" in " ".join(texts["rollout"].split())
