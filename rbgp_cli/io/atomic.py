@@ -23,7 +23,7 @@ from pathlib import Path
 
 from rbgp_cli.errors import InputError, RbgpRuntimeError
 
-__all__ = ["atomic_path", "atomic_open", "new_file_mode"]
+__all__ = ["atomic_path", "atomic_open", "new_file_mode", "write_error", "probe_write"]
 
 #: Write failures of the chosen path: another path fixes them (exit code 2).
 _PATH_ERRNOS = frozenset({errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOENT, errno.ENOTDIR, errno.EISDIR})
@@ -56,10 +56,24 @@ def new_file_mode(path) -> int:
     return stat.S_IMODE(st.st_mode) if stat.S_ISREG(st.st_mode) else 0o666 & ~_umask()
 
 
-def _write_error(dest: Path, exc: OSError):
+def write_error(dest, exc: OSError):
     """``cannot write PATH: reason`` as the error class its errno calls for."""
     cls = InputError if exc.errno in _PATH_ERRNOS else RbgpRuntimeError
     return cls(f"cannot write {dest}: {exc.strerror or exc}")
+
+
+def probe_write(path, size: int = 1 << 16) -> OSError | None:
+    """Append ``size`` zero bytes to ``path`` (a temporary file about to be removed) and fsync them:
+    the OSError this raises, or None. For writers that fail without saying why (rerun's file writer
+    logs the reason and raises a bare RuntimeError): the same disk, quota or size limit fails here too."""
+    try:
+        with open(path, "ab") as fh:
+            fh.write(bytes(size))
+            fh.flush()
+            os.fsync(fh.fileno())
+    except OSError as exc:
+        return exc
+    return None
 
 
 @contextlib.contextmanager
@@ -78,14 +92,14 @@ def atomic_path(path, suffix: str | None = None):
             prefix=f".{dest.name}.", suffix=(dest.suffix if suffix is None else suffix) + ".tmp", dir=directory
         )
     except OSError as exc:
-        raise _write_error(dest, exc) from None
+        raise write_error(dest, exc) from None
     os.close(fd)
     try:
         try:
             yield Path(tmp)
         except OSError as exc:
             if exc.errno in _PATH_ERRNOS or exc.errno in _LIMIT_ERRNOS:
-                raise _write_error(dest, exc) from None
+                raise write_error(dest, exc) from None
             raise
         try:
             fd = os.open(tmp, os.O_RDONLY)  # the writer may be a library that closed the file itself
@@ -96,7 +110,7 @@ def atomic_path(path, suffix: str | None = None):
             os.chmod(tmp, new_file_mode(dest))
             os.replace(tmp, dest)
         except OSError as exc:
-            raise _write_error(dest, exc) from None
+            raise write_error(dest, exc) from None
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)

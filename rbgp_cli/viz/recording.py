@@ -45,8 +45,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from rbgp_cli.dynamics.trajectory import Trajectory
-from rbgp_cli.errors import InputError
-from rbgp_cli.io.atomic import atomic_path
+from rbgp_cli.errors import InputError, RbgpError, RbgpRuntimeError
+from rbgp_cli.io.atomic import atomic_path, probe_write, write_error
 
 __all__ = ["record_training", "record_rollout", "record_evaluation", "APPLICATION_ID", "FEATURE_NAMES", "UP_AXES"]
 
@@ -132,12 +132,22 @@ def _recording(path, blueprint, name: str):
         rec = rr.RecordingStream(APPLICATION_ID, recording_id=uuid.uuid4())
         rec.set_log_time_enabled(False)  # the wall clock of writing is noise in a data file
         try:
-            rec.save(tmp, default_blueprint=blueprint)
-            rec.send_recording_name(name)
-            yield rec
-            rec.flush()
-        finally:
-            rec.disconnect()
+            try:
+                rec.save(tmp, default_blueprint=blueprint)
+                rec.send_recording_name(name)
+                yield rec
+                rec.flush()
+            finally:
+                rec.disconnect()
+        except RuntimeError as exc:
+            if isinstance(exc, RbgpError):
+                raise
+            # rerun's file writer failed (full disk, file-size limit, ...): its reason went to its own
+            # log, so look for it with a write of ours to the same file
+            cause = probe_write(tmp)
+            if cause is not None:
+                raise write_error(path, cause) from None
+            raise RbgpRuntimeError(f"cannot write {path}: rerun: {' '.join(str(exc).split())}") from None
 
 
 def _log_world(rec, up: str) -> None:

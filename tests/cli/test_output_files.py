@@ -292,3 +292,25 @@ def test_help_texts_cite_no_file_the_user_does_not_have():
     assert {"", "train", "rollout", "evaluate", "crossval", "bench paper"} <= set(texts)
     assert [p for p, t in texts.items() if "MATH.md" in t] == []
     assert "exponential map" in " ".join(texts["rollout"].split())
+
+
+@pytest.mark.parametrize("disk_full", [False, True])
+def test_a_recording_rerun_cannot_write_is_one_line(model, tmp_path, monkeypatch, disk_full):
+    """rerun's file writer reports a failed write as RuntimeError('File-writer thread shut down
+    prematurely') (its reason goes to its own log): the line names the file and, where a write of
+    ours finds it, the reason."""
+    rr = pytest.importorskip("rerun")
+    rrd = tmp_path / "r.rrd"
+    rrd.write_bytes(b"old recording")
+
+    def flush(self, **kw):
+        raise RuntimeError("File-writer thread shut down prematurely")
+
+    monkeypatch.setattr(rr.RecordingStream, "flush", flush)
+    if disk_full:  # only the recording's writes (Linux: the fd's file name)
+        fsync, full = os.fsync, _failing_fsync(errno.ENOSPC)
+        monkeypatch.setattr(os, "fsync", lambda fd: (full if ".r.rrd." in os.readlink(f"/proc/self/fd/{fd}") else fsync)(fd))
+    res = run("rollout", model, "--count", 2, "--steps", 5, "--no-std", "-o", tmp_path / "gen.csv", "--rerun", rrd, "-q")
+    reason = "No space left on device" if disk_full else "rerun: File-writer thread shut down prematurely"
+    assert_one_line_error(res, 1, f"cannot write {rrd}: {reason}")
+    assert rrd.read_bytes() == b"old recording" and no_temp_files(tmp_path)
