@@ -314,3 +314,21 @@ def test_a_recording_rerun_cannot_write_is_one_line(model, tmp_path, monkeypatch
     reason = "No space left on device" if disk_full else "rerun: File-writer thread shut down prematurely"
     assert_one_line_error(res, 1, f"cannot write {rrd}: {reason}")
     assert rrd.read_bytes() == b"old recording" and no_temp_files(tmp_path)
+
+
+def test_stdout_redirected_into_a_file_past_the_size_limit_is_one_line(model, tmp_path):
+    """``rbgp rollout ... > gen.csv`` under a file-size limit: the shell's file is stdout."""
+    code = textwrap.dedent(f"""
+        import resource, sys
+        resource.setrlimit(resource.RLIMIT_FSIZE, (2000, 2000))
+        from rbgp_cli.cli.app import main
+        sys.argv = ["rbgp", "rollout", {str(model)!r}, "--count", "4", "--steps", "50", "--no-std", "-q"]
+        main()
+    """)
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    env.pop("RBGP_DEBUG", None)
+    with open(tmp_path / "gen.csv", "wb") as out:
+        res = subprocess.run([sys.executable, "-c", code], stdout=out, stderr=subprocess.PIPE, text=True, timeout=120,
+                             env=env, cwd=tmp_path)
+    assert res.returncode == 1, res.stderr
+    assert res.stderr.strip().splitlines() == ["rbgp: error: cannot write stdout: File too large"], res.stderr
