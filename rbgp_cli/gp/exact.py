@@ -341,8 +341,9 @@ class GaussianProcess:
         self.y_scale = np.ones(self.Y.shape[1]) if y_scale is None else np.asarray(y_scale, dtype=np.float64)
         if factors is None:
             # single-threaded, as the fit that made them: a lone `rbgp rollout --count 60` at n = 1208
-            # spent 4.7x the CPU of one thread here (2-3 Cholesky factorisations on a thread pool
-            # that then spin-waits), and was slower in wall time too (issue 24)
+            # spent up to 4.7x the CPU of one thread here (two Cholesky factorisations per group on
+            # the BLAS pool, whose threads then spin-wait), and was slower in wall time too (issue 24;
+            # benchmarks/bench_rollout.py --threads)
             with blas_threads(0):
                 self._factorise()
         else:
