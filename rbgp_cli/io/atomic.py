@@ -53,7 +53,8 @@ def new_file_mode(path) -> int:
         st = os.stat(path)
     except OSError:
         return 0o666 & ~_umask()
-    return stat.S_IMODE(st.st_mode) if stat.S_ISREG(st.st_mode) else 0o666 & ~_umask()
+    # (the permission bits only: writing a file clears its set-user/group-id bits)
+    return st.st_mode & 0o777 if stat.S_ISREG(st.st_mode) else 0o666 & ~_umask()
 
 
 def write_error(dest, exc: OSError):
