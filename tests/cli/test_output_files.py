@@ -162,6 +162,14 @@ def test_output_paths_are_checked_before_the_work(model, tmp_path, no_training, 
     assert no_temp_files(tmp_path)
 
 
+def test_plot_without_matplotlib_says_so_before_the_work(model, tmp_path, no_training, monkeypatch):
+    for name in ("matplotlib", "matplotlib.figure", "matplotlib.backends.backend_agg"):
+        monkeypatch.setitem(sys.modules, name, None)
+    res = run("evaluate", "--model", model, "--demos", CSV_DIR, "--plot", tmp_path / "f.png")
+    assert_one_line_error(res, 2, "--plot needs matplotlib", "rbgp-cli[plot]")
+    assert not (tmp_path / "f.png").exists()
+
+
 @pytest.mark.skipif(hasattr(os, "geteuid") and os.geteuid() == 0, reason="root may write into any folder")
 def test_an_unwritable_plot_folder_is_refused_before_the_work(model, tmp_path, no_training):
     ro = tmp_path / "ro"
