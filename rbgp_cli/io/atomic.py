@@ -23,7 +23,7 @@ from pathlib import Path
 
 from rbgp_cli.errors import InputError, RbgpRuntimeError
 
-__all__ = ["atomic_path", "atomic_open", "new_file_mode", "write_error", "probe_write"]
+__all__ = ["atomic_path", "atomic_open", "new_file_mode", "write_error"]
 
 #: Write failures of the chosen path: another path fixes them (exit code 2).
 _PATH_ERRNOS = frozenset({errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOENT, errno.ENOTDIR, errno.EISDIR})
@@ -61,20 +61,6 @@ def write_error(dest, exc: OSError):
     """``cannot write PATH: reason`` as the error class its errno calls for."""
     cls = InputError if exc.errno in _PATH_ERRNOS else RbgpRuntimeError
     return cls(f"cannot write {dest}: {exc.strerror or exc}")
-
-
-def probe_write(path, size: int = 1 << 16) -> OSError | None:
-    """Append ``size`` zero bytes to ``path`` (a temporary file about to be removed) and fsync them:
-    the OSError this raises, or None. For writers that fail without saying why (rerun's file writer
-    logs the reason and raises a bare RuntimeError): the same disk, quota or size limit fails here too."""
-    try:
-        with open(path, "ab") as fh:
-            fh.write(bytes(size))
-            fh.flush()
-            os.fsync(fh.fileno())
-    except OSError as exc:
-        return exc
-    return None
 
 
 @contextlib.contextmanager
