@@ -18,7 +18,7 @@ from rbgp_cli.cli.train_options import (
     CalibrateOpt, HyperPointsOpt, InducingOpt, SmoothWindowOpt, SubsampleOpt, TimeInputOpt, TrainRateOpt, defaults, kernel_help, train_kwargs,
 )
 from rbgp_cli.cli.common import (
-    ReadArgs, command, emit_json, progress, set_json, set_quiet, with_read_options, write_text_output,
+    ReadArgs, command, emit_json, check_outputs, progress, set_json, set_quiet, with_read_options, write_text_output,
 )
 
 app = typer.Typer(
@@ -89,6 +89,7 @@ def train(
                           hyper_points=hyper_points, calibrate_noise=calibrate_noise)
     if up not in ("z", "y"):
         raise InputError(f"--up must be z or y, got {up!r}")
+    check_outputs(output, rerun)
     model, header, trajs = workflows.train_from_files(
         demos, output, options=opts, max_gap=max_gap, progress=progress,
         representation=representation, kernel=kernel, jobs=jobs or None, **kwargs,
@@ -150,6 +151,7 @@ def predict(
     from rbgp_cli import workflows
     from rbgp_cli.io.model_store import load_model
 
+    check_outputs(output)
     m, _ = load_model(model)
     t, q, p, mean, std = workflows.predict_file(m, poses, read.options, noisy=noisy, max_gap=read.max_gap)  # '-' too
     names = list(m.representation.output_names)
@@ -190,7 +192,10 @@ def rollout(
     up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.")] = "z",
     read: ReadArgs = None,
 ):
-    """Generate new motions from start poses by single-step mean prediction (MATH.md §8).
+    """Generate new motions from start poses by single-step mean prediction.
+
+    Each step takes the model's mean velocity at the current pose and integrates it over one time
+    step (with the exponential map for axis-angle; by addition for the euler and quaternion baselines).
 
     Example: rbgp rollout shoe.rbgp --count 100 --samples 5 -o rollouts.csv
     """
@@ -214,6 +219,7 @@ def rollout(
     if opts.rate is not None and not (starts or from_demos):
         raise InputError("--rate is the sample rate of input files without a time column, and rollout reads none here",
                          hint="set the rate of the written trajectories with --output-rate HZ")
+    check_outputs(output, rerun)
     m, _ = load_model(model)
     qs, ps, durs = [], [], []
     for s in start or []:
@@ -290,7 +296,11 @@ def evaluate(
     up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.")] = "z",
     read: ReadArgs = None,
 ):
-    """Score generated trajectories against demonstrations: per-step Bhattacharyya distance (MATH.md §9).
+    """Score generated trajectories against demonstrations: per-step Bhattacharyya distance.
+
+    At each step of a common normalised time, the distance between a Gaussian of the generated set
+    and one of the demonstrations (rotation relative to the demonstrations' mean rotation, and
+    position), averaged over the steps; lower is closer.
 
     Example: rbgp rollout shoe.rbgp --count 100 -o - | rbgp evaluate - --demos sample_data/csv
     """
@@ -310,6 +320,11 @@ def evaluate(
         if hint:
             raise InputError(hint)
     opts, max_gap = read.options, read.max_gap
+    check_outputs(per_step, rerun, plot)
+    if plot:
+        from rbgp_cli.viz.plots import _matplotlib
+
+        _matplotlib()  # not installed: say so now, not after the scoring
     m = None
     if model is not None:
         from rbgp_cli.io.model_store import load_model
@@ -497,6 +512,7 @@ def bench_paper(
 
     if part not in ("all", *PARTS):
         raise InputError(f"unknown part {part!r}; expected all, {', '.join(PARTS)}")
+    check_outputs(markdown)
     res = run_paper_bench(PARTS if part == "all" else (part,), repeats=repeats, seed=seed, quick=quick, progress=progress)
     report = format_report(res)
     if markdown:

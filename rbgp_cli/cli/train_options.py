@@ -102,5 +102,5 @@ def kernel_help() -> str:
     by = ", ".join(f"{k} for {r}" for r, k in DEFAULT_KERNELS.items())
     return ("se-chordal (the squared exponential on the chordal rotation distance: positive definite for every "
             "λ), se (the paper's eq. 24 on the representation's own rotation distance: the geodesic one for "
-            "axis-angle, not positive definite in general, MATH.md §6; Euclidean for euler) or dot (eq. 22). "
+            "axis-angle, not positive definite for every length-scale; Euclidean for euler) or dot (eq. 22). "
             f"Default: {by}.")

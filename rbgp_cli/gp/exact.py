@@ -340,7 +340,12 @@ class GaussianProcess:
         self.shared = bool(shared)
         self.y_scale = np.ones(self.Y.shape[1]) if y_scale is None else np.asarray(y_scale, dtype=np.float64)
         if factors is None:
-            self._factorise()
+            # single-threaded, as the fit that made them: a lone `rbgp rollout --count 60` at n = 1208
+            # spent up to 4.7x the CPU of one thread here (two Cholesky factorisations per group on
+            # the BLAS pool, whose threads then spin-wait), and was slower in wall time too (issue 24;
+            # benchmarks/bench_rollout.py --threads)
+            with blas_threads(0):
+                self._factorise()
         else:
             # from fit_gp, which has just computed and checked them: per group (L, α)
             self._L = [np.asarray(Lc) for Lc, _a in factors]
@@ -395,11 +400,16 @@ class GaussianProcess:
         from round-off) are clipped to 0; ``self.last_clipped`` counts them.
 
         ``manage_threads=False`` skips the BLAS thread limit (about 1 ms per call) for callers that set
-        it once around many calls (rollouts: see :func:`blas_threads`).
+        it once around many calls (rollouts: see :func:`blas_threads`). Otherwise BLAS runs as
+        :func:`blas_threads` decides for n training points, and single-threaded when the rows are
+        spread over this module's prediction threads (:func:`_prediction_workers`): those threads
+        take the free cores already, and a BLAS pool in each of them would oversubscribe them.
         """
         if not manage_threads:
             return self._predict(Xs, return_std, noisy, chunk_elements)
-        with blas_threads(len(self.X)):
+        n = len(self.X)
+        m = np.size(Xs) // max(self.X.shape[1], 1)
+        with blas_threads(n if _prediction_workers(m * n) == 1 else 0):
             return self._predict(Xs, return_std, noisy, chunk_elements)
 
     def _predict(self, Xs, return_std, noisy, chunk_elements):
