@@ -263,10 +263,15 @@ def evaluate_files(generated_sources, demo_sources, *, options: ReadOptions | No
     return result, generated, demos
 
 
-def crossval_configs(representations, kernels, train_kwargs: dict, replay: bool = True):
-    """The rows of ``rbgp crossval``: every representation × kernel with the same training options,
+def crossval_configs(representations, kernels, train_kwargs: dict, replay: bool = True, variants=None):
+    """The rows of ``rbgp crossval``: every representation × kernel × variant of the training options,
     plus the replay peer. ``all`` stands for the three representations; a kernel a representation does
-    not have (the chordal distance on Euler angles) is left out for it, with a note in the returned list."""
+    not have (the chordal distance on Euler angles) is left out for it, with a note in the returned list.
+
+    ``variants``: None (one row per representation × kernel with ``train_kwargs``) or a list of
+    ``(label, options, kwargs)`` (:func:`rbgp_cli.cli.train_options.grid_variants`, ``--grid``): each
+    representation × kernel runs with each ``kwargs``, its row labelled with ``label`` and carrying
+    ``options`` ({option: value}). The replay peer trains nothing and stays one row."""
     from rbgp_cli.dynamics.defaults import DEFAULT_KERNELS, DEFAULTS
     from rbgp_cli.dynamics.model import KERNELS
     from rbgp_cli.dynamics.representations import REPRESENTATIONS
@@ -283,15 +288,21 @@ def crossval_configs(representations, kernels, train_kwargs: dict, replay: bool 
     for k in kerns:
         if k not in KERNELS:
             raise InputError(f"unknown kernel {k!r}; expected one of {', '.join(KERNELS)}")
+    variants = list(variants) if variants else [("", {}, train_kwargs)]
     configs, skipped = [], []
+
+    def add(r, k):
+        for label, options, kw in variants:
+            configs.append(Config(r, k, dict(kw), label=f"{r} {k} {label}" if label else "", options=dict(options)))
+
     for r in reps:
         for k in kerns or [DEFAULT_KERNELS[r]]:
             if r == "euler" and k == "se-chordal":
                 skipped.append("euler with se-chordal (Euler angles have no chordal distance; euler runs with se)")
                 if "se" not in kerns:
-                    configs.append(Config(r, "se", dict(train_kwargs)))
+                    add(r, "se")
                 continue
-            configs.append(Config(r, k, dict(train_kwargs)))
+            add(r, k)
     if replay:
         configs.append(Config(REPLAY))
     return configs, skipped

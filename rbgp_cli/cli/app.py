@@ -355,10 +355,12 @@ def inspect(
 @app.command()
 @command
 def crossval(
+    ctx: typer.Context,
     demos: Annotated[List[str], typer.Argument(help="Demonstration files or directories (a shell glob is fine).")],
     folds: Annotated[int, typer.Option(min=2, help="Folds of the demonstrations (a demonstration is never split across folds).")] = 5,
     representation: Annotated[Optional[List[str]], typer.Option("--representation", help="axis-angle, euler, quaternion, or all; repeatable (default: axis-angle).", rich_help_panel=_TRAIN)] = None,
     kernel: Annotated[Optional[List[str]], typer.Option("--kernel", help="Repeatable; every representation runs with every kernel (default: each representation's own). " + kernel_help(), rich_help_panel=_TRAIN)] = None,
+    grid: Annotated[Optional[List[str]], typer.Option("--grid", metavar="OPTION=V1,V2,...", help="Repeatable: cross-validate every value of a training option, named as its option without the dashes (e.g. --grid prior-gain=3,5,10 --grid inducing=0,512; 'default' is the option's default). Every combination of the grids × representations × kernels is one row, on the same folds; the values are checked as the option checks them; --seed stays the seed of the folds (--grid seed=0,1 varies the training seed only).", rich_help_panel=_TRAIN)] = None,
     replay: Annotated[bool, typer.Option("--replay/--no-replay", help="Include the replay peer: the training demonstration with the nearest start, moved rigidly to the new start.")] = True,
     jobs: Annotated[Optional[int], typer.Option(min=1, help="Worker processes for the fits (default: one per core); 1 runs them in this process.")] = None,
     scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Run the fits on a Dask cluster: the scheduler's address (tcp://host:8786), or 'local' for a LocalCluster of --jobs single-threaded workers. Needs pip install \"rbgp-cli\\[distributed]\"; the results are the same.")] = None,
@@ -384,9 +386,12 @@ def crossval(
     demonstrations next to the floor (the held-out demonstrations' own score) and the replay peer.
 
     Example: rbgp crossval sample_data/csv --representation all --folds 3
+
+    Example: rbgp crossval sample_data/csv --grid prior-gain=3,10 --grid inducing=0,48
     """
     from rbgp_cli import workflows
-    from rbgp_cli.errors import warn
+    from rbgp_cli.cli.train_options import grid_variants
+    from rbgp_cli.errors import InputError, warn
 
     opts = read_options(fmt, columns, quat_order, euler_order, degrees, length_unit, time_unit, rate, topic, frame, time_source, body, rotation)
     kwargs = train_kwargs(rho_rot=rho_rot, restarts=restarts, explore_size=explore_size, seed=seed, noise=noise,
@@ -394,7 +399,12 @@ def crossval(
                           train_rate=train_rate, smooth_window=smooth_window, smooth_degree=smooth_degree,
                           time_input=time_input, prior=prior, prior_gain=prior_gain, inducing=inducing,
                           hyper_points=hyper_points, calibrate_noise=calibrate_noise)
-    configs, skipped = workflows.crossval_configs(representation, kernel, kwargs, replay=replay)
+    variants, lists = grid_variants(ctx, grid)
+    for name, given in (("representation", representation), ("kernel", kernel)):
+        if name in lists and given:
+            raise InputError(f"give --{name} or --grid {name}=..., not both")
+    configs, skipped = workflows.crossval_configs(lists.get("representation", representation), lists.get("kernel", kernel),
+                                                  kwargs, replay=replay, variants=variants if grid else None)
     for note in skipped:
         warn(f"left out {note}")
     result = workflows.crossval_files(demos, configs, options=opts, max_gap=max_gap, folds=folds, seed=seed, jobs=jobs,

@@ -64,12 +64,14 @@ REPLAY_RHO = 0.7
 
 @dataclass(frozen=True)
 class Config:
-    """One row of the table: a representation and kernel (or the replay peer) and train options."""
+    """One row of the table: a representation and kernel (or the replay peer) and train options;
+    ``options``: the options a ``--grid`` set for this row ({CLI name: value}), ``label`` its name."""
 
     representation: str
     kernel: str | None = None
     train: dict = field(default_factory=dict)
     label: str = ""
+    options: dict = field(default_factory=dict)
 
     @property
     def name(self) -> str:
@@ -292,6 +294,7 @@ def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[di
         "representation": config.representation,
         "kernel": config.kernel,
         "label": config.name,
+        "options": dict(config.options),
         "score": score,
         "floor": floor,
         "ratio": score / floor if floor > 0 else float("inf"),
