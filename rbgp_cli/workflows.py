@@ -31,6 +31,7 @@ __all__ = [
     "predict_file",
     "crossval_configs",
     "crossval_files",
+    "left_data",
     "SAMPLE_DATA",
 ]
 
@@ -212,9 +213,15 @@ def predict_file(model, path, options: ReadOptions | None = None, noisy: bool = 
 
 
 def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, samples=0, seed=0, with_std=True,
-                  progress=None):
-    """``rbgp rollout``: steps from --steps, or --duration / dt, or the demonstrations' median duration."""
+                  progress=None, off_data: str = "keep"):
+    """``rbgp rollout``: steps from --steps, or --duration / dt, or the demonstrations' median duration.
+
+    ``off_data`` (keep, stop, prior): what a rollout does outside the demonstrations' envelope
+    (:mod:`rbgp_cli.dynamics.rollout`); rollouts that left it are named in one warning (the result's
+    ``left`` lists them)."""
+    from rbgp_cli.dynamics.envelope import describe
     from rbgp_cli.dynamics.rollout import rollout
+    from rbgp_cli.errors import warn
 
     step = float(model.dt if dt is None else dt)
     if steps is None:
@@ -222,7 +229,15 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
         if not np.isfinite(dur) or dur <= 0:
             raise InputError(f"--duration must be a positive number of seconds, got {dur}")
         steps = max(1, int(round(dur / step)))
-    return rollout(model, quat, pos, steps, step, samples=samples, seed=seed, with_std=with_std, progress=progress)
+    res = rollout(model, quat, pos, steps, step, samples=samples, seed=seed, with_std=with_std, progress=progress,
+                  off_data=off_data)
+    if res.left and res.left["count"]:
+        then = {"keep": "they went on (--off-data stop ends them there, prior falls back to the prior's pull)",
+                "stop": "they end there (--off-data stop)",
+                "prior": "they followed the prior mean while outside (--off-data prior)"}[off_data]
+        warn(describe(res.left) + f"; {then}"
+             + ("; envelope from the model's training points (an older model file)" if res.left["envelope"] != "demonstrations" else ""))
+    return res
 
 
 def generate_like_paper(model, demos, count=100, spread=0.02, seed=0, progress=None):
@@ -261,6 +276,18 @@ def evaluate_files(generated_sources, demo_sources, *, options: ReadOptions | No
         generated, _, _ = load_demonstrations(generated_sources, ReadOptions(), stdin=stdin)
     result = evaluate(generated, demos, length=length, covariance=covariance)
     return result, generated, demos
+
+
+def left_data(generated, demos) -> dict:
+    """Which generated trajectories leave the envelope of ``demos`` (:mod:`rbgp_cli.dynamics.envelope`,
+    each on its own phase): ``{"count", "of", "margin_m", "envelope", "trajectories": [...]}``, with
+    each trajectory's name next to its index."""
+    from rbgp_cli.dynamics.envelope import envelope_from_demos, left_envelope
+
+    report = left_envelope(list(generated), envelope_from_demos(demos))
+    for e in report["trajectories"]:
+        e["name"] = generated[e["index"]].name
+    return report
 
 
 def crossval_configs(representations, kernels, train_kwargs: dict, replay: bool = True, variants=None):

@@ -184,6 +184,7 @@ def rollout(
     samples: Annotated[int, typer.Option(min=0, help="Monte Carlo rollouts per start, drawing velocities from the predictive Gaussian.")] = 0,
     seed: Annotated[int, typer.Option(help="Seed for start perturbations and Monte Carlo draws.")] = 0,
     no_std: Annotated[bool, typer.Option("--no-std", help="Skip the predictive standard deviations (faster).")] = False,
+    off_data: Annotated[str, typer.Option("--off-data", help="What a rollout does once it leaves the demonstrations' envelope (the positions they reach near the same phase of the motion, widened by 25 % of their largest extent, at least 5 cm): keep (go on), stop (end the trajectory at its first sample outside) or prior (while outside, follow the prior mean alone: the mean-path prior's pull back toward the demonstrations). Every mode warns and marks those samples (CSV column left_data = 1; --json: left_data).")] = "keep",
     output: Annotated[Optional[str], typer.Option("--output", "-o", help="CSV to write ('-' or omitted: stdout).")] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print a JSON summary on stdout (requires -o FILE).")] = False,
     rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd).")] = None,
@@ -228,14 +229,17 @@ def rollout(
         progress(f"no start given: {len(q)} start(s) near the demonstrations' start poses stored in the model")
     q0, p0 = np.concatenate(qs), np.concatenate(ps)
     res = workflows.rollout_model(m, q0, p0, steps=steps, duration=duration, dt=dt, samples=samples, seed=seed,
-                                  with_std=not no_std, progress=progress)
+                                  with_std=not no_std, progress=progress, off_data=off_data)
     trajs = res.trajectories(include_samples=samples > 0)
-    extra = None
+    B = res.count
+    extra = {}
     if res.std is not None:
-        B = res.count
         nan = np.full_like(res.std[0], np.nan)
-        per = [res.std[b] for b in range(B)] + [nan for _ in range(len(trajs) - B)]
+        per = [res.std[b, : res.length(b)] for b in range(B)] + [nan for _ in range(len(trajs) - B)]
         extra = {f"std_{n}": [a[:, j] for a in per] for j, n in enumerate(res.output_names)}
+    # 1 where a mean rollout's sample lies outside the demonstrations' envelope (samples: not checked)
+    extra["left_data"] = ([res.outside[b, : res.length(b)].astype(float) for b in range(B)]
+                          + [np.full(len(tr.t), np.nan) for tr in trajs[B:]])
     write_text_output(output, lambda fh: write_trajectories_csv(trajs, fh, extra=extra))
     if rerun:
         from rbgp_cli.viz.recording import record_rollout
@@ -244,7 +248,8 @@ def rollout(
         progress(f"wrote {rerun}")
     if json_out:
         emit_json({"trajectories": res.count, "samples_per_start": samples, "steps": len(res.t) - 1,
-                   "dt": float(res.t[1] - res.t[0]), "output": output, "std": res.std is not None})
+                   "dt": float(res.t[1] - res.t[0]), "output": output, "std": res.std is not None,
+                   "off_data": off_data, "left_data": res.left})
 
 
 # ---------------------------------------------------------------------------------------------- evaluate
@@ -320,12 +325,14 @@ def evaluate(
         plot_evaluation(plot, result, gen, dem, compare=other,
                         labels=(label, Path(compare[0]).stem if compare else "compare"))
         progress(f"wrote {plot}")
+    left = workflows.left_data(gen, dem)  # a score never hides motions that went where no demonstration goes
     if json_out:
-        emit_json(result.to_dict())
+        emit_json({**result.to_dict(), "left_data": left})
     else:
         b = result.to_dict()["bhattacharyya"]
         print(f"bhattacharyya mean {b['mean']:.4f}  rotation {b['rotation']:.4f}  translation {b['translation']:.4f}"
-              f"  ({result.steps} steps, {result.n_generated} generated, {result.n_demos} demonstrations)")
+              f"  ({result.steps} steps, {result.n_generated} generated, {result.n_demos} demonstrations)"
+              f"; {left['count']} of {left['of']} generated left the demonstrations' envelope")
 
 
 # ---------------------------------------------------------------------------------------------- inspect

@@ -122,10 +122,13 @@ def format_crossval(result: dict, per_fold: bool = False) -> str:
         f"floor {result['floor']:.3f} (the held-out demonstrations scored against the same training sets)",
         "score: Bhattacharyya distance of the rollouts from the held-out starts to the training demonstrations "
         "(lower is better); ratio = score / floor; pos/rot: RMSE against the held-out demonstration with the "
-        "same start (m, rad); vel: relative velocity RMSE on held-out pairs (1 = predicting zero)",
+        "same start (m, rad); vel: relative velocity RMSE on held-out pairs (1 = predicting zero); left: rollouts "
+        "that left the training demonstrations' envelope"
+        + (f" (held-out demonstrations: {result['floor_left_data']} of {result['demonstrations']})"
+           if result.get("floor_left_data") is not None else ""),
         "",
         f"{'representation':<14} {'kernel':<10} {'score':>8} {'floor':>7} {'ratio':>7} {'rotation':>9} {'translation':>11}"
-        f" {'pos_m':>7} {'rot_rad':>7} {'vel':>6} {'train_s':>8}",
+        f" {'pos_m':>7} {'rot_rad':>7} {'vel':>6} {'train_s':>8} {'left':>5}",
     ]
     # rows of a --grid: the options that make each row, after its numbers
     options = {id(r): _options_label(r) for r in result["results"]}
@@ -136,7 +139,7 @@ def format_crossval(result: dict, per_fold: bool = False) -> str:
         flag = "" if r.get("reliable", True) else "  *"
         return (f"{label_rep:<14} {label_kern:<10} {r['score']:8.3f} {r['floor']:7.3f} {r['ratio']:7.2f} {r['rotation']:9.3f}"
                 f" {r['translation']:11.3f} {r['position_rmse']:7.3f} {r['rotation_rmse']:7.3f} {_num(r['velocity_rmse'], '6.3f'):>6}"
-                f" {r['train_s']:8.1f}" + (f"  {opts}" if opts else "") + flag)
+                f" {r['train_s']:8.1f} {_num(r.get('left_data'), 'd'):>5}" + (f"  {opts}" if opts else "") + flag)
 
     for r in result["results"]:
         lines.append(row(r, r["representation"], r["kernel"] or "-", options[id(r)]))

@@ -72,6 +72,9 @@ class MotionModel:
         outputs (:func:`prior_mean_outputs`, per second or per unit phase) converted to the
         representation's outputs; the GP models the residual, as in stable dynamical systems learned
         from demonstration
+    envelope : where the demonstrations went (:class:`~rbgp_cli.dynamics.envelope.Envelope`, stored at
+        training time), or None (a model file from before): :meth:`data_envelope` then computes it from
+        the training points
     """
 
     representation: Representation
@@ -84,6 +87,24 @@ class MotionModel:
     velocity: VelocityOptions = field(default_factory=VelocityOptions)
     time_input: str | None = None
     mean: dict | None = None
+    envelope: object = None
+
+    def data_envelope(self):
+        """The demonstrations' envelope (:mod:`rbgp_cli.dynamics.envelope`): the stored one, or for a
+        model file without it one computed from the training inputs (their positions, at their phase
+        for a phase model, else one box for the whole motion; ``source`` says so)."""
+        if self.envelope is not None:
+            return self.envelope
+        cached = self.__dict__.get("_envelope_from_points")
+        if cached is None:
+            from rbgp_cli.dynamics.envelope import envelope_from_points
+
+            X = np.asarray(self.gp.X, dtype=np.float64)
+            _, pos = self.representation.pose_from_state(X[:, : self.pose_dims])
+            phase = np.clip(X[:, -1], 0.0, 1.0) if self.time_input == "phase" else None
+            cached = envelope_from_points(pos, phase, source="training points")
+            self.__dict__["_envelope_from_points"] = cached
+        return cached
 
     @property
     def pose_dims(self) -> int:
@@ -517,5 +538,7 @@ def train_model(
     summary["time_input"] = time_input
     summary["gp"] = gp_choice
     summary["prior"] = None if mean is None else {"kind": mean["kind"], "gain": mean["gain"]}
+    from rbgp_cli.dynamics.envelope import envelope_from_demos
+
     return MotionModel(rep, gp, float(dt), starts, durations, summary=summary, velocity=velocity,
-                       time_input=time_input, mean=mean)
+                       time_input=time_input, mean=mean, envelope=envelope_from_demos(trajs))

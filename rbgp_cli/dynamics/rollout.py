@@ -8,6 +8,15 @@ All B trajectories share one kernel block per step (B × n), not one per traject
 the latent predictive standard deviation σ(g_k) of every output along each mean trajectory, and
 optionally K Monte Carlo rollouts per start that draw ξ_k ~ N(μ(g_k), σ²(g_k)) each step from a
 seeded rng.
+
+Leaving the data: each mean trajectory is checked against the demonstrations' envelope
+(:mod:`rbgp_cli.dynamics.envelope`, stored in the model) at its phase t/D; ``outside`` marks the
+samples beyond it and ``left`` reports which trajectories left it, when and where first. ``off_data``
+says what a rollout does there: ``keep`` (go on as before), ``stop`` (the trajectory ends at its first
+sample outside, which is kept so the exit shows, and at least one step is made) or ``prior`` (while a
+state is outside, its velocity is the prior mean's alone, ξ = m(g), not the GP's: the mean-path
+prior's pull back toward the demonstrations; a model without a prior mean refuses it). The Monte Carlo
+samples follow ``prior`` too but are not checked or cut.
 """
 
 from __future__ import annotations
@@ -32,6 +41,9 @@ class RolloutResult:
     std : (B, S+1, L) latent predictive std of each output at each state, or None
     output_names : names of the L outputs (e.g. wx ... vz)
     sample_quat : (B, K, S+1, 4) and sample_position : (B, K, S+1, 3) Monte Carlo rollouts, or None
+    outside : (B, S+1) True where a mean trajectory's sample lies outside the demonstrations' envelope
+    left : :func:`~rbgp_cli.dynamics.envelope.exits_report` of the mean trajectories, or None
+    ends : (B,) index of each mean trajectory's last sample (``off_data="stop"``), or None (all S)
     """
 
     t: np.ndarray
@@ -41,14 +53,22 @@ class RolloutResult:
     output_names: tuple
     sample_quat: np.ndarray | None = None
     sample_position: np.ndarray | None = None
+    outside: np.ndarray | None = None
+    left: dict | None = None
+    ends: np.ndarray | None = None
 
     @property
     def count(self) -> int:
         return self.quat.shape[0]
 
+    def length(self, b: int) -> int:
+        """Samples of mean trajectory b (all S + 1 unless it was stopped where it left the data)."""
+        return len(self.t) if self.ends is None else int(self.ends[b]) + 1
+
     def trajectories(self, include_samples: bool = False) -> list[Trajectory]:
-        """The mean rollouts (names ``0``, ``1``, …) and, optionally, the samples (``0.s0``, …)."""
-        out = [Trajectory(self.t, self.quat[b], self.position[b], name=str(b)) for b in range(self.count)]
+        """The mean rollouts (names ``0``, ``1``, …; cut at ``ends``) and, optionally, the samples (``0.s0``, …)."""
+        out = [Trajectory(self.t[: self.length(b)], self.quat[b, : self.length(b)], self.position[b, : self.length(b)],
+                          name=str(b)) for b in range(self.count)]
         if include_samples and self.sample_quat is not None:
             for b in range(self.count):
                 for k in range(self.sample_quat.shape[1]):
@@ -62,7 +82,7 @@ def _check_finite(state, step):
 
 
 def rollout(model, start_quat, start_position, steps: int, dt: float | None = None, *, samples: int = 0,
-            seed: int = 0, with_std: bool = True, progress=None, durations=None) -> RolloutResult:
+            seed: int = 0, with_std: bool = True, progress=None, durations=None, off_data: str = "keep") -> RolloutResult:
     """Roll out ``model`` (a :class:`~rbgp_cli.dynamics.model.MotionModel`) from B start poses.
 
     Parameters
@@ -78,6 +98,8 @@ def rollout(model, start_quat, start_position, steps: int, dt: float | None = No
         with a phase input uses it: trajectory b advances its phase by dt/durations[b] per step, so a
         batch of different lengths can share the steps (each is then cut to its own duration).
     progress : optional :class:`rbgp_cli.progress.Progress`: a task "rollout" over the steps
+    off_data : ``keep``, ``stop`` or ``prior``: what a trajectory does outside the demonstrations'
+        envelope (module docstring); every mode fills ``outside`` and ``left``
     """
     from rbgp_cli.gp.exact import blas_threads
 
@@ -86,10 +108,18 @@ def rollout(model, start_quat, start_position, steps: int, dt: float | None = No
     from rbgp_cli.progress import as_progress
 
     with blas_threads(0), as_progress(progress).task("rollout", total=int(steps), unit="steps") as task:
-        return _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, task, durations)
+        return _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, task, durations, off_data)
 
 
-def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, task, durations):
+def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, task, durations, off_data="keep"):
+    from rbgp_cli.dynamics.envelope import OFF_DATA, exits_report
+
+    if off_data not in OFF_DATA:
+        raise InputError(f"--off-data must be one of {', '.join(OFF_DATA)}, got {off_data!r}")
+    if off_data == "prior" and not model.mean:
+        raise InputError("--off-data prior falls back to the model's prior mean, and this model has none",
+                         hint="use --off-data keep or stop, or train with --prior path (or goal)")
+    envelope = model.data_envelope()
     rep, gp = model.representation, model.gp
     dt = float(model.dt if dt is None else dt)
     if not np.isfinite(dt) or dt <= 0:
@@ -115,6 +145,16 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
         sstate = np.repeat(state, K, axis=0)  # (B*K, d), sample k of start b at row b*K + k
         sstates = np.empty((steps + 1, B * K, d))
         sstates[0] = sstate
+    pd = model.pose_dims
+
+    def fall_back(X, mu, k, dur):
+        """--off-data prior: the prior mean's velocity where X (at step k) is outside the envelope."""
+        off = envelope.outside(rep.pose_from_state(X[:, :pd])[1], k * dt / dur[:, 0])
+        if np.any(off):
+            mu = mu.copy()
+            mu[off] = model.prior_mean(X[off])
+        return mu
+
     for k in range(steps + 1):
         last = k == steps
         if with_std:
@@ -123,17 +163,20 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
         elif not last:
             mu = model.predict_output(state, manage_threads=False)
         if not last:
+            if off_data == "prior":
+                mu = fall_back(state, mu, k, duration)
             state = model.advance(state, mu, dt, duration)
             _check_finite(state, k + 1)
             states[k + 1] = state
             if K > 0:
                 smu, ssd = model.predict_output(sstate, return_std=True, manage_threads=False)
+                if off_data == "prior":
+                    smu = fall_back(sstate, smu, k, np.repeat(duration, K, axis=0))
                 sstate = model.advance(sstate, smu + ssd * rng.standard_normal(smu.shape), dt, np.repeat(duration, K, axis=0))
                 _check_finite(sstate, k + 1)
                 sstates[k + 1] = sstate
         if not last:
             task.advance()
-    pd = model.pose_dims
     quat, pos = rep.pose_from_state(states[..., :pd].reshape(-1, pd))
     quat = quat_make_continuous(quat.reshape(steps + 1, B, 4).transpose(1, 0, 2))
     pos = pos.reshape(steps + 1, B, 3).transpose(1, 0, 2)
@@ -141,6 +184,12 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
         t=np.arange(steps + 1) * dt, quat=quat, position=pos,
         std=None if std is None else std.transpose(1, 0, 2), output_names=tuple(rep.output_names),
     )
+    t = res.t
+    res.outside = envelope.outside(pos, t[None, :] / duration)
+    res.left = exits_report(res.outside, t, pos, envelope)
+    if off_data == "stop":
+        first = np.where(res.outside.any(axis=1), res.outside.argmax(axis=1), steps)
+        res.ends = np.maximum(first, 1)
     if K > 0:
         sq, sp = rep.pose_from_state(sstates[..., :pd].reshape(-1, pd))
         res.sample_quat = quat_make_continuous(sq.reshape(steps + 1, B, K, 4).transpose(1, 2, 0, 3))

@@ -129,6 +129,8 @@ def save_model(model, path) -> dict:
     }
     if sparse:
         header["gp"] = {"type": "sparse", "inducing": int(len(gp.Z))}
+    if getattr(model, "envelope", None) is not None:  # optional: files without it load (computed then)
+        header["envelope"] = model.envelope.to_dict()
     raw = json.dumps(header, sort_keys=True, allow_nan=True).encode("utf-8")
     try:
         with atomic_open(path, "wb") as fh:
@@ -258,13 +260,18 @@ def load_model(path):
         if not (np.isfinite(dt) and dt > 0):
             raise ValueError("invalid time step")
         velocity, time_input, mean = _model_extras(header, arrays, rep, X)
+        envelope = None
+        if header.get("envelope") is not None:
+            from rbgp_cli.dynamics.envelope import Envelope
+
+            envelope = Envelope.from_dict(header["envelope"])
     except RbgpError as exc:
         raise _bad(path, f"the model cannot be rebuilt: {exc.message}") from None
     except (KeyError, TypeError, ValueError, IndexError, AttributeError, ArithmeticError) as exc:
         raise _bad(path, f"the model header is inconsistent ({type(exc).__name__}: {str(exc)[:80]})") from None
     return MotionModel(rep, gp, dt, arrays["starts"], arrays["durations"],
                        summary=header.get("summary", {}), provenance=header.get("provenance", {}),
-                       velocity=velocity, time_input=time_input, mean=mean), header
+                       velocity=velocity, time_input=time_input, mean=mean, envelope=envelope), header
 
 
 def _model_extras(header: dict, arrays: dict, rep, X):
