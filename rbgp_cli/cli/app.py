@@ -277,6 +277,9 @@ def evaluate(
 ):
     """Score generated trajectories against demonstrations: per-step Bhattacharyya distance (MATH.md §9).
 
+    Also says how many generated trajectories left the demonstrations' envelope (where no demonstration
+    goes near that phase of the motion; --json: left_data), which a score alone can hide.
+
     Example: rbgp rollout shoe.rbgp --count 100 -o - | rbgp evaluate - --demos sample_data/csv
     """
     from rbgp_cli import workflows
@@ -391,6 +394,7 @@ def crossval(
     by demonstration: train on the other folds (with exactly the options of rbgp train), roll out from
     each held-out demonstration's start for its duration, and score against the training
     demonstrations next to the floor (the held-out demonstrations' own score) and the replay peer.
+    The left column counts the rollouts that left the training demonstrations' envelope.
 
     Example: rbgp crossval sample_data/csv --representation all --folds 3
 
