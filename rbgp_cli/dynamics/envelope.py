@@ -56,6 +56,12 @@ class Envelope:
             out = np.any((p < self.lo[k] - self.margin) | (p > self.hi[k] + self.margin), axis=-1)
         return out | ~np.all(np.isfinite(p), axis=-1)
 
+    def overall(self) -> "Envelope":
+        """The same envelope without the phase: every phase gets the box of all of them."""
+        S = len(self.lo)
+        return Envelope(np.repeat(self.lo.min(axis=0)[None], S, 0), np.repeat(self.hi.max(axis=0)[None], S, 0),
+                        self.margin, self.source)
+
     def to_dict(self) -> dict:
         """Plain data for a model header: lo, hi (S × 3 lists, m), margin (m), source."""
         return {"lo": self.lo.tolist(), "hi": self.hi.tolist(), "margin": float(self.margin), "source": self.source}

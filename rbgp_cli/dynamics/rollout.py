@@ -10,7 +10,9 @@ optionally K Monte Carlo rollouts per start that draw ξ_k ~ N(μ(g_k), σ²(g_k
 seeded rng.
 
 Leaving the data: each mean trajectory is checked against the demonstrations' envelope
-(:mod:`rbgp_cli.dynamics.envelope`, stored in the model) at its phase t/D; ``outside`` marks the
+(:mod:`rbgp_cli.dynamics.envelope`, stored in the model): a phase model at its phase t/D (D its
+duration, the phase its GP sees); a model without the phase input, whose GP does not see where in the
+motion it is, against the box of all the demonstrations' positions. ``outside`` marks the
 samples beyond it and ``left`` reports which trajectories left it, when and where first. ``off_data``
 says what a rollout does there: ``keep`` (go on as before), ``stop`` (the trajectory ends at its first
 sample outside, which is kept so the exit shows, and at least one step is made) or ``prior`` (while a
@@ -120,6 +122,8 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
         raise InputError("--off-data prior falls back to the model's prior mean, and this model has none",
                          hint="use --off-data keep or stop, or train with --prior path (or goal)")
     envelope = model.data_envelope()
+    if model.time_input != "phase":  # its GP does not see the phase: where the demonstrations went at any time
+        envelope = envelope.overall()
     rep, gp = model.representation, model.gp
     dt = float(model.dt if dt is None else dt)
     if not np.isfinite(dt) or dt <= 0:
@@ -147,9 +151,12 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
         sstates[0] = sstate
     pd = model.pose_dims
 
+    def phase_of(t, dur):  # a phase model's own phase (what it feeds the GP); others: one box for all
+        return t / dur
+
     def fall_back(X, mu, k, dur):
         """--off-data prior: the prior mean's velocity where X (at step k) is outside the envelope."""
-        off = envelope.outside(rep.pose_from_state(X[:, :pd])[1], k * dt / dur[:, 0])
+        off = envelope.outside(rep.pose_from_state(X[:, :pd])[1], phase_of(k * dt, dur[:, 0]))
         if np.any(off):
             mu = mu.copy()
             mu[off] = model.prior_mean(X[off])
@@ -185,7 +192,7 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
         std=None if std is None else std.transpose(1, 0, 2), output_names=tuple(rep.output_names),
     )
     t = res.t
-    res.outside = envelope.outside(pos, t[None, :] / duration)
+    res.outside = envelope.outside(pos, phase_of(t[None, :], duration))
     res.left = exits_report(res.outside, t, pos, envelope)
     if off_data == "stop":
         first = np.where(res.outside.any(axis=1), res.outside.argmax(axis=1), steps)
