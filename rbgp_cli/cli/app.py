@@ -186,6 +186,7 @@ def rollout(
     samples: Annotated[int, typer.Option(min=0, help="Monte Carlo rollouts per start, drawing velocities from the predictive Gaussian.")] = 0,
     seed: Annotated[int, typer.Option(help="Seed for start perturbations and Monte Carlo draws.")] = 0,
     no_std: Annotated[bool, typer.Option("--no-std", help="Skip the predictive standard deviations (faster).")] = False,
+    off_data: Annotated[str, typer.Option("--off-data", help="What a rollout does once it leaves the demonstrations' envelope (the positions they reach near the same phase of the motion, widened by 25 % of their largest extent, at least 5 cm): keep (go on), stop (end the trajectory at its first sample outside) or prior (while outside, follow the prior mean alone: the mean-path prior's pull back toward the demonstrations). Every mode warns and marks those samples (CSV column left_data = 1; --json: left_data).")] = "keep",
     output: Annotated[Optional[str], typer.Option("--output", "-o", help="CSV to write ('-' or omitted: stdout).")] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print a JSON summary on stdout (requires -o FILE).")] = False,
     rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd).")] = None,
@@ -254,13 +255,17 @@ def rollout(
         durations = np.concatenate([np.full(given, other), durs])
     rate = m.recorded_rate if output_rate is None else (output_rate or None)
     res = workflows.rollout_model(m, q0, p0, steps=steps, duration=duration, dt=dt, samples=samples, seed=seed,
-                                  with_std=not no_std, progress=progress, durations=durations, rate=rate)
+                                  with_std=not no_std, progress=progress, durations=durations, rate=rate,
+                                  off_data=off_data)
     trajs = res.trajectories(include_samples=samples > 0)
-    extra = None
+    B = res.count
+    extra = {}
     if res.std is not None:
-        B = res.count
         per = [res.std[b, :res.length(b)] for b in range(B)] + [np.full((len(tr), res.std.shape[2]), np.nan) for tr in trajs[B:]]
         extra = {f"std_{n}": [a[:, j] for a in per] for j, n in enumerate(res.output_names)}
+    # 1 where a mean rollout's sample lies outside the demonstrations' envelope (samples: not checked)
+    extra["left_data"] = ([res.outside[b, : res.length(b)].astype(float) for b in range(B)]
+                          + [np.full(len(tr.t), np.nan) for tr in trajs[B:]])
     write_text_output(output, lambda fh: write_trajectories_csv(trajs, fh, extra=extra))
     if rerun:
         from rbgp_cli.viz.recording import record_rollout
@@ -272,7 +277,7 @@ def rollout(
         emit_json({"trajectories": res.count, "samples_per_start": samples, "steps": n_steps, "dt": step,
                    "output_rate_hz": float(rate) if res.integration else 1.0 / step,
                    "durations_s": [float(tr.t[-1]) for tr in trajs[:res.count]],
-                   "output": output, "std": res.std is not None})
+                   "output": output, "std": res.std is not None, "off_data": off_data, "left_data": res.left})
 
 
 # ---------------------------------------------------------------------------------------------- evaluate
@@ -301,6 +306,9 @@ def evaluate(
     At each step of a common normalised time, the distance between a Gaussian of the generated set
     and one of the demonstrations (rotation relative to the demonstrations' mean rotation, and
     position), averaged over the steps; lower is closer.
+
+    Also says how many generated trajectories left the demonstrations' envelope (where no demonstration
+    goes near that phase of the motion; --json: left_data), which a score alone can hide.
 
     Example: rbgp rollout shoe.rbgp --count 100 -o - | rbgp evaluate - --demos sample_data/csv
     """
@@ -358,12 +366,14 @@ def evaluate(
         if refusal:
             raise InputError(refusal, hint=f"the figure {plot} was written without a score; pass more demonstrations")
         progress(f"wrote {plot}")
+    left = workflows.left_data(gen, dem)  # a score never hides motions that went where no demonstration goes
     if json_out:
-        emit_json(result.to_dict())
+        emit_json({**result.to_dict(), "left_data": left})
     else:
         b = result.to_dict()["bhattacharyya"]
         print(f"bhattacharyya mean {b['mean']:.4f}  rotation {b['rotation']:.4f}  translation {b['translation']:.4f}"
-              f"  ({result.steps} steps, {result.n_generated} generated, {result.n_demos} demonstrations)")
+              f"  ({result.steps} steps, {result.n_generated} generated, {result.n_demos} demonstrations)"
+              f"; {left['count']} of {left['of']} generated left the demonstrations' envelope")
 
 
 # ---------------------------------------------------------------------------------------------- inspect
@@ -410,10 +420,12 @@ def inspect(
 @command
 @with_read_options
 def crossval(
+    ctx: typer.Context,
     demos: Annotated[List[str], typer.Argument(help="Demonstration files or directories (a shell glob is fine).")],
     folds: Annotated[int, typer.Option(min=2, help="Folds of the demonstrations (a demonstration is never split across folds).")] = 5,
     representation: Annotated[Optional[List[str]], typer.Option("--representation", help="axis-angle, euler, quaternion, or all; repeatable (default: axis-angle).", rich_help_panel=_TRAIN)] = None,
     kernel: Annotated[Optional[List[str]], typer.Option("--kernel", help="Repeatable; every representation runs with every kernel (default: each representation's own). " + kernel_help(), rich_help_panel=_TRAIN)] = None,
+    grid: Annotated[Optional[List[str]], typer.Option("--grid", metavar="OPTION=V1,V2,...", help="Repeatable: cross-validate every value of a training option, named as its option without the dashes (e.g. --grid prior-gain=3,5,10 --grid inducing=0,512; 'default' is the option's default). Every combination of the grids × representations × kernels is one row, on the same folds; the values are checked as the option checks them; --seed stays the seed of the folds (--grid seed=0,1 varies the training seed only).", rich_help_panel=_TRAIN)] = None,
     replay: Annotated[bool, typer.Option("--replay/--no-replay", help="Include the replay peer: the training demonstration with the nearest start, moved rigidly to the new start.")] = True,
     jobs: Annotated[Optional[int], typer.Option(min=1, help="Worker processes for the fits (default: one per core); 1 runs them in this process.")] = None,
     scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Run the fits on a Dask cluster: the scheduler's address (tcp://host:8786), or 'local' for a LocalCluster of --jobs single-threaded workers. Needs pip install \"rbgp-cli\\[distributed]\"; the results are the same.")] = None,
@@ -435,11 +447,15 @@ def crossval(
     by demonstration: train on the other folds (with exactly the options of rbgp train), roll out from
     each held-out demonstration's start for its duration, and score against the training
     demonstrations next to the floor (the held-out demonstrations' own score) and the replay peer.
+    The left column counts the rollouts that left the training demonstrations' envelope.
 
     Example: rbgp crossval sample_data/csv --representation all --folds 3
+
+    Example: rbgp crossval sample_data/csv --grid prior-gain=3,10 --grid inducing=0,48
     """
     from rbgp_cli import workflows
-    from rbgp_cli.errors import warn
+    from rbgp_cli.cli.train_options import grid_variants
+    from rbgp_cli.errors import InputError, warn
 
     opts, max_gap = read.options, read.max_gap
     kwargs = train_kwargs(rho_rot=rho_rot, restarts=restarts, explore_size=explore_size, seed=seed, noise=noise,
@@ -447,7 +463,12 @@ def crossval(
                           train_rate=train_rate, smooth_window=smooth_window, smooth_degree=smooth_degree,
                           time_input=time_input, prior=prior, prior_gain=prior_gain, inducing=inducing,
                           hyper_points=hyper_points, calibrate_noise=calibrate_noise)
-    configs, skipped = workflows.crossval_configs(representation, kernel, kwargs, replay=replay)
+    variants, lists = grid_variants(ctx, grid)
+    for name, given in (("representation", representation), ("kernel", kernel)):
+        if name in lists and given:
+            raise InputError(f"give --{name} or --grid {name}=..., not both")
+    configs, skipped = workflows.crossval_configs(lists.get("representation", representation), lists.get("kernel", kernel),
+                                                  kwargs, replay=replay, variants=variants if grid else None)
     for note in skipped:
         warn(f"left out {note}")
     result = workflows.crossval_files(demos, configs, options=opts, max_gap=max_gap, folds=folds, seed=seed, jobs=jobs,

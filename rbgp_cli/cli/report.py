@@ -138,6 +138,15 @@ def _num(v, fmt: str = ".3f") -> str:
     return "-" if v is None else format(v, fmt)
 
 
+def _options_label(row: dict) -> str:
+    """The --grid options of a crossval row: its label after the representation and kernel."""
+    if not row.get("options"):
+        return ""
+    head = f"{row['representation']} {row['kernel']} "
+    label = row.get("label", "")
+    return label[len(head):] if label.startswith(head) else " ".join(f"{k}={v}" for k, v in row["options"].items())
+
+
 def format_crossval(result: dict, per_fold: bool = False) -> str:
     """The cross-validation table (stdout): one row per configuration, best score / floor first."""
     sizes = ", ".join(str(n) for n in result["fold_sizes"])
@@ -148,21 +157,29 @@ def format_crossval(result: dict, per_fold: bool = False) -> str:
         "(lower is better); ratio = score / floor; pos/rot: RMSE against the held-out demonstration with the "
         "same start (m, rad); vel: relative velocity RMSE on held-out pairs (1 = predicting zero); sample: one "
         "sampled rollout per start scored like score, over the floor; cov_pos/cov_rot: how often the held-out "
-        "motion lies inside the samples' 90 % prediction region (0.90 = honest bands)",
+        "motion lies inside the samples' 90 % prediction region (0.90 = honest bands); left: rollouts "
+        "that left the training demonstrations' envelope"
+        + (f" (held-out demonstrations: {result['floor_left_data']} of {result['demonstrations']})"
+           if result.get("floor_left_data") is not None else ""),
         "",
         f"{'representation':<14} {'kernel':<10} {'score':>8} {'floor':>7} {'ratio':>7} {'rotation':>9} {'translation':>11}"
-        f" {'pos_m':>7} {'rot_rad':>7} {'vel':>6} {'sample':>7} {'cov_pos':>7} {'cov_rot':>7} {'train_s':>8}",
+        f" {'pos_m':>7} {'rot_rad':>7} {'vel':>6} {'sample':>7} {'cov_pos':>7} {'cov_rot':>7} {'train_s':>8} {'left':>5}",
     ]
+    # rows of a --grid: the options that make each row, after its numbers
+    options = {id(r): _options_label(r) for r in result["results"]}
+    if any(options.values()):
+        lines[-1] += "  options"
 
-    def row(r, label_rep, label_kern):
+    def row(r, label_rep, label_kern, opts=""):
         flag = "" if r.get("reliable", True) else "  *"
         return (f"{label_rep:<14} {label_kern:<10} {r['score']:8.3f} {r['floor']:7.3f} {r['ratio']:7.2f} {r['rotation']:9.3f}"
                 f" {r['translation']:11.3f} {r['position_rmse']:7.3f} {r['rotation_rmse']:7.3f} {_num(r['velocity_rmse'], '6.3f'):>6}"
                 f" {_num(r.get('sample_ratio'), '7.2f'):>7} {_num(r.get('coverage_position'), '7.2f'):>7}"
-                f" {_num(r.get('coverage_rotation'), '7.2f'):>7} {r['train_s']:8.1f}{flag}")
+                f" {_num(r.get('coverage_rotation'), '7.2f'):>7}"
+                f" {r['train_s']:8.1f} {_num(r.get('left_data'), 'd'):>5}" + (f"  {opts}" if opts else "") + flag)
 
     for r in result["results"]:
-        lines.append(row(r, r["representation"], r["kernel"] or "-"))
+        lines.append(row(r, r["representation"], r["kernel"] or "-", options[id(r)]))
         if per_fold:
             for f in r["per_fold"]:
                 lines.append(row(f, f"  fold {f['fold'] + 1}", f"({f['n_test']} held)"))

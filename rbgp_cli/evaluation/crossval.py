@@ -8,10 +8,12 @@ folds of the demonstrations (seeded; a demonstration is never split across folds
 3. **score**: the Bhattacharyya distance (MATH.md §9) of the generated set against the *training*
    demonstrations; **floor**: the same for the held-out demonstrations themselves (same counts, same
    resampling length, same training set): what a fresh real demonstration scores;
-4. **trajectory errors**: each generated trajectory against the held-out demonstration that starts
+4. **left_data**: how many generated trajectories leave the training demonstrations' envelope
+   (:mod:`rbgp_cli.dynamics.envelope`; ``floor_left_data``: how many held-out demonstrations do);
+5. **trajectory errors**: each generated trajectory against the held-out demonstration that starts
    where it starts, on normalised time (T steps, slerp / linear): position RMSE (m) and rotation
    RMSE (rad, the angle of R_genᵀ R_demo);
-5. **velocity RMSE** on the held-out training pairs (estimated exactly as the model's training pairs
+6. **velocity RMSE** on the held-out training pairs (estimated exactly as the model's training pairs
    were), with each prediction mapped to a world-frame twist (ω, v): ``velocity_rmse`` is the relative
    error √((Σ‖Δω‖²/Σ‖ω‖² + Σ‖Δv‖²/Σ‖v‖²)/2) (1 = no better than predicting zero), with the raw
    parts in rad/s and m/s.
@@ -38,6 +40,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rbgp_cli.dynamics.envelope import envelope_from_demos, left_envelope
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError, warn
 from rbgp_cli.progress import as_progress
@@ -64,12 +67,14 @@ REPLAY_RHO = 0.7
 
 @dataclass(frozen=True)
 class Config:
-    """One row of the table: a representation and kernel (or the replay peer) and train options."""
+    """One row of the table: a representation and kernel (or the replay peer) and train options;
+    ``options``: the options a ``--grid`` set for this row ({CLI name: value}), ``label`` its name."""
 
     representation: str
     kernel: str | None = None
     train: dict = field(default_factory=dict)
     label: str = ""
+    options: dict = field(default_factory=dict)
 
     @property
     def name(self) -> str:
@@ -218,11 +223,12 @@ def run_fold(config: Config, train: list[Trajectory], test: list[Trajectory], *,
         sp, sr, count = trajectory_errors(gen, test, T)
         vel = velocity_errors(model, test) if model is not None else None
         sampled = _sample_columns(drawn, train, test, T, covariance)
+        left = left_envelope(gen, envelope_from_demos(train))["count"]
     out = {
         "score": score.mean, "rotation": score.rotation, "translation": score.translation,
         "reliable": bool(getattr(score, "reliable", True)),
         "steps": T, "position_sq": sp, "rotation_sq": sr, "count": count,
-        "train_s": train_s, "rollout_s": gen_s, "velocity": vel,
+        "train_s": train_s, "rollout_s": gen_s, "velocity": vel, "left_data": left,
         "warnings": sorted({str(w.message) for w in caught} | set(score.warnings)),
     }
     if model is not None:
@@ -312,6 +318,7 @@ def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[di
             "rotation_rmse": _pooled_rmse(r["rotation_sq"], r["count"]),
             **_velocity_summary([r["velocity"]]),
             "train_s": r["train_s"], "rollout_s": r["rollout_s"],
+            "left_data": r.get("left_data"),
             "reliable": bool(r.get("reliable", True) and floor.reliable),
         }
         if "points" in r:
@@ -325,6 +332,7 @@ def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[di
         "representation": config.representation,
         "kernel": config.kernel,
         "label": config.name,
+        "options": dict(config.options),
         "score": score,
         "floor": floor,
         "ratio": score / floor if floor > 0 else float("inf"),
@@ -335,6 +343,7 @@ def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[di
         **_velocity_summary([r["velocity"] for r in results]),
         "train_s": float(np.mean([r["train_s"] for r in results])),
         **_sampled_summary(results, [f.mean for f in floors]),
+        "left_data": sum(int(r.get("left_data") or 0) for r in results),
         "reliable": all(e["reliable"] for e in per_fold),
         "per_fold": per_fold,
     }
@@ -396,6 +405,8 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
              "of one trajectory rests on the ridge variance, not on the motions; use --folds "
              f"{max(2, len(demos) // 2)} or fewer (at least 2 held out per fold)")
     floors = [evaluate(test, train, length=length, covariance=covariance, sample_size="record") for train, test in splits]
+    # the held-out demonstrations themselves against the training envelope: what real new motions do
+    floor_left = sum(left_envelope(test, envelope_from_demos(train))["count"] for train, test in splits)
     tasks = [(c, f) for c in configs for f in range(len(splits))]
     args = [(c, splits[f][0], splits[f][1], length, covariance, samples) for c, f in tasks]
     n_jobs = jobs if jobs is not None else min(len(tasks), os.cpu_count() or 1)
@@ -439,6 +450,7 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
         "demonstrations": len(demos),
         "fold_sizes": [int(len(f)) for f in fold_idx],
         "floor": float(np.mean([f.mean for f in floors])),
+        "floor_left_data": int(floor_left),
         "results": rows,
         "warnings": sorted(caught | {w for f in floors for w in f.warnings}),
     }

@@ -235,7 +235,14 @@ TOP: dict = {
     "time_input": (2, nullable(string(("seconds", "phase")))),
     "prior": (2, _PRIOR),
     "gp": (3, _GP),
-    # optional (no version always writes it): the demonstrations' deviation process (dynamics/variation.py)
+    # optional (no version always writes them): the demonstrations' position envelope over phase
+    # (dynamics/envelope.py) and their deviation process (dynamics/variation.py)
+    "envelope": (10**6, nullable(obj({
+        "lo": list_of(list_of(num(), 3, 3), 2, 10**5),
+        "hi": list_of(list_of(num(), 3, 3), 2, 10**5),
+        "margin": num(0.0, 1e9, what="a non-negative finite number of metres"),
+        "source": string(("demonstrations", "training points")),
+    }, ("lo", "hi", "margin")))),
     "variation": (10**6, nullable(obj({"demos": integer(3, 10**7), "steps": integer(2, 10**5)}, ("demos", "steps")))),
 }
 

@@ -160,6 +160,8 @@ def save_model(model, path) -> dict:
     header["gp"] = {"type": "sparse", "inducing": int(len(gp.Z))} if sparse else {"type": "exact"}
     if variation is not None:
         header["variation"] = {"demos": int(variation.demos), "steps": int(len(variation.s))}
+    if getattr(model, "envelope", None) is not None:  # optional: files without it load (computed then)
+        header["envelope"] = model.envelope.to_dict()
     header = json.loads(canonical_json(header))  # as a reader will parse it (keys as strings, tuples as lists)
     header["checksums"]["header"] = header_sha256(header)
     raw = canonical_json(header)
@@ -415,6 +417,11 @@ def load_model(path):
             gp = GaussianProcess(kernel, X, Y, fits, shared=header["shared"], y_scale=arrays["y_scale"])
         dt = float(header["dt"])
         velocity, time_input, mean = _model_extras(header, arrays, rep, X)
+        envelope = None
+        if header.get("envelope") is not None:
+            from rbgp_cli.dynamics.envelope import Envelope
+
+            envelope = Envelope.from_dict(header["envelope"])
     except RbgpError as exc:
         raise _bad(path, f"the model cannot be rebuilt: {exc.message}") from None
     except MemoryError:  # not --max-points of a training: this file's GP needs more memory than there is
@@ -431,7 +438,7 @@ def load_model(path):
         variation = Variation.from_arrays(arrays)
     return MotionModel(rep, gp, dt, arrays["starts"], arrays["durations"],
                        summary=header.get("summary", {}), provenance=header.get("provenance", {}),
-                       velocity=velocity, time_input=time_input, mean=mean, variation=variation), header
+                       velocity=velocity, time_input=time_input, mean=mean, variation=variation, envelope=envelope), header
 
 
 def _model_extras(header: dict, arrays: dict, rep, X):
