@@ -86,7 +86,7 @@ def test_rollouts_from_demonstrated_starts_are_not_flagged(narrow, tmp_path):
 def test_off_data_stop_ends_the_trajectory_where_it_left(narrow, tmp_path):
     _, model, start, _ = narrow
     out = tmp_path / "r.csv"
-    res = runner.invoke(app, ["rollout", str(model), "--start", FAR, "--start", start, "--off-data", "stop",
+    res = runner.invoke(app, ["rollout", str(model), "--start", FAR, "--start", start, "--off-data", "stop", "--output-rate", "0",
                               "-o", str(out), "--json"])
     assert res.exit_code == 0, res.stderr
     assert "they end there (--off-data stop)" in res.stderr
