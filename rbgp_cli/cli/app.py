@@ -20,7 +20,7 @@ from rbgp_cli.cli.train_options import (
 from rbgp_cli.cli.common import (
     BodyOpt, ColumnsOpt, DegreesOpt, EulerOrderOpt, FormatOpt, FrameOpt, LengthUnitOpt, MaxGapOpt,
     QuatOrderOpt, RateOpt, RotationOpt, TimeSourceOpt, TimeUnitOpt, TopicOpt, command, emit_json,
-    progress, read_options, set_json, set_quiet, write_text_output,
+    is_quiet, progress, read_options, set_json, set_quiet, write_text_output,
 )
 
 app = typer.Typer(
@@ -106,7 +106,7 @@ def train(
     summary["model"] = output
     if json_out:
         emit_json(summary)
-    else:
+    elif not is_quiet():  # the summary is information: -q leaves stderr to warnings and errors
         from rbgp_cli.cli.report import format_train_summary
 
         print(format_train_summary(summary), file=sys.stderr)
@@ -469,5 +469,9 @@ def bench_paper(
 
 
 def main() -> None:
-    """Console-script entry point."""
+    """Console-script entry point (``rbgp_cli.__main__.main`` installs the signal handling before
+    importing this module; here again for callers of this function)."""
+    from rbgp_cli.cli import exit_on_signals
+
+    exit_on_signals()
     app()
