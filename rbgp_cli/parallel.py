@@ -51,9 +51,9 @@ def die_with_parent(parent_pid: int | None = None, init=None) -> None:
     * everywhere: a daemon thread that checks every :data:`PARENT_CHECK_S` seconds that
       ``os.getppid()`` is still ``parent_pid`` and ends the worker at once when it is not (an orphan is
       adopted by another process);
-    * SIGINT is ignored (Ctrl-C reaches the whole process group; the parent ends its workers) and
-      unblocked again (:func:`start_workers` blocks it while the workers start); SIGTERM ends the
-      worker at once (a forked worker would otherwise run the parent's handler).
+    * SIGINT is ignored (Ctrl-C reaches the whole process group; the parent ends its workers; a worker
+      inherits the ignoring from :func:`start_workers`, for its imports before this runs); SIGTERM
+      ends the worker at once (a forked worker would otherwise run the parent's handler).
 
     ``parent_pid`` defaults to the pid of the process that started this one (multiprocessing's record,
     else ``os.getppid()``); ``init`` is then called (the pool's own start-up, e.g. BLAS threads)."""
@@ -68,8 +68,6 @@ def die_with_parent(parent_pid: int | None = None, init=None) -> None:
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGTERM, signal.SIG_DFL)  # a forked worker inherits the parent's handler
-        if hasattr(signal, "pthread_sigmask"):
-            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     if sys.platform.startswith("linux"):
         try:
             import ctypes
@@ -117,23 +115,26 @@ def process_pool(max_workers: int, *, context=None, init=None):
 
 
 class start_workers:
-    """``with start_workers(): pool.submit(...)``: SIGINT is blocked in this thread while the pool
-    starts its processes (in ``submit``), so a Ctrl-C in that moment reaches a new worker only once it
-    ignores SIGINT; here it is delivered (KeyboardInterrupt) when the block ends."""
+    """``with start_workers(): pool.submit(...)``: SIGINT ignored in this process while the pool (or a
+    Dask ``LocalCluster``) starts its processes, so that they start ignoring it (an ignored signal stays
+    ignored across fork and exec, and Python keeps it so): a Ctrl-C while a worker is still importing
+    would print its traceback. The parent ends its workers itself. A Ctrl-C inside the block (the
+    ``submit`` calls: milliseconds; a cluster's start: seconds) is lost. Main thread only."""
 
     def __enter__(self):
         import signal
+        import threading
 
-        self._mask = None
-        if hasattr(signal, "pthread_sigmask"):
-            self._mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        self._previous = None
+        if threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
         return self
 
     def __exit__(self, *exc):
         import signal
 
-        if self._mask is not None:
-            signal.pthread_sigmask(signal.SIG_SETMASK, self._mask)
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
         return False
 
 
@@ -285,6 +286,43 @@ def _quiet_dask():
     return restore
 
 
+def _forget_half_started_clusters() -> None:
+    """A cluster interrupted while it started cannot be closed (Dask's exit hook would print its
+    AssertionError traceback); its workers end with this process."""
+    try:
+        from distributed.deploy.spec import SpecCluster
+
+        SpecCluster._instances.clear()
+    except (ImportError, AttributeError):  # pragma: no cover - another distributed version
+        pass
+
+
+class _children_stderr_off:
+    """While the block runs, file descriptor 2 is /dev/null, so that the processes started in it (Dask's
+    workers: their stderr is only Dask's log lines, and tracebacks of a Ctrl-C that reaches them while
+    they import) write nowhere; this process's stderr comes back afterwards. Not with RBGP_DEBUG."""
+
+    def __enter__(self):
+        self._saved = None
+        if os.environ.get("RBGP_DEBUG"):
+            return self
+        try:
+            sys.stderr.flush()
+            self._saved = os.dup(2)
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, 2)
+            os.close(null)
+        except (OSError, ValueError, AttributeError):
+            self._saved = None
+        return self
+
+    def __exit__(self, *exc):
+        if self._saved is not None:
+            os.dup2(self._saved, 2)
+            os.close(self._saved)
+        return False
+
+
 def iter_dask(fn, args: list, *, jobs: int | None = None, scheduler: str = "local", label=None):
     """Yield ``(index, fn(args[index]))`` as the tasks finish on a Dask cluster.
 
@@ -315,9 +353,13 @@ def iter_dask(fn, args: list, *, jobs: int | None = None, scheduler: str = "loca
         if scheduler == "local":
             n = max(1, min(int(jobs or os.cpu_count() or 1), len(args)))
             try:
-                with dask.config.set({"distributed.scheduler.allowed-failures": RETRIES}):
+                # the workers' stderr to /dev/null: a Ctrl-C while they import prints their tracebacks
+                with dask.config.set({"distributed.scheduler.allowed-failures": RETRIES}), _children_stderr_off():
                     cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
-            except Exception as exc:  # e.g. a worker killed while it started: "Nanny failed to start"
+            except BaseException as exc:  # Ctrl-C, or e.g. a worker killed while it started ("Nanny failed")
+                _forget_half_started_clusters()
+                if not isinstance(exc, Exception):
+                    raise
                 raise RbgpRuntimeError(f"the local Dask cluster did not start ({type(exc).__name__}: {exc})",
                                        hint="run without --scheduler") from exc
             client = Client(cluster)

@@ -47,7 +47,7 @@ def _version(value: bool):
 @app.callback()
 def _main(
     version: Annotated[bool, typer.Option("--version", "-V", callback=_version, is_eager=True, help="Print the version.")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress messages or bars on stderr (warnings and errors still); also accepted after the command.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress messages, bars or summaries on stderr (warnings and errors still); also accepted after the command.")] = False,
     json_out: Annotated[bool, typer.Option("--json", help="The command's --json (machine-readable output on stdout), for the commands that have it.")] = False,
 ):
     set_quiet(quiet)
@@ -361,7 +361,7 @@ def crossval(
     kernel: Annotated[Optional[List[str]], typer.Option("--kernel", help="Repeatable; every representation runs with every kernel (default: each representation's own). " + kernel_help(), rich_help_panel=_TRAIN)] = None,
     replay: Annotated[bool, typer.Option("--replay/--no-replay", help="Include the replay peer: the training demonstration with the nearest start, moved rigidly to the new start.")] = True,
     jobs: Annotated[Optional[int], typer.Option(min=1, help="Worker processes for the fits (default: one per core); 1 runs them in this process.")] = None,
-    scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Run the fits on a Dask cluster: the scheduler's address (tcp://host:8786), or 'local' for a LocalCluster of --jobs single-threaded workers. Needs pip install \"rbgp-cli\\[distributed]\"; the results are the same.")] = None,
+    scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Run the fits on a Dask cluster: the scheduler's address (tcp://host:8786), or 'local' for a LocalCluster of --jobs single-threaded workers. Needs pip install \"rbgp-cli\\[distributed]\"; the results are the same. A fit whose worker dies is run once more, then the run fails naming the fold (also after 30 s with no live worker).")] = None,
     length: Annotated[Optional[int], typer.Option(min=2, help="Resample every trajectory to this many steps for the scores (default: the training demonstrations' median).")] = None,
     covariance: Annotated[str, typer.Option(help="Per-step Gaussians with diag or full covariance (as rbgp evaluate).")] = "diag",
     per_fold: Annotated[bool, typer.Option("--per-fold", help="Also print one line per fold and configuration.", rich_help_panel=_OUT)] = False,

@@ -118,7 +118,7 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
         _stderr(f"rbgp: warning: {category.__name__}: {message}")
 
 
-_QUIET_HELP = "No progress messages or bars on stderr (warnings and errors still); also accepted before the command."
+_QUIET_HELP = "No progress messages, bars or summaries on stderr (warnings and errors still); also accepted before the command."
 
 
 def command(func):
