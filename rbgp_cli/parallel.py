@@ -395,17 +395,19 @@ def iter_dask(fn, args: list, *, jobs: int | None = None, scheduler: str = "loca
                     alone_since = None
                     for fut in sorted(done, key=lambda f: index[f.key]):
                         i = index[fut.key]
-                        if fut.status == "error":
-                            exc = fut.exception()
-                            if isinstance(exc, (InputError, RbgpRuntimeError)):
-                                raise exc
+                        try:
+                            r = fut.result()
+                        except (InputError, RbgpRuntimeError):
+                            raise
+                        except Exception as exc:
                             if type(exc).__name__ == "KilledWorker":
                                 raise RbgpRuntimeError(f"{_names([i], label)} was lost with its Dask worker "
                                                        "(killed, or out of memory) on every try",
-                                                       hint="check the cluster's memory, or run without --scheduler")
+                                                       hint="check the cluster's memory, or run without --scheduler"
+                                                       ) from None
                             # a task that failed on a worker fails the study, as in-process
                             raise RbgpRuntimeError(f"a task failed on a Dask worker: {type(exc).__name__}: {exc}") from exc
-                        yield i, fut.result()
+                        yield i, r
             finally:
                 client.cancel([f for f in futs if not f.done()])
     finally:
