@@ -10,6 +10,12 @@ Dask (``pip install "rbgp-cli[distributed]"``) is imported only when a ``schedul
 anything else is the address of a running scheduler (``tcp://host:8786``). Each task runs under
 threadpoolctl's one-thread limit on whatever worker takes it, so workers need no special start-up.
 Results are the same as in this process: every task is a pure function of its arguments (seeded).
+
+Worker processes end with the process that started them, however it ends (:func:`die_with_parent`,
+every local pool's start-up: the exact GP's per-output fits, cross-validation folds; Dask's own
+workers watch their parent too); on an error, Ctrl-C or SIGTERM a pool is ended at once
+(:func:`stop_pool`, :func:`ending_on_sigterm`), and workers ignore Ctrl-C (:func:`start_workers`).
+A lost worker's tasks are run once more (:data:`RETRIES`), then the error names them.
 """
 
 from __future__ import annotations
