@@ -18,7 +18,7 @@ from rbgp_cli.cli.train_options import (
     CalibrateOpt, HyperPointsOpt, InducingOpt, SmoothWindowOpt, SubsampleOpt, TimeInputOpt, TrainRateOpt, defaults, kernel_help, train_kwargs,
 )
 from rbgp_cli.cli.common import (
-    ReadArgs, command, emit_json, check_outputs, progress, set_json, set_quiet, with_read_options, write_text_output,
+    ReadArgs, command, emit_json, check_outputs, is_quiet, progress, set_json, set_quiet, with_read_options, write_text_output,
 )
 
 app = typer.Typer(
@@ -45,7 +45,7 @@ def _version(value: bool):
 @app.callback()
 def _main(
     version: Annotated[bool, typer.Option("--version", "-V", callback=_version, is_eager=True, help="Print the version.")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress messages or bars on stderr (warnings and errors still); also accepted after the command.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress messages, bars or summaries on stderr (warnings and errors still); also accepted after the command.")] = False,
     json_out: Annotated[bool, typer.Option("--json", help="The command's --json (machine-readable output on stdout), for the commands that have it.")] = False,
 ):
     set_quiet(quiet)
@@ -103,7 +103,7 @@ def train(
     summary["model"] = output
     if json_out:
         emit_json(summary)
-    else:
+    elif not is_quiet():  # the summary is information: -q leaves stderr to warnings and errors
         from rbgp_cli.cli.report import format_train_summary
 
         print(format_train_summary(summary), file=sys.stderr)
@@ -428,7 +428,7 @@ def crossval(
     grid: Annotated[Optional[List[str]], typer.Option("--grid", metavar="OPTION=V1,V2,...", help="Repeatable: cross-validate every value of a training option, named as its option without the dashes (e.g. --grid prior-gain=3,5,10 --grid inducing=0,512; 'default' is the option's default). Every combination of the grids × representations × kernels is one row, on the same folds; the values are checked as the option checks them; --seed stays the seed of the folds (--grid seed=0,1 varies the training seed only).", rich_help_panel=_TRAIN)] = None,
     replay: Annotated[bool, typer.Option("--replay/--no-replay", help="Include the replay peer: the training demonstration with the nearest start, moved rigidly to the new start.")] = True,
     jobs: Annotated[Optional[int], typer.Option(min=1, help="Worker processes for the fits (default: one per core); 1 runs them in this process.")] = None,
-    scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Run the fits on a Dask cluster: the scheduler's address (tcp://host:8786), or 'local' for a LocalCluster of --jobs single-threaded workers. Needs pip install \"rbgp-cli\\[distributed]\"; the results are the same.")] = None,
+    scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Run the fits on a Dask cluster: the scheduler's address (tcp://host:8786), or 'local' for a LocalCluster of --jobs single-threaded workers. Needs pip install \"rbgp-cli\\[distributed]\"; the results are the same. A fit whose worker dies is run once more, then the run fails naming the fold (also after 30 s with no live worker).")] = None,
     length: Annotated[Optional[int], typer.Option(min=2, help="Resample every trajectory to this many steps for the scores (default: the training demonstrations' median).")] = None,
     covariance: Annotated[str, typer.Option(help="Per-step Gaussians with diag or full covariance (as rbgp evaluate).")] = "diag",
     samples: Annotated[int, typer.Option("--samples", min=0, help="Sampled rollouts per held-out start (as rbgp rollout --samples) for the columns sample (one sample per start scored like score, over the floor) and cov_pos / cov_rot (how often the held-out motion lies inside the samples' 90 % prediction region: 0.90 for honest bands) with the bands' half-widths in --json; 0: none; at least 4 for the coverage.")] = 20,
@@ -545,5 +545,9 @@ def bench_paper(
 
 
 def main() -> None:
-    """Console-script entry point."""
+    """Console-script entry point (``rbgp_cli.__main__.main`` installs the signal handling before
+    importing this module; here again for callers of this function)."""
+    from rbgp_cli.cli import exit_on_signals
+
+    exit_on_signals()
     app()

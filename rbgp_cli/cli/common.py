@@ -20,7 +20,7 @@ import typer
 from rbgp_cli.progress import Progress
 
 __all__ = ["command", "progress", "emit_json", "read_options", "with_read_options", "ReadArgs", "READ_PANEL",
-           "write_text_output", "check_outputs", "set_quiet", "set_json"]
+           "write_text_output", "check_outputs", "set_quiet", "set_json", "is_quiet"]
 
 
 def _stderr(text: str) -> None:
@@ -84,6 +84,32 @@ def _progress_session():
             stop()
 
 
+@contextlib.contextmanager
+def _signals_as_exceptions():
+    """While a command runs: Ctrl-C raises KeyboardInterrupt (``rbgp: interrupted``, exit 130) and
+    SIGTERM SystemExit(143), so that worker pools are ended and temporary files removed on the way
+    out; the handlers in place before (:func:`rbgp_cli.cli.exit_on_signals`) come back afterwards."""
+    import signal
+    import threading
+
+    from rbgp_cli.parallel import ending_on_sigterm
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with ending_on_sigterm():
+            yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def is_quiet() -> bool:
+    """``-q``: nothing on stderr but warnings and errors (no progress, no summaries)."""
+    return _QUIET["on"]
+
+
 def _show_warning(message, category, filename, lineno, file=None, line=None):
     from rbgp_cli.errors import RbgpWarning
 
@@ -93,7 +119,7 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
         _stderr(f"rbgp: warning: {category.__name__}: {message}")
 
 
-_QUIET_HELP = "No progress messages or bars on stderr (warnings and errors still); also accepted before the command."
+_QUIET_HELP = "No progress messages, bars or summaries on stderr (warnings and errors still); also accepted before the command."
 
 
 def command(func):
@@ -122,7 +148,7 @@ def command(func):
                     if not has_json:
                         raise InputError(f"rbgp {func.__name__} has no --json output", hint="leave out --json")
                     kwargs["json_out"] = True
-                with _progress_session():
+                with _progress_session(), _signals_as_exceptions():
                     return func(*args, **kwargs)
             except typer.Exit:
                 raise

@@ -253,37 +253,14 @@ def _task(args):
     return run_fold(config, train, test, length=length, covariance=covariance, samples=samples)
 
 
-def _run_in_processes(args: list, n_jobs: int):
+def _run_in_processes(args: list, n_jobs: int, label=None):
     """Yield (index, result) of ``_task(a)`` for every ``a`` in ``args`` as they finish, in ``n_jobs``
-    fresh (spawned) worker processes with single-threaded BLAS. On an error or Ctrl-C the pending
-    tasks are cancelled and the workers stopped."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    fresh (spawned) worker processes with single-threaded BLAS that end with this process
+    (:func:`rbgp_cli.parallel.iter_processes`: on an error, Ctrl-C or SIGTERM the pending tasks are
+    cancelled and the workers stopped; a lost worker's fits are run again once, then named)."""
+    from rbgp_cli.parallel import iter_processes
 
-    import signal
-    import threading
-
-    ex = ProcessPoolExecutor(max_workers=n_jobs, mp_context=multiprocessing.get_context("spawn"), initializer=_worker_init)
-    previous = None
-    if threading.current_thread() is threading.main_thread():  # a kill (SIGTERM) stops the workers too
-        def _stop(signum, frame):
-            raise SystemExit(128 + signum)
-
-        previous = signal.signal(signal.SIGTERM, _stop)
-    try:
-        futs = {ex.submit(_task, a): i for i, a in enumerate(args)}
-        for fut in as_completed(futs):
-            yield futs[fut], fut.result()
-    except BaseException:
-        workers = list((getattr(ex, "_processes", None) or {}).values())
-        ex.shutdown(wait=False, cancel_futures=True)
-        for proc in workers:  # do not leave fits running
-            proc.terminate()
-        raise
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
-    ex.shutdown(wait=True)
+    return iter_processes(_task, args, n_jobs, label=label, init=_worker_init)
 
 
 # --------------------------------------------------------------------------------------------- all folds
@@ -418,6 +395,10 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
              f"{len(configs)} configuration{'s' * (len(configs) != 1)}, {len(tasks)} fits"
              + (f" on the Dask cluster {scheduler!r}" if scheduler else f" in {n_jobs} worker processes" if n_jobs > 1 else ""))
 
+    def label(i):
+        c, f = tasks[i]
+        return f"{c.name} fold {f + 1}/{len(splits)}"
+
     with progress.task("cross-validation", total=len(tasks), unit="fits") as bar:
         def done(i, r):
             results[i] = r
@@ -431,13 +412,13 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
         if scheduler:
             from rbgp_cli.parallel import iter_dask
 
-            for i, r in iter_dask(_task, args, jobs=jobs, scheduler=scheduler):
+            for i, r in iter_dask(_task, args, jobs=jobs, scheduler=scheduler, label=label):
                 done(i, r)
         elif n_jobs == 1:
             for i, a in enumerate(args):
                 done(i, _task(a))
         else:
-            for i, r in _run_in_processes(args, n_jobs):
+            for i, r in _run_in_processes(args, n_jobs, label=label):
                 done(i, r)
     rows = []
     for ci, c in enumerate(configs):

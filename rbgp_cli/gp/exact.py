@@ -1073,11 +1073,15 @@ def _fit_outputs_in_workers(X, Y, kernel, o, seeds, sub, jobs, progress, task):
 
 
 def _collect_worker_fits(tasks, jobs, ctx, progress, task, results, failures):
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures import as_completed
     from concurrent.futures.process import BrokenProcessPool
 
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_worker_init) as pool:
-        futures = {pool.submit(_worker_fit, t): t[4] for t in tasks}
+    from rbgp_cli.parallel import process_pool, start_workers, stop_pool
+
+    # workers that end with this process (killed or not), and end at once on an error or Ctrl-C
+    with process_pool(jobs, context=ctx, init=_worker_init) as pool:
+        with start_workers():
+            futures = {pool.submit(_worker_fit, t): t[4] for t in tasks}
         try:
             for fut in as_completed(futures):
                 if fut.cancelled():
@@ -1098,8 +1102,7 @@ def _collect_worker_fits(tasks, jobs, ctx, progress, task, results, failures):
                 task.advance()
                 _report(progress, f"output {l}", fit)
         except BaseException:
-            for fut in futures:
-                fut.cancel()
+            stop_pool(pool)
             raise
     if failures:
         # the error of the first output that failed, as the fit in one process would raise it

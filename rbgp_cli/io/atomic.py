@@ -74,10 +74,11 @@ def atomic_path(path, suffix: str | None = None):
     """
     dest = Path(path)
     directory = dest.parent if str(dest.parent) else Path(".")
+    suffix = (dest.suffix if suffix is None else suffix) + ".tmp"
+    remove_stale(directory, dest.name, suffix)
     try:
-        fd, tmp = tempfile.mkstemp(
-            prefix=f".{dest.name}.", suffix=(dest.suffix if suffix is None else suffix) + ".tmp", dir=directory
-        )
+        # the writer's pid in the name: a later write can tell a killed writer's leftover from a live one
+        fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.{os.getpid()}-", suffix=suffix, dir=directory)
     except OSError as exc:
         raise write_error(dest, exc) from None
     os.close(fd)
@@ -102,6 +103,47 @@ def atomic_path(path, suffix: str | None = None):
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+#: A leftover temporary file without a pid in its name (older rbgp) is stale after this many seconds.
+STALE_S = 60.0
+
+
+def remove_stale(directory, name: str, suffix: str) -> None:
+    """Remove what killed writers of ``directory/name`` left (SIGKILL gives no chance to clean up):
+    ``.NAME.PID-XXXX<suffix>`` whose PID is no live process, and ``.NAME.XXXX<suffix>`` older than
+    :data:`STALE_S` seconds. Best effort: a file that cannot be removed stays."""
+    import re
+    import time
+
+    pattern = re.compile(rf"\.{re.escape(name)}\.(?:(\d+)-)?[A-Za-z0-9_]+{re.escape(suffix)}")
+    try:
+        entries = list(os.scandir(directory))
+    except OSError:
+        return
+    for entry in entries:
+        m = pattern.fullmatch(entry.name)
+        if m is None:
+            continue
+        with contextlib.suppress(OSError):
+            if m.group(1) is not None:
+                if _alive(int(m.group(1))):
+                    continue
+            elif time.time() - entry.stat(follow_symlinks=False).st_mtime < STALE_S:
+                continue
+            os.unlink(entry.path)
+
+
+def _alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, OSError):
+        return True  # someone else's process, or cannot tell: leave the file
+    return True
 
 
 @contextlib.contextmanager
