@@ -416,6 +416,10 @@ def iter_dask(fn, args: list, *, jobs: int | None = None, scheduler: str = "loca
                         yield i, r
             finally:
                 client.cancel([f for f in futs if not f.done()])
+    except BaseException as exc:
+        if not isinstance(exc, Exception):  # interrupted: the process ends, and the cluster's workers
+            restore = lambda: None  # noqa: E731 - report their ends while it does; keep Dask quiet
+        raise
     finally:
         if cluster is not None:
             cluster.close()

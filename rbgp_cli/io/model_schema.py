@@ -213,6 +213,8 @@ _PROVENANCE = obj({
     "inputs": list_of(obj({"name": nullable(string()), "sha256": string(), "bytes": nullable(_COUNT)},
                           extra=True)),
     "train_options": _DICT_OR_NULL,
+    "read_options": _DICT_OR_NULL,
+    "demonstrations": list_of(obj({"name": nullable(string()), "duration_s": nullable(_ANY_NUMBER)}, extra=True)),
 }, extra=True)  # fmt: skip
 
 #: top-level fields: name -> (first version that always writes it, checker)

@@ -5,6 +5,7 @@ fails with one line naming the fold, and ``-q`` leaves stderr empty."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -139,23 +140,11 @@ def test_killed_runs_leave_no_worker_and_no_temporary_file(tmp_path, command, si
     """Before: all 6 training workers (crossval: 2 and the resource tracker) kept running for minutes.
     Dask's workers end with the cluster's process once they have started (Dask's own check, a few
     seconds into a worker's start on a loaded machine)."""
-    if command == "dask":
-        pytest.importorskip("distributed")
-    args = _args(command, tmp_path)
-    run = Run(args, tmp_path)
-    procs = []
-    try:
-        run.wait_for_workers(2)
-        time.sleep(delay)
-        procs = run.workers()
-        run.signal(sig)
-        code, _ = run.wait(15)
+    with _signalled(command, tmp_path, sig, delay) as (run, procs, code, _):
         assert code == (-9 if sig == signal.SIGKILL else 143), run.stderr()
         _assert_all_gone(procs, within=20.0 if command == "dask" else 5.0)
         assert _leftovers(tmp_path) == []
         assert "Traceback" not in run.stderr()
-    finally:
-        run.cleanup(procs)
 
 
 @pytest.mark.slow
@@ -165,17 +154,7 @@ def test_ctrl_c_during_worker_fits_is_one_line_exit_130_at_once(tmp_path, comman
     """Before: SIGINT to the main process alone took 8.9 s (the running fits finished first); Ctrl-C
     (the whole process group) during crossval printed ~25 lines of worker tracebacks (Dask: while the
     workers still import, their tracebacks and Dask's exit hook's)."""
-    if command == "dask":
-        pytest.importorskip("distributed")
-    args = _args(command, tmp_path)
-    run = Run(args, tmp_path)
-    procs = []
-    try:
-        run.wait_for_workers(2)
-        time.sleep(0.5)
-        procs = run.workers()
-        run.signal(signal.SIGINT, group=group)
-        code, seconds = run.wait(15)
+    with _signalled(command, tmp_path, signal.SIGINT, 0.5, group=group) as (run, procs, code, seconds):
         err = run.stderr()
         assert code == 130, err
         assert err.rstrip().endswith("rbgp: interrupted"), err
@@ -183,6 +162,24 @@ def test_ctrl_c_during_worker_fits_is_one_line_exit_130_at_once(tmp_path, comman
         assert seconds < (8.0 if command == "dask" else 4.0), seconds  # the fits are not waited for
         _assert_all_gone(procs, within=20.0 if command == "dask" else 5.0)
         assert _leftovers(tmp_path) == []
+
+
+@contextlib.contextmanager
+def _signalled(command, tmp_path, sig, delay, group=False):
+    """Start ``rbgp COMMAND``, wait until 2 workers run, wait ``delay`` s, send ``sig`` (to the
+    process group with ``group``); yields (run, the workers, exit code, seconds to exit). Cleans up
+    whatever is left."""
+    if command == "dask":
+        pytest.importorskip("distributed")
+    run = Run(_args(command, tmp_path), tmp_path)
+    procs = []
+    try:
+        run.wait_for_workers(2)
+        time.sleep(delay)
+        procs = run.workers()
+        run.signal(sig, group=group)
+        code, seconds = run.wait(15)
+        yield run, procs, code, seconds
     finally:
         run.cleanup(procs)
 

@@ -15,7 +15,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from tests.cli.test_cli import CSV_DIR, FAST, REPO, assert_one_line_error, model, run  # noqa: F401 (fixture)
+from tests.cli.test_cli import CSV_DIR, FAST, REPO, assert_one_line_error, run
 
 
 @pytest.fixture
