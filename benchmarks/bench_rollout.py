@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/bench_rollout.py            # the full run, chordal then arc kernel (a few minutes)
     .venv/bin/python benchmarks/bench_rollout.py --quick    # 20 rollouts × 100 steps from n = 500
     .venv/bin/python benchmarks/bench_rollout.py --time-input phase   # models with the phase input and the mean-path prior
+    .venv/bin/python benchmarks/bench_rollout.py --threads --steps 100   # a lone load + rollout: BLAS threads before / today
 
 Model (:func:`build_model`): a shared-hyperparameter exact GP (``fit_gp(..., shared=True,
 restarts=1)``) on n synthetic training pairs (benchmarks/_common.py: random poses, outputs a smooth
@@ -201,6 +202,109 @@ def baseline_source(rev: str, folder: str) -> str:
     return str(Path(folder) / "src")
 
 
+THREADS_SCRIPT = r"""
+import contextlib, json, sys, time
+t0, c0 = time.perf_counter(), time.process_time()
+mode, model_path, starts_path, poses_path = sys.argv[1:5]
+import numpy as np
+from rbgp_cli.dynamics.rollout import rollout
+from rbgp_cli.gp import exact
+from rbgp_cli.io.model_store import load_model
+t1, c1 = time.perf_counter(), time.process_time()
+if mode == "old":  # before issue 24: the loaded model's factorisation on the BLAS pool as it is
+    kept = exact.blas_threads
+    exact.blas_threads = lambda n: contextlib.nullcontext()
+model, _ = load_model(model_path)
+if mode == "old":
+    exact.blas_threads = kept
+t2, c2 = time.perf_counter(), time.process_time()
+z = np.load(starts_path)
+r = rollout(model, z["q0"], z["p0"], int(z["steps"]), with_std=bool(z["with_std"]))
+t3, c3 = time.perf_counter(), time.process_time()
+np.savez(poses_path, quat=r.quat, position=r.position)
+print(json.dumps({"imports_s": t1 - t0, "imports_cpu_s": c1 - c0, "load_s": t2 - t1, "load_cpu_s": c2 - c1,
+                  "rollout_s": t3 - t2, "rollout_cpu_s": c3 - c2}))
+"""
+
+#: The three ways of running ``THREADS_SCRIPT``: (label, mode argument, extra environment).
+THREAD_MODES = (("before (BLAS pool for the load)", "old", {}), ("today", "new", {}),
+                ("today, OPENBLAS_NUM_THREADS=1", "new", {"OPENBLAS_NUM_THREADS": "1"}))
+
+
+def run_threads(args, n: int, count: int, steps: int) -> tuple[dict, list]:
+    """``--threads``: what a lone ``rbgp rollout`` costs in wall and CPU time (issue 24, point 8).
+
+    The model (``build_model`` with the first kernel of ``--kernel``) is saved to a model file; each
+    round runs, in fresh processes one after the other, the load of that file and the batched rollout
+    of ``count`` starts × ``steps``: as the library did before issue 24 (the loaded model's Cholesky
+    factorisations on the BLAS pool as it is), as it does today (single-threaded, as the fit), and
+    today with ``OPENBLAS_NUM_THREADS=1`` (the issue's reference). CPU time is the whole process's
+    (every thread; ``getrusage`` of the finished child, imports included) and the load + rollout part
+    measured inside it; the poses must agree to 1e-9."""
+    import resource
+    import subprocess
+    import tempfile
+
+    from rbgp_cli.io.model_store import save_model
+
+    metric = [k.strip() for k in args.kernel.split(",") if k.strip()][0]
+    print(f"bench_rollout --threads — {time.strftime('%Y-%m-%d %H:%M %Z')}; {machine_line()}\n{blas_line()}", flush=True)
+    model, info = build_model(n, metric)
+    q0, p0 = starts_near(model.starts, count, 0.02, seed=0)
+    rounds = []
+    root = str(Path(__file__).resolve().parents[1])
+    with tempfile.TemporaryDirectory() as tmp:
+        model_path, starts_path = os.path.join(tmp, "model.rbgp"), os.path.join(tmp, "starts.npz")
+        save_model(model, model_path)
+        np.savez(starts_path, q0=q0, p0=p0, steps=steps, with_std=int(args.with_std))
+        for rnd in range(args.rounds):
+            row, got = {}, {}
+            for label, mode, extra in THREAD_MODES:
+                env = dict(os.environ, PYTHONPATH=root, **extra)
+                poses = os.path.join(tmp, f"poses_{mode}_{len(extra)}.npz")
+                before = resource.getrusage(resource.RUSAGE_CHILDREN)
+                t0 = time.perf_counter()
+                out = subprocess.run([sys.executable, "-c", THREADS_SCRIPT, mode, model_path, starts_path, poses],
+                                     env=env, capture_output=True, text=True, cwd=root)
+                wall = time.perf_counter() - t0
+                after = resource.getrusage(resource.RUSAGE_CHILDREN)
+                if out.returncode != 0:
+                    raise RuntimeError(f"{label}: {out.stderr[-2000:]}")
+                res = json.loads(out.stdout.strip().splitlines()[-1])
+                res["process_s"] = wall
+                res["process_cpu_s"] = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+                with np.load(poses) as z:
+                    got[label] = (z["quat"], z["position"])
+                row[label] = res
+            ref_q, ref_p = got[THREAD_MODES[1][0]]
+            for label, (q, p) in got.items():
+                row[label]["max_abs_diff"] = max(float(np.max(np.abs(q - ref_q))), float(np.max(np.abs(p - ref_p))))
+            rounds.append({"modes": row, "load": os.getloadavg()[0]})
+            print(f"round {rnd + 1}: " + "; ".join(
+                f"{k}: {v['process_s']:.2f} s wall, {v['process_cpu_s']:.2f} s CPU" for k, v in row.items()), flush=True)
+    best = lambda label, key: min(r["modes"][label][key] for r in rounds)  # noqa: E731
+    old, new = THREAD_MODES[0][0], THREAD_MODES[1][0]
+    what = f"{count} rollouts × {steps} steps" + (" with std" if args.with_std else "")
+    lines = [f"Measured {time.strftime('%Y-%m-%d %H:%M %Z')}; {machine_line()}. {blas_line()} (as they are).", "",
+             f"Model: n = {n} training pairs, {metric} kernel, shared hyperparameters; saved to a model file, then "
+             f"in a fresh process per run: load it and roll out {what} ({args.rounds} alternating rounds, best of each; "
+             "load average (1 min) after each round: " + ", ".join(f"{r['load']:.1f}" for r in rounds) + ").", "",
+             "| a lone load + rollout | process (s) | process, CPU (s) | load (s) | load, CPU (s) | rollout (s) "
+             "| rollout, CPU (s) | max \\|Δ\\| to today |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for label, _mode, _env in THREAD_MODES:
+        lines.append(f"| {label} | {fmt_s(best(label, 'process_s'))} | {fmt_s(best(label, 'process_cpu_s'))} "
+                     f"| {fmt_s(best(label, 'load_s'))} | {fmt_s(best(label, 'load_cpu_s'))} | {fmt_s(best(label, 'rollout_s'))} "
+                     f"| {fmt_s(best(label, 'rollout_cpu_s'))} | {max(r['modes'][label]['max_abs_diff'] for r in rounds):.1e} |")
+    ratio_cpu = best(old, "process_cpu_s") / best(new, "process_cpu_s")
+    ratio_wall = best(old, "process_s") / best(new, "process_s")
+    same = max(r["modes"][k]["max_abs_diff"] for r in rounds for k in r["modes"]) <= 1e-9
+    lines += ["", f"Before / today, the whole process: **{ratio_cpu:.2f}× the CPU time, {ratio_wall:.2f}× the wall time** "
+              f"(load + rollout alone: {best(old, 'load_cpu_s') + best(old, 'rollout_cpu_s'):.2f} s / "
+              f"{best(new, 'load_cpu_s') + best(new, 'rollout_cpu_s'):.2f} s CPU). Same poses to 1e-9: {'yes' if same else 'NO'}."]
+    return {"model": info, "count": count, "steps": steps, "rounds": rounds, "cpu_ratio": ratio_cpu,
+            "wall_ratio": ratio_wall, "same_poses": same}, lines
+
+
 def run_baseline(src: str, model_path: str, starts_path: str, poses_path: str, blas: int | None) -> dict:
     """One rollout run of the baseline library (a subprocess importing ``src``)."""
     import subprocess
@@ -258,7 +362,20 @@ def main(argv=None) -> int:
     ap.add_argument("--baseline", default=None, metavar="REV",
                     help="also roll out the same model with the library at this git revision (e.g. main)")
     ap.add_argument("--rounds", type=int, default=2, help="alternating rounds of baseline and today's code (default 2)")
+    ap.add_argument("--threads", action="store_true",
+                    help="only the BLAS-thread comparison of issue 24: a lone load + rollout in fresh processes as "
+                         "before and as today, wall and CPU time (default n = 1208, 60 rollouts × 626 steps)")
+    ap.add_argument("--with-std", action="store_true", help="with --threads: roll out with the predictive std")
     args = ap.parse_args(argv)
+    if args.threads:
+        res, lines = run_threads(args, args.n or 1208, args.count or 60, args.steps or 626)
+        text = "\n".join(lines)
+        print("\n" + text)
+        if args.markdown:
+            Path(args.markdown).write_text(text + "\n")
+        if args.json:
+            Path(args.json).write_text(json.dumps({k: v for k, v in res.items()}, indent=1))
+        return 0 if res["same_poses"] else 1
     _limits = limit_blas_threads(args.blas_threads)  # noqa: F841 (kept alive for the whole run)
     n = args.n or (500 if args.quick else 1752)
     count = args.count or (20 if args.quick else 100)

@@ -1,6 +1,15 @@
 """``python -m rbgp_cli`` runs the command line."""
 
-from rbgp_cli.cli.app import main
+
+def main() -> None:
+    """Entry point: signal handling first (a Ctrl-C during the imports is one line, not a traceback)."""
+    from rbgp_cli.cli import exit_on_signals
+
+    exit_on_signals()
+    from rbgp_cli.cli.app import main as app_main
+
+    app_main()
+
 
 if __name__ == "__main__":
     main()

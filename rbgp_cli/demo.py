@@ -40,8 +40,15 @@ def run_demo(out, *, count: int = 100, representations=("axis-angle", "euler", "
 
     progress = as_progress(progress)
 
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise InputError("is a file, not a folder", path=str(out), hint="give a folder for the demo's outputs with --out")
+    try:
+        os.makedirs(out, exist_ok=True)  # before the work, which fills it
+    except OSError as exc:
+        raise InputError(f"cannot create the folder: {exc.strerror or exc}", path=str(out)) from None
+    if not os.access(out, os.W_OK):
+        raise InputError("the output folder is not writable", path=str(out))
     data = Path(data) if data else find_sample_data()
-    os.makedirs(out, exist_ok=True)
     demos, _, _ = workflows.load_demonstrations([str(data)])
     base = np.array([np.concatenate([t.quat[0], t.position[0]]) for t in demos])
     q0, p0 = starts_near(base, count, 0.02, seed=seed)

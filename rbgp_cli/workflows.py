@@ -32,6 +32,7 @@ __all__ = [
     "predict_file",
     "crossval_configs",
     "crossval_files",
+    "left_data",
     "SAMPLE_DATA",
 ]
 
@@ -241,7 +242,7 @@ def predict_file(model, path, options: ReadOptions | None = None, noisy: bool = 
 
 
 def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, samples=0, seed=0, with_std=True,
-                  progress=None, durations=None, rate=None):
+                  progress=None, durations=None, rate=None, off_data: str = "keep"):
     """``rbgp rollout``: steps from --steps, or --duration / dt, or the demonstrations' median duration.
 
     ``durations`` (B,) seconds: each trajectory its own duration instead (``steps``/``duration`` are
@@ -251,11 +252,17 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
     stays on the step ``dt`` (the model's training step by default: the dynamics were learned for
     it), and the poses and stds are interpolated between the steps
     (:meth:`~rbgp_cli.dynamics.rollout.RolloutResult.resampled`); None keeps the integration grid.
+
+    ``off_data`` (keep, stop, prior): what a rollout does outside the demonstrations' envelope
+    (:mod:`rbgp_cli.dynamics.rollout`); rollouts that left it are named in one warning (the result's
+    ``left`` lists them).
     """
+    from rbgp_cli.dynamics.envelope import describe
     from rbgp_cli.dynamics.rollout import rollout, rollout_for
+    from rbgp_cli.errors import warn
 
     step = float(model.dt if dt is None else dt)
-    kwargs = {"samples": samples, "seed": seed, "with_std": with_std, "progress": progress}
+    kwargs = {"samples": samples, "seed": seed, "with_std": with_std, "progress": progress, "off_data": off_data}
     if durations is not None:
         res = rollout_for(model, quat, pos, durations, step, **kwargs)
     else:
@@ -265,6 +272,12 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
                 raise InputError(f"--duration must be a positive number of seconds, got {dur}")
             steps = max(1, int(round(dur / step)))
         res = rollout(model, quat, pos, steps, step, **kwargs)
+    if res.left and res.left["count"]:
+        then = {"keep": "they went on (--off-data stop ends them there, prior falls back to the prior's pull)",
+                "stop": "they end there (--off-data stop)",
+                "prior": "they followed the prior mean while outside (--off-data prior)"}[off_data]
+        warn(describe(res.left) + f"; {then}"
+             + ("; envelope from the model's training points (an older model file)" if res.left["envelope"] != "demonstrations" else ""))
     if rate is not None and abs(float(rate) * step - 1.0) > 1e-9:  # at 1/dt the grid is the integration grid
         res = res.resampled(rate)
     return res
@@ -324,11 +337,29 @@ def score_refusal(result) -> str | None:
     return check_sample_sizes(result.n_generated, result.n_demos, result.covariance, result.ridge).refusal
 
 
-def crossval_configs(representations, kernels, train_kwargs: dict, replay: bool = True, peers: bool = True):
-    """The rows of ``rbgp crossval``: every representation × kernel with the same training options,
+def left_data(generated, demos) -> dict:
+    """Which generated trajectories leave the envelope of ``demos`` (:mod:`rbgp_cli.dynamics.envelope`,
+    each on its own phase): ``{"count", "of", "margin_m", "envelope", "trajectories": [...]}``, with
+    each trajectory's name next to its index."""
+    from rbgp_cli.dynamics.envelope import envelope_from_demos, left_envelope
+
+    report = left_envelope(list(generated), envelope_from_demos(demos))
+    for e in report["trajectories"]:
+        e["name"] = generated[e["index"]].name
+    return report
+
+
+def crossval_configs(representations, kernels, train_kwargs: dict, replay: bool = True, variants=None,
+                     peers: bool = True):
+    """The rows of ``rbgp crossval``: every representation × kernel × variant of the training options,
     plus the replay peer and (``peers``, when movement-primitives is installed, else a note) the ProMP
     and DMP peers of :mod:`rbgp_cli.evaluation.peers`. ``all`` stands for the three representations; a kernel a representation does
-    not have (the chordal distance on Euler angles) is left out for it, with a note in the returned list."""
+    not have (the chordal distance on Euler angles) is left out for it, with a note in the returned list.
+
+    ``variants``: None (one row per representation × kernel with ``train_kwargs``) or a list of
+    ``(label, options, kwargs)`` (:func:`rbgp_cli.cli.train_options.grid_variants`, ``--grid``): each
+    representation × kernel runs with each ``kwargs``, its row labelled with ``label`` and carrying
+    ``options`` ({option: value}). The peers train no GP and stay one row each."""
     from rbgp_cli.dynamics.defaults import DEFAULT_KERNELS, DEFAULTS
     from rbgp_cli.dynamics.model import KERNELS
     from rbgp_cli.dynamics.representations import REPRESENTATIONS
@@ -345,15 +376,21 @@ def crossval_configs(representations, kernels, train_kwargs: dict, replay: bool 
     for k in kerns:
         if k not in KERNELS:
             raise InputError(f"unknown kernel {k!r}; expected one of {', '.join(KERNELS)}")
+    variants = list(variants) if variants else [("", {}, train_kwargs)]
     configs, skipped = [], []
+
+    def add(r, k):
+        for label, options, kw in variants:
+            configs.append(Config(r, k, dict(kw), label=f"{r} {k} {label}" if label else "", options=dict(options)))
+
     for r in reps:
         for k in kerns or [DEFAULT_KERNELS[r]]:
             if r == "euler" and k == "se-chordal":
                 skipped.append("euler with se-chordal (Euler angles have no chordal distance; euler runs with se)")
                 if "se" not in kerns:
-                    configs.append(Config(r, "se", dict(train_kwargs)))
+                    add(r, "se")
                 continue
-            configs.append(Config(r, k, dict(train_kwargs)))
+            add(r, k)
     if replay:
         configs.append(Config(REPLAY))
     if peers:
@@ -369,13 +406,15 @@ def crossval_configs(representations, kernels, train_kwargs: dict, replay: bool 
 
 def crossval_files(sources, configs, *, options: ReadOptions | None = None, max_gap=None, folds: int = 5,
                    seed: int = 0, jobs: int | None = None, length=None, covariance="diag", progress=None,
-                   scheduler: str | None = None) -> dict:
+                   scheduler: str | None = None, samples: int | None = None) -> dict:
     """``rbgp crossval``: read and clean the demonstrations, cross-validate every configuration on the
     same folds (:func:`rbgp_cli.evaluation.crossval.crossval`); returns its result plus the inputs."""
     from rbgp_cli.evaluation.crossval import crossval
 
     demos, _, inputs = load_demonstrations(sources, options, max_gap=max_gap)
+    from rbgp_cli.evaluation.crossval import SAMPLES
+
     result = crossval(demos, configs, folds=folds, seed=seed, jobs=jobs, length=length, covariance=covariance,
-                      progress=progress, scheduler=scheduler)
+                      progress=progress, scheduler=scheduler, samples=SAMPLES if samples is None else samples)
     result["inputs"] = [i["name"] for i in inputs]
     return result

@@ -296,7 +296,7 @@ def test_rules_keep_the_command_line_and_make_what_is_missing(tmp_path, small_mo
     assert cmd == "rbgp rollout m2.rbgp --count 3 -o - | rbgp evaluate - --demos sample_data/csv --plot f.png"
     assert (tmp_path / "m2.rbgp").read_bytes() == small_model.read_bytes() and not (tmp_path / "f.png").exists()
 
-    cmd = runnable('python3 -m venv .venv && .venv/bin/pip install . && .venv/bin/rbgp demo', tmp_path, small_model)
+    cmd = runnable('python3 -m venv .venv && .venv/bin/pip install ".[plot]" && .venv/bin/rbgp demo', tmp_path, small_model)
     assert cmd == f"{BIN}/rbgp demo --quick"
     cmd = runnable("rbgp train sample_data/shoe_demos.mcap --topic '/shoe/*' -o s.rbgp", tmp_path, small_model)
     assert cmd.endswith("--topic '/shoe/*' -o s.rbgp --max-points 120 --restarts 1")

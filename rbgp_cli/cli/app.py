@@ -18,7 +18,7 @@ from rbgp_cli.cli.train_options import (
     CalibrateOpt, HyperPointsOpt, InducingOpt, SmoothWindowOpt, SubsampleOpt, TimeInputOpt, TrainRateOpt, defaults, kernel_help, train_kwargs,
 )
 from rbgp_cli.cli.common import (
-    ReadArgs, command, emit_json, progress, set_json, set_quiet, with_read_options, write_text_output,
+    ReadArgs, command, emit_json, check_outputs, is_quiet, progress, set_json, set_quiet, with_read_options, write_text_output,
 )
 
 app = typer.Typer(
@@ -45,7 +45,7 @@ def _version(value: bool):
 @app.callback()
 def _main(
     version: Annotated[bool, typer.Option("--version", "-V", callback=_version, is_eager=True, help="Print the version.")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress messages or bars on stderr (warnings and errors still); also accepted after the command.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress messages, bars or summaries on stderr (warnings and errors still); also accepted after the command.")] = False,
     json_out: Annotated[bool, typer.Option("--json", help="The command's --json (machine-readable output on stdout), for the commands that have it.")] = False,
 ):
     set_quiet(quiet)
@@ -89,6 +89,7 @@ def train(
                           hyper_points=hyper_points, calibrate_noise=calibrate_noise)
     if up not in ("z", "y"):
         raise InputError(f"--up must be z or y, got {up!r}")
+    check_outputs(output, rerun)
     model, header, trajs = workflows.train_from_files(
         demos, output, options=opts, max_gap=max_gap, progress=progress,
         representation=representation, kernel=kernel, jobs=jobs or None, **kwargs,
@@ -102,7 +103,7 @@ def train(
     summary["model"] = output
     if json_out:
         emit_json(summary)
-    else:
+    elif not is_quiet():  # the summary is information: -q leaves stderr to warnings and errors
         from rbgp_cli.cli.report import format_train_summary
 
         print(format_train_summary(summary), file=sys.stderr)
@@ -150,6 +151,7 @@ def predict(
     from rbgp_cli import workflows
     from rbgp_cli.io.model_store import load_model
 
+    check_outputs(output)
     m, _ = load_model(model)
     t, q, p, mean, std = workflows.predict_file(m, poses, read.options, noisy=noisy, max_gap=read.max_gap)  # '-' too
     names = list(m.representation.output_names)
@@ -184,13 +186,17 @@ def rollout(
     samples: Annotated[int, typer.Option(min=0, help="Monte Carlo rollouts per start, drawing velocities from the predictive Gaussian.")] = 0,
     seed: Annotated[int, typer.Option(help="Seed for start perturbations and Monte Carlo draws.")] = 0,
     no_std: Annotated[bool, typer.Option("--no-std", help="Skip the predictive standard deviations (faster).")] = False,
+    off_data: Annotated[str, typer.Option("--off-data", help="What a rollout does once it leaves the demonstrations' envelope (the positions they reach near the same phase of the motion, widened by 25 % of their largest extent, at least 5 cm): keep (go on), stop (end the trajectory at its first sample outside) or prior (while outside, follow the prior mean alone: the mean-path prior's pull back toward the demonstrations). Every mode warns and marks those samples (CSV column left_data = 1; --json: left_data).")] = "keep",
     output: Annotated[Optional[str], typer.Option("--output", "-o", help="CSV to write ('-' or omitted: stdout).")] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print a JSON summary on stdout (requires -o FILE).")] = False,
     rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd).")] = None,
     up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.")] = "z",
     read: ReadArgs = None,
 ):
-    """Generate new motions from start poses by single-step mean prediction (MATH.md §8).
+    """Generate new motions from start poses by single-step mean prediction.
+
+    Each step takes the model's mean velocity at the current pose and integrates it over one time
+    step (with the exponential map for axis-angle; by addition for the euler and quaternion baselines).
 
     Example: rbgp rollout shoe.rbgp --count 100 --samples 5 -o rollouts.csv
     """
@@ -214,6 +220,7 @@ def rollout(
     if opts.rate is not None and not (starts or from_demos):
         raise InputError("--rate is the sample rate of input files without a time column, and rollout reads none here",
                          hint="set the rate of the written trajectories with --output-rate HZ")
+    check_outputs(output, rerun)
     m, _ = load_model(model)
     qs, ps, durs = [], [], []
     for s in start or []:
@@ -248,13 +255,17 @@ def rollout(
         durations = np.concatenate([np.full(given, other), durs])
     rate = m.recorded_rate if output_rate is None else (output_rate or None)
     res = workflows.rollout_model(m, q0, p0, steps=steps, duration=duration, dt=dt, samples=samples, seed=seed,
-                                  with_std=not no_std, progress=progress, durations=durations, rate=rate)
+                                  with_std=not no_std, progress=progress, durations=durations, rate=rate,
+                                  off_data=off_data)
     trajs = res.trajectories(include_samples=samples > 0)
-    extra = None
+    B = res.count
+    extra = {}
     if res.std is not None:
-        B = res.count
         per = [res.std[b, :res.length(b)] for b in range(B)] + [np.full((len(tr), res.std.shape[2]), np.nan) for tr in trajs[B:]]
         extra = {f"std_{n}": [a[:, j] for a in per] for j, n in enumerate(res.output_names)}
+    # 1 where a mean rollout's sample lies outside the demonstrations' envelope (samples: not checked)
+    extra["left_data"] = ([res.outside[b, : res.length(b)].astype(float) for b in range(B)]
+                          + [np.full(len(tr.t), np.nan) for tr in trajs[B:]])
     write_text_output(output, lambda fh: write_trajectories_csv(trajs, fh, extra=extra))
     if rerun:
         from rbgp_cli.viz.recording import record_rollout
@@ -266,7 +277,7 @@ def rollout(
         emit_json({"trajectories": res.count, "samples_per_start": samples, "steps": n_steps, "dt": step,
                    "output_rate_hz": float(rate) if res.integration else 1.0 / step,
                    "durations_s": [float(tr.t[-1]) for tr in trajs[:res.count]],
-                   "output": output, "std": res.std is not None})
+                   "output": output, "std": res.std is not None, "off_data": off_data, "left_data": res.left})
 
 
 # ---------------------------------------------------------------------------------------------- evaluate
@@ -290,7 +301,14 @@ def evaluate(
     up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.")] = "z",
     read: ReadArgs = None,
 ):
-    """Score generated trajectories against demonstrations: per-step Bhattacharyya distance (MATH.md §9).
+    """Score generated trajectories against demonstrations: per-step Bhattacharyya distance.
+
+    At each step of a common normalised time, the distance between a Gaussian of the generated set
+    and one of the demonstrations (rotation relative to the demonstrations' mean rotation, and
+    position), averaged over the steps; lower is closer.
+
+    Also says how many generated trajectories left the demonstrations' envelope (where no demonstration
+    goes near that phase of the motion; --json: left_data), which a score alone can hide.
 
     Example: rbgp rollout shoe.rbgp --count 100 -o - | rbgp evaluate - --demos sample_data/csv
     """
@@ -310,6 +328,11 @@ def evaluate(
         if hint:
             raise InputError(hint)
     opts, max_gap = read.options, read.max_gap
+    check_outputs(per_step, rerun, plot)
+    if plot:
+        from rbgp_cli.viz.plots import _matplotlib
+
+        _matplotlib()  # not installed: say so now, not after the scoring
     m = None
     if model is not None:
         from rbgp_cli.io.model_store import load_model
@@ -343,12 +366,14 @@ def evaluate(
         if refusal:
             raise InputError(refusal, hint=f"the figure {plot} was written without a score; pass more demonstrations")
         progress(f"wrote {plot}")
+    left = workflows.left_data(gen, dem)  # a score never hides motions that went where no demonstration goes
     if json_out:
-        emit_json(result.to_dict())
+        emit_json({**result.to_dict(), "left_data": left})
     else:
         b = result.to_dict()["bhattacharyya"]
         print(f"bhattacharyya mean {b['mean']:.4f}  rotation {b['rotation']:.4f}  translation {b['translation']:.4f}"
-              f"  ({result.steps} steps, {result.n_generated} generated, {result.n_demos} demonstrations)")
+              f"  ({result.steps} steps, {result.n_generated} generated, {result.n_demos} demonstrations)"
+              f"; {left['count']} of {left['of']} generated left the demonstrations' envelope")
 
 
 # ---------------------------------------------------------------------------------------------- inspect
@@ -395,16 +420,19 @@ def inspect(
 @command
 @with_read_options
 def crossval(
+    ctx: typer.Context,
     demos: Annotated[List[str], typer.Argument(help="Demonstration files or directories (a shell glob is fine).")],
     folds: Annotated[int, typer.Option(min=2, help="Folds of the demonstrations (a demonstration is never split across folds).")] = 5,
     representation: Annotated[Optional[List[str]], typer.Option("--representation", help="axis-angle, euler, quaternion, or all; repeatable (default: axis-angle).", rich_help_panel=_TRAIN)] = None,
     kernel: Annotated[Optional[List[str]], typer.Option("--kernel", help="Repeatable; every representation runs with every kernel (default: each representation's own). " + kernel_help(), rich_help_panel=_TRAIN)] = None,
+    grid: Annotated[Optional[List[str]], typer.Option("--grid", metavar="OPTION=V1,V2,...", help="Repeatable: cross-validate every value of a training option, named as its option without the dashes (e.g. --grid prior-gain=3,5,10 --grid inducing=0,512; 'default' is the option's default). Every combination of the grids × representations × kernels is one row, on the same folds; the values are checked as the option checks them; --seed stays the seed of the folds (--grid seed=0,1 varies the training seed only).", rich_help_panel=_TRAIN)] = None,
     replay: Annotated[bool, typer.Option("--replay/--no-replay", help="Include the replay peer: the training demonstration with the nearest start, moved rigidly to the new start.")] = True,
     peers: Annotated[bool, typer.Option("--peers/--no-peers", help="Include the ProMP (conditioned on the start) and Cartesian DMP (of the nearest-start demonstration) peers of the movement-primitives package; left out with a note when it is not installed (pip install \"rbgp-cli\\[peers]\").")] = True,
     jobs: Annotated[Optional[int], typer.Option(min=1, help="Worker processes for the fits (default: one per core); 1 runs them in this process.")] = None,
-    scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Run the fits on a Dask cluster: the scheduler's address (tcp://host:8786), or 'local' for a LocalCluster of --jobs single-threaded workers. Needs pip install \"rbgp-cli\\[distributed]\"; the results are the same.")] = None,
+    scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Run the fits on a Dask cluster: the scheduler's address (tcp://host:8786), or 'local' for a LocalCluster of --jobs single-threaded workers. Needs pip install \"rbgp-cli\\[distributed]\"; the results are the same. A fit whose worker dies is run once more, then the run fails naming the fold (also after 30 s with no live worker).")] = None,
     length: Annotated[Optional[int], typer.Option(min=2, help="Resample every trajectory to this many steps for the scores (default: the training demonstrations' median).")] = None,
     covariance: Annotated[str, typer.Option(help="Per-step Gaussians with diag or full covariance (as rbgp evaluate).")] = "diag",
+    samples: Annotated[int, typer.Option("--samples", min=0, help="Sampled rollouts per held-out start (as rbgp rollout --samples) for the columns sample (one sample per start scored like score, over the floor) and cov_pos / cov_rot (how often the held-out motion lies inside the samples' 90 % prediction region: 0.90 for honest bands) with the bands' half-widths in --json; 0: none; at least 4 for the coverage.")] = 20,
     per_fold: Annotated[bool, typer.Option("--per-fold", help="Also print one line per fold and configuration.", rich_help_panel=_OUT)] = False,
     json_out: Annotated[bool, typer.Option("--json", help="Print the results as JSON on stdout.", rich_help_panel=_OUT)] = False,
     rho_rot: RhoOpt = _D["rho_rot"], restarts: RestartsOpt = _D["restarts"], explore_size: ExploreOpt = _D["explore_size"],
@@ -420,12 +448,16 @@ def crossval(
     by demonstration: train on the other folds (with exactly the options of rbgp train), roll out from
     each held-out demonstration's start for its duration, and score against the training
     demonstrations next to the floor (the held-out demonstrations' own score) and the peers: replay,
-    and a ProMP and a DMP from the field's own library (movement-primitives, optional).
+    and a ProMP and a DMP from the field's own library (movement-primitives, optional). The left column
+    counts the rollouts that left the training demonstrations' envelope.
 
     Example: rbgp crossval sample_data/csv --representation all --folds 3
+
+    Example: rbgp crossval sample_data/csv --grid prior-gain=3,10 --grid inducing=0,48
     """
     from rbgp_cli import workflows
-    from rbgp_cli.errors import warn
+    from rbgp_cli.cli.train_options import grid_variants
+    from rbgp_cli.errors import InputError, warn
 
     opts, max_gap = read.options, read.max_gap
     kwargs = train_kwargs(rho_rot=rho_rot, restarts=restarts, explore_size=explore_size, seed=seed, noise=noise,
@@ -433,11 +465,18 @@ def crossval(
                           train_rate=train_rate, smooth_window=smooth_window, smooth_degree=smooth_degree,
                           time_input=time_input, prior=prior, prior_gain=prior_gain, inducing=inducing,
                           hyper_points=hyper_points, calibrate_noise=calibrate_noise)
-    configs, skipped = workflows.crossval_configs(representation, kernel, kwargs, replay=replay, peers=peers)
+    variants, lists = grid_variants(ctx, grid)
+    for name, given in (("representation", representation), ("kernel", kernel)):
+        if name in lists and given:
+            raise InputError(f"give --{name} or --grid {name}=..., not both")
+    configs, skipped = workflows.crossval_configs(lists.get("representation", representation), lists.get("kernel", kernel),
+                                                  kwargs, replay=replay, peers=peers,
+                                                  variants=variants if grid else None)
     for note in skipped:
         warn(f"left out {note}")
     result = workflows.crossval_files(demos, configs, options=opts, max_gap=max_gap, folds=folds, seed=seed, jobs=jobs,
-                                      length=length, covariance=covariance, progress=progress, scheduler=scheduler)
+                                      length=length, covariance=covariance, progress=progress, scheduler=scheduler,
+                                      samples=samples)
     result["skipped"] = list(skipped)
     if json_out:
         emit_json(result)
@@ -498,6 +537,7 @@ def bench_paper(
 
     if part not in ("all", *PARTS):
         raise InputError(f"unknown part {part!r}; expected all, {', '.join(PARTS)}")
+    check_outputs(markdown)
     res = run_paper_bench(PARTS if part == "all" else (part,), repeats=repeats, seed=seed, quick=quick, progress=progress)
     report = format_report(res)
     if markdown:
@@ -509,5 +549,9 @@ def bench_paper(
 
 
 def main() -> None:
-    """Console-script entry point."""
+    """Console-script entry point (``rbgp_cli.__main__.main`` installs the signal handling before
+    importing this module; here again for callers of this function)."""
+    from rbgp_cli.cli import exit_on_signals
+
+    exit_on_signals()
     app()

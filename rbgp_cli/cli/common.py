@@ -20,7 +20,7 @@ import typer
 from rbgp_cli.progress import Progress
 
 __all__ = ["command", "progress", "emit_json", "read_options", "with_read_options", "ReadArgs", "READ_PANEL",
-           "write_text_output", "set_quiet", "set_json"]
+           "write_text_output", "check_outputs", "set_quiet", "set_json", "is_quiet"]
 
 
 def _stderr(text: str) -> None:
@@ -84,6 +84,32 @@ def _progress_session():
             stop()
 
 
+@contextlib.contextmanager
+def _signals_as_exceptions():
+    """While a command runs: Ctrl-C raises KeyboardInterrupt (``rbgp: interrupted``, exit 130) and
+    SIGTERM SystemExit(143), so that worker pools are ended and temporary files removed on the way
+    out; the handlers in place before (:func:`rbgp_cli.cli.exit_on_signals`) come back afterwards."""
+    import signal
+    import threading
+
+    from rbgp_cli.parallel import ending_on_sigterm
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with ending_on_sigterm():
+            yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def is_quiet() -> bool:
+    """``-q``: nothing on stderr but warnings and errors (no progress, no summaries)."""
+    return _QUIET["on"]
+
+
 def _show_warning(message, category, filename, lineno, file=None, line=None):
     from rbgp_cli.errors import RbgpWarning
 
@@ -93,7 +119,7 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
         _stderr(f"rbgp: warning: {category.__name__}: {message}")
 
 
-_QUIET_HELP = "No progress messages or bars on stderr (warnings and errors still); also accepted before the command."
+_QUIET_HELP = "No progress messages, bars or summaries on stderr (warnings and errors still); also accepted before the command."
 
 
 def command(func):
@@ -122,7 +148,7 @@ def command(func):
                     if not has_json:
                         raise InputError(f"rbgp {func.__name__} has no --json output", hint="leave out --json")
                     kwargs["json_out"] = True
-                with _progress_session():
+                with _progress_session(), _signals_as_exceptions():
                     return func(*args, **kwargs)
             except typer.Exit:
                 raise
@@ -173,11 +199,41 @@ def _json_default(o):
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
+def _drop_stdout() -> None:
+    """Send what is still buffered for stdout (and anything later) to the null device, so that the
+    interpreter's last flush does not fail a second time."""
+    try:
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, sys.stdout.fileno())
+        os.close(null)
+    except (OSError, ValueError, AttributeError):  # not a real file (CliRunner's capture)
+        pass
+
+
+def check_outputs(*paths: Optional[str]) -> None:
+    """Refuse output paths that cannot be written, before any work (reading, training, rolling out):
+    each must name a file whose folder exists and is writable (:func:`rbgp_cli.workflows.check_writable`,
+    the check of ``train -o``). None (option not given) and '-' (stdout) pass."""
+    from rbgp_cli.workflows import check_writable
+
+    for path in paths:
+        if path is not None and str(path) != "-":
+            check_writable(path)
+
+
 def write_text_output(path: Optional[str], writer) -> None:
     """Call ``writer(stream)`` on stdout (path None or '-') or on a file written atomically."""
     if path is None or str(path) == "-":
-        writer(sys.stdout)
-        sys.stdout.flush()
+        try:
+            writer(sys.stdout)
+            sys.stdout.flush()
+        except BrokenPipeError:
+            raise
+        except OSError as exc:  # stdout redirected into a file on a full disk or past the size limit
+            from rbgp_cli.io.atomic import write_error
+
+            _drop_stdout()
+            raise write_error("stdout", exc) from None
         return
     from rbgp_cli.io.atomic import atomic_open
     from rbgp_cli.workflows import check_writable

@@ -123,15 +123,28 @@ def format_model_info(path: str, h: dict) -> str:
 
 
 def write_per_step(result, fh) -> None:
-    """Columns: step, s (normalised time), bhattacharyya, rotation, translation."""
+    """Columns: step, s (normalised time), bhattacharyya, rotation, translation; floats as the
+    shortest text that reads back to the same float64 (``float.__repr__`` of Python floats: the
+    ``repr`` of a numpy scalar is ``np.float64(…)``, which no CSV reader takes for a number)."""
+    import numpy as np
+
+    rows = np.column_stack([result.s, result.per_step, result.per_step_rotation, result.per_step_translation])
     fh.write("step,s,bhattacharyya,rotation,translation\n")
-    for i in range(result.steps):
-        fh.write(f"{i},{result.s[i]!r},{float(result.per_step[i])!r},{float(result.per_step_rotation[i])!r},"
-                 f"{float(result.per_step_translation[i])!r}\n")
+    fh.writelines(f"{i}," + ",".join(map(float.__repr__, row)) + "\n"
+                  for i, row in enumerate(rows.astype(np.float64).tolist()))
 
 
 def _num(v, fmt: str = ".3f") -> str:
     return "-" if v is None else format(v, fmt)
+
+
+def _options_label(row: dict) -> str:
+    """The --grid options of a crossval row: its label after the representation and kernel."""
+    if not row.get("options"):
+        return ""
+    head = f"{row['representation']} {row['kernel']} "
+    label = row.get("label", "")
+    return label[len(head):] if label.startswith(head) else " ".join(f"{k}={v}" for k, v in row["options"].items())
 
 
 def format_crossval(result: dict, per_fold: bool = False) -> str:
@@ -142,20 +155,31 @@ def format_crossval(result: dict, per_fold: bool = False) -> str:
         f"floor {result['floor']:.3f} (the held-out demonstrations scored against the same training sets)",
         "score: Bhattacharyya distance of the rollouts from the held-out starts to the training demonstrations "
         "(lower is better); ratio = score / floor; pos/rot: RMSE against the held-out demonstration with the "
-        "same start (m, rad); vel: relative velocity RMSE on held-out pairs (1 = predicting zero)",
+        "same start (m, rad); vel: relative velocity RMSE on held-out pairs (1 = predicting zero); sample: one "
+        "sampled rollout per start scored like score, over the floor; cov_pos/cov_rot: how often the held-out "
+        "motion lies inside the samples' 90 % prediction region (0.90 = honest bands); left: rollouts "
+        "that left the training demonstrations' envelope"
+        + (f" (held-out demonstrations: {result['floor_left_data']} of {result['demonstrations']})"
+           if result.get("floor_left_data") is not None else ""),
         "",
         f"{'representation':<14} {'kernel':<10} {'score':>8} {'floor':>7} {'ratio':>7} {'rotation':>9} {'translation':>11}"
-        f" {'pos_m':>7} {'rot_rad':>7} {'vel':>6} {'train_s':>8}",
+        f" {'pos_m':>7} {'rot_rad':>7} {'vel':>6} {'sample':>7} {'cov_pos':>7} {'cov_rot':>7} {'train_s':>8} {'left':>5}",
     ]
+    # rows of a --grid: the options that make each row, after its numbers
+    options = {id(r): _options_label(r) for r in result["results"]}
+    if any(options.values()):
+        lines[-1] += "  options"
 
-    def row(r, label_rep, label_kern):
+    def row(r, label_rep, label_kern, opts=""):
         flag = "" if r.get("reliable", True) else "  *"
         return (f"{label_rep:<14} {label_kern:<10} {r['score']:8.3f} {r['floor']:7.3f} {r['ratio']:7.2f} {r['rotation']:9.3f}"
                 f" {r['translation']:11.3f} {r['position_rmse']:7.3f} {r['rotation_rmse']:7.3f} {_num(r['velocity_rmse'], '6.3f'):>6}"
-                f" {r['train_s']:8.1f}{flag}")
+                f" {_num(r.get('sample_ratio'), '7.2f'):>7} {_num(r.get('coverage_position'), '7.2f'):>7}"
+                f" {_num(r.get('coverage_rotation'), '7.2f'):>7}"
+                f" {r['train_s']:8.1f} {_num(r.get('left_data'), 'd'):>5}" + (f"  {opts}" if opts else "") + flag)
 
     for r in result["results"]:
-        lines.append(row(r, r["representation"], r["kernel"] or "-"))
+        lines.append(row(r, r["representation"], r["kernel"] or "-", options[id(r)]))
         if per_fold:
             for f in r["per_fold"]:
                 lines.append(row(f, f"  fold {f['fold'] + 1}", f"({f['n_test']} held)"))

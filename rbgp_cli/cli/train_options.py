@@ -7,6 +7,7 @@ README's table says how). Only the standard library and typer are imported here.
 
 from __future__ import annotations
 
+import inspect
 from typing import Annotated, Optional
 
 import typer
@@ -14,7 +15,7 @@ import typer
 __all__ = [
     "ModelPanel", "RhoOpt", "RestartsOpt", "ExploreOpt", "SeedOpt", "NoiseOpt", "ShareOpt", "SubsampleOpt",
     "MaxPointsOpt", "TrainRateOpt", "SmoothWindowOpt", "SmoothDegreeOpt", "TimeInputOpt", "PriorOpt",
-    "PriorGainOpt", "InducingOpt", "train_kwargs",
+    "PriorGainOpt", "InducingOpt", "train_kwargs", "train_option_names", "GRID_LISTS", "grid_variants",
 ]
 
 ModelPanel = "Model"
@@ -102,5 +103,84 @@ def kernel_help() -> str:
     by = ", ".join(f"{k} for {r}" for r, k in DEFAULT_KERNELS.items())
     return ("se-chordal (the squared exponential on the chordal rotation distance: positive definite for every "
             "λ), se (the paper's eq. 24 on the representation's own rotation distance: the geodesic one for "
-            "axis-angle, not positive definite in general, MATH.md §6; Euclidean for euler) or dot (eq. 22). "
+            "axis-angle, not positive definite for every length-scale; Euclidean for euler) or dot (eq. 22). "
             f"Default: {by}.")
+
+
+#: What ``--grid`` takes besides the options of :func:`train_kwargs`: the two that ``rbgp crossval``
+#: repeats itself (``--grid kernel=se,dot`` is ``--kernel se --kernel dot``).
+GRID_LISTS = ("representation", "kernel")
+
+
+def train_option_names() -> tuple[str, ...]:
+    """The declared training options: the parameters of :func:`train_kwargs` (Python names; the option
+    is ``--`` + the name with ``-`` for ``_``). A new option added there is a --grid option too."""
+    return tuple(inspect.signature(train_kwargs).parameters)
+
+
+def grid_variants(ctx, specs) -> tuple[list[tuple[str, dict, dict]], dict]:
+    """Parse ``--grid NAME=V1,V2,...`` (repeatable) for ``rbgp crossval``: the Cartesian product of the
+    grids of training options.
+
+    ``ctx`` is the running command's context: each value is converted and checked by the command's own
+    option (the same type, range and message as the option typed alone), then every combination by
+    :func:`train_kwargs` with the other options as given. ``default`` stands for the option's default.
+    An option may not be given both alone and in a grid, nor in two grids.
+
+    Returns (variants, lists): ``variants`` one ``(label, options, train_kwargs)`` per combination,
+    ``label`` e.g. ``"prior-gain=3 inducing=0"`` (empty without grids), ``options`` {CLI name: value};
+    ``lists`` {"representation": [...], "kernel": [...]} from grids of those two.
+    """
+    from itertools import product
+
+    from rbgp_cli.errors import InputError
+
+    names = train_option_names()
+    params = {p.name: p for p in ctx.command.params}
+    base = {n: ctx.params[n] for n in names}
+    valid = ", ".join([n.replace("_", "-") for n in names] + list(GRID_LISTS))
+    grids: dict = {}
+    lists: dict = {}
+    for spec in specs or []:
+        name, sep, values = str(spec).partition("=")
+        key = name.strip().lstrip("-").replace("-", "_")
+        flag = key.replace("_", "-")
+        texts = [v.strip() for v in values.split(",")]
+        if not sep or not key or not all(texts):
+            raise InputError(f"--grid {spec!r} is not NAME=VALUE,VALUE,...", hint="e.g. --grid prior-gain=3,5,10")
+        if key in GRID_LISTS:
+            lists.setdefault(key, []).extend(texts)
+            continue
+        if key not in names:
+            from rbgp_cli.errors import closest
+
+            near = closest(flag, valid.split(", "))
+            raise InputError(f"--grid: {name.strip()!r} is not a training option",
+                             hint=(f"did you mean {near}? " if near else "") + f"expected one of {valid}")
+        if key in grids:
+            raise InputError(f"--grid {flag} is given twice", hint="list all its values in one --grid")
+        source = ctx.get_parameter_source(key)
+        if source is not None and source.name not in ("DEFAULT", "DEFAULT_MAP"):
+            raise InputError(f"give --{flag} or --grid {flag}=..., not both")
+        values_of: dict = {}
+        for text in texts:
+            if text == "default":
+                value = base[key]
+            else:
+                try:
+                    value = params[key].process_value(ctx, text)
+                except Exception as exc:  # the option's own check (click's BadParameter)
+                    msg = exc.format_message() if hasattr(exc, "format_message") else str(exc)
+                    raise InputError(f"--grid {flag}={text}: {msg}") from None
+            values_of.setdefault(repr(value), (text, value))  # 3 and 3.0 are one value
+        grids[key] = list(values_of.values())
+    variants = []
+    for combo in product(*grids.values()):
+        label = " ".join(f"{k.replace('_', '-')}={t}" for k, (t, _) in zip(grids, combo))
+        chosen = {k: v for k, (_, v) in zip(grids, combo)}
+        try:
+            kwargs = train_kwargs(**{**base, **chosen})
+        except InputError as exc:
+            raise InputError(exc.message + (f" (in the --grid combination {label})" if label else ""), hint=exc.hint) from None
+        variants.append((label, {k.replace("_", "-"): v for k, v in chosen.items()}, kwargs))
+    return variants, lists

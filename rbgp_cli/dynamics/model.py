@@ -67,11 +67,15 @@ class MotionModel:
     time_input : None, or ``"seconds"`` (time since the demonstration's start is a last GP input) or
         ``"phase"`` (normalised time s = (t − t_0)/D is a last input, and the outputs are velocities
         per unit phase, D·ξ, so that a rollout of any duration D' traverses the learned motion once)
+    variation : the demonstrations' deviation process over phase (MATH.md §11 (a)), or None
     mean : None (zero-mean GP, MATH.md §7), ``{"kind": "goal", "gain": a, "goal": (7,)}`` or
         ``{"kind": "path", "gain": a, "s", "quat", "position", "velocity"}``: the prior mean of the
         outputs (:func:`prior_mean_outputs`, per second or per unit phase) converted to the
         representation's outputs; the GP models the residual, as in stable dynamical systems learned
         from demonstration
+    envelope : where the demonstrations went (:class:`~rbgp_cli.dynamics.envelope.Envelope`, stored at
+        training time), or None (a model file from before): :meth:`data_envelope` then computes it from
+        the training points
     """
 
     representation: Representation
@@ -84,6 +88,11 @@ class MotionModel:
     velocity: VelocityOptions = field(default_factory=VelocityOptions)
     time_input: str | None = None
     mean: dict | None = None
+    #: how the demonstrations differ (:class:`rbgp_cli.dynamics.variation.Variation`), for sampled
+    #: rollouts that are new demonstrations; None for fewer than three or an older model file
+    variation: object | None = None
+    #: the demonstrations' position envelope over phase (:mod:`rbgp_cli.dynamics.envelope`), or None
+    envelope: object = None
 
     @property
     def recorded_rate(self) -> float | None:
@@ -91,6 +100,23 @@ class MotionModel:
         or None for a model file written before rbgp stored it (``summary["recorded_rate_hz"]``)."""
         rate = self.summary.get("recorded_rate_hz") if isinstance(self.summary, dict) else None
         return float(rate) if isinstance(rate, (int, float)) and np.isfinite(rate) and rate > 0 else None
+
+    def data_envelope(self):
+        """The demonstrations' envelope (:mod:`rbgp_cli.dynamics.envelope`): the stored one, or for a
+        model file without it one computed from the training inputs (their positions, at their phase
+        for a phase model, else one box for the whole motion; ``source`` says so)."""
+        if self.envelope is not None:
+            return self.envelope
+        cached = self.__dict__.get("_envelope_from_points")
+        if cached is None:
+            from rbgp_cli.dynamics.envelope import envelope_from_points
+
+            X = np.asarray(self.gp.X, dtype=np.float64)
+            _, pos = self.representation.pose_from_state(X[:, : self.pose_dims])
+            phase = np.clip(X[:, -1], 0.0, 1.0) if self.time_input == "phase" else None
+            cached = envelope_from_points(pos, phase, source="training points")
+            self.__dict__["_envelope_from_points"] = cached
+        return cached
 
     @property
     def pose_dims(self) -> int:
@@ -580,5 +606,10 @@ def train_model(
     summary["recorded_rate_hz"] = 1.0 / recorded_dt  # rollouts are written at this rate by default
     summary["gp"] = gp_choice
     summary["prior"] = None if mean is None else {"kind": mean["kind"], "gain": mean["gain"]}
+    from rbgp_cli.dynamics.envelope import envelope_from_demos
+    from rbgp_cli.dynamics.variation import demonstration_variation
+
+    variation = demonstration_variation(trajs)
+    summary["variation"] = None if variation is None else {"demos": variation.demos, "dof": variation.dof}
     return MotionModel(rep, gp, float(dt), starts, durations, summary=summary, velocity=velocity,
-                       time_input=time_input, mean=mean)
+                       time_input=time_input, mean=mean, variation=variation, envelope=envelope_from_demos(trajs))

@@ -8,6 +8,17 @@ All B trajectories share one kernel block per step (B × n), not one per traject
 the latent predictive standard deviation σ(g_k) of every output along each mean trajectory, and
 optionally K Monte Carlo rollouts per start that draw ξ_k ~ N(μ(g_k), σ²(g_k)) each step from a
 seeded rng.
+
+Leaving the data: each mean trajectory is checked against the demonstrations' envelope
+(:mod:`rbgp_cli.dynamics.envelope`, stored in the model): a phase model at its phase t/D (D its
+duration, the phase its GP sees); a model without the phase input, whose GP does not see where in the
+motion it is, against the box of all the demonstrations' positions. ``outside`` marks the
+samples beyond it and ``left`` reports which trajectories left it, when and where first. ``off_data``
+says what a rollout does there: ``keep`` (go on as before), ``stop`` (the trajectory ends at its first
+sample outside, which is kept so the exit shows, and at least one step is made) or ``prior`` (while a
+state is outside, its velocity is the prior mean's alone, ξ = m(g), not the GP's: the mean-path
+prior's pull back toward the demonstrations; a model without a prior mean refuses it). The Monte Carlo
+samples follow ``prior`` too but are not checked or cut.
 """
 
 from __future__ import annotations
@@ -35,6 +46,9 @@ class RolloutResult:
     integration : (steps S, dt seconds) of the integration behind a resampled result, or None
     lengths : (B,) samples each trajectory keeps (its own duration; its Monte Carlo samples alike), or
         None: all S+1. The arrays hold every step for every trajectory; :meth:`trajectories` cuts them.
+    outside : (B, S+1) True where a mean trajectory's sample lies outside the demonstrations' envelope
+    left : :func:`~rbgp_cli.dynamics.envelope.exits_report` of the mean trajectories, or None
+    ends : (B,) index of each mean trajectory's last sample (``off_data="stop"``), or None (all S)
     """
 
     t: np.ndarray
@@ -47,14 +61,19 @@ class RolloutResult:
     lengths: np.ndarray | None = None
     #: (S, dt) of the integration when :meth:`resampled` put the result on another grid, else None
     integration: tuple | None = None
+    outside: np.ndarray | None = None
+    left: dict | None = None
+    ends: np.ndarray | None = None
 
     @property
     def count(self) -> int:
         return self.quat.shape[0]
 
     def length(self, b: int) -> int:
-        """Samples trajectory ``b`` keeps."""
-        return len(self.t) if self.lengths is None else int(self.lengths[b])
+        """Samples trajectory ``b`` keeps: its own duration (``lengths``), and no further than where it was
+        stopped on leaving the data (``ends``)."""
+        n = len(self.t) if self.lengths is None else int(self.lengths[b])
+        return n if self.ends is None else min(n, int(self.ends[b]) + 1)
 
     def trajectories(self, include_samples: bool = False) -> list[Trajectory]:
         """The mean rollouts (names ``0``, ``1``, …) and, optionally, the samples (``0.s0``, …), each
@@ -99,6 +118,12 @@ class RolloutResult:
                             integration=self.integration or (len(t) - 1, float(t[1] - t[0])))
         if self.sample_quat is not None:
             res.sample_quat, res.sample_position = interpolate_poses(t, self.sample_quat, self.sample_position, x_new)
+        if self.outside is not None:  # a written sample is outside where either integration step around it is
+            k = np.clip(np.searchsorted(t, x_new, side="right") - 1, 0, len(t) - 1)
+            k1 = np.minimum(k + 1, len(t) - 1)
+            on = np.abs(t[k] - x_new) <= tol
+            res.outside = self.outside[:, k] | (self.outside[:, k1] & ~on[None, :])
+            res.left = self.left
         return res
 
 
@@ -107,8 +132,15 @@ def _check_finite(state, step):
         raise RbgpRuntimeError(f"the rollout diverged (non-finite state) at step {step}", hint="check the model with rbgp info")
 
 
+#: How sampled rollouts are drawn: ``path`` (one coherent deviation of the demonstrations' kind per
+#: sample, :mod:`rbgp_cli.dynamics.variation`; the default where the model has it) or ``step``
+#: (independent draws of the velocity from the predictive Gaussian at every step, MATH.md §8).
+SAMPLINGS = ("path", "step")
+
+
 def rollout(model, start_quat, start_position, steps: int, dt: float | None = None, *, samples: int = 0,
-            seed: int = 0, with_std: bool = True, progress=None, durations=None) -> RolloutResult:
+            seed: int = 0, with_std: bool = True, progress=None, durations=None, sampling: str | None = None,
+            off_data: str = "keep") -> RolloutResult:
     """Roll out ``model`` (a :class:`~rbgp_cli.dynamics.model.MotionModel`) from B start poses.
 
     Parameters
@@ -116,14 +148,21 @@ def rollout(model, start_quat, start_position, steps: int, dt: float | None = No
     start_quat : (B, 4) x, y, z, w;  start_position : (B, 3) metres
     steps : number of integration steps S (the result has S + 1 samples)
     dt : step in seconds (default: the model's, i.e. the demonstrations' median time step)
-    samples : K Monte Carlo rollouts per start (ξ drawn from the latent predictive Gaussian each step)
-    seed : seeds the Monte Carlo draws
+    samples : K sampled rollouts per start, drawn as ``sampling`` says
+    sampling : ``"path"`` (default when the model has a :attr:`~MotionModel.variation`): sample k of
+        start b is the mean rollout from b displaced by one draw η of the demonstrations' deviation
+        process at the trajectory's phase t/duration_b, R = exp(η_rot) R̄_b, p = p̄_b + η_pos (zero at
+        the start; :mod:`rbgp_cli.dynamics.variation`); ``"step"`` (the default without one): Monte Carlo
+        rollouts drawing ξ from the latent predictive Gaussian at every step
+    seed : seeds the draws
     with_std : record the predictive std along the mean trajectories (costs one triangular solve per
         step; switch off for speed)
     durations : (B,) seconds each trajectory is meant to last (default steps·dt for all). Only a model
         with a phase input uses it: trajectory b advances its phase by dt/durations[b] per step, so a
         batch of different lengths can share the steps (each is then cut to its own duration).
     progress : optional :class:`rbgp_cli.progress.Progress`: a task "rollout" over the steps
+    off_data : ``keep``, ``stop`` or ``prior``: what a trajectory does outside the demonstrations'
+        envelope (module docstring); every mode fills ``outside`` and ``left``
     """
     from rbgp_cli.gp.exact import blas_threads
 
@@ -132,10 +171,46 @@ def rollout(model, start_quat, start_position, steps: int, dt: float | None = No
     from rbgp_cli.progress import as_progress
 
     with blas_threads(0), as_progress(progress).task("rollout", total=int(steps), unit="steps") as task:
-        return _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, task, durations)
+        if sampling is None:
+            sampling = "path" if getattr(model, "variation", None) is not None else "step"
+        if sampling not in SAMPLINGS:
+            raise InputError(f"unknown sampling {sampling!r}; expected one of {', '.join(SAMPLINGS)}")
+        if sampling == "path" and samples:
+            if getattr(model, "variation", None) is None:
+                raise InputError("this model has no model of how its demonstrations differ (fewer than three, or "
+                                 "an older model file)", hint="sample with sampling 'step', or retrain")
+            res = _rollout(model, start_quat, start_position, steps, dt, 0, seed, with_std, task, durations, off_data)
+            return _path_samples(model.variation, res, int(samples), seed, durations)
+        return _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, task, durations, off_data)
 
 
-def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, task, durations):
+def _path_samples(variation, res: RolloutResult, K: int, seed: int, durations) -> RolloutResult:
+    """``res`` with K path samples per trajectory: the mean rollout displaced by draws of the deviation
+    process at each trajectory's phase (see :func:`rollout`), batched over trajectories and samples."""
+    from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
+
+    B = res.count
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 20]))
+    dur = np.full(B, res.t[-1]) if durations is None else np.asarray(durations, dtype=np.float64).reshape(B)
+    phase = res.t[None, :] / dur[:, None]  # (B, T)
+    eta = variation.draw(B * K, rng).reshape(B, K, len(variation.s), 6)
+    dev = variation.at(eta, np.broadcast_to(phase[:, None, :], (B, K, len(res.t))))  # (B, K, T, 6)
+    res.sample_quat = quat_make_continuous(quat_multiply(exp_quat(dev[..., :3]), res.quat[:, None]))
+    res.sample_position = res.position[:, None] + dev[..., 3:]
+    return res
+
+
+def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, task, durations, off_data="keep"):
+    from rbgp_cli.dynamics.envelope import OFF_DATA, exits_report
+
+    if off_data not in OFF_DATA:
+        raise InputError(f"--off-data must be one of {', '.join(OFF_DATA)}, got {off_data!r}")
+    if off_data == "prior" and not model.mean:
+        raise InputError("--off-data prior falls back to the model's prior mean, and this model has none",
+                         hint="use --off-data keep or stop, or train with --prior path (or goal)")
+    envelope = model.data_envelope()
+    if model.time_input != "phase":  # its GP does not see the phase: where the demonstrations went at any time
+        envelope = envelope.overall()
     rep, gp = model.representation, model.gp
     dt = float(model.dt if dt is None else dt)
     if not np.isfinite(dt) or dt <= 0:
@@ -161,6 +236,19 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
         sstate = np.repeat(state, K, axis=0)  # (B*K, d), sample k of start b at row b*K + k
         sstates = np.empty((steps + 1, B * K, d))
         sstates[0] = sstate
+    pd = model.pose_dims
+
+    def phase_of(t, dur):  # a phase model's own phase (what it feeds the GP); others: one box for all
+        return t / dur
+
+    def fall_back(X, mu, k, dur):
+        """--off-data prior: the prior mean's velocity where X (at step k) is outside the envelope."""
+        off = envelope.outside(rep.pose_from_state(X[:, :pd])[1], phase_of(k * dt, dur[:, 0]))
+        if np.any(off):
+            mu = mu.copy()
+            mu[off] = model.prior_mean(X[off])
+        return mu
+
     for k in range(steps + 1):
         last = k == steps
         if with_std:
@@ -169,17 +257,20 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
         elif not last:
             mu = model.predict_output(state, manage_threads=False)
         if not last:
+            if off_data == "prior":
+                mu = fall_back(state, mu, k, duration)
             state = model.advance(state, mu, dt, duration)
             _check_finite(state, k + 1)
             states[k + 1] = state
             if K > 0:
                 smu, ssd = model.predict_output(sstate, return_std=True, manage_threads=False)
+                if off_data == "prior":
+                    smu = fall_back(sstate, smu, k, np.repeat(duration, K, axis=0))
                 sstate = model.advance(sstate, smu + ssd * rng.standard_normal(smu.shape), dt, np.repeat(duration, K, axis=0))
                 _check_finite(sstate, k + 1)
                 sstates[k + 1] = sstate
         if not last:
             task.advance()
-    pd = model.pose_dims
     quat, pos = rep.pose_from_state(states[..., :pd].reshape(-1, pd))
     quat = quat_make_continuous(quat.reshape(steps + 1, B, 4).transpose(1, 0, 2))
     pos = pos.reshape(steps + 1, B, 3).transpose(1, 0, 2)
@@ -187,6 +278,12 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
         t=np.arange(steps + 1) * dt, quat=quat, position=pos,
         std=None if std is None else std.transpose(1, 0, 2), output_names=tuple(rep.output_names),
     )
+    t = res.t
+    res.outside = envelope.outside(pos, phase_of(t[None, :], duration))
+    res.left = exits_report(res.outside, t, pos, envelope)
+    if off_data == "stop":
+        first = np.where(res.outside.any(axis=1), res.outside.argmax(axis=1), steps)
+        res.ends = np.maximum(first, 1)
     if K > 0:
         sq, sp = rep.pose_from_state(sstates[..., :pd].reshape(-1, pd))
         res.sample_quat = quat_make_continuous(sq.reshape(steps + 1, B, K, 4).transpose(1, 2, 0, 3))
@@ -210,6 +307,11 @@ def rollout_for(model, start_quat, start_position, durations, dt: float | None =
     steps = np.maximum(1, np.round(durations / dt).astype(int))  # (B,)
     res = rollout(model, start_quat, start_position, int(steps.max()), dt, durations=steps * dt, **kwargs)
     res.lengths = steps + 1
+    if res.outside is not None:  # a trajectory past its own end is not a rollout that left the data
+        from rbgp_cli.dynamics.envelope import exits_report
+
+        res.outside = res.outside & (np.arange(len(res.t))[None, :] < res.lengths[:, None])
+        res.left = exits_report(res.outside, res.t, res.position, model.data_envelope())
     return res
 
 

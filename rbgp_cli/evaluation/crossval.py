@@ -8,10 +8,12 @@ folds of the demonstrations (seeded; a demonstration is never split across folds
 3. **score**: the Bhattacharyya distance (MATH.md §9) of the generated set against the *training*
    demonstrations; **floor**: the same for the held-out demonstrations themselves (same counts, same
    resampling length, same training set): what a fresh real demonstration scores;
-4. **trajectory errors**: each generated trajectory against the held-out demonstration that starts
+4. **left_data**: how many generated trajectories leave the training demonstrations' envelope
+   (:mod:`rbgp_cli.dynamics.envelope`; ``floor_left_data``: how many held-out demonstrations do);
+5. **trajectory errors**: each generated trajectory against the held-out demonstration that starts
    where it starts, on normalised time (T steps, slerp / linear): position RMSE (m) and rotation
    RMSE (rad, the angle of R_genᵀ R_demo);
-5. **velocity RMSE** on the held-out training pairs (estimated exactly as the model's training pairs
+6. **velocity RMSE** on the held-out training pairs (estimated exactly as the model's training pairs
    were), with each prediction mapped to a world-frame twist (ω, v): ``velocity_rmse`` is the relative
    error √((Σ‖Δω‖²/Σ‖ω‖² + Σ‖Δv‖²/Σ‖v‖²)/2) (1 = no better than predicting zero), with the raw
    parts in rad/s and m/s.
@@ -39,6 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rbgp_cli.dynamics.envelope import envelope_from_demos, left_envelope
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError, warn
 from rbgp_cli.progress import as_progress
@@ -67,12 +70,14 @@ REPLAY_RHO = 0.7
 
 @dataclass(frozen=True)
 class Config:
-    """One row of the table: a representation and kernel (or the replay peer) and train options."""
+    """One row of the table: a representation and kernel (or the replay peer) and train options;
+    ``options``: the options a ``--grid`` set for this row ({CLI name: value}), ``label`` its name."""
 
     representation: str
     kernel: str | None = None
     train: dict = field(default_factory=dict)
     label: str = ""
+    options: dict = field(default_factory=dict)
 
     @property
     def name(self) -> str:
@@ -166,18 +171,28 @@ def velocity_errors(model, demos: list[Trajectory]) -> dict:
 
 
 # --------------------------------------------------------------------------------------------- one fold
-def _generate(config: Config, train: list[Trajectory], test: list[Trajectory]):
-    """Generated trajectories (one per held-out demonstration), training seconds, the model or None."""
+#: Sampled rollouts per held-out start for the sample columns (MATH.md §11: K = 20).
+SAMPLES = 20
+
+
+def _generate(config: Config, train: list[Trajectory], test: list[Trajectory], samples: int = 0):
+    """Generated trajectories (one per held-out demonstration), training seconds, the model or None,
+    and per held-out start its ``samples`` sampled rollouts (a list of lists; None for the replay peer or
+    without samples)."""
     if config.representation == REPLAY:
-        return [replay_nearest(train, tr.quat[0], tr.position[0]) for tr in test], 0.0, None
+        return [replay_nearest(train, tr.quat[0], tr.position[0]) for tr in test], 0.0, None, None
     if config.representation in PEERS:  # ProMP / DMP from movement-primitives (rbgp_cli.evaluation.peers)
         from rbgp_cli.evaluation import peers
 
         run = peers.promp_rollouts if config.representation == PROMP else peers.dmp_rollouts
+        starts = ([tr.quat[0] for tr in test], [tr.position[0] for tr in test], [tr.duration for tr in test])
         t0 = time.perf_counter()
-        gen = run(train, [tr.quat[0] for tr in test], [tr.position[0] for tr in test], [tr.duration for tr in test])
+        gen = run(train, *starts)
         gen = [g.with_(name=f"{config.representation} from {tr.name}") for g, tr in zip(gen, test)]
-        return gen, time.perf_counter() - t0, None
+        drawn = None  # the DMP is deterministic: no samples; the ProMP's are its conditioned distribution's
+        if samples > 0 and config.representation == PROMP:
+            drawn = peers.promp_samples(train, *starts, k=samples, seed=0)
+        return gen, time.perf_counter() - t0, None, drawn
     from rbgp_cli.dynamics.model import train_model
     from rbgp_cli.dynamics.rollout import rollout_for
 
@@ -186,32 +201,61 @@ def _generate(config: Config, train: list[Trajectory], test: list[Trajectory]):
     train_s = time.perf_counter() - t0
     q0 = np.array([tr.quat[0] for tr in test])
     p0 = np.array([tr.position[0] for tr in test])
-    res = rollout_for(model, q0, p0, [tr.duration for tr in test], with_std=False)  # each its own duration
-    gen = [g.with_(name=f"from {tr.name}") for g, tr in zip(res.trajectories(), test)]
-    return gen, train_s, model
+    res = rollout_for(model, q0, p0, [tr.duration for tr in test], with_std=False,  # each its own duration
+                      samples=samples, seed=int(config.train.get("seed", 0)))
+    trajs = res.trajectories(include_samples=samples > 0)
+    gen = [g.with_(name=f"from {tr.name}") for g, tr in zip(trajs[: len(test)], test)]
+    drawn = None
+    if samples > 0:  # trajectories() lists the samples start by start after the means
+        rest = trajs[len(test):]
+        drawn = [rest[b * samples:(b + 1) * samples] for b in range(len(test))]
+    return gen, train_s, model, drawn
+
+
+def _sample_columns(drawn, train: list[Trajectory], test: list[Trajectory], T: int, covariance: str) -> dict | None:
+    """The variety and calibration columns of one fold (MATH.md §11): ``sample_score``, one sampled
+    rollout per held-out start scored against the training demonstrations as ``score`` is, and the
+    coverage of each held-out motion by its start's samples (:func:`rbgp_cli.evaluation.coverage.prediction_coverage`,
+    sums that pool over folds)."""
+    from rbgp_cli.evaluation.coverage import MIN_SAMPLES, Coverage, prediction_coverage
+
+    if not drawn:
+        return None
+    one = [d[0] for d in drawn]
+    sample_score = evaluate(one, train, length=T, covariance=covariance, sample_size="record").mean
+    cov = Coverage()
+    if len(drawn[0]) >= MIN_SAMPLES:
+        for d, real in zip(drawn, test):
+            cov = cov + prediction_coverage(d, real, T)
+    return {"sample_score": float(sample_score), "coverage": list(cov.astuple())}
 
 
 def run_fold(config: Config, train: list[Trajectory], test: list[Trajectory], *, length: int | None = None,
-             covariance: str = "diag") -> dict:
-    """Train (unless replay), generate from the held-out starts, and score one fold (plain data)."""
+             covariance: str = "diag", samples: int = SAMPLES) -> dict:
+    """Train (unless replay), generate from the held-out starts, and score one fold (plain data);
+    ``samples`` sampled rollouts per held-out start give the sample columns (0: none)."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         t0 = time.perf_counter()
-        gen, train_s, model = _generate(config, train, test)
+        gen, train_s, model, drawn = _generate(config, train, test, samples=samples)
         gen_s = time.perf_counter() - t0 - train_s
         score = evaluate(gen, train, length=length, covariance=covariance, sample_size="record")
         T = score.steps
         sp, sr, count = trajectory_errors(gen, test, T)
         vel = velocity_errors(model, test) if model is not None else None
+        sampled = _sample_columns(drawn, train, test, T, covariance)
+        left = left_envelope(gen, envelope_from_demos(train))["count"]
     out = {
         "score": score.mean, "rotation": score.rotation, "translation": score.translation,
         "reliable": bool(getattr(score, "reliable", True)),
         "steps": T, "position_sq": sp, "rotation_sq": sr, "count": count,
-        "train_s": train_s, "rollout_s": gen_s, "velocity": vel,
+        "train_s": train_s, "rollout_s": gen_s, "velocity": vel, "left_data": left,
         "warnings": sorted({str(w.message) for w in caught} | set(score.warnings)),
     }
     if model is not None:
         out["points"] = int(model.summary.get("points", 0))
+    if sampled is not None:
+        out.update(sampled)
     return out
 
 
@@ -226,41 +270,18 @@ def _worker_init() -> None:
 
 
 def _task(args):
-    config, train, test, length, covariance = args
-    return run_fold(config, train, test, length=length, covariance=covariance)
+    config, train, test, length, covariance, samples = args
+    return run_fold(config, train, test, length=length, covariance=covariance, samples=samples)
 
 
-def _run_in_processes(args: list, n_jobs: int):
+def _run_in_processes(args: list, n_jobs: int, label=None):
     """Yield (index, result) of ``_task(a)`` for every ``a`` in ``args`` as they finish, in ``n_jobs``
-    fresh (spawned) worker processes with single-threaded BLAS. On an error or Ctrl-C the pending
-    tasks are cancelled and the workers stopped."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    fresh (spawned) worker processes with single-threaded BLAS that end with this process
+    (:func:`rbgp_cli.parallel.iter_processes`: on an error, Ctrl-C or SIGTERM the pending tasks are
+    cancelled and the workers stopped; a lost worker's fits are run again once, then named)."""
+    from rbgp_cli.parallel import iter_processes
 
-    import signal
-    import threading
-
-    ex = ProcessPoolExecutor(max_workers=n_jobs, mp_context=multiprocessing.get_context("spawn"), initializer=_worker_init)
-    previous = None
-    if threading.current_thread() is threading.main_thread():  # a kill (SIGTERM) stops the workers too
-        def _stop(signum, frame):
-            raise SystemExit(128 + signum)
-
-        previous = signal.signal(signal.SIGTERM, _stop)
-    try:
-        futs = {ex.submit(_task, a): i for i, a in enumerate(args)}
-        for fut in as_completed(futs):
-            yield futs[fut], fut.result()
-    except BaseException:
-        workers = list((getattr(ex, "_processes", None) or {}).values())
-        ex.shutdown(wait=False, cancel_futures=True)
-        for proc in workers:  # do not leave fits running
-            proc.terminate()
-        raise
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
-    ex.shutdown(wait=True)
+    return iter_processes(_task, args, n_jobs, label=label, init=_worker_init)
 
 
 # --------------------------------------------------------------------------------------------- all folds
@@ -295,10 +316,12 @@ def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[di
             "rotation_rmse": _pooled_rmse(r["rotation_sq"], r["count"]),
             **_velocity_summary([r["velocity"]]),
             "train_s": r["train_s"], "rollout_s": r["rollout_s"],
+            "left_data": r.get("left_data"),
             "reliable": bool(r.get("reliable", True) and floor.reliable),
         }
         if "points" in r:
             entry["points"] = r["points"]
+        entry.update(_sampled_summary([r], [floor.mean]))
         per_fold.append(entry)
     score = float(np.mean([r["score"] for r in results]))
     floor = float(np.mean([f.mean for f in floors]))
@@ -307,6 +330,7 @@ def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[di
         "representation": config.representation,
         "kernel": config.kernel,
         "label": config.name,
+        "options": dict(config.options),
         "score": score,
         "floor": floor,
         "ratio": score / floor if floor > 0 else float("inf"),
@@ -316,14 +340,33 @@ def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[di
         "rotation_rmse": _pooled_rmse(sum(r["rotation_sq"] for r in results), count),
         **_velocity_summary([r["velocity"] for r in results]),
         "train_s": float(np.mean([r["train_s"] for r in results])),
+        **_sampled_summary(results, [f.mean for f in floors]),
+        "left_data": sum(int(r.get("left_data") or 0) for r in results),
         "reliable": all(e["reliable"] for e in per_fold),
         "per_fold": per_fold,
     }
 
 
+def _sampled_summary(results: list[dict], floors: list[float]) -> dict:
+    """sample_score (mean over folds), sample_ratio (over the mean floor) and the pooled coverage
+    columns, or all None where the row has no samples (the replay peer, or samples=0)."""
+    from rbgp_cli.evaluation.coverage import Coverage
+
+    keys = ("sample_score", "sample_ratio", "coverage_position", "coverage_rotation", "band_position", "band_rotation")
+    if not results or any("sample_score" not in r for r in results):
+        return dict.fromkeys(keys)
+    score = float(np.mean([r["sample_score"] for r in results]))
+    floor = float(np.mean(floors))
+    total = Coverage()
+    for r in results:
+        total = total + Coverage(*r["coverage"])
+    cov = {k: (None if not math.isfinite(v) else v) for k, v in total.to_dict().items()}
+    return {"sample_score": score, "sample_ratio": score / floor if floor > 0 else float("inf"), **cov}
+
+
 def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, seed: int = 0,
              jobs: int | None = None, length: int | None = None, covariance: str = "diag",
-             progress=None, scheduler: str | None = None) -> dict:
+             progress=None, scheduler: str | None = None, samples: int = SAMPLES) -> dict:
     """Cross-validate every configuration on the same folds (see the module docstring).
 
     Parameters
@@ -337,6 +380,11 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
         and one message per finished fit
     scheduler : None, ``"local"`` (a Dask ``LocalCluster`` of ``jobs`` workers) or the address of a Dask
         scheduler: the fits run there (:func:`rbgp_cli.parallel.iter_dask`); the results are the same
+    samples : sampled rollouts per held-out start (``rbgp rollout --samples``, seeded by the train
+        options' seed) for the columns of MATH.md §11: ``sample_score`` / ``sample_ratio`` (one sample per
+        start, scored as ``score``), ``coverage_position`` / ``coverage_rotation`` (the held-out motion
+        inside the samples' 90 % prediction regions; 0.90 for a perfect Gaussian model) and the bands'
+        mean half-widths ``band_position`` (m) / ``band_rotation`` (rad); 0: none (those columns None)
 
     Returns ``{"folds": K, "seed", "demonstrations", "fold_sizes", "results": [row, ...]}`` with the
     rows sorted by score / floor (best first); each row as in the module docstring.
@@ -355,8 +403,10 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
              "of one trajectory rests on the ridge variance, not on the motions; use --folds "
              f"{max(2, len(demos) // 2)} or fewer (at least 2 held out per fold)")
     floors = [evaluate(test, train, length=length, covariance=covariance, sample_size="record") for train, test in splits]
+    # the held-out demonstrations themselves against the training envelope: what real new motions do
+    floor_left = sum(left_envelope(test, envelope_from_demos(train))["count"] for train, test in splits)
     tasks = [(c, f) for c in configs for f in range(len(splits))]
-    args = [(c, splits[f][0], splits[f][1], length, covariance) for c, f in tasks]
+    args = [(c, splits[f][0], splits[f][1], length, covariance, samples) for c, f in tasks]
     n_jobs = jobs if jobs is not None else min(len(tasks), os.cpu_count() or 1)
     n_jobs = max(1, min(int(n_jobs), len(tasks)))
     results: list = [None] * len(tasks)
@@ -365,6 +415,10 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
     progress(f"{len(demos)} demonstrations in {len(splits)} folds ({', '.join(str(len(f)) for f in fold_idx)} held out); "
              f"{len(configs)} configuration{'s' * (len(configs) != 1)}, {len(tasks)} fits"
              + (f" on the Dask cluster {scheduler!r}" if scheduler else f" in {n_jobs} worker processes" if n_jobs > 1 else ""))
+
+    def label(i):
+        c, f = tasks[i]
+        return f"{c.name} fold {f + 1}/{len(splits)}"
 
     with progress.task("cross-validation", total=len(tasks), unit="fits") as bar:
         def done(i, r):
@@ -379,13 +433,13 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
         if scheduler:
             from rbgp_cli.parallel import iter_dask
 
-            for i, r in iter_dask(_task, args, jobs=jobs, scheduler=scheduler):
+            for i, r in iter_dask(_task, args, jobs=jobs, scheduler=scheduler, label=label):
                 done(i, r)
         elif n_jobs == 1:
             for i, a in enumerate(args):
                 done(i, _task(a))
         else:
-            for i, r in _run_in_processes(args, n_jobs):
+            for i, r in _run_in_processes(args, n_jobs, label=label):
                 done(i, r)
     rows = []
     for ci, c in enumerate(configs):
@@ -398,6 +452,7 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
         "demonstrations": len(demos),
         "fold_sizes": [int(len(f)) for f in fold_idx],
         "floor": float(np.mean([f.mean for f in floors])),
+        "floor_left_data": int(floor_left),
         "results": rows,
         "warnings": sorted(caught | {w for f in floors for w in f.warnings}),
     }

@@ -340,7 +340,12 @@ class GaussianProcess:
         self.shared = bool(shared)
         self.y_scale = np.ones(self.Y.shape[1]) if y_scale is None else np.asarray(y_scale, dtype=np.float64)
         if factors is None:
-            self._factorise()
+            # single-threaded, as the fit that made them: a lone `rbgp rollout --count 60` at n = 1208
+            # spent up to 4.7x the CPU of one thread here (two Cholesky factorisations per group on
+            # the BLAS pool, whose threads then spin-wait), and was slower in wall time too (issue 24;
+            # benchmarks/bench_rollout.py --threads)
+            with blas_threads(0):
+                self._factorise()
         else:
             # from fit_gp, which has just computed and checked them: per group (L, α)
             self._L = [np.asarray(Lc) for Lc, _a in factors]
@@ -395,11 +400,16 @@ class GaussianProcess:
         from round-off) are clipped to 0; ``self.last_clipped`` counts them.
 
         ``manage_threads=False`` skips the BLAS thread limit (about 1 ms per call) for callers that set
-        it once around many calls (rollouts: see :func:`blas_threads`).
+        it once around many calls (rollouts: see :func:`blas_threads`). Otherwise BLAS runs as
+        :func:`blas_threads` decides for n training points, and single-threaded when the rows are
+        spread over this module's prediction threads (:func:`_prediction_workers`): those threads
+        take the free cores already, and a BLAS pool in each of them would oversubscribe them.
         """
         if not manage_threads:
             return self._predict(Xs, return_std, noisy, chunk_elements)
-        with blas_threads(len(self.X)):
+        n = len(self.X)
+        m = np.size(Xs) // max(self.X.shape[1], 1)
+        with blas_threads(n if _prediction_workers(m * n) == 1 else 0):
             return self._predict(Xs, return_std, noisy, chunk_elements)
 
     def _predict(self, Xs, return_std, noisy, chunk_elements):
@@ -1063,11 +1073,15 @@ def _fit_outputs_in_workers(X, Y, kernel, o, seeds, sub, jobs, progress, task):
 
 
 def _collect_worker_fits(tasks, jobs, ctx, progress, task, results, failures):
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures import as_completed
     from concurrent.futures.process import BrokenProcessPool
 
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_worker_init) as pool:
-        futures = {pool.submit(_worker_fit, t): t[4] for t in tasks}
+    from rbgp_cli.parallel import process_pool, start_workers, stop_pool
+
+    # workers that end with this process (killed or not), and end at once on an error or Ctrl-C
+    with process_pool(jobs, context=ctx, init=_worker_init) as pool:
+        with start_workers():
+            futures = {pool.submit(_worker_fit, t): t[4] for t in tasks}
         try:
             for fut in as_completed(futures):
                 if fut.cancelled():
@@ -1088,8 +1102,7 @@ def _collect_worker_fits(tasks, jobs, ctx, progress, task, results, failures):
                 task.advance()
                 _report(progress, f"output {l}", fit)
         except BaseException:
-            for fut in futures:
-                fut.cancel()
+            stop_pool(pool)
             raise
     if failures:
         # the error of the first output that failed, as the fit in one process would raise it

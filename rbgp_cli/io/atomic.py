@@ -1,49 +1,157 @@
 """Atomic output: every file rbgp writes (models, CSVs, recordings, figures) appears whole or not at all.
 
-Write to a temporary file in the destination's directory, flush and fsync, then ``os.replace`` it onto
-the destination. On any exception the temporary file is removed and the destination is untouched.
+Write to a temporary file in the destination's directory, flush and fsync, give it the mode a plain
+``open(path, "w")`` would give (an existing destination's own mode, else ``0o666 & ~umask``), then
+``os.replace`` it onto the destination. On any exception the temporary file is removed and the
+destination is untouched.
+
+A write that fails for a reason of the file system (no space left, the file-size limit, no
+permission, a read-only file system, the folder gone) is one :class:`~rbgp_cli.errors.RbgpError`
+``cannot write PATH: <reason>``: exit code 2 (:class:`~rbgp_cli.errors.InputError`) for what the
+user fixes by choosing another path (permission, read-only, missing folder), 1
+(:class:`~rbgp_cli.errors.RbgpRuntimeError`) for the machine's limits (space, quota, size limit, I/O).
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
+import stat
 import tempfile
 from pathlib import Path
 
-__all__ = ["atomic_path", "atomic_open"]
+from rbgp_cli.errors import InputError, RbgpRuntimeError
+
+__all__ = ["atomic_path", "atomic_open", "new_file_mode", "write_error"]
+
+#: Write failures of the chosen path: another path fixes them (exit code 2).
+_PATH_ERRNOS = frozenset({errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOENT, errno.ENOTDIR, errno.EISDIR})
+#: Write failures of the machine: space, quota, the file-size limit, the device (exit code 1).
+_LIMIT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO})
+
+
+def _umask() -> int:
+    """The process's umask, read without changing it where Linux shows it (``os.umask`` sets it, and
+    another thread creating a file in between would get the temporary value)."""
+    try:
+        with open("/proc/self/status", encoding="ascii", errors="replace") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    old = os.umask(0o022)
+    os.umask(old)
+    return old
+
+
+def new_file_mode(path) -> int:
+    """The permission bits ``open(path, "w")`` leaves ``path`` with: an existing file's own, else
+    ``0o666 & ~umask`` (0o644 under the usual umask 022)."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return 0o666 & ~_umask()
+    # (the permission bits only: writing a file clears its set-user/group-id bits)
+    return st.st_mode & 0o777 if stat.S_ISREG(st.st_mode) else 0o666 & ~_umask()
+
+
+def write_error(dest, exc: OSError):
+    """``cannot write PATH: reason`` as the error class its errno calls for."""
+    cls = InputError if exc.errno in _PATH_ERRNOS else RbgpRuntimeError
+    return cls(f"cannot write {dest}: {exc.strerror or exc}")
 
 
 @contextlib.contextmanager
 def atomic_path(path, suffix: str | None = None):
-    """Yield a temporary path beside ``path``; on success rename it onto ``path``.
+    """Yield a temporary path beside ``path``; on success fsync it, give it the mode of a plain
+    ``open(path, "w")`` (:func:`new_file_mode`) and rename it onto ``path``.
 
     For writers that want a file name (e.g. rerun's ``save``, matplotlib's ``savefig``). ``suffix``
-    defaults to the destination's suffix so that libraries that look at it still work.
+    defaults to the destination's suffix so that libraries that look at it still work. A file-system
+    failure anywhere (creating, writing, syncing, renaming) is ``cannot write PATH: <reason>``.
     """
     dest = Path(path)
     directory = dest.parent if str(dest.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(
-        prefix=f".{dest.name}.", suffix=(dest.suffix if suffix is None else suffix) + ".tmp", dir=directory
-    )
+    suffix = (dest.suffix if suffix is None else suffix) + ".tmp"
+    remove_stale(directory, dest.name, suffix)
+    try:
+        # the writer's pid in the name: a later write can tell a killed writer's leftover from a live one
+        fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.{os.getpid()}-", suffix=suffix, dir=directory)
+    except OSError as exc:
+        raise write_error(dest, exc) from None
     os.close(fd)
     try:
-        yield Path(tmp)
-        os.replace(tmp, dest)
+        try:
+            yield Path(tmp)
+        except OSError as exc:
+            if exc.errno in _PATH_ERRNOS or exc.errno in _LIMIT_ERRNOS:
+                raise write_error(dest, exc) from None
+            raise
+        try:
+            fd = os.open(tmp, os.O_RDONLY)  # the writer may be a library that closed the file itself
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+            os.chmod(tmp, new_file_mode(dest))
+            os.replace(tmp, dest)
+        except OSError as exc:
+            raise write_error(dest, exc) from None
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
+        with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+#: A leftover temporary file without a pid in its name (older rbgp) is stale after this many seconds.
+STALE_S = 60.0
+
+
+def remove_stale(directory, name: str, suffix: str) -> None:
+    """Remove what killed writers of ``directory/name`` left (SIGKILL gives no chance to clean up):
+    ``.NAME.PID-XXXX<suffix>`` whose PID is no live process, and ``.NAME.XXXX<suffix>`` older than
+    :data:`STALE_S` seconds. Best effort: a file that cannot be removed stays."""
+    import re
+    import time
+
+    pattern = re.compile(rf"\.{re.escape(name)}\.(?:(\d+)-)?[A-Za-z0-9_]+{re.escape(suffix)}")
+    try:
+        entries = list(os.scandir(directory))
+    except OSError:
+        return
+    for entry in entries:
+        m = pattern.fullmatch(entry.name)
+        if m is None:
+            continue
+        with contextlib.suppress(OSError):
+            if m.group(1) is not None:
+                if _alive(int(m.group(1))):
+                    continue
+            elif time.time() - entry.stat(follow_symlinks=False).st_mtime < STALE_S:
+                continue
+            os.unlink(entry.path)
+
+
+def _alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, OSError):
+        return True  # someone else's process, or cannot tell: leave the file
+    return True
 
 
 @contextlib.contextmanager
 def atomic_open(path, mode: str = "w", **kwargs):
     """Open a temporary file beside ``path`` for writing; rename it onto ``path`` when the block ends
-    without an exception (after flush + fsync)."""
+    without an exception (after closing and fsync: :func:`atomic_path`)."""
     if "w" not in mode:
         raise ValueError("atomic_open is for writing ('w' or 'wb')")
     with atomic_path(path) as tmp:
         with open(tmp, mode, **kwargs) as fh:
             yield fh
-            fh.flush()
-            os.fsync(fh.fileno())

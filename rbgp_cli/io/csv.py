@@ -667,6 +667,13 @@ def _columns(df, table: _Table, plan: _Plan) -> dict:
             real = [k for k, s in zip(idx, lowered) if s not in _NA_TOKENS]
             if real:
                 k = int(real[0])
+                if _repeats_header(df, table, k):
+                    raise InputError(
+                        "a second header line: concatenated files? give them as separate files",
+                        path=table.source,
+                        row=int(table.lines[k]),
+                        hint="pass the files (or their folder) instead of joining them",
+                    )
                 raise InputError(
                     f"non-numeric value {str(text.iloc[k])!r} in column {col.name!r}",
                     path=table.source,
@@ -675,6 +682,13 @@ def _columns(df, table: _Table, plan: _Plan) -> dict:
                 )
         out[role] = num
     return out
+
+
+def _repeats_header(df, table: _Table, k: int) -> bool:
+    """Whether data row ``k`` holds the header's names again (files joined by ``cat a.csv b.csv``)."""
+    names = [str(h).strip().lower() for h in table.header]
+    cells = ["" if not isinstance(v, str) else v.strip().lower() for v in df.iloc[k].tolist()]
+    return len(names) > 1 and cells[: len(names)] == names
 
 
 def _iso_datetimes(text):

@@ -213,6 +213,8 @@ _PROVENANCE = obj({
     "inputs": list_of(obj({"name": nullable(string()), "sha256": string(), "bytes": nullable(_COUNT)},
                           extra=True)),
     "train_options": _DICT_OR_NULL,
+    "read_options": _DICT_OR_NULL,
+    "demonstrations": list_of(obj({"name": nullable(string()), "duration_s": nullable(_ANY_NUMBER)}, extra=True)),
 }, extra=True)  # fmt: skip
 
 #: top-level fields: name -> (first version that always writes it, checker)
@@ -235,6 +237,15 @@ TOP: dict = {
     "time_input": (2, nullable(string(("seconds", "phase")))),
     "prior": (2, _PRIOR),
     "gp": (3, _GP),
+    # optional (no version always writes them): the demonstrations' position envelope over phase
+    # (dynamics/envelope.py) and their deviation process (dynamics/variation.py)
+    "envelope": (10**6, nullable(obj({
+        "lo": list_of(list_of(num(), 3, 3), 2, 10**5),
+        "hi": list_of(list_of(num(), 3, 3), 2, 10**5),
+        "margin": num(0.0, 1e9, what="a non-negative finite number of metres"),
+        "source": string(("demonstrations", "training points")),
+    }, ("lo", "hi", "margin")))),
+    "variation": (10**6, nullable(obj({"demos": integer(3, 10**7), "steps": integer(2, 10**5)}, ("demos", "steps")))),
 }
 
 
@@ -321,6 +332,8 @@ def expected_arrays(h: dict) -> set:
         req |= {"Z", "Lm", "LB", "c"}
     if (h.get("prior") or {}).get("kind") == "path":
         req |= {"prior_s", "prior_quat", "prior_position", "prior_velocity"}
+    if h.get("variation"):
+        req |= {"variation_s", "variation_residuals"}
     return req
 
 
@@ -381,6 +394,15 @@ def validate_arrays(h: dict, arrays: dict) -> None:
             _finite(arrays, name)
         if not np.all(np.diff(arrays["prior_s"]) > 0):
             raise SchemaError("array 'prior_s' is not increasing")
+    if "variation_s" in req:
+        D, S = h["variation"]["demos"], h["variation"]["steps"]
+        _shape(arrays, "variation_s", (S,), f"({S},) (variation.steps)")
+        _shape(arrays, "variation_residuals", (D, S, 6), f"({D}, {S}, 6) (variation.demos, variation.steps)")
+        for name in ("variation_s", "variation_residuals"):
+            _finite(arrays, name)
+        s = arrays["variation_s"]
+        if not (np.all(np.diff(s) > 0) and s[0] == 0.0 and s[-1] == 1.0):
+            raise SchemaError("array 'variation_s' is not an increasing grid from 0 to 1")
     if "Z" in req:
         G = len(h["fits"])
         Z = arrays["Z"]

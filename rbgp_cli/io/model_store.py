@@ -69,6 +69,8 @@ _MAX_DIGITS = 40
 _ARRAYS = ("X", "Y", "y_scale", "starts", "durations")
 #: Arrays of a sparse GP (version 3).
 _SPARSE_ARRAYS = ("Z", "Lm", "LB", "c")
+#: Arrays of the demonstrations' deviation process (present only when the model has one).
+_VARIATION_ARRAYS = ("variation_s", "variation_residuals")
 #: Arrays of the mean-path prior (present only when the model has one).
 _PRIOR_ARRAYS = {"prior_s": "s", "prior_quat": "quat", "prior_position": "position", "prior_velocity": "velocity"}
 
@@ -127,6 +129,9 @@ def save_model(model, path) -> dict:
         else:
             for name, key in _PRIOR_ARRAYS.items():
                 arrays[name] = np.ascontiguousarray(mean[key], dtype=np.float64)
+    variation = getattr(model, "variation", None)
+    if variation is not None:
+        arrays.update(variation.to_arrays())
     sparse = bool(getattr(gp, "sparse", False))
     if sparse:
         arrays["Z"] = np.ascontiguousarray(gp.Z, dtype=np.float64)
@@ -153,6 +158,10 @@ def save_model(model, path) -> dict:
         "checksums": {k: array_sha256(v) for k, v in arrays.items()},
     }
     header["gp"] = {"type": "sparse", "inducing": int(len(gp.Z))} if sparse else {"type": "exact"}
+    if variation is not None:
+        header["variation"] = {"demos": int(variation.demos), "steps": int(len(variation.s))}
+    if getattr(model, "envelope", None) is not None:  # optional: files without it load (computed then)
+        header["envelope"] = model.envelope.to_dict()
     header = json.loads(canonical_json(header))  # as a reader will parse it (keys as strings, tuples as lists)
     header["checksums"]["header"] = header_sha256(header)
     raw = canonical_json(header)
@@ -323,7 +332,7 @@ def read_header(path) -> tuple[dict, dict]:
             if raw.dtype != np.uint8 or raw.ndim != 1:
                 raise _bad(path, "the model header is damaged (not a byte string)")
             header, version = _check_header(path, _parse_header(path, raw.tobytes()))
-            known = (*_ARRAYS, *_PRIOR_ARRAYS, *_SPARSE_ARRAYS)
+            known = (*_ARRAYS, *_PRIOR_ARRAYS, *_SPARSE_ARRAYS, *_VARIATION_ARRAYS)
             infos = {k: _member_info(zf, path, k, disk) for k in known if k in names}
             total = sum(i.file_size for i in infos.values())
             if total > MAX_RATIO * disk + RATIO_SLACK:
@@ -408,6 +417,11 @@ def load_model(path):
             gp = GaussianProcess(kernel, X, Y, fits, shared=header["shared"], y_scale=arrays["y_scale"])
         dt = float(header["dt"])
         velocity, time_input, mean = _model_extras(header, arrays, rep, X)
+        envelope = None
+        if header.get("envelope") is not None:
+            from rbgp_cli.dynamics.envelope import Envelope
+
+            envelope = Envelope.from_dict(header["envelope"])
     except RbgpError as exc:
         raise _bad(path, f"the model cannot be rebuilt: {exc.message}") from None
     except MemoryError:  # not --max-points of a training: this file's GP needs more memory than there is
@@ -417,9 +431,14 @@ def load_model(path):
                    "use a machine with more memory, or retrain with fewer --max-points") from None
     except (KeyError, TypeError, ValueError, IndexError, AttributeError, ArithmeticError) as exc:
         raise _bad(path, f"the model header is inconsistent ({type(exc).__name__}: {str(exc)[:80]})") from None
+    variation = None
+    if header.get("variation"):
+        from rbgp_cli.dynamics.variation import Variation
+
+        variation = Variation.from_arrays(arrays)
     return MotionModel(rep, gp, dt, arrays["starts"], arrays["durations"],
                        summary=header.get("summary", {}), provenance=header.get("provenance", {}),
-                       velocity=velocity, time_input=time_input, mean=mean), header
+                       velocity=velocity, time_input=time_input, mean=mean, variation=variation, envelope=envelope), header
 
 
 def _model_extras(header: dict, arrays: dict, rep, X):

@@ -1,9 +1,9 @@
 """Rerun recordings (``.rrd``) of training data, rollouts and evaluations, ready to open in the viewer.
 
 Each function writes one file with its own :class:`rerun.RecordingStream` (never the global one),
-into a temporary file beside the destination that is renamed onto it only when the recording is
-complete (:func:`rbgp_cli.io.atomic.atomic_path`), and gives it a default blueprint (a 3D view plus
-time-series views), so ``rerun FILE.rrd`` opens ready to read.
+recorded into memory and written when the recording is complete (:func:`rbgp_cli.io.atomic.atomic_open`:
+whole or not at all), and gives it a default blueprint (a 3D view plus time-series views), so
+``rerun FILE.rrd`` opens ready to read.
 
 Conventions: positions in metres; quaternions x, y, z, w (Rerun's own order, passed as they are);
 the time line ``time`` is a duration in seconds from the start of each trajectory; the time line
@@ -46,7 +46,7 @@ import numpy as np
 
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError
-from rbgp_cli.io.atomic import atomic_path
+from rbgp_cli.io.atomic import atomic_open
 
 __all__ = ["record_training", "record_rollout", "record_evaluation", "APPLICATION_ID", "FEATURE_NAMES", "UP_AXES"]
 
@@ -125,19 +125,26 @@ def _scene_size(*position_arrays) -> float:
 
 @contextlib.contextmanager
 def _recording(path, blueprint, name: str):
-    """A fresh RecordingStream saving into a temporary file beside ``path``; renamed onto ``path``
-    after the last message is flushed and the stream disconnected (the footer is then written)."""
+    """A fresh RecordingStream into memory (rerun's binary stream: the .rrd bytes its file sink
+    would write); after the last message is flushed and the stream disconnected, the bytes are
+    written with :func:`~rbgp_cli.io.atomic.atomic_open` (whole file or nothing; a failed write is
+    ``cannot write PATH: <reason>``). Not rerun's own file sink: when its writes fail (a full disk,
+    the file-size limit) rerun 0.41 logs the reason, raises a bare RuntimeError and at times blocks
+    in ``save`` for good (2 of 3 tries under a 20 kB size limit)."""
     rr, _ = _rerun()
-    with atomic_path(path) as tmp:
-        rec = rr.RecordingStream(APPLICATION_ID, recording_id=uuid.uuid4())
-        rec.set_log_time_enabled(False)  # the wall clock of writing is noise in a data file
-        try:
-            rec.save(tmp, default_blueprint=blueprint)
-            rec.send_recording_name(name)
-            yield rec
-            rec.flush()
-        finally:
-            rec.disconnect()
+    rec = rr.RecordingStream(APPLICATION_ID, recording_id=uuid.uuid4())
+    rec.set_log_time_enabled(False)  # the wall clock of writing is noise in a data file
+    stream = rec.binary_stream()
+    try:
+        rec.send_blueprint(blueprint, make_active=False, make_default=True)  # as save(default_blueprint=)
+        rec.send_recording_name(name)
+        yield rec
+        rec.flush()
+    finally:
+        rec.disconnect()
+    data = stream.read(flush=True)
+    with atomic_open(path, "wb") as fh:
+        fh.write(data)
 
 
 def _log_world(rec, up: str) -> None:

@@ -11,7 +11,7 @@ import typer.main
 
 from rbgp_cli.cli.app import app
 from rbgp_cli.cli.common import READ_PANEL
-from tests.cli.test_cli import CSV_DIR, FAST, MCAP, assert_one_line_error, run
+from tests.cli.test_cli import MCAP, assert_one_line_error, run
 
 #: What a parameter that reads demonstrations is called (besides any PATH... list option).
 _READS = {"demos", "from_demos", "starts", "poses", "files", "generated", "compare"}
@@ -60,14 +60,6 @@ def test_every_command_that_reads_demonstrations_takes_every_read_option():
         assert not missing, f"rbgp {name} lacks the read options {sorted(missing)}"
         # and they are the same options: the same panel, so --help groups them the same way
         assert _read_flags(commands[name]) == expected - _EXEMPT.get(name, set()), name
-
-
-@pytest.fixture(scope="module")
-def model(tmp_path_factory):
-    path = tmp_path_factory.mktemp("model") / "shoe.rbgp"
-    res = run("train", CSV_DIR, "-o", path, *FAST)
-    assert res.exit_code == 0, res.stderr
-    return path
 
 
 def test_rollout_from_demos_in_a_multi_topic_mcap_takes_topic(model, tmp_path):

@@ -9,18 +9,9 @@ import pytest
 
 from rbgp_cli.io.options import ReadOptions
 from rbgp_cli.io.read import read_demonstrations
-from tests.cli.test_cli import CSV_DIR, FAST, assert_one_line_error, run
+from tests.cli.test_cli import CSV_DIR, assert_one_line_error, run
 
 START = "0.1 0.2 0.3 0.3 0.0 1.1"
-
-
-@pytest.fixture(scope="module")
-def model(tmp_path_factory):
-    """The sample data (recorded at ~179 Hz), trained on the default 10 Hz grid."""
-    path = tmp_path_factory.mktemp("model") / "shoe.rbgp"
-    res = run("train", CSV_DIR, "-o", path, *FAST)
-    assert res.exit_code == 0, res.stderr
-    return path
 
 
 def _table(path):
@@ -55,11 +46,11 @@ def test_rollout_is_written_at_the_recorded_rate_by_default(model, tmp_path):
     assert meta["steps"] == 20 and meta["dt"] == pytest.approx(0.1) and meta["output_rate_hz"] == pytest.approx(rate)
     names, traj, v = _table(out)
     assert names[:9] == ["trajectory", "t", "x", "y", "z", "qx", "qy", "qz", "qw"]
-    assert names[9:] == [f"std_{n}" for n in ("wx", "wy", "wz", "vx", "vy", "vz")]
+    assert names[9:] == [f"std_{n}" for n in ("wx", "wy", "wz", "vx", "vy", "vz")] + ["left_data"]
     n = int(np.floor(2.0 * rate + 1e-9)) + 1
-    assert v.shape == (n, 14) and set(traj) == {"0"}
+    assert v.shape == (n, 15) and set(traj) == {"0"}
     np.testing.assert_allclose(v[:, 0], np.arange(n) / rate, rtol=0, atol=1e-12)  # times on the rate
-    assert np.all(np.isfinite(v)) and np.all(v[:, 8:] > 0)
+    assert np.all(np.isfinite(v)) and np.all(v[:, 8:14] > 0) and set(v[:, 14]) <= {0.0, 1.0}
     np.testing.assert_allclose(np.linalg.norm(v[:, 4:8], axis=1), 1.0, atol=1e-12)
 
 
@@ -80,7 +71,7 @@ def test_output_rate_resamples_between_the_integration_steps_and_keeps_them(mode
     np.testing.assert_allclose(f[::5], g, rtol=0, atol=1e-12)
     # between the steps: positions and stds linear, rotations on the geodesic (slerp at f = 0.4)
     np.testing.assert_allclose(f[2::5, 1:4], 0.6 * g[:-1, 1:4] + 0.4 * g[1:, 1:4], atol=1e-12)
-    np.testing.assert_allclose(f[2::5, 8:], 0.6 * g[:-1, 8:] + 0.4 * g[1:, 8:], atol=1e-12)
+    np.testing.assert_allclose(f[2::5, 8:14], 0.6 * g[:-1, 8:14] + 0.4 * g[1:, 8:14], atol=1e-12)
     from scipy.spatial.transform import Rotation, Slerp
 
     for k in (0, 7, 19):

@@ -196,3 +196,43 @@ def test_cli_table_and_bad_options(tmp_path):
     assert res.exit_code == 2 and "4 demonstrations cannot make 5 folds" in res.stderr
     res = runner.invoke(app, ["crossval", str(folder), "--representation", "dual-quaternion"])
     assert res.exit_code == 2 and "unknown representation" in res.stderr
+
+
+def test_sample_columns_score_one_sample_per_start_and_pool_the_coverage(monkeypatch):
+    """MATH.md §11 in crossval: sample_score is one sampled rollout per held-out start scored as score is
+    (against the training demonstrations), sample_ratio its ratio to the floor, and the coverage columns
+    pool the held-out motions' steps over the folds; the replay peer has none; samples=0 turns them off."""
+    from rbgp_cli.evaluation.coverage import Coverage, prediction_coverage
+
+    demos = reaching_demos(8)
+    configs = [Config("axis-angle", "se-chordal", QUICK), Config(REPLAY)]
+    res = crossval(demos, configs, folds=4, jobs=1, samples=6)
+    rows = {r["representation"]: r for r in res["results"]}
+    row = rows["axis-angle"]
+    for key in ("coverage_position", "coverage_rotation"):
+        assert 0.0 <= row[key] <= 1.0
+    assert row["band_position"] > 0 and row["band_rotation"] > 0
+    assert row["sample_ratio"] == pytest.approx(row["sample_score"] / row["floor"])
+    assert row["sample_score"] == pytest.approx(np.mean([f["sample_score"] for f in row["per_fold"]]))
+    assert all(rows[REPLAY][k] is None for k in ("sample_score", "coverage_position", "band_rotation"))
+    # one fold recomputed by hand: the model's samples from the held-out starts, seeded as crossval seeds them
+    from rbgp_cli.dynamics.model import train_model
+    from rbgp_cli.dynamics.rollout import rollout_for
+
+    test_idx = make_folds(len(demos), 4, 0)[0]
+    test = [demos[i] for i in test_idx]
+    train = [d for i, d in enumerate(demos) if i not in set(test_idx)]
+    m = train_model(train, representation="axis-angle", kernel="se-chordal", **QUICK)
+    r = rollout_for(m, np.array([t.quat[0] for t in test]), np.array([t.position[0] for t in test]),
+                    [t.duration for t in test], with_std=False, samples=6, seed=0)
+    trajs = r.trajectories(include_samples=True)[len(test):]
+    T = evaluate(test, train).steps  # the length crossval resamples to (the training demonstrations' median)
+    fold0 = row["per_fold"][0]
+    one = [trajs[b * 6] for b in range(len(test))]
+    assert fold0["sample_score"] == pytest.approx(evaluate(one, train, length=T).mean, rel=1e-9)
+    cov = Coverage()
+    for b, real in enumerate(test):
+        cov = cov + prediction_coverage(trajs[b * 6:(b + 1) * 6], real, T)
+    assert fold0["coverage_position"] == pytest.approx(cov.to_dict()["coverage_position"])
+    off = crossval(demos, configs[:1], folds=4, jobs=1, samples=0)["results"][0]
+    assert off["sample_score"] is None and off["score"] == pytest.approx(row["score"])

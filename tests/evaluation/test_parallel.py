@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 
 import pytest
@@ -123,3 +124,67 @@ def test_crossval_command_passes_scheduler_and_inducing(monkeypatch):
                       subsample=1.0, max_points=50, train_rate=0.0, smooth_window=0.0, smooth_degree=2,
                       time_input="none", prior="none", prior_gain=1.0, inducing=16)
     assert kw["inducing"] == 16
+
+
+def _die(x):
+    os._exit(3)  # a worker killed (or out of memory) while running this task
+
+
+def _die_once(marker):
+    if not os.path.exists(marker):
+        open(marker, "w").close()
+        os._exit(3)
+    return "done"
+
+
+def test_a_lost_local_worker_is_retried_once_then_named():
+    """Before: the generic ``internal error: BrokenProcessPool`` at the first lost worker."""
+    import tempfile
+
+    from rbgp_cli.errors import RbgpRuntimeError
+
+    with tempfile.TemporaryDirectory() as d:
+        marker = os.path.join(d, "lost")
+        assert run_tasks(_die_once, [marker, marker], jobs=2) == ["done", "done"]
+    with pytest.raises(RbgpRuntimeError, match=r"ended unexpectedly \(killed, or out of memory\) 2 times; "
+                                               r"unfinished: fit A, fit B"):
+        run_tasks(_die, [0, 1], jobs=2, label=lambda i: f"fit {'AB'[i]}")
+
+
+def _sleep(seconds):
+    import time
+
+    time.sleep(seconds)
+    return seconds
+
+
+def test_a_dask_study_with_no_worker_left_fails_within_the_timeout(monkeypatch):
+    """Before: with every worker gone the study waited forever, with no output."""
+    distributed = pytest.importorskip("distributed")
+    import threading
+    import time
+
+    from rbgp_cli.errors import RbgpRuntimeError
+
+    monkeypatch.setattr("rbgp_cli.parallel.NO_WORKER_TIMEOUT", 2.0)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
+        outcome = {}
+
+        def study():
+            try:
+                outcome["result"] = run_tasks(_sleep, [3.0, 3.0, 3.0], scheduler=cluster.scheduler_address,
+                                              label=lambda i: f"fold {i + 1}")
+            except Exception as exc:  # noqa: BLE001 - the test looks at it
+                outcome["error"] = exc
+
+        thread = threading.Thread(target=study, daemon=True)
+        t0 = time.monotonic()
+        thread.start()
+        time.sleep(1.0)
+        cluster.scale(0)  # every worker gone, the tasks unfinished
+        thread.join(30)
+        assert not thread.is_alive(), "the study still waits with no worker"
+        assert time.monotonic() - t0 < 15
+    err = outcome.get("error")
+    assert isinstance(err, RbgpRuntimeError), outcome
+    assert "no Dask worker left for 2 s" in str(err) and "fold " in str(err)
