@@ -27,7 +27,7 @@ def run(*args):
 
 
 def test_two_grids_give_every_combination_labelled_in_the_table_and_the_json(folder):
-    res = run(folder, *FAST, "--grid", "prior-gain=3,10", "--grid", "inducing=0,20", "--json")
+    res = run(folder, *FAST, "--grid", "prior-gain=3,10", "--grid", "inducing=0,20", "--no-peers", "--json")
     assert res.exit_code == 0, res.stderr
     out = json.loads(res.stdout)
     models = [r for r in out["results"] if r["representation"] != "replay"]
@@ -112,12 +112,12 @@ def test_every_declared_training_option_is_accepted_by_grid(folder, monkeypatch)
         default = _crossval_option(name).default
         typed = str(default).lower() if isinstance(default, bool) else default
         values = "default" if default is None else f"{typed},default"
-        res = run(folder, "--grid", f"{flag}={values}", "--no-replay", "--json")
+        res = run(folder, "--grid", f"{flag}={values}", "--no-replay", "--no-peers", "--json")
         assert res.exit_code == 0, (flag, res.stderr)
         configs = seen[-1]
         assert len(configs) == 1, flag  # the default and 'default' are one value
         assert list(configs[0].options) == [flag]
     for name in GRID_LISTS:  # --grid kernel=... is --kernel repeated
-        res = run(folder, "--grid", f"{name}={'se,dot' if name == 'kernel' else 'axis-angle,quaternion'}", "--no-replay")
+        res = run(folder, "--grid", f"{name}={'se,dot' if name == 'kernel' else 'axis-angle,quaternion'}", "--no-replay", "--no-peers")
         assert res.exit_code == 0, res.stderr
         assert len(seen[-1]) == 2
