@@ -26,8 +26,12 @@ class RbgpError(Exception):
         row: int | None = None,
         topic: str | None = None,
         hint: str | None = None,
+        param: str | None = None,
     ) -> None:
         self.message = message
+        #: the library parameter the message is about (e.g. "steps"), named as the Python API names it;
+        #: the command line shows the matching option instead (--steps)
+        self.param = param
         self.path = None if path is None else str(path)
         self.row = row
         self.topic = topic
