@@ -15,7 +15,7 @@ import typer
 __all__ = [
     "ModelPanel", "RhoOpt", "RestartsOpt", "ExploreOpt", "SeedOpt", "NoiseOpt", "ShareOpt", "SubsampleOpt",
     "MaxPointsOpt", "TrainRateOpt", "SmoothWindowOpt", "SmoothDegreeOpt", "TimeInputOpt", "PriorOpt",
-    "PriorGainOpt", "InducingOpt", "train_kwargs", "train_option_names", "GRID_LISTS", "grid_variants",
+    "PriorGainOpt", "StartCondOpt", "InducingOpt", "train_kwargs", "train_option_names", "GRID_LISTS", "grid_variants",
 ]
 
 ModelPanel = "Model"
@@ -35,6 +35,7 @@ CalibrateOpt = Annotated[bool, typer.Option("--calibrate-noise", help="After the
 TimeInputOpt = Annotated[str, typer.Option("--time-input", help="What the GP sees besides the pose: none (the paper), seconds (since the demonstration's start) or phase (normalised time; outputs per unit phase, so a rollout of any duration traverses the motion once).", rich_help_panel=ModelPanel)]
 PriorOpt = Annotated[str, typer.Option("--prior", help="The GP's prior mean: none (zero, the paper), goal (a pull toward the demonstrations' mean final pose) or path (the demonstrations' mean path over phase: its velocity plus a pull toward it; needs --time-input phase). The GP models the residual.", rich_help_panel=ModelPanel)]
 PriorGainOpt = Annotated[float, typer.Option("--prior-gain", min=0.0, help="How strongly the prior pulls toward its pose: per unit phase (per second with --time-input seconds or none).", rich_help_panel=ModelPanel)]
+StartCondOpt = Annotated[bool, typer.Option("--start-conditioning/--no-start-conditioning", help="With --prior path: pull each motion toward the mean path displaced by the deviation the demonstrations keep from a start like its own (regressed on their starts, per coordinate and phase), not toward the mean path itself; chosen by crossval.", rich_help_panel=ModelPanel)]
 TrainRateOpt = Annotated[float, typer.Option("--train-rate", min=0.0, help="Resample each demonstration to this rate (Hz) before estimating velocities; the rollout step follows it. 0 keeps the recorded samples.", rich_help_panel=_VEL)]
 SmoothWindowOpt = Annotated[float, typer.Option("--smooth-window", min=0.0, help="Estimate velocities by a local polynomial fit over this many seconds around each sample (Savitzky–Golay type, in the rotation's tangent space); 0: forward differences.", rich_help_panel=_VEL)]
 SmoothDegreeOpt = Annotated[int, typer.Option("--smooth-degree", min=1, max=4, help="Degree of the local polynomial fit.", rich_help_panel=_VEL)]
@@ -63,7 +64,8 @@ def _choice(value: str, flag: str, choices: tuple) -> str | None:
 def train_kwargs(*, rho_rot: str, restarts: int, explore_size: int, seed: int, noise: str, share_hyperparameters: bool,
                  subsample: float, max_points: int, train_rate: float, smooth_window: float, smooth_degree: int,
                  time_input: str, prior: str, prior_gain: float, inducing: int | None = None,
-                 hyper_points: int | None = None, calibrate_noise: bool = False) -> dict:
+                 hyper_points: int | None = None, calibrate_noise: bool = False,
+                 start_conditioning: bool = False) -> dict:
     """Check the option values and build the keyword arguments of
     :func:`rbgp_cli.dynamics.model.train_model` (without representation and kernel)."""
     from rbgp_cli.dynamics.velocities import VelocityOptions
@@ -84,6 +86,7 @@ def train_kwargs(*, rho_rot: str, restarts: int, explore_size: int, seed: int, n
         "time_input": time_in, "prior": prior_v, "prior_gain": prior_gain, "inducing": inducing,
         **({"hyper_points": hyper_points} if hyper_points is not None else {}),
         **({"calibrate": True} if calibrate_noise else {}),
+        "start_conditioning": bool(start_conditioning),
     }
 
 

@@ -20,6 +20,7 @@ DEFAULTS = {
     "time_input": "phase",
     "prior": "path",
     "prior_gain": 10.0,
+    "start_conditioning": False,
 }
 
 #: The kernel each representation trains with unless one is named (``kernel=None``).

@@ -142,25 +142,40 @@ class MotionModel:
             return np.concatenate([nxt, X[:, d:] + dt], axis=1)
         return self.representation.step(X, output, dt)
 
-    def prior_mean(self, X) -> np.ndarray | None:
-        """The prior mean of the outputs at inputs X (m, d), or None for a zero-mean GP."""
+    def path_reference(self) -> PathReference | None:
+        """The mean-path prior's :class:`PathReference` (built once), or None without one."""
+        if not self.mean or self.mean.get("kind") != "path":
+            return None
+        cached = self.__dict__.get("_path_reference")
+        if cached is None or cached[0] is not self.mean:
+            cached = (self.mean, PathReference(self.mean))
+            self.__dict__["_path_reference"] = cached
+        return cached[1]
+
+    def start_deviation(self, quat, position) -> np.ndarray | None:
+        """Per start pose (quat (B, 4), position (B, 3)) the deviation the start-conditioned prior
+        carries through the motion (:meth:`PathReference.start_deviation`), (B, 6); None for a model
+        whose prior is not start-conditioned."""
+        path = self.path_reference()
+        if path is None or not path.conditioned:
+            return None
+        return path.start_deviation(quat, position)
+
+    def prior_mean(self, X, start_dev=None) -> np.ndarray | None:
+        """The prior mean of the outputs at inputs X (m, d), or None for a zero-mean GP; ``start_dev``
+        (m, 6): each row's start deviation (:meth:`start_deviation`) for a start-conditioned prior
+        (None: the mean path's own start, δ(0) = μ(0))."""
         if not self.mean:
             return None
         phase = X[:, -1] if self.time_input == "phase" else None
-        path = None
-        if self.mean.get("kind") == "path":
-            cached = self.__dict__.get("_path_reference")
-            if cached is None or cached[0] is not self.mean:
-                cached = (self.mean, PathReference(self.mean))
-                self.__dict__["_path_reference"] = cached
-            path = cached[1]
-        return prior_mean_outputs(self.representation, X[:, : self.pose_dims], self.mean, phase, path=path)
+        return prior_mean_outputs(self.representation, X[:, : self.pose_dims], self.mean, phase,
+                                  path=self.path_reference(), start_dev=start_dev)
 
-    def predict_output(self, X, return_std: bool = False, manage_threads: bool = True):
+    def predict_output(self, X, return_std: bool = False, manage_threads: bool = True, start_dev=None):
         """Outputs (velocities in the representation's coordinates, per second or per unit phase) at
-        inputs X (m, d): the GP's prediction plus the prior mean."""
+        inputs X (m, d): the GP's prediction plus the prior mean (``start_dev``: :meth:`prior_mean`)."""
         out = self.gp.predict(X, return_std=return_std, manage_threads=manage_threads)
-        m = self.prior_mean(np.asarray(X, dtype=np.float64))
+        m = self.prior_mean(np.asarray(X, dtype=np.float64), start_dev)
         if m is None:
             return out
         if return_std:
@@ -201,6 +216,46 @@ class PathReference:
         q1 = q1 * np.where(np.sum(q0 * q1, axis=-1, keepdims=True) < 0, -1.0, 1.0)
         self._q0 = q0
         self._phi = _log_quat_unit(quat_normalize(quat_multiply(quat_conjugate(q0), q1)))
+        #: start conditioning (``mean["start_mean"]``, ``mean["start_beta"]``, :func:`start_conditioning`):
+        #: μ, β (S, 6) on the grid and their per-interval slopes per unit phase
+        self.conditioned = "start_beta" in mean
+        if self.conditioned:
+            self.start_mean = np.asarray(mean["start_mean"], dtype=np.float64)
+            self.start_beta = np.asarray(mean["start_beta"], dtype=np.float64)
+            ds = np.diff(self.s)[:, None]
+            self._dmu = np.diff(self.start_mean, axis=0) / ds
+            self._dbeta = np.diff(self.start_beta, axis=0) / ds
+
+    def start_deviation(self, quat, position) -> np.ndarray:
+        """c = δ(0) − μ(0) (m, 6) of start poses (quat (m, 4), position (m, 3)): their deviation from
+        the mean path's first pose, δ(0) = (log(R_0 R̄(0)ᵀ), p_0 − p̄(0)), less the demonstrations' mean
+        deviation there (zero for a path without start conditioning)."""
+        from rbgp_cli.geometry.so3 import log_quat, quat_conjugate, quat_multiply
+
+        quat = np.asarray(quat, dtype=np.float64).reshape(-1, 4)
+        position = np.asarray(position, dtype=np.float64).reshape(-1, 3)
+        if not self.conditioned:
+            return np.zeros((len(quat), 6))
+        rot = log_quat(quat_multiply(quat, quat_conjugate(self.quat[:1])))
+        return np.concatenate([rot, position - self.position[:1]], axis=1) - self.start_mean[:1]
+
+    def conditioned_at(self, s: np.ndarray, dev: np.ndarray):
+        """The start-conditioned path at phases s (m,) for start deviations ``dev`` (m, 6)
+        (:meth:`start_deviation`): with Δ(s) = μ(s) + β(s) ⊙ dev (linear between grid phases), the
+        pose (exp(Δ_rot) R̄(s), p̄(s) + Δ_pos) and the twist per unit phase ξ̄(s) + Δ'(s) (to first
+        order in Δ_rot); shapes (m, 4), (m, 3), (m, 6)."""
+        from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
+
+        q, p, ff = self.at(s)
+        x = self.s
+        s = np.clip(np.asarray(s, dtype=np.float64).reshape(-1), x[0], x[-1])
+        k = np.clip(np.searchsorted(x, s, side="right") - 1, 0, len(x) - 2)
+        f = np.clip((s - x[k]) / (x[k + 1] - x[k]), 0.0, 1.0)[:, None]
+        mu = (1.0 - f) * self.start_mean[k] + f * self.start_mean[k + 1]
+        beta = (1.0 - f) * self.start_beta[k] + f * self.start_beta[k + 1]
+        delta = mu + beta * dev
+        q = quat_multiply(exp_quat(delta[:, :3]), q)
+        return q, p + delta[:, 3:], ff + self._dmu[k] + self._dbeta[k] * dev
 
     def at(self, s: np.ndarray):
         """(quat (T, 4), position (T, 3), velocity (T, 6)) at phases s (T,), clamped to the path."""
@@ -219,7 +274,7 @@ class PathReference:
 
 
 def prior_mean_outputs(representation: Representation, state: np.ndarray, mean: dict, phase=None,
-                       path: PathReference | None = None) -> np.ndarray:
+                       path: PathReference | None = None, start_dev: np.ndarray | None = None) -> np.ndarray:
     """The prior mean as the representation's outputs at ``state`` (m, d).
 
     ``goal``: ξ_m = a·(log(R_goal Rᵀ), p_goal − p), a pull toward the demonstrations' mean final
@@ -227,6 +282,10 @@ def prior_mean_outputs(representation: Representation, state: np.ndarray, mean: 
     demonstrations' mean path at phase s (per unit phase) plus a pull toward its pose at s
     (:func:`mean_path`); ``phase`` (m,) gives s. ``path``: the :class:`PathReference` of ``mean``
     if the caller keeps one (built here otherwise).
+    With start conditioning (``mean["start_beta"]``, :func:`start_conditioning`) and ``start_dev``
+    (m, 6) each row's start deviation (:meth:`PathReference.start_deviation`), the reference is that
+    row's start-conditioned path (:meth:`PathReference.conditioned_at`) instead of the mean path: the
+    pull keeps the deviation the demonstrations keep from such a start (MATH.md §11).
     """
     from rbgp_cli.geometry.so3 import log_quat, quat_conjugate, quat_multiply
 
@@ -236,13 +295,16 @@ def prior_mean_outputs(representation: Representation, state: np.ndarray, mean: 
         path = path or PathReference(mean)
         s = np.asarray(phase, dtype=np.float64).reshape(-1)
         m = len(s)
-        if m > 1 and np.all(s == s[0]):
-            # a rollout's trajectories share their phase (unless their durations differ): the
-            # reference pose once, for every row (the same numbers as row by row)
-            s = s[:1]
-        ref_q, ref_p, ff = path.at(s)
-        if len(s) < m:
-            ref_q, ref_p = np.broadcast_to(ref_q, (m, 4)), np.broadcast_to(ref_p, (m, 3))
+        if path.conditioned and start_dev is not None:
+            ref_q, ref_p, ff = path.conditioned_at(s, np.broadcast_to(np.asarray(start_dev, dtype=np.float64), (m, 6)))
+        else:
+            if m > 1 and np.all(s == s[0]):
+                # a rollout's trajectories share their phase (unless their durations differ): the
+                # reference pose once, for every row (the same numbers as row by row)
+                s = s[:1]
+            ref_q, ref_p, ff = path.at(s)
+            if len(s) < m:
+                ref_q, ref_p = np.broadcast_to(ref_q, (m, 4)), np.broadcast_to(ref_p, (m, 3))
     else:
         goal = np.asarray(mean["goal"], dtype=np.float64)
         ref_q, ref_p = np.broadcast_to(goal[:4], quat.shape), goal[4:]
@@ -455,6 +517,7 @@ def train_model(
     inducing: int | None = None,
     hyper_points: int | None = None,
     calibrate: bool = False,
+    start_conditioning: bool = DEFAULTS["start_conditioning"],
 ) -> MotionModel:
     """Train a motion model on clean demonstrations (see :func:`rbgp_cli.dynamics.prepare.prepare_all`).
 
@@ -483,6 +546,10 @@ def train_model(
     random points (None: 2000, the exact GP's default ``max_points``; 0: all), and the posterior uses all
     (:func:`rbgp_cli.gp.sparse.fit_sparse_gp`, ``hyper="exact"``); ``summary["gp"]["hyper_points"]`` is
     how many the fit covered and ``summary["gp"]["hyperparameters"]`` says which objective chose them.
+    ``start_conditioning`` (mean-path prior, 3 or more demonstrations): the prior pulls each
+    trajectory toward the mean path displaced by the deviation the demonstrations keep from its start
+    (:func:`rbgp_cli.dynamics.variation.start_regression`) instead of toward the mean path itself; the
+    training residuals use each demonstration's own start, a rollout its start (MATH.md §11).
     """
     t0 = time.perf_counter()
     if representation not in DEFAULT_KERNELS:
@@ -525,8 +592,18 @@ def train_model(
         mean = {"kind": "path", "gain": float(prior_gain), **mean_path(trajs)}
     elif prior == "goal":
         mean = {"kind": "goal", "gain": float(prior_gain), "goal": goal_pose(trajs).tolist()}
+    start_dev = None
+    if mean is not None and mean["kind"] == "path" and start_conditioning and len(trajs) >= 3:
+        from rbgp_cli.dynamics.variation import demonstration_deviations, start_regression
+
+        _, delta = demonstration_deviations(trajs, len(mean["s"]))
+        mean["start_mean"], mean["start_beta"], _ = start_regression(delta)
+        demo_of_row = np.repeat(np.arange(len(trajs)), info["per_demo"])[np.asarray(info["indices"])]
+        start_dev = PathReference(mean).start_deviation(np.array([tr.quat[0] for tr in trajs]),
+                                                        np.array([tr.position[0] for tr in trajs]))[demo_of_row]
     if mean is not None:
-        Y = Y - prior_mean_outputs(rep, X[:, : len(rep.input_names)], mean, X[:, -1] if time_input == "phase" else None)
+        Y = Y - prior_mean_outputs(rep, X[:, : len(rep.input_names)], mean, X[:, -1] if time_input == "phase" else None,
+                                   start_dev=start_dev)
     if progress:
         progress(f"{len(trajs)} demonstrations, {info['pairs']} pairs, training on {info['points']} points "
                  f"({rep.name}, kernel {kernel}, {'shared' if shared else 'per-output'} hyperparameters)")
@@ -605,7 +682,8 @@ def train_model(
     summary["time_input"] = time_input
     summary["recorded_rate_hz"] = 1.0 / recorded_dt  # rollouts are written at this rate by default
     summary["gp"] = gp_choice
-    summary["prior"] = None if mean is None else {"kind": mean["kind"], "gain": mean["gain"]}
+    summary["prior"] = None if mean is None else {"kind": mean["kind"], "gain": mean["gain"],
+                                                  "start_conditioned": "start_beta" in mean}
     from rbgp_cli.dynamics.envelope import envelope_from_demos
     from rbgp_cli.dynamics.variation import demonstration_variation
 

@@ -34,7 +34,7 @@ import numpy as np
 
 from rbgp_cli.dynamics.trajectory import Trajectory
 
-__all__ = ["Variation", "demonstration_variation", "STEPS", "MIN_DEMOS"]
+__all__ = ["Variation", "demonstration_variation", "demonstration_deviations", "start_regression", "STEPS", "MIN_DEMOS"]
 
 #: Phase grid of the deviations (as the mean path's).
 STEPS = 51
@@ -89,17 +89,13 @@ class Variation:
         return cls(np.asarray(arrays["variation_s"], dtype=np.float64), r, int(r.shape[0]) - 2)
 
 
-def demonstration_variation(trajs: list[Trajectory], steps: int = STEPS) -> Variation | None:
-    """The deviation process of clean demonstrations (module docstring), or None for fewer than
-    MIN_DEMOS of them."""
+def demonstration_deviations(trajs: list[Trajectory], steps: int = STEPS) -> tuple[dict, np.ndarray]:
+    """The demonstrations' mean path (:func:`rbgp_cli.dynamics.model.mean_path` on ``steps`` phases)
+    and each one's deviation from it, δ_d(s) = (log(R_d(s) R̄(s)ᵀ), p_d(s) − p̄(s)), shape (D, S, 6)."""
     from rbgp_cli.dynamics.model import mean_path
     from rbgp_cli.dynamics.trajectory import interpolate_poses
     from rbgp_cli.geometry.so3 import log_quat, quat_conjugate, quat_make_continuous, quat_multiply
 
-    trajs = list(trajs)
-    D = len(trajs)
-    if D < MIN_DEMOS:
-        return None
     path = mean_path(trajs, steps)
     s = path["s"]
     Q, P = [], []
@@ -109,11 +105,35 @@ def demonstration_variation(trajs: list[Trajectory], steps: int = STEPS) -> Vari
         P.append(p)
     Q, P = np.array(Q), np.array(P)  # (D, S, 4), (D, S, 3)
     rot = log_quat(quat_multiply(Q, quat_conjugate(path["quat"])[None]))  # world frame: R_d R̄ᵀ
-    delta = np.concatenate([rot, P - path["position"][None]], axis=-1)  # (D, S, 6)
-    c = delta - delta.mean(axis=0)
+    return path, np.concatenate([rot, P - path["position"][None]], axis=-1)
+
+
+def start_regression(delta: np.ndarray):
+    """Per coordinate and phase, the least-squares regression of the deviations δ (D, S, 6) on their
+    value at the start (module docstring): returns the mean deviation μ (S, 6), the slope β (S, 6)
+    (β(0) = 1 wherever the start varies) and the residuals r (D, S, 6), r(0) = 0.
+
+    E[δ(s) | δ(0)] = μ(s) + β(s) (δ(0) − μ(0)) is the deviation a new demonstration that starts at δ(0)
+    is expected to keep (:func:`rbgp_cli.dynamics.model.prior_mean_outputs` pulls toward it)."""
+    mu = delta.mean(axis=0)
+    c = delta - mu
     c0 = c[:, :1, :]  # (D, 1, 6)
     denom = np.sum(c0**2, axis=0)  # (1, 6)
-    beta = np.where(denom > 1e-300, np.sum(c * c0, axis=0) / np.where(denom > 1e-300, denom, 1.0), 0.0)  # (S, 6)
+    varies = denom > 1e-300
+    beta = np.where(varies, np.sum(c * c0, axis=0) / np.where(varies, denom, 1.0), 0.0)  # (S, 6)
+    beta[0] = np.where(varies[0], 1.0, 0.0)
     r = c - beta[None] * c0
     r[:, 0, :] = 0.0  # exactly (β(0) = 1 wherever the start varies)
-    return Variation(s=np.asarray(s, dtype=np.float64), residuals=r, dof=D - 2)
+    return mu, beta, r
+
+
+def demonstration_variation(trajs: list[Trajectory], steps: int = STEPS) -> Variation | None:
+    """The deviation process of clean demonstrations (module docstring), or None for fewer than
+    MIN_DEMOS of them."""
+    trajs = list(trajs)
+    D = len(trajs)
+    if D < MIN_DEMOS:
+        return None
+    path, delta = demonstration_deviations(trajs, steps)
+    _, _, r = start_regression(delta)
+    return Variation(s=np.asarray(path["s"], dtype=np.float64), residuals=r, dof=D - 2)

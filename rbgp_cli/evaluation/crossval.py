@@ -142,9 +142,10 @@ def velocity_errors(model, demos: list[Trajectory]) -> dict:
 
     rep = model.representation
     sums = {"dw2": 0.0, "dv2": 0.0, "w2": 0.0, "v2": 0.0, "pairs": 0}
-    states, quats, xis, scale = [], [], [], []
+    states, quats, xis, scale, devs = [], [], [], [], []
     for tr in demos:
         D = max(tr.duration, 1e-9)
+        dev = model.start_deviation(tr.quat[:1], tr.position[:1])  # its own start (a conditioned prior)
         for seg in estimate_velocities(tr, model.velocity):
             K = len(seg.xi)
             X = rep.state_along(seg.traj.quat, seg.traj.position)[:K]
@@ -157,10 +158,12 @@ def velocity_errors(model, demos: list[Trajectory]) -> dict:
             quats.append(seg.traj.quat[:K])
             xis.append(seg.xi)
             scale.append(np.full(K, D if model.time_input == "phase" else 1.0))
+            if dev is not None:
+                devs.append(np.repeat(dev, K, axis=0))
     if not states:
         return sums
     X, Q, XI = np.concatenate(states), np.concatenate(quats), np.concatenate(xis)
-    out = model.predict_output(X) / np.concatenate(scale)[:, None]  # per second
+    out = model.predict_output(X, start_dev=np.concatenate(devs) if devs else None) / np.concatenate(scale)[:, None]  # per second
     tw = rep.twist_from_output(X[:, : model.pose_dims], Q, out)
     sums["dw2"] = float(np.sum((tw[:, :3] - XI[:, :3]) ** 2))
     sums["dv2"] = float(np.sum((tw[:, 3:] - XI[:, 3:]) ** 2))

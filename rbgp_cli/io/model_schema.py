@@ -200,6 +200,7 @@ _PRIOR = nullable(obj({
     "kind": string(("goal", "path")),
     "gain": num(0.0, 1e6, what="a non-negative finite number (at most 1e6)"),
     "goal": list_of(num(), 7, 7),
+    "start": string(("mean", "conditioned")),
 }, ("kind", "gain")))  # fmt: skip
 
 _GP = obj({"type": string(("exact", "sparse")), "inducing": integer(1, 10**6)}, ("type",))
@@ -315,6 +316,8 @@ def _agree(h: dict) -> None:
             raise SchemaError(f"prior.kind = 'path' needs the phase as time input, not {time_input!r}")
         if prior["kind"] == "path" and "goal" in prior:
             raise SchemaError("unknown field 'prior.goal' (a path prior has no goal)")
+        if prior["kind"] == "goal" and "start" in prior:
+            raise SchemaError("unknown field 'prior.start' (a goal prior has no start conditioning)")
     gp = h.get("gp") or {"type": "exact"}
     if gp["type"] == "sparse" and "inducing" not in gp:
         raise SchemaError("gp.inducing is missing")
@@ -332,6 +335,8 @@ def expected_arrays(h: dict) -> set:
         req |= {"Z", "Lm", "LB", "c"}
     if (h.get("prior") or {}).get("kind") == "path":
         req |= {"prior_s", "prior_quat", "prior_position", "prior_velocity"}
+        if h["prior"].get("start") == "conditioned":
+            req |= {"prior_start_mean", "prior_start_beta"}
     if h.get("variation"):
         req |= {"variation_s", "variation_residuals"}
     return req
@@ -392,6 +397,10 @@ def validate_arrays(h: dict, arrays: dict) -> None:
         _shape(arrays, "prior_velocity", (S - 1, 6), f"({S - 1}, 6) (a row per step of array 'prior_s')")
         for name in ("prior_s", "prior_quat", "prior_position", "prior_velocity"):
             _finite(arrays, name)
+        for name in ("prior_start_mean", "prior_start_beta"):
+            if name in req:
+                _shape(arrays, name, (S, 6), f"({S}, 6) (a row per entry of array 'prior_s')")
+                _finite(arrays, name)
         if not np.all(np.diff(arrays["prior_s"]) > 0):
             raise SchemaError("array 'prior_s' is not increasing")
     if "variation_s" in req:

@@ -73,6 +73,8 @@ _SPARSE_ARRAYS = ("Z", "Lm", "LB", "c")
 _VARIATION_ARRAYS = ("variation_s", "variation_residuals")
 #: Arrays of the mean-path prior (present only when the model has one).
 _PRIOR_ARRAYS = {"prior_s": "s", "prior_quat": "quat", "prior_position": "position", "prior_velocity": "velocity"}
+#: Arrays of a start-conditioned mean-path prior (header ``prior.start == "conditioned"``).
+_START_ARRAYS = {"prior_start_mean": "start_mean", "prior_start_beta": "start_beta"}
 
 
 def array_sha256(a: np.ndarray) -> str:
@@ -129,6 +131,10 @@ def save_model(model, path) -> dict:
         else:
             for name, key in _PRIOR_ARRAYS.items():
                 arrays[name] = np.ascontiguousarray(mean[key], dtype=np.float64)
+            if "start_beta" in mean:  # the start-conditioned path (dynamics.model.PathReference)
+                prior["start"] = "conditioned"
+                for name, key in _START_ARRAYS.items():
+                    arrays[name] = np.ascontiguousarray(mean[key], dtype=np.float64)
     variation = getattr(model, "variation", None)
     if variation is not None:
         arrays.update(variation.to_arrays())
@@ -332,7 +338,7 @@ def read_header(path) -> tuple[dict, dict]:
             if raw.dtype != np.uint8 or raw.ndim != 1:
                 raise _bad(path, "the model header is damaged (not a byte string)")
             header, version = _check_header(path, _parse_header(path, raw.tobytes()))
-            known = (*_ARRAYS, *_PRIOR_ARRAYS, *_SPARSE_ARRAYS, *_VARIATION_ARRAYS)
+            known = (*_ARRAYS, *_PRIOR_ARRAYS, *_START_ARRAYS, *_SPARSE_ARRAYS, *_VARIATION_ARRAYS)
             infos = {k: _member_info(zf, path, k, disk) for k in known if k in names}
             total = sum(i.file_size for i in infos.values())
             if total > MAX_RATIO * disk + RATIO_SLACK:
@@ -470,8 +476,14 @@ def _model_extras(header: dict, arrays: dict, rep, X):
         if name not in arrays:
             raise ValueError(f"array {name!r} of the mean-path prior is missing")
         mean[key] = np.asarray(arrays[name], dtype=np.float64)
+    if prior.get("start") == "conditioned":
+        for name, key in _START_ARRAYS.items():
+            if name not in arrays:
+                raise ValueError(f"array {name!r} of the start-conditioned prior is missing")
+            mean[key] = np.asarray(arrays[name], dtype=np.float64)
     S = len(mean["s"])
     if (S < 2 or mean["quat"].shape != (S, 4) or mean["position"].shape != (S, 3)
+            or any(mean[key].shape != (S, 6) for key in _START_ARRAYS.values() if key in mean)
             or mean["velocity"].shape != (S - 1, 6) or not all(np.all(np.isfinite(a)) for a in mean.values() if isinstance(a, np.ndarray))
             or not np.all(np.diff(mean["s"]) > 0)):
         raise ValueError("the mean-path prior's arrays are inconsistent")
