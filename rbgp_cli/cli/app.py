@@ -67,7 +67,7 @@ def train(
     time_input: TimeInputOpt = _D["time_input"], prior: PriorOpt = _D["prior"], prior_gain: PriorGainOpt = _D["prior_gain"],
     train_rate: TrainRateOpt = _D["train_rate"], smooth_window: SmoothWindowOpt = _D["smooth_window"],
     smooth_degree: SmoothDegreeOpt = _D["smooth_degree"], inducing: InducingOpt = None,
-    hyper_points: HyperPointsOpt = None, calibrate_noise: CalibrateOpt = False,
+    hyper_points: HyperPointsOpt = None, calibrate_noise: CalibrateOpt = _D["calibrate"],
     start_conditioning: StartCondOpt = _D["start_conditioning"],
     jobs: Annotated[int, typer.Option(min=0, help="Worker processes for the per-output fits (BLAS single-threaded in each; the model does not depend on it); 0 = one per output, fewer if memory is short, 1 on a single core.", rich_help_panel=_TRAIN)] = 0,
     json_out: Annotated[bool, typer.Option("--json", help="Print the summary as JSON on stdout.", rich_help_panel=_OUT)] = False,
@@ -443,7 +443,7 @@ def crossval(
     time_input: TimeInputOpt = _D["time_input"], prior: PriorOpt = _D["prior"], prior_gain: PriorGainOpt = _D["prior_gain"],
     train_rate: TrainRateOpt = _D["train_rate"], smooth_window: SmoothWindowOpt = _D["smooth_window"],
     smooth_degree: SmoothDegreeOpt = _D["smooth_degree"], inducing: InducingOpt = None,
-    hyper_points: HyperPointsOpt = None, calibrate_noise: CalibrateOpt = False,
+    hyper_points: HyperPointsOpt = None, calibrate_noise: CalibrateOpt = _D["calibrate"],
     start_conditioning: StartCondOpt = _D["start_conditioning"],
     read: ReadArgs = None,
 ):

@@ -31,7 +31,7 @@ SubsampleOpt = Annotated[float, typer.Option("--subsample", help="Random fractio
 MaxPointsOpt = Annotated[int, typer.Option("--max-points", min=2, help="At most this many training points for the exact GP (a sparse GP uses all of them; see --inducing).", rich_help_panel=ModelPanel)]
 InducingOpt = Annotated[Optional[int], typer.Option("--inducing", min=0, help="A sparse GP (Titsias 2009) with this many inducing poses, on all training points; 0 forces the exact GP (on at most --max-points). Default: the exact GP, unless more than 3000 and more than --max-points points remain: then 512 inducing poses.", rich_help_panel=ModelPanel)]
 HyperPointsOpt = Annotated[Optional[int], typer.Option("--hyper-points", min=0, help="Sparse GP only: the bound that chooses the hyperparameters covers this many random training points (default 4 × the inducing poses, at least 2000; 0 = all of them, slower); the posterior always uses every point.", rich_help_panel=ModelPanel)]
-CalibrateOpt = Annotated[bool, typer.Option("--calibrate-noise", help="After the fit, scale the posterior's noise variance by the factor that predicts held-out demonstrations best (cross-validation by demonstration on a random 1000 points): the posterior then follows the shared motion rather than each training demonstration's own deviations. Lowers held-out velocity and trajectory errors, most at high rates (--train-rate 0), but rollouts vary less, which worsens the crossval score; needs two demonstrations.", rich_help_panel=ModelPanel)]
+CalibrateOpt = Annotated[bool, typer.Option("--calibrate-noise/--no-calibrate-noise", help="After the fit, scale the posterior's noise variance by the factor that predicts held-out demonstrations best (cross-validation by demonstration on a random 1000 points): the mean rollout then follows the shared motion rather than one training demonstration's own deviations, and the sampled rollouts (--samples) carry the variation between demonstrations. Lowers held-out trajectory errors and makes the bands honest, but the mean rollouts vary less from start to start, which raises their own crossval score; needs two demonstrations (skipped otherwise).", rich_help_panel=ModelPanel)]
 TimeInputOpt = Annotated[str, typer.Option("--time-input", help="What the GP sees besides the pose: none (the paper), seconds (since the demonstration's start) or phase (normalised time; outputs per unit phase, so a rollout of any duration traverses the motion once).", rich_help_panel=ModelPanel)]
 PriorOpt = Annotated[str, typer.Option("--prior", help="The GP's prior mean: none (zero, the paper), goal (a pull toward the demonstrations' mean final pose) or path (the demonstrations' mean path over phase: its velocity plus a pull toward it; needs --time-input phase). The GP models the residual.", rich_help_panel=ModelPanel)]
 PriorGainOpt = Annotated[float, typer.Option("--prior-gain", min=0.0, help="How strongly the prior pulls toward its pose: per unit phase (per second with --time-input seconds or none).", rich_help_panel=ModelPanel)]
@@ -64,7 +64,7 @@ def _choice(value: str, flag: str, choices: tuple) -> str | None:
 def train_kwargs(*, rho_rot: str, restarts: int, explore_size: int, seed: int, noise: str, share_hyperparameters: bool,
                  subsample: float, max_points: int, train_rate: float, smooth_window: float, smooth_degree: int,
                  time_input: str, prior: str, prior_gain: float, inducing: int | None = None,
-                 hyper_points: int | None = None, calibrate_noise: bool = False,
+                 hyper_points: int | None = None, calibrate_noise: bool = True,
                  start_conditioning: bool = False) -> dict:
     """Check the option values and build the keyword arguments of
     :func:`rbgp_cli.dynamics.model.train_model` (without representation and kernel)."""
@@ -85,7 +85,7 @@ def train_kwargs(*, rho_rot: str, restarts: int, explore_size: int, seed: int, n
         "velocity": VelocityOptions(rate=train_rate or None, window=smooth_window, degree=smooth_degree),
         "time_input": time_in, "prior": prior_v, "prior_gain": prior_gain, "inducing": inducing,
         **({"hyper_points": hyper_points} if hyper_points is not None else {}),
-        **({"calibrate": True} if calibrate_noise else {}),
+        "calibrate": bool(calibrate_noise),
         "start_conditioning": bool(start_conditioning),
     }
 

@@ -21,6 +21,9 @@ DEFAULTS = {
     "prior": "path",
     "prior_gain": 10.0,
     "start_conditioning": False,
+    # σn² of the posterior scaled by held-out demonstrations (gp/calibration.py): the mean rollout then
+    # follows the shared motion and the sampled rollouts carry the variation between demonstrations
+    "calibrate": True,
 }
 
 #: The kernel each representation trains with unless one is named (``kernel=None``).

@@ -516,7 +516,7 @@ def train_model(
     jobs: int | None = None,
     inducing: int | None = None,
     hyper_points: int | None = None,
-    calibrate: bool = False,
+    calibrate: bool = DEFAULTS["calibrate"],
     start_conditioning: bool = DEFAULTS["start_conditioning"],
 ) -> MotionModel:
     """Train a motion model on clean demonstrations (see :func:`rbgp_cli.dynamics.prepare.prepare_all`).

@@ -51,8 +51,10 @@ def test_train_calibrate_noise_scales_the_posterior_noise_and_the_model_file_say
     np.testing.assert_allclose(model.gp.predict(model.gp.X[:40]), again.predict(model.gp.X[:40]), atol=1e-8)
     res = run("info", path)
     assert res.exit_code == 0 and "by held-out demonstrations; fitted σn=" in res.stdout + res.stderr
-    # without the option: no calibration, the fitted σn
-    res = run("train", CSV_DIR, "-o", tmp_path / "plain.rbgp", *FAST, *extra, "--json")
+    # the default is calibrated (dynamics/defaults.py); --no-calibrate-noise: no calibration, the fitted σn
+    res = run("train", CSV_DIR, "-o", tmp_path / "default.rbgp", *FAST, *extra, "--json")
+    assert json.loads(res.stdout)["gp"]["calibration"] == cal
+    res = run("train", CSV_DIR, "-o", tmp_path / "plain.rbgp", *FAST, *extra, "--no-calibrate-noise", "--json")
     plain = json.loads(res.stdout)
     assert plain["gp"].get("calibration") is None and plain["outputs"][0]["calibration"] is None
 
