@@ -1,4 +1,4 @@
-"""Generic CSV / TSV reader and the trajectory CSV writer.
+"""Generic CSV / TSV reader (the writer of rbgp's trajectory CSV is :func:`rbgp_cli.io.export.write_trajectories_csv`).
 
 Columns are found by **name** (case-insensitive; separators ``_ . - space`` are equivalent), never by
 position or by guessing from values:
@@ -39,69 +39,18 @@ import numpy as np
 
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError, NotPoseData, closest
-from rbgp_cli.io.options import LENGTH_UNITS, ReadOptions
+from rbgp_cli.io.export import write_trajectories_csv  # the writer sits with the others
+from rbgp_cli.io.formats import Format
+from rbgp_cli.io.options import ReadOptions
+from rbgp_cli.io.vocabulary import (  # the words the columns are found by
+    CANONICAL_KEYS, DEMO_NAMES, DEMO_SUFFIXES, EULER_AXIS_PREFIXES, FRAME_NAMES, KEY_ROLE, KIND_ROLES,
+    LENGTH_UNITS, MISSING_TOKENS, NSEC_PARTNERS, NUMBERED_PREFIXES, POS_PREFIXES, QUAT_PREFIXES,
+    ROTATION_KINDS, ROTVEC_PREFIXES, ROT_AMBIGUOUS, RPY, TIME_IMPLIED_UNIT, TIME_NAMES, TIME_UNITS,
+    UNIT_TOKENS,
+)
 
 __all__ = ["read", "read_bytes", "read_text", "describe", "sniff_pose_columns", "write_trajectories_csv",
-           "CANONICAL_KEYS"]
-
-#: Keys accepted by ``ReadOptions.columns`` (``--columns KEY=NAME``).
-CANONICAL_KEYS = (
-    "t", "x", "y", "z", "qx", "qy", "qz", "qw", "q0", "q1", "q2", "q3",
-    "rx", "ry", "rz", "roll", "pitch", "yaw", "frame", "demo",
-)  # fmt: skip
-
-#: seconds per unit
-TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
-
-_UNIT_TOKENS = {
-    # length
-    "m": ("length", "m"), "meter": ("length", "m"), "meters": ("length", "m"), "metre": ("length", "m"),
-    "metres": ("length", "m"), "mm": ("length", "mm"), "millimeter": ("length", "mm"),
-    "millimeters": ("length", "mm"), "millimetre": ("length", "mm"), "millimetres": ("length", "mm"),
-    "cm": ("length", "cm"), "centimeter": ("length", "cm"), "centimeters": ("length", "cm"),
-    "centimetre": ("length", "cm"), "centimetres": ("length", "cm"),
-    # time
-    "s": ("time", "s"), "sec": ("time", "s"), "secs": ("time", "s"), "second": ("time", "s"),
-    "seconds": ("time", "s"), "ms": ("time", "ms"), "msec": ("time", "ms"), "millisecond": ("time", "ms"),
-    "milliseconds": ("time", "ms"), "us": ("time", "us"), "µs": ("time", "us"), "usec": ("time", "us"),
-    "microsecond": ("time", "us"), "microseconds": ("time", "us"), "ns": ("time", "ns"),
-    "nsec": ("time", "ns"), "nanosec": ("time", "ns"), "nanosecond": ("time", "ns"),
-    "nanoseconds": ("time", "ns"),
-    # angle
-    "deg": ("angle", "deg"), "degree": ("angle", "deg"), "degrees": ("angle", "deg"),
-    "rad": ("angle", "rad"), "radian": ("angle", "rad"), "radians": ("angle", "rad"),
-}  # fmt: skip
-
-# Names (after normalisation and unit extraction) and what they are. Rank 0: exact; rank 1: found as
-# a qualified suffix of a longer name (``pose_position_x``); lower rank wins.
-_TIME_NAMES = {"t", "time", "times", "timestamp", "timestamps", "time_stamp", "stamp", "elapsed",
-               "elapsed_time", "time_elapsed"}  # fmt: skip
-_TIME_IMPLIED_UNIT = {"sec": "s", "secs": "s", "seconds": "s"}
-_NSEC_PARTNERS = ("nanosec", "nsec", "nsecs", "nanoseconds")
-_FRAME_NAMES = {"frame", "frames", "frame_number", "frame_no", "frame_num", "frame_index", "frame_idx"}
-_DEMO_NAMES = {"demo", "demonstration", "trial", "trajectory", "traj", "episode", "sequence"}
-_DEMO_SUFFIXES = ("", "_id", "_name", "_index", "_idx", "_no", "_number", "_num")
-_POS_PREFIXES = {"", "p", "pos", "position", "t", "tr", "trans", "translation", "loc", "location", "xyz"}
-_QUAT_PREFIXES = {"q", "quat", "quaternion", "orientation", "ori", "orient", "qu", "quat_"}
-# prefixes whose x, y, z are a quaternion's when a w exists, else the "other" kind
-_ROT_AMBIGUOUS = {"rot": "euler_axis", "rotation": "euler_axis", "r": "rotvec"}
-_ROTVEC_PREFIXES = {"rv", "rotvec", "rot_vec", "rotation_vector", "axis_angle", "axisangle", "aa"}
-_EULER_AXIS_PREFIXES = {"euler", "eul", "euler_angle", "euler_angles", "angle", "ang", "angles"}
-_RPY = {"roll": "x", "pitch": "y", "yaw": "z"}
-_NUMBERED_PREFIXES = {"q", "quat", "quaternion", "orientation", "rot", "r"}
-
-_ROTATION_KINDS = ("quaternion", "numbered", "rotvec", "euler_axis", "rpy")
-_KIND_ROLES = {
-    "quaternion": ("qx", "qy", "qz", "qw"),
-    "numbered": ("qn0", "qn1", "qn2", "qn3"),
-    "rotvec": ("rx", "ry", "rz"),
-    "euler_axis": ("ex", "ey", "ez"),
-    "rpy": ("roll", "pitch", "yaw"),
-}
-# canonical option key -> internal role
-_KEY_ROLE = {"q0": "qn0", "q1": "qn1", "q2": "qn2", "q3": "qn3"}
-
-_NA_TOKENS = {"", "nan", "-nan", "null", "none", "na", "n/a", "<na>", "#n/a", "#na"}
+           "CANONICAL_KEYS", "FORMAT"]
 
 #: Tables at least this large are parsed straight from the file (or bytes): only the columns that are
 #: needed, as float64, never as one big decoded string (peak memory about the arrays read instead of
@@ -135,17 +84,17 @@ def _normalise_name(name: str) -> tuple[str, str | None, str | None]:
     s = name.strip().strip("\"'").strip().lower()
     unit = None
     m = re.fullmatch(r"(.*?)\s*[\[\(\{]\s*([^\]\)\}]*?)\s*[\]\)\}]\s*", s)
-    if m and m.group(1) and m.group(2) in _UNIT_TOKENS:
+    if m and m.group(1) and m.group(2) in UNIT_TOKENS:
         s, unit = m.group(1), m.group(2)
     base = re.sub(r"[\s.\-/:\[\]\(\)\{\}]+", "_", s)
     base = re.sub(r"[^0-9a-zµ_]", "", base).strip("_")
     if unit is None:
         parts = base.split("_")
-        if len(parts) > 1 and parts[-1] in _UNIT_TOKENS:
+        if len(parts) > 1 and parts[-1] in UNIT_TOKENS:
             unit, base = parts[-1], "_".join(parts[:-1])
     if unit is None:
         return base, None, None
-    kind, unit = _UNIT_TOKENS[unit]
+    kind, unit = UNIT_TOKENS[unit]
     return base, kind, unit
 
 
@@ -172,48 +121,48 @@ def _classify(index: int, name: str) -> _Column:
         return None
 
     # time
-    if base in _TIME_NAMES:
+    if base in TIME_NAMES:
         roles.append(("t", 0))
-    elif base in _TIME_IMPLIED_UNIT:
+    elif base in TIME_IMPLIED_UNIT:
         roles.append(("t", 0))
         if unit is None:
-            col.unit_kind, col.unit = "time", _TIME_IMPLIED_UNIT[base]
+            col.unit_kind, col.unit = "time", TIME_IMPLIED_UNIT[base]
     elif re.fullmatch(r".+_(time|timestamp|stamp)", base):
         roles.append(("t", 1))
-    if base in _FRAME_NAMES:
+    if base in FRAME_NAMES:
         roles.append(("frame", 0))
-    for suffix in _DEMO_SUFFIXES:
+    for suffix in DEMO_SUFFIXES:
         if suffix and not base.endswith(suffix):
             continue
         stem = base[: len(base) - len(suffix)] if suffix else base
-        if stem in _DEMO_NAMES:
+        if stem in DEMO_NAMES:
             roles.append(("demo", 0))
             break
-    if base in _RPY:
+    if base in RPY:
         roles.append((base, 0))
     m = re.fullmatch(r"(.*?)_?([0-4])", base)
     if m:
-        rank = tail_match(m.group(1), _NUMBERED_PREFIXES)
+        rank = tail_match(m.group(1), NUMBERED_PREFIXES)
         if rank is not None:
             roles.append((f"qn{m.group(2)}", rank))
     m = re.fullmatch(r"(.*?)_?([xyzw])", base)
-    if m and base not in _RPY:
+    if m and base not in RPY:
         prefix, comp = m.group(1), m.group(2)
         for cand, rank in _prefix_candidates(prefix):
             if rank and not cand:
                 continue
             found = False
-            if comp != "w" and cand in _POS_PREFIXES:
+            if comp != "w" and cand in POS_PREFIXES:
                 roles.append((comp, rank))
                 found = True
-            if cand in _QUAT_PREFIXES or cand in _ROT_AMBIGUOUS:
+            if cand in QUAT_PREFIXES or cand in ROT_AMBIGUOUS:
                 roles.append((f"q{comp}", rank))
                 found = True
             if comp != "w":
-                if cand in _ROTVEC_PREFIXES or _ROT_AMBIGUOUS.get(cand) == "rotvec":
+                if cand in ROTVEC_PREFIXES or ROT_AMBIGUOUS.get(cand) == "rotvec":
                     roles.append((f"r{comp}", rank))
                     found = True
-                if cand in _EULER_AXIS_PREFIXES or _ROT_AMBIGUOUS.get(cand) == "euler_axis":
+                if cand in EULER_AXIS_PREFIXES or ROT_AMBIGUOUS.get(cand) == "euler_axis":
                     roles.append((f"e{comp}", rank))
                     found = True
             if found:
@@ -365,7 +314,7 @@ def _parse_table(text: str, source: str) -> _Table:
 @dataclass
 class _Plan:
     roles: dict  # role -> _Column
-    rotation: str  # one of _ROTATION_KINDS
+    rotation: str  # one of ROTATION_KINDS
     columns: list  # all classified columns
 
 
@@ -407,7 +356,7 @@ def _best(cols: list, role: str, used: set, source: str):
         raise InputError(
             f"several columns could be '{key}': " + ", ".join(repr(c.name) for c in best),
             path=source,
-            hint=f"choose one with --columns {key if key in CANONICAL_KEYS else 'KEY'}=NAME",
+            hint=f"choose one with --columns {key if key in CANONICAL_KEYS else 'KEY'}=NAME", param="columns"
         )
     return best[0] if best else None
 
@@ -447,7 +396,7 @@ def _plan(cols: list, options: ReadOptions, source: str) -> _Plan:
             guess = closest(k, CANONICAL_KEYS)
             raise InputError(
                 f"unknown --columns key {key!r}; keys are {', '.join(CANONICAL_KEYS)}"
-                + (f"; did you mean {guess!r}?" if guess else "")
+                + (f"; did you mean {guess!r}?" if guess else ""), param="columns"
             )
         col = by_name.get(fname) or by_lower.get(str(fname).strip().lower())
         if col is None:
@@ -456,31 +405,31 @@ def _plan(cols: list, options: ReadOptions, source: str) -> _Plan:
                 f"--columns {k}={fname}: the file has no column {fname!r}; columns are {_columns_list(cols)}"
                 + (f"; did you mean {guess!r}?" if guess else ""),
                 path=source,
-                reason=f"no column {fname!r}",
+                reason=f"no column {fname!r}", param="columns"
             )
-        roles[_KEY_ROLE.get(k, k)] = col
+        roles[KEY_ROLE.get(k, k)] = col
     explicit = set(roles)
 
     def used() -> set:
         return {c.index for c in roles.values()}
 
     # rotation kind: explicit keys decide, else the first complete family
-    kind = next((k for k in _ROTATION_KINDS if explicit & set(_KIND_ROLES[k])), None)
+    kind = next((k for k in ROTATION_KINDS if explicit & set(KIND_ROLES[k])), None)
     if kind is None:
-        for k in _ROTATION_KINDS:
-            if all(r in roles or _candidates(cols, r, used()) for r in _KIND_ROLES[k]):
+        for k in ROTATION_KINDS:
+            if all(r in roles or _candidates(cols, r, used()) for r in KIND_ROLES[k]):
                 kind = k
                 break
     if kind is None:
         # name the missing column of the most complete partial family, else say what is expected
         partial = None
         for k in ("quaternion", "numbered", "rpy"):
-            have = [r for r in _KIND_ROLES[k] if _candidates(cols, r, used())]
+            have = [r for r in KIND_ROLES[k] if _candidates(cols, r, used())]
             if len(have) >= 2 and (partial is None or len(have) > len(partial[1])):
                 partial = (k, have)
         if partial:
             k, have = partial
-            missing = next(r for r in _KIND_ROLES[k] if r not in have)
+            missing = next(r for r in KIND_ROLES[k] if r not in have)
             raise _missing_error(_role_key(missing), "rotation", cols, used(), source)
         if len(cols) == 1 and re.search(r"[^\w\s\[\]()]", cols[0].name):
             # one "column" full of punctuation: the delimiter is none of those the sniffer knows
@@ -496,15 +445,15 @@ def _plan(cols: list, options: ReadOptions, source: str) -> _Plan:
             path=source,
             hint="expected quaternion columns qx,qy,qz,qw (any order), a rotation vector rx,ry,rz, or "
             "Euler angles roll,pitch,yaw; map other names with --columns qx=NAME,...",
-            reason="no pose columns",
+            reason="no pose columns", param="columns"
         )
     no_position = not any(r in roles or _candidates(cols, r, used()) for r in ("x", "y", "z"))
-    for r in _KIND_ROLES[kind] + ("x", "y", "z"):
+    for r in KIND_ROLES[kind] + ("x", "y", "z"):
         if r in roles:
             continue
         c = _best(cols, r, used(), source)
         if c is None:
-            err = _missing_error(_role_key(r), "rotation" if r in _KIND_ROLES[kind] else "position", cols,
+            err = _missing_error(_role_key(r), "rotation" if r in KIND_ROLES[kind] else "position", cols,
                                  used(), source)  # fmt: skip
             if no_position and r in ("x", "y", "z"):  # rotations only (an IMU log): not poses
                 raise NotPoseData(err.message, path=source, hint=err.hint, reason="no position columns")
@@ -518,7 +467,7 @@ def _plan(cols: list, options: ReadOptions, source: str) -> _Plan:
                 raise InputError(
                     "several columns could be the time: " + ", ".join(repr(x.name) for x in cands),
                     path=source,
-                    hint="choose one with --columns t=NAME",
+                    hint="choose one with --columns t=NAME", param="columns"
                 )
             roles["t"], roles["t_nsec"] = pair
         elif cands:
@@ -538,7 +487,7 @@ def _plan(cols: list, options: ReadOptions, source: str) -> _Plan:
             raise InputError(
                 f"column {c.name!r} is used both as '{_role_key(seen[c.index])}' and as '{_role_key(r)}'",
                 path=source,
-                hint="fix the mapping with --columns",
+                hint="fix the mapping with --columns", param="columns"
             )
         seen[c.index] = r
     return _Plan(roles=roles, rotation=kind, columns=cols)
@@ -559,7 +508,7 @@ def _nsec_partner(tcol: _Column, cols: list):
     if tcol.base not in ("sec", "secs"):
         return None
     for c in cols:
-        if c is not tcol and c.unit is None and c.base in _NSEC_PARTNERS:
+        if c is not tcol and c.unit is None and c.base in NSEC_PARTNERS:
             return c
     return None
 
@@ -664,7 +613,7 @@ def _columns(df, table: _Table, plan: _Plan) -> dict:
         if bad.any():
             idx = np.flatnonzero(bad)
             lowered = [str(text.iloc[k]).strip().lower() for k in idx]
-            real = [k for k, s in zip(idx, lowered) if s not in _NA_TOKENS]
+            real = [k for k, s in zip(idx, lowered) if s not in MISSING_TOKENS]
             if real:
                 k = int(real[0])
                 if _repeats_header(df, table, k):
@@ -725,7 +674,7 @@ def _length_unit(plan: _Plan, table: _Table, options: ReadOptions, position: np.
         raise InputError(
             f"the position columns disagree on units ({', '.join(sorted(units))})",
             path=table.source,
-            hint="pass --length-unit to override",
+            hint="pass --length-unit to override", param="length_unit"
         )
     if units:
         return units.pop(), "column name"
@@ -741,7 +690,7 @@ def _length_unit(plan: _Plan, table: _Table, options: ReadOptions, position: np.
                 f"positions ({names}) have no unit and their median distance from the origin is "
                 f"{med:.4g}, which looks like millimetres, not metres",
                 path=table.source,
-                hint="pass --length-unit mm (or cm, or m if they really are metres)",
+                hint="pass --length-unit mm (or cm, or m if they really are metres)", param="length_unit"
             )
     return "m", "assumed"
 
@@ -758,7 +707,7 @@ def _time_unit(plan: _Plan, table: _Table, options: ReadOptions, t: np.ndarray, 
         raise InputError(
             f"time column {col.name!r} has a {col.unit_kind} unit ({col.unit})",
             path=table.source,
-            hint="pass --time-unit s|ms|us|ns",
+            hint="pass --time-unit s|ms|us|ns", param="time_unit"
         )
     if table.declared.get("time_unit") in TIME_UNITS:
         return table.declared["time_unit"], "file comment"
@@ -798,13 +747,14 @@ def _time_unit(plan: _Plan, table: _Table, options: ReadOptions, t: np.ndarray, 
 
 
 def _angles_in_degrees(plan: _Plan, kind: str, options: ReadOptions, source: str) -> bool:
-    cols = [plan.roles[r] for r in _KIND_ROLES[kind]]
+    cols = [plan.roles[r] for r in KIND_ROLES[kind]]
     units = {c.unit for c in cols if c.unit_kind == "angle"}
     if options.degrees is not None:
         return bool(options.degrees)
     if len(units) > 1:
         raise InputError(
-            "the angle columns disagree on units (deg and rad)", path=source, hint="pass --degrees or --radians"
+            "the angle columns disagree on units (deg and rad)", path=source, hint="pass --degrees or --radians",
+            param="degrees",
         )
     if units:
         return units.pop() == "deg"
@@ -814,7 +764,7 @@ def _angles_in_degrees(plan: _Plan, kind: str, options: ReadOptions, source: str
     raise InputError(
         f"Euler angles ({names}) do not say whether they are degrees or radians",
         path=source,
-        hint="pass --degrees or --radians (or name the columns e.g. roll_deg)",
+        hint="pass --degrees or --radians (or name the columns e.g. roll_deg)", param="degrees"
     )
 
 
@@ -836,16 +786,16 @@ def _rotation(plan: _Plan, data: dict, options: ReadOptions, source: str):
             return q, f"quaternion {chosen} (--quat-order, over columns labelled {order})"
         return q, f"quaternion {order}" + (" (--quat-order)" if chosen == order else "")
     if kind == "numbered":
-        names = ", ".join(plan.roles[r].name for r in _KIND_ROLES[kind])
+        names = ", ".join(plan.roles[r].name for r in KIND_ROLES[kind])
         order = (options.quat_order or "").lower()
         if order not in ("xyzw", "wxyz"):
             raise InputError(
                 f"quaternion columns {names} are numbered, so their order (scalar first or last) is unknown"
                 + (f" (--quat-order {options.quat_order!r} is not xyzw or wxyz)" if options.quat_order else ""),
                 path=source,
-                hint="pass --quat-order xyzw (w last) or --quat-order wxyz (w first)",
+                hint="pass --quat-order xyzw (w last) or --quat-order wxyz (w first)", param="quat_order"
             )
-        raw = np.stack([data[r] for r in _KIND_ROLES[kind]], axis=-1)
+        raw = np.stack([data[r] for r in KIND_ROLES[kind]], axis=-1)
         q = raw if order == "xyzw" else raw[:, [1, 2, 3, 0]]
         return q, f"quaternion {order} (--quat-order)"
     from scipy.spatial.transform import Rotation
@@ -864,11 +814,11 @@ def _rotation(plan: _Plan, data: dict, options: ReadOptions, source: str):
                 raise InputError(
                     f"rotation vectors have median length {np.median(norms):.4g}, more than 2π radians",
                     path=source,
-                    hint="if they are in degrees pass --degrees",
+                    hint="if they are in degrees pass --degrees", param="degrees"
                 )
             q[ok] = Rotation.from_rotvec(rv[ok]).as_quat()
         return q, "rotation vector (deg)" if deg else "rotation vector (rad)"
-    roles = _KIND_ROLES[kind]
+    roles = KIND_ROLES[kind]
     axis_of = dict(zip(roles, "xyz"))
     names = ", ".join(plan.roles[r].name for r in roles)
     seq = options.euler_order
@@ -877,13 +827,13 @@ def _rotation(plan: _Plan, data: dict, options: ReadOptions, source: str):
             f"Euler angles ({names}) need their rotation order",
             path=source,
             hint="pass --euler-order, scipy's convention: lowercase extrinsic (e.g. xyz), uppercase "
-            "intrinsic (e.g. ZYX)",
+            "intrinsic (e.g. ZYX)", param="euler_order"
         )
     if not re.fullmatch(r"[xyz]{3}|[XYZ]{3}", seq) or len(set(seq.lower())) != 3:
         raise InputError(
             f"--euler-order {seq!r}: the columns name the axis of each angle, so the order must use each of "
             "x, y, z once, all lowercase (extrinsic) or all uppercase (intrinsic)",
-            path=source,
+            path=source, param="euler_order"
         )
     deg = _angles_in_degrees(plan, kind, options, source)
     by_axis = {axis_of[r]: data[r] for r in roles}
@@ -1133,11 +1083,11 @@ def _trajectories(table: _Table, cols: list, plan: _Plan, data, options: ReadOpt
                 + (" or --columns t=NAME" if tcands else "")
                 + f" (columns are {_columns_list(cols)})",
                 path=source,
-                hint=f"did you mean {tcands[0]!r}? pass --columns t={tcands[0]}" if tcands else None,
+                hint=f"did you mean {tcands[0]!r}? pass --columns t={tcands[0]}" if tcands else None, param="rate"
             )
         rate = float(options.rate)
         if not np.isfinite(rate) or rate <= 0:
-            raise InputError(f"--rate must be a positive number of Hz, got {options.rate!r}")
+            raise InputError(f"--rate must be a positive number of Hz, got {options.rate!r}", param="rate")
         t = np.empty(n)
         if "frame" in plan.roles:
             t = data["frame"] / rate
@@ -1320,82 +1270,27 @@ def sniff_pose_columns(head: bytes, source: str, options: ReadOptions | None = N
     return None
 
 
-# --------------------------------------------------------------------------------------------------
-# writing
+def describe_rows(desc: dict) -> list[str]:
+    """The text rows of ``rbgp inspect`` for :func:`describe`'s result."""
+    from rbgp_cli.io.inspect import text_row as _row, plural as _plural, DELIMITER_NAMES as _DELIMITERS
 
-WRITE_COLUMNS = ("trajectory", "t", "x", "y", "z", "qx", "qy", "qz", "qw")
-
-
-def _extra_columns(extra, trajectories) -> list[tuple[str, np.ndarray]]:
-    lengths = [len(tr) for tr in trajectories]
-    total = sum(lengths)
-    out = []
-    for name, value in (extra or {}).items():
-        if isinstance(value, (list, tuple)) and len(value) == len(trajectories) and all(
-            np.ndim(v) >= 1 and len(v) == n for v, n in zip(value, lengths)
-        ):
-            arr = np.concatenate([np.asarray(v, dtype=np.float64).reshape(len(v), -1) for v in value], axis=0)
-        else:
-            arr = np.asarray(value, dtype=np.float64)
-            arr = arr.reshape(len(arr), -1) if arr.ndim else arr.reshape(1, 1)
-        if arr.shape[0] != total:
-            raise ValueError(f"extra column {name!r} has {arr.shape[0]} rows, the trajectories have {total}")
-        if arr.shape[1] == 1:
-            out.append((str(name), arr[:, 0]))
-        else:
-            out.extend((f"{name}_{j}", arr[:, j]) for j in range(arr.shape[1]))
-    return out
+    lines = [_row("table", f"{_DELIMITERS.get(desc.get('delimiter'), desc.get('delimiter'))}-separated, "
+                           f"header on line {desc.get('header_line')}, {_plural(desc.get('data_rows') or 0, 'data row')}")]
+    if desc.get("declared"):
+        lines.append(_row("declared", ", ".join(f"{k} {v}" for k, v in desc["declared"].items())))
+    lines.append("  columns:")
+    for c in desc.get("columns", []):
+        taken = c.get("taken_as") or "(ignored)"
+        unit = f" [{c['unit']}]" if c.get("unit") else ""
+        lines.append(f"    {c['name']!s:<24} -> {taken}{unit}")
+    return lines
 
 
-def _write(trajectories, fh, extra) -> None:
-    import csv as _csv
-
-    extras = _extra_columns(extra, trajectories)
-    fh.write("# rbgp trajectories: time_unit=s length_unit=m quaternion=xyzw\n")
-    w = _csv.writer(fh, lineterminator="\n")
-    w.writerow(list(WRITE_COLUMNS) + [n for n, _ in extras])
-    offset = 0
-    fmt = float.__repr__
-    used: set = set()
-    for k, tr in enumerate(trajectories):
-        label = (tr.name or "").strip() or str(k)
-        if label in used:  # the column splits the trajectories again, so names must be unique
-            label = f"{label}#{k}"
-        used.add(label)
-        # always quoted, so that a name starting with '#' is not read back as a comment
-        name = '"' + label.replace('"', '""') + '"'
-        block = np.concatenate([tr.t[:, None], tr.position, tr.quat], axis=1)
-        n = len(tr)
-        if extras:
-            block = np.concatenate([block, np.stack([a[offset : offset + n] for _, a in extras], axis=1)], axis=1)
-        fh.writelines(name + "," + ",".join(map(fmt, row)) + "\n" for row in block.tolist())
-        offset += n
+def _skip_reason(head: bytes, path, options: ReadOptions | None = None, complete: bool = False) -> str | None:
+    return sniff_pose_columns(head, path, options, complete=complete)
 
 
-def write_trajectories_csv(trajectories, stream_or_path, extra: dict | None = None) -> None:
-    """Write trajectories as ``trajectory,t,x,y,z,qx,qy,qz,qw[,extra...]``.
-
-    Floats are written with ``repr`` (shortest text that reads back to the same float64), so
-    :func:`read` returns identical arrays; the ``trajectory`` column holds each trajectory's name (its
-    index when empty; a repeated name gets ``#<index>`` appended) and splits them again on reading. A first comment line states the units
-    (``time_unit=s length_unit=m quaternion=xyzw``), which the reader honours.
-
-    Parameters
-    ----------
-    trajectories : sequence of Trajectory
-        Seconds, metres, quaternions x, y, z, w.
-    stream_or_path : text stream, str or Path
-        A path is written atomically (whole file or nothing).
-    extra : dict of name -> array, optional
-        Extra columns, each a 1-D array with one value per written row (all trajectories one after
-        the other), a (rows, k) array (written as ``name_0..name_{k-1}``) or a list of per-trajectory
-        arrays; e.g. ``{"std_wx": ..., ..., "std_vz": ...}``.
-    """
-    trajectories = list(trajectories)
-    if isinstance(stream_or_path, (str, os.PathLike)):
-        from rbgp_cli.io.atomic import atomic_open
-
-        with atomic_open(stream_or_path, "w", newline="", encoding="utf-8") as fh:
-            _write(trajectories, fh, extra)
-    else:
-        _write(trajectories, stream_or_path, extra)
+FORMAT = Format(
+    name="csv", title="generic CSV", read=read, read_bytes=read_bytes, describe=describe, describe_rows=describe_rows,
+    skip_reason=_skip_reason, write=write_trajectories_csv, fallback=True,
+)
