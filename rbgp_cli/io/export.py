@@ -370,9 +370,9 @@ def write_trajectories_csv(trajectories, stream_or_path, extra: dict | None = No
 
     Floats are written with ``repr`` (shortest text that reads back to the same float64), so
     :func:`rbgp_cli.io.csv.read` returns identical arrays; the ``trajectory`` column holds each
-    trajectory's name (its index when empty; a repeated name gets ``#<index>`` appended) and splits them again on reading. A
-    first comment line states the units (``time_unit=s length_unit=m quaternion=xyzw``), which the
-    reader honours.
+    trajectory's name (its index when empty; a repeated name gets ``#<index>`` appended) and splits
+    them again on reading. A first comment line states the units (``time_unit=s length_unit=m
+    quaternion=xyzw``), which the reader honours.
 
     Parameters
     ----------
