@@ -247,7 +247,13 @@ def write_text_output(path: Optional[str], writer) -> None:
 # Read options: one Annotated alias per flag, so every command that reads demonstrations spells them
 # the same way.
 _READ = READ_PANEL = "Reading demonstrations"
-FormatOpt = Annotated[str, typer.Option("--format", help="auto|csv|qtm|motive|vicon|mcap (auto sniffs the content).", rich_help_panel=_READ)]
+def _format_help() -> str:
+    from rbgp_cli.io.formats import help_text  # the registry lists the formats (no reader is imported)
+
+    return help_text()
+
+
+FormatOpt = Annotated[str, typer.Option("--format", help=_format_help(), rich_help_panel=_READ)]
 ColumnsOpt = Annotated[Optional[str], typer.Option("--columns", help="Explicit CSV column mapping, e.g. 't=stamp,qw=w,x=px'.", rich_help_panel=_READ)]
 QuatOrderOpt = Annotated[Optional[str], typer.Option("--quat-order", help="xyzw or wxyz: the order of quaternion columns named q0..q3; for columns named qx..qw it overrides the names (the four columns in file order).", rich_help_panel=_READ)]
 EulerOrderOpt = Annotated[Optional[str], typer.Option("--euler-order", help="Euler sequence, scipy style: xyz extrinsic, XYZ intrinsic.", rich_help_panel=_READ)]
@@ -290,10 +296,11 @@ def read_options(fmt="auto", columns=None, quat_order=None, euler_order=None, de
                  *, split_gap=None, crop_from=None, crop_to=None, split_at_rest=False, rest_speed=None, rest_time=None):
     """Validate the flags and build :class:`rbgp_cli.io.options.ReadOptions`."""
     from rbgp_cli.errors import InputError
-    from rbgp_cli.io.options import FORMATS, LENGTH_UNITS, ReadOptions
+    from rbgp_cli.io.formats import choices
+    from rbgp_cli.io.options import LENGTH_UNITS, ReadOptions
 
-    if fmt not in FORMATS:
-        raise InputError(f"unknown --format {fmt!r}; expected one of {', '.join(FORMATS)}")
+    if fmt not in choices():
+        raise InputError(f"unknown --format {fmt!r}; expected one of {', '.join(choices())}")
     if quat_order is not None and quat_order.lower() not in ("xyzw", "wxyz"):
         raise InputError(f"--quat-order must be xyzw or wxyz, got {quat_order!r}")
     if length_unit is not None and length_unit not in LENGTH_UNITS:

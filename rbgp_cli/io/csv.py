@@ -1,4 +1,8 @@
-"""Generic CSV / TSV reader and the trajectory CSV writer.
+"""Generic CSV / TSV reader: the numbers, the rotation, the trajectories, ``describe`` and the fast path
+for large files. Its parts: the table text (:mod:`rbgp_cli.io.csv_table`), which column is what
+(:mod:`rbgp_cli.io.csv_columns`, with the vocabulary of :mod:`rbgp_cli.io.vocabulary`), units
+(:mod:`rbgp_cli.io.csv_units`); the writer of rbgp's trajectory CSV is
+:func:`rbgp_cli.io.export.write_trajectories_csv`.
 
 Columns are found by **name** (case-insensitive; separators ``_ . - space`` are equivalent), never by
 position or by guessing from values:
@@ -24,7 +28,8 @@ sampling interval is implausible (median dt > 5 s or < 1e-5 s → :class:`InputE
 ``--time-unit`` that makes it plausible).
 
 Readers return *raw* trajectories (SI units, quaternions x, y, z, w): empty / NaN / ``null`` cells are
-lost frames kept as NaN rows for :func:`rbgp_cli.dynamics.prepare.prepare_trajectory`.
+lost frames kept as NaN rows for :func:`rbgp_cli.dynamics.prepare.prepare_trajectory`; the cells that
+mean "no value" are :data:`rbgp_cli.io.vocabulary.MISSING_TOKENS`, as in every reader.
 """
 
 from __future__ import annotations
@@ -32,76 +37,23 @@ from __future__ import annotations
 import io
 import os
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from rbgp_cli.dynamics.trajectory import Trajectory
-from rbgp_cli.errors import InputError, NotPoseData, closest
-from rbgp_cli.io.options import LENGTH_UNITS, ReadOptions
+from rbgp_cli.errors import InputError, closest
+from rbgp_cli.io.csv_columns import Plan, classify, columns_list, plan_columns, role_key, sniff_pose_columns
+from rbgp_cli.io.csv_table import Table, decode, parse_table, split_fields
+from rbgp_cli.io.csv_units import angles_in_degrees, infer_length_unit, infer_time_unit
+from rbgp_cli.io.export import write_trajectories_csv  # the writer sits with the others
+from rbgp_cli.io.formats import Format
+from rbgp_cli.io.options import ReadOptions
+from rbgp_cli.io.vocabulary import CANONICAL_KEYS, KIND_ROLES, LENGTH_UNITS, MISSING_TOKENS, TIME_UNITS
 
 __all__ = ["read", "read_bytes", "read_text", "describe", "sniff_pose_columns", "write_trajectories_csv",
-           "CANONICAL_KEYS"]
-
-#: Keys accepted by ``ReadOptions.columns`` (``--columns KEY=NAME``).
-CANONICAL_KEYS = (
-    "t", "x", "y", "z", "qx", "qy", "qz", "qw", "q0", "q1", "q2", "q3",
-    "rx", "ry", "rz", "roll", "pitch", "yaw", "frame", "demo",
-)  # fmt: skip
-
-#: seconds per unit
-TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
-
-_UNIT_TOKENS = {
-    # length
-    "m": ("length", "m"), "meter": ("length", "m"), "meters": ("length", "m"), "metre": ("length", "m"),
-    "metres": ("length", "m"), "mm": ("length", "mm"), "millimeter": ("length", "mm"),
-    "millimeters": ("length", "mm"), "millimetre": ("length", "mm"), "millimetres": ("length", "mm"),
-    "cm": ("length", "cm"), "centimeter": ("length", "cm"), "centimeters": ("length", "cm"),
-    "centimetre": ("length", "cm"), "centimetres": ("length", "cm"),
-    # time
-    "s": ("time", "s"), "sec": ("time", "s"), "secs": ("time", "s"), "second": ("time", "s"),
-    "seconds": ("time", "s"), "ms": ("time", "ms"), "msec": ("time", "ms"), "millisecond": ("time", "ms"),
-    "milliseconds": ("time", "ms"), "us": ("time", "us"), "µs": ("time", "us"), "usec": ("time", "us"),
-    "microsecond": ("time", "us"), "microseconds": ("time", "us"), "ns": ("time", "ns"),
-    "nsec": ("time", "ns"), "nanosec": ("time", "ns"), "nanosecond": ("time", "ns"),
-    "nanoseconds": ("time", "ns"),
-    # angle
-    "deg": ("angle", "deg"), "degree": ("angle", "deg"), "degrees": ("angle", "deg"),
-    "rad": ("angle", "rad"), "radian": ("angle", "rad"), "radians": ("angle", "rad"),
-}  # fmt: skip
-
-# Names (after normalisation and unit extraction) and what they are. Rank 0: exact; rank 1: found as
-# a qualified suffix of a longer name (``pose_position_x``); lower rank wins.
-_TIME_NAMES = {"t", "time", "times", "timestamp", "timestamps", "time_stamp", "stamp", "elapsed",
-               "elapsed_time", "time_elapsed"}  # fmt: skip
-_TIME_IMPLIED_UNIT = {"sec": "s", "secs": "s", "seconds": "s"}
-_NSEC_PARTNERS = ("nanosec", "nsec", "nsecs", "nanoseconds")
-_FRAME_NAMES = {"frame", "frames", "frame_number", "frame_no", "frame_num", "frame_index", "frame_idx"}
-_DEMO_NAMES = {"demo", "demonstration", "trial", "trajectory", "traj", "episode", "sequence"}
-_DEMO_SUFFIXES = ("", "_id", "_name", "_index", "_idx", "_no", "_number", "_num")
-_POS_PREFIXES = {"", "p", "pos", "position", "t", "tr", "trans", "translation", "loc", "location", "xyz"}
-_QUAT_PREFIXES = {"q", "quat", "quaternion", "orientation", "ori", "orient", "qu", "quat_"}
-# prefixes whose x, y, z are a quaternion's when a w exists, else the "other" kind
-_ROT_AMBIGUOUS = {"rot": "euler_axis", "rotation": "euler_axis", "r": "rotvec"}
-_ROTVEC_PREFIXES = {"rv", "rotvec", "rot_vec", "rotation_vector", "axis_angle", "axisangle", "aa"}
-_EULER_AXIS_PREFIXES = {"euler", "eul", "euler_angle", "euler_angles", "angle", "ang", "angles"}
-_RPY = {"roll": "x", "pitch": "y", "yaw": "z"}
-_NUMBERED_PREFIXES = {"q", "quat", "quaternion", "orientation", "rot", "r"}
-
-_ROTATION_KINDS = ("quaternion", "numbered", "rotvec", "euler_axis", "rpy")
-_KIND_ROLES = {
-    "quaternion": ("qx", "qy", "qz", "qw"),
-    "numbered": ("qn0", "qn1", "qn2", "qn3"),
-    "rotvec": ("rx", "ry", "rz"),
-    "euler_axis": ("ex", "ey", "ez"),
-    "rpy": ("roll", "pitch", "yaw"),
-}
-# canonical option key -> internal role
-_KEY_ROLE = {"q0": "qn0", "q1": "qn1", "q2": "qn2", "q3": "qn3"}
-
-_NA_TOKENS = {"", "nan", "-nan", "null", "none", "na", "n/a", "<na>", "#n/a", "#na"}
+           "CANONICAL_KEYS", "FORMAT"]
 
 #: Tables at least this large are parsed straight from the file (or bytes): only the columns that are
 #: needed, as float64, never as one big decoded string (peak memory about the arrays read instead of
@@ -112,469 +64,19 @@ _FAST_HEAD = 1 << 16
 _DROPPED_LINE = re.compile(rb"\n(?=[ \t\f\v]*(?:#|\r?\n|\r?\Z))")  # at the newline before such a line
 _ODD_BREAKS = re.compile("[\r\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029]")  # splitlines() would break there
 _ISO_START = re.compile(r"\s*\d{4}-\d{2}-\d{2}[T ]\d")
-_MM_THRESHOLD = 10.0  # median |position| above this, in "metres", looks like millimetres
-_DT_MAX, _DT_MIN = 5.0, 1e-5  # plausible median sampling interval in seconds
-
-
-# --------------------------------------------------------------------------------------------------
-# column names
-
-
-@dataclass
-class _Column:
-    index: int
-    name: str  # as in the file
-    base: str  # normalised, unit removed
-    unit_kind: str | None = None  # length / time / angle
-    unit: str | None = None
-    roles: list = field(default_factory=list)  # [(role, rank)]
-
-
-def _normalise_name(name: str) -> tuple[str, str | None, str | None]:
-    """``"X [mm]"`` -> ``("x", "length", "mm")``; ``"time_s"`` -> ``("time", "time", "s")``."""
-    s = name.strip().strip("\"'").strip().lower()
-    unit = None
-    m = re.fullmatch(r"(.*?)\s*[\[\(\{]\s*([^\]\)\}]*?)\s*[\]\)\}]\s*", s)
-    if m and m.group(1) and m.group(2) in _UNIT_TOKENS:
-        s, unit = m.group(1), m.group(2)
-    base = re.sub(r"[\s.\-/:\[\]\(\)\{\}]+", "_", s)
-    base = re.sub(r"[^0-9a-zµ_]", "", base).strip("_")
-    if unit is None:
-        parts = base.split("_")
-        if len(parts) > 1 and parts[-1] in _UNIT_TOKENS:
-            unit, base = parts[-1], "_".join(parts[:-1])
-    if unit is None:
-        return base, None, None
-    kind, unit = _UNIT_TOKENS[unit]
-    return base, kind, unit
-
-
-def _prefix_candidates(prefix: str):
-    """``pose_position`` -> (``pose_position``, 0), (``position``, 1): the prefix itself, then its
-    qualified tails (never the empty tail: ``vel_x`` is not ``x``)."""
-    yield prefix, 0
-    parts = prefix.split("_")
-    for k in range(1, len(parts)):
-        tail = "_".join(parts[k:])
-        if tail:
-            yield tail, 1
-
-
-def _classify(index: int, name: str) -> _Column:
-    base, kind, unit = _normalise_name(name)
-    col = _Column(index=index, name=name, base=base, unit_kind=kind, unit=unit)
-    roles = col.roles
-
-    def tail_match(b: str, names) -> int | None:
-        for cand, rank in _prefix_candidates(b):
-            if cand in names:
-                return rank
-        return None
-
-    # time
-    if base in _TIME_NAMES:
-        roles.append(("t", 0))
-    elif base in _TIME_IMPLIED_UNIT:
-        roles.append(("t", 0))
-        if unit is None:
-            col.unit_kind, col.unit = "time", _TIME_IMPLIED_UNIT[base]
-    elif re.fullmatch(r".+_(time|timestamp|stamp)", base):
-        roles.append(("t", 1))
-    if base in _FRAME_NAMES:
-        roles.append(("frame", 0))
-    for suffix in _DEMO_SUFFIXES:
-        if suffix and not base.endswith(suffix):
-            continue
-        stem = base[: len(base) - len(suffix)] if suffix else base
-        if stem in _DEMO_NAMES:
-            roles.append(("demo", 0))
-            break
-    if base in _RPY:
-        roles.append((base, 0))
-    m = re.fullmatch(r"(.*?)_?([0-4])", base)
-    if m:
-        rank = tail_match(m.group(1), _NUMBERED_PREFIXES)
-        if rank is not None:
-            roles.append((f"qn{m.group(2)}", rank))
-    m = re.fullmatch(r"(.*?)_?([xyzw])", base)
-    if m and base not in _RPY:
-        prefix, comp = m.group(1), m.group(2)
-        for cand, rank in _prefix_candidates(prefix):
-            if rank and not cand:
-                continue
-            found = False
-            if comp != "w" and cand in _POS_PREFIXES:
-                roles.append((comp, rank))
-                found = True
-            if cand in _QUAT_PREFIXES or cand in _ROT_AMBIGUOUS:
-                roles.append((f"q{comp}", rank))
-                found = True
-            if comp != "w":
-                if cand in _ROTVEC_PREFIXES or _ROT_AMBIGUOUS.get(cand) == "rotvec":
-                    roles.append((f"r{comp}", rank))
-                    found = True
-                if cand in _EULER_AXIS_PREFIXES or _ROT_AMBIGUOUS.get(cand) == "euler_axis":
-                    roles.append((f"e{comp}", rank))
-                    found = True
-            if found:
-                break
-    return col
-
-
-# --------------------------------------------------------------------------------------------------
-# the text table
-
-
-@dataclass
-class _Table:
-    source: str
-    header: list  # column names as in the file
-    header_line: int  # 1-based
-    data_text: str  # the data lines joined (comments/blank lines removed)
-    lines: np.ndarray  # 1-based file line of every data row
-    delimiter: str  # "," ";" "\t" or "whitespace"
-    decimal: str
-    declared: dict  # from "# key=value" comment lines above the header
-
-
-def _decode(data: bytes, source: str) -> str:
-    if not data.strip():
-        raise InputError("the file is empty", path=source, hint="export the demonstrations again")
-    if data[:2] in (b"\xff\xfe", b"\xfe\xff"):  # UTF-16 with a BOM (Excel's "Unicode Text" export)
-        try:
-            return data.decode("utf-16")
-        except UnicodeDecodeError:
-            pass
-    head = data[:8192]
-    if b"\x00" in head:
-        raise InputError(
-            "not a text file (it contains binary data)",
-            path=source,
-            hint="rbgp reads CSV/TSV, QTM, Motive and Vicon exports and MCAP files",
-        )
-    try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError:
-        text = data.decode("latin-1")
-    ctrl = sum(1 for ch in text[:4096] if ord(ch) < 32 and ch not in "\r\n\t\f\v")
-    if ctrl > 0.05 * min(len(text), 4096):
-        raise InputError(
-            "not a text file (it contains binary data)",
-            path=source,
-            hint="rbgp reads CSV/TSV, QTM, Motive and Vicon exports and MCAP files",
-        )
-    return text
-
-
-def _split_fields(line: str, delimiter: str) -> list[str]:
-    import csv as _csv
-
-    if delimiter == "whitespace":
-        return line.split()
-    return next(_csv.reader([line], delimiter=delimiter))
-
-
-def _is_number(s: str) -> bool:
-    try:
-        float(s.replace(",", "."))
-        return True
-    except ValueError:
-        return False
-
-
-def _sniff_delimiter(line: str) -> str:
-    counts = {d: line.count(d) for d in (",", ";", "\t")}
-    best = max(counts, key=lambda d: counts[d])
-    if counts[best] > 0:
-        return best
-    return "whitespace"
-
-
-def _parse_table(text: str, source: str) -> _Table:
-    all_lines = text.splitlines()
-    comments: list[tuple[int, str]] = []
-    header = None
-    header_line = 0
-    data_start = None
-    for i, line in enumerate(all_lines):
-        s = line.strip()
-        if not s:
-            continue
-        if s.startswith("#"):
-            comments.append((i, s.lstrip("#").strip()))
-            continue
-        header, header_line, data_start = s, i + 1, i + 1
-        break
-    if header is None:
-        raise InputError("the file has no header and no data (only comments or blank lines)", path=source)
-    delimiter = _sniff_delimiter(header)
-    names = [f.strip() for f in _split_fields(header, delimiter)]
-    if names and all(_is_number(f) for f in names if f.strip()):
-        # No header line. numpy.savetxt writes it as a comment ("# t,x,y,...") just above the data.
-        cand_fields = None
-        if comments:
-            cand = comments[-1][1]
-            cand_fields = [f.strip() for f in _split_fields(cand, _sniff_delimiter(cand))]
-            if len(cand_fields) != len(names) or any(_is_number(f) for f in cand_fields):
-                cand_fields = None
-        if cand_fields is None:
-            raise InputError(
-                "no header line: the first line holds numbers",
-                path=source,
-                row=header_line,
-                hint="add a header such as t,x,y,z,qx,qy,qz,qw (rbgp finds columns by name)",
-            )
-        names = cand_fields
-        data_start = header_line - 1
-        header_line = comments[-1][0] + 1
-        comments = comments[:-1]
-    declared: dict = {}
-    for _, c in comments:
-        for key, value in re.findall(r"(\w+)\s*=\s*([\w]+)", c):
-            if key in ("length_unit", "time_unit", "quaternion"):
-                declared[key] = value.lower()
-    # data lines: drop blank lines and comments, remember the file line of each row
-    keep_idx = []
-    keep = []
-    for i in range(data_start, len(all_lines)):
-        line = all_lines[i]
-        s = line.lstrip()
-        if not s or s.startswith("#"):
-            continue
-        keep_idx.append(i + 1)
-        keep.append(line)
-    decimal = "."
-    if delimiter == ";" and keep and re.search(r"\d,\d", keep[0]):
-        decimal = ","
-    return _Table(
-        source=source,
-        header=names,
-        header_line=header_line,
-        data_text="\n".join(keep),
-        lines=np.asarray(keep_idx, dtype=np.int64),
-        delimiter=delimiter,
-        decimal=decimal,
-        declared=declared,
-    )
-
-
-# --------------------------------------------------------------------------------------------------
-# choosing the columns
-
-
-@dataclass
-class _Plan:
-    roles: dict  # role -> _Column
-    rotation: str  # one of _ROTATION_KINDS
-    columns: list  # all classified columns
-
-
-def _columns_list(cols: list) -> str:
-    names = [c.name for c in cols if c.name]
-    text = ", ".join(names[:40])
-    return text + (", ..." if len(names) > 40 else "")
-
-
-def _role_key(role: str) -> str:
-    """The ``--columns`` key (or display name) of an internal role."""
-    return {"qn0": "q0", "qn1": "q1", "qn2": "q2", "qn3": "q3", "ex": "rot_x", "ey": "rot_y", "ez": "rot_z"}.get(
-        role, role
-    )
-
-
-def _candidates(cols: list, role: str, used: set) -> list:
-    """The best-ranked columns (not in ``used``) that could hold ``role``."""
-    cands = [(rank, c) for c in cols if c.index not in used for (r, rank) in c.roles if r == role]
-    if not cands:
-        return []
-    top = min(rank for rank, _ in cands)
-    return [c for rank, c in cands if rank == top]
-
-
-def _best(cols: list, role: str, used: set, source: str):
-    """The unique best-ranked column for ``role`` (None when there is none; InputError when several)."""
-    best = _candidates(cols, role, used)
-    if len(best) > 1:
-        key = _role_key(role)
-        names = [c.name.strip() for c in best]
-        if len(set(names)) < len(names):  # --columns maps by name, so it cannot choose between them
-            raise InputError(
-                f"several columns are named {names[0]!r} (columns "
-                + ", ".join(str(c.index + 1) for c in best) + ")",
-                path=source,
-                hint="rename or delete all but one of them",
-            )
-        raise InputError(
-            f"several columns could be '{key}': " + ", ".join(repr(c.name) for c in best),
-            path=source,
-            hint=f"choose one with --columns {key if key in CANONICAL_KEYS else 'KEY'}=NAME",
-        )
-    return best[0] if best else None
-
-
-def _missing_error(role_key: str, what: str, cols: list, used: set, source: str) -> InputError:
-    unused = [c.name for c in cols if c.name and c.index not in used]
-    guess = closest(role_key, unused) or closest(role_key, [c.base for c in cols if c.index not in used])
-    if guess and guess not in unused:  # matched a normalised name: report the file's name
-        guess = next(c.name for c in cols if c.base == guess)
-    msg = f"{what} column '{role_key}' not found; columns are {_columns_list(cols)}"
-    if guess:
-        msg += f"; did you mean {guess!r}?"
-        hint = f"rename the column or pass --columns {role_key}={guess}"
-    else:
-        hint = f"rename the column or pass --columns {role_key}=NAME"
-    return InputError(msg, path=source, hint=hint)
-
-
-def _renumber_one_based(cols: list) -> None:
-    """``q1..q4`` -> roles ``qn0..qn3`` when there is no ``q0``."""
-    have = {r for c in cols for r, _ in c.roles}
-    if "qn4" in have and "qn0" not in have:
-        for c in cols:
-            c.roles = [(f"qn{int(r[2]) - 1}", k) if r.startswith("qn") else (r, k) for r, k in c.roles]
-    for c in cols:
-        c.roles = [(r, k) for r, k in c.roles if r != "qn4"]
-
-
-def _plan(cols: list, options: ReadOptions, source: str) -> _Plan:
-    _renumber_one_based(cols)
-    by_name = {c.name: c for c in cols}
-    by_lower = {c.name.strip().lower(): c for c in cols}
-    roles: dict = {}
-    for key, fname in dict(options.columns or {}).items():
-        k = str(key).strip().lower()
-        if k not in CANONICAL_KEYS:
-            guess = closest(k, CANONICAL_KEYS)
-            raise InputError(
-                f"unknown --columns key {key!r}; keys are {', '.join(CANONICAL_KEYS)}"
-                + (f"; did you mean {guess!r}?" if guess else "")
-            )
-        col = by_name.get(fname) or by_lower.get(str(fname).strip().lower())
-        if col is None:
-            guess = closest(str(fname), [c.name for c in cols])
-            raise NotPoseData(
-                f"--columns {k}={fname}: the file has no column {fname!r}; columns are {_columns_list(cols)}"
-                + (f"; did you mean {guess!r}?" if guess else ""),
-                path=source,
-                reason=f"no column {fname!r}",
-            )
-        roles[_KEY_ROLE.get(k, k)] = col
-    explicit = set(roles)
-
-    def used() -> set:
-        return {c.index for c in roles.values()}
-
-    # rotation kind: explicit keys decide, else the first complete family
-    kind = next((k for k in _ROTATION_KINDS if explicit & set(_KIND_ROLES[k])), None)
-    if kind is None:
-        for k in _ROTATION_KINDS:
-            if all(r in roles or _candidates(cols, r, used()) for r in _KIND_ROLES[k]):
-                kind = k
-                break
-    if kind is None:
-        # name the missing column of the most complete partial family, else say what is expected
-        partial = None
-        for k in ("quaternion", "numbered", "rpy"):
-            have = [r for r in _KIND_ROLES[k] if _candidates(cols, r, used())]
-            if len(have) >= 2 and (partial is None or len(have) > len(partial[1])):
-                partial = (k, have)
-        if partial:
-            k, have = partial
-            missing = next(r for r in _KIND_ROLES[k] if r not in have)
-            raise _missing_error(_role_key(missing), "rotation", cols, used(), source)
-        if len(cols) == 1 and re.search(r"[^\w\s\[\]()]", cols[0].name):
-            # one "column" full of punctuation: the delimiter is none of those the sniffer knows
-            raise NotPoseData(
-                f"the header line is a single column ({cols[0].name[:60]!r}): its delimiter is not a comma, "
-                "semicolon, tab or spaces",
-                path=source,
-                hint="save the file comma- or tab-separated",
-                reason="not a table",
-            )
-        raise NotPoseData(
-            f"no rotation columns found; columns are {_columns_list(cols)}",
-            path=source,
-            hint="expected quaternion columns qx,qy,qz,qw (any order), a rotation vector rx,ry,rz, or "
-            "Euler angles roll,pitch,yaw; map other names with --columns qx=NAME,...",
-            reason="no pose columns",
-        )
-    no_position = not any(r in roles or _candidates(cols, r, used()) for r in ("x", "y", "z"))
-    for r in _KIND_ROLES[kind] + ("x", "y", "z"):
-        if r in roles:
-            continue
-        c = _best(cols, r, used(), source)
-        if c is None:
-            err = _missing_error(_role_key(r), "rotation" if r in _KIND_ROLES[kind] else "position", cols,
-                                 used(), source)  # fmt: skip
-            if no_position and r in ("x", "y", "z"):  # rotations only (an IMU log): not poses
-                raise NotPoseData(err.message, path=source, hint=err.hint, reason="no position columns")
-            raise err
-        roles[r] = c
-    if "t" not in roles:
-        cands = _candidates(cols, "t", used())
-        if len(cands) > 1:
-            pair = _sec_nsec_pair(cands)
-            if pair is None:
-                raise InputError(
-                    "several columns could be the time: " + ", ".join(repr(x.name) for x in cands),
-                    path=source,
-                    hint="choose one with --columns t=NAME",
-                )
-            roles["t"], roles["t_nsec"] = pair
-        elif cands:
-            roles["t"] = cands[0]
-            partner = _nsec_partner(cands[0], cols)
-            if partner is not None and partner.index not in used():
-                roles["t_nsec"] = partner
-    for r in ("frame", "demo"):
-        if r not in roles:
-            c = _best(cols, r, used(), source)
-            if c is not None:
-                roles[r] = c
-    # one column, one role
-    seen: dict = {}
-    for r, c in roles.items():
-        if c.index in seen:
-            raise InputError(
-                f"column {c.name!r} is used both as '{_role_key(seen[c.index])}' and as '{_role_key(r)}'",
-                path=source,
-                hint="fix the mapping with --columns",
-            )
-        seen[c.index] = r
-    return _Plan(roles=roles, rotation=kind, columns=cols)
-
-
-def _sec_nsec_pair(cands: list):
-    if len(cands) != 2:
-        return None
-    a, b = cands
-    units = {a.unit, b.unit}
-    if a.base == b.base and units == {"s", "ns"}:
-        return (a, b) if a.unit == "s" else (b, a)
-    return None
-
-
-def _nsec_partner(tcol: _Column, cols: list):
-    """``sec`` + ``nanosec`` (ROS split stamps): the nanosecond column beside a ``sec`` column."""
-    if tcol.base not in ("sec", "secs"):
-        return None
-    for c in cols:
-        if c is not tcol and c.unit is None and c.base in _NSEC_PARTNERS:
-            return c
-    return None
 
 
 # --------------------------------------------------------------------------------------------------
 # reading the numbers
 
 
-def _row_width(table: _Table) -> int:
+def _row_width(table: Table) -> int:
     """How many fields to read per row: the header's, or more when the first rows end with empty fields
     the header lacks (a trailing delimiter). A longer row among the first 64 is an InputError naming it
     (pandas reports longer rows later in the file, except in the first row, whose extra fields it
     drops with a warning)."""
     width = len(table.header)
-    head = [_split_fields(row, table.delimiter) for row in table.data_text.split("\n", 64)[:64]]
+    head = [split_fields(row, table.delimiter) for row in table.data_text.split("\n", 64)[:64]]
     for fields in head:
         if len(fields) > width and not any(f.strip() for f in fields[width:]):
             width = len(fields)  # trailing empty fields only: ignored
@@ -589,7 +91,7 @@ def _row_width(table: _Table) -> int:
     return width
 
 
-def _csv_kwargs(table: _Table, width: int) -> dict:
+def _csv_kwargs(table: Table, width: int) -> dict:
     """pandas.read_csv arguments shared by both paths: as many columns as ``width`` (short rows, e.g.
     lost frames, get NaN; longer rows are a ParserError), the table's delimiter and decimal mark."""
     kwargs = dict(header=None, names=list(range(width)), index_col=False, decimal=table.decimal, quotechar='"')
@@ -597,7 +99,7 @@ def _csv_kwargs(table: _Table, width: int) -> dict:
     return kwargs
 
 
-def _read_frame(table: _Table, plan: _Plan):
+def _read_frame(table: Table, plan: Plan):
     """Parse the data lines (all of them in memory); returns {role: ndarray or list[str]}."""
     import pandas as pd
 
@@ -624,7 +126,7 @@ def _read_frame(table: _Table, plan: _Plan):
     return _columns(df, table, plan)
 
 
-def _columns(df, table: _Table, plan: _Plan) -> dict:
+def _columns(df, table: Table, plan: Plan) -> dict:
     """{role: float64 array, or an object array of str for ``demo``} from the parsed frame, whose
     column labels are the file's column indices. Non-numeric cells other than the missing-value
     tokens are an InputError naming the row."""
@@ -664,7 +166,7 @@ def _columns(df, table: _Table, plan: _Plan) -> dict:
         if bad.any():
             idx = np.flatnonzero(bad)
             lowered = [str(text.iloc[k]).strip().lower() for k in idx]
-            real = [k for k, s in zip(idx, lowered) if s not in _NA_TOKENS]
+            real = [k for k, s in zip(idx, lowered) if s not in MISSING_TOKENS]
             if real:
                 k = int(real[0])
                 if _repeats_header(df, table, k):
@@ -684,7 +186,7 @@ def _columns(df, table: _Table, plan: _Plan) -> dict:
     return out
 
 
-def _repeats_header(df, table: _Table, k: int) -> bool:
+def _repeats_header(df, table: Table, k: int) -> bool:
     """Whether data row ``k`` holds the header's names again (files joined by ``cat a.csv b.csv``)."""
     names = [str(h).strip().lower() for h in table.header]
     cells = ["" if not isinstance(v, str) else v.strip().lower() for v in df.iloc[k].tolist()]
@@ -710,119 +212,10 @@ def _iso_datetimes(text):
 
 
 # --------------------------------------------------------------------------------------------------
-# units
-
-
-def _length_unit(plan: _Plan, table: _Table, options: ReadOptions, position: np.ndarray):
-    if options.length_unit:
-        if options.length_unit not in LENGTH_UNITS:
-            raise InputError(
-                f"unknown length unit {options.length_unit!r}; use one of {', '.join(LENGTH_UNITS)}"
-            )
-        return options.length_unit, "option"
-    units = {plan.roles[r].unit for r in "xyz" if plan.roles[r].unit_kind == "length"}
-    if len(units) > 1:
-        raise InputError(
-            f"the position columns disagree on units ({', '.join(sorted(units))})",
-            path=table.source,
-            hint="pass --length-unit to override",
-        )
-    if units:
-        return units.pop(), "column name"
-    if table.declared.get("length_unit") in LENGTH_UNITS:
-        return table.declared["length_unit"], "file comment"
-    finite = np.all(np.isfinite(position), axis=1)
-    if finite.any():
-        p = position if finite.all() else position[finite]  # no copy of a table without lost frames
-        med = float(np.median(np.sqrt(np.einsum("ij,ij->i", p, p))))
-        if med > _MM_THRESHOLD:
-            names = ",".join(plan.roles[r].name for r in "xyz")
-            raise InputError(
-                f"positions ({names}) have no unit and their median distance from the origin is "
-                f"{med:.4g}, which looks like millimetres, not metres",
-                path=table.source,
-                hint="pass --length-unit mm (or cm, or m if they really are metres)",
-            )
-    return "m", "assumed"
-
-
-def _time_unit(plan: _Plan, table: _Table, options: ReadOptions, t: np.ndarray, groups):
-    if options.time_unit:
-        if options.time_unit not in TIME_UNITS:
-            raise InputError(f"unknown time unit {options.time_unit!r}; use one of {', '.join(TIME_UNITS)}")
-        return options.time_unit, "option"
-    col = plan.roles["t"]
-    if col.unit_kind == "time":
-        return col.unit, "column name"
-    if col.unit_kind is not None:
-        raise InputError(
-            f"time column {col.name!r} has a {col.unit_kind} unit ({col.unit})",
-            path=table.source,
-            hint="pass --time-unit s|ms|us|ns",
-        )
-    if table.declared.get("time_unit") in TIME_UNITS:
-        return table.declared["time_unit"], "file comment"
-    diffs = []
-    for idx in groups.values():
-        tt = t[idx]
-        tt = tt[np.isfinite(tt)]
-        d = np.diff(tt)
-        diffs.append(d[d > 0])
-    d = np.concatenate(diffs) if diffs else np.empty(0)
-    if len(d):
-        med = float(np.median(d))
-        if med > _DT_MAX or med < _DT_MIN:
-            suggestion = None
-            for unit in ("ms", "us", "ns"):
-                if 1e-4 <= med * TIME_UNITS[unit] <= 1.0:
-                    suggestion = unit
-                    break
-            if suggestion is None:
-                for unit in ("ms", "us", "ns"):
-                    if _DT_MIN <= med * TIME_UNITS[unit] <= _DT_MAX:
-                        suggestion = unit
-                        break
-            what = f"{1.0 / med:.4g} Hz" if med > 0 else "?"
-            hint = (
-                f"pass --time-unit {suggestion} ({1.0 / (med * TIME_UNITS[suggestion]):.4g} Hz)"
-                if suggestion
-                else "pass --time-unit s|ms|us|ns, or --rate HZ with --columns to ignore the time column"
-            )
-            raise InputError(
-                f"time column {col.name!r} has no unit and read as seconds its median step is {med:.4g} s "
-                f"({what}), which is implausible for motion capture",
-                path=table.source,
-                hint=hint,
-            )
-    return "s", "assumed"
-
-
-def _angles_in_degrees(plan: _Plan, kind: str, options: ReadOptions, source: str) -> bool:
-    cols = [plan.roles[r] for r in _KIND_ROLES[kind]]
-    units = {c.unit for c in cols if c.unit_kind == "angle"}
-    if options.degrees is not None:
-        return bool(options.degrees)
-    if len(units) > 1:
-        raise InputError(
-            "the angle columns disagree on units (deg and rad)", path=source, hint="pass --degrees or --radians"
-        )
-    if units:
-        return units.pop() == "deg"
-    if kind == "rotvec":
-        return False
-    names = ", ".join(c.name for c in cols)
-    raise InputError(
-        f"Euler angles ({names}) do not say whether they are degrees or radians",
-        path=source,
-        hint="pass --degrees or --radians (or name the columns e.g. roll_deg)",
-    )
-
-
-# --------------------------------------------------------------------------------------------------
 # rotation
 
 
-def _rotation(plan: _Plan, data: dict, options: ReadOptions, source: str):
+def _rotation(plan: Plan, data: dict, options: ReadOptions, source: str):
     """Quaternions (N, 4) x, y, z, w (raw, not normalised) and a description."""
     kind = plan.rotation
     if kind == "quaternion":
@@ -836,16 +229,16 @@ def _rotation(plan: _Plan, data: dict, options: ReadOptions, source: str):
             return q, f"quaternion {chosen} (--quat-order, over columns labelled {order})"
         return q, f"quaternion {order}" + (" (--quat-order)" if chosen == order else "")
     if kind == "numbered":
-        names = ", ".join(plan.roles[r].name for r in _KIND_ROLES[kind])
+        names = ", ".join(plan.roles[r].name for r in KIND_ROLES[kind])
         order = (options.quat_order or "").lower()
         if order not in ("xyzw", "wxyz"):
             raise InputError(
                 f"quaternion columns {names} are numbered, so their order (scalar first or last) is unknown"
                 + (f" (--quat-order {options.quat_order!r} is not xyzw or wxyz)" if options.quat_order else ""),
                 path=source,
-                hint="pass --quat-order xyzw (w last) or --quat-order wxyz (w first)",
+                hint="pass --quat-order xyzw (w last) or --quat-order wxyz (w first)", param="quat_order"
             )
-        raw = np.stack([data[r] for r in _KIND_ROLES[kind]], axis=-1)
+        raw = np.stack([data[r] for r in KIND_ROLES[kind]], axis=-1)
         q = raw if order == "xyzw" else raw[:, [1, 2, 3, 0]]
         return q, f"quaternion {order} (--quat-order)"
     from scipy.spatial.transform import Rotation
@@ -854,7 +247,7 @@ def _rotation(plan: _Plan, data: dict, options: ReadOptions, source: str):
     q = np.full((n, 4), np.nan)
     if kind == "rotvec":
         rv = np.stack([data["rx"], data["ry"], data["rz"]], axis=-1)
-        deg = _angles_in_degrees(plan, kind, options, source)
+        deg = angles_in_degrees(plan, kind, options, source)
         ok = np.all(np.isfinite(rv), axis=1)
         if ok.any():
             if deg:
@@ -864,11 +257,11 @@ def _rotation(plan: _Plan, data: dict, options: ReadOptions, source: str):
                 raise InputError(
                     f"rotation vectors have median length {np.median(norms):.4g}, more than 2π radians",
                     path=source,
-                    hint="if they are in degrees pass --degrees",
+                    hint="if they are in degrees pass --degrees", param="degrees"
                 )
             q[ok] = Rotation.from_rotvec(rv[ok]).as_quat()
         return q, "rotation vector (deg)" if deg else "rotation vector (rad)"
-    roles = _KIND_ROLES[kind]
+    roles = KIND_ROLES[kind]
     axis_of = dict(zip(roles, "xyz"))
     names = ", ".join(plan.roles[r].name for r in roles)
     seq = options.euler_order
@@ -877,15 +270,15 @@ def _rotation(plan: _Plan, data: dict, options: ReadOptions, source: str):
             f"Euler angles ({names}) need their rotation order",
             path=source,
             hint="pass --euler-order, scipy's convention: lowercase extrinsic (e.g. xyz), uppercase "
-            "intrinsic (e.g. ZYX)",
+            "intrinsic (e.g. ZYX)", param="euler_order"
         )
     if not re.fullmatch(r"[xyz]{3}|[XYZ]{3}", seq) or len(set(seq.lower())) != 3:
         raise InputError(
             f"--euler-order {seq!r}: the columns name the axis of each angle, so the order must use each of "
             "x, y, z once, all lowercase (extrinsic) or all uppercase (intrinsic)",
-            path=source,
+            path=source, param="euler_order"
         )
-    deg = _angles_in_degrees(plan, kind, options, source)
+    deg = angles_in_degrees(plan, kind, options, source)
     by_axis = {axis_of[r]: data[r] for r in roles}
     angles = np.stack([by_axis[a] for a in seq.lower()], axis=-1)
     ok = np.all(np.isfinite(angles), axis=1)
@@ -959,7 +352,7 @@ def read_bytes(data: bytes, source: str, options: ReadOptions | None = None) -> 
         out = _fast_parse(fast, lambda: io.BytesIO(data), options, source) if fast else None  # shares the bytes
         if out is not None:
             return out
-    return read_text(_decode(data, source), source, options)
+    return read_text(decode(data, source), source, options)
 
 
 def _max_fields(buf, offset: int, delimiter: bytes, chunk: int = 1 << 22) -> int:
@@ -986,9 +379,9 @@ def _max_fields(buf, offset: int, delimiter: bytes, chunk: int = 1 << 22) -> int
 class _Fast:
     """How to parse a table straight from its bytes (see :func:`_fast_plan`)."""
 
-    table: _Table
+    table: Table
     cols: list
-    plan: _Plan
+    plan: Plan
     offset: int  # byte offset of the first data row
     kwargs: dict  # for pandas.read_csv
 
@@ -1020,16 +413,16 @@ def _fast_plan(buf, source: str, options: ReadOptions):
     if ctrl > 0.05 * min(len(text), 4096):
         return None  # binary: the text path says so
     try:
-        table = _parse_table(text, source)
+        table = parse_table(text, source)
     except InputError:
         return None  # e.g. comments longer than the head: the text path decides
     if len(table.lines) == 0 or np.any(np.diff(table.lines) != 1):
         return None
-    cols = [_classify(i, name) for i, name in enumerate(table.header)]
-    plan = _plan(cols, options, source)
+    cols = [classify(i, name) for i, name in enumerate(table.header)]
+    plan = plan_columns(cols, options, source)
     width = _row_width(table)
     if "t" in plan.roles:
-        first = _split_fields(table.data_text.split("\n", 1)[0], table.delimiter)
+        first = split_fields(table.data_text.split("\n", 1)[0], table.delimiter)
         k = plan.roles["t"].index
         if k < len(first) and _ISO_START.match(first[k]):
             return None
@@ -1083,9 +476,9 @@ def _fast_parse(fast: _Fast, reopen, options: ReadOptions, source: str):
 def read_text(text: str, source: str, options: ReadOptions | None = None) -> list[Trajectory]:
     """Like :func:`read` for already decoded text."""
     options = options or ReadOptions()
-    table = _parse_table(text, source)
-    cols = [_classify(i, name) for i, name in enumerate(table.header)]
-    plan = _plan(cols, options, source)
+    table = parse_table(text, source)
+    cols = [classify(i, name) for i, name in enumerate(table.header)]
+    plan = plan_columns(cols, options, source)
     data = _read_frame(table, plan)
     return _trajectories(table, cols, plan, data, options, source)
 
@@ -1100,7 +493,7 @@ def _groups(demo) -> dict:
     return dict(zip(uniques.tolist(), np.split(order, bounds)))
 
 
-def _trajectories(table: _Table, cols: list, plan: _Plan, data, options: ReadOptions, source: str) -> list:
+def _trajectories(table: Table, cols: list, plan: Plan, data, options: ReadOptions, source: str) -> list:
     """Raw trajectories from the parsed columns: demonstrations split by the ``demo`` column, times,
     units, rotations and the facts in ``info``."""
     if data is None or len(data["x"]) == 0:
@@ -1118,7 +511,7 @@ def _trajectories(table: _Table, cols: list, plan: _Plan, data, options: ReadOpt
             t = data["t"] + data["t_nsec"] * 1e-9
             unit, unit_source = "s", "sec + nanosec columns"
         else:
-            unit, unit_source = _time_unit(plan, table, options, data["t"], groups)
+            unit, unit_source = infer_time_unit(plan, table, options, data["t"], groups)
             t = data["t"] * TIME_UNITS[unit]
         time_info = {"time_unit": unit, "time_unit_source": unit_source}
     else:
@@ -1131,13 +524,13 @@ def _trajectories(table: _Table, cols: list, plan: _Plan, data, options: ReadOpt
             raise InputError(
                 "no time column; pass --rate HZ"
                 + (" or --columns t=NAME" if tcands else "")
-                + f" (columns are {_columns_list(cols)})",
+                + f" (columns are {columns_list(cols)})",
                 path=source,
-                hint=f"did you mean {tcands[0]!r}? pass --columns t={tcands[0]}" if tcands else None,
+                hint=f"did you mean {tcands[0]!r}? pass --columns t={tcands[0]}" if tcands else None, param="rate"
             )
         rate = float(options.rate)
         if not np.isfinite(rate) or rate <= 0:
-            raise InputError(f"--rate must be a positive number of Hz, got {options.rate!r}")
+            raise InputError(f"--rate must be a positive number of Hz, got {options.rate!r}", param="rate")
         t = np.empty(n)
         if "frame" in plan.roles:
             t = data["frame"] / rate
@@ -1148,14 +541,14 @@ def _trajectories(table: _Table, cols: list, plan: _Plan, data, options: ReadOpt
             time_info = {"time_unit": "row / rate", "time_unit_source": "--rate"}
         time_info["rate_option_hz"] = rate
     position = np.stack([data["x"], data["y"], data["z"]], axis=-1)
-    length_unit, length_source = _length_unit(plan, table, options, position)
+    length_unit, length_source = infer_length_unit(plan, table, options, position)
     if LENGTH_UNITS[length_unit] != 1.0:
         position *= LENGTH_UNITS[length_unit]  # a new array (np.stack): scaled in place
     quat, rotation = _rotation(plan, data, options, source)
     colmap = {}
     order = {k: i for i, k in enumerate(("t", "t_nsec", "frame", "demo", "x", "y", "z"))}
     for role, col in sorted(plan.roles.items(), key=lambda rc: (order.get(rc[0], 99), rc[1].index)):
-        colmap[_role_key(role)] = col.name
+        colmap[role_key(role)] = col.name
     base_info = {
         "format": "csv",
         "columns": colmap,
@@ -1209,19 +602,19 @@ def describe(path, options: ReadOptions | None = None, *, text: str | None = Non
     if text is None:
         table, rows = _describe_big(source)
         if table is None:
-            text = _decode(Path(source).read_bytes(), source)
+            text = decode(Path(source).read_bytes(), source)
     if text is not None:
-        table = _parse_table(text, source)
-    cols = [_classify(i, name) for i, name in enumerate(table.header)]
+        table = parse_table(text, source)
+    cols = [classify(i, name) for i, name in enumerate(table.header)]
     problem = None
     taken: dict = {}
     rotation = None
     needs = []
     try:
-        plan = _plan(cols, options, source)
+        plan = plan_columns(cols, options, source)
         rotation = plan.rotation
         for role, col in plan.roles.items():
-            taken[col.index] = _role_key(role)
+            taken[col.index] = role_key(role)
         if "t" not in plan.roles and not options.rate:
             problem = "no time column; pass --rate HZ"
             needs.append("--rate HZ (no time column)")
@@ -1266,7 +659,7 @@ def _describe_big(source: str):
             except UnicodeDecodeError:
                 text = head[: cut + 1].decode("latin-1")
             try:
-                table = _parse_table(text, source)
+                table = parse_table(text, source)
             except InputError:
                 return None, None
             if len(table.lines) == 0:
@@ -1282,120 +675,27 @@ def _describe_big(source: str):
         return None, None
 
 
-def sniff_pose_columns(head: bytes, source: str, options: ReadOptions | None = None, *,
-                       complete: bool = False) -> str | None:
-    """Why a file that starts with ``head`` holds no pose data, in a few words, or None.
+def describe_rows(desc: dict) -> list[str]:
+    """The text rows of ``rbgp inspect`` for :func:`describe`'s result."""
+    from rbgp_cli.io.inspect import text_row as _row, plural as _plural, DELIMITER_NAMES as _DELIMITERS
 
-    Judged like :func:`read` judges the whole file, on the complete lines of ``head`` (``complete``:
-    head is the whole file): "empty", "not a text file", "no table" (comments only), "no header line"
-    (numbers only), "not a table" (one column), "no pose columns" (no rotation), "no position columns".
-    None when the header names pose columns (even if reading may still fail: such a file is pose
-    data with a problem) or when the head ends before the header does.
-    """
-    options = options or ReadOptions()
-    if head[:2] in (b"\xff\xfe", b"\xfe\xff") and not complete:
-        head = head[: len(head) // 2 * 2]  # UTF-16: whole code units only
-    try:
-        text = _decode(head, source)
-    except InputError as exc:
-        return "empty" if "empty" in exc.message else "not a text file"
-    if not complete:
-        cut = max(text.rfind("\n"), text.rfind("\r"))
-        if cut < 0:
-            return None  # one line longer than the head
-        text = text[:cut]
-    try:
-        table = _parse_table(text, source)
-    except InputError as exc:
-        if not complete and "no header and no data" in exc.message:
-            return None  # comments longer than the head
-        return "no header line" if "no header line" in exc.message else "no table"
-    cols = [_classify(i, name) for i, name in enumerate(table.header)]
-    try:
-        _plan(cols, options, source)
-    except NotPoseData as exc:
-        return exc.reason
-    except InputError:
-        return None
-    return None
+    lines = [_row("table", f"{_DELIMITERS.get(desc.get('delimiter'), desc.get('delimiter'))}-separated, "
+                           f"header on line {desc.get('header_line')}, {_plural(desc.get('data_rows') or 0, 'data row')}")]
+    if desc.get("declared"):
+        lines.append(_row("declared", ", ".join(f"{k} {v}" for k, v in desc["declared"].items())))
+    lines.append("  columns:")
+    for c in desc.get("columns", []):
+        taken = c.get("taken_as") or "(ignored)"
+        unit = f" [{c['unit']}]" if c.get("unit") else ""
+        lines.append(f"    {c['name']!s:<24} -> {taken}{unit}")
+    return lines
 
 
-# --------------------------------------------------------------------------------------------------
-# writing
-
-WRITE_COLUMNS = ("trajectory", "t", "x", "y", "z", "qx", "qy", "qz", "qw")
+def _skip_reason(head: bytes, path, options: ReadOptions | None = None, complete: bool = False) -> str | None:
+    return sniff_pose_columns(head, path, options, complete=complete)
 
 
-def _extra_columns(extra, trajectories) -> list[tuple[str, np.ndarray]]:
-    lengths = [len(tr) for tr in trajectories]
-    total = sum(lengths)
-    out = []
-    for name, value in (extra or {}).items():
-        if isinstance(value, (list, tuple)) and len(value) == len(trajectories) and all(
-            np.ndim(v) >= 1 and len(v) == n for v, n in zip(value, lengths)
-        ):
-            arr = np.concatenate([np.asarray(v, dtype=np.float64).reshape(len(v), -1) for v in value], axis=0)
-        else:
-            arr = np.asarray(value, dtype=np.float64)
-            arr = arr.reshape(len(arr), -1) if arr.ndim else arr.reshape(1, 1)
-        if arr.shape[0] != total:
-            raise ValueError(f"extra column {name!r} has {arr.shape[0]} rows, the trajectories have {total}")
-        if arr.shape[1] == 1:
-            out.append((str(name), arr[:, 0]))
-        else:
-            out.extend((f"{name}_{j}", arr[:, j]) for j in range(arr.shape[1]))
-    return out
-
-
-def _write(trajectories, fh, extra) -> None:
-    import csv as _csv
-
-    extras = _extra_columns(extra, trajectories)
-    fh.write("# rbgp trajectories: time_unit=s length_unit=m quaternion=xyzw\n")
-    w = _csv.writer(fh, lineterminator="\n")
-    w.writerow(list(WRITE_COLUMNS) + [n for n, _ in extras])
-    offset = 0
-    fmt = float.__repr__
-    used: set = set()
-    for k, tr in enumerate(trajectories):
-        label = (tr.name or "").strip() or str(k)
-        if label in used:  # the column splits the trajectories again, so names must be unique
-            label = f"{label}#{k}"
-        used.add(label)
-        # always quoted, so that a name starting with '#' is not read back as a comment
-        name = '"' + label.replace('"', '""') + '"'
-        block = np.concatenate([tr.t[:, None], tr.position, tr.quat], axis=1)
-        n = len(tr)
-        if extras:
-            block = np.concatenate([block, np.stack([a[offset : offset + n] for _, a in extras], axis=1)], axis=1)
-        fh.writelines(name + "," + ",".join(map(fmt, row)) + "\n" for row in block.tolist())
-        offset += n
-
-
-def write_trajectories_csv(trajectories, stream_or_path, extra: dict | None = None) -> None:
-    """Write trajectories as ``trajectory,t,x,y,z,qx,qy,qz,qw[,extra...]``.
-
-    Floats are written with ``repr`` (shortest text that reads back to the same float64), so
-    :func:`read` returns identical arrays; the ``trajectory`` column holds each trajectory's name (its
-    index when empty; a repeated name gets ``#<index>`` appended) and splits them again on reading. A first comment line states the units
-    (``time_unit=s length_unit=m quaternion=xyzw``), which the reader honours.
-
-    Parameters
-    ----------
-    trajectories : sequence of Trajectory
-        Seconds, metres, quaternions x, y, z, w.
-    stream_or_path : text stream, str or Path
-        A path is written atomically (whole file or nothing).
-    extra : dict of name -> array, optional
-        Extra columns, each a 1-D array with one value per written row (all trajectories one after
-        the other), a (rows, k) array (written as ``name_0..name_{k-1}``) or a list of per-trajectory
-        arrays; e.g. ``{"std_wx": ..., ..., "std_vz": ...}``.
-    """
-    trajectories = list(trajectories)
-    if isinstance(stream_or_path, (str, os.PathLike)):
-        from rbgp_cli.io.atomic import atomic_open
-
-        with atomic_open(stream_or_path, "w", newline="", encoding="utf-8") as fh:
-            _write(trajectories, fh, extra)
-    else:
-        _write(trajectories, stream_or_path, extra)
+FORMAT = Format(
+    name="csv", title="generic CSV", read=read, read_bytes=read_bytes, describe=describe, describe_rows=describe_rows,
+    skip_reason=_skip_reason, write=write_trajectories_csv, fallback=True,
+)

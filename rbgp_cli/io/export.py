@@ -1,4 +1,5 @@
-"""Write trajectories back in vendor layouts: QTM 6D TSV, Motive CSV and Vicon CSV.
+"""Write trajectories: rbgp's own trajectory CSV, and the vendor layouts QTM 6D TSV, Motive CSV and
+Vicon CSV.
 
 Used by the reader round-trip tests and by users who want to hand rbgp's data (demonstrations or
 generated motions) to vendor tools. Each writer takes several :class:`Trajectory` objects (one per
@@ -16,15 +17,17 @@ metres. Euler sequences use scipy notation (upper case = intrinsic).
 from __future__ import annotations
 
 import csv
+import os
 import warnings
 
 import numpy as np
 
 from rbgp_cli.errors import InputError
 from rbgp_cli.io.atomic import atomic_open
-from rbgp_cli.io.options import LENGTH_UNITS
+from rbgp_cli.io.vocabulary import LENGTH_UNITS
 
-__all__ = ["write_qtm_tsv", "write_motive_csv", "write_vicon_csv", "MOTIVE_UNITS"]
+__all__ = ["write_trajectories_csv", "write_qtm_tsv", "write_motive_csv", "write_vicon_csv", "MOTIVE_UNITS",
+           "WRITE_COLUMNS"]
 
 #: Motive's ``Length Units`` names and rbgp's short names, both accepted by :func:`write_motive_csv`.
 MOTIVE_UNITS = {"Meters": "m", "Centimeters": "cm", "Millimeters": "mm"}
@@ -310,3 +313,81 @@ def write_vicon_csv(trajectories, path, *, delimiter: str = ",", rotation: str =
         for i in range(len(t)):
             w.writerow([str(frames[i]), "0"] + [c for body in cells for c in body[i]])
         fh.write("\n")
+
+
+# --------------------------------------------------------------------------------------------------
+# rbgp's trajectory CSV (read back by rbgp_cli.io.csv)
+
+WRITE_COLUMNS = ("trajectory", "t", "x", "y", "z", "qx", "qy", "qz", "qw")
+
+
+def _extra_columns(extra, trajectories) -> list[tuple[str, np.ndarray]]:
+    lengths = [len(tr) for tr in trajectories]
+    total = sum(lengths)
+    out = []
+    for name, value in (extra or {}).items():
+        if isinstance(value, (list, tuple)) and len(value) == len(trajectories) and all(
+            np.ndim(v) >= 1 and len(v) == n for v, n in zip(value, lengths)
+        ):
+            arr = np.concatenate([np.asarray(v, dtype=np.float64).reshape(len(v), -1) for v in value], axis=0)
+        else:
+            arr = np.asarray(value, dtype=np.float64)
+            arr = arr.reshape(len(arr), -1) if arr.ndim else arr.reshape(1, 1)
+        if arr.shape[0] != total:
+            raise ValueError(f"extra column {name!r} has {arr.shape[0]} rows, the trajectories have {total}")
+        if arr.shape[1] == 1:
+            out.append((str(name), arr[:, 0]))
+        else:
+            out.extend((f"{name}_{j}", arr[:, j]) for j in range(arr.shape[1]))
+    return out
+
+
+def _write(trajectories, fh, extra) -> None:
+    extras = _extra_columns(extra, trajectories)
+    fh.write("# rbgp trajectories: time_unit=s length_unit=m quaternion=xyzw\n")
+    w = csv.writer(fh, lineterminator="\n")
+    w.writerow(list(WRITE_COLUMNS) + [n for n, _ in extras])
+    offset = 0
+    fmt = float.__repr__
+    used: set = set()
+    for k, tr in enumerate(trajectories):
+        label = (tr.name or "").strip() or str(k)
+        if label in used:  # the column splits the trajectories again, so names must be unique
+            label = f"{label}#{k}"
+        used.add(label)
+        # always quoted, so that a name starting with '#' is not read back as a comment
+        name = '"' + label.replace('"', '""') + '"'
+        block = np.concatenate([tr.t[:, None], tr.position, tr.quat], axis=1)
+        n = len(tr)
+        if extras:
+            block = np.concatenate([block, np.stack([a[offset : offset + n] for _, a in extras], axis=1)], axis=1)
+        fh.writelines(name + "," + ",".join(map(fmt, row)) + "\n" for row in block.tolist())
+        offset += n
+
+
+def write_trajectories_csv(trajectories, stream_or_path, extra: dict | None = None) -> None:
+    """Write trajectories as ``trajectory,t,x,y,z,qx,qy,qz,qw[,extra...]``.
+
+    Floats are written with ``repr`` (shortest text that reads back to the same float64), so
+    :func:`rbgp_cli.io.csv.read` returns identical arrays; the ``trajectory`` column holds each
+    trajectory's name (its index when empty; a repeated name gets ``#<index>`` appended) and splits
+    them again on reading. A first comment line states the units (``time_unit=s length_unit=m
+    quaternion=xyzw``), which the reader honours.
+
+    Parameters
+    ----------
+    trajectories : sequence of Trajectory
+        Seconds, metres, quaternions x, y, z, w.
+    stream_or_path : text stream, str or Path
+        A path is written atomically (whole file or nothing).
+    extra : dict of name -> array, optional
+        Extra columns, each a 1-D array with one value per written row (all trajectories one after
+        the other), a (rows, k) array (written as ``name_0..name_{k-1}``) or a list of per-trajectory
+        arrays; e.g. ``{"std_wx": ..., ..., "std_vz": ...}``.
+    """
+    trajectories = list(trajectories)
+    if isinstance(stream_or_path, (str, os.PathLike)):
+        with atomic_open(stream_or_path, "w", newline="", encoding="utf-8") as fh:
+            _write(trajectories, fh, extra)
+    else:
+        _write(trajectories, stream_or_path, extra)

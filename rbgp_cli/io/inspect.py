@@ -66,19 +66,10 @@ def trajectory_summary(traj) -> dict:
 
 
 def _describe(fmt: str, path: str, options: ReadOptions):
-    if fmt == "csv":
-        from rbgp_cli.io import csv
+    from rbgp_cli.io import formats
 
-        return csv.describe(path, options)
-    if fmt == "mcap":
-        from rbgp_cli.io import mcap
-
-        return mcap.describe(path, options)
-    import importlib
-
-    module = importlib.import_module(f"rbgp_cli.io.{fmt}")
-    fn = getattr(module, "describe", None)
-    return fn(path, options) if fn is not None else None
+    describe = formats.get(fmt).describe
+    return describe(path, options) if describe is not None else None
 
 
 def prepared_summary(traj, options: ReadOptions, max_gap: float | None = None) -> dict:
@@ -143,6 +134,7 @@ def inspect_file(path, options: ReadOptions | None = None, stdin=None, *, max_ga
     path = str(path)
     if path == "-":
         return _inspect_stdin(options, stdin, max_gap)
+    from rbgp_cli.io import formats
     from rbgp_cli.io.read import _format_option, detect_format, read_file
 
     p = Path(path)
@@ -162,17 +154,10 @@ def inspect_file(path, options: ReadOptions | None = None, stdin=None, *, max_ga
     except InputError as exc:
         out["error"] = str(exc)
         return _finish(out, options)
+    entry = formats.get(out["format"])
     try:
-        if out["format"] == "mcap" and not options.topic:
-            from rbgp_cli.io import mcap
-
-            trajs = mcap.read_all(path, options)
-        elif out["format"] in ("qtm", "motive", "vicon") and options.body is None:
-            from dataclasses import replace
-
-            trajs = read_file(path, replace(options, body="all"))  # inspect shows every body
-        else:
-            trajs = read_file(path, options)
+        # inspect shows everything the options leave open (every body, every pose topic)
+        trajs = entry.read_all(path, options) if entry.read_all is not None else read_file(path, options)
     except InputError as exc:
         out["error"] = str(exc)
         trajs = []
@@ -188,17 +173,17 @@ def _finish(out: dict, options: ReadOptions) -> dict:
 def _inspect_stdin(options: ReadOptions, stdin, max_gap=None) -> dict:
     import tempfile
 
-    from rbgp_cli.io.read import MCAP_MAGIC, detect_format
+    from rbgp_cli.io import formats
+    from rbgp_cli.io.read import _format_option, detect_format
 
     stream = stdin if stdin is not None else sys.stdin.buffer
     data = stream.read()
     if not data:
         raise InputError("the input is empty", path="-")
-    fmt = (options.format or "auto").lower()
+    fmt = _format_option(options)
     if fmt == "auto":
-        fmt = "mcap" if data.startswith(MCAP_MAGIC) else detect_format(data[:8192])
-    suffix = {"mcap": ".mcap", "qtm": ".tsv"}.get(fmt, ".csv")
-    fd, tmp = tempfile.mkstemp(prefix="rbgp-stdin-", suffix=suffix)
+        fmt = detect_format(data[: formats.HEAD_BYTES])
+    fd, tmp = tempfile.mkstemp(prefix="rbgp-stdin-", suffix=formats.get(fmt).suffix)
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
@@ -226,17 +211,17 @@ _FLAG = re.compile(r"--[a-z][a-z-]+")
 
 def needs(d: dict, options: ReadOptions | None = None) -> list[str]:
     """The options still needed to train on the file described by ``d`` (plain strings, each an
-    option and why): those the format's description names, the flags the reading error names, and
-    ``--body`` / ``--topic`` when the file holds several bodies or pose topics."""
+    option and why): those the format's description names, those its ``Format.needs`` adds (``--body``
+    / ``--topic`` when the file holds several bodies or pose topics), and the flags the reading error
+    names."""
     options = options or ReadOptions()
     desc = d.get("description") if isinstance(d.get("description"), dict) else {}
     out = list(desc.get("needs") or [])
-    if d.get("format") in ("qtm", "motive", "vicon") and options.body is None and len(desc.get("bodies") or []) > 1:
-        out.append(f"--body NAME, or --body all for every body ({len(desc['bodies'])} bodies)")
-    if d.get("format") == "mcap" and not options.topic:
-        pose = [t["topic"] for t in desc.get("topics", []) if t.get("pose") and t.get("messages") != 0]
-        if len(pose) > 1:
-            out.append(f"--topic NAME, or --topic all / a pattern for one demonstration per topic ({len(pose)} pose topics)")
+    from rbgp_cli.io import formats
+
+    entry = formats.get(d["format"]) if d.get("format") in formats.names() else None
+    if entry is not None and entry.needs is not None:  # a choice the file leaves open: bodies, topics
+        out += entry.needs(desc, options)
     if d.get("error"):  # the options the error names (it says why, on the line below)
         have = {n.split()[0] for n in out}
         flags = [f for f in dict.fromkeys(_FLAG.findall(d["error"])) if f not in have]
@@ -250,8 +235,6 @@ def needs(d: dict, options: ReadOptions | None = None) -> list[str]:
 
 _LABEL = 14
 _DELIMITERS = {",": "comma", ";": "semicolon", "\t": "tab", "whitespace": "whitespace"}
-_FORMATS = {"csv": "generic CSV", "mcap": "MCAP", "qtm": "Qualisys QTM TSV", "motive": "OptiTrack Motive CSV",
-            "vicon": "Vicon CSV"}
 
 
 def _fmt_num(x, unit: str = "", digits: int = 4) -> str:
@@ -289,130 +272,28 @@ def _rate(desc: dict) -> str:
     return f"{_fmt_num(r)} Hz" if r else "not stated"
 
 
-def _rows_csv(desc: dict) -> list[str]:
-    lines = [_row("table", f"{_DELIMITERS.get(desc.get('delimiter'), desc.get('delimiter'))}-separated, "
-                           f"header on line {desc.get('header_line')}, {_plural(desc.get('data_rows') or 0, 'data row')}")]
-    if desc.get("declared"):
-        lines.append(_row("declared", ", ".join(f"{k} {v}" for k, v in desc["declared"].items())))
-    lines.append("  columns:")
-    for c in desc.get("columns", []):
-        taken = c.get("taken_as") or "(ignored)"
-        unit = f" [{c['unit']}]" if c.get("unit") else ""
-        lines.append(f"    {c['name']!s:<24} -> {taken}{unit}")
-    return lines
-
-
-def _rows_mcap(desc: dict) -> list[str]:
-    lines = [_row("profile", desc.get("profile") or "-"), _row("library", desc.get("library") or "-"),
-             _row("messages", f"{desc.get('messages') if desc.get('messages') is not None else '?'}"
-                              + ("" if desc.get("summary") else " (no summary: scanned)"))]
-    if desc.get("damaged"):
-        lines.append(_row("damaged", desc["damaged"]))
-    lines.append("  topics:")
-    for t in desc.get("topics", []):
-        mark = "pose" if t.get("pose") else "    "
-        n = t["messages"] if t["messages"] is not None else "?"
-        lines.append(f"    {mark} {t['topic']:<36} {t['schema'] or '(no schema)'} ({t['message_encoding']}) {n} messages")
-    return lines
-
-
-def _rows_motive(desc: dict) -> list[str]:
-    h = desc.get("header", {})
-    lines = [_row("export", f"format version {h.get('Format Version', '?')}, take {h.get('Take Name', '-')!s}"
-                            + (f", captured {h['Capture Start Time']}" if h.get("Capture Start Time") else ""))]
-    frames = f"{desc.get('frames')} exported at {_rate(desc)}"
-    if h.get("Capture Frame Rate") and h.get("Capture Frame Rate") != h.get("Export Frame Rate"):
-        frames += f" (captured at {h['Capture Frame Rate']} Hz)"
-    if h.get("Total Frames in Take"):
-        frames += f", {h['Total Frames in Take']} frames in the take"
-    lines.append(_row("frames", frames))
-    lines.append(_row("time", desc.get("time_source")))
-    bodies = desc.get("bodies") or []
-    lines.append(_row("rigid bodies", f"{len(bodies)}: " + ", ".join(bodies) if bodies else "none"))
-    kinds = set((desc.get("rotation") or {}).values())
-    if desc.get("rotation_type"):
-        stated = f"Rotation Type {desc['rotation_type']}"
-    else:
-        stated = "the header states no Rotation Type"
-    if kinds == {"quaternion"}:
-        rot = "quaternion x, y, z, w"
-    elif desc.get("euler_order"):
-        rot = f"Euler angles, degrees, order {desc['euler_order']} ({desc.get('euler_order_source')})"
-    elif kinds:
-        rot = "Euler angles, degrees, order not stated"
-    else:
-        rot = "-"
-    lines.append(_row("rotation", f"{rot}; {stated}" if kinds else rot))
-    unit = desc.get("length_unit")
-    stated_unit = desc.get("length_units_stated")
-    lines.append(_row("length unit", (unit + (f" (Length Units {stated_unit})" if stated_unit else " (option)"))
-                      if unit else ("not stated" if not stated_unit else f"unknown: {stated_unit}")))
-    others = desc.get("other_assets") or {}
-    if others:
-        lines.append(_row("ignored", ", ".join(_plural(len(v), k.lower()) for k, v in others.items())
-                          + " (only rigid bodies are poses)"))
-    lines.append(_row("up axis", desc.get("up_axis")))
-    return lines
-
-
-def _rows_qtm(desc: dict) -> list[str]:
-    h = desc.get("header", {})
-    version = h.get("FILE_VERSION")
-    layout = "current (Frame, Time, <Body> X ...)" if desc.get("layout") == "current" else \
-        "old, before 2.0.0 (no Frame/Time columns, one header block for every body)"
-    lines = [_row("layout", layout + (f", FILE_VERSION {version}" if version else ""))]
-    if h.get("TIME_STAMP"):
-        lines.append(_row("recorded", h["TIME_STAMP"] if isinstance(h["TIME_STAMP"], str) else h["TIME_STAMP"][0]))
-    freq = h.get("FREQUENCY")
-    rate = f"at {_rate(desc)}" if desc.get("rate_hz") else f"at no stated rate (FREQUENCY {freq or 'missing'})"
-    lines.append(_row("frames", f"{desc.get('frames')} {rate}"
-                                + (f", NO_OF_FRAMES {h['NO_OF_FRAMES']}" if h.get("NO_OF_FRAMES") else "")))
-    lines.append(_row("time", desc.get("time_source") or "unknown: FREQUENCY is not a number and there is no Time column"))
-    bodies = desc.get("bodies") or []
-    lines.append(_row("bodies", f"{len(bodies)}: " + ", ".join(bodies)))
-    details = desc.get("body_details") or {}
-    rotations = {b: v.get("rotation") for b, v in details.items()}
-    if len(set(rotations.values())) <= 1:
-        rot = next(iter(rotations.values()), "-")
-        angles = next(iter(details.values()), {}).get("angle_columns") or []
-        lines.append(_row("rotation", rot + (f"; angle columns {' '.join(angles)}" if angles else "")))
-    else:
-        lines.append(_row("rotation", "; ".join(f"{b}: {r}" for b, r in rotations.items())))
-    lines.append(_row("units", f"positions {desc.get('length_unit')}, angles {desc.get('angle_unit')}"))
-    events = desc.get("events") or []
-    if events:
-        lines.append(_row("events", "; ".join(" ".join(e) for e in events)))
-    return lines
-
-
-def _rows_vicon(desc: dict) -> list[str]:
-    sections = desc.get("sections") or []
-    lines = [_row("sections", "; ".join(
-        f"{s['title'] or '(untitled)'} ({_fmt_num(s['rate_hz'])} Hz, {_plural(s['frames'], 'frame')})" for s in sections))]
-    lines.append(_row("delimiter", _DELIMITERS.get(desc.get("delimiter"), desc.get("delimiter"))))
-    if desc.get("pose_section"):
-        lines.append(_row("poses from", f"section {desc['pose_section']}, {desc.get('frames')} frames at {_rate(desc)}"))
-        bodies = desc.get("bodies") or []
-        lines.append(_row("segments", f"{len(bodies)}: " + ", ".join(bodies)))
-        rot = desc.get("rotation")
-        lines.append(_row("rotation", f"RX RY RZ as {'a helical (axis-angle) rotation vector' if rot == 'helical' else 'Euler angles'}"
-                                      f" in {desc.get('angle_unit') or 'deg'}"
-                                      + (" (default; --rotation euler --euler-order ORDER if they are Euler angles)"
-                                         if rot == "helical" else "")))
-        lines.append(_row("length unit", desc.get("length_unit") or "not stated (no units line)"))
-        lines.append(_row("time", "(Frame - 1) / rate"))
-    else:
-        lines.append(_row("poses from", "no section with RX RY RZ TX TY TZ columns"))
-    return lines
-
-
-_ROWS = {"csv": _rows_csv, "mcap": _rows_mcap, "motive": _rows_motive, "qtm": _rows_qtm, "vicon": _rows_vicon}
 _SKIP_KEYS = {"format", "needs"}
+
+
+def _entry(fmt):
+    """The registered :class:`~rbgp_cli.io.formats.Format` named ``fmt``, or None."""
+    from rbgp_cli.io import formats
+
+    return formats.get(fmt) if fmt in formats.names() else None
+
+
+def _title(fmt) -> str:
+    entry = _entry(fmt)
+    return entry.title if entry is not None else (fmt or "unknown format")
 
 
 def _rows_any(desc: dict) -> list[str]:
     """A format without its own layout: every field as an aligned row of plain text."""
     return [_row(str(k).replace("_", " "), v) for k, v in desc.items() if k not in _SKIP_KEYS]
+
+
+#: For the formats' ``describe_rows``: aligned rows of plain words, as every part of inspect writes them.
+text_row, plain, fmt_num, plural, rate_text, DELIMITER_NAMES = _row, _plain, _fmt_num, _plural, _rate, _DELIMITERS
 
 
 def _trajectory_rows(tr: dict) -> list[str]:
@@ -488,10 +369,11 @@ def format_inspect(d: dict) -> str:
     would stop with. Plain words throughout: no Python reprs."""
     fmt = d.get("format")
     size = d.get("bytes", 0)
-    lines = [f"{d['path']}: {_FORMATS.get(fmt, fmt or 'unknown format')} ({size} bytes)"]
+    lines = [f"{d['path']}: {_title(fmt)} ({size} bytes)"]
     desc = d.get("description")
     if isinstance(desc, dict):
-        lines += _ROWS.get(fmt, _rows_any)(desc)
+        entry = _entry(fmt)
+        lines += (entry.describe_rows if entry is not None and entry.describe_rows else _rows_any)(desc)
     for tr in d.get("trajectories", []):
         lines += _trajectory_rows(tr)
     for k, need in enumerate(d.get("needs") or []):
@@ -535,7 +417,7 @@ def format_compact(d: dict) -> str:
     trs = d.get("trajectories") or []
     rates = [t["rate_hz"] for t in trs if t.get("rate_hz")]
     dur = sum(t.get("duration_s") or 0.0 for t in trs)
-    head = (f"{d['path']}: {_FORMATS.get(d.get('format'), d.get('format') or 'unknown format')}, "
+    head = (f"{d['path']}: {_title(d.get('format'))}, "
             f"{_plural(len(trs), 'trajectory').replace('trajectorys', 'trajectories')}, "
             f"{sum(t['samples'] for t in trs)} samples, {_fmt_num(dur, ' s')}"
             + (f", {_fmt_num(float(np.median(rates)), ' Hz')}" if rates else ""))

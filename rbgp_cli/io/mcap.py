@@ -41,11 +41,23 @@ import numpy as np
 
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError, NotPoseData, closest, warn
+from rbgp_cli.io.formats import Format
 from rbgp_cli.io.options import ReadOptions
 
-__all__ = ["read", "read_stream", "read_all", "describe", "MAGIC", "POSE_SCHEMAS", "is_pose_schema"]
+__all__ = ["read", "read_stream", "read_all", "describe", "detect", "MAGIC", "POSE_SCHEMAS", "is_pose_schema", "FORMAT"]
 
 MAGIC = b"\x89MCAP0\r\n"
+
+
+def detect(head: bytes) -> bool:
+    """The MCAP magic, or all of a file too short to hold it that begins like it (a file cut in its
+    first 8 bytes is a truncated MCAP, not a CSV)."""
+    head = bytes(head)
+    return head.startswith(MAGIC) or (0 < len(head) < len(MAGIC) and MAGIC.startswith(head))
+
+
+def _skip_reason(head: bytes, path=None, options=None, complete: bool = False) -> str | None:
+    return None if detect(head) else "not an MCAP file"  # pose topics or not: reading decides
 
 #: normalised schema name -> kind
 POSE_SCHEMAS = {
@@ -407,7 +419,7 @@ def _choose_topic(topics: dict, options: ReadOptions, source: str) -> _Topic:
     raise InputError(
         f"several pose topics; choose one with --topic: {_listing(nonempty)}",
         path=source,
-        hint=f"e.g. --topic {nonempty[0].topic}",
+        hint=f"e.g. --topic {nonempty[0].topic}", param="topic"
     )
 
 
@@ -427,7 +439,7 @@ def _select_subs(scan: _Scan, topic: _Topic, options: ReadOptions, *, select_all
                     + (f"; did you mean {guess!r}?" if guess else ""),
                     path=scan.source,
                     topic=topic.topic,
-                    hint="pass --frame with one of them",
+                    hint="pass --frame with one of them", param="frame"
                 )
             return hit
         if len(frames) > 1:
@@ -436,7 +448,7 @@ def _select_subs(scan: _Scan, topic: _Topic, options: ReadOptions, *, select_all
                 + ", ".join(f"{f} ({counts[f]})" for f in frames),
                 path=scan.source,
                 topic=topic.topic,
-                hint=f"choose one with --frame, e.g. --frame {frames[0]}",
+                hint=f"choose one with --frame, e.g. --frame {frames[0]}", param="frame"
             )
     return [k for k in keys if scan.series[k]]
 
@@ -648,7 +660,8 @@ def _read_matching(stream, source: str, options: ReadOptions) -> list[Trajectory
                  or fnmatch.fnmatchcase(t.info.get("topic", "").strip("/"), pattern.strip("/"))]
     if not trajs:
         raise InputError(f"no pose topic matches {pattern!r}", path=source,
-                         hint="list the topics with rbgp inspect, then pass --topic NAME or a pattern like '/body/*'")
+                         hint="list the topics with rbgp inspect, then pass --topic NAME or a pattern like '/body/*'",
+                         param="topic")
     return trajs
 
 
@@ -749,3 +762,41 @@ def describe(path, options: ReadOptions | None = None) -> dict:
         for t in topics.values()
     ]
     return out
+
+
+def _inspect_read(path, options: ReadOptions | None = None) -> list[Trajectory]:
+    """What ``rbgp inspect`` reads: the topic ``--topic`` names, else every pose topic."""
+    options = options or ReadOptions()
+    return read(path, options) if options.topic else read_all(path, options)
+
+
+def _topic_needs(desc: dict, options: ReadOptions) -> list[str]:
+    """``--topic`` when the file holds several pose topics with messages and the options name none."""
+    pose = [t["topic"] for t in desc.get("topics", []) if t.get("pose") and t.get("messages") != 0]
+    if options.topic or len(pose) < 2:
+        return []
+    return [f"--topic NAME, or --topic all / a pattern for one demonstration per topic ({len(pose)} pose topics)"]
+
+
+def describe_rows(desc: dict) -> list[str]:
+    """The text rows of ``rbgp inspect`` for :func:`describe`'s result."""
+    from rbgp_cli.io.inspect import text_row as _row
+
+    lines = [_row("profile", desc.get("profile") or "-"), _row("library", desc.get("library") or "-"),
+             _row("messages", f"{desc.get('messages') if desc.get('messages') is not None else '?'}"
+                              + ("" if desc.get("summary") else " (no summary: scanned)"))]
+    if desc.get("damaged"):
+        lines.append(_row("damaged", desc["damaged"]))
+    lines.append("  topics:")
+    for t in desc.get("topics", []):
+        mark = "pose" if t.get("pose") else "    "
+        n = t["messages"] if t["messages"] is not None else "?"
+        lines.append(f"    {mark} {t['topic']:<36} {t['schema'] or '(no schema)'} ({t['message_encoding']}) {n} messages")
+    return lines
+
+
+FORMAT = Format(
+    name="mcap", title="MCAP", detect=detect, read=read, describe=describe, describe_rows=describe_rows,
+    skip_reason=_skip_reason, read_stream=read_stream, read_all=_inspect_read, needs=_topic_needs,
+    suffix=".mcap", binary=True,
+)

@@ -39,10 +39,13 @@ import numpy as np
 
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError, NotPoseData, warn
+from rbgp_cli.io import vendor
+from rbgp_cli.io.export import write_motive_csv
+from rbgp_cli.io.formats import Format
 from rbgp_cli.io.options import ReadOptions
-from rbgp_cli.io.qtm import metres_per, numeric_cells, quat_from_valid, read_text, reader_guard, select_bodies
+from rbgp_cli.io.vendor import metres_per, numeric_cells, quat_from_valid, read_text, reader_guard, select_bodies
 
-__all__ = ["sniff", "read", "describe", "UNIT_NAMES", "EULER_TYPES"]
+__all__ = ["sniff", "detect", "read", "describe", "FORMAT", "UNIT_NAMES", "EULER_TYPES"]
 
 #: Motive's ``Length Units`` values -> rbgp unit names.
 UNIT_NAMES = {"meters": "m", "meter": "m", "centimeters": "cm", "centimeter": "cm", "millimeters": "mm",
@@ -51,6 +54,12 @@ UNIT_NAMES = {"meters": "m", "meter": "m", "centimeters": "cm", "centimeter": "c
 EULER_TYPES = ("XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX")
 _HINT = "export from Motive as CSV with the header and Rigid Bodies enabled"
 _LABELS = ("Type", "Name", "ID", "Parent")
+
+
+def detect(head: bytes) -> bool:
+    """Auto-detection: the first non-empty line starts with ``Format Version,``."""
+    _, nonempty = vendor.head_lines(head)
+    return bool(nonempty) and nonempty[0].lstrip().replace('"', "").startswith("Format Version,")
 
 
 def sniff(head: str) -> bool:
@@ -156,7 +165,7 @@ class _Layout:
         unit = UNIT_NAMES.get(stated.lower())
         if unit is None:
             raise InputError(f"unknown Length Units {stated!r}", path=self.path, row=1,
-                             hint="give the unit with --length-unit m|cm|mm")
+                             hint="give the unit with --length-unit m|cm|mm", param="length_unit")
         return unit
 
     def other_assets(self) -> dict[str, list[str]]:
@@ -228,7 +237,7 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
         rate = rate or options.rate
         if rate is None or frame_col is None:
             raise InputError("no Time column and no frame rate in the header", path=path,
-                             hint="give the sample rate with --rate HZ")
+                             hint="give the sample rate with --rate HZ", param="rate")
         t, time_source = col[frame_col] / rate, "Frame / frame rate"
     if options.rate and layout.rate() and abs(options.rate - layout.rate()) > 1e-9 * layout.rate():
         warn(f"ignoring --rate {options.rate:g}: the header states {layout.rate():g} Hz", path=path)
@@ -311,3 +320,52 @@ def describe(path, options: ReadOptions | None = None) -> dict:
         "up_axis": "Y (Motive default; axes kept as exported)",
         "needs": needs,
     }
+
+
+def describe_rows(desc: dict) -> list[str]:
+    """The text rows of ``rbgp inspect`` for :func:`describe`'s result."""
+    from rbgp_cli.io.inspect import text_row as _row, plural as _plural, rate_text as _rate
+
+    h = desc.get("header", {})
+    lines = [_row("export", f"format version {h.get('Format Version', '?')}, take {h.get('Take Name', '-')!s}"
+                            + (f", captured {h['Capture Start Time']}" if h.get("Capture Start Time") else ""))]
+    frames = f"{desc.get('frames')} exported at {_rate(desc)}"
+    if h.get("Capture Frame Rate") and h.get("Capture Frame Rate") != h.get("Export Frame Rate"):
+        frames += f" (captured at {h['Capture Frame Rate']} Hz)"
+    if h.get("Total Frames in Take"):
+        frames += f", {h['Total Frames in Take']} frames in the take"
+    lines.append(_row("frames", frames))
+    lines.append(_row("time", desc.get("time_source")))
+    bodies = desc.get("bodies") or []
+    lines.append(_row("rigid bodies", f"{len(bodies)}: " + ", ".join(bodies) if bodies else "none"))
+    kinds = set((desc.get("rotation") or {}).values())
+    if desc.get("rotation_type"):
+        stated = f"Rotation Type {desc['rotation_type']}"
+    else:
+        stated = "the header states no Rotation Type"
+    if kinds == {"quaternion"}:
+        rot = "quaternion x, y, z, w"
+    elif desc.get("euler_order"):
+        rot = f"Euler angles, degrees, order {desc['euler_order']} ({desc.get('euler_order_source')})"
+    elif kinds:
+        rot = "Euler angles, degrees, order not stated"
+    else:
+        rot = "-"
+    lines.append(_row("rotation", f"{rot}; {stated}" if kinds else rot))
+    unit = desc.get("length_unit")
+    stated_unit = desc.get("length_units_stated")
+    lines.append(_row("length unit", (unit + (f" (Length Units {stated_unit})" if stated_unit else " (option)"))
+                      if unit else ("not stated" if not stated_unit else f"unknown: {stated_unit}")))
+    others = desc.get("other_assets") or {}
+    if others:
+        lines.append(_row("ignored", ", ".join(_plural(len(v), k.lower()) for k, v in others.items())
+                          + " (only rigid bodies are poses)"))
+    lines.append(_row("up axis", desc.get("up_axis")))
+    return lines
+
+
+FORMAT = Format(
+    name="motive", title="OptiTrack Motive CSV", detect=detect, read=read, describe=describe,
+    describe_rows=describe_rows, skip_reason=vendor.skip_reason(sniff, "Motive"),
+    read_all=vendor.read_every_body(read), needs=vendor.body_needs, write=write_motive_csv,
+)

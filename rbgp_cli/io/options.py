@@ -8,18 +8,24 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["ReadOptions", "FORMATS", "LENGTH_UNITS"]
+from rbgp_cli.io.vocabulary import LENGTH_UNITS
 
-FORMATS = ("auto", "csv", "qtm", "motive", "vicon", "mcap")
-#: metres per unit
-LENGTH_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+__all__ = ["ReadOptions", "LENGTH_UNITS"]  # FORMATS: module __getattr__ (the registry's choices)
+
+
+def __getattr__(name):
+    if name == "FORMATS":  # the values of ``format``: "auto" and the registered formats
+        from rbgp_cli.io.formats import choices
+
+        return choices()
+    raise AttributeError(name)
 
 
 @dataclass(frozen=True)
 class ReadOptions:
     """How to read demonstrations (CLI flags of the same names).
 
-    format : one of ``FORMATS``; ``auto`` sniffs the content.
+    format : ``auto`` (sniffs the content) or a format name (:func:`rbgp_cli.io.formats.names`).
     columns : explicit column mapping for CSV, e.g. ``{"t": "stamp", "qx": "ox", ...}``; keys among
         t, x, y, z, qx, qy, qz, qw, rx, ry, rz, roll, pitch, yaw, demo.
     quat_order : ``xyzw`` or ``wxyz``, for columns named q0..q3 (or quaternion columns in a vendor

@@ -27,194 +27,23 @@ shiplab/dt_cv data/basin/raw/M510A-IRR-EKFPID-020019_6D.tsv)
       (scipy notation, applied to the angle columns in file order).
     * Lost frames: ``null``/``NaN``/empty cells, an all-zero Rot[], or ``Residual`` = -1 (QTM writes
       zeros and -1 when a body is not tracked). They are kept as NaN rows; cleaning happens later.
-
-This module also holds the small helpers the vendor readers share (:mod:`rbgp_cli.io.motive` and
-:mod:`rbgp_cli.io.vicon` import them): text loading, numeric cell parsing with row numbers in errors,
-body selection, unit factors and NaN-aware rotation conversions.
 """
 
 from __future__ import annotations
 
-import functools
-import itertools
-import operator
 import re
-from pathlib import Path
 
 import numpy as np
 
 from rbgp_cli.dynamics.trajectory import Trajectory
-from rbgp_cli.errors import InputError, NotPoseData, closest, warn
-from rbgp_cli.io.options import LENGTH_UNITS, ReadOptions
+from rbgp_cli.errors import InputError, NotPoseData, warn
+from rbgp_cli.io import vendor
+from rbgp_cli.io.export import write_qtm_tsv
+from rbgp_cli.io.formats import Format
+from rbgp_cli.io.options import ReadOptions
+from rbgp_cli.io.vendor import metres_per, numeric_cells, quat_from_valid, read_text, reader_guard, select_bodies
 
-__all__ = [
-    "sniff",
-    "not_6d",
-    "read",
-    "describe",
-    # helpers shared by the vendor readers
-    "read_text",
-    "numeric_cells",
-    "select_bodies",
-    "metres_per",
-    "quat_from_valid",
-    "reader_guard",
-]
-
-# --------------------------------------------------------------------------------------------------
-# Helpers shared by the vendor readers (qtm, motive, vicon)
-# --------------------------------------------------------------------------------------------------
-
-#: Cell texts that mean "no value" (compared after strip + lower).
-MISSING_TOKENS = frozenset({"", "null", "nan", "-nan", "na", "n/a", "none"})
-
-
-def read_text(path) -> str:
-    """The file's text (UTF-8 with or without BOM, else Latin-1); InputError if it cannot be read."""
-    p = Path(path)
-    try:
-        data = p.read_bytes()
-    except FileNotFoundError:
-        raise InputError("file not found", path=str(path)) from None
-    except IsADirectoryError:
-        raise InputError("is a directory, not a file", path=str(path)) from None
-    except OSError as exc:
-        raise InputError(f"cannot read the file ({exc.strerror or exc})", path=str(path)) from None
-    try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError:
-        text = data.decode("latin-1")  # QTM/Motive on Windows may write cp1252 names
-    if not text.strip():
-        raise InputError("the file is empty", path=str(path))
-    return text
-
-
-def reader_guard(what: str, hint: str):
-    """Decorate a reader function ``f(path, ...)`` so that an unexpected parsing failure becomes one
-    :class:`InputError` naming the file (never a traceback). InputErrors pass through unchanged."""
-
-    def decorate(fn):
-        @functools.wraps(fn)
-        def wrapper(path, *args, **kwargs):
-            try:
-                return fn(path, *args, **kwargs)
-            except InputError:
-                raise
-            except (ValueError, IndexError, KeyError, ZeroDivisionError) as exc:
-                raise InputError(
-                    f"cannot read this as {what} ({type(exc).__name__}: {exc})", path=str(path), hint=hint
-                ) from exc
-
-        return wrapper
-
-    return decorate
-
-
-def numeric_cells(rows, columns, lines, *, path, labels=None, hint=None, decimal_comma=False) -> np.ndarray:
-    """Parse the cells ``rows[i][columns[j]]`` as floats, shape (len(rows), len(columns)).
-
-    ``rows`` is a list of split lines, ``lines`` their 1-based line numbers in the file (for errors),
-    ``labels`` maps a column index to its header name. Cells in :data:`MISSING_TOKENS` become NaN.
-    ``decimal_comma`` accepts ``1,5`` for 1.5 (locales that separate fields with ``;``).
-    A row too short for ``columns`` (truncated, or split with the wrong delimiter) or a non-numeric
-    cell raises :class:`InputError` with the row's line number.
-    """
-    n, k = len(rows), len(columns)
-    if n == 0 or k == 0:
-        return np.empty((n, k))
-    need = max(columns) + 1
-    short = next((i for i, cells in enumerate(rows) if len(cells) < need), None)
-    if short is not None:
-        raise InputError(
-            f"row has {len(rows[short])} cells but the column header needs {need} "
-            "(a truncated row, or a different delimiter than the header)",
-            path=str(path),
-            row=int(lines[short]),
-            hint=hint,
-        )
-    # Python's float() on a flat list: correctly rounded and ~3x faster than numpy's str -> float
-    pick = operator.itemgetter(*columns)
-    flat = list(itertools.chain.from_iterable(pick(r) for r in rows)) if k > 1 else [pick(r) for r in rows]
-    if decimal_comma:
-        flat = [c.replace(",", ".") for c in flat]
-    try:
-        return np.fromiter(map(float, flat), dtype=np.float64, count=n * k).reshape(n, k)
-    except ValueError:
-        pass
-    flat = ["nan" if c.strip().lower() in MISSING_TOKENS else c for c in flat]
-    try:
-        return np.fromiter(map(float, flat), dtype=np.float64, count=n * k).reshape(n, k)
-    except ValueError:
-        pass
-    for index, text in enumerate(flat):  # find the first bad cell to name it
-        try:
-            float(text)
-        except ValueError:
-            i, j = divmod(index, k)
-            label = (labels or {}).get(columns[j], f"#{columns[j] + 1}")
-            raise InputError(
-                f"cell {text!r} in column {label} is not a number", path=str(path), row=int(lines[i]), hint=hint
-            ) from None
-    raise InputError("cannot parse the numeric cells", path=str(path), hint=hint)  # pragma: no cover
-
-
-def select_bodies(names, body, *, path, aliases=None) -> list[str]:
-    """The body names to read: ``body`` None -> the only body (InputError listing them if several);
-    ``"all"`` -> every body; else the named one (exact, then case-insensitive, then ``aliases``
-    {alias: name}); an unknown name raises InputError suggesting the closest name."""
-    names = list(names)
-    if not names:
-        raise InputError("the file holds no rigid bodies", path=str(path))
-    listed = ", ".join(repr(n) for n in names)
-    if body is None:
-        if len(names) == 1:
-            return names
-        raise InputError(
-            f"the file holds {len(names)} rigid bodies: {listed}; choose one",
-            path=str(path),
-            hint="use --body NAME, or --body all to read every body",
-        )
-    if body in names:
-        return [body]
-    if body == "all":
-        return names
-    folded = [n for n in names if n.lower() == body.lower()]
-    if len(folded) == 1:
-        return folded
-    aliased = sorted({v for a, v in (aliases or {}).items() if a.lower() == body.lower()})
-    if len(aliased) == 1:
-        return aliased
-    guess = closest(body, names + list(aliases or {}))
-    guess = (aliases or {}).get(guess, guess)
-    raise InputError(
-        f"no rigid body named {body!r}; the bodies are {listed}",
-        path=str(path),
-        hint=f"did you mean --body {guess!r}?" if guess else "use --body NAME or --body all",
-    )
-
-
-def metres_per(unit: str, *, path, hint=None) -> float:
-    """Metres per ``unit`` (``m``, ``cm``, ``mm``); InputError for anything else."""
-    try:
-        return LENGTH_UNITS[unit]
-    except KeyError:
-        raise InputError(
-            f"unknown length unit {unit!r}; use one of {', '.join(LENGTH_UNITS)}", path=str(path), hint=hint
-        ) from None
-
-
-def quat_from_valid(valid, convert, values) -> np.ndarray:
-    """Quaternions (x, y, z, w), shape (N, 4): ``convert(values[valid])`` (a scipy Rotation) on the
-    valid rows, NaN elsewhere (scipy rejects NaN rows and zero matrices, so they never reach it)."""
-    out = np.full((len(valid), 4), np.nan)
-    if np.any(valid):
-        out[valid] = convert(values[valid]).as_quat()
-    return out
-
-
-# --------------------------------------------------------------------------------------------------
-# QTM
-# --------------------------------------------------------------------------------------------------
+__all__ = ["sniff", "detect", "not_6d", "read", "describe", "FORMAT"]
 
 _KEY = re.compile(r"^[A-Z][A-Z0-9]*(?:_[A-Z0-9]+)+$")
 _BARE_KEYS = {"FREQUENCY", "DESCRIPTION", "EVENT"}
@@ -241,6 +70,22 @@ def sniff(head: str) -> bool:
     first = lines[0].split("\t")[0].strip()
     keys = ("FILE_VERSION", "NO_OF_FRAMES", "NO_OF_CAMERAS", "NO_OF_BODIES", "NO_OF_MARKERS")
     return first in keys or lines[0].startswith("Frame\tTime\t")
+
+
+#: Header keys that start a QTM export (auto-detection; :func:`sniff` checks a named ``--format qtm``).
+_DETECT_KEYS = ("NO_OF_FRAMES", "FILE_VERSION", "NO_OF_CAMERAS", "NO_OF_BODIES", "NO_OF_MARKERS", "FREQUENCY")
+
+
+def detect(head: bytes) -> bool:
+    """Auto-detection from the first bytes of a file: the first non-empty line starts with a QTM header
+    key and a tab, or a ``Frame<TAB>Time`` column line is among the first 64 lines."""
+    lines, nonempty = vendor.head_lines(head)
+    if not nonempty:
+        return False
+    first = nonempty[0]
+    if first.split("\t")[0].strip() in _DETECT_KEYS and "\t" in first:
+        return True
+    return any(ln.startswith("Frame\tTime") for ln in lines[:64])
 
 
 def not_6d(head: str) -> str | None:
@@ -436,7 +281,7 @@ def _time_axis(layout: _Layout, values, options: ReadOptions, n: int):
         raise InputError(
             "FREQUENCY is not a number (external timebase?) and there is no Time column",
             path=layout.path,
-            hint="give the sample rate with --rate HZ",
+            hint="give the sample rate with --rate HZ", param="rate"
         )
     if "Frame" in values:
         return (values["Frame"] - 1.0) / rate, "(Frame - 1) / FREQUENCY", rate
@@ -476,7 +321,7 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
                     else "no Euler angle columns")
             raise InputError(
                 f"body {name!r} has no Rot[0..8] matrix and {what}", path=path, row=layout.header_line + 1,
-                hint="give the angles' convention with --euler-order (e.g. XYZ for Roll Pitch Yaw)",
+                hint="give the angles' convention with --euler-order (e.g. XYZ for Roll Pitch Yaw)", param="euler_order"
             )
         plans[name] = plan
         wanted += [fields[f] for f in ("X", "Y", "Z")] + (rot or angles)  # angles: only when no Rot[]
@@ -586,3 +431,43 @@ def describe(path, options: ReadOptions | None = None) -> dict:
         "time_source": time_source,
         "needs": needs,
     }
+
+
+def describe_rows(desc: dict) -> list[str]:
+    """The text rows of ``rbgp inspect`` for :func:`describe`'s result."""
+    from rbgp_cli.io.inspect import text_row as _row, rate_text as _rate
+
+    h = desc.get("header", {})
+    version = h.get("FILE_VERSION")
+    layout = "current (Frame, Time, <Body> X ...)" if desc.get("layout") == "current" else \
+        "old, before 2.0.0 (no Frame/Time columns, one header block for every body)"
+    lines = [_row("layout", layout + (f", FILE_VERSION {version}" if version else ""))]
+    if h.get("TIME_STAMP"):
+        lines.append(_row("recorded", h["TIME_STAMP"] if isinstance(h["TIME_STAMP"], str) else h["TIME_STAMP"][0]))
+    freq = h.get("FREQUENCY")
+    rate = f"at {_rate(desc)}" if desc.get("rate_hz") else f"at no stated rate (FREQUENCY {freq or 'missing'})"
+    lines.append(_row("frames", f"{desc.get('frames')} {rate}"
+                                + (f", NO_OF_FRAMES {h['NO_OF_FRAMES']}" if h.get("NO_OF_FRAMES") else "")))
+    lines.append(_row("time", desc.get("time_source") or "unknown: FREQUENCY is not a number and there is no Time column"))
+    bodies = desc.get("bodies") or []
+    lines.append(_row("bodies", f"{len(bodies)}: " + ", ".join(bodies)))
+    details = desc.get("body_details") or {}
+    rotations = {b: v.get("rotation") for b, v in details.items()}
+    if len(set(rotations.values())) <= 1:
+        rot = next(iter(rotations.values()), "-")
+        angles = next(iter(details.values()), {}).get("angle_columns") or []
+        lines.append(_row("rotation", rot + (f"; angle columns {' '.join(angles)}" if angles else "")))
+    else:
+        lines.append(_row("rotation", "; ".join(f"{b}: {r}" for b, r in rotations.items())))
+    lines.append(_row("units", f"positions {desc.get('length_unit')}, angles {desc.get('angle_unit')}"))
+    events = desc.get("events") or []
+    if events:
+        lines.append(_row("events", "; ".join(" ".join(e) for e in events)))
+    return lines
+
+
+FORMAT = Format(
+    name="qtm", title="Qualisys QTM TSV", detect=detect, read=read, describe=describe, describe_rows=describe_rows,
+    skip_reason=vendor.skip_reason(sniff, "QTM", not_6d), read_all=vendor.read_every_body(read),
+    needs=vendor.body_needs, write=write_qtm_tsv, suffix=".tsv",
+)

@@ -5,14 +5,11 @@
 frames as NaN rows), to be cleaned by :func:`rbgp_cli.dynamics.prepare.prepare_all`.
 
 The format is detected from the **content**, not the file name (``ReadOptions.format`` overrides):
-
-* ``mcap``: the MCAP magic bytes ``\\x89MCAP0\\r\\n``;
-* ``qtm``: Qualisys TSV header keys (``NO_OF_FRAMES``, ``FILE_VERSION``, ...) or a ``Frame<TAB>Time``
-  column line near the top;
-* ``motive``: the first line starts with ``Format Version,``;
-* ``vicon``: the first non-empty line is a section title (``Segments``, ``Model Outputs``,
-  ``Trajectories``, ``Joints``, ``Devices``) followed by a rate line;
-* ``csv``: anything else (generic named columns, :mod:`rbgp_cli.io.csv`).
+each format registered in :mod:`rbgp_cli.io.formats` is asked in turn whether the first 8 KiB look
+like it (MCAP: its magic bytes; QTM: its header keys or a ``Frame<TAB>Time`` column line; Motive: a
+first line ``Format Version,``; Vicon: a section title and a rate line), and a file no format
+recognises is a generic CSV/TSV table (:mod:`rbgp_cli.io.csv`). Reading dispatches to the format's
+``read`` (``read_stream`` / ``read_bytes`` for stdin).
 
 Directories and patterns: a directory stands for the files in it (not its subdirectories), a glob
 pattern (``'data/*_6D.tsv'``) for the files it matches, both sorted by name. Among those, files that
@@ -35,22 +32,22 @@ from pathlib import Path
 
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError, NotPoseData, warn
-from rbgp_cli.io.options import FORMATS, ReadOptions
+from rbgp_cli.io import formats
+from rbgp_cli.io.mcap import MAGIC as MCAP_MAGIC
+from rbgp_cli.io.options import ReadOptions
 
 __all__ = ["read_demonstrations", "read_sources", "list_sources", "SourceList", "read_file", "read_stream",
            "detect_format", "expand_sources", "skip_reason", "MCAP_MAGIC"]  # fmt: skip
 
-MCAP_MAGIC = b"\x89MCAP0\r\n"
-_HEAD = 8192
+_HEAD = formats.HEAD_BYTES
+#: A streamed format (one with ``read_stream``) is recognised from this many first bytes of stdin.
+_PEEK = len(MCAP_MAGIC)
 #: At most this many skipped files are named in the note (the rest are counted).
 _NOTE_NAMES = 8
-_QTM_KEYS = ("NO_OF_FRAMES", "FILE_VERSION", "NO_OF_CAMERAS", "NO_OF_BODIES", "NO_OF_MARKERS", "FREQUENCY")
-_VICON_SECTIONS = ("Segments", "Model Outputs", "Trajectories", "Joints", "Devices")
-_VENDOR = ("qtm", "motive", "vicon")
 
 
 def detect_format(path_or_head) -> str:
-    """``"mcap"``, ``"qtm"``, ``"motive"``, ``"vicon"`` or ``"csv"`` from the content.
+    """The name of the format of a file (:func:`rbgp_cli.io.formats.detect`), from its content.
 
     Parameters
     ----------
@@ -62,36 +59,7 @@ def detect_format(path_or_head) -> str:
     else:
         with open(path_or_head, "rb") as fh:
             head = fh.read(_HEAD)
-    if _is_mcap_head(head):
-        return "mcap"
-    text = head.decode("utf-8-sig", errors="replace").lstrip("\ufeff")
-    lines = text.splitlines()
-    nonempty = [ln for ln in lines if ln.strip(" \t,;")]
-    if not nonempty:
-        return "csv"
-    first = nonempty[0]
-    key = first.split("\t")[0].strip()
-    if key in _QTM_KEYS and "\t" in first:
-        return "qtm"
-    if any(ln.startswith("Frame\tTime") for ln in lines[:64]):
-        return "qtm"
-    if first.lstrip().replace('"', "").startswith("Format Version,"):
-        return "motive"
-    title = first.strip().strip(",;\t ").strip('"')
-    if title in _VICON_SECTIONS and len(nonempty) > 1:
-        rate = nonempty[1].strip().strip(",;\t ").replace(",", ".")
-        try:
-            float(rate)
-            return "vicon"
-        except ValueError:
-            pass
-    return "csv"
-
-
-def _is_mcap_head(head: bytes) -> bool:
-    """The MCAP magic, or all of a file too short to hold it that begins like it (a file cut in its
-    first 8 bytes is a truncated MCAP, not a CSV)."""
-    return head.startswith(MCAP_MAGIC) or (0 < len(head) < len(MCAP_MAGIC) and MCAP_MAGIC.startswith(head))
+    return formats.detect(head)
 
 
 def _is_pattern(p: str) -> bool:
@@ -246,48 +214,29 @@ def skip_reason(path, options: ReadOptions | None = None) -> str | None:
     except OSError:
         return None  # reading it says what is wrong
     fmt = _format_option(options)
-    if fmt == "mcap" or (fmt == "auto" and _is_mcap_head(head)):
-        return None if _is_mcap_head(head) else "not an MCAP file"
-    if not head.strip(b" \t\r\n"):
-        return "empty"
     if fmt == "auto":
         fmt = detect_format(head)
-    if fmt == "csv":
-        from rbgp_cli.io import csv
-
-        return csv.sniff_pose_columns(head, path, options, complete=size <= len(head))
-    text = head.decode("utf-8-sig", errors="replace")
-    module = _vendor(fmt)
-    if not module.sniff(text):
-        return f"not a {_VENDOR_NAMES[fmt]} export"
-    if fmt == "qtm":
-        return module.not_6d(text)
-    return None
-
-
-_VENDOR_NAMES = {"qtm": "QTM", "motive": "Motive", "vicon": "Vicon"}
+    entry = formats.get(fmt)
+    if not entry.binary and not head.strip(b" \t\r\n"):
+        return "empty"
+    if entry.skip_reason is None:
+        return None
+    return entry.skip_reason(head, path, options, complete=size <= len(head))
 
 
 def _format_option(options: ReadOptions) -> str:
+    """``options.format`` in lower case; InputError for a name no format is registered under."""
     fmt = (options.format or "auto").lower()
-    if fmt not in FORMATS:
+    choices = formats.choices()
+    if fmt not in choices:
         from rbgp_cli.errors import closest
 
-        guess = closest(fmt, FORMATS)
+        guess = closest(fmt, choices)
         raise InputError(
-            f"unknown format {options.format!r}; formats are {', '.join(FORMATS)}"
-            + (f"; did you mean {guess!r}?" if guess else "")
+            f"unknown format {options.format!r}; formats are {', '.join(choices)}"
+            + (f"; did you mean {guess!r}?" if guess else ""), param="format",
         )
     return fmt
-
-
-def _vendor(fmt: str):
-    import importlib
-
-    try:
-        return importlib.import_module(f"rbgp_cli.io.{fmt}")
-    except ImportError as exc:  # pragma: no cover - the vendor readers ship with rbgp
-        raise InputError(f"the {fmt} reader is not available ({exc})") from None
 
 
 def read_file(source, options: ReadOptions | None = None) -> list[Trajectory]:
@@ -323,15 +272,7 @@ def read_file(source, options: ReadOptions | None = None) -> list[Trajectory]:
     fmt = _format_option(options)
     if fmt == "auto":
         fmt = detect_format(head)
-    if fmt == "mcap":
-        from rbgp_cli.io import mcap
-
-        return mcap.read(source, options)
-    if fmt == "csv":
-        from rbgp_cli.io import csv
-
-        return csv.read(source, options)
-    return _vendor(fmt).read(source, options)
+    return formats.get(fmt).read(source, options)
 
 
 class _PrefixedRaw(io.RawIOBase):
@@ -370,8 +311,9 @@ def _seekable(stream) -> bool:
 def read_stream(stream, options: ReadOptions | None = None, source: str = "-") -> list[Trajectory]:
     """Read demonstrations from a binary stream (stdin, a pipe, a BytesIO).
 
-    MCAP (sniffed from the magic bytes) is streamed; a pipe is read once, front to back. Text
-    formats are read whole; vendor formats go through a temporary file.
+    A format with ``read_stream`` (MCAP, recognised from its magic bytes) is streamed; a pipe is read
+    once, front to back. Other formats are read whole, and given to the format's ``read_bytes`` or
+    else through a temporary file.
     """
     options = options or ReadOptions()
     fmt = _format_option(options)
@@ -386,40 +328,36 @@ def read_stream(stream, options: ReadOptions | None = None, source: str = "-") -
                          hint="pipe a file in, e.g. rbgp train - < demo.csv")  # fmt: skip
     if _seekable(stream):
         pos = stream.tell()
-        head = stream.read(len(MCAP_MAGIC))
+        head = stream.read(_PEEK)
         stream.seek(pos)
     else:
         head = b""
-        while len(head) < len(MCAP_MAGIC):
-            chunk = stream.read(len(MCAP_MAGIC) - len(head))
+        while len(head) < _PEEK:
+            chunk = stream.read(_PEEK - len(head))
             if not chunk:
                 break
             head += chunk
     if not head:
         raise InputError("the input is empty", path=source, hint="pipe a CSV, TSV or MCAP file into rbgp")
-    if fmt == "mcap" or (fmt == "auto" and _is_mcap_head(head)):
-        from rbgp_cli.io import mcap
-
+    streamed = formats.get(fmt) if fmt != "auto" else next(
+        (f for f in formats.all_formats() if f.read_stream and f.detect and f.detect(head)), None)
+    if streamed is not None and streamed.read_stream is not None:
         s = stream if _seekable(stream) else io.BufferedReader(_PrefixedRaw(head, stream))
-        return mcap.read_stream(s, options, source=source)
+        return streamed.read_stream(s, options, source=source)
     data = stream.read() if _seekable(stream) else head + stream.read()
-    if fmt == "auto":
-        fmt = detect_format(data[:_HEAD])
-    if fmt == "csv":
-        from rbgp_cli.io import csv
-
-        return csv.read_bytes(data, source, options)
+    entry = formats.get(detect_format(data[:_HEAD]) if fmt == "auto" else fmt)
+    if entry.read_bytes is not None:
+        return entry.read_bytes(data, source, options)
     import tempfile
 
-    module = _vendor(fmt)
-    suffix = ".tsv" if fmt == "qtm" else ".csv"
-    fd, tmp = tempfile.mkstemp(prefix="rbgp-stdin-", suffix=suffix)
+    fd, tmp = tempfile.mkstemp(prefix="rbgp-stdin-", suffix=entry.suffix)
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
-        trajs = module.read(tmp, options)
+        trajs = entry.read(tmp, options)
     except InputError as exc:
-        raise InputError(exc.message.replace(tmp, source), path=source, row=exc.row, topic=exc.topic, hint=exc.hint) from None
+        raise InputError(exc.message.replace(tmp, source), path=source, row=exc.row, topic=exc.topic, hint=exc.hint,
+                         param=exc.param) from None
     finally:
         os.unlink(tmp)
     stem = Path(tmp).stem

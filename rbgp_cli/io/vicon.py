@@ -33,10 +33,13 @@ import numpy as np
 
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError, NotPoseData, warn
+from rbgp_cli.io import vendor
+from rbgp_cli.io.export import write_vicon_csv
+from rbgp_cli.io.formats import Format
 from rbgp_cli.io.options import ReadOptions
-from rbgp_cli.io.qtm import metres_per, numeric_cells, quat_from_valid, read_text, reader_guard, select_bodies
+from rbgp_cli.io.vendor import metres_per, numeric_cells, quat_from_valid, read_text, reader_guard, select_bodies
 
-__all__ = ["sniff", "read", "describe", "SECTIONS"]
+__all__ = ["sniff", "detect", "read", "describe", "FORMAT", "SECTIONS"]
 
 SECTIONS = ("Devices", "Joints", "Model Outputs", "Segments", "Trajectories")
 _POSE = ("RX", "RY", "RZ", "TX", "TY", "TZ")
@@ -50,6 +53,19 @@ def _delimiter(lines) -> str | None:
             if line.startswith(f"Frame{d}"):
                 return d
     return None
+
+
+def detect(head: bytes) -> bool:
+    """Auto-detection: the first non-empty line is a section title (``Segments``, ...) and the next one
+    a number (the rate)."""
+    _, nonempty = vendor.head_lines(head)
+    if len(nonempty) < 2 or nonempty[0].strip().strip(",;\t ").strip('"') not in SECTIONS:
+        return False
+    try:
+        float(nonempty[1].strip().strip(",;\t ").replace(",", "."))
+    except ValueError:
+        return False
+    return True
 
 
 def sniff(head: str) -> bool:
@@ -162,10 +178,10 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
     rotation = (options.rotation or "helical").lower()
     if rotation not in ("helical", "euler"):
         raise InputError(f"unknown --rotation {options.rotation!r} for Vicon RX,RY,RZ", path=path,
-                         hint="use --rotation helical (axis-angle, default) or --rotation euler")
+                         hint="use --rotation helical (axis-angle, default) or --rotation euler", param="rotation")
     if rotation == "euler" and not options.euler_order:
         raise InputError("--rotation euler needs the Euler convention of RX,RY,RZ", path=path,
-                         hint="give it with --euler-order (e.g. XYZ intrinsic, xyz extrinsic)")
+                         hint="give it with --euler-order (e.g. XYZ intrinsic, xyz extrinsic)", param="euler_order")
     first = poses[chosen[0]]
     units = section.units or []
     if options.length_unit:
@@ -174,7 +190,7 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
         length_unit = units[first["TX"]]
     else:
         raise InputError("no units line under the column line, so the length unit is unknown", path=path,
-                         row=section.column_row + 1, hint="give it with --length-unit m|cm|mm")
+                         row=section.column_row + 1, hint="give it with --length-unit m|cm|mm", param="length_unit")
     scale = metres_per(length_unit, path=path, hint="use --length-unit m|cm|mm")
     if options.degrees is not None:
         degrees = bool(options.degrees)
@@ -182,13 +198,13 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
         stated = units[first["RX"]].lower() if first["RX"] < len(units) else ""
         if stated and stated not in _ANGLE_UNITS:
             raise InputError(f"unknown angle unit {stated!r} for RX", path=path, row=section.column_row + 2,
-                             hint="say whether angles are degrees with --degrees / --no-degrees")
+                             hint="say whether angles are degrees with --degrees / --no-degrees", param="degrees")
         degrees = _ANGLE_UNITS.get(stated, True)
 
     rate = section.rate or options.rate
     if section.rate is None and options.rate is None:
         raise InputError(f"the rate line of section {section.title!r} is not a number", path=path,
-                         row=section.column_row - 1, hint="give the sample rate with --rate HZ")
+                         row=section.column_row - 1, hint="give the sample rate with --rate HZ", param="rate")
     if options.rate and section.rate and abs(options.rate - section.rate) > 1e-9 * section.rate:
         warn(f"ignoring --rate {options.rate:g}: the file states {section.rate:g} Hz", path=path)
 
@@ -283,3 +299,36 @@ def describe(path, options: ReadOptions | None = None) -> dict:
         "angle_unit": angle_unit,
         "needs": needs,
     }
+
+
+def describe_rows(desc: dict) -> list[str]:
+    """The text rows of ``rbgp inspect`` for :func:`describe`'s result."""
+    from rbgp_cli.io.inspect import (
+        text_row as _row, fmt_num as _fmt_num, plural as _plural, rate_text as _rate, DELIMITER_NAMES as _DELIMITERS,
+    )
+
+    sections = desc.get("sections") or []
+    lines = [_row("sections", "; ".join(
+        f"{s['title'] or '(untitled)'} ({_fmt_num(s['rate_hz'])} Hz, {_plural(s['frames'], 'frame')})" for s in sections))]
+    lines.append(_row("delimiter", _DELIMITERS.get(desc.get("delimiter"), desc.get("delimiter"))))
+    if desc.get("pose_section"):
+        lines.append(_row("poses from", f"section {desc['pose_section']}, {desc.get('frames')} frames at {_rate(desc)}"))
+        bodies = desc.get("bodies") or []
+        lines.append(_row("segments", f"{len(bodies)}: " + ", ".join(bodies)))
+        rot = desc.get("rotation")
+        lines.append(_row("rotation", f"RX RY RZ as {'a helical (axis-angle) rotation vector' if rot == 'helical' else 'Euler angles'}"
+                                      f" in {desc.get('angle_unit') or 'deg'}"
+                                      + (" (default; --rotation euler --euler-order ORDER if they are Euler angles)"
+                                         if rot == "helical" else "")))
+        lines.append(_row("length unit", desc.get("length_unit") or "not stated (no units line)"))
+        lines.append(_row("time", "(Frame - 1) / rate"))
+    else:
+        lines.append(_row("poses from", "no section with RX RY RZ TX TY TZ columns"))
+    return lines
+
+
+FORMAT = Format(
+    name="vicon", title="Vicon CSV", detect=detect, read=read, describe=describe, describe_rows=describe_rows,
+    skip_reason=vendor.skip_reason(sniff, "Vicon"), read_all=vendor.read_every_body(read), needs=vendor.body_needs,
+    write=write_vicon_csv,
+)

@@ -15,6 +15,7 @@ import pytest
 
 from rbgp_cli.errors import InputError
 from rbgp_cli.io import csv as rcsv
+from rbgp_cli.io import csv_table
 from rbgp_cli.io.csv import write_trajectories_csv
 from rbgp_cli.io.options import ReadOptions
 
@@ -40,7 +41,7 @@ def table(n=ROWS, *, sep=",", decimal=".", header="t,x,y,z,qx,qy,qz,qw", scale=1
 
 def via_text(path: Path, options=None):
     """The in-memory text path on the same file (what every file went through before)."""
-    return rcsv.read_text(rcsv._decode(path.read_bytes(), str(path)), str(path), options)
+    return rcsv.read_text(csv_table.decode(path.read_bytes(), str(path)), str(path), options)
 
 
 def assert_same(a, b):
@@ -176,6 +177,6 @@ def test_describe_counts_the_rows_of_a_big_file_without_decoding_it(tmp_path):
     same count as the text path (blank and comment lines are not rows)."""
     files = [path for path, _ in layouts(tmp_path).values()] + list(problems(tmp_path).values())
     for path in files:
-        expected = len(rcsv._parse_table(rcsv._decode(path.read_bytes(), str(path)), str(path)).lines)
+        expected = len(csv_table.parse_table(csv_table.decode(path.read_bytes(), str(path)), str(path)).lines)
         d = rcsv.describe(path)
         assert d["data_rows"] == expected, path.name

@@ -64,25 +64,27 @@ def test_read_file_dispatches_to_csv_and_mcap(tmp_path):
 
 @pytest.mark.parametrize("fmt, head", [("qtm", "NO_OF_FRAMES\t3\n"), ("motive", "Format Version,1.23\n"), ("vicon", "Segments\n100\n")])
 def test_vendor_formats_are_dispatched_lazily(tmp_path, monkeypatch, fmt, head):
-    import importlib
+    from dataclasses import replace
 
-    module = importlib.import_module(f"rbgp_cli.io.{fmt}")
+    from rbgp_cli.io import formats
+
     seen = {}
 
     def fake_read(path, options):
         seen["path"], seen["options"] = str(path), options
         return [Trajectory(t=[0.0, 1.0], quat=[[0, 0, 0, 1]] * 2, position=[[0, 0, 0]] * 2, name=fmt, source=str(path))]
 
-    monkeypatch.setattr(module, "read", fake_read)
     p = tmp_path / "export.txt"
     p.write_text(head)
     opts = ReadOptions(body="shoe")
-    trajs = rread.read_file(p, opts)
-    assert trajs[0].name == fmt and seen == {"path": str(p), "options": opts}
-    # stdin goes through a temporary file, but the source says "-"
-    trajs = rread.read_demonstrations(["-"], opts, stdin=io.BytesIO(head.encode()))
+    with formats.registered(replace(formats.get(fmt), read=fake_read), replace=True):  # dispatch goes through the registry
+        trajs = rread.read_file(p, opts)
+        assert trajs[0].name == fmt and seen == {"path": str(p), "options": opts}
+        # stdin goes through a temporary file, but the source says "-"
+        trajs = rread.read_demonstrations(["-"], opts, stdin=io.BytesIO(head.encode()))
     assert trajs[0].source == "-" and seen["path"] != "-"
     assert not os.path.exists(seen["path"])
+    assert formats.get(fmt).read is not fake_read
 
 
 def test_format_option_overrides_sniffing(tmp_path):
