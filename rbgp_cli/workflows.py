@@ -132,9 +132,9 @@ def _pose_numbers(text: str, n: int, flag: str, hint: str) -> np.ndarray:
     try:
         vals = np.array([float(v) for v in text.replace(",", " ").split()])
     except ValueError:
-        raise InputError(f"start pose {text!r} ({flag}) is not {_WORDS[n]} numbers", hint=hint) from None
+        raise InputError(f"start pose {text!r} ({flag}) is not {_WORDS[n]} numbers", hint=hint, param=flag) from None
     if vals.shape != (n,) or not np.all(np.isfinite(vals)):
-        raise InputError(f"start pose {text!r} ({flag}) must be {_WORDS[n]} finite numbers", hint=hint)
+        raise InputError(f"start pose {text!r} ({flag}) must be {_WORDS[n]} finite numbers", hint=hint, param=flag)
     return vals
 
 
@@ -142,8 +142,8 @@ def parse_pose(text: str) -> tuple[np.ndarray, np.ndarray]:
     """Parse a start pose "rx ry rz x y z" (rotation vector in rad, position in m; commas allowed)."""
     from rbgp_cli.geometry.so3 import quat_from_rotvec
 
-    vals = _pose_numbers(text, 6, "--start", 'write it as "rx ry rz x y z" (rotation vector in rad, m), or a quaternion '
-                         'with --start-quat "qx qy qz qw x y z"')
+    vals = _pose_numbers(text, 6, "start", 'write it as "rx ry rz x y z" (rotation vector in rad, m), or a quaternion '
+                         'with start_quat "qx qy qz qw x y z"')
     return quat_from_rotvec(vals[:3]), vals[3:]
 
 
@@ -154,10 +154,10 @@ def parse_pose_quat(text: str) -> tuple[np.ndarray, np.ndarray]:
     """
     from rbgp_cli.dynamics.prepare import ZERO_QUAT_NORM
 
-    vals = _pose_numbers(text, 7, "--start-quat", 'write it as "qx qy qz qw x y z" (quaternion x, y, z, w; m)')
+    vals = _pose_numbers(text, 7, "start_quat", 'write it as "qx qy qz qw x y z" (quaternion x, y, z, w; m)')
     norm = float(np.linalg.norm(vals[:4]))
     if norm < ZERO_QUAT_NORM:
-        raise InputError(f"start pose {text!r} (--start-quat) has a zero quaternion, which is no rotation",
+        raise InputError(f"start pose {text!r} (start_quat) has a zero quaternion, which is no rotation", param="start_quat",
                          hint='give a unit quaternion x y z w first, e.g. "0 0 0 1 x y z" for no rotation')
     return vals[:4] / norm, vals[4:]
 
@@ -269,7 +269,7 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
         if steps is None:
             dur = float(np.median(model.durations)) if duration is None else float(duration)
             if not np.isfinite(dur) or dur <= 0:
-                raise InputError(f"--duration must be a positive number of seconds, got {dur}")
+                raise InputError(f"duration must be a positive number of seconds, got {dur}", param="duration")
             steps = max(1, int(round(dur / step)))
         res = rollout(model, quat, pos, steps, step, **kwargs)
     if res.left and res.left["count"]:
@@ -319,7 +319,7 @@ def evaluate_files(generated_sources, demo_sources, *, options: ReadOptions | No
                                         progress=progress).trajectories()
     else:
         if not generated_sources:
-            raise InputError("no generated trajectories given", hint="pass a file (or - for stdin) or --model MODEL")
+            raise InputError("no generated trajectories given", hint="pass a file (or - for stdin) or model MODEL", param="model")
         generated, _, _ = load_demonstrations(generated_sources, ReadOptions(), stdin=stdin)
     if unscored and check_sample_sizes(len(generated), len(demos), covariance).refusal is not None:
         result = evaluate(generated, demos, length=length, covariance=covariance, sample_size="record")
