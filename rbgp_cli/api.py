@@ -563,13 +563,28 @@ class RigidBodyGP:
         model, header = load_model(str(path))
         opts = ((header.get("provenance") or {}).get("train_options") or {})
         self = cls(representation=model.representation.name if hasattr(model.representation, "name") else DEFAULTS["representation"])
-        for k, v in opts.items():
-            if k in self.get_params() and not isinstance(v, dict):
-                setattr(self, k, v)
+        self.set_params(**_params_of(opts))
         self.model_ = model
         self.header_ = dict(header)
         self._fitted()
         return self
+
+
+def _params_of(train_options: dict) -> dict:
+    """The estimator's parameters from a model file's ``provenance.train_options`` (the keyword
+    arguments of :func:`~rbgp_cli.dynamics.model.train_model`, as :func:`train_options` builds them)."""
+    names = {"shared": "share_hyperparameters", "calibrate": "calibrate_noise"}
+    out = {}
+    for k, v in (train_options or {}).items():
+        k = names.get(k, k)
+        if k == "velocity" and isinstance(v, dict):
+            out.update(train_rate=v.get("rate_hz") or 0.0, smooth_window=v.get("window_s", 0.0),
+                       smooth_degree=v.get("degree", DEFAULTS["smooth_degree"]))
+        elif k == "noise":
+            out[k] = "learn" if v is None else v
+        elif k in RigidBodyGP._TRAIN or k in ("representation", "kernel", "jobs"):
+            out[k] = v
+    return out
 
 
 # --------------------------------------------------------------------------------------------- scoring
