@@ -161,3 +161,21 @@ def test_docstring_examples_run():
 
     res = doctest.testmod(rbgp_cli.api, optionflags=doctest.ELLIPSIS)
     assert res.attempted >= 9 and res.failed == 0
+
+
+def test_readme_python_section_runs(tmp_path):
+    """docs/README_python_section.md (the README's future "Python" section): its code runs as shown."""
+    import re
+
+    text = (REPO / "docs" / "README_python_section.md").read_text()
+    assert len(text.splitlines()) <= 30
+    code = "\n".join(re.findall(r"```python\n(.*?)```", text, re.S))
+    code = code.replace('"shoe.rbgp"', repr(str(tmp_path / "shoe.rbgp")))
+    script = tmp_path / "readme_python.py"
+    script.write_text("def main():\n" + "".join(f"    {ln}\n" for ln in code.splitlines())
+                      + "\n\nif __name__ == '__main__':\n    main()\n")
+    res = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, cwd=REPO, timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    first = res.stdout.splitlines()[0]
+    assert re.fullmatch(r"\(3, \d+, 4\) \(3, 5, \d+, 3\)", first), first
+    assert "replay" in res.stdout and "axis-angle" in res.stdout and (tmp_path / "shoe.rbgp").exists()
