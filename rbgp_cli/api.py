@@ -62,8 +62,10 @@ def start_poses(poses) -> tuple[np.ndarray, np.ndarray]:
     if isinstance(poses, Trajectory):
         poses = [poses]
     if isinstance(poses, (list, tuple)) and poses and all(isinstance(t, Trajectory) for t in poses):
-        q = np.array([t.quat[0] for t in poses], float)
-        p = np.array([t.position[0] for t in poses], float)
+        from rbgp_cli.dynamics.rollout import start_vectors
+
+        v = start_vectors(poses)
+        q, p = v[:, :4], v[:, 4:]
     elif isinstance(poses, tuple) and len(poses) == 2 and np.ndim(poses[0]) >= 1 and np.shape(poses[0])[-1] == 4:
         q = np.asarray(poses[0], float).reshape(-1, 4)
         p = np.asarray(poses[1], float).reshape(-1, 3)
@@ -83,11 +85,6 @@ def start_poses(poses) -> tuple[np.ndarray, np.ndarray]:
         raise InputError("poses hold a zero quaternion, which is no rotation", param="poses",
                          hint="quaternions are x, y, z, w: (0, 0, 0, 1) is no rotation")
     return q / norm[:, None], p
-
-
-def _packed(quat, position) -> np.ndarray:
-    """(n, 7) ``(qx, qy, qz, qw, x, y, z)`` from quaternions and positions."""
-    return np.concatenate([np.asarray(quat, float).reshape(-1, 4), np.asarray(position, float).reshape(-1, 3)], axis=1)
 
 
 # --------------------------------------------------------------------------------------------- reading

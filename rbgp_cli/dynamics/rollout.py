@@ -31,7 +31,7 @@ from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError, RbgpRuntimeError
 from rbgp_cli.geometry.so3 import quat_make_continuous, quat_normalize
 
-__all__ = ["RolloutResult", "rollout", "rollout_for", "rollout_one_at_a_time", "starts_near"]
+__all__ = ["RolloutResult", "rollout", "rollout_for", "rollout_one_at_a_time", "starts_near", "start_vectors"]
 
 
 @dataclass
@@ -320,6 +320,12 @@ def rollout_one_at_a_time(model, start_quat, start_position, steps: int, dt: flo
     parts = [rollout(model, q[None], p[None], steps, dt, with_std=False) for q, p in zip(start_quat, start_position)]
     return RolloutResult(parts[0].t, np.concatenate([r.quat for r in parts]), np.concatenate([r.position for r in parts]),
                          None, parts[0].output_names)
+
+
+def start_vectors(trajs) -> np.ndarray:
+    """The start pose of each trajectory as one row ``(qx, qy, qz, qw, x, y, z)``: (D, 7), what
+    :func:`starts_near` and ``MotionModel.starts`` hold."""
+    return np.array([np.concatenate([t.quat[0], t.position[0]]) for t in trajs], dtype=np.float64).reshape(-1, 7)
 
 
 def starts_near(starts: np.ndarray, count: int, spread: float, seed: int = 0, spread_rot: float | None = None,
