@@ -30,7 +30,7 @@ def run_demo(out, *, count: int = 100, representations=("axis-angle", "euler", "
     the whole path in seconds; the scores are then not the default ones)."""
     from rbgp_cli import workflows
     from rbgp_cli.cli.report import write_per_step
-    from rbgp_cli.dynamics.rollout import starts_near
+    from rbgp_cli.dynamics.rollout import start_vectors, starts_near
     from rbgp_cli.evaluation import evaluate
     from rbgp_cli.io.atomic import atomic_open
     from rbgp_cli.io.csv import write_trajectories_csv
@@ -50,7 +50,7 @@ def run_demo(out, *, count: int = 100, representations=("axis-angle", "euler", "
         raise InputError("the output folder is not writable", path=str(out))
     data = Path(data) if data else find_sample_data()
     demos, _, _ = workflows.load_demonstrations([str(data)])
-    base = np.array([np.concatenate([t.quat[0], t.position[0]]) for t in demos])
+    base = start_vectors(demos)
     q0, p0 = starts_near(base, count, 0.02, seed=seed)
     duration = float(np.median([t.duration for t in demos]))
     scores = {"data": str(data), "demonstrations": len(demos), "rollouts": count, "quick": quick, "representations": {}}

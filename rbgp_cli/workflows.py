@@ -26,6 +26,7 @@ __all__ = [
     "parse_pose",
     "parse_pose_quat",
     "read_start_poses",
+    "rollout_starts",
     "rollout_model",
     "evaluate_files",
     "generate_like_paper",
@@ -132,9 +133,9 @@ def _pose_numbers(text: str, n: int, flag: str, hint: str) -> np.ndarray:
     try:
         vals = np.array([float(v) for v in text.replace(",", " ").split()])
     except ValueError:
-        raise InputError(f"start pose {text!r} ({flag}) is not {_WORDS[n]} numbers", hint=hint) from None
+        raise InputError(f"start pose {text!r} ({flag}) is not {_WORDS[n]} numbers", hint=hint, param=flag) from None
     if vals.shape != (n,) or not np.all(np.isfinite(vals)):
-        raise InputError(f"start pose {text!r} ({flag}) must be {_WORDS[n]} finite numbers", hint=hint)
+        raise InputError(f"start pose {text!r} ({flag}) must be {_WORDS[n]} finite numbers", hint=hint, param=flag)
     return vals
 
 
@@ -142,8 +143,8 @@ def parse_pose(text: str) -> tuple[np.ndarray, np.ndarray]:
     """Parse a start pose "rx ry rz x y z" (rotation vector in rad, position in m; commas allowed)."""
     from rbgp_cli.geometry.so3 import quat_from_rotvec
 
-    vals = _pose_numbers(text, 6, "--start", 'write it as "rx ry rz x y z" (rotation vector in rad, m), or a quaternion '
-                         'with --start-quat "qx qy qz qw x y z"')
+    vals = _pose_numbers(text, 6, "start", 'write it as "rx ry rz x y z" (rotation vector in rad, m), or a quaternion '
+                         'with start_quat "qx qy qz qw x y z"')
     return quat_from_rotvec(vals[:3]), vals[3:]
 
 
@@ -154,10 +155,10 @@ def parse_pose_quat(text: str) -> tuple[np.ndarray, np.ndarray]:
     """
     from rbgp_cli.dynamics.prepare import ZERO_QUAT_NORM
 
-    vals = _pose_numbers(text, 7, "--start-quat", 'write it as "qx qy qz qw x y z" (quaternion x, y, z, w; m)')
+    vals = _pose_numbers(text, 7, "start_quat", 'write it as "qx qy qz qw x y z" (quaternion x, y, z, w; m)')
     norm = float(np.linalg.norm(vals[:4]))
     if norm < ZERO_QUAT_NORM:
-        raise InputError(f"start pose {text!r} (--start-quat) has a zero quaternion, which is no rotation",
+        raise InputError(f"start pose {text!r} (start_quat) has a zero quaternion, which is no rotation", param="start_quat",
                          hint='give a unit quaternion x y z w first, e.g. "0 0 0 1 x y z" for no rotation')
     return vals[:4] / norm, vals[4:]
 
@@ -241,6 +242,57 @@ def predict_file(model, path, options: ReadOptions | None = None, noisy: bool = 
     return (np.concatenate(ts), np.concatenate(qs), np.concatenate(ps), np.concatenate(means), np.concatenate(stds))
 
 
+def rollout_starts(model, *, start=(), start_quat=(), starts=None, from_demos=None, count: int = 1,
+                   start_spread: float = 0.02, seed: int = 0, options: ReadOptions | None = None, max_gap=None,
+                   each_duration: bool = False, duration=None, progress=None):
+    """The start poses of ``rbgp rollout``, in this order: each ``start`` text ("rx ry rz x y z",
+    :func:`parse_pose`), each ``start_quat`` text (:func:`parse_pose_quat`), the poses of the file
+    ``starts`` (:func:`read_start_poses`), and ``count`` starts drawn near the start poses of the
+    demonstrations ``from_demos`` (:func:`~rbgp_cli.dynamics.rollout.starts_near`, ``start_spread`` m,
+    ``seed``). None of them given: ``count`` starts near the model's stored start poses (its first one
+    as it is when ``count`` is 1 and the spread 0).
+
+    Returns (quat (B, 4) x, y, z, w, position (B, 3) m, durations (B,) s or None): with
+    ``each_duration`` each start drawn near a demonstration lasts as long as it, the others
+    ``duration`` (default the model's median demonstration duration).
+    """
+    from rbgp_cli.dynamics.rollout import start_vectors, starts_near
+
+    qs, ps, durs = [], [], []
+    for s in start or []:
+        q, p = parse_pose(s)
+        qs.append(q[None])
+        ps.append(p[None])
+    for s in start_quat or []:
+        q, p = parse_pose_quat(s)
+        qs.append(q[None])
+        ps.append(p[None])
+    if starts:
+        q, p = read_start_poses(starts, options)
+        qs.append(q)
+        ps.append(p)
+    given = sum(len(q) for q in qs)  # starts that are not drawn near a demonstration
+    if from_demos:
+        demos, _, _ = load_demonstrations(from_demos, options, max_gap=max_gap)
+        q, p, near = starts_near(start_vectors(demos), count, start_spread, seed=seed, return_index=True)
+        qs.append(q)
+        ps.append(p)
+        durs = [demos[i].duration for i in near]
+    if not qs:
+        m_starts = model.starts
+        q, p = (starts_near(m_starts, count, start_spread, seed=seed) if count > 1 or start_spread > 0
+                else (m_starts[:1, :4], m_starts[:1, 4:]))
+        qs.append(q)
+        ps.append(p)
+        if progress is not None:
+            progress(f"no start given: {len(q)} start(s) near the demonstrations' start poses stored in the model")
+    durations = None
+    if each_duration:
+        other = float(np.median(model.durations)) if duration is None else float(duration)
+        durations = np.concatenate([np.full(given, other), durs])
+    return np.concatenate(qs), np.concatenate(ps), durations
+
+
 def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, samples=0, seed=0, with_std=True,
                   progress=None, durations=None, rate=None, off_data: str = "keep"):
     """``rbgp rollout``: steps from --steps, or --duration / dt, or the demonstrations' median duration.
@@ -269,13 +321,13 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
         if steps is None:
             dur = float(np.median(model.durations)) if duration is None else float(duration)
             if not np.isfinite(dur) or dur <= 0:
-                raise InputError(f"--duration must be a positive number of seconds, got {dur}")
+                raise InputError(f"duration must be a positive number of seconds, got {dur}", param="duration")
             steps = max(1, int(round(dur / step)))
         res = rollout(model, quat, pos, steps, step, **kwargs)
     if res.left and res.left["count"]:
-        then = {"keep": "they went on (--off-data stop ends them there, prior falls back to the prior's pull)",
-                "stop": "they end there (--off-data stop)",
-                "prior": "they followed the prior mean while outside (--off-data prior)"}[off_data]
+        then = {"keep": "they went on (off_data stop ends them there, prior falls back to the prior's pull)",
+                "stop": "they end there (off_data stop)",
+                "prior": "they followed the prior mean while outside (off_data prior)"}[off_data]
         warn(describe(res.left) + f"; {then}"
              + ("; envelope from the model's training points (an older model file)" if res.left["envelope"] != "demonstrations" else ""))
     if rate is not None and abs(float(rate) * step - 1.0) > 1e-9:  # at 1/dt the grid is the integration grid
@@ -286,9 +338,9 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
 def generate_like_paper(model, demos, count=100, spread=0.02, seed=0, progress=None):
     """The paper's protocol (sec. 4.3): ``count`` rollouts from unseen starts near the demonstrations'
     start poses, each as long as the demonstrations' median duration, at the model's time step."""
-    from rbgp_cli.dynamics.rollout import starts_near
+    from rbgp_cli.dynamics.rollout import start_vectors, starts_near
 
-    starts = np.array([np.concatenate([t.quat[0], t.position[0]]) for t in demos]) if demos else model.starts
+    starts = start_vectors(demos) if demos else model.starts
     q, p = starts_near(starts, count, spread, seed=seed)
     dur = float(np.median([t.duration for t in demos])) if demos else float(np.median(model.durations))
     return rollout_model(model, q, p, duration=dur, with_std=False, progress=progress)
@@ -319,7 +371,7 @@ def evaluate_files(generated_sources, demo_sources, *, options: ReadOptions | No
                                         progress=progress).trajectories()
     else:
         if not generated_sources:
-            raise InputError("no generated trajectories given", hint="pass a file (or - for stdin) or --model MODEL")
+            raise InputError("no generated trajectories given", hint="pass a file (or - for stdin) or model MODEL", param="model")
         generated, _, _ = load_demonstrations(generated_sources, ReadOptions(), stdin=stdin)
     if unscored and check_sample_sizes(len(generated), len(demos), covariance).refusal is not None:
         result = evaluate(generated, demos, length=length, covariance=covariance, sample_size="record")

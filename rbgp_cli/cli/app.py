@@ -205,7 +205,6 @@ def rollout(
     import numpy as np
 
     from rbgp_cli import workflows
-    from rbgp_cli.dynamics.rollout import starts_near
     from rbgp_cli.errors import InputError
     from rbgp_cli.io.csv import write_trajectories_csv
     from rbgp_cli.io.model_store import load_model
@@ -224,37 +223,10 @@ def rollout(
                          hint="set the rate of the written trajectories with --output-rate HZ")
     check_outputs(output, rerun)
     m, _ = load_model(model)
-    qs, ps, durs = [], [], []
-    for s in start or []:
-        q, p = workflows.parse_pose(s)
-        qs.append(q[None])
-        ps.append(p[None])
-    for s in start_quat or []:
-        q, p = workflows.parse_pose_quat(s)
-        qs.append(q[None])
-        ps.append(p[None])
-    if starts:
-        q, p = workflows.read_start_poses(starts, opts)
-        qs.append(q)
-        ps.append(p)
-    given = sum(len(q) for q in qs)  # starts that are not drawn near a demonstration
-    if from_demos:
-        demos, _, _ = workflows.load_demonstrations(from_demos, opts, max_gap=read.max_gap)
-        base = np.array([np.concatenate([t.quat[0], t.position[0]]) for t in demos])
-        q, p, near = starts_near(base, count, start_spread, seed=seed, return_index=True)
-        qs.append(q)
-        ps.append(p)
-        durs = [demos[i].duration for i in near]
-    if not qs:
-        q, p = starts_near(m.starts, count, start_spread, seed=seed) if count > 1 or start_spread > 0 else (m.starts[:1, :4], m.starts[:1, 4:])
-        qs.append(q)
-        ps.append(p)
-        progress(f"no start given: {len(q)} start(s) near the demonstrations' start poses stored in the model")
-    q0, p0 = np.concatenate(qs), np.concatenate(ps)
-    durations = None
-    if each_duration:
-        other = float(np.median(m.durations)) if duration is None else float(duration)
-        durations = np.concatenate([np.full(given, other), durs])
+    q0, p0, durations = workflows.rollout_starts(
+        m, start=start, start_quat=start_quat, starts=starts, from_demos=from_demos, count=count,
+        start_spread=start_spread, seed=seed, options=opts, max_gap=read.max_gap, each_duration=each_duration,
+        duration=duration, progress=progress)
     rate = m.recorded_rate if output_rate is None else (output_rate or None)
     res = workflows.rollout_model(m, q0, p0, steps=steps, duration=duration, dt=dt, samples=samples, seed=seed,
                                   with_std=not no_std, progress=progress, durations=durations, rate=rate,

@@ -19,7 +19,7 @@ import typer
 
 from rbgp_cli.progress import Progress
 
-__all__ = ["command", "progress", "emit_json", "read_options", "with_read_options", "ReadArgs", "READ_PANEL",
+__all__ = ["command", "as_flags", "progress", "emit_json", "read_options", "with_read_options", "ReadArgs", "READ_PANEL",
            "write_text_output", "check_outputs", "set_quiet", "set_json", "is_quiet"]
 
 
@@ -113,8 +113,10 @@ def is_quiet() -> bool:
 def _show_warning(message, category, filename, lineno, file=None, line=None):
     from rbgp_cli.errors import RbgpWarning
 
-    if issubclass(category, RbgpWarning):
-        _stderr(f"rbgp: warning: {message}")
+    if issubclass(category, RbgpWarning):  # parameter names with an underscore shown as the options
+        from rbgp_cli.errors import RbgpError
+
+        _stderr(f"rbgp: warning: {as_flags(RbgpError(str(message)))}")
     elif not _QUIET["on"] and os.environ.get("RBGP_DEBUG"):
         _stderr(f"rbgp: warning: {category.__name__}: {message}")
 
@@ -153,7 +155,7 @@ def command(func):
             except typer.Exit:
                 raise
             except RbgpError as exc:
-                _stderr(f"rbgp: error: {exc.format()}")
+                _stderr(f"rbgp: error: {as_flags(exc)}")
                 raise typer.Exit(exc.exit_code) from None
             except KeyboardInterrupt:
                 _stderr("rbgp: interrupted")
@@ -179,6 +181,50 @@ def command(func):
                               annotation=Annotated[bool, typer.Option("--quiet", "-q", help=_QUIET_HELP)])
     wrapper.__signature__ = sig.replace(parameters=[*sig.parameters.values(), quiet])
     return wrapper
+
+
+def _option_flags() -> dict:
+    """{Python name: its long flag} of the running command's options (``steps`` → ``--steps``,
+    ``fmt`` → ``--format``), from Click's context; {} outside a command."""
+    try:  # Typer >= 0.29 vendors click (/work/shared/ECOSYSTEM.md)
+        from typer._click.globals import get_current_context
+    except ImportError:  # pragma: no cover - an older Typer on click
+        from click import get_current_context
+
+    ctx = get_current_context(silent=True)
+    if ctx is None:
+        return {}
+    flags = {}
+    for p in ctx.command.params:
+        if getattr(p, "param_type_name", "") == "option" and p.name:
+            longs = [o for o in p.opts if o.startswith("--")] or list(p.opts)
+            if longs:
+                flags[p.name] = longs[0]
+    return flags
+
+
+def as_flags(exc, flags: Optional[dict] = None) -> str:
+    """The one-line text of an rbgp error as the command line says it: the library names the
+    parameter a message is about (``exc.param``, e.g. ``steps``), the command line its option
+    (``--steps``). Replaced, as whole words in the message and the hint: ``exc.param`` and every
+    option name with an underscore (``max_points`` → ``--max-points``), where the running command
+    has that option; a name already written as a flag stays as it is."""
+    import re
+
+    flags = _option_flags() if flags is None else flags
+    names = {n for n in flags if "_" in n and n != "rbgp_quiet"}
+    if exc.param in flags:
+        names.add(exc.param)
+    if not names:
+        return exc.format()
+    pattern = re.compile(r"(?<![\w\-])(?<!\d )(" + "|".join(sorted(map(re.escape, names), key=len, reverse=True)) + r")(?![\w\-])")
+
+    def sub(text):
+        return None if text is None else pattern.sub(lambda m: flags[m.group(1)], text)
+
+    from rbgp_cli.errors import RbgpError
+
+    return RbgpError(sub(exc.message), path=exc.path, row=exc.row, topic=exc.topic, hint=sub(exc.hint)).format()
 
 
 def emit_json(obj) -> None:

@@ -41,53 +41,22 @@ SmoothWindowOpt = Annotated[float, typer.Option("--smooth-window", min=0.0, help
 SmoothDegreeOpt = Annotated[int, typer.Option("--smooth-degree", min=1, max=4, help="Degree of the local polynomial fit.", rich_help_panel=_VEL)]
 
 
-def _number(text: str, flag: str) -> float:
-    from rbgp_cli.errors import InputError
-
-    try:
-        v = float(text)
-    except ValueError:
-        raise InputError(f"{flag} must be a number, got {text!r}") from None
-    if v != v or v in (float("inf"), float("-inf")):
-        raise InputError(f"{flag} must be finite, got {text!r}")
-    return v
-
-
-def _choice(value: str, flag: str, choices: tuple) -> str | None:
-    from rbgp_cli.errors import InputError
-
-    if value not in choices:
-        raise InputError(f"{flag} must be one of {', '.join(choices)}, got {value!r}")
-    return None if value == "none" else value
-
-
 def train_kwargs(*, rho_rot: str, restarts: int, explore_size: int, seed: int, noise: str, share_hyperparameters: bool,
                  subsample: float, max_points: int, train_rate: float, smooth_window: float, smooth_degree: int,
                  time_input: str, prior: str, prior_gain: float, inducing: int | None = None,
                  hyper_points: int | None = None, calibrate_noise: bool = True,
                  start_conditioning: bool = False) -> dict:
     """Check the option values and build the keyword arguments of
-    :func:`rbgp_cli.dynamics.model.train_model` (without representation and kernel)."""
-    from rbgp_cli.dynamics.velocities import VelocityOptions
-    from rbgp_cli.errors import InputError
+    :func:`rbgp_cli.dynamics.model.train_model` (without representation and kernel): the library's
+    :func:`rbgp_cli.api.train_options`, whose errors name the parameters (the command shows the flags)."""
+    from rbgp_cli.api import train_options
 
-    rho = rho_rot if rho_rot == "learn" else _number(rho_rot, "--rho-rot")
-    noise_v = None if noise == "learn" else _number(noise, "--noise")
-    if noise_v is not None and not noise_v > 0:
-        raise InputError(f"--noise must be 'learn' or a positive number, got {noise}")
-    time_in = _choice(time_input, "--time-input", ("none", "seconds", "phase"))
-    prior_v = _choice(prior, "--prior", ("none", "goal", "path"))
-    if prior_v == "path" and time_in != "phase":
-        raise InputError("--prior path follows the phase of the motion", hint="add --time-input phase, or use --prior goal or none")
-    return {
-        "rho_rot": rho, "restarts": restarts, "explore_size": explore_size, "seed": seed, "noise": noise_v,
-        "shared": share_hyperparameters, "subsample": subsample, "max_points": max_points,
-        "velocity": VelocityOptions(rate=train_rate or None, window=smooth_window, degree=smooth_degree),
-        "time_input": time_in, "prior": prior_v, "prior_gain": prior_gain, "inducing": inducing,
-        **({"hyper_points": hyper_points} if hyper_points is not None else {}),
-        "calibrate": bool(calibrate_noise),
-        "start_conditioning": bool(start_conditioning),
-    }
+    return train_options(rho_rot=rho_rot, restarts=restarts, explore_size=explore_size, seed=seed, noise=noise,
+                         share_hyperparameters=share_hyperparameters, subsample=subsample, max_points=max_points,
+                         train_rate=train_rate, smooth_window=smooth_window, smooth_degree=smooth_degree,
+                         time_input=time_input, prior=prior, prior_gain=prior_gain, inducing=inducing,
+                         hyper_points=hyper_points, calibrate_noise=calibrate_noise,
+                         start_conditioning=start_conditioning)
 
 
 def defaults() -> dict:
@@ -184,6 +153,7 @@ def grid_variants(ctx, specs) -> tuple[list[tuple[str, dict, dict]], dict]:
         try:
             kwargs = train_kwargs(**{**base, **chosen})
         except InputError as exc:
-            raise InputError(exc.message + (f" (in the --grid combination {label})" if label else ""), hint=exc.hint) from None
+            raise InputError(exc.message + (f" (in the --grid combination {label})" if label else ""), hint=exc.hint,
+                             param=exc.param) from None
         variants.append((label, {k.replace("_", "-"): v for k, v in chosen.items()}, kwargs))
     return variants, lists

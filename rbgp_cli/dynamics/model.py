@@ -43,11 +43,12 @@ def make_kernel(representation: Representation, kernel: str = "se", rho_rot: flo
         return SquaredExponential(metric, rd, rho_rot, learn_rho, time_dims)
     if kernel == "se-chordal":
         if representation.name == "euler":
-            raise InputError("--kernel se-chordal needs a rotation representation (axis-angle or quaternion), not euler")
+            raise InputError("kernel se-chordal needs a rotation representation (axis-angle or quaternion), not euler",
+                             param="kernel")
         return SquaredExponential("chordal", rd, rho_rot, learn_rho, time_dims)
     if kernel == "dot":
         if time_dims:
-            raise InputError("--kernel dot takes no time input", hint="use --kernel se or se-chordal")
+            raise InputError("kernel dot takes no time input", hint="use kernel se or se-chordal", param="kernel")
         return DotProduct(rd, rho_rot, learn_rho)
     raise InputError(f"unknown kernel {kernel!r}; expected one of {', '.join(KERNELS)}")
 
@@ -398,7 +399,7 @@ def training_set(trajs: list[Trajectory], representation: Representation, *, sub
     representation.prepare(trajs)
     problem = window_problem(trajs, velocity or VelocityOptions())
     if problem:
-        raise InputError(problem, hint="use a longer --smooth-window or 0 for forward differences")
+        raise InputError(problem, hint="use a longer smooth_window or 0 for forward differences", param="smooth_window")
     X, Y, per_demo, segments = demonstration_pairs(trajs, representation, velocity, time_input)
     n = len(X)
     if n < 2:  # two samples give one velocity: nothing for a GP to fit (nor a length scale to learn)
@@ -409,14 +410,14 @@ def training_set(trajs: list[Trajectory], representation: Representation, *, sub
             + "); a GP needs at least 2",
             path=", ".join(sources) or None,
             hint="train on demonstrations with 3 or more samples"
-                 + (f" spanning at least {2 / velocity.rate:g} s, or keep the recorded samples with --train-rate 0"
+                 + (f" spanning at least {2 / velocity.rate:g} s, or keep the recorded samples with train_rate 0"
                     if velocity and velocity.rate else ""),
         )
     rng = np.random.default_rng(seed)
     k = n
     if subsample is not None:
         if not 0 < subsample <= 1:
-            raise InputError(f"--subsample must lie in (0, 1], got {subsample}")
+            raise InputError(f"subsample must lie in (0, 1], got {subsample}", param="subsample")
         k = max(min(n, 2), int(round(subsample * n)))
     if max_points is not None:
         k = min(k, int(max_points))
@@ -473,13 +474,15 @@ def choose_gp(points: int, inducing: int | None, max_points: int | None, kernel:
     from rbgp_cli.gp.sparse import DEFAULT_INDUCING
 
     if inducing is not None and int(inducing) < 0:
-        raise InputError(f"--inducing must be 0 (exact GP) or a positive number of inducing poses, got {inducing}")
+        raise InputError(f"inducing must be 0 (exact GP) or a positive number of inducing poses, got {inducing}",
+                         param="inducing")
     capped = max_points is not None and points > max_points
     cap = f": exact GP on a random {max_points} of {points} training points" if capped else ""
     if inducing:
         if kernel == "dot":
-            raise InputError("--inducing needs a squared-exponential kernel: the dot-product kernel's Gram matrix "
-                             "has rank 6, so a sparse approximation gains nothing", hint="use --kernel se or se-chordal")
+            raise InputError("inducing needs a squared-exponential kernel: the dot-product kernel's Gram matrix "
+                             "has rank 6, so a sparse approximation gains nothing", hint="use kernel se or se-chordal",
+                             param="inducing")
         M = min(int(inducing), points)
         return {"type": "sparse", "inducing": M, "forced": True,
                 "reason": f"--inducing {int(inducing)}: {M} inducing poses for all {points} training points"}
@@ -559,16 +562,16 @@ def train_model(
     learn_rho = rho_rot == "learn"
     rho = 0.7 if learn_rho else float(rho_rot)
     if not learn_rho and not 0 < rho < 1:
-        raise InputError(f"--rho-rot must lie strictly between 0 and 1 (or be 'learn'), got {rho_rot}")
+        raise InputError(f"rho_rot must lie strictly between 0 and 1 (or be 'learn'), got {rho_rot}", param="rho_rot")
     if time_input not in TIME_INPUTS:
         raise InputError(f"unknown time input {time_input!r}; expected one of none, seconds, phase")
     if prior not in PRIORS:
         raise InputError(f"unknown prior {prior!r}; expected one of none, goal, path")
     if prior == "path" and time_input != "phase":
-        raise InputError(f"--prior path (the default) follows the phase, but --time-input is {time_input or 'none'}",
-                         hint="add --prior none (or goal), or use --time-input phase")
+        raise InputError(f"prior path (the default) follows the phase, but time_input is {time_input or 'none'}",
+                         hint="add prior none (or goal), or use time_input phase", param="prior")
     if prior and not (np.isfinite(prior_gain) and prior_gain >= 0):
-        raise InputError(f"--prior-gain must be a non-negative number, got {prior_gain}")
+        raise InputError(f"prior_gain must be a non-negative number, got {prior_gain}", param="prior_gain")
     kern = make_kernel(rep, kernel, rho, learn_rho, time_dims=1 if time_input else 0)
     velocity = velocity or default_velocity()
     X, Y, info = training_set(trajs, rep, subsample=subsample, max_points=None, seed=seed, velocity=velocity,

@@ -332,7 +332,7 @@ def break_threshold(t: np.ndarray, split_gap: float | None = None) -> float:
     (``inf``: never split). ``t`` (N,) strictly increasing."""
     if split_gap is not None:
         if not (split_gap > 0):
-            raise InputError(f"--split-gap must be a positive number of seconds (or inf), got {split_gap!r}")
+            raise InputError(f"split_gap must be a positive number of seconds (or inf), got {split_gap!r}", param="split_gap")
         return float(split_gap)
     dt = np.diff(t)
     med = float(np.median(dt)) if len(dt) else 0.0
@@ -363,7 +363,7 @@ def split_at_breaks(traj: Trajectory, split_gap: float | None = None, *, quiet: 
         if split_gap is not None and not quiet and len(dt):
             kept = dt[dt > break_threshold(t)]
             if kept.size:  # kept whole on request: say what that means for the planned duration
-                warn(f"{(traj.name + ': ') if traj.name else ''}kept whole with --split-gap {split_gap:g}: its "
+                warn(f"{(traj.name + ': ') if traj.name else ''}kept whole with split_gap {split_gap:g}: its "
                      f"duration {t[-1] - t[0]:.4g} s includes {kept.size} stretch{'es' * (kept.size != 1)} without a "
                      f"sample (up to {kept.max():.4g} s), and so do the rollouts planned from it",
                      path=traj.source or None)
@@ -383,9 +383,9 @@ def split_at_breaks(traj: Trajectory, split_gap: float | None = None, *, quiet: 
         where = "; ".join(f"{_secs(r['gap_s'])} after t = {_secs(r['after_s'])}" for r in breaks[:3])
         more = f" and {len(breaks) - 3} more" if len(breaks) > 3 else ""
         label = f"{traj.name}: " if traj.name else ""
-        how = (f"--split-gap {thr:g} s" if split_gap is not None else
-               f"longer than {BREAK_FACTOR:g} × the median step {med:.3g} s and {BREAK_SECONDS:g} s; --split-gap SECONDS "
-               "sets the threshold, --split-gap inf keeps it whole")
+        how = (f"split_gap {thr:g} s" if split_gap is not None else
+               f"longer than {BREAK_FACTOR:g} × the median step {med:.3g} s and {BREAK_SECONDS:g} s; split_gap SECONDS "
+               "sets the threshold, split_gap inf keeps it whole")
         warn(f"{label}no sample for {where}{more}: a break, not motion; split into {len(out)} demonstration"
              f"{'s' * (len(out) != 1)} there" + (f" ({lone} lone sample{'s' * (lone != 1)} left out)" if lone else "")
              + f" ({how})", path=traj.source or None)
@@ -402,11 +402,11 @@ def crop_trajectory(traj: Trajectory, start: float | None = None, end: float | N
     kept span (lost frames there). Raises InputError when nothing is left."""
     if start is None and end is None:
         return traj
-    for name, v in (("--crop-from", start), ("--crop-to", end)):
+    for name, v in (("crop_from", start), ("crop_to", end)):
         if v is not None and not (np.isfinite(v) and v >= 0):
-            raise InputError(f"{name} must be a non-negative number of seconds, got {v!r}")
+            raise InputError(f"{name} must be a non-negative number of seconds, got {v!r}", param=name)
     if start is not None and end is not None and end <= start:
-        raise InputError(f"--crop-to {end:g} s must be later than --crop-from {start:g} s")
+        raise InputError(f"crop_to {end:g} s must be later than crop_from {start:g} s", param="crop_to")
     t = traj.t
     fin = np.isfinite(t)
     if not fin.any():
@@ -421,7 +421,7 @@ def crop_trajectory(traj: Trajectory, start: float | None = None, end: float | N
         raise InputError(f"{traj.name + ': ' if traj.name else ''}cropping to {lo if start is not None else 0:g} .. "
                          f"{'end' if end is None else format(end, 'g')} s leaves {int(inside.sum())} sample(s); the take "
                          f"lasts {span:.4g} s", path=traj.source or None,
-                         hint="times of --crop-from / --crop-to are seconds since the take's first sample")
+                         hint="times of crop_from / crop_to are seconds since the take's first sample")
     idx = np.flatnonzero(inside)
     a, b = int(idx[0]), int(idx[-1]) + 1
     info = {k: v for k, v in (traj.info or {}).items() if k not in ("first_data_line", "line_runs")}
@@ -469,7 +469,7 @@ def quaternion_order_note(traj: Trajectory) -> str | None:
     return (f"the quaternion columns ({names}) put every row within 30° of a half-turn about {axis} "
             f"(|q{axis}| >= {SUSPECT_COMPONENT:.3f}, |qw| <= {np.sqrt(1 - SUSPECT_COMPONENT ** 2):.2f}); read as "
             f"{', '.join(other)} they are a motion near the identity: if the columns are really in that order, "
-            f"pass --quat-order {other}; if the body does stay turned, --quat-order {labelled} confirms the labels")
+            f"pass quat_order {other}; if the body does stay turned, quat_order {labelled} confirms the labels")
 
 
 @dataclass(frozen=True)
@@ -488,9 +488,9 @@ class RestSplit:
     window: float = 0.1
 
     def __post_init__(self):
-        for name, v in (("--rest-speed", self.speed), ("--rest-time", self.min_rest)):
+        for name, v in (("rest_speed", self.speed), ("rest_time", self.min_rest)):
             if not (np.isfinite(v) and v > 0):
-                raise InputError(f"{name} must be a positive number, got {v!r}")
+                raise InputError(f"{name} must be a positive number, got {v!r}", param=name)
 
 
 def speeds(traj: Trajectory, window: float) -> tuple[np.ndarray, np.ndarray]:
@@ -549,17 +549,17 @@ def split_at_rest(traj: Trajectory, rest: RestSplit, *, quiet: bool = False):
     t0 = float(t[0])
     label = f"{traj.name}: " if traj.name else ""
     how = (f"rest: speed below {rest.speed:g} m/s and {rest.angular_speed:g} rad/s for at least {rest.min_rest:g} s; "
-           "--rest-speed and --rest-time decide")
+           "rest_speed and rest_time decide")
     record = {"repetitions": len(reps), "rests": len(rests), "twitches": twitches,
               "spans_s": [[float(t[a] - t0), float(t[b - 1] - t0)] for a, b in reps]}
     if len(reps) <= 1 and not rests:
         if not quiet:
-            warn(f"{label}--split-at-rest found no rest: kept as one demonstration ({how})", path=traj.source or None)
+            warn(f"{label}split_at_rest found no rest: kept as one demonstration ({how})", path=traj.source or None)
         record["repetitions"] = 1
         record["spans_s"] = [[0.0, float(t[-1] - t0)]]
         return [traj], record
     if not reps:
-        raise InputError(f"{label}--split-at-rest found only rest, no motion ({how})", path=traj.source or None)
+        raise InputError(f"{label}split_at_rest found only rest, no motion ({how})", path=traj.source or None)
     out = [_piece(traj, a, b, "rep", k + 1) for k, (a, b) in enumerate(reps)]
     if not quiet:
         spans = ", ".join(f"{s:.3g}–{e:.3g} s" for s, e in record["spans_s"][:6]) + (" …" if len(reps) > 6 else "")

@@ -31,7 +31,7 @@ from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError, RbgpRuntimeError
 from rbgp_cli.geometry.so3 import quat_make_continuous, quat_normalize
 
-__all__ = ["RolloutResult", "rollout", "rollout_for", "rollout_one_at_a_time", "starts_near"]
+__all__ = ["RolloutResult", "rollout", "rollout_for", "rollout_one_at_a_time", "starts_near", "start_vectors"]
 
 
 @dataclass
@@ -204,20 +204,20 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
     from rbgp_cli.dynamics.envelope import OFF_DATA, exits_report
 
     if off_data not in OFF_DATA:
-        raise InputError(f"--off-data must be one of {', '.join(OFF_DATA)}, got {off_data!r}")
+        raise InputError(f"off_data must be one of {', '.join(OFF_DATA)}, got {off_data!r}", param="off_data")
     if off_data == "prior" and not model.mean:
-        raise InputError("--off-data prior falls back to the model's prior mean, and this model has none",
-                         hint="use --off-data keep or stop, or train with --prior path (or goal)")
+        raise InputError("off_data prior falls back to the model's prior mean, and this model has none",
+                         hint="use off_data keep or stop, or train with prior path (or goal)", param="off_data")
     envelope = model.data_envelope()
     if model.time_input != "phase":  # its GP does not see the phase: where the demonstrations went at any time
         envelope = envelope.overall()
     rep, gp = model.representation, model.gp
     dt = float(model.dt if dt is None else dt)
     if not np.isfinite(dt) or dt <= 0:
-        raise InputError(f"--dt must be a positive number of seconds, got {dt}")
+        raise InputError(f"dt must be a positive number of seconds, got {dt}", param="dt")
     steps = int(steps)
     if steps < 1:
-        raise InputError(f"--steps must be at least 1, got {steps}")
+        raise InputError(f"steps must be at least 1, got {steps}", param="steps")
     q0 = quat_normalize(np.asarray(start_quat, dtype=np.float64).reshape(-1, 4))
     p0 = np.asarray(start_position, dtype=np.float64).reshape(-1, 3)
     B, K = len(q0), int(samples)
@@ -325,6 +325,12 @@ def rollout_one_at_a_time(model, start_quat, start_position, steps: int, dt: flo
                          None, parts[0].output_names)
 
 
+def start_vectors(trajs) -> np.ndarray:
+    """The start pose of each trajectory as one row ``(qx, qy, qz, qw, x, y, z)``: (D, 7), what
+    :func:`starts_near` and ``MotionModel.starts`` hold."""
+    return np.array([np.concatenate([t.quat[0], t.position[0]]) for t in trajs], dtype=np.float64).reshape(-1, 7)
+
+
 def starts_near(starts: np.ndarray, count: int, spread: float, seed: int = 0, spread_rot: float | None = None,
                 return_index: bool = False):
     """``count`` start poses near the given ones (paper sec. 4.3: 100 unseen starts near the demos').
@@ -343,9 +349,9 @@ def starts_near(starts: np.ndarray, count: int, spread: float, seed: int = 0, sp
     if len(starts) == 0:
         raise InputError("no start poses to draw from")
     if count < 1:
-        raise InputError(f"--count must be at least 1, got {count}")
+        raise InputError(f"count must be at least 1, got {count}", param="count")
     if spread < 0:
-        raise InputError(f"--start-spread must be >= 0, got {spread}")
+        raise InputError(f"spread must be >= 0, got {spread}", param="spread")
     rng = np.random.default_rng(seed)
     s_r = spread / 0.3 * 0.1 if spread_rot is None else spread_rot
     order = np.concatenate([rng.permutation(len(starts)) for _ in range(-(-count // len(starts)))])[:count]

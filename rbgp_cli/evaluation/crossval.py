@@ -91,10 +91,10 @@ def make_folds(n: int, k: int, seed: int = 0) -> list[np.ndarray]:
     split into k parts whose sizes differ by at most one; each part sorted). Every index is held out
     exactly once."""
     if k < 2:
-        raise InputError(f"--folds must be at least 2, got {k}")
+        raise InputError(f"folds must be at least 2, got {k}", param="folds")
     if n < k:
-        raise InputError(f"{n} demonstrations cannot make {k} folds", hint=f"use --folds {max(2, n)} or fewer"
-                         if n >= 2 else "cross-validation needs at least 2 demonstrations")
+        raise InputError(f"{n} demonstrations cannot make {k} folds", hint=f"use folds {max(2, n)} or fewer"
+                         if n >= 2 else "cross-validation needs at least 2 demonstrations", param="folds")
     perm = np.random.default_rng(np.random.SeedSequence([int(seed), 2024])).permutation(n)
     return [np.sort(part) for part in np.array_split(perm, k)]
 

@@ -1,0 +1,672 @@
+"""The Python API: read demonstrations, fit a motion model, roll it out, score and cross-validate.
+
+A thin facade over the library (:mod:`rbgp_cli.io.read`, :mod:`rbgp_cli.dynamics`,
+:mod:`rbgp_cli.evaluation`, :mod:`rbgp_cli.io.model_store`) in the manner of scikit-learn: an estimator
+:class:`RigidBodyGP` with the options of ``rbgp train`` and the same defaults, and plain result objects
+with ``to_dict()`` and ``to_frame()`` (a pandas DataFrame; pandas is imported only there).
+
+Pose layout, the same everywhere in this API
+--------------------------------------------
+* quaternions ``(..., 4)`` in the order **x, y, z, w** (unit norm),
+* positions ``(..., 3)`` in **metres**, times in **seconds**,
+* a start pose or a list of poses is one array ``(n, 7) = (qx, qy, qz, qw, x, y, z)``, or a pair
+  ``(quat (n, 4), position (n, 3))``; one pose may be given as a ``(7,)`` array.
+
+Errors are :class:`rbgp_cli.errors.InputError` (a :class:`ValueError`) naming the parameter
+(``exc.param``); the command line shows the matching ``--option`` instead.
+
+Examples
+--------
+>>> import rbgp_cli as rbgp
+>>> demos = rbgp.read_demonstrations(rbgp.SAMPLE_DATA / "csv")
+>>> model = rbgp.RigidBodyGP(restarts=1, max_points=150, share_hyperparameters=True).fit(demos)
+>>> res = model.rollout(demos[0], steps=20)
+>>> res.quat.shape, res.position.shape
+((1, 21, 4), (1, 21, 3))
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from rbgp_cli.dynamics.defaults import DEFAULTS
+from rbgp_cli.errors import InputError
+
+__all__ = [
+    "read_demonstrations", "RigidBodyGP", "Rollout", "Evaluation", "Crossval", "evaluate", "crossval",
+    "start_poses", "train_options",
+]
+
+
+# --------------------------------------------------------------------------------------------- poses
+def start_poses(poses) -> tuple[np.ndarray, np.ndarray]:
+    """Poses in the API's layout as ``(quat (n, 4) x, y, z, w unit, position (n, 3) m)``.
+
+    Parameters
+    ----------
+    poses : array (7,) or (n, 7) ``(qx, qy, qz, qw, x, y, z)``; a pair ``(quat, position)``; a
+        :class:`~rbgp_cli.dynamics.trajectory.Trajectory` (its first pose) or a list of them.
+
+    Examples
+    --------
+    >>> q, p = start_poses([0, 0, 0, 1, 0.1, 0.2, 0.3])
+    >>> q.shape, p.tolist()
+    ((1, 4), [[0.1, 0.2, 0.3]])
+    """
+    from rbgp_cli.dynamics.prepare import ZERO_QUAT_NORM
+    from rbgp_cli.dynamics.trajectory import Trajectory
+
+    if isinstance(poses, Trajectory):
+        poses = [poses]
+    if isinstance(poses, (list, tuple)) and poses and all(isinstance(t, Trajectory) for t in poses):
+        from rbgp_cli.dynamics.rollout import start_vectors
+
+        v = start_vectors(poses)
+        q, p = v[:, :4], v[:, 4:]
+    elif isinstance(poses, tuple) and len(poses) == 2 and np.ndim(poses[0]) >= 1 and np.shape(poses[0])[-1] == 4:
+        q = np.asarray(poses[0], float).reshape(-1, 4)
+        p = np.asarray(poses[1], float).reshape(-1, 3)
+    else:
+        a = np.asarray(poses, float)
+        if a.ndim not in (1, 2) or a.shape[-1] != 7:
+            raise InputError(f"poses must be an array (n, 7) of qx, qy, qz, qw, x, y, z, got shape {a.shape}",
+                             param="poses", hint="or a pair (quat (n, 4), position (n, 3))")
+        a = a.reshape(-1, 7)
+        q, p = a[:, :4], a[:, 4:]
+    if len(q) != len(p) or len(q) == 0:
+        raise InputError(f"poses: {len(q)} quaternions and {len(p)} positions", param="poses")
+    if not (np.all(np.isfinite(q)) and np.all(np.isfinite(p))):
+        raise InputError("poses must be finite numbers", param="poses")
+    norm = np.linalg.norm(q, axis=1)
+    if np.any(norm < ZERO_QUAT_NORM):
+        raise InputError("poses hold a zero quaternion, which is no rotation", param="poses",
+                         hint="quaternions are x, y, z, w: (0, 0, 0, 1) is no rotation")
+    return q / norm[:, None], p
+
+
+# --------------------------------------------------------------------------------------------- reading
+def _as_trajectory(item, i: int):
+    from rbgp_cli.dynamics.trajectory import Trajectory
+
+    if isinstance(item, Trajectory):
+        return item
+    if isinstance(item, dict):
+        t, q, p = item.get("t"), item.get("quat"), item.get("position")
+        name = str(item.get("name", i))
+    else:
+        t, q, p = item
+        name = str(i)
+    if t is None or q is None or p is None:
+        raise InputError("a demonstration given as a dict needs the keys t, quat and position", param="sources")
+    return Trajectory(np.asarray(t, float), np.asarray(q, float), np.asarray(p, float), name=name, source="array")
+
+
+def read_demonstrations(sources, *, max_gap: float | None = None, **read_options) -> list:
+    """Read and clean demonstrations, as ``rbgp train`` does.
+
+    Parameters
+    ----------
+    sources : a path (file or folder, str or Path), a list of them, or arrays: one or a list of
+        ``(t (n,), quat (n, 4), position (n, 3))`` tuples or dicts with the keys t, quat, position
+        (and optionally name), or :class:`~rbgp_cli.dynamics.trajectory.Trajectory` objects.
+    max_gap : fill runs of lost frames up to this many seconds by slerp (default: drop them).
+    **read_options : the fields of :class:`rbgp_cli.io.options.ReadOptions` (``format``, ``columns``
+        (a dict), ``quat_order``, ``euler_order``, ``degrees``, ``length_unit``, ``time_unit``, ``rate``,
+        ``topic``, ``frame``, ``time_source``, ``body``, ``rotation``, ``split_gap``, ``crop_from``,
+        ``crop_to``, ``split_at_rest``, ``rest_speed``, ``rest_time``): as the options of ``rbgp train``.
+
+    Returns
+    -------
+    list of Trajectory
+        Each with ``t`` (n,) s, ``quat`` (n, 4) x, y, z, w and ``position`` (n, 3) m, ``name`` and ``source``.
+
+    Examples
+    --------
+    >>> import rbgp_cli as rbgp
+    >>> demos = rbgp.read_demonstrations(rbgp.SAMPLE_DATA / "csv")
+    >>> len(demos), demos[0].quat.shape[1], demos[0].position.shape[1]
+    (9, 4, 3)
+    """
+    from rbgp_cli.io.options import ReadOptions
+
+    try:
+        options = ReadOptions(**read_options)
+    except TypeError as exc:
+        import dataclasses
+
+        names = [f.name for f in dataclasses.fields(ReadOptions)]
+        raise InputError(f"unknown read option: {exc}", hint=f"expected some of {', '.join(names)}") from None
+    items = sources if isinstance(sources, (list, tuple)) else [sources]
+    if isinstance(sources, tuple) and len(sources) == 3 and not isinstance(sources[0], (str, Path)):
+        items = [sources]  # one (t, quat, position)
+    if not items:
+        raise InputError("no demonstrations given", param="sources", hint="pass one or more files or a directory")
+    if all(isinstance(s, (str, Path)) for s in items):
+        from rbgp_cli.workflows import load_demonstrations
+
+        demos, _, _ = load_demonstrations([str(s) for s in items], options, max_gap=max_gap)
+        return demos
+    from rbgp_cli.dynamics.prepare import prepare_all
+
+    raw = [_as_trajectory(s, i) for i, s in enumerate(items)]
+    demos, _ = prepare_all(raw, max_gap=max_gap, **options.prepare_kwargs())
+    return demos
+
+
+def _demos(demos) -> list:
+    from rbgp_cli.dynamics.trajectory import Trajectory
+
+    if isinstance(demos, (list, tuple)) and demos and all(isinstance(t, Trajectory) for t in demos):
+        return list(demos)
+    return read_demonstrations(demos)
+
+
+# --------------------------------------------------------------------------------------------- options
+def _number(value, name: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a number, got {value!r}", param=name) from None
+    if not np.isfinite(v):
+        raise InputError(f"{name} must be finite, got {value!r}", param=name)
+    return v
+
+
+def _choice(value, name: str, choices: tuple):
+    value = "none" if value is None else value
+    if value not in choices:
+        raise InputError(f"{name} must be one of {', '.join(choices)}, got {value!r}", param=name)
+    return None if value == "none" else value
+
+
+def train_options(*, rho_rot=DEFAULTS["rho_rot"], restarts: int = DEFAULTS["restarts"],
+                  explore_size: int = DEFAULTS["explore_size"], seed: int = 0, noise="learn",
+                  share_hyperparameters: bool = False, subsample: float = DEFAULTS["subsample"],
+                  max_points: int = DEFAULTS["max_points"], train_rate=DEFAULTS["train_rate"],
+                  smooth_window: float = DEFAULTS["smooth_window"], smooth_degree: int = DEFAULTS["smooth_degree"],
+                  time_input=DEFAULTS["time_input"], prior=DEFAULTS["prior"], prior_gain: float = DEFAULTS["prior_gain"],
+                  inducing: int | None = None, hyper_points: int | None = None,
+                  calibrate_noise: bool = DEFAULTS["calibrate"],
+                  start_conditioning: bool = DEFAULTS["start_conditioning"]) -> dict:
+    """Check the training options (named and spelled as ``rbgp train``'s, with ``_`` for ``-``) and
+    build the keyword arguments of :func:`rbgp_cli.dynamics.model.train_model` (without representation,
+    kernel and jobs). ``noise`` is ``"learn"`` or a positive number; ``time_input`` and ``prior`` accept
+    None or ``"none"``; ``train_rate`` 0 or None keeps the recorded samples.
+
+    Examples
+    --------
+    >>> train_options(noise=1.0)["noise"]
+    1.0
+    """
+    from rbgp_cli.dynamics.velocities import VelocityOptions
+
+    rho = rho_rot if rho_rot == "learn" else _number(rho_rot, "rho_rot")
+    noise_v = None if noise == "learn" else _number(noise, "noise")
+    if noise_v is not None and not noise_v > 0:
+        raise InputError(f"noise must be 'learn' or a positive number, got {noise}", param="noise")
+    time_in = _choice(time_input, "time_input", ("none", "seconds", "phase"))
+    prior_v = _choice(prior, "prior", ("none", "goal", "path"))
+    if prior_v == "path" and time_in != "phase":
+        raise InputError("prior path follows the phase of the motion", param="prior",
+                         hint="add time_input phase, or use prior goal or none")
+    return {
+        "rho_rot": rho, "restarts": restarts, "explore_size": explore_size, "seed": seed, "noise": noise_v,
+        "shared": share_hyperparameters, "subsample": subsample, "max_points": max_points,
+        "velocity": VelocityOptions(rate=train_rate or None, window=smooth_window, degree=smooth_degree),
+        "time_input": time_in, "prior": prior_v, "prior_gain": prior_gain, "inducing": inducing,
+        **({"hyper_points": hyper_points} if hyper_points is not None else {}),
+        "calibrate": bool(calibrate_noise),
+        "start_conditioning": bool(start_conditioning),
+    }
+
+
+# --------------------------------------------------------------------------------------------- results
+def _frame(records):
+    import pandas as pd
+
+    return pd.DataFrame.from_records(records)
+
+
+@dataclass
+class Rollout:
+    """Rolled-out motions: B mean trajectories on a common grid, their std and K samples per start.
+
+    Attributes
+    ----------
+    t : (S,) seconds from the start
+    quat : (B, S, 4) x, y, z, w;  position : (B, S, 3) metres
+    std : (B, S, L) predictive std of the L velocity outputs (``output_names``), or None
+    sample_quat : (B, K, S, 4) and sample_position : (B, K, S, 3), or None (``samples=0``)
+    lengths : (B,) samples each mean trajectory keeps (shorter when it was stopped or has its own
+        duration); the arrays are padded past it with the values the integration gave
+    left_data : (B, S) True where a mean trajectory lies outside the demonstrations' envelope
+    result : the library's :class:`~rbgp_cli.dynamics.rollout.RolloutResult`
+    """
+
+    t: np.ndarray
+    quat: np.ndarray
+    position: np.ndarray
+    std: np.ndarray | None
+    output_names: tuple
+    sample_quat: np.ndarray | None
+    sample_position: np.ndarray | None
+    lengths: np.ndarray
+    left_data: np.ndarray | None
+    result: object = field(repr=False, default=None)
+
+    @classmethod
+    def _of(cls, res) -> "Rollout":
+        lengths = np.array([res.length(b) for b in range(res.count)], int)
+        return cls(t=res.t, quat=res.quat, position=res.position, std=res.std, output_names=tuple(res.output_names),
+                   sample_quat=res.sample_quat, sample_position=res.sample_position, lengths=lengths,
+                   left_data=res.outside, result=res)
+
+    @property
+    def count(self) -> int:
+        """B, the number of mean trajectories."""
+        return int(self.quat.shape[0])
+
+    def trajectories(self, include_samples: bool = False) -> list:
+        """The mean trajectories (names ``0``, ``1``, …) and optionally the samples (``0.s0``, …) as
+        :class:`~rbgp_cli.dynamics.trajectory.Trajectory` objects, each cut to its length (what
+        :func:`evaluate` takes)."""
+        return self.result.trajectories(include_samples=include_samples)
+
+    def to_dict(self) -> dict:
+        """Plain lists: ``{"t", "quat", "position", "std", "output_names", "lengths", "sample_quat",
+        "sample_position", "left_data"}`` (None where absent)."""
+        def lst(a):
+            return None if a is None else np.asarray(a).tolist()
+
+        return {"t": lst(self.t), "quat": lst(self.quat), "position": lst(self.position), "std": lst(self.std),
+                "output_names": list(self.output_names), "lengths": lst(self.lengths),
+                "sample_quat": lst(self.sample_quat), "sample_position": lst(self.sample_position),
+                "left_data": lst(self.left_data)}
+
+    def to_frame(self, include_samples: bool = True):
+        """One row per trajectory and time: columns ``trajectory, sample, t, qx, qy, qz, qw, x, y, z``
+        (``sample`` -1 for the mean, else k), then ``std_<output>`` (means only) and ``left_data``."""
+        import pandas as pd
+
+        parts = []
+        for b in range(self.count):
+            n = int(self.lengths[b])
+            d = {"trajectory": b, "sample": -1, "t": self.t[:n]}
+            d.update(zip(("qx", "qy", "qz", "qw"), self.quat[b, :n].T))
+            d.update(zip(("x", "y", "z"), self.position[b, :n].T))
+            if self.std is not None:
+                d.update({f"std_{o}": self.std[b, :n, j] for j, o in enumerate(self.output_names)})
+            if self.left_data is not None:
+                d["left_data"] = self.left_data[b, :n]
+            parts.append(pd.DataFrame(d))
+            if include_samples and self.sample_quat is not None:
+                for k in range(self.sample_quat.shape[1]):
+                    d = {"trajectory": b, "sample": k, "t": self.t[:n]}
+                    d.update(zip(("qx", "qy", "qz", "qw"), self.sample_quat[b, k, :n].T))
+                    d.update(zip(("x", "y", "z"), self.sample_position[b, k, :n].T))
+                    parts.append(pd.DataFrame(d))
+        return pd.concat(parts, ignore_index=True)
+
+
+@dataclass
+class Evaluation:
+    """Scores of generated trajectories against demonstrations (per-step Bhattacharyya distance).
+
+    Attributes
+    ----------
+    mean, rotation, translation : float, the distance averaged over the steps (lower is closer)
+    per_step : (T,) the total per step;  steps, n_generated, n_demos : int
+    left_data : {"count", "of", ...}: generated trajectories that left the demonstrations' envelope
+    result : the library's :class:`~rbgp_cli.evaluation.bhattacharyya.EvaluationResult`
+    """
+
+    mean: float
+    rotation: float
+    translation: float
+    per_step: np.ndarray
+    steps: int
+    n_generated: int
+    n_demos: int
+    left_data: dict
+    result: object = field(repr=False, default=None)
+
+    def to_dict(self) -> dict:
+        """What ``rbgp evaluate --json`` prints."""
+        return {**self.result.to_dict(), "left_data": self.left_data}
+
+    def to_frame(self):
+        """The per-step series: columns ``step, total, rotation, translation``."""
+        r = self.result
+        return _frame({"step": i, "total": float(a), "rotation": float(b), "translation": float(c)}
+                      for i, (a, b, c) in enumerate(zip(r.per_step, r.per_step_rotation, r.per_step_translation)))
+
+
+@dataclass
+class Crossval:
+    """Cross-validation by demonstration: one row per configuration (see ``rbgp crossval``).
+
+    Attributes
+    ----------
+    rows : list of dict, one per configuration (``name``, ``score``, ``floor``, …, as ``--json``)
+    folds : int;  result : the whole result dict (what ``rbgp crossval --json`` prints)
+    """
+
+    rows: list
+    folds: int
+    result: dict = field(repr=False, default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return dict(self.result)
+
+    def to_frame(self):
+        """One row per configuration, the scalar fields of each row as columns."""
+        return _frame({k: v for k, v in r.items() if not isinstance(v, (list, dict))} for r in self.rows)
+
+
+# --------------------------------------------------------------------------------------------- estimator
+class RigidBodyGP:
+    """The rigid-body Gaussian process motion model, with the options of ``rbgp train``.
+
+    Parameters are ``rbgp train``'s options with ``_`` for ``-`` and the same defaults
+    (:data:`rbgp_cli.dynamics.defaults.DEFAULTS`): ``representation`` (axis-angle, euler, quaternion),
+    ``kernel`` (None: the representation's own), ``rho_rot``, ``restarts``, ``explore_size``, ``seed``,
+    ``noise`` ("learn" or a number), ``share_hyperparameters``, ``subsample``, ``max_points``,
+    ``time_input`` (none, seconds, phase), ``prior`` (none, goal, path), ``prior_gain``,
+    ``train_rate`` (Hz; 0 keeps the recorded samples), ``smooth_window``, ``smooth_degree``,
+    ``inducing``, ``hyper_points``, ``calibrate_noise``, ``start_conditioning``, ``jobs`` (0: automatic).
+
+    Attributes
+    ----------
+    model_ : the fitted :class:`~rbgp_cli.dynamics.model.MotionModel`
+    summary_ : dict, what ``rbgp train --json`` prints (points, hyperparameters, NLML, times)
+    output_names_ : tuple, the names of the velocity outputs ``predict`` returns
+    dt_ : float, the integration step in seconds
+
+    Examples
+    --------
+    >>> import rbgp_cli as rbgp
+    >>> demos = rbgp.read_demonstrations(rbgp.SAMPLE_DATA / "csv")
+    >>> gp = rbgp.RigidBodyGP(restarts=1, max_points=150, share_hyperparameters=True).fit(demos)
+    >>> mean, std = gp.predict(demos[0], return_std=True)
+    >>> mean.shape == std.shape == (len(demos[0]), 6)
+    True
+    """
+
+    def __init__(self, representation: str = DEFAULTS["representation"], kernel: str | None = DEFAULTS["kernel"], *,
+                 rho_rot=DEFAULTS["rho_rot"], restarts: int = DEFAULTS["restarts"],
+                 explore_size: int = DEFAULTS["explore_size"], seed: int = 0, noise="learn",
+                 share_hyperparameters: bool = False, subsample: float = DEFAULTS["subsample"],
+                 max_points: int = DEFAULTS["max_points"], time_input=DEFAULTS["time_input"],
+                 prior=DEFAULTS["prior"], prior_gain: float = DEFAULTS["prior_gain"],
+                 train_rate=DEFAULTS["train_rate"], smooth_window: float = DEFAULTS["smooth_window"],
+                 smooth_degree: int = DEFAULTS["smooth_degree"], inducing: int | None = None,
+                 hyper_points: int | None = None, calibrate_noise: bool = DEFAULTS["calibrate"],
+                 start_conditioning: bool = DEFAULTS["start_conditioning"], jobs: int = 0):
+        self.representation = representation
+        self.kernel = kernel
+        self.rho_rot = rho_rot
+        self.restarts = restarts
+        self.explore_size = explore_size
+        self.seed = seed
+        self.noise = noise
+        self.share_hyperparameters = share_hyperparameters
+        self.subsample = subsample
+        self.max_points = max_points
+        self.time_input = time_input
+        self.prior = prior
+        self.prior_gain = prior_gain
+        self.train_rate = train_rate
+        self.smooth_window = smooth_window
+        self.smooth_degree = smooth_degree
+        self.inducing = inducing
+        self.hyper_points = hyper_points
+        self.calibrate_noise = calibrate_noise
+        self.start_conditioning = start_conditioning
+        self.jobs = jobs
+
+    _TRAIN = ("rho_rot", "restarts", "explore_size", "seed", "noise", "share_hyperparameters", "subsample",
+              "max_points", "train_rate", "smooth_window", "smooth_degree", "time_input", "prior", "prior_gain",
+              "inducing", "hyper_points", "calibrate_noise", "start_conditioning")
+
+    def get_params(self, deep: bool = True) -> dict:
+        """The constructor's parameters (scikit-learn convention)."""
+        return {k: getattr(self, k) for k in ("representation", "kernel", *self._TRAIN, "jobs")}
+
+    def set_params(self, **params) -> "RigidBodyGP":
+        for k, v in params.items():
+            if k not in self.get_params():
+                raise InputError(f"unknown parameter {k!r}", param=k)
+            setattr(self, k, v)
+        return self
+
+    def __repr__(self) -> str:
+        return f"RigidBodyGP(representation={self.representation!r}, kernel={self.kernel!r})"
+
+    def _train_kwargs(self) -> dict:
+        return {"representation": self.representation, "kernel": self.kernel, "jobs": self.jobs or None,
+                **train_options(**{k: getattr(self, k) for k in self._TRAIN})}
+
+    def fit(self, demos, progress=None) -> "RigidBodyGP":
+        """Train on demonstrations (a list of Trajectory from :func:`read_demonstrations`, or anything
+        it reads). Returns self.
+
+        Examples
+        --------
+        >>> import rbgp_cli as rbgp
+        >>> gp = rbgp.RigidBodyGP(restarts=1, max_points=150).fit(rbgp.SAMPLE_DATA / "csv")
+        >>> gp.summary_["demos"]
+        9
+        """
+        from rbgp_cli.dynamics.model import train_model
+
+        trajs = _demos(demos)
+        self.model_ = train_model(trajs, progress=progress, **self._train_kwargs())
+        self._fitted()
+        return self
+
+    def _fitted(self) -> None:
+        self.summary_ = dict(self.model_.summary)
+        self.output_names_ = tuple(self.model_.representation.output_names)
+        self.dt_ = float(self.model_.dt)
+
+    def _check(self):
+        if not hasattr(self, "model_"):
+            raise InputError("this RigidBodyGP is not fitted yet", hint="call fit(demos) or RigidBodyGP.load(path)")
+        return self.model_
+
+    def predict(self, poses, *, tau=None, return_std: bool = False, noisy: bool = False):
+        """The velocity (the model's outputs ``output_names_``) at poses.
+
+        Parameters
+        ----------
+        poses : (n, 7) ``(qx, qy, qz, qw, x, y, z)``, a pair (quat, position), or a Trajectory (all its poses)
+        tau : (n,) the time since the start (seconds, or the phase t/D of a phase model); needed by a
+            model with a time input. For a Trajectory it defaults to its own time (or phase).
+        return_std : also return the predictive std (False, as scikit-learn)
+        noisy : the std of a new noisy observation instead of the latent function's
+
+        Returns
+        -------
+        mean : (n, L), or (mean, std) with ``return_std``. For a phase model given a Trajectory, per second.
+        """
+        from rbgp_cli.dynamics.trajectory import Trajectory
+
+        m = self._check()
+        scale = 1.0
+        if isinstance(poses, Trajectory):
+            q, p = poses.quat, poses.position
+            if tau is None and m.time_input:
+                tau = poses.t - poses.t[0]
+                if m.time_input == "phase":
+                    scale = max(poses.duration, 1e-12)
+                    tau = tau / scale
+        else:
+            q, p = start_poses(poses)
+        mean, std = m.predict(q, p, return_std=True, noisy=noisy, tau=tau)
+        return (mean / scale, std / scale) if return_std else mean / scale
+
+    def rollout(self, start, *, duration: float | None = None, steps: int | None = None, dt: float | None = None,
+                samples: int = 0, seed: int = 0, return_std: bool = True, off_data: str = "keep",
+                rate: float | None = None) -> Rollout:
+        """Generate motions from start poses by single-step mean prediction (``rbgp rollout``).
+
+        Parameters
+        ----------
+        start : start poses: (7,) or (n, 7) ``(qx, qy, qz, qw, x, y, z)``, a pair (quat, position), or
+            Trajectory objects (their first pose)
+        duration : seconds (default: the demonstrations' median duration); or ``steps``, not both
+        steps : integration steps
+        dt : integration step in seconds (default: the model's training step)
+        samples : sampled rollouts per start;  seed : seeds the draws
+        return_std : record the predictive std along the mean trajectories
+        off_data : keep, stop or prior: what a rollout does outside the demonstrations' envelope
+        rate : resample the result to this rate (Hz); None: the integration grid
+
+        Returns
+        -------
+        Rollout
+
+        Examples
+        --------
+        >>> import rbgp_cli as rbgp
+        >>> demos = rbgp.read_demonstrations(rbgp.SAMPLE_DATA / "csv")
+        >>> gp = rbgp.RigidBodyGP(restarts=1, max_points=150).fit(demos)
+        >>> r = gp.rollout(demos[:2], steps=10, samples=3)
+        >>> r.sample_quat.shape
+        (2, 3, 11, 4)
+        """
+        from rbgp_cli.workflows import rollout_model
+
+        m = self._check()
+        if steps is not None and duration is not None:
+            raise InputError("give steps or duration, not both", param="steps")
+        if off_data not in ("keep", "stop", "prior"):
+            raise InputError(f"off_data must be keep, stop or prior, got {off_data!r}", param="off_data")
+        q, p = start_poses(start)
+        res = rollout_model(m, q, p, steps=steps, duration=duration, dt=dt, samples=samples, seed=seed,
+                            with_std=return_std, rate=rate, off_data=off_data)
+        return Rollout._of(res)
+
+    def save(self, path) -> dict:
+        """Write the model file (atomically; the format ``rbgp train -o`` writes). Returns its header."""
+        from rbgp_cli.io.model_store import save_model
+
+        return save_model(self._check(), str(path))
+
+    @classmethod
+    def load(cls, path) -> "RigidBodyGP":
+        """A fitted estimator from a model file (written by :meth:`save` or ``rbgp train``); the
+        constructor's parameters are those the file was trained with, where it records them."""
+        from rbgp_cli.io.model_store import load_model
+
+        model, header = load_model(str(path))
+        opts = ((header.get("provenance") or {}).get("train_options") or {})
+        self = cls(representation=model.representation.name if hasattr(model.representation, "name") else DEFAULTS["representation"])
+        self.set_params(**_params_of(opts))
+        self.model_ = model
+        self.header_ = dict(header)
+        self._fitted()
+        return self
+
+
+def _params_of(train_options: dict) -> dict:
+    """The estimator's parameters from a model file's ``provenance.train_options`` (the keyword
+    arguments of :func:`~rbgp_cli.dynamics.model.train_model`, as :func:`train_options` builds them)."""
+    names = {"shared": "share_hyperparameters", "calibrate": "calibrate_noise"}
+    out = {}
+    for k, v in (train_options or {}).items():
+        k = names.get(k, k)
+        if k == "velocity" and isinstance(v, dict):
+            out.update(train_rate=v.get("rate_hz") or 0.0, smooth_window=v.get("window_s", 0.0),
+                       smooth_degree=v.get("degree", DEFAULTS["smooth_degree"]))
+        elif k == "noise":
+            out[k] = "learn" if v is None else v
+        elif k in RigidBodyGP._TRAIN or k in ("representation", "kernel", "jobs"):
+            out[k] = v
+    return out
+
+
+# --------------------------------------------------------------------------------------------- scoring
+def evaluate(generated, demos, *, length: int | None = None, covariance: str = "diag") -> Evaluation:
+    """Score generated trajectories against demonstrations (``rbgp evaluate``).
+
+    Parameters
+    ----------
+    generated : a :class:`Rollout` (its mean trajectories), a list of Trajectory, or files
+    demos : a list of Trajectory (:func:`read_demonstrations`) or files
+    length : steps of the common normalised time (default: the demonstrations' median)
+    covariance : diag or full
+
+    Returns
+    -------
+    Evaluation
+
+    Examples
+    --------
+    >>> import rbgp_cli as rbgp
+    >>> demos = rbgp.read_demonstrations(rbgp.SAMPLE_DATA / "csv")
+    >>> rbgp.evaluate(demos[:4], demos[4:]).mean >= 0
+    True
+    """
+    from rbgp_cli.evaluation import evaluate as _evaluate
+    from rbgp_cli.workflows import left_data
+
+    if covariance not in ("diag", "full"):
+        raise InputError(f"covariance must be diag or full, got {covariance!r}", param="covariance")
+    gen = generated.trajectories() if isinstance(generated, Rollout) else _demos(generated)
+    dem = _demos(demos)
+    r = _evaluate(gen, dem, length=length, covariance=covariance)
+    return Evaluation(mean=float(r.mean), rotation=float(r.rotation), translation=float(r.translation),
+                      per_step=np.asarray(r.per_step), steps=int(r.steps), n_generated=int(r.n_generated),
+                      n_demos=int(r.n_demos), left_data=left_data(gen, dem), result=r)
+
+
+def crossval(demos, estimators=None, *, folds: int = 5, seed: int = 0, replay: bool = True, peers: bool = False,
+             samples: int | None = None, length: int | None = None, covariance: str = "diag",
+             jobs: int | None = None) -> Crossval:
+    """Cross-validate by demonstration (``rbgp crossval``): each configuration is trained on the other
+    folds and rolled out from each held-out demonstration's start, on the same folds.
+
+    Parameters
+    ----------
+    demos : a list of Trajectory or files
+    estimators : a :class:`RigidBodyGP` (its options, unfitted is fine), a list of them, or None (the defaults)
+    folds, seed : K folds of a seeded permutation of the demonstrations
+    replay : add the replay peer;  peers : add the ProMP and DMP peers (needs movement-primitives)
+    samples : sampled rollouts per held-out start for the sample columns (None: the CLI's default; 0: none)
+    length, covariance : as :func:`evaluate`;  jobs : worker processes (None: one per core)
+
+    Returns
+    -------
+    Crossval
+
+    Examples
+    --------
+    >>> import rbgp_cli as rbgp
+    >>> cv = rbgp.crossval(rbgp.SAMPLE_DATA / "csv", rbgp.RigidBodyGP(restarts=1, max_points=100),
+    ...                    folds=3, samples=0, jobs=1)
+    >>> len(cv.rows)
+    2
+    """
+    from rbgp_cli.evaluation.crossval import SAMPLES
+    from rbgp_cli.evaluation.crossval import crossval as _crossval
+    from rbgp_cli.workflows import crossval_configs
+
+    ests = [RigidBodyGP()] if estimators is None else (
+        [estimators] if isinstance(estimators, RigidBodyGP) else list(estimators))
+    trajs = _demos(demos)
+    configs = []
+    for i, est in enumerate(ests):
+        kw = est._train_kwargs()
+        rep, kern = kw.pop("representation"), kw.pop("kernel")
+        kw.pop("jobs")
+        cfgs, _ = crossval_configs([rep], [kern] if kern else None, kw, replay=False, peers=False)
+        configs.extend(cfgs)
+    extra, _ = crossval_configs([DEFAULTS["representation"]], None, {}, replay=replay, peers=peers)
+    configs.extend(extra[1:])  # the peers only
+    result = _crossval(trajs, configs, folds=folds, seed=seed, jobs=jobs, length=length, covariance=covariance,
+                       samples=SAMPLES if samples is None else samples)
+    return Crossval(rows=list(result.get("results", [])), folds=int(folds), result=result)

@@ -1,0 +1,181 @@
+"""The public Python API (rbgp_cli.api, exported from rbgp_cli): estimator, results, the docs example,
+and the errors that name parameters (the command line shows its flags instead)."""
+
+from __future__ import annotations
+
+import runpy
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import rbgp_cli as rbgp
+from rbgp_cli.errors import InputError
+from tests.cli.test_cli import CSV_DIR, FAST, run
+
+REPO = Path(__file__).resolve().parents[1]
+FAST_KW = dict(max_points=150, restarts=1, share_hyperparameters=True)  # the same options as FAST
+
+
+@pytest.fixture(scope="module")
+def demos():
+    return rbgp.read_demonstrations(CSV_DIR)
+
+
+@pytest.fixture(scope="module")
+def gp(demos):
+    return rbgp.RigidBodyGP(**FAST_KW).fit(demos)
+
+
+def test_import_is_light():
+    code = ("import sys, rbgp_cli; heavy = [m for m in ('typer', 'rerun', 'mcap', 'scipy.optimize', 'numpy', "
+            "'rbgp_cli.api') if m in sys.modules]; print(heavy)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+    assert rbgp.__version__ and "RigidBodyGP" in rbgp.__all__ and "RigidBodyGP" in dir(rbgp)
+
+
+def test_read_demonstrations_from_files_and_arrays(demos):
+    assert len(demos) == 9
+    d = demos[0]
+    assert d.quat.shape == (len(d), 4) and d.position.shape == (len(d), 3)
+    again = rbgp.read_demonstrations([(d.t, d.quat, d.position), {"t": d.t, "quat": d.quat, "position": d.position}])
+    assert len(again) == 2
+    np.testing.assert_allclose(again[0].position, d.position)
+    with pytest.raises(InputError, match="unknown read option"):
+        rbgp.read_demonstrations(CSV_DIR, bogus=1)
+
+
+def test_fit_predict_rollout_shapes(gp, demos):
+    assert gp.summary_["points"] == 150 and gp.output_names_ == ("wx", "wy", "wz", "vx", "vy", "vz")
+    mean = gp.predict(demos[0])  # return_std False, as scikit-learn
+    mean2, std = gp.predict(demos[0], return_std=True)
+    assert mean.shape == std.shape == (len(demos[0]), 6) and np.array_equal(mean, mean2) and np.all(std > 0)
+    r = gp.rollout(demos[:2], steps=10, samples=3, seed=1)
+    assert r.quat.shape == (2, 11, 4) and r.position.shape == (2, 11, 3) and r.std.shape == (2, 11, 6)
+    assert r.sample_quat.shape == (2, 3, 11, 4) and r.sample_position.shape == (2, 3, 11, 3)
+    np.testing.assert_allclose(np.linalg.norm(r.quat, axis=-1), 1.0, atol=1e-9)
+    assert r.lengths.tolist() == [11, 11]
+    f = r.to_frame()
+    assert len(f) == 2 * 11 * (1 + 3) and {"trajectory", "sample", "t", "qw", "x", "std_vx", "left_data"} <= set(f.columns)
+    d = r.to_dict()
+    assert np.array(d["quat"]).shape == (2, 11, 4)
+    one = gp.rollout(np.r_[demos[0].quat[0], demos[0].position[0]], duration=1.0)  # a (7,) start, 1 s
+    assert one.quat.shape[:2] == (1, 11) and one.sample_quat is None
+    np.testing.assert_allclose(one.position[0, 0], demos[0].position[0])
+
+
+def test_evaluate_result(gp, demos):
+    r = gp.rollout(demos, return_std=False)
+    e = rbgp.evaluate(r, demos)
+    assert np.isfinite(e.mean) and e.mean >= 0 and e.n_generated == 9 and e.n_demos == 9
+    assert e.to_dict()["bhattacharyya"]["mean"] == pytest.approx(e.mean)
+    assert list(e.to_frame().columns) == ["step", "total", "rotation", "translation"] and len(e.to_frame()) == e.steps
+
+
+def test_save_load_matches_cli_model(gp, demos, tmp_path):
+    """A model trained through the API predicts exactly what the CLI's model with the same options does,
+    and survives save/load unchanged."""
+    cli_path = tmp_path / "cli.rbgp"
+    res = run("train", CSV_DIR, "-o", cli_path, *FAST)
+    assert res.exit_code == 0, res.stderr
+    path = tmp_path / "api.rbgp"
+    gp.save(path)
+    loaded = rbgp.RigidBodyGP.load(path)
+    cli = rbgp.RigidBodyGP.load(cli_path)
+    poses = np.c_[demos[3].quat, demos[3].position]
+    tau = np.linspace(0, 1, len(poses))
+    m0, s0 = gp.predict(poses, tau=tau, return_std=True)
+    for other in (loaded, cli):
+        m1, s1 = other.predict(poses, tau=tau, return_std=True)
+        np.testing.assert_array_equal(m0, m1)
+        np.testing.assert_array_equal(s0, s1)
+    assert cli.max_points == 150 and cli.share_hyperparameters is True  # options from the file's provenance
+    np.testing.assert_array_equal(gp.rollout(demos[0], steps=5).quat, cli.rollout(demos[0], steps=5).quat)
+
+
+def test_crossval_result(demos):
+    cv = rbgp.crossval(demos, rbgp.RigidBodyGP(**FAST_KW), folds=3, samples=0, jobs=1)
+    f = cv.to_frame()
+    assert sorted(f["representation"]) == ["axis-angle", "replay"] and cv.folds == 3
+    assert np.all(np.isfinite(f["score"])) and np.all(f["score"] > 0)
+    assert cv.to_dict()["folds"] == 3
+
+
+def test_library_errors_name_parameters(gp, demos):
+    """The library says ``steps``; the command line says ``--steps`` for the same error."""
+    from rbgp_cli.dynamics.rollout import rollout
+
+    with pytest.raises(InputError) as err:
+        rollout(gp.model_, demos[0].quat[:1], demos[0].position[:1], 0)
+    assert err.value.param == "steps" and str(err.value).startswith("steps must be at least 1")
+    with pytest.raises(InputError) as err:
+        rbgp.RigidBodyGP(subsample=2.0, **FAST_KW).fit(demos)
+    assert err.value.param == "subsample" and "--" not in str(err.value)
+    with pytest.raises(InputError) as err:
+        rbgp.train_options(rho_rot="x")
+    assert err.value.param == "rho_rot" and str(err.value) == "rho_rot must be a number, got 'x'"
+    with pytest.raises(InputError, match="not fitted"):
+        rbgp.RigidBodyGP().predict(np.zeros(7) + [0, 0, 0, 1, 0, 0, 0])
+
+
+def test_cli_shows_flags_for_parameters(tmp_path):
+    res = run("train", CSV_DIR, "-o", tmp_path / "m.rbgp", "--rho-rot", "x")
+    assert res.exit_code == 2 and "rbgp: error: --rho-rot must be a number, got 'x'" in res.stderr
+    res = run("train", CSV_DIR, "-o", tmp_path / "m.rbgp", "--subsample", "2")
+    assert res.exit_code == 2 and "--subsample must lie in (0, 1]" in res.stderr
+
+
+def test_as_flags_maps_param_and_underscored_names_only():
+    from rbgp_cli.cli.common import as_flags
+
+    flags = {"steps": "--steps", "max_points": "--max-points", "fmt": "--format", "folds": "--folds"}
+    e = InputError("steps must be at least 1 (626 steps); max_points too", hint="or max_points 100", param="steps")
+    assert as_flags(e, flags) == "--steps must be at least 1 (626 steps); --max-points too; or --max-points 100"
+    e = InputError("9 demonstrations cannot make 10 folds", hint="use folds 9 or fewer", param="folds")
+    assert as_flags(e, flags) == "9 demonstrations cannot make 10 folds; use --folds 9 or fewer"
+    assert as_flags(InputError("steps are many"), flags) == "steps are many"  # not the parameter: left alone
+
+
+def test_docs_example_runs(capsys):
+    ns = runpy.run_path(str(REPO / "docs" / "examples" / "python_api.py"), run_name="example")
+    out = ns["main"]()
+    text = capsys.readouterr().out
+    assert "9 demonstrations" in text and "bhattacharyya mean" in text and "replay" in text
+    r = out["rollout"]
+    assert r.quat.shape[0] == 3 and r.sample_quat.shape[:2] == (3, 5)
+    assert np.all(np.isfinite(r.position)) and np.all(np.isfinite(r.sample_position))
+    assert np.all(np.abs(r.position) < 5)  # metres: the shoe stays near the table
+    assert 0 <= out["score"].mean < 10 and np.isfinite(out["score"].rotation)
+    f = out["crossval"].to_frame()
+    assert len(f) == 2 and np.all(np.isfinite(f["score"])) and np.all(f["ratio"] > 0)
+    assert out["mean"].shape == out["std"].shape == (len(out["demos"][0]), 6)
+
+
+def test_docstring_examples_run():
+    import doctest
+
+    import rbgp_cli.api
+
+    res = doctest.testmod(rbgp_cli.api, optionflags=doctest.ELLIPSIS)
+    assert res.attempted >= 9 and res.failed == 0
+
+
+def test_readme_python_section_runs(tmp_path):
+    """docs/README_python_section.md (the README's future "Python" section): its code runs as shown."""
+    import re
+
+    text = (REPO / "docs" / "README_python_section.md").read_text()
+    assert len(text.splitlines()) <= 30
+    code = "\n".join(re.findall(r"```python\n(.*?)```", text, re.S))
+    code = code.replace('"shoe.rbgp"', repr(str(tmp_path / "shoe.rbgp")))
+    script = tmp_path / "readme_python.py"
+    script.write_text("def main():\n" + "".join(f"    {ln}\n" for ln in code.splitlines())
+                      + "\n\nif __name__ == '__main__':\n    main()\n")
+    res = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, cwd=REPO, timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    first = res.stdout.splitlines()[0]
+    assert re.fullmatch(r"\(3, \d+, 4\) \(3, 5, \d+, 3\)", first), first
+    assert "replay" in res.stdout and "axis-angle" in res.stdout and (tmp_path / "shoe.rbgp").exists()
