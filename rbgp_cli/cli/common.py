@@ -213,8 +213,9 @@ def as_flags(exc, flags: Optional[dict] = None) -> str:
 
     flags = _option_flags() if flags is None else flags
     names = {n for n in flags if "_" in n and n != "rbgp_quiet"}
-    if exc.param in flags:
-        names.add(exc.param)
+    text = f"{exc.message} {exc.hint or ''}"
+    if exc.param in flags and flags[exc.param] not in text:  # a message that names the flag already
+        names.add(exc.param)  # (the readers' do) keeps its plain words: "no rotation columns found"
     if not names:
         return exc.format()
     pattern = re.compile(r"(?<![\w\-])(?<!\d )(" + "|".join(sorted(map(re.escape, names), key=len, reverse=True)) + r")(?![\w\-])")
