@@ -142,4 +142,5 @@ def test_the_readme_links_into_docs_and_is_a_front_page():
     for name in ("data.md", "commands.md", "method.md", "defaults.md", "benchmarks.md", "paper.md", "ARCHITECTURE.md"):
         assert f"docs/{name}" in links, name
     assert len(text.splitlines()) <= 250
-    assert "<!-- python section: filled in from docs/README_python_section.md at merge -->" in text
+    python = text.split("## Python", 1)[1].split("\n## ", 1)[0]
+    assert "import rbgp_cli as rbgp" in python and len(python.splitlines()) <= 40

@@ -1,6 +1,8 @@
-"""Every command line in the README's ```bash blocks runs, as typed, through a real bash.
+"""Every command line in the ```bash blocks of the README and of the docs runs, as typed, through a
+real bash, and what the README shows a command print is what it prints.
 
-Each example line is run with ``bash -e -o pipefail -c LINE`` in one working folder (in README order,
+The files are :data:`README` and then :data:`DOC_FILES` (the docs that took over the README's
+reference parts: their examples stay tested). Each example line is run with ``bash -e -o pipefail -c LINE`` in one working folder (in README order,
 so files written by an example, e.g. ``shoe.rbgp``, are there for the next ones), with
 ``sample_data/`` linked into it and this test environment's ``rbgp`` first on PATH. Unquoted globs
 are expanded by bash, pipes and redirections are bash's own. Four generic rules keep the run fast and
@@ -19,7 +21,13 @@ self-contained; nothing in them knows a particular example:
    made this test environment: they are left out of a ``&&`` chain, and ``.venv/bin/X`` is this
    environment's ``X``.
 4. **The test-suite command** (it runs pytest) is not run from inside pytest: it must be exactly the
-   command ``.ci/run`` runs, so CI runs it.
+   command ``.ci/run`` runs, so CI runs it. A line that only installs is not run either.
+
+**Shown outputs.** Where a README ```bash block is followed directly by a ```text block, that block is
+what the block's last command prints (or writes, for a ``-o``/``>`` file). :data:`CHECKS` holds, per
+README example, a check of its output against the README's: the columns and row labels it shows,
+and value ranges (finite, non-negative, parts that add up, one row per input pose, 100 rollouts).
+Every README example has a check, and every check belongs to a README example.
 
 To keep a new README example runnable: name its inputs like the rules above (or after files an
 earlier example writes), and if it is slow, give its command an option in :data:`SPEED` (or add the
@@ -38,10 +46,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 README = REPO / "README.md"
+#: Docs whose ```bash examples are run too (after the README's, in this order).
+DOC_FILES = [REPO / "docs" / n for n in ("commands.md", "data.md", "defaults.md", "sparse.md", "paper.md", "benchmarks.md")]
 SAMPLE = REPO / "sample_data"
 BIN = Path(sys.executable).parent
 
@@ -110,6 +121,17 @@ def shell_parts(line: str) -> tuple[list[tuple[int, int, int]], int]:
         i += 1
     parts.append((start, words_end if words_end is not None else comment, comment))
     return parts, comment
+
+
+def shown_outputs(text: str) -> dict[str, str]:
+    """The ```text block that directly follows a ```bash block, keyed by that block's last command."""
+    out = {}
+    for block, shown in re.findall(r"^```(?:bash|sh|shell)[ \t]*\n(.*?)^```[ \t]*\n\s*^```text[ \t]*\n(.*?)^```",
+                                   text, flags=re.M | re.S):
+        lines = readme_examples(f"```bash\n{block}```\n")
+        if lines:
+            out[lines[-1]] = shown
+    return out
 
 
 def is_install_step(words: list[str]) -> bool:
@@ -236,12 +258,132 @@ def runnable(line: str, folder: Path, model_path: Path) -> str:
     return re.sub(r"(?<![\w/.])\.venv/bin/", str(BIN) + "/", text)
 
 
+def only_installs(line: str) -> bool:
+    parts, _ = shell_parts(line)
+    return all(is_install_step(shlex.split(line[a:b])) for a, b, _ in parts)
+
+
 # --------------------------------------------------------------------------------------------------
-EXAMPLES = readme_examples(README.read_text(encoding="utf-8"))
+# what the README shows the commands print
+def _rows(text: str) -> list[list[str]]:
+    return [ln.split() for ln in text.strip().splitlines() if ln.strip()]
+
+
+def _numbers(cells) -> np.ndarray:
+    vals = np.array([float(c) for c in cells if c not in ("-", "–")])
+    assert np.all(np.isfinite(vals)), cells
+    return vals
+
+
+def _read_csv(path: Path):
+    import pandas as pd
+
+    return pd.read_csv(path, comment="#", dtype={"trajectory": str})
+
+
+def check_demo(res, folder, shown):
+    shown_rows, rows = _rows(shown), _rows(res.stdout)
+    assert rows[0] == shown_rows[0]  # the columns the README shows
+    assert [r[0] for r in rows[1:]] == [r[0] for r in shown_rows[1:]] == ["axis-angle", "euler", "quaternion"]
+    for r in rows[1:]:
+        mean, rot, trans, *times = _numbers(r[1:])
+        assert min(mean, rot, trans, *times) >= 0 and abs(mean - rot - trans) <= 0.0015, r  # the parts add up
+    assert (folder / "rbgp-demo").is_dir()
+
+
+def check_inspect(res, folder, shown):
+    out = res.stdout
+    assert "sample_data/csv/shoe_01.csv: generic CSV" in out and "sample_data/shoe_demos.mcap: MCAP" in out
+    assert "640 samples" in out and "179 Hz" in out and "/shoe/trial_01/pose" in out
+
+
+def check_train(res, folder, shown):
+    assert (folder / "shoe.rbgp").read_bytes()[:2] == b"PK"  # an npz (zip)
+    assert "demonstrations: 9" in res.stderr and "axis-angle, kernel se-chordal" in res.stderr
+
+
+def check_info(res, folder, shown):
+    assert "representation: axis-angle" in res.stdout
+    assert "outputs: wx, wy, wz, vx, vy, vz" in res.stdout and "input: sample_data/csv/shoe_01.csv" in res.stdout
+
+
+def check_predict(res, folder, shown):
+    header = shown.strip().splitlines()[0].split(",")
+    out, poses = _read_csv(folder / "velocities.csv"), _read_csv(folder / "poses.csv")
+    assert list(out.columns) == header and len(out) == len(poses) > 100
+    stds = out[[c for c in header if c.startswith("std_")]].to_numpy()
+    assert np.all(np.isfinite(out.to_numpy())) and np.all(stds > 0)
+
+
+def check_rollout(res, folder, shown):
+    comment, header = shown.strip().splitlines()[:2]
+    lines = (folder / "gen.csv").read_text().splitlines()
+    assert lines[0] == comment and lines[1] == header
+    gen = _read_csv(folder / "gen.csv")
+    assert gen["trajectory"].nunique() == 100  # --count 100
+    assert np.allclose(np.linalg.norm(gen[["qx", "qy", "qz", "qw"]].to_numpy(), axis=1), 1, atol=1e-9)
+    first = gen.groupby("trajectory", sort=False)["t"]
+    assert np.all(first.min() == 0) and np.all(first.apply(lambda t: np.all(np.diff(t) > 0)))
+    assert np.all(gen.filter(like="std_").to_numpy() >= 0) and set(gen["left_data"].unique()) <= {0, 1}
+
+
+EVALUATE = re.compile(r"bhattacharyya mean (\S+)  rotation (\S+)  translation (\S+)  \((\d+) steps, (\d+) generated, "
+                      r"(\d+) demonstrations\); (\d+) of (\d+) generated left the demonstrations' envelope")
+
+
+def check_evaluate(res, folder, shown):
+    assert EVALUATE.fullmatch(shown.strip()), shown  # the README's line has the form checked here
+    m = EVALUATE.fullmatch(res.stdout.strip())
+    assert m, res.stdout
+    mean, rot, trans = (float(m.group(k)) for k in (1, 2, 3))
+    assert min(mean, rot, trans) >= 0 and abs(mean - rot - trans) <= 1.5e-4
+    n_gen = _read_csv(folder / "gen.csv")["trajectory"].nunique()
+    assert int(m.group(5)) == int(m.group(8)) == n_gen and int(m.group(6)) == 9 and int(m.group(7)) <= n_gen
+    assert (folder / "fig.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def check_crossval(res, folder, shown):
+    header = shown.strip().split()
+    lines = res.stdout.splitlines()
+    start = next(i for i, ln in enumerate(lines) if ln.split()[:1] == ["representation"])
+    assert lines[start].split() == header
+    rows = {r[0]: dict(zip(header, r)) for r in _rows("\n".join(lines[start + 1:]))}
+    assert {"axis-angle", "euler", "quaternion", "replay"} <= set(rows)
+    floors = {float(r["floor"]) for r in rows.values()}
+    assert len(floors) == 1  # one floor for every row: the same folds
+    for r in rows.values():
+        assert float(r["score"]) >= 0 and float(r["ratio"]) == pytest.approx(float(r["score"]) / float(r["floor"]), abs=0.006)
+        assert 0 <= float(r["pos_m"]) < 1 and 0 <= float(r["rot_rad"]) < np.pi
+
+
+def check_bench(res, folder, shown):
+    assert "Theorem 1" in res.stdout and "false: smallest Gram eigenvalue -0.178 at λ = 2" in res.stdout
+
+
+#: README example -> check of what it printed or wrote (``res``: the finished process, the folder it ran
+#: in, the README's shown output or None).
+CHECKS = {
+    'python3 -m venv .venv && .venv/bin/pip install ".[plot]" && .venv/bin/rbgp demo': check_demo,
+    "rbgp inspect sample_data/csv/shoe_01.csv sample_data/shoe_demos.mcap": check_inspect,
+    "rbgp train sample_data/csv/*.csv -o shoe.rbgp": check_train,
+    "rbgp info shoe.rbgp": check_info,
+    "rbgp predict shoe.rbgp poses.csv > velocities.csv": check_predict,
+    "rbgp rollout shoe.rbgp --from-demos sample_data/csv/*.csv --count 100 --start-spread 0.02 -o gen.csv": check_rollout,
+    "rbgp evaluate gen.csv --demos sample_data/csv/*.csv --plot fig.png": check_evaluate,
+    "rbgp crossval sample_data/csv --representation all --folds 3": check_crossval,
+    "rbgp bench paper theorem": check_bench,
+}
+
+# --------------------------------------------------------------------------------------------------
+README_TEXT = README.read_text(encoding="utf-8")
+README_EXAMPLES = readme_examples(README_TEXT)
+SHOWN = shown_outputs(README_TEXT)
+EXAMPLES = list(dict.fromkeys(README_EXAMPLES + [e for doc in DOC_FILES  # a docs line the README has runs once
+                                                  for e in readme_examples(doc.read_text(encoding="utf-8"))]))
 
 
 def test_the_readme_has_examples_and_its_test_command_is_what_ci_runs():
-    assert len(EXAMPLES) >= 15, EXAMPLES
+    assert len(README_EXAMPLES) >= 8 and len(EXAMPLES) >= 30, EXAMPLES
     ci = (REPO / ".ci" / "run").read_text(encoding="utf-8")
     ci_commands = [ln.strip() for ln in ci.splitlines() if "pytest" in ln]
     tests = [e for e in EXAMPLES if runs_tests(e)]
@@ -268,8 +410,25 @@ def small_model(tmp_path_factory):
     return path
 
 
+def test_every_readme_example_has_an_output_check_and_every_check_an_example():
+    run = [e for e in README_EXAMPLES if not runs_tests(e) and not only_installs(e)]
+    assert sorted(run) == sorted(CHECKS), (set(run) ^ set(CHECKS))
+    assert set(SHOWN) <= set(CHECKS) and len(SHOWN) >= 5, sorted(SHOWN)
+
+
+def test_a_line_that_only_installs_installs_an_extra_of_this_project():
+    import tomllib
+
+    extras = set(tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["optional-dependencies"])
+    installs = [e for e in README_EXAMPLES if only_installs(e)]
+    assert installs, README_EXAMPLES
+    for line in installs:
+        for name in re.findall(r"""pip install (?:-e )?["']?\.\[([\w,-]+)\]""", line):
+            assert set(name.split(",")) <= extras, line
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("line", [e for e in EXAMPLES if not runs_tests(e)],
+@pytest.mark.parametrize("line", [e for e in EXAMPLES if not runs_tests(e) and not only_installs(e)],
                          ids=lambda e: " ".join(e.split()[:4])[:60])
 def test_readme_example_runs(line, workdir, small_model):
     command = runnable(line, workdir, small_model)
@@ -279,6 +438,8 @@ def test_readme_example_runs(line, workdir, small_model):
                          capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, f"{line}\nran: {command}\nstderr:\n{res.stderr[-3000:]}"
     assert "Traceback" not in res.stderr and "rbgp: error" not in res.stderr, res.stderr[-3000:]
+    if line in README_EXAMPLES:
+        CHECKS[line](res, workdir, SHOWN.get(line))
 
 
 # --------------------------------------------------------------------------------------------------
