@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Accuracy of shared versus per-output hyperparameters (MATH.md §7 asks us to document it).
+"""Accuracy of shared versus per-output hyperparameters (docs/method.md §7 asks us to document it).
 
 Leave-one-demonstration-out on sample_data/csv: train on 8 demonstrations (10 % subsample, seed 0),
 predict the velocities of the held-out one, report the RMSE per output (rad/s, m/s) relative to the

@@ -16,7 +16,7 @@ mean-path prior. Starts: ``starts_near`` (spread 0.02 m, ~0.007 rad) around 10 r
 Measured in one run:
 
 * batched: ``rollout(model, q0, p0, steps, with_std=False)`` — all trajectories share one B × n
-  kernel block per step (MATH.md §8);
+  kernel block per step (docs/method.md §8);
 * one at a time: ``rollout_one_at_a_time(model, q0, p0, steps)``;
 * both must give the same poses (max abs difference of quaternions and positions ≤ 1e-9);
 * batched with ``with_std=True`` (adds one triangular solve per step);

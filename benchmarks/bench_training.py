@@ -29,7 +29,7 @@ Measured at every n, in one run:
   n_restarts_optimizer=2, random_state=0)``, six separate models on (Euler xyz angles, translation);
   wall time and number of log-marginal-likelihood evaluations; with ``--sklearn-threads 2`` also
   with its BLAS on 2 threads (the peer of our worker processes on both cores);
-* the same fits of ours with the chordal rotation distance (MATH.md §6, §10);
+* the same fits of ours with the chordal rotation distance (docs/method.md §6, §10);
 * test RMSE of every model against the noise-free outputs at 2000 unseen poses (so a faster fit is
   not bought with a worse model);
 * prediction of mean and std at 10001 unseen poses from the n = 80 models: ours
@@ -182,7 +182,7 @@ def bench_ours(X, Y, metric: str, shared: bool, eval_repeats: int, Xt, Yt_true, 
         "evaluations_per_output": evals / len(gp.fits) if not shared else float(evals),
         "jitter_used": any(f.jitter > 0 for f in gp.fits),
         # outputs whose first optimum missed the library's noise margin and were refit with it (if the
-        # library has that safeguard; MATH.md §6)
+        # library has that safeguard; docs/method.md §6)
         "guarded": sum(bool(getattr(f, "guarded", False)) for f in gp.fits),
         "rmse": rmse(gp.predict(Xt), Yt_true),
         "load": os.getloadavg()[0],

@@ -1,6 +1,6 @@
 """``rbgp demo``: the main job on the bundled sample data, for each representation:
 train (rbgp's defaults, :mod:`rbgp_cli.dynamics.defaults`) → 100 rollouts from unseen starts near
-the demonstrations' → Bhattacharyya distance to the demonstrations (MATH.md §9)."""
+the demonstrations' → Bhattacharyya distance to the demonstrations (docs/method.md §9)."""
 
 from __future__ import annotations
 

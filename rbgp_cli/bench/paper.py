@@ -1,5 +1,5 @@
 """``rbgp bench paper``: the paper's Theorem 1 and its claims of sec. 4.1 and 4.2, measured with rbgp's own
-kernels, GP and geometry (MATH.md §6, §10), with statistics over repetitions instead of one run.
+kernels, GP and geometry (docs/method.md §6, §10), with statistics over repetitions instead of one run.
 
 Three parts, each runnable alone (:data:`PARTS`); every random draw comes from
 ``SeedSequence([seed, part, repetition])``, so a part run alone gives the numbers it gives in a full run.
@@ -7,7 +7,7 @@ Three parts, each runnable alone (:data:`PARTS`); every random draw comes from
 **theorem** (paper Theorem 1: the squared exponential of the geodesic distance is positive definite).
 Smallest eigenvalue of the Gram matrix K_ij = exp(−d(r_i, r_j)² / (2λ²)) (σf = 1, no noise) of the
 geodesic kernel (d = d_arc, eq. 14) next to the chordal one (d = d_ch = 2 sin(d_arc/2)), on the
-counterexample of MATH.md §6 (8 rotations about one axis, π/4 apart) and on ``repeats`` sets of
+counterexample of docs/method.md §6 (8 rotations about one axis, π/4 apart) and on ``repeats`` sets of
 uniformly random rotations per size, for a grid of λ (in radians of rotation distance). Eigenvalues of
 a PSD matrix computed in float64 can come out negative by round-off, about n·ε·‖K‖ ≤ n²·ε; the
 report states that bound next to the chordal numbers.
@@ -176,7 +176,7 @@ def _min_eig(K: np.ndarray) -> float:
 
 
 def counterexample_rotations() -> np.ndarray:
-    """MATH.md §6: 8 rotations about the z axis, π/4 apart, as canonical rotation vectors, shape (8, 3)."""
+    """docs/method.md §6: 8 rotations about the z axis, π/4 apart, as canonical rotation vectors, shape (8, 3)."""
     angles = np.arange(8) * (math.pi / 4)
     q = np.stack([np.zeros(8), np.zeros(8), np.sin(angles / 2), np.cos(angles / 2)], axis=1)
     return rotvec_from_quat(q)

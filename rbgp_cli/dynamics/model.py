@@ -1,7 +1,7 @@
 """A motion model: a representation, a fitted GP on its training pairs, and how it was made.
 
 :func:`train_model` is the one library call behind ``rbgp train``: demonstrations → training pairs
-(MATH.md §4, §6) → subsample (paper sec. 4.3: 10 % random) → exact GP fit (MATH.md §7).
+(docs/method.md §4, §6) → subsample (paper sec. 4.3: 10 % random) → exact GP fit (docs/method.md §7).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ PRIORS = (None, "goal", "path")
 
 def make_kernel(representation: Representation, kernel: str = "se", rho_rot: float = 0.7, learn_rho: bool = False,
                 time_dims: int = 0) -> Kernel:
-    """The kernel for a representation (MATH.md §6).
+    """The kernel for a representation (docs/method.md §6).
 
     ``se`` is the paper's squared exponential on the representation's own rotation distance: the
     geodesic arc distance for axis-angle (eq. 24), Euclidean on Euler angles, the S³ angle for
@@ -68,8 +68,8 @@ class MotionModel:
     time_input : None, or ``"seconds"`` (time since the demonstration's start is a last GP input) or
         ``"phase"`` (normalised time s = (t − t_0)/D is a last input, and the outputs are velocities
         per unit phase, D·ξ, so that a rollout of any duration D' traverses the learned motion once)
-    variation : the demonstrations' deviation process over phase (MATH.md §11 (a)), or None
-    mean : None (zero-mean GP, MATH.md §7), ``{"kind": "goal", "gain": a, "goal": (7,)}`` or
+    variation : the demonstrations' deviation process over phase (docs/method.md §11 (a)), or None
+    mean : None (zero-mean GP, docs/method.md §7), ``{"kind": "goal", "gain": a, "goal": (7,)}`` or
         ``{"kind": "path", "gain": a, "s", "quat", "position", "velocity"}``: the prior mean of the
         outputs (:func:`prior_mean_outputs`, per second or per unit phase) converted to the
         representation's outputs; the GP models the residual, as in stable dynamical systems learned
@@ -286,7 +286,7 @@ def prior_mean_outputs(representation: Representation, state: np.ndarray, mean: 
     With start conditioning (``mean["start_beta"]``, :func:`start_conditioning`) and ``start_dev``
     (m, 6) each row's start deviation (:meth:`PathReference.start_deviation`), the reference is that
     row's start-conditioned path (:meth:`PathReference.conditioned_at`) instead of the mean path: the
-    pull keeps the deviation the demonstrations keep from such a start (MATH.md §11).
+    pull keeps the deviation the demonstrations keep from such a start (docs/method.md §11).
     """
     from rbgp_cli.geometry.so3 import log_quat, quat_conjugate, quat_multiply
 
@@ -354,7 +354,7 @@ def default_velocity() -> VelocityOptions:
 
 def demonstration_pairs(trajs: list[Trajectory], representation: Representation,
                         velocity: VelocityOptions | None = None, time_input: str | None = None):
-    """Training pairs of every demonstration (MATH.md §4, §4.1), before any subsampling.
+    """Training pairs of every demonstration (docs/method.md §4, §4.1), before any subsampling.
 
     With a ``time_input`` the inputs get a last column: seconds since the demonstration's start, or
     its phase (t − t_0)/D with outputs multiplied by D (velocities per unit phase).
@@ -552,7 +552,7 @@ def train_model(
     ``start_conditioning`` (mean-path prior, 3 or more demonstrations): the prior pulls each
     trajectory toward the mean path displaced by the deviation the demonstrations keep from its start
     (:func:`rbgp_cli.dynamics.variation.start_regression`) instead of toward the mean path itself; the
-    training residuals use each demonstration's own start, a rollout its start (MATH.md §11).
+    training residuals use each demonstration's own start, a rollout its start (docs/method.md §11).
     """
     t0 = time.perf_counter()
     if representation not in DEFAULT_KERNELS:

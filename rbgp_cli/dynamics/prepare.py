@@ -2,7 +2,7 @@
 
 A clean :class:`~rbgp_cli.dynamics.trajectory.Trajectory` has strictly increasing finite times, finite
 positions (metres) and unit quaternions (x, y, z, w) that are continuous in sign, and no step rotates by
-π or more (MATH.md §4). :func:`prepare_trajectory` gets there by
+π or more (docs/method.md §4). :func:`prepare_trajectory` gets there by
 
 1. **lost frames**: rows with a non-finite value or an all-zero quaternion (norm < 1e-9; proto3 and
    foxglove default a missing quaternion to all zeros). They are dropped; with ``max_gap`` an interior
@@ -167,7 +167,7 @@ def prepare_trajectory(
             hint="check which columns hold the quaternion, their order and units (--columns, --quat-order); "
             "a unit quaternion's components lie in [-1, 1]",
         )
-    # sample-and-hold (MATH.md §4.1): a valid sample that repeats its predecessor's pose bit for bit at
+    # sample-and-hold (docs/method.md §4.1): a valid sample that repeats its predecessor's pose bit for bit at
     # a later time is the tracker holding the last pose, not motion: a lost frame like any other
     held = np.zeros(n, dtype=bool)
     if len(vi) > 1:
@@ -521,7 +521,7 @@ def _runs_of(mask: np.ndarray) -> list[tuple[int, int]]:
 
 
 def split_at_rest(traj: Trajectory, rest: RestSplit, *, quiet: bool = False):
-    """Cut a clean take into repetitions separated by rests (MATH.md §4.1 conventions).
+    """Cut a clean take into repetitions separated by rests (docs/method.md §4.1 conventions).
 
     Rest samples: linear speed < ``rest.speed`` and angular speed < ``rest.angular_speed``
     (:func:`speeds` over ``rest.window``). Rest runs shorter than ``rest.min_rest`` count as motion;

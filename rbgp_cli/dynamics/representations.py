@@ -1,4 +1,4 @@
-"""The three model representations the paper compares (MATH.md §4, §6), behind one interface.
+"""The three model representations the paper compares (docs/method.md §4, §6), behind one interface.
 
 Each representation says how a demonstration becomes (input, output) training pairs, and how one
 integration step turns a predicted output into the next state. States are arrays of shape (B, d)
@@ -17,7 +17,7 @@ quaternion      (qx, qy, qz, qw, x, y, z), sign  (q̇, v) by finite differences 
 ==============  ===============================  ===============================  ===================
 
 The paper's dual-quaternion kernel is not specified in its text; the ``quaternion`` baseline uses
-unit quaternions with the S³ angle (MATH.md §6).
+unit quaternions with the S³ angle (docs/method.md §6).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Rollouts: new motions from start poses by single-step mean prediction (MATH.md §8, paper sec. 4.3).
+"""Rollouts: new motions from start poses by single-step mean prediction (docs/method.md §8, paper sec. 4.3).
 
 From start poses g_0 (B of them, advanced together):
 
@@ -134,7 +134,7 @@ def _check_finite(state, step):
 
 #: How sampled rollouts are drawn: ``path`` (one coherent deviation of the demonstrations' kind per
 #: sample, :mod:`rbgp_cli.dynamics.variation`; the default where the model has it) or ``step``
-#: (independent draws of the velocity from the predictive Gaussian at every step, MATH.md §8).
+#: (independent draws of the velocity from the predictive Gaussian at every step, docs/method.md §8).
 SAMPLINGS = ("path", "step")
 
 

@@ -71,7 +71,7 @@ class Trajectory:
 
     @property
     def poses(self) -> np.ndarray:
-        """Pose array, shape (N, 6) = (rx, ry, rz, x, y, z), canonical rotation vectors (MATH.md §2)."""
+        """Pose array, shape (N, 6) = (rx, ry, rz, x, y, z), canonical rotation vectors (docs/method.md §2)."""
         from rbgp_cli.geometry.so3 import rotvec_from_quat
 
         return np.concatenate([rotvec_from_quat(self.quat), self.position], axis=-1)

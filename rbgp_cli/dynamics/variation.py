@@ -1,11 +1,11 @@
-"""How demonstrations differ from one another, as a coherent random process over phase (MATH.md §11 (a)).
+"""How demonstrations differ from one another, as a coherent random process over phase (docs/method.md §11 (a)).
 
 A GP per velocity output learns the shared motion; what it cannot give is a *new* demonstration: its
 likelihood turns the demonstrations' smooth, coherent deviations from each other into white noise σn,
 and per-step Monte Carlo draws of that noise integrate to random walks. Here the deviations are
 modelled directly. On a phase grid s_j = j/(S−1) (s = (t − t_0)/D), each training demonstration d gives
 its deviation from the demonstrations' mean path (:func:`rbgp_cli.dynamics.model.mean_path`) in the mean
-path's world-frame tangent space, rotation first (MATH.md §1),
+path's world-frame tangent space, rotation first (docs/method.md §1),
 
     δ_d(s) = (log(R_d(s) R̄(s)ᵀ), p_d(s) − p̄(s))  ∈ ℝ⁶.
 

@@ -1,4 +1,4 @@
-"""Velocities of a demonstration by forward differences (MATH.md §4, paper sec. 2 and 4.3).
+"""Velocities of a demonstration by forward differences (docs/method.md §4, paper sec. 2 and 4.3).
 
 For samples (t_k, R_k, p_k), k = 0..N−1, strictly increasing t:
 
@@ -27,7 +27,7 @@ __all__ = [
     "segment_split",
 ]
 
-#: A step rotating by (nearly) π cannot tell its direction: the sampling is too coarse (MATH.md §4).
+#: A step rotating by (nearly) π cannot tell its direction: the sampling is too coarse (docs/method.md §4).
 MAX_STEP_ANGLE = math.pi - 1e-6
 
 
@@ -71,7 +71,7 @@ def forward_differences(traj: Trajectory) -> tuple[np.ndarray, np.ndarray]:
 
 
 # ---------------------------------------------------------------------------------------------
-# Velocities from real motion capture (MATH.md §4.1): resampling and local-polynomial derivatives
+# Velocities from real motion capture (docs/method.md §4.1): resampling and local-polynomial derivatives
 # ---------------------------------------------------------------------------------------------
 
 #: A step between consecutive clean samples longer than this many times the demonstration's median
@@ -82,7 +82,7 @@ SEGMENT_GAP_FACTOR = 4.0
 
 @dataclass(frozen=True)
 class VelocityOptions:
-    """How training velocities are estimated from a demonstration (MATH.md §4, §4.1).
+    """How training velocities are estimated from a demonstration (docs/method.md §4, §4.1).
 
     rate : Hz, or None. Resample each demonstration on a uniform grid of spacing h = 1/rate
         (slerp / linear) before estimating velocities; the rollout step follows it. None keeps the
@@ -159,7 +159,7 @@ def local_polynomial(t: np.ndarray, quat: np.ndarray, position: np.ndarray, time
                      window: float, degree: int = 2):
     """Smoothed poses and world-frame velocities at ``times`` by local polynomial fits on SE(3).
 
-    For each target time τ (MATH.md §4.1): the window W = the samples within ``window`` seconds
+    For each target time τ (docs/method.md §4.1): the window W = the samples within ``window`` seconds
     centred on τ (shifted inside [t_0, t_{N−1}] near the ends, i.e. one-sided there); the reference
     rotation R_τ by slerp between the samples around τ; tangent coordinates φ_j = log(R_j R_τᵀ)
     (world-frame rotation vectors, small because the window is short); least-squares polynomials
@@ -218,7 +218,7 @@ def local_polynomial(t: np.ndarray, quat: np.ndarray, position: np.ndarray, time
 
 
 def estimate_velocities(traj: Trajectory, options: VelocityOptions | None = None) -> list[VelocitySegment]:
-    """Training samples of a clean demonstration: poses and world-frame velocities (MATH.md §4, §4.1).
+    """Training samples of a clean demonstration: poses and world-frame velocities (docs/method.md §4, §4.1).
 
     1. Split at gaps (a step longer than SEGMENT_GAP_FACTOR × the median step, or than two training
        steps): lost tracking that was dropped, or a tracker hold turned into lost frames by
@@ -281,7 +281,7 @@ def window_problem(trajs, options: VelocityOptions) -> str | None:
 
 
 def integration_drift(segments: list[VelocitySegment]) -> dict:
-    """How far integrating the estimated velocities strays from the training poses (MATH.md §4.1).
+    """How far integrating the estimated velocities strays from the training poses (docs/method.md §4.1).
 
     Each segment is integrated from its first pose with its own steps
     (R_{k+1} = exp(ω_k h_k) R_k, p_{k+1} = p_k + v_k h_k); returns the largest position (m) and

@@ -1,4 +1,4 @@
-"""Evaluation: resampling, per-step Gaussians and the Bhattacharyya distance to the demonstrations (MATH.md §9).
+"""Evaluation: resampling, per-step Gaussians and the Bhattacharyya distance to the demonstrations (docs/method.md §9).
 
 * :mod:`~rbgp_cli.evaluation.resample`: trajectories on normalised time s ∈ [0, 1] (slerp / linear),
   the chordal mean rotation per step, features ``(log(R̄_tᵀ R), p)`` in the tangent space at it.

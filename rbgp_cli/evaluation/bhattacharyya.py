@@ -1,4 +1,4 @@
-"""Bhattacharyya distance between generated motions and the demonstrations (MATH.md §9, paper sec. 4.3).
+"""Bhattacharyya distance between generated motions and the demonstrations (docs/method.md §9, paper sec. 4.3).
 
 For two Gaussians N(μ1, S1), N(μ2, S2) in R^k, with Σ = (S1 + S2)/2 and Δ = μ1 − μ2,
 
@@ -311,7 +311,7 @@ class EvaluationResult:
     """Per-step and mean Bhattacharyya distances between generated trajectories and demonstrations.
 
     Features are ``(rx, ry, rz, x, y, z)``: the rotation vector of ``R̄_tᵀ R`` (rad) and the position
-    (m), MATH.md §9. The parts: with ``covariance="diag"`` the rotation (translation) part is the
+    (m), docs/method.md §9. The parts: with ``covariance="diag"`` the rotation (translation) part is the
     sum of the per-dimension terms of the 3 rotation (translation) dimensions and the total is their
     sum; with ``"full"`` the total uses the full 6×6 covariances and each part its 3×3 block, so the
     parts need not add up to the total (they ignore rotation-translation correlation).
@@ -428,7 +428,7 @@ def evaluate(
     ridge: float = DEFAULT_RIDGE,
     sample_size: str = "refuse",
 ) -> EvaluationResult:
-    """Bhattacharyya distance between generated trajectories and demonstrations, per step (MATH.md §9).
+    """Bhattacharyya distance between generated trajectories and demonstrations, per step (docs/method.md §9).
 
     1. Resample every trajectory to ``T = length`` steps of normalised time (default: the median
        sample count of the demonstrations), slerp for rotation, linear for translation

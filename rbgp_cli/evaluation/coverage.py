@@ -1,5 +1,5 @@
 """Do the bands hold? The calibration of sampled rollouts against a real motion from the same start
-(MATH.md §11, "Calibration measure"; issue 20).
+(docs/method.md §11, "Calibration measure"; issue 20).
 
 K sampled rollouts from one start and the real motion from that start are resampled to the same T
 steps of normalised time (:func:`rbgp_cli.evaluation.resample.resample_all`). At every step:

@@ -5,7 +5,7 @@ folds of the demonstrations (seeded; a demonstration is never split across folds
 
 1. trains a model on the other folds (exactly the options of ``rbgp train``);
 2. rolls out one trajectory from each held-out demonstration's own start pose for its own duration;
-3. **score**: the Bhattacharyya distance (MATH.md §9) of the generated set against the *training*
+3. **score**: the Bhattacharyya distance (docs/method.md §9) of the generated set against the *training*
    demonstrations; **floor**: the same for the held-out demonstrations themselves (same counts, same
    resampling length, same training set): what a fresh real demonstration scores;
 4. **left_data**: how many generated trajectories leave the training demonstrations' envelope
@@ -102,7 +102,7 @@ def make_folds(n: int, k: int, seed: int = 0) -> list[np.ndarray]:
 # --------------------------------------------------------------------------------------------- peers
 def nearest_index(train: list[Trajectory], quat0: np.ndarray, pos0: np.ndarray, rho_rot: float = REPLAY_RHO) -> int:
     """Index of the training demonstration whose start pose is nearest to (quat0, pos0):
-    d² = ρ1·d_ch² + (1 − ρ1)·‖Δp‖² (chordal rotation distance d_ch = 2·sqrt(1 − ⟨q1, q2⟩²), MATH.md §5)."""
+    d² = ρ1·d_ch² + (1 − ρ1)·‖Δp‖² (chordal rotation distance d_ch = 2·sqrt(1 − ⟨q1, q2⟩²), docs/method.md §5)."""
     starts_q = np.array([tr.quat[0] for tr in train])
     starts_p = np.array([tr.position[0] for tr in train])
     c = np.clip(np.abs(starts_q @ quat0), 0.0, 1.0)
@@ -114,7 +114,7 @@ def replay_nearest(train: list[Trajectory], quat0: np.ndarray, pos0: np.ndarray,
     """The training demonstration with the nearest start pose, moved rigidly to start at (quat0, pos0).
 
     Nearest by d² = ρ1·d_ch² + (1 − ρ1)·‖Δp‖² (chordal rotation distance d_ch = 2·sqrt(1 − ⟨q1, q2⟩²),
-    MATH.md §5). The motion is carried by the rigid transform that maps the demonstration's start pose
+    docs/method.md §5). The motion is carried by the rigid transform that maps the demonstration's start pose
     onto the new one: R(t) ↦ R_s' R_sᵀ R(t), p(t) ↦ R_s' R_sᵀ (p(t) − p_s) + p_s'.
     """
     src = train[nearest_index(train, quat0, pos0, rho_rot)]
@@ -174,7 +174,7 @@ def velocity_errors(model, demos: list[Trajectory]) -> dict:
 
 
 # --------------------------------------------------------------------------------------------- one fold
-#: Sampled rollouts per held-out start for the sample columns (MATH.md §11: K = 20).
+#: Sampled rollouts per held-out start for the sample columns (docs/method.md §11: K = 20).
 SAMPLES = 20
 
 
@@ -216,7 +216,7 @@ def _generate(config: Config, train: list[Trajectory], test: list[Trajectory], s
 
 
 def _sample_columns(drawn, train: list[Trajectory], test: list[Trajectory], T: int, covariance: str) -> dict | None:
-    """The variety and calibration columns of one fold (MATH.md §11): ``sample_score``, one sampled
+    """The variety and calibration columns of one fold (docs/method.md §11): ``sample_score``, one sampled
     rollout per held-out start scored against the training demonstrations as ``score`` is, and the
     coverage of each held-out motion by its start's samples (:func:`rbgp_cli.evaluation.coverage.prediction_coverage`,
     sums that pool over folds)."""
@@ -384,7 +384,7 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
     scheduler : None, ``"local"`` (a Dask ``LocalCluster`` of ``jobs`` workers) or the address of a Dask
         scheduler: the fits run there (:func:`rbgp_cli.parallel.iter_dask`); the results are the same
     samples : sampled rollouts per held-out start (``rbgp rollout --samples``, seeded by the train
-        options' seed) for the columns of MATH.md §11: ``sample_score`` / ``sample_ratio`` (one sample per
+        options' seed) for the columns of docs/method.md §11: ``sample_score`` / ``sample_ratio`` (one sample per
         start, scored as ``score``), ``coverage_position`` / ``coverage_rotation`` (the held-out motion
         inside the samples' 90 % prediction regions; 0.90 for a perfect Gaussian model) and the bands'
         mean half-widths ``band_position`` (m) / ``band_rotation`` (rad); 0: none (those columns None)

@@ -1,4 +1,4 @@
-"""Resampling to a common length, the mean rotation per step, and tangent-space features (MATH.md §9).
+"""Resampling to a common length, the mean rotation per step, and tangent-space features (docs/method.md §9).
 
 The evaluation compares distributions of poses *at the same phase* of the motion. Every
 trajectory is therefore put on normalised time
@@ -89,7 +89,7 @@ def _check_trajectory(traj: Trajectory) -> None:
 
 
 def resample(traj: Trajectory, T: int) -> tuple[np.ndarray, np.ndarray]:
-    """Resample a trajectory to ``T`` equally spaced steps of normalised time (MATH.md §9).
+    """Resample a trajectory to ``T`` equally spaced steps of normalised time (docs/method.md §9).
 
     With samples ``(t_k, q_k, p_k)``, ``k = 0..N−1``, normalised times ``σ_k = (t_k − t_0)/(t_{N−1} − t_0)``
     and targets ``s_j = j/(T − 1)``: find ``k`` with ``σ_k <= s_j <= σ_{k+1}``, ``f = (s_j − σ_k)/(σ_{k+1} − σ_k)``,
@@ -147,11 +147,11 @@ def resample_all(trajs: Sequence[Trajectory], T: int) -> tuple[np.ndarray, np.nd
 
 
 def mean_rotation(quat) -> np.ndarray:
-    """Chordal mean rotation per step: the principal eigenvector of ``Σ_m q_m q_mᵀ`` (MATH.md §9).
+    """Chordal mean rotation per step: the principal eigenvector of ``Σ_m q_m q_mᵀ`` (docs/method.md §9).
 
     For each step t, the unit quaternion q̄_t maximising ``Σ_m ⟨q̄, q_{m,t}⟩²`` is the normalised
     eigenvector of the largest eigenvalue of the 4×4 matrix ``A_t = Σ_m q_{m,t} q_{m,t}ᵀ``; its
-    rotation minimises the sum of squared chordal distances ``Σ_m d_ch(R̄, R_m)²`` (MATH.md §5:
+    rotation minimises the sum of squared chordal distances ``Σ_m d_ch(R̄, R_m)²`` (docs/method.md §5:
     ``d_ch² = 4(1 − ⟨q̄, q⟩²)``). ``q qᵀ`` does not change under ``q -> −q``, so the result does not
     depend on the input signs (bit for bit). It is equivariant: rotating all inputs by a fixed
     ``R_w`` on the left rotates the mean the same way. (Markley et al., "Averaging quaternions",
@@ -188,7 +188,7 @@ def mean_rotation(quat) -> np.ndarray:
 
 
 def tangent_features(quat, position, ref) -> np.ndarray:
-    """Features in the tangent space at the reference rotation: ``x = (log(R̄_tᵀ R), p)`` (MATH.md §9).
+    """Features in the tangent space at the reference rotation: ``x = (log(R̄_tᵀ R), p)`` (docs/method.md §9).
 
     The rotation part is the canonical rotation vector of ``conj(q̄_t) ⊗ q`` (the rotation taking
     R̄_t to R, expressed in the reference's body frame: ``R = R̄_t exp([x_r]×)``), in the closed ball

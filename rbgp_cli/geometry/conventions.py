@@ -1,4 +1,4 @@
-"""The one place that states rbgp's conventions (MATH.md §1). Every docstring repeats what applies.
+"""The one place that states rbgp's conventions (docs/method.md §1). Every docstring repeats what applies.
 
 Units
     Inside rbgp everything is SI: seconds, metres, radians. Other units (mm, cm, degrees, ms, ns)

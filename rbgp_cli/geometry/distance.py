@@ -1,4 +1,4 @@
-"""Distances between rotations and poses, elementwise and as pairwise matrices (MATH.md §5; eq. 14, 19).
+"""Distances between rotations and poses, elementwise and as pairwise matrices (docs/method.md §5; eq. 14, 19).
 
 Conventions (from :mod:`rbgp_cli.geometry.conventions`)
     * Rotations as canonical rotation vectors ``r`` (..., 3) or quaternions ``q`` (..., 4) with
@@ -8,7 +8,7 @@ Conventions (from :mod:`rbgp_cli.geometry.conventions`)
 
 Rotation distances (S³ angle ``φ = acos|⟨q1, q2⟩|`` between the unit quaternions)
     * arc (geodesic) distance ``d_arc = 2φ ∈ [0, π]``, the angle of ``R1ᵀR2`` (eq. 14 with the
-      absolute value MATH.md adds);
+      absolute value docs/method.md adds);
     * chordal distance ``d_ch = 2 sin φ = 2 sqrt(1 − ⟨q1, q2⟩²) = 2 sin(d_arc/2) ∈ [0, 2]``;
     * the S³ angle ``φ`` itself (the quaternion baseline's distance, half of ``d_arc``).
 
@@ -128,7 +128,7 @@ def _diff_sum_norms(q1: np.ndarray, q2: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 
 def arc_distance_quat(q1, q2) -> np.ndarray:
-    """Arc (geodesic) distance of rotations given as quaternions (eq. 14 corrected; MATH.md §5).
+    """Arc (geodesic) distance of rotations given as quaternions (eq. 14 corrected; docs/method.md §5).
 
     ``d_arc = 2·acos|⟨q1, q2⟩| = 4·atan2(‖q1 − q2‖, ‖q1 + q2‖)`` after sign alignment, in [0, π];
     the angle of ``R1ᵀR2``; invariant to ``q -> −q``. Shapes (..., 4) (x, y, z, w; normalised
@@ -141,7 +141,7 @@ def arc_distance_quat(q1, q2) -> np.ndarray:
 
 
 def arc_distance(r1, r2) -> np.ndarray:
-    """Arc (geodesic) distance of rotations given as rotation vectors (eq. 14; MATH.md §5).
+    """Arc (geodesic) distance of rotations given as rotation vectors (eq. 14; docs/method.md §5).
 
     ``d_arc(r1, r2) = 2·acos|⟨q1, q2⟩| ∈ [0, π]``, computed as in :func:`arc_distance_quat`.
     Any rotation vectors (canonical or not). Shapes (..., 3), broadcast; returns (...).
@@ -152,7 +152,7 @@ def arc_distance(r1, r2) -> np.ndarray:
 
 
 def chordal_distance_quat(q1, q2) -> np.ndarray:
-    """Chordal rotation distance of quaternions: ``2·sqrt(1 − ⟨q1, q2⟩²) = 2 sin(d_arc/2)`` (MATH.md §5).
+    """Chordal rotation distance of quaternions: ``2·sqrt(1 − ⟨q1, q2⟩²) = 2 sin(d_arc/2)`` (docs/method.md §5).
 
     Computed as ``‖q1 − q2‖·‖q1 + q2‖`` (= ``4 sin(φ/2) cos(φ/2)``, no cancellation; the product is
     the same for either sign of ``q2``). In [0, 2]. Shapes (..., 4), broadcast; returns (...).
@@ -166,7 +166,7 @@ def chordal_distance(r1, r2) -> np.ndarray:
     """Chordal rotation distance ``2·sqrt(1 − ⟨q1, q2⟩²) = 2 sin(d_arc/2)`` of rotation vectors.
 
     ``d_ch² = ½‖q1q1ᵀ − q2q2ᵀ‖²_F``: a Euclidean distance of an embedding of SO(3), so a Gaussian of
-    it is positive definite (MATH.md §5, §6). Shapes (..., 3), broadcast; returns (...) in [0, 2].
+    it is positive definite (docs/method.md §5, §6). Shapes (..., 3), broadcast; returns (...) in [0, 2].
     """
     r1 = _as_array(r1, 3, "chordal_distance r1")
     r2 = _as_array(r2, 3, "chordal_distance r2")
@@ -283,7 +283,7 @@ def _pairwise_quat(qa: np.ndarray, qb: np.ndarray, kind: str) -> np.ndarray:
 
 
 def pairwise_quat_distance(q_a, q_b, metric: str = "arc") -> np.ndarray:
-    """Pairwise rotation distances between quaternion sets, shape (n, m) (MATH.md §5).
+    """Pairwise rotation distances between quaternion sets, shape (n, m) (docs/method.md §5).
 
     ``metric="arc"``: ``2·acos|⟨qa_i, qb_j⟩|`` ∈ [0, π]; ``"chordal"``: ``2·sqrt(1 − ⟨qa_i, qb_j⟩²)``
     ∈ [0, 2]. ``q_a`` (n, 4), ``q_b`` (m, 4), components x, y, z, w, any sign (normalised here).
@@ -297,7 +297,7 @@ def pairwise_quat_distance(q_a, q_b, metric: str = "arc") -> np.ndarray:
 
 
 def pairwise_rotation_distance(r_a, r_b, metric: str = "arc") -> np.ndarray:
-    """Pairwise rotation distances between rotation-vector sets, shape (n, m) (eq. 14; MATH.md §5).
+    """Pairwise rotation distances between rotation-vector sets, shape (n, m) (eq. 14; docs/method.md §5).
 
     ``metric="arc"``: ``d_arc = 2·acos|⟨qa_i, qb_j⟩|`` ∈ [0, π]; ``"chordal"``:
     ``d_ch = 2·sqrt(1 − ⟨qa_i, qb_j⟩²) = 2 sin(d_arc/2)`` ∈ [0, 2]. ``r_a`` (n, 3), ``r_b`` (m, 3)
@@ -314,7 +314,7 @@ def pairwise_rotation_distance(r_a, r_b, metric: str = "arc") -> np.ndarray:
 def pairwise_s3_angle(q_a, q_b) -> np.ndarray:
     """Pairwise S³ angle ``acos|⟨qa_i, qb_j⟩|`` ∈ [0, π/2] (half of ``d_arc``), shape (n, m).
 
-    The rotation distance of the quaternion baseline (MATH.md §6). ``q_a`` (n, 4), ``q_b`` (m, 4),
+    The rotation distance of the quaternion baseline (docs/method.md §6). ``q_a`` (n, 4), ``q_b`` (m, 4),
     x, y, z, w, any sign (normalised here). Accurate near 0 as :func:`pairwise_quat_distance`.
     """
     qa = quat_normalize(_as_rows(q_a, 4, "pairwise_s3_angle q_a"))
@@ -369,7 +369,7 @@ def weighted_se3_sq_distance(g_a, g_b, rho_rot: float = 0.7, metric: str = "arc"
     """Squared weighted SE(3) distance matrix (eq. 19): ``ρ1·d_rot(r_i, r_j)² + (1 − ρ1)·‖t_i − t_j‖²``.
 
     ``d_rot`` is the arc distance (the paper's choice, ``metric="arc"``) or the chordal distance
-    (``"chordal"``, whose squared-exponential kernel is positive definite; MATH.md §6).
+    (``"chordal"``, whose squared-exponential kernel is positive definite; docs/method.md §6).
     ``rho_rot`` = ρ1 ∈ [0, 1] weighs rotation (paper: 0.7), ρ2 = 1 − ρ1 translation.
     ``g_a`` (n, 6), ``g_b`` (m, 6): (rx, ry, rz, x, y, z), metres. Returns (n, m).
     """

@@ -1,4 +1,4 @@
-"""Rigid motions SE(3): composition, inverse, action, exponential map, integration (MATH.md §3, §4, §8).
+"""Rigid motions SE(3): composition, inverse, action, exponential map, integration (docs/method.md §3, §4, §8).
 
 Conventions (from :mod:`rbgp_cli.geometry.conventions`)
     * A pose array is ``g = (r, t)``, shape ``(..., 6)`` = ``(rx, ry, rz, x, y, z)``: **rotation
@@ -151,7 +151,7 @@ def log_se3(g) -> np.ndarray:
 
 
 def integrate_pose(g, xi, dt) -> np.ndarray:
-    """One integration (rollout) step (MATH.md §4, §8): ``R' = exp(ω dt) R``, ``p' = p + v dt``.
+    """One integration (rollout) step (docs/method.md §4, §8): ``R' = exp(ω dt) R``, ``p' = p + v dt``.
 
     In rotation vectors: ``r' = (ω dt) ∘ r`` (eq. 8, 11), returned canonical. Integrating the exact
     forward differences ``ω_k = log(R_{k+1} R_kᵀ)/Δt_k``, ``v_k = (p_{k+1} − p_k)/Δt_k`` reproduces

@@ -1,4 +1,4 @@
-"""Rotations: canonical rotation vectors, quaternions, matrices, Euler angles (MATH.md §1–§3).
+"""Rotations: canonical rotation vectors, quaternions, matrices, Euler angles (docs/method.md §1–§3).
 
 Conventions (from :mod:`rbgp_cli.geometry.conventions`)
     * Quaternions are Hamilton quaternions with components **x, y, z, w** (scalar last), shape
@@ -29,7 +29,7 @@ Numerics
 
 References
     Lang & Hirche, "Computationally efficient rigid-body Gaussian process for motion dynamics"
-    (eq. numbers below refer to it, as corrected by MATH.md); Shepperd, "Quaternion from rotation
+    (eq. numbers below refer to it, as corrected by docs/method.md); Shepperd, "Quaternion from rotation
     matrix", J. Guidance and Control 1 (1978); Bernardes & Viollet, "Quaternion to Euler angles
     conversion: A direct, general and computationally efficient method", PLoS ONE 17 (2022).
 """
@@ -198,7 +198,7 @@ def quat_conjugate(q) -> np.ndarray:
 
 
 def quat_multiply(q2, q1) -> np.ndarray:
-    """Hamilton product ``q2 ⊗ q1``: rotate by ``q1`` first, then by ``q2`` (MATH.md §3).
+    """Hamilton product ``q2 ⊗ q1``: rotate by ``q1`` first, then by ``q2`` (docs/method.md §3).
 
     With ``q = (v, w)`` (x, y, z, w order)::
 
@@ -262,7 +262,7 @@ def exp_quat(omega) -> np.ndarray:
 
 
 def quat_from_rotvec(r) -> np.ndarray:
-    """Unit quaternion of a rotation vector, ``w >= 0`` (eq. 6, 11; MATH.md §2).
+    """Unit quaternion of a rotation vector, ``w >= 0`` (eq. 6, 11; docs/method.md §2).
 
     ``q = ±(sin(θ/2) u, cos(θ/2))``, ``θ = ‖r‖``, ``u = r/θ``; shape (..., 3) -> (..., 4), x, y, z, w.
     Any ``r`` is accepted (angles above π are folded by the sign flip).
@@ -272,7 +272,7 @@ def quat_from_rotvec(r) -> np.ndarray:
 
 
 def rotvec_from_quat(q) -> np.ndarray:
-    """Canonical rotation vector of a quaternion (eq. 6, 7; MATH.md §2).
+    """Canonical rotation vector of a quaternion (eq. 6, 7; docs/method.md §2).
 
     Normalise ``q``, flip it to ``w >= 0``, ``θ = 2·atan2(‖q_xyz‖, w) ∈ [0, π]``,
     ``u = q_xyz/‖q_xyz‖`` (identity -> 0, via a series below ``SMALL_ANGLE``), then at θ = π (within
@@ -302,7 +302,7 @@ def log_quat(q) -> np.ndarray:
 
 
 def canonical_rotvec(r) -> np.ndarray:
-    """Fold any rotation vector into the canonical ball B̃π (eq. 6, 7; MATH.md §2).
+    """Fold any rotation vector into the canonical ball B̃π (eq. 6, 7; docs/method.md §2).
 
     ``θ = ‖r‖``: vectors with ``θ < π − PI_TOLERANCE`` are already canonical and are returned
     unchanged (bit for bit); the others go through the quaternion: ``θ > π`` becomes
@@ -328,7 +328,7 @@ def inverse_rotvec(r) -> np.ndarray:
 
 
 def compose_rotvec(r2, r1) -> np.ndarray:
-    """Composition ``r2 ∘ r1`` (rotate by r1, then r2) as a canonical vector (eq. 8; MATH.md §3).
+    """Composition ``r2 ∘ r1`` (rotate by r1, then r2) as a canonical vector (eq. 8; docs/method.md §3).
 
     Computed through quaternions: ``rotvec(q(r2) ⊗ q(r1))``. Shapes (..., 3), broadcast.
     """

@@ -1,7 +1,7 @@
 """How much a fitted GP should trust each training point, measured by leaving demonstrations out.
 
 The GP's likelihood treats every training pair as an independent noisy sample of one velocity field
-(MATH.md §5). Repeated demonstrations are not that: each one deviates smoothly from the others (a
+(docs/method.md §5). Repeated demonstrations are not that: each one deviates smoothly from the others (a
 different grasp, speed, hand path), and recorded at a high rate it contributes hundreds of pairs that
 share its deviation. The posterior then follows the deviations of the demonstrations it was trained
 on, and its predictions for a new demonstration suffer. Measured on ``sample_data/`` and the 30 real

@@ -1,4 +1,4 @@
-"""Exact Gaussian-process regression with hyperparameters from the marginal likelihood (MATH.md §7).
+"""Exact Gaussian-process regression with hyperparameters from the marginal likelihood (docs/method.md §7).
 
 One zero-mean GP per output dimension l (paper sec. 3.2, eq. 20–21), or one shared set of
 hyperparameters for all outputs after scaling each by its root mean square (``shared=True``: one
@@ -15,14 +15,14 @@ and its gradient (R&W eq. 5.9) with W = ααᵀ − C⁻¹:
 Kernels provide Σ W ∘ ∂K/∂logθ directly (:meth:`Kernel.grad_contract`); the noise term is
 ∂C/∂log σn = 2σn² I, so its contribution is −σn² tr(W).
 
-Indefinite kernels (MATH.md §6: the paper's geodesic kernel is not PSD): where C fails its Cholesky,
+Indefinite kernels (docs/method.md §6: the paper's geodesic kernel is not PSD): where C fails its Cholesky,
 the optimiser is told the point is infeasible (a large finite NLML, from which L-BFGS-B's line search
 backs off) and keeps going. A fitted output is accepted only if C at the optimum passes Cholesky with
 a reciprocal condition number above ``MIN_RCOND``; otherwise increasing jitter is added to the
 diagonal and reported. If nothing works the fit raises :class:`RbgpRuntimeError` — a model whose
 predictions can explode is never returned.
 
-Starts (MATH.md §7): L-BFGS-B in log space from the data-driven start plus ``restarts − 1`` random
+Starts (docs/method.md §7): L-BFGS-B in log space from the data-driven start plus ``restarts − 1`` random
 ones from a seeded rng. The starts exist to find the best basin, and at n = 1752 all of them usually
 end in the same one, each costing 15–50 full-size evaluations. So for n > 2·SUBSAMPLE_SIZE the starts
 run on a random subsample of SUBSAMPLE_SIZE points (an evaluation there costs (400/1752)³ ≈ 1 % of a
@@ -481,7 +481,7 @@ class GaussianProcess:
         return cache[group]
 
     def predict_mean(self, Xs) -> np.ndarray:
-        """Predictive mean, shape (m, L) (single-step mean prediction, MATH.md §8)."""
+        """Predictive mean, shape (m, L) (single-step mean prediction, docs/method.md §8)."""
         return self.predict(Xs)
 
 
@@ -912,7 +912,7 @@ def _fit_target(kernel, pre, y, label, rng, o: _FitOptions, sub=None, pre_sub=No
         K, _ = kernel.gram(pre, values_of(best[0]))
         if not _meets_margin(kernel, pre, values_of(best[0]), K):
             # The optimum sits where K's negative eigenvalues nearly cancel the noise (indefinite
-            # kernel, MATH.md §6): refit with the margin enforced at every evaluation, from that
+            # kernel, docs/method.md §6): refit with the margin enforced at every evaluation, from that
             # optimum (moved into the feasible region by the infeasible-start rule) and the
             # data-driven start.
             guarded = True

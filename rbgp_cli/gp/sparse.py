@@ -102,7 +102,7 @@ def inducing_embedding(kernel: Kernel, X: np.ndarray) -> np.ndarray:
     """Rows of X mapped to a Euclidean space whose distances approximate the kernel's, shape (n, D).
 
     Squared-exponential kernels on rotations: the chordal embedding of SO(3), e(q) = √2 vec(q qᵀ) with
-    ‖e(q1) − e(q2)‖² = 4 (1 − ⟨q1, q2⟩²) = d_ch² (MATH.md §5; it approximates d_arc to O(d³), and is
+    ‖e(q1) − e(q2)‖² = 4 (1 − ⟨q1, q2⟩²) = d_ch² (docs/method.md §5; it approximates d_arc to O(d³), and is
     halved for the S³ angle of the quaternion baseline), weighted √ρ1, beside √(1 − ρ1) t; Euclidean
     rotation coordinates (Euler angles) and the dot-product kernel use the coordinates as they are.
     A time / phase column is appended scaled by the ratio of the median pose distance to the median
@@ -806,7 +806,7 @@ def fit_sparse_gp(
         position RMSE 0.18 against 0.29 m in the handover fold above). ``"bound"``: the stages below
         (the inducing inputs default to ``kmeans++``).
 
-    With ``hyper="bound"`` the hyperparameters, per output or shared (MATH.md §7), come in stages:
+    With ``hyper="bound"`` the hyperparameters, per output or shared (docs/method.md §7), come in stages:
 
     1. *explore*: every start (the data-driven one and ``restarts − 1`` random ones) minimises the
        exact NLML on a random subset of ``explore_size`` points (default 400, the exact GP's tolerance

@@ -1,5 +1,5 @@
 """Kernels on poses: the paper's squared exponential on the weighted SE(3) distance (eq. 24), its
-chordal variant, the dot-product kernel (eq. 22) and the baselines' kernels (MATH.md §6)."""
+chordal variant, the dot-product kernel (eq. 22) and the baselines' kernels (docs/method.md §6)."""
 
 from rbgp_cli.kernels.base import Hyperparameter, Kernel
 from rbgp_cli.kernels.dot_product import DotProduct

@@ -34,7 +34,7 @@ __all__ = ["Hyperparameter", "Kernel", "fdot", "output_scale"]
 def output_scale(y: np.ndarray) -> float:
     """The scale of zero-mean GP targets: their root mean square, or 1 when they are all (nearly) zero.
 
-    The GP has zero mean (MATH.md §7), so the prior variance must cover the mean as well as the
+    The GP has zero mean (docs/method.md §7), so the prior variance must cover the mean as well as the
     spread: RMS, not the standard deviation (a constant output has std 0, or 1e-16 from round-off,
     which made bounds and scaled targets meaningless).
     """
@@ -125,7 +125,7 @@ class Kernel:
         return self.grad_contract(pre, values, K, state, W, names)
 
     def default_hyperparameters(self, pre: dict, y: np.ndarray) -> dict:
-        """Data-driven start values (MATH.md §7) and bounds, as ``{name: Hyperparameter}``."""
+        """Data-driven start values (docs/method.md §7) and bounds, as ``{name: Hyperparameter}``."""
         raise NotImplementedError
 
     def to_dict(self) -> dict:

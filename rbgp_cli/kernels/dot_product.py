@@ -1,11 +1,11 @@
-"""Dot-product kernel on poses (paper eq. 22, 18; MATH.md §6).
+"""Dot-product kernel on poses (paper eq. 22, 18; docs/method.md §6).
 
     k(g_i, g_j) = σf² · (ρ1 · r_i·r_j + (1 − ρ1) · t_i·t_j)
 
 with the paper's inner product ⟨g_i, g_j⟩ = r_i·r_j + t_i·t_j (eq. 18) weighted like eq. 19 and scaled
 by σf² (σf = 1 and ρ1 = ½ give the paper's kernel up to a factor 2). The paper's σ0² δij is the noise
 variance, which the GP adds. Positive semi-definite (a Gram matrix of weighted inner products), but the
-rotation vector jumps at θ = π, so this kernel is discontinuous there (MATH.md §2).
+rotation vector jumps at θ = π, so this kernel is discontinuous there (docs/method.md §2).
 
 ∂K/∂log σf = 2 K;   ∂K/∂log ρ1 = σf² ρ1 (R − T) with R = r_i·r_j, T = t_i·t_j.
 """

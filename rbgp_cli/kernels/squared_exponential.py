@@ -1,4 +1,4 @@
-"""Squared-exponential kernels on SE(3) (paper eq. 24, MATH.md §6).
+"""Squared-exponential kernels on SE(3) (paper eq. 24, docs/method.md §6).
 
     k(g_i, g_j) = σf² · exp(−d²(g_i, g_j) / (2 λ²)),
     d²(g_i, g_j) = ρ1 · d_rot(r_i, r_j)² + (1 − ρ1) · ‖t_i − t_j‖²        (eq. 19)
@@ -6,7 +6,7 @@
 The rotation distance ``d_rot`` is chosen by ``metric``:
 
 * ``"arc"``: d_arc = 2·acos|⟨q_i, q_j⟩| (eq. 14 with the absolute value) on canonical rotation vectors
-  — the paper's rigid-body kernel. **Not positive semi-definite in general** (MATH.md §6: Theorem 1
+  — the paper's rigid-body kernel. **Not positive semi-definite in general** (docs/method.md §6: Theorem 1
   is false); the GP guards against the resulting indefinite Gram matrices.
 * ``"chordal"``: d_ch = 2·sqrt(1 − ⟨q_i, q_j⟩²) — a Euclidean distance of an embedding of SO(3),
   so the kernel is positive definite for every λ and ρ1. Our robust variant.
@@ -385,7 +385,7 @@ class SquaredExponential(Kernel):
 
     # ------------------------------------------------------------------ starts and description
     def default_hyperparameters(self, pre: dict, y: np.ndarray) -> dict:
-        """Data-driven start (MATH.md §7): λ ~ median pairwise distance, σf ~ RMS(y); bounds scale
+        """Data-driven start (docs/method.md §7): λ ~ median pairwise distance, σf ~ RMS(y); bounds scale
         with the data (λ within [1e-3, 1e2] × median distance, σf within [1e-3, 1e2] × RMS(y)); the time
         scale λτ (with ``time_dims``) starts at half the median time difference."""
         d2 = self._d2(pre, {"rho_rot": self.rho_rot})

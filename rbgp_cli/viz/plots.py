@@ -4,7 +4,7 @@ matplotlib is imported on first use only (the optional extra ``rbgp-cli[plot]``)
 as a :class:`matplotlib.figure.Figure` with its own Agg canvas, not through ``pyplot``: nothing
 global (backend, open figures) changes in the calling process, and no display is needed.
 
-Conventions: rotations are drawn as the features of the evaluation (MATH.md §9), the rotation vector
+Conventions: rotations are drawn as the features of the evaluation (docs/method.md §9), the rotation vector
 ``log(R̄_sᵀ R)`` in the tangent space at the demonstrations' mean rotation R̄_s of each step
 (``result.reference``), so a rotation through θ = π does not jump; translations as they are, metres;
 the horizontal axis is normalised time s ∈ [0, 1] (no unit). Every curve and band is drawn on the

@@ -116,7 +116,7 @@ def test_rotation_gram_is_the_gaussian_of_the_rotation_distance(lam):
 def test_theorem_part_finds_the_counterexample_and_a_psd_chordal_kernel():
     th = P.run_theorem(2, seed=0, quick=True)
     by_lam = {c["lambda"]: c for c in th["counterexample"]}
-    assert by_lam[2.0]["geodesic"] == pytest.approx(-0.18, abs=0.005)  # MATH.md §6
+    assert by_lam[2.0]["geodesic"] == pytest.approx(-0.18, abs=0.005)  # docs/method.md §6
     assert by_lam[0.5]["geodesic"] == pytest.approx(0.43, abs=0.005)
     assert th["geodesic_min_eigenvalue"] <= by_lam[2.0]["geodesic"] < 0
     assert th["chordal_min_eigenvalue"] > -1e-9

@@ -37,7 +37,7 @@ def test_trajectory_crosses_pi_in_canonical_form():
 
 @pytest.mark.parametrize("representation", ["axis-angle", "euler", "quaternion"])
 def test_integrating_exact_differences_reproduces_the_demonstration(representation):
-    """MATH.md §4: integrating a demonstration's own forward differences reproduces it to 1e-9,
+    """docs/method.md §4: integrating a demonstration's own forward differences reproduces it to 1e-9,
     also across θ = π (and across the Euler angles' ±180° for the baseline)."""
     tr = crossing_pi_trajectory()
     rep = make_representation(representation)

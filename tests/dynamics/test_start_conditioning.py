@@ -1,4 +1,4 @@
-"""The start-conditioned mean-path prior (``train_model(start_conditioning=True)``, MATH.md §11):
+"""The start-conditioned mean-path prior (``train_model(start_conditioning=True)``, docs/method.md §11):
 each motion is pulled toward the mean path displaced by the deviation the demonstrations keep from a
 start like its own, instead of toward the mean path itself."""
 

@@ -1,4 +1,4 @@
-"""The demonstrations' deviation process (MATH.md §11 (a)) against a synthetic hierarchical process
+"""The demonstrations' deviation process (docs/method.md §11 (a)) against a synthetic hierarchical process
 whose deviation covariance is known, and sampled rollouts that are coherent new demonstrations."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Velocities from real motion capture (MATH.md §4.1): resampling, local polynomial derivatives on SE(3),
+"""Velocities from real motion capture (docs/method.md §4.1): resampling, local polynomial derivatives on SE(3),
 gaps, sample-and-hold, and what the representations make of them."""
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ def _irregular_times(n, seed, span=2.0):
 @pytest.mark.parametrize("degree", [2, 3])
 @pytest.mark.parametrize("rate", [None, 20.0])
 def test_local_polynomial_is_exact_on_polynomial_motion_across_pi(degree, rate):
-    """MATH.md §4.1: exact for a rotation about a fixed axis by a polynomial angle of degree <= d and a
+    """docs/method.md §4.1: exact for a rotation about a fixed axis by a polynomial angle of degree <= d and a
     polynomial translation, also where the angle passes θ = π (the canonical form jumps there)."""
     t = _irregular_times(120, seed=degree)
     coef = [2.6, 0.9, -0.25] + ([0.04] if degree == 3 else [])
@@ -166,7 +166,7 @@ def test_time_input_columns():
 
 # ----------------------------------------------------------------------------- sample-and-hold
 def test_sample_and_hold_runs_become_lost_frames():
-    """MATH.md §4.1: bit-identical poses at later times are the tracker holding the last pose; all but
+    """docs/method.md §4.1: bit-identical poses at later times are the tracker holding the last pose; all but
     the first of a run are lost frames (dropped, or filled with max_gap), and the warning says so."""
     t = np.arange(12) * 0.01
     q = np.tile([0.0, 0.0, 0.0, 1.0], (12, 1))

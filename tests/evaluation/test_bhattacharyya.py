@@ -1,4 +1,4 @@
-"""Bhattacharyya distance of Gaussians and the evaluation of generated trajectories (MATH.md §9)."""
+"""Bhattacharyya distance of Gaussians and the evaluation of generated trajectories (docs/method.md §9)."""
 
 from __future__ import annotations
 

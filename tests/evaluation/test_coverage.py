@@ -1,4 +1,4 @@
-"""The calibration measure of MATH.md §11 against its oracle: samples and the real motion drawn from
+"""The calibration measure of docs/method.md §11 against its oracle: samples and the real motion drawn from
 one Gaussian process cover each other at the nominal 90 %."""
 
 from __future__ import annotations

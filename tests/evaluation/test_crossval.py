@@ -199,7 +199,7 @@ def test_cli_table_and_bad_options(tmp_path):
 
 
 def test_sample_columns_score_one_sample_per_start_and_pool_the_coverage(monkeypatch):
-    """MATH.md §11 in crossval: sample_score is one sampled rollout per held-out start scored as score is
+    """docs/method.md §11 in crossval: sample_score is one sampled rollout per held-out start scored as score is
     (against the training demonstrations), sample_ratio its ratio to the floor, and the coverage columns
     pool the held-out motions' steps over the folds; the replay peer has none; samples=0 turns them off."""
     from rbgp_cli.evaluation.coverage import Coverage, prediction_coverage

@@ -1,4 +1,4 @@
-"""Resampling on normalised time, chordal mean rotation and tangent features (MATH.md §9)."""
+"""Resampling on normalised time, chordal mean rotation and tangent features (docs/method.md §9)."""
 
 from __future__ import annotations
 

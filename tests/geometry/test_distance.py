@@ -1,4 +1,4 @@
-"""Rotation and pose distances (eq. 14, 19; MATH.md §5), elementwise and pairwise.
+"""Rotation and pose distances (eq. 14, 19; docs/method.md §5), elementwise and pairwise.
 scipy's ``Rotation`` gives the oracle: d_arc(r1, r2) is the angle of R1ᵀR2."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""SE(3): composition (eq. 16, 17), inverse, action, exp/log and the integration step (MATH.md §4, §8).
+"""SE(3): composition (eq. 16, 17), inverse, action, exp/log and the integration step (docs/method.md §4, §8).
 scipy's ``RigidTransform`` and ``scipy.linalg.expm`` are the independent oracles."""
 
 from __future__ import annotations
@@ -152,7 +152,7 @@ def test_exp_log_se3_are_smooth_through_the_series_threshold():
 
 
 # ---------------------------------------------------------------------------------------------
-# Integration (MATH.md §4, §8)
+# Integration (docs/method.md §4, §8)
 # ---------------------------------------------------------------------------------------------
 
 
@@ -171,7 +171,7 @@ def _demo_crossing_pi(n=400, seed=0):
 
 
 def _forward_differences(t, R, p):
-    """ω_k = log(R_{k+1} R_kᵀ)/Δt_k, v_k = (p_{k+1} − p_k)/Δt_k, built inline (MATH.md §4)."""
+    """ω_k = log(R_{k+1} R_kᵀ)/Δt_k, v_k = (p_{k+1} − p_k)/Δt_k, built inline (docs/method.md §4)."""
     dt = np.diff(t)
     rel = R[1:] @ np.swapaxes(R[:-1], -1, -2)
     w = so3.log_so3(rel) / dt[:, None]

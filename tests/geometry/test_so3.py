@@ -366,7 +366,7 @@ def test_compose_via_quaternions_equals_corrected_eq8_closed_form(r2, r1):
 
 
 def test_eq8_as_printed_is_wrong_and_the_correction_is_right():
-    # the printed text has c = 1 + u2·u1; MATH.md §3: c = 1 − u2·u1
+    # the printed text has c = 1 + u2·u1; docs/method.md §3: c = 1 − u2·u1
     r1 = np.array([0.3, -0.2, 0.9])
     r2 = np.array([0.5, 0.4, 1.2])
     t1, t2 = np.linalg.norm(r1), np.linalg.norm(r2)

@@ -130,7 +130,7 @@ def vector_field(quat, pos):
 @pytest.mark.parametrize("representation", ["axis-angle", "euler", "quaternion"])
 def test_learns_a_smooth_vector_field_to_held_out_accuracy(representation):
     """Held-out RMSE of every output below 0.15 × its standard deviation (stated bound), for each
-    representation with its own kernel (MATH.md §6), on poses spread around a centre pose."""
+    representation with its own kernel (docs/method.md §6), on poses spread around a centre pose."""
     from rbgp_cli.dynamics.model import make_kernel
     from rbgp_cli.dynamics.representations import make_representation
 

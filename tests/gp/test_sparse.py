@@ -272,7 +272,7 @@ def test_inducing_selection_is_seeded_distinct_and_spread(method):
     assert len({tuple(np.round(E[i], 12)) for i in a}) == 50
     # at most as many as there are distinct rows
     assert len(select_inducing(np.repeat(X[:7], 3, axis=0), 50, k, method=method)) == 7
-    # the chordal embedding reproduces the chordal distance (MATH.md §5), weighted by rho
+    # the chordal embedding reproduces the chordal distance (docs/method.md §5), weighted by rho
     kc = SquaredExponential("chordal", 3, 0.7)
     Ec = inducing_embedding(kc, X[:20])
     d2 = np.sum((Ec[:, None] - Ec[None]) ** 2, -1)

@@ -147,7 +147,7 @@ def write(folder: Path, name: str, data: bytes) -> Path:
 
 
 def assert_clean(trajs) -> None:
-    """What prepare_all returns is fit to train on (MATH.md §4)."""
+    """What prepare_all returns is fit to train on (docs/method.md §4)."""
     from rbgp_cli.dynamics.velocities import forward_differences
 
     assert trajs

@@ -85,7 +85,7 @@ def test_chordal_and_dot_gram_matrices_are_psd_at_any_length_scale(lam, rho, see
 
 
 def eight_rotations():
-    """MATH.md §6: 8 rotations about one axis, π/4 apart; d_arc is the wrapped angle difference."""
+    """docs/method.md §6: 8 rotations about one axis, π/4 apart; d_arc is the wrapped angle difference."""
     ang = np.arange(8) * math.pi / 4
     r = Rotation.from_rotvec(ang[:, None] * np.array([0.0, 0.0, 1.0])).as_rotvec()
     return np.hstack([r, np.zeros((8, 3))])
@@ -113,7 +113,7 @@ def test_paper_kernel_random_rotations_indefinite_at_long_length_scale():
     X = np.hstack([r, np.zeros((200, 3))])
     k = SquaredExponential("arc", 3, 0.5)
     K = k(X, None, {"signal_std": 1.0, "length_scale": 2.0 * math.sqrt(0.5), "rho_rot": 0.5})
-    assert min_eig(K) < -0.5  # MATH.md §6 reports about −1.8
+    assert min_eig(K) < -0.5  # docs/method.md §6 reports about −1.8
 
 
 def test_arc_kernel_invariant_to_quaternion_sign_and_canonical_twin():
