@@ -18,7 +18,7 @@ from rbgp_cli.cli.train_options import (
     CalibrateOpt, HyperPointsOpt, InducingOpt, SmoothWindowOpt, SubsampleOpt, TimeInputOpt, TrainRateOpt, defaults, kernel_help, train_kwargs,
 )
 from rbgp_cli.cli.common import (
-    ReadArgs, command, emit_json, check_outputs, is_quiet, progress, set_json, set_quiet, with_read_options, write_text_output,
+    ReadArgs, command, emit_json, flag_words, check_outputs, is_quiet, progress, set_json, set_quiet, with_read_options, write_text_output,
 )
 
 app = typer.Typer(
@@ -376,9 +376,9 @@ def inspect(
     if json_out:
         emit_json(results if len(results) != 1 else results[0])
     elif verbose or len(results) <= COMPACT_ABOVE:
-        print("\n\n".join(format_inspect(r) for r in results))
+        print(flag_words("\n\n".join(format_inspect(r) for r in results)))
     else:
-        print("\n".join(format_compact(r) for r in results))
+        print(flag_words("\n".join(format_compact(r) for r in results)))
     if len(results) > 1 and not json_out:
         print(("\n" if verbose or len(results) <= COMPACT_ABOVE else "") + format_summary(results))
     unreadable = [r["path"] for r in results if r.get("error")]

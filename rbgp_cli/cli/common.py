@@ -19,7 +19,7 @@ import typer
 
 from rbgp_cli.progress import Progress
 
-__all__ = ["command", "as_flags", "progress", "emit_json", "read_options", "with_read_options", "ReadArgs", "READ_PANEL",
+__all__ = ["command", "as_flags", "flag_words", "progress", "emit_json", "read_options", "with_read_options", "ReadArgs", "READ_PANEL",
            "write_text_output", "check_outputs", "set_quiet", "set_json", "is_quiet"]
 
 
@@ -226,6 +226,20 @@ def as_flags(exc, flags: Optional[dict] = None) -> str:
     from rbgp_cli.errors import RbgpError
 
     return RbgpError(sub(exc.message), path=exc.path, row=exc.row, topic=exc.topic, hint=sub(exc.hint)).format()
+
+
+def flag_words(text: str) -> str:
+    """Multi-line report text (``rbgp inspect``) with the library's parameter names written as the
+    running command's options, as :func:`as_flags` does for one-line errors (``quat_order`` →
+    ``--quat-order``; names with an underscore only)."""
+    import re
+
+    flags = _option_flags()
+    names = {n for n in flags if "_" in n and n != "rbgp_quiet"}
+    if not names:
+        return text
+    pattern = re.compile(r"(?<![\w\-])(?<!\d )(" + "|".join(sorted(map(re.escape, names), key=len, reverse=True)) + r")(?![\w\-])")
+    return pattern.sub(lambda m: flags[m.group(1)], text)
 
 
 def emit_json(obj) -> None:
