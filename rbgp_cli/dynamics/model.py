@@ -225,7 +225,7 @@ class PathReference:
             self.start_beta = np.asarray(mean["start_beta"], dtype=np.float64)
             ds = np.diff(self.s)[:, None]
             self._dmu = np.diff(self.start_mean, axis=0) / ds
-            self._dbeta = np.diff(self.start_beta, axis=0) / ds
+            self._dbeta = np.diff(self.start_beta, axis=0) / ds.reshape((-1,) + (1,) * (self.start_beta.ndim - 1))
 
     def start_deviation(self, quat, position) -> np.ndarray:
         """c = δ(0) − μ(0) (m, 6) of start poses (quat (m, 4), position (m, 3)): their deviation from
@@ -242,7 +242,8 @@ class PathReference:
 
     def conditioned_at(self, s: np.ndarray, dev: np.ndarray):
         """The start-conditioned path at phases s (m,) for start deviations ``dev`` (m, 6)
-        (:meth:`start_deviation`): with Δ(s) = μ(s) + β(s) ⊙ dev (linear between grid phases), the
+        (:meth:`start_deviation`): with Δ(s) = μ(s) + B(s) dev (linear between grid phases; B (S, 6, 6)
+        from :func:`~rbgp_cli.dynamics.variation.start_map`, or per-coordinate β(s) ⊙ dev), the
         pose (exp(Δ_rot) R̄(s), p̄(s) + Δ_pos) and the twist per unit phase ξ̄(s) + Δ'(s) (to first
         order in Δ_rot); shapes (m, 4), (m, 3), (m, 6)."""
         from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
@@ -253,10 +254,17 @@ class PathReference:
         k = np.clip(np.searchsorted(x, s, side="right") - 1, 0, len(x) - 2)
         f = np.clip((s - x[k]) / (x[k + 1] - x[k]), 0.0, 1.0)[:, None]
         mu = (1.0 - f) * self.start_mean[k] + f * self.start_mean[k + 1]
-        beta = (1.0 - f) * self.start_beta[k] + f * self.start_beta[k + 1]
-        delta = mu + beta * dev
+        if self.start_beta.ndim == 3:  # the map B(s) (S, 6, 6) of variation.start_map
+            g = f[:, :, None]
+            beta = (1.0 - g) * self.start_beta[k] + g * self.start_beta[k + 1]
+            delta = mu + np.einsum("mij,mj->mi", beta, dev)
+            slope = np.einsum("mij,mj->mi", self._dbeta[k], dev)
+        else:  # per-coordinate slopes β(s) (S, 6) (model files of rbgp 0.x before the map)
+            beta = (1.0 - f) * self.start_beta[k] + f * self.start_beta[k + 1]
+            delta = mu + beta * dev
+            slope = self._dbeta[k] * dev
         q = quat_multiply(exp_quat(delta[:, :3]), q)
-        return q, p + delta[:, 3:], ff + self._dmu[k] + self._dbeta[k] * dev
+        return q, p + delta[:, 3:], ff + self._dmu[k] + slope
 
     def at(self, s: np.ndarray):
         """(quat (T, 4), position (T, 3), velocity (T, 6)) at phases s (T,), clamped to the path."""
@@ -551,7 +559,8 @@ def train_model(
     how many the fit covered and ``summary["gp"]["hyperparameters"]`` says which objective chose them.
     ``start_conditioning`` (mean-path prior, 3 or more demonstrations): the prior pulls each
     trajectory toward the mean path displaced by the deviation the demonstrations keep from its start
-    (:func:`rbgp_cli.dynamics.variation.start_regression`) instead of toward the mean path itself; the
+    (:func:`rbgp_cli.dynamics.variation.start_map`, its ridge chosen by cross-validation over the
+    demonstrations) instead of toward the mean path itself; the
     training residuals use each demonstration's own start, a rollout its start (docs/method.md §11).
     """
     t0 = time.perf_counter()
@@ -597,10 +606,11 @@ def train_model(
         mean = {"kind": "goal", "gain": float(prior_gain), "goal": goal_pose(trajs).tolist()}
     start_dev = None
     if mean is not None and mean["kind"] == "path" and start_conditioning and len(trajs) >= 3:
-        from rbgp_cli.dynamics.variation import demonstration_deviations, start_regression
+        from rbgp_cli.dynamics.variation import demonstration_deviations, start_map
 
         _, delta = demonstration_deviations(trajs, len(mean["s"]))
-        mean["start_mean"], mean["start_beta"], _ = start_regression(delta)
+        cond = start_map(delta, seed=seed)
+        mean["start_mean"], mean["start_beta"], mean["start_ridge"] = cond["mean"], cond["map"], cond["ridge"]
         demo_of_row = np.repeat(np.arange(len(trajs)), info["per_demo"])[np.asarray(info["indices"])]
         start_dev = PathReference(mean).start_deviation(np.array([tr.quat[0] for tr in trajs]),
                                                         np.array([tr.position[0] for tr in trajs]))[demo_of_row]
@@ -687,6 +697,9 @@ def train_model(
     summary["gp"] = gp_choice
     summary["prior"] = None if mean is None else {"kind": mean["kind"], "gain": mean["gain"],
                                                   "start_conditioned": "start_beta" in mean}
+    if mean is not None and "start_ridge" in mean:  # the cross-validated ridge (None: ∞, no conditioning)
+        lam = float(mean.pop("start_ridge"))
+        summary["prior"]["start_ridge"] = lam if np.isfinite(lam) else None
     from rbgp_cli.dynamics.envelope import envelope_from_demos
     from rbgp_cli.dynamics.variation import demonstration_variation
 

@@ -34,7 +34,8 @@ import numpy as np
 
 from rbgp_cli.dynamics.trajectory import Trajectory
 
-__all__ = ["Variation", "demonstration_variation", "demonstration_deviations", "start_regression", "STEPS", "MIN_DEMOS"]
+__all__ = ["Variation", "demonstration_variation", "demonstration_deviations", "start_regression", "start_map",
+           "STEPS", "MIN_DEMOS", "RIDGE_GRID"]
 
 #: Phase grid of the deviations (as the mean path's).
 STEPS = 51
@@ -125,6 +126,74 @@ def start_regression(delta: np.ndarray):
     r = c - beta[None] * c0
     r[:, 0, :] = 0.0  # exactly (β(0) = 1 wherever the start varies)
     return mu, beta, r
+
+
+#: Ridge strengths λ tried by :func:`start_map` (on coordinates scaled to unit RMS deviation); ∞ is
+#: no conditioning (the mean path, plus the demonstrations' mean deviation).
+RIDGE_GRID = (0.001, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0, 3.0, 10.0, float("inf"))
+#: Folds of whole demonstrations that choose λ (fewer with fewer demonstrations).
+RIDGE_FOLDS = 10
+
+
+def _ridge_map(delta: np.ndarray, scale: np.ndarray, lam: float):
+    """μ (S, 6) and the ridge regression B (S, 6, 6) of the deviations δ (D, S, 6) at every phase on
+    their start value, in coordinates scaled by ``scale`` (6,) (see :func:`start_map`)."""
+    mu = delta.mean(axis=0)
+    S = delta.shape[1]
+    if not np.isfinite(lam):
+        return mu, np.zeros((S, 6, 6))
+    c = (delta - mu) / scale  # (D, S, 6)
+    c0 = c[:, 0, :]
+    D = len(delta)
+    C00 = c0.T @ c0 / D + lam * np.eye(6)
+    Cs0 = np.einsum("dsi,dj->sij", c, c0) / D  # (S, 6, 6)
+    B = np.linalg.solve(C00.T, Cs0.transpose(0, 2, 1)).transpose(0, 2, 1)  # Cs0 C00⁻¹ (C00 symmetric)
+    # back to rad, m; C order, as a model file gives it back (einsum's sums then match bit for bit)
+    return mu, np.ascontiguousarray(B * scale[None, :, None] / scale[None, None, :])
+
+
+def start_map(delta: np.ndarray, *, grid=RIDGE_GRID, folds: int = RIDGE_FOLDS, seed: int = 0) -> dict:
+    """How a new demonstration's deviation from the mean path depends on its start (docs/method.md §11).
+
+    For deviations δ (D, S, 6) (:func:`demonstration_deviations`), the conditional mean of a new one
+    given its start value δ(0) is, for jointly Gaussian deviations with ridge-regularised covariance,
+
+        E[δ(s) | δ(0)] = μ(s) + B(s) (δ(0) − μ(0)),   B(s) = C_s0 (C_00 + λ I)⁻¹,
+
+    with μ the mean deviation, C_s0 = mean_d c_d(s) c_d(0)ᵀ and c_d = (δ_d − μ) / σ per coordinate
+    (σ the coordinates' RMS deviation, so one λ suits radians and metres; B is returned in physical
+    units). Every coordinate of the start informs every coordinate of the motion, as a ProMP's
+    conditioning does (there the regulariser is the weight prior). λ is chosen from ``grid`` by
+    cross-validation over ``folds`` folds of whole demonstrations (squared error of the scaled held-out
+    deviations over all phases after the start); λ = ∞ (no conditioning) competes, so a start that tells nothing about
+    the rest of the motion leaves the mean path. Returns ``{"mean": μ (S, 6), "map": B (S, 6, 6),
+    "ridge": λ, "errors": per λ the held-out mean squared error}``; with fewer than MIN_DEMOS + 1
+    demonstrations λ = ∞.
+    """
+    delta = np.asarray(delta, dtype=np.float64)
+    D = len(delta)
+    scale = np.sqrt(np.mean(delta**2, axis=(0, 1)))
+    scale = np.where(scale > 1e-12, scale, 1.0)
+    grid = tuple(float(g) for g in grid)
+    errors = np.zeros(len(grid))
+    if D > MIN_DEMOS:
+        k = min(int(folds), D)
+        fold = np.empty(D, dtype=int)
+        fold[np.random.default_rng(np.random.SeedSequence([int(seed), 17])).permutation(D)] = np.arange(D) % k
+        for j in range(k):
+            held, rest = delta[fold == j], delta[fold != j]
+            for i, lam in enumerate(grid):
+                mu, B = _ridge_map(rest, scale, lam)
+                pred = mu[None] + np.einsum("sij,dj->dsi", B, held[:, 0, :] - mu[0])
+                # phase 0 is the start itself, known to the rollout: not a test of the map
+                errors[i] += float(np.sum(((pred[:, 1:] - held[:, 1:]) / scale) ** 2))
+        errors /= delta[:, 1:].size
+        best = int(np.argmin(errors))
+    else:
+        best = grid.index(float("inf")) if float("inf") in grid else len(grid) - 1
+    lam = grid[best]
+    mu, B = _ridge_map(delta, scale, lam)
+    return {"mean": mu, "map": B, "ridge": lam, "errors": errors.tolist()}
 
 
 def demonstration_variation(trajs: list[Trajectory], steps: int = STEPS) -> Variation | None:

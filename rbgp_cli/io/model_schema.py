@@ -397,10 +397,16 @@ def validate_arrays(h: dict, arrays: dict) -> None:
         _shape(arrays, "prior_velocity", (S - 1, 6), f"({S - 1}, 6) (a row per step of array 'prior_s')")
         for name in ("prior_s", "prior_quat", "prior_position", "prior_velocity"):
             _finite(arrays, name)
-        for name in ("prior_start_mean", "prior_start_beta"):
-            if name in req:
-                _shape(arrays, name, (S, 6), f"({S}, 6) (a row per entry of array 'prior_s')")
-                _finite(arrays, name)
+        if "prior_start_mean" in req:
+            _shape(arrays, "prior_start_mean", (S, 6), f"({S}, 6) (a row per entry of array 'prior_s')")
+            _finite(arrays, "prior_start_mean")
+        if "prior_start_beta" in req:  # the map B(s) (S, 6, 6), or per-coordinate slopes (S, 6) of 0.x files
+            beta = arrays["prior_start_beta"]
+            if beta.ndim == 3:
+                _shape(arrays, "prior_start_beta", (S, 6, 6), f"({S}, 6, 6) (a matrix per entry of array 'prior_s')")
+            else:
+                _shape(arrays, "prior_start_beta", (S, 6), f"({S}, 6) or ({S}, 6, 6) (per entry of array 'prior_s')")
+            _finite(arrays, "prior_start_beta")
         if not np.all(np.diff(arrays["prior_s"]) > 0):
             raise SchemaError("array 'prior_s' is not increasing")
     if "variation_s" in req:

@@ -483,7 +483,8 @@ def _model_extras(header: dict, arrays: dict, rep, X):
             mean[key] = np.asarray(arrays[name], dtype=np.float64)
     S = len(mean["s"])
     if (S < 2 or mean["quat"].shape != (S, 4) or mean["position"].shape != (S, 3)
-            or any(mean[key].shape != (S, 6) for key in _START_ARRAYS.values() if key in mean)
+            or ("start_mean" in mean and mean["start_mean"].shape != (S, 6))
+            or ("start_beta" in mean and mean["start_beta"].shape not in ((S, 6), (S, 6, 6)))
             or mean["velocity"].shape != (S - 1, 6) or not all(np.all(np.isfinite(a)) for a in mean.values() if isinstance(a, np.ndarray))
             or not np.all(np.diff(mean["s"]) > 0)):
         raise ValueError("the mean-path prior's arrays are inconsistent")
