@@ -283,9 +283,18 @@ def test_csv_and_mcap_give_the_same_model(tmp_path):
     (ma, _), (mb, _) = load_model(a), load_model(b)
     np.testing.assert_allclose(ma.gp.X, mb.gp.X, rtol=0, atol=1e-12)
     np.testing.assert_allclose(ma.gp.Y, mb.gp.Y, rtol=1e-6, atol=1e-9)
+    # The optimiser stops when its step is ~1e-5 relative (L-BFGS-B's tolerance), so inputs that differ
+    # by 1e-9 s may stop it a hair apart along a flat direction of the likelihood (seen: signal std
+    # 29.47267 against 29.47298 with numpy 2.4 / scipy 1.17): the hyperparameters agree to 1e-4, and
+    # what they are for, the predicted velocities, agree far closer than the velocities' own scale.
     for fa, fb in zip(ma.gp.fits, mb.gp.fits):
         for k in fa.values:
-            assert fa.values[k] == pytest.approx(fb.values[k], rel=1e-5)
+            assert fa.values[k] == pytest.approx(fb.values[k], rel=1e-4)
+    mean_a, std_a = ma.gp.predict(ma.gp.X, return_std=True)
+    mean_b, std_b = mb.gp.predict(ma.gp.X, return_std=True)
+    scale = np.std(ma.gp.Y, axis=0)
+    assert np.all(np.abs(mean_a - mean_b) <= 1e-4 * scale)
+    np.testing.assert_allclose(std_a, std_b, rtol=1e-4)
 
 
 def test_mcap_topic_pattern_errors_name_the_topics():
