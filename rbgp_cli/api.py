@@ -190,11 +190,12 @@ def train_options(*, rho_rot=DEFAULTS["rho_rot"], restarts: int = DEFAULTS["rest
                   time_input=DEFAULTS["time_input"], prior=DEFAULTS["prior"], prior_gain: float = DEFAULTS["prior_gain"],
                   inducing: int | None = None, hyper_points: int | None = None,
                   calibrate_noise: bool = DEFAULTS["calibrate"],
-                  start_conditioning: bool = DEFAULTS["start_conditioning"]) -> dict:
+                  start_conditioning: bool = DEFAULTS["start_conditioning"],
+                  noise_scale: float = DEFAULTS["noise_scale"]) -> dict:
     """Check the training options (named and spelled as ``rbgp train``'s, with ``_`` for ``-``) and
     build the keyword arguments of :func:`rbgp_cli.dynamics.model.train_model` (without representation,
     kernel and jobs). ``noise`` is ``"learn"`` or a positive number; ``time_input`` and ``prior`` accept
-    None or ``"none"``; ``train_rate`` 0 or None keeps the recorded samples.
+    None or ``"none"``; ``train_rate`` 0 or None keeps the recorded samples; ``noise_scale`` ≥ 1.
 
     Examples
     --------
@@ -209,6 +210,9 @@ def train_options(*, rho_rot=DEFAULTS["rho_rot"], restarts: int = DEFAULTS["rest
         raise InputError(f"noise must be 'learn' or a positive number, got {noise}", param="noise")
     time_in = _choice(time_input, "time_input", ("none", "seconds", "phase"))
     prior_v = _choice(prior, "prior", ("none", "goal", "path"))
+    scale = _number(noise_scale, "noise_scale")
+    if not scale >= 1.0 or not np.isfinite(scale):
+        raise InputError(f"noise_scale must be a number of at least 1, got {noise_scale}", param="noise_scale")
     if prior_v == "path" and time_in != "phase":
         raise InputError("prior path follows the phase of the motion", param="prior",
                          hint="add time_input phase, or use prior goal or none")
@@ -220,6 +224,7 @@ def train_options(*, rho_rot=DEFAULTS["rho_rot"], restarts: int = DEFAULTS["rest
         **({"hyper_points": hyper_points} if hyper_points is not None else {}),
         "calibrate": bool(calibrate_noise),
         "start_conditioning": bool(start_conditioning),
+        "noise_scale": scale,
     }
 
 
@@ -376,7 +381,7 @@ class RigidBodyGP:
     ``noise`` ("learn" or a number), ``share_hyperparameters``, ``subsample``, ``max_points``,
     ``time_input`` (none, seconds, phase), ``prior`` (none, goal, path), ``prior_gain``,
     ``train_rate`` (Hz; 0 keeps the recorded samples), ``smooth_window``, ``smooth_degree``,
-    ``inducing``, ``hyper_points``, ``calibrate_noise``, ``start_conditioning``, ``jobs`` (0: automatic).
+    ``inducing``, ``hyper_points``, ``calibrate_noise``, ``start_conditioning``, ``noise_scale``, ``jobs`` (0: automatic).
 
     Attributes
     ----------
@@ -404,7 +409,8 @@ class RigidBodyGP:
                  train_rate=DEFAULTS["train_rate"], smooth_window: float = DEFAULTS["smooth_window"],
                  smooth_degree: int = DEFAULTS["smooth_degree"], inducing: int | None = None,
                  hyper_points: int | None = None, calibrate_noise: bool = DEFAULTS["calibrate"],
-                 start_conditioning: bool = DEFAULTS["start_conditioning"], jobs: int = 0):
+                 start_conditioning: bool = DEFAULTS["start_conditioning"],
+                 noise_scale: float = DEFAULTS["noise_scale"], jobs: int = 0):
         self.representation = representation
         self.kernel = kernel
         self.rho_rot = rho_rot
@@ -425,11 +431,12 @@ class RigidBodyGP:
         self.hyper_points = hyper_points
         self.calibrate_noise = calibrate_noise
         self.start_conditioning = start_conditioning
+        self.noise_scale = noise_scale
         self.jobs = jobs
 
     _TRAIN = ("rho_rot", "restarts", "explore_size", "seed", "noise", "share_hyperparameters", "subsample",
               "max_points", "train_rate", "smooth_window", "smooth_degree", "time_input", "prior", "prior_gain",
-              "inducing", "hyper_points", "calibrate_noise", "start_conditioning")
+              "inducing", "hyper_points", "calibrate_noise", "start_conditioning", "noise_scale")
 
     def get_params(self, deep: bool = True) -> dict:
         """The constructor's parameters (scikit-learn convention)."""

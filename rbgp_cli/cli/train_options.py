@@ -15,7 +15,7 @@ import typer
 __all__ = [
     "ModelPanel", "RhoOpt", "RestartsOpt", "ExploreOpt", "SeedOpt", "NoiseOpt", "ShareOpt", "SubsampleOpt",
     "MaxPointsOpt", "TrainRateOpt", "SmoothWindowOpt", "SmoothDegreeOpt", "TimeInputOpt", "PriorOpt",
-    "PriorGainOpt", "StartCondOpt", "InducingOpt", "train_kwargs", "train_option_names", "GRID_LISTS", "grid_variants",
+    "PriorGainOpt", "StartCondOpt", "NoiseScaleOpt", "InducingOpt", "train_kwargs", "train_option_names", "GRID_LISTS", "grid_variants",
 ]
 
 ModelPanel = "Model"
@@ -36,6 +36,7 @@ TimeInputOpt = Annotated[str, typer.Option("--time-input", help="What the GP see
 PriorOpt = Annotated[str, typer.Option("--prior", help="The GP's prior mean: none (zero, the paper), goal (a pull toward the demonstrations' mean final pose) or path (the demonstrations' mean path over phase: its velocity plus a pull toward it; needs --time-input phase). The GP models the residual.", rich_help_panel=ModelPanel)]
 PriorGainOpt = Annotated[float, typer.Option("--prior-gain", min=0.0, help="How strongly the prior pulls toward its pose: per unit phase (per second with --time-input seconds or none).", rich_help_panel=ModelPanel)]
 StartCondOpt = Annotated[bool, typer.Option("--start-conditioning/--no-start-conditioning", help="With --prior path: pull each motion toward the mean path displaced by the deviation the demonstrations keep from a start like its own (regressed on their starts, per coordinate and phase), not toward the mean path itself; chosen by crossval.", rich_help_panel=ModelPanel)]
+NoiseScaleOpt = Annotated[float, typer.Option("--noise-scale", min=1.0, help="After --calibrate-noise, multiply the posterior's noise variance by this factor as well (1: not): the mean rollout then leans further on the prior's motion (--prior path: the mean path) and less on the training demonstrations' own deviations; chosen by crossval.", rich_help_panel=ModelPanel)]
 TrainRateOpt = Annotated[float, typer.Option("--train-rate", min=0.0, help="Resample each demonstration to this rate (Hz) before estimating velocities; the rollout step follows it. 0 keeps the recorded samples.", rich_help_panel=_VEL)]
 SmoothWindowOpt = Annotated[float, typer.Option("--smooth-window", min=0.0, help="Estimate velocities by a local polynomial fit over this many seconds around each sample (Savitzky–Golay type, in the rotation's tangent space); 0: forward differences.", rich_help_panel=_VEL)]
 SmoothDegreeOpt = Annotated[int, typer.Option("--smooth-degree", min=1, max=4, help="Degree of the local polynomial fit.", rich_help_panel=_VEL)]
@@ -45,7 +46,7 @@ def train_kwargs(*, rho_rot: str, restarts: int, explore_size: int, seed: int, n
                  subsample: float, max_points: int, train_rate: float, smooth_window: float, smooth_degree: int,
                  time_input: str, prior: str, prior_gain: float, inducing: int | None = None,
                  hyper_points: int | None = None, calibrate_noise: bool = True,
-                 start_conditioning: bool = False) -> dict:
+                 start_conditioning: bool = False, noise_scale: float = 1.0) -> dict:
     """Check the option values and build the keyword arguments of
     :func:`rbgp_cli.dynamics.model.train_model` (without representation and kernel): the library's
     :func:`rbgp_cli.api.train_options`, whose errors name the parameters (the command shows the flags)."""
@@ -56,7 +57,7 @@ def train_kwargs(*, rho_rot: str, restarts: int, explore_size: int, seed: int, n
                          train_rate=train_rate, smooth_window=smooth_window, smooth_degree=smooth_degree,
                          time_input=time_input, prior=prior, prior_gain=prior_gain, inducing=inducing,
                          hyper_points=hyper_points, calibrate_noise=calibrate_noise,
-                         start_conditioning=start_conditioning)
+                         start_conditioning=start_conditioning, noise_scale=noise_scale)
 
 
 def defaults() -> dict:

@@ -24,6 +24,8 @@ DEFAULTS = {
     # σn² of the posterior scaled by held-out demonstrations (gp/calibration.py): the mean rollout then
     # follows the shared motion and the sampled rollouts carry the variation between demonstrations
     "calibrate": True,
+    # a further factor on σn² of the posterior, after the calibration (1: none); chosen by crossval
+    "noise_scale": 1.0,
 }
 
 #: The kernel each representation trains with unless one is named (``kernel=None``).

@@ -529,6 +529,7 @@ def train_model(
     hyper_points: int | None = None,
     calibrate: bool = DEFAULTS["calibrate"],
     start_conditioning: bool = DEFAULTS["start_conditioning"],
+    noise_scale: float = DEFAULTS["noise_scale"],
 ) -> MotionModel:
     """Train a motion model on clean demonstrations (see :func:`rbgp_cli.dynamics.prepare.prepare_all`).
 
@@ -553,6 +554,8 @@ def train_model(
     ``calibrate``: after the fit, scale σn² of the posterior by the factor that predicts held-out
     demonstrations best (:func:`rbgp_cli.gp.calibration.calibrate_to_demonstrations`; the fitted σn is
     kept in each output's ``calibration``); ``summary["gp"]["calibration"]`` gives the factors.
+    ``noise_scale`` ≥ 1: after that, σn² of the posterior is multiplied by this factor as well
+    (:func:`rbgp_cli.gp.calibration.scale_noise`; 1: not), so the mean rollout leans further on the prior.
     ``hyper_points`` (sparse GP only): the hyperparameters are the exact GP's fit on at most this many
     random points (None: 2000, the exact GP's default ``max_points``; 0: all), and the posterior uses all
     (:func:`rbgp_cli.gp.sparse.fit_sparse_gp`, ``hyper="exact"``); ``summary["gp"]["hyper_points"]`` is
@@ -665,6 +668,13 @@ def train_model(
             progress("noise calibration: " + ("needs at least two demonstrations; skipped" if records is None else
                      "sigma_n^2 x " + ", ".join(f"{r['factor']:.3g}" for r in records)
                      + f" (leaving demonstrations out, {records[0]['folds']} folds on {records[0]['points']} points)"))
+    if noise_scale != 1.0:
+        from rbgp_cli.gp.calibration import scale_noise
+
+        gp = scale_noise(gp, noise_scale)
+        gp_choice["noise_scale"] = float(noise_scale)
+        if progress:
+            progress(f"noise scale: sigma_n^2 x {noise_scale:g} more in the posterior")
     recorded_dt = float(np.median(np.concatenate([np.diff(tr.t) for tr in trajs])))
     dt = 1.0 / velocity.rate if velocity.rate is not None else recorded_dt
     starts = np.array([np.concatenate([tr.quat[0], tr.position[0]]) for tr in trajs])

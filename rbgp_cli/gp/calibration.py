@@ -105,6 +105,32 @@ def calibrate_to_demonstrations(gp, groups: np.ndarray, *, seed: int = 0, points
         sn = float(fit.values[NOISE])
         rec = {**rec, "noise_std_fitted": sn}
         fits.append(replace(fit, values={**fit.values, NOISE: sn * float(np.sqrt(rec["factor"]))}, calibration=rec))
+    return _with_fits(gp, fits), [f.calibration for f in fits]
+
+
+def scale_noise(gp, factor: float):
+    """The fitted GP (exact or sparse) with σn² of every hyperparameter set multiplied by ``factor`` > 0
+    for the posterior (the hyperparameters otherwise kept); each fit's ``calibration`` record keeps it
+    as ``extra_factor`` (a record with ``factor`` 1 and the fitted σn is made where there was none). ``factor`` 1 returns ``gp`` itself. Costs one
+    posterior. Where the calibration's factor c (chosen on held-out velocities) and the trajectories'
+    own error disagree, a further factor moves the mean rollout from the residual field toward the
+    prior's motion (docs/method.md §7)."""
+    from dataclasses import replace
+
+    factor = float(factor)
+    if not factor > 0:
+        raise ValueError(f"factor must be positive, got {factor}")
+    if factor == 1.0:
+        return gp
+    fits = [replace(fit, values={**fit.values, NOISE: float(fit.values[NOISE]) * float(np.sqrt(factor))},
+                    calibration={**(fit.calibration or {"factor": 1.0, "noise_std_fitted": float(fit.values[NOISE])}),
+                                 "extra_factor": factor})
+            for fit in gp.fits]
+    return _with_fits(gp, fits)
+
+
+def _with_fits(gp, fits):
+    """A GP of the same kind and data as ``gp`` with the hyperparameter records ``fits``."""
     if getattr(gp, "sparse", False):
         from rbgp_cli.gp.sparse import SparseGP
 
@@ -115,4 +141,4 @@ def calibrate_to_demonstrations(gp, groups: np.ndarray, *, seed: int = 0, points
         new = GaussianProcess(gp.kernel, gp.X, gp.Y, fits, shared=gp.shared, y_scale=gp.y_scale)
     if hasattr(gp, "fit_seconds"):
         new.fit_seconds = gp.fit_seconds
-    return new, [f.calibration for f in fits]
+    return new

@@ -64,3 +64,23 @@ def test_crossval_takes_the_option():
     assert res.exit_code == 0, res.stderr
     rows = json.loads(res.stdout)["results"]
     assert any(r.get("velocity_rmse") is not None and np.isfinite(r["score"]) for r in rows)
+
+
+def test_train_noise_scale_multiplies_the_calibrated_noise_and_the_model_file_keeps_it(tmp_path):
+    res = run("train", CSV_DIR, "-o", tmp_path / "a.rbgp", *FAST, "--json")
+    base = json.loads(res.stdout)["outputs"][0]
+    path = tmp_path / "b.rbgp"
+    res = run("train", CSV_DIR, "-o", path, *FAST, "--noise-scale", "16", "--json")
+    assert res.exit_code == 0, res.stderr
+    summary = json.loads(res.stdout)
+    out = summary["outputs"][0]
+    assert summary["gp"]["noise_scale"] == 16.0 and "noise scale: sigma_n^2 x 16" in res.stderr
+    assert out["values"]["noise_std"] == pytest.approx(base["values"]["noise_std"] * 4.0)
+    assert out["calibration"]["extra_factor"] == 16.0
+    header, _ = read_header(path)
+    assert header["provenance"]["train_options"]["noise_scale"] == 16.0
+    model, _ = load_model(path)
+    assert model.gp.fits[0].values["noise_std"] == pytest.approx(out["values"]["noise_std"])
+    # below 1 is bad usage, named as the option
+    res = runner.invoke(app, ["train", str(CSV_DIR), "-o", str(tmp_path / "c.rbgp"), "--noise-scale", "0.5"])
+    assert res.exit_code == 2 and "--noise-scale" in res.stderr and not (tmp_path / "c.rbgp").exists()

@@ -12,6 +12,7 @@ from rbgp_cli.gp.calibration import (
     FACTOR_GRID,
     calibrate_to_demonstrations,
     demonstration_noise_factors,
+    scale_noise,
 )
 from rbgp_cli.gp.exact import GaussianProcess, OutputFit, fit_gp
 from rbgp_cli.gp.sparse import SparseGP, fit_sparse_gp
@@ -110,3 +111,29 @@ def test_a_sparse_gp_is_calibrated_the_same_way():
     direct = SparseGP(KERNEL, X, Y, sp.Z, cal.fits, shared=False)
     np.testing.assert_allclose(cal.predict(X[::29]), direct.predict(X[::29]), rtol=1e-9, atol=1e-12)
     assert not np.allclose(cal.predict(X[::29]), sp.predict(X[::29]))
+
+
+def test_a_further_noise_scale_multiplies_the_calibrated_variance_and_moves_the_mean_toward_the_prior(deviating):
+    gp, groups = deviating
+    cal, records = calibrate_to_demonstrations(gp, groups, seed=0)
+    assert scale_noise(cal, 1.0) is cal
+    more = scale_noise(cal, 64.0)
+    f1, f2 = cal.fits[0], more.fits[0]
+    assert f2.values["noise_std"] == pytest.approx(f1.values["noise_std"] * 8.0)
+    assert f2.calibration["extra_factor"] == 64.0 and f2.calibration["factor"] == records[0]["factor"]
+    assert f2.calibration["noise_std_fitted"] == gp.fits[0].values["noise_std"]
+    assert OutputFit.from_dict(f2.to_dict()).calibration == f2.calibration
+    # at the training inputs the mean K (K + c σn² I)⁻¹ y shrinks in every eigendirection of K as c
+    # grows, toward the prior mean (zero); the band widens everywhere
+    norms = [np.linalg.norm(scale_noise(cal, f).predict(gp.X)) for f in (1.0, 64.0, 1e4, 1e6)]
+    assert all(a > b for a, b in zip(norms, norms[1:])) and norms[-1] < 0.01 * norms[0]
+    Xs = gp.X[::23]
+    _, s1 = cal.predict(Xs, return_std=True)
+    _, s2 = more.predict(Xs, return_std=True)
+    assert np.all(s2 >= s1 - 1e-12) and np.any(s2 > s1)
+    # without a calibration record: one is made with factor 1 and the fitted σn
+    plain = scale_noise(gp, 4.0)
+    assert plain.fits[0].calibration == {"factor": 1.0, "noise_std_fitted": gp.fits[0].values["noise_std"],
+                                         "extra_factor": 4.0}
+    with pytest.raises(ValueError):
+        scale_noise(gp, 0.0)
