@@ -60,6 +60,7 @@ import numpy as np  # noqa: E402
 
 from _common import blas_line, fmt_s, limit_blas_threads, machine_line, synthetic_data, synthetic_poses, velocity_field  # noqa: E402
 
+import rbgp_cli.compute as compute  # noqa: E402
 import rbgp_cli.gp.exact as exact  # noqa: E402
 from rbgp_cli.geometry.so3 import euler_from_quat  # noqa: E402
 from rbgp_cli.kernels import SquaredExponential  # noqa: E402
@@ -112,7 +113,7 @@ def time_one_evaluation(kernel, X, gp, repeats: int) -> float:
         jobs = [(f, gp.Y[:, l]) for l, f in enumerate(gp.fits)]
     calls = [(f.values, y, list(f.free)) for f, y in jobs]
     # the same BLAS thread policy as fit_gp (single-threaded BLAS in every fit since issue 11)
-    policy = getattr(exact, "blas_threads", None)
+    policy = getattr(compute, "blas_threads", None)
     with policy(0) if policy is not None else contextlib.nullcontext():
         exact.nlml_and_gradient(kernel, pre, calls[0][0], calls[0][1], calls[0][2])  # warm-up
         times = []
@@ -443,7 +444,7 @@ def main(argv=None) -> int:
                 key = f"{'sh' if shared else 'po'}_{metric}"
                 runs = [(key, None, 1)]
                 if not shared and not args.no_workers:
-                    runs.append((key + "_w", None, args.workers or exact.default_jobs(Y.shape[1], n)))
+                    runs.append((key + "_w", None, args.workers or compute.default_jobs(Y.shape[1], n)))
                 if key == "po_arc" and n > 2 * exact.SUBSAMPLE_SIZE and not args.no_all_starts:
                     runs.append(("po_arc_all", 0, 1))
                 for key_, explore, jobs in runs:

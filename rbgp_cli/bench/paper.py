@@ -233,15 +233,6 @@ def run_theorem(repeats: int, seed: int = 0, quick: bool = False, progress=None)
 
 
 # ================================================================================================ runtime
-def _blas_pools() -> list[dict]:
-    try:
-        from threadpoolctl import threadpool_info
-    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
-        return []
-    return [{"library": os.path.basename(d.get("filepath", "")), "api": d.get("internal_api"),
-             "threads": d.get("num_threads")} for d in threadpool_info()]
-
-
 def _random_poses(rng: np.random.Generator, n: int):
     return random_quat(rng, n), rng.normal(0.0, RUNTIME_TRANSLATION_STD, (n, 3))
 
@@ -276,7 +267,7 @@ def run_runtime(repeats: int, seed: int = 0, progress=None) -> dict:
     Returns ``{"rows": [{"model", "representation", "kernel", "mean_only": {...}, "mean_std": {...}}],
     "welch": [...], "times": {...}, "repeats", "blas", ...}``; times in seconds.
     """
-    from threadpoolctl import threadpool_limits
+    from rbgp_cli.compute import blas_pools, one_thread
 
     t0 = time.perf_counter()
     keys = [_key(*m) for m in RUNTIME_MODELS]
@@ -284,8 +275,8 @@ def run_runtime(repeats: int, seed: int = 0, progress=None) -> dict:
     times = {k: {kind: [] for kind in kinds} for k in keys}
     skipped = []
     warmed = False
-    with threadpool_limits(limits=1):
-        blas = _blas_pools()
+    with one_thread():
+        blas = blas_pools()
         for rep_i in range(repeats):
             rng = _rng(seed, "runtime", rep_i)
             q_train, t_train = _random_poses(rng, RUNTIME_TRAIN)

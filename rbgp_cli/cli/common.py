@@ -92,7 +92,7 @@ def _signals_as_exceptions():
     import signal
     import threading
 
-    from rbgp_cli.parallel import ending_on_sigterm
+    from rbgp_cli.compute import ending_on_sigterm
 
     if threading.current_thread() is not threading.main_thread():
         yield

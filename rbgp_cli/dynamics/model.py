@@ -11,12 +11,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rbgp_cli.compute import default_jobs
 from rbgp_cli.dynamics.representations import Representation, make_representation
 from rbgp_cli.dynamics.defaults import DEFAULT_KERNELS, DEFAULTS
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.dynamics.velocities import VelocityOptions, estimate_velocities, integration_drift, window_problem
 from rbgp_cli.errors import InputError, warn
-from rbgp_cli.gp.exact import GaussianProcess, default_jobs, fit_gp
+from rbgp_cli.gp.exact import GaussianProcess, fit_gp
 from rbgp_cli.kernels import DotProduct, Kernel, SquaredExponential
 
 __all__ = ["MotionModel", "make_kernel", "training_set", "train_model", "choose_gp", "KERNELS", "DEFAULTS", "default_velocity"]
@@ -541,7 +542,7 @@ def train_model(
     None (zero, the paper), ``"goal"`` (a pull toward the demonstrations' mean final pose) or
     ``"path"`` (the demonstrations' mean path over phase: its velocity plus a pull toward it; needs
     the phase input), with the pull's gain ``prior_gain`` (per unit phase, or per second). ``jobs``:
-    worker processes for the per-output fits (None: :func:`rbgp_cli.gp.exact.default_jobs`: one per
+    worker processes for the per-output fits (None: :func:`rbgp_cli.compute.default_jobs`: one per
     output if memory allows, 1 inside a worker process or on a single core).
     Returns the model; its ``summary`` holds demos, pairs, points, the hyperparameters and NLML per
     output, the safeguards used and the time taken.

@@ -164,7 +164,7 @@ def rollout(model, start_quat, start_position, steps: int, dt: float | None = No
     off_data : ``keep``, ``stop`` or ``prior``: what a trajectory does outside the demonstrations'
         envelope (module docstring); every mode fills ``outside`` and ``left``
     """
-    from rbgp_cli.gp.exact import blas_threads
+    from rbgp_cli.compute import blas_threads
 
     # Always single-threaded: per step the matrices are only B × n, and a 2-thread OpenBLAS pool
     # made 100 × 626 steps at n = 1752 take 11.0 s instead of 3.8 s on a loaded machine (measured).

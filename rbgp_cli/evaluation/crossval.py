@@ -34,13 +34,13 @@ Folds of every configuration run as independent tasks, in worker processes with 
 from __future__ import annotations
 
 import math
-import os
 import time
 import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from rbgp_cli.compute import usable_cores
 from rbgp_cli.dynamics.envelope import envelope_from_demos, left_envelope
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError, warn
@@ -262,16 +262,6 @@ def run_fold(config: Config, train: list[Trajectory], test: list[Trajectory], *,
     return out
 
 
-def _worker_init() -> None:
-    """Worker processes: BLAS single-threaded (the folds themselves are the parallelism)."""
-    try:
-        from threadpoolctl import threadpool_limits
-
-        _worker_init.limits = threadpool_limits(limits=1)  # kept alive for the worker's lifetime
-    except ImportError:  # pragma: no cover
-        pass
-
-
 def _task(args):
     config, train, test, length, covariance, samples = args
     return run_fold(config, train, test, length=length, covariance=covariance, samples=samples)
@@ -280,11 +270,11 @@ def _task(args):
 def _run_in_processes(args: list, n_jobs: int, label=None):
     """Yield (index, result) of ``_task(a)`` for every ``a`` in ``args`` as they finish, in ``n_jobs``
     fresh (spawned) worker processes with single-threaded BLAS that end with this process
-    (:func:`rbgp_cli.parallel.iter_processes`: on an error, Ctrl-C or SIGTERM the pending tasks are
+    (:func:`rbgp_cli.compute.iter_processes`: on an error, Ctrl-C or SIGTERM the pending tasks are
     cancelled and the workers stopped; a lost worker's fits are run again once, then named)."""
-    from rbgp_cli.parallel import iter_processes
+    from rbgp_cli.compute import iter_processes
 
-    return iter_processes(_task, args, n_jobs, label=label, init=_worker_init)
+    return iter_processes(_task, args, n_jobs, label=label)
 
 
 # --------------------------------------------------------------------------------------------- all folds
@@ -382,7 +372,7 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
     progress : a :class:`rbgp_cli.progress.Progress` (or callable(str), or None): a task over the fits,
         and one message per finished fit
     scheduler : None, ``"local"`` (a Dask ``LocalCluster`` of ``jobs`` workers) or the address of a Dask
-        scheduler: the fits run there (:func:`rbgp_cli.parallel.iter_dask`); the results are the same
+        scheduler: the fits run there (:func:`rbgp_cli.compute.iter_dask`); the results are the same
     samples : sampled rollouts per held-out start (``rbgp rollout --samples``, seeded by the train
         options' seed) for the columns of docs/method.md §11: ``sample_score`` / ``sample_ratio`` (one sample per
         start, scored as ``score``), ``coverage_position`` / ``coverage_rotation`` (the held-out motion
@@ -410,7 +400,7 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
     floor_left = sum(left_envelope(test, envelope_from_demos(train))["count"] for train, test in splits)
     tasks = [(c, f) for c in configs for f in range(len(splits))]
     args = [(c, splits[f][0], splits[f][1], length, covariance, samples) for c, f in tasks]
-    n_jobs = jobs if jobs is not None else min(len(tasks), os.cpu_count() or 1)
+    n_jobs = jobs if jobs is not None else min(len(tasks), usable_cores())
     n_jobs = max(1, min(int(n_jobs), len(tasks)))
     results: list = [None] * len(tasks)
     caught: set = set()
@@ -434,7 +424,7 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
             progress(msg)
 
         if scheduler:
-            from rbgp_cli.parallel import iter_dask
+            from rbgp_cli.compute import iter_dask
 
             for i, r in iter_dask(_task, args, jobs=jobs, scheduler=scheduler, label=label):
                 done(i, r)

@@ -34,10 +34,9 @@ Numerics
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
+
+from rbgp_cli.compute import in_worker_process, thread_pool
 
 from rbgp_cli.geometry.so3 import quat_from_rotvec, quat_normalize
 
@@ -73,24 +72,6 @@ _BLOCK_ELEMENTS = 65_536
 _PARALLEL_MIN_WORK = 200_000
 #: Above this fraction of close pairs in a block, their precise distances are computed densely.
 _DENSE_FRACTION = 0.02
-#: Threads for the row blocks: None = up to 4 (at most the CPU count); 1 computes on the calling
-#: thread (set in rbgp's worker processes, which run one per core already).
-THREADS: int | None = None
-_EXECUTOR: ThreadPoolExecutor | None = None
-_EXECUTOR_PID: int | None = None
-
-
-def _executor() -> ThreadPoolExecutor:
-    """A small shared thread pool, created on first use (and again in a forked child)."""
-    global _EXECUTOR, _EXECUTOR_PID
-    if _EXECUTOR is None or _EXECUTOR_PID != os.getpid():
-        _EXECUTOR = ThreadPoolExecutor(
-            max_workers=max(1, min(4, os.cpu_count() or 1)), thread_name_prefix="rbgp-distance"
-        )
-        _EXECUTOR_PID = os.getpid()
-    return _EXECUTOR
-
-
 def _as_array(x, n: int, name: str) -> np.ndarray:
     a = np.asarray(x, dtype=np.float64)
     if a.ndim == 0 or a.shape[-1] != n:
@@ -187,8 +168,9 @@ def _run_blocks(n: int, m: int, block) -> None:
     """
     rows = max(_BLOCK_ROWS, -(-_BLOCK_ELEMENTS // max(m, 1)))
     slices = [slice(i, min(i + rows, n)) for i in range(0, n, rows)]
-    if n * m >= _PARALLEL_MIN_WORK and len(slices) > 1 and THREADS != 1:
-        for f in [_executor().submit(block, sl) for sl in slices]:
+    # worker processes (one per core already) compute on the calling thread
+    if n * m >= _PARALLEL_MIN_WORK and len(slices) > 1 and not in_worker_process():
+        for f in [thread_pool("distance").submit(block, sl) for sl in slices]:
             f.result()
     else:
         for sl in slices:

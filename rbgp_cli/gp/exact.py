@@ -46,10 +46,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg import blas, lapack, solve_triangular
 
+from rbgp_cli.compute import (blas_threads, fork_context, process_pool, start_workers, stop_pool, thread_pool,
+                              thread_workers, worker_init)
 from rbgp_cli.errors import RbgpRuntimeError
 from rbgp_cli.kernels.base import Hyperparameter, Kernel, output_scale
 
-__all__ = ["OutputFit", "GaussianProcess", "fit_gp", "nlml_and_gradient", "blas_threads", "MIN_RCOND", "NOISE"]
+__all__ = ["OutputFit", "GaussianProcess", "fit_gp", "nlml_and_gradient", "MIN_RCOND", "NOISE"]
 
 NOISE = "noise_std"
 #: Reciprocal condition number below which C = K + σn²I is treated as numerically singular.
@@ -91,54 +93,6 @@ EXPLORE_FTOL = 1e-7
 
 
 # ----------------------------------------------------------------------------- linear algebra
-#: Below this many training points BLAS runs single-threaded: a 2-thread OpenBLAS pool costs more
-#: in synchronisation than it saves on small matrices, and on a loaded machine its spin-waiting made
-#: one NLML evaluation at n = 80 take 8–150 ms instead of 0.5 ms (measured).
-SINGLE_THREAD_BELOW = 700
-
-
-_CONTROLLER = []
-
-
-def free_cores() -> int:
-    """Usable cores that no other runnable task is using right now (at least 1).
-
-    Linux: the usable cores minus the other runnable tasks of the instantaneous count in
-    /proc/loadavg; elsewhere minus the 1-minute load average."""
-    import os
-
-    cores = usable_cores()
-    try:
-        with open("/proc/loadavg") as fh:
-            others = int(fh.read().split()[3].split("/")[0]) - 1  # the count includes this process
-    except (OSError, ValueError, IndexError):
-        try:
-            others = int(round(os.getloadavg()[0]))
-        except (AttributeError, OSError):
-            others = 0
-    return max(1, cores - max(0, others))
-
-
-def blas_threads(n: int):
-    """Context manager: BLAS/LAPACK single-threaded for problems with n < SINGLE_THREAD_BELOW points
-    (n = 0 forces it), inside worker processes, and when fewer than two cores are free (a
-    multi-threaded OpenBLAS pool spin-waits for its threads; on a busy machine they lose whole time
-    slices: one NLML evaluation at n = 1752 took 0.93 s with 2 threads instead of 0.23 s with one,
-    measured at load 4). Otherwise the pools are left as they are. The threadpoolctl controller is
-    built once: building it scans the loaded libraries (about 0.9 ms), reusing it costs about 0.015 ms."""
-    import contextlib
-
-    if n >= SINGLE_THREAD_BELOW and not _in_worker_process() and free_cores() >= 2:
-        return contextlib.nullcontext()
-    if not _CONTROLLER:
-        try:
-            from threadpoolctl import ThreadpoolController
-        except ImportError:  # pragma: no cover - threadpoolctl is a dependency; stay usable without it
-            return contextlib.nullcontext()
-        _CONTROLLER.append(ThreadpoolController())
-    return _CONTROLLER[0].limit(limits=1, user_api="blas")
-
-
 #: Predictions with at least this many query × training pairs are spread over the free cores, in row
 #: chunks on threads (numpy's ufuncs and BLAS release the GIL; the kernel's exp, arccos and products
 #: dominate). One rollout step of 100 trajectories against 1752 training points (175 200 pairs) stays
@@ -146,44 +100,14 @@ def blas_threads(n: int):
 #: (the same rollout of 100 × 626 steps, chordal kernel, load 2.4 on 2 cores: 0.44 s wall / 0.53 s
 #: CPU on two threads, 0.32–0.34 s on one).
 PARALLEL_PREDICT_MIN = 1_000_000
-_PREDICT_POOL = []
 
 
 def _prediction_workers(work: int) -> int:
-    """Threads for a prediction of ``work`` query × training pairs: the cores free right now (at
-    most 4; :func:`free_cores`, looked up at most every FREE_CORES_TTL seconds) above
-    PARALLEL_PREDICT_MIN, else 1 (and 1 in worker processes, which run one per core already).
-    These threads do not spin, but they only pay where a core is free: at load 2 on 2 cores a
-    rollout of 100 × 626 steps at n = 1752 took 0.44 s (0.55 s CPU) on two threads and 0.33 s on
-    one (chordal kernel; 0.66 s / 0.63 s with the arc kernel, measured)."""
-    if work < PARALLEL_PREDICT_MIN or _in_worker_process():
-        return 1
-    return max(1, min(4, _free_cores_recently()))
-
-
-#: Seconds for which :func:`_free_cores_recently` reuses a look-up (a rollout step takes ~0.5 ms).
-FREE_CORES_TTL = 0.2
-_FREE_CORES = [float("-inf"), 1]
-
-
-def _free_cores_recently() -> int:
-    """:func:`free_cores`, reused for FREE_CORES_TTL seconds (reading /proc/loadavg costs ~7 µs)."""
-    now = time.monotonic()
-    if now - _FREE_CORES[0] > FREE_CORES_TTL:
-        _FREE_CORES[:] = [now, free_cores()]
-    return _FREE_CORES[1]
-
-
-def _predict_pool():
-    """A thread pool for prediction chunks, separate from the distance pool of
-    :mod:`rbgp_cli.geometry.distance` (whose blocks the chunks submit and wait for)."""
-    import os
-    from concurrent.futures import ThreadPoolExecutor
-
-    if not _PREDICT_POOL or _PREDICT_POOL[0][1] != os.getpid():
-        _PREDICT_POOL[:] = [(ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1)),
-                                                thread_name_prefix="rbgp-predict"), os.getpid())]
-    return _PREDICT_POOL[0][0]
+    """Threads for a prediction of ``work`` query × training pairs (:func:`rbgp_cli.compute.thread_workers`
+    above PARALLEL_PREDICT_MIN). At load 2 on 2 cores a rollout of 100 × 626 steps at n = 1752 took
+    0.44 s (0.55 s CPU) on two threads and 0.33 s on one (chordal kernel; 0.66 s / 0.63 s with the
+    arc kernel, measured)."""
+    return thread_workers(work, PARALLEL_PREDICT_MIN)
 
 
 def _cholesky(K: np.ndarray, noise_var: float, jitter: float = 0.0):
@@ -430,7 +354,7 @@ class GaussianProcess:
         starts = range(0, m, step)
         self._cross_plan()  # before any threads
         if workers > 1 and len(starts) > 1:
-            clipped = sum(_predict_pool().map(
+            clipped = sum(thread_pool("predict").map(
                 lambda a: self._predict_rows(Xs, a, a + step, mean, std, noisy), starts))
         else:
             clipped = sum(self._predict_rows(Xs, a, a + step, mean, std, noisy) for a in starts)
@@ -956,77 +880,7 @@ def _fit_target(kernel, pre, y, label, rng, o: _FitOptions, sub=None, pre_sub=No
 
 
 # ----------------------------------------------------------------------------- worker processes
-def _in_worker_process() -> bool:
-    import multiprocessing
-
-    return multiprocessing.parent_process() is not None
-
-
-def usable_cores() -> int:
-    """CPUs this process may run on (its affinity mask where the OS has one)."""
-    import os
-
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except (AttributeError, OSError):
-        return max(1, os.cpu_count() or 1)
-
-
-def _available_memory() -> int | None:
-    """Bytes of memory available to new processes (Linux: MemAvailable), or None if unknown."""
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        import os
-
-        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
-    except (AttributeError, OSError, ValueError):
-        return None
-
-
-#: n × n float64 matrices a worker holds at once while fitting one output on n points (distances,
-#: K, C, C⁻¹ / W, W ∘ K and the factor it returns).
-WORKER_MATRICES = 6
-
-
-def default_jobs(tasks: int, n: int | None = None) -> int:
-    """Worker processes for ``tasks`` independent fits on ``n`` points each: one per task when the
-    process may use two or more cores and half the available memory holds them
-    (WORKER_MATRICES n × n matrices each); 1 inside a worker process, so that pools never nest (e.g.
-    under cross-validation folds that run in workers of their own), and 1 on a single core.
-
-    More workers than cores cost nothing on an idle machine (the fits are CPU-bound and BLAS runs
-    single-threaded in each worker, without spinning threads), and on a busy one the operating system
-    shares the cores per task: with another program keeping both cores busy, 6 workers for 6 outputs
-    took 1.5× their time on the machine as it was, 2 workers 2.3× (measured, benchmarks/README.md)."""
-    if tasks <= 1 or _in_worker_process() or usable_cores() < 2:
-        return 1
-    jobs = int(tasks)
-    if n:
-        avail = _available_memory()
-        if avail is not None:
-            jobs = min(jobs, max(1, int(0.5 * avail // (WORKER_MATRICES * 8 * n * n))))
-    return max(1, jobs)
-
-
 _WORKER: dict = {}
-
-
-def _worker_init() -> None:
-    """In each worker process: BLAS single-threaded for good, distance blocks on this thread."""
-    from rbgp_cli.geometry import distance
-
-    distance.THREADS = 1
-    try:
-        from threadpoolctl import ThreadpoolController
-    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
-        return
-    _WORKER["limits"] = ThreadpoolController().limit(limits=1, user_api="blas")
 
 
 def _worker_fit(task):
@@ -1042,16 +896,6 @@ def _worker_fit(task):
     return l, _fit_target(kernel, pre, y, label, np.random.default_rng(seeds), o, sub, pre_sub)
 
 
-def _process_context():
-    import multiprocessing
-    import sys
-
-    # fork starts a worker in milliseconds; elsewhere (macOS, Windows) fork is unsafe or missing
-    if sys.platform.startswith("linux"):
-        return multiprocessing.get_context("fork")
-    return multiprocessing.get_context("spawn")
-
-
 def _fit_outputs_in_workers(X, Y, kernel, o, seeds, sub, jobs, progress, task):
     """Per-output fits in ``jobs`` worker processes (BLAS single-threaded in each); results in output order."""
     import os
@@ -1061,7 +905,7 @@ def _fit_outputs_in_workers(X, Y, kernel, o, seeds, sub, jobs, progress, task):
     tasks = [(token, X, np.ascontiguousarray(Y[:, l]), kernel, l, f"output {l}", seeds[l], o, sub) for l in range(L)]
     results = [None] * L
     failures = {}
-    ctx = _process_context()
+    ctx = fork_context()
     if ctx.get_start_method() == "fork":
         # the pairwise distances once, here: forked workers read them (copy-on-write, never written)
         # instead of computing them once each (measured: 6 workers spent 30 % more CPU than one process)
@@ -1076,10 +920,8 @@ def _collect_worker_fits(tasks, jobs, ctx, progress, task, results, failures):
     from concurrent.futures import as_completed
     from concurrent.futures.process import BrokenProcessPool
 
-    from rbgp_cli.parallel import process_pool, start_workers, stop_pool
-
     # workers that end with this process (killed or not), and end at once on an error or Ctrl-C
-    with process_pool(jobs, context=ctx, init=_worker_init) as pool:
+    with process_pool(jobs, context=ctx, init=worker_init) as pool:
         with start_workers():
             futures = {pool.submit(_worker_fit, t): t[4] for t in tasks}
         try:
@@ -1165,7 +1007,7 @@ def fit_gp(
         output
     jobs : worker processes for the per-output fits (each output in one worker, BLAS
         single-threaded there; the results do not depend on ``jobs``); 1 fits in this process.
-        :func:`default_jobs` gives the usual choice. Ignored with ``shared`` or a single output.
+        :func:`rbgp_cli.compute.default_jobs` gives the usual choice. Ignored with ``shared`` or a single output.
     """
     X = np.ascontiguousarray(np.asarray(X, dtype=np.float64))
     Y = np.asarray(Y, dtype=np.float64).reshape(len(X), -1)

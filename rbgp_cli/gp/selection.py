@@ -34,7 +34,8 @@ def held_out_comparison(sparse, groups: np.ndarray, *, folds: int = CHECK_FOLDS,
     ``"folds"`` and ``"rows"`` (rows per fold's sparse posterior), or None when there are fewer than two
     demonstrations or no exact fit to compare with.
     """
-    from rbgp_cli.gp.exact import GaussianProcess, blas_threads
+    from rbgp_cli.compute import blas_threads
+    from rbgp_cli.gp.exact import GaussianProcess
     from rbgp_cli.gp.sparse import SparseGP, select_inducing
 
     exact, rows = getattr(sparse, "hyper_gp", None), getattr(sparse, "hyper_rows", None)

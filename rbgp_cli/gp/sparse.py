@@ -54,9 +54,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg import blas, lapack
 
+from rbgp_cli.compute import blas_threads
 from rbgp_cli.errors import RbgpRuntimeError
-from rbgp_cli.gp.exact import (BASIN_GAP, INFEASIBLE_NLML, NOISE, OutputFit, _all_noise, _Objective, _smooth_start,
-                               blas_threads)
+from rbgp_cli.gp.exact import BASIN_GAP, INFEASIBLE_NLML, NOISE, OutputFit, _all_noise, _Objective, _smooth_start
 from rbgp_cli.kernels.base import Kernel, output_scale
 
 __all__ = [

@@ -18,7 +18,7 @@ import pytest
 from typer.testing import CliRunner
 
 from rbgp_cli.cli.app import app
-from rbgp_cli.gp.exact import usable_cores
+from rbgp_cli.compute import usable_cores
 
 psutil = pytest.importorskip("psutil")
 

@@ -13,6 +13,7 @@ threadpoolctl = pytest.importorskip("threadpoolctl")
 from rbgp_cli.dynamics.model import MotionModel  # noqa: E402
 from rbgp_cli.dynamics.representations import AxisAngle  # noqa: E402
 from rbgp_cli.dynamics.rollout import rollout, starts_near  # noqa: E402
+from rbgp_cli import compute  # noqa: E402
 from rbgp_cli.gp import exact  # noqa: E402
 from rbgp_cli.gp.exact import GaussianProcess, fit_gp  # noqa: E402
 from rbgp_cli.kernels import SquaredExponential  # noqa: E402
@@ -83,12 +84,12 @@ def test_large_predictions_spread_over_row_threads_run_blas_single_threaded(mode
     threads (one per free core); a multi-threaded BLAS inside each of them oversubscribed the cores."""
     rng = np.random.default_rng(5)
     gp = model.gp
-    n = 2 * exact.SINGLE_THREAD_BELOW  # where predictions used to leave the BLAS pool on
+    n = 2 * compute.SINGLE_THREAD_BELOW  # where predictions used to leave the BLAS pool on
     X = gp.X[rng.integers(0, len(gp.X), n)] + rng.normal(0.0, 0.05, (n, gp.X.shape[1]))
     big = GaussianProcess(gp.kernel, X, rng.normal(0.0, 1.0, (n, gp.Y.shape[1])), gp.fits, shared=gp.shared)
-    monkeypatch.setattr(exact, "free_cores", lambda: 2)
-    monkeypatch.setattr(exact, "_free_cores_recently", lambda: 2)
-    monkeypatch.setattr(exact, "_in_worker_process", lambda: False)
+    monkeypatch.setattr(compute, "free_cores", lambda: 2)
+    monkeypatch.setattr(compute, "free_cores_recently", lambda: 2)
+    monkeypatch.setattr(compute, "in_worker_process", lambda: False)
     m = exact.PARALLEL_PREDICT_MIN // n + 10
     assert exact._prediction_workers(m * n) == 2
     seen = []

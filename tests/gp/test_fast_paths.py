@@ -15,11 +15,12 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from rbgp_cli.compute import blas_threads, default_jobs, usable_cores
 from rbgp_cli.dynamics.model import MotionModel
 from rbgp_cli.dynamics.rollout import rollout, starts_near
 from rbgp_cli.errors import RbgpRuntimeError
 from rbgp_cli.gp import exact
-from rbgp_cli.gp.exact import INFEASIBLE_NLML, GaussianProcess, default_jobs, fit_gp
+from rbgp_cli.gp.exact import INFEASIBLE_NLML, GaussianProcess, fit_gp
 from rbgp_cli.kernels import Kernel, SquaredExponential
 from tests.gp.test_gp import poses, smooth_outputs
 
@@ -52,7 +53,7 @@ def assert_no_better_point_nearby(gp, kernel, X, Y):
     Hessian on all points still promises (over the hyperparameters not held at a bound) is below
     10 × the polish's tolerance, POLISH_RTOL · max(|NLML|, n). Outputs refit on the noise margin are
     constrained optima and are skipped."""
-    with exact.blas_threads(0):  # as in the fit: a 2-thread pool can be 100× slower on a busy machine
+    with blas_threads(0):  # as in the fit: a 2-thread pool can be 100× slower on a busy machine
         _check_polished(gp, kernel, X, Y)
 
 
@@ -138,7 +139,7 @@ def _context():
 
 def test_default_jobs_never_nests_worker_pools():
     assert default_jobs(1) == 1
-    assert default_jobs(6) == (6 if exact.usable_cores() >= 2 else 1)
+    assert default_jobs(6) == (6 if usable_cores() >= 2 else 1)
     assert default_jobs(6, n=10**7) == 1  # 6 × (10⁷)² doubles: no machine holds two of those
     with ProcessPoolExecutor(1, mp_context=_context()) as pool:
         assert pool.submit(default_jobs, 6).result() == 1

@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 
 from rbgp_cli.errors import InputError
-from rbgp_cli.parallel import run_tasks
+from rbgp_cli.compute import run_tasks
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 
 
 def _square(x):
@@ -39,7 +39,7 @@ def test_in_process_keeps_order_and_reports_each_result():
 
 def test_unknown_scheduler_address_is_an_input_error(monkeypatch):
     pytest.importorskip("distributed")
-    monkeypatch.setattr("rbgp_cli.parallel.CONNECT_TIMEOUT", "1s")
+    monkeypatch.setattr("rbgp_cli.compute.CONNECT_TIMEOUT", "1s")
     with pytest.raises(InputError, match="cannot reach the Dask scheduler"):
         run_tasks(_square, [1], scheduler="tcp://127.0.0.1:9")
 
@@ -115,7 +115,7 @@ def test_crossval_command_passes_scheduler_and_inducing(monkeypatch):
     from rbgp_cli.cli.app import app
     from rbgp_cli.cli.train_options import train_kwargs
 
-    monkeypatch.setattr("rbgp_cli.parallel.CONNECT_TIMEOUT", "1s")
+    monkeypatch.setattr("rbgp_cli.compute.CONNECT_TIMEOUT", "1s")
     res = CliRunner().invoke(app, ["crossval", str(REPO / "sample_data" / "csv"), "--folds", "3", "--max-points", "50",
                                    "--restarts", "1", "--scheduler", "tcp://127.0.0.1:9", "--inducing", "16"])
     assert res.exit_code == 2, res.stderr
@@ -166,7 +166,7 @@ def test_a_dask_study_with_no_worker_left_fails_within_the_timeout(monkeypatch):
 
     from rbgp_cli.errors import RbgpRuntimeError
 
-    monkeypatch.setattr("rbgp_cli.parallel.NO_WORKER_TIMEOUT", 2.0)
+    monkeypatch.setattr("rbgp_cli.compute.NO_WORKER_TIMEOUT", 2.0)
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
         outcome = {}
 
@@ -188,3 +188,51 @@ def test_a_dask_study_with_no_worker_left_fails_within_the_timeout(monkeypatch):
     err = outcome.get("error")
     assert isinstance(err, RbgpRuntimeError), outcome
     assert "no Dask worker left for 2 s" in str(err) and "fold " in str(err)
+
+
+# ----------------------------------------------------------------------------- cores, BLAS, thread pools
+def test_thread_workers_are_one_below_the_threshold_at_most_the_pool_and_one_in_a_worker(monkeypatch):
+    from concurrent.futures import ProcessPoolExecutor
+
+    from rbgp_cli import compute
+
+    monkeypatch.setattr(compute, "free_cores_recently", lambda: 3)
+    assert compute.thread_workers(99, 100) == 1
+    assert compute.thread_workers(100, 100) == min(3, compute.POOL_THREADS)
+    monkeypatch.setattr(compute, "free_cores_recently", lambda: 64)
+    assert compute.thread_workers(10**9, 100) == compute.POOL_THREADS
+    with ProcessPoolExecutor(1, mp_context=compute.fork_context()) as pool:
+        assert pool.submit(compute.in_worker_process).result() is True
+        assert pool.submit(compute.thread_workers, 10**9, 1).result() == 1
+    assert compute.in_worker_process() is False
+
+
+def test_thread_pools_are_one_per_name_and_process():
+    from concurrent.futures import ProcessPoolExecutor
+
+    from rbgp_cli import compute
+
+    a = compute.thread_pool("test-a")
+    assert compute.thread_pool("test-a") is a and compute.thread_pool("test-b") is not a
+    assert a.submit(lambda: 7).result() == 7
+    with ProcessPoolExecutor(1, mp_context=compute.fork_context()) as pool:  # a forked child builds its own
+        assert pool.submit(_pool_result).result() == 8
+
+
+def _pool_result():
+    from rbgp_cli import compute
+
+    return compute.thread_pool("test-a").submit(lambda: 8).result()
+
+
+def test_blas_threads_limits_small_problems_and_one_thread_limits_every_pool():
+    import threadpoolctl
+
+    from rbgp_cli import compute
+
+    with threadpoolctl.threadpool_limits(limits=2, user_api="blas"):
+        with compute.blas_threads(0):
+            assert {p["num_threads"] for p in threadpoolctl.threadpool_info() if p["user_api"] == "blas"} == {1}
+        with compute.one_thread():
+            assert {p["threads"] for p in compute.blas_pools()} == {1}
+        assert {p["num_threads"] for p in threadpoolctl.threadpool_info() if p["user_api"] == "blas"} == {2}

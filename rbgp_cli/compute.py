@@ -1,9 +1,19 @@
-"""Run independent tasks in order-preserving fashion: in this process, in local worker processes
-(the standard library's ``ProcessPoolExecutor``), or on a Dask distributed cluster.
+"""Compute: cores, BLAS threads, thread and process pools, and the hand-off to Dask — the one place
+rbgp decides where work runs (the maths modules only call these helpers).
 
-Studies (``rbgp crossval``: configurations × folds) are lists of independent fits. :func:`run_tasks`
-hands them to one of three executors and returns the results in the order of the tasks, whatever the
-order they finish in; BLAS runs single-threaded inside every worker (the tasks are the parallelism).
+* **Cores and BLAS.** :func:`usable_cores` (the affinity mask), :func:`free_cores` (minus the other
+  runnable tasks right now), :func:`blas_threads` (single-threaded BLAS for small problems, in worker
+  processes and on a busy machine), :func:`in_worker_process`, :func:`default_jobs` (worker processes
+  for independent fits, bounded by memory and never nested).
+* **Thread pools.** :func:`thread_pool` gives one small named pool per process (row blocks of
+  pairwise distances, chunks of GP predictions: numpy's ufuncs and BLAS release the GIL), and
+  :func:`thread_workers` how many threads a piece of work should use.
+* **Process pools and Dask.** Studies (``rbgp crossval``: configurations × folds) and the exact GP's
+  per-output fits are lists of independent tasks. :func:`run_tasks` hands them to one of three
+  executors — this process, local worker processes (the standard library's ``ProcessPoolExecutor``,
+  :func:`iter_processes`), or a Dask distributed cluster (:func:`iter_dask`) — and returns the
+  results in the order of the tasks, whatever the order they finish in; BLAS runs single-threaded
+  inside every worker (the tasks are the parallelism).
 
 Dask (``pip install "rbgp-cli[distributed]"``) is imported only when a ``scheduler`` is given:
 ``"local"`` starts a ``LocalCluster`` of ``jobs`` single-threaded worker processes for the call;
@@ -23,20 +33,199 @@ from __future__ import annotations
 import os
 import sys
 
-__all__ = ["run_tasks", "iter_dask", "single_threaded", "die_with_parent", "process_pool", "start_workers", "stop_pool",
-           "ending_on_sigterm"]
+__all__ = ["usable_cores", "free_cores", "free_cores_recently", "in_worker_process", "available_memory",
+           "blas_threads", "one_thread", "blas_pools", "default_jobs", "thread_pool", "thread_workers", "fork_context", "worker_init",
+           "run_tasks", "iter_processes", "iter_dask", "single_threaded", "die_with_parent", "process_pool",
+           "start_workers", "stop_pool", "ending_on_sigterm"]
+
+
+# ----------------------------------------------------------------------------- cores and BLAS
+def usable_cores() -> int:
+    """CPUs this process may run on (its affinity mask where the OS has one)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def free_cores() -> int:
+    """Usable cores that no other runnable task is using right now (at least 1).
+
+    Linux: the usable cores minus the other runnable tasks of the instantaneous count in
+    /proc/loadavg; elsewhere minus the 1-minute load average."""
+    cores = usable_cores()
+    try:
+        with open("/proc/loadavg") as fh:
+            others = int(fh.read().split()[3].split("/")[0]) - 1  # the count includes this process
+    except (OSError, ValueError, IndexError):
+        try:
+            others = int(round(os.getloadavg()[0]))
+        except (AttributeError, OSError):
+            others = 0
+    return max(1, cores - max(0, others))
+
+
+#: Seconds for which :func:`free_cores_recently` reuses a look-up (a rollout step takes ~0.5 ms).
+FREE_CORES_TTL = 0.2
+_FREE_CORES = [float("-inf"), 1]
+
+
+def free_cores_recently() -> int:
+    """:func:`free_cores`, reused for FREE_CORES_TTL seconds (reading /proc/loadavg costs ~7 µs)."""
+    import time
+
+    now = time.monotonic()
+    if now - _FREE_CORES[0] > FREE_CORES_TTL:
+        _FREE_CORES[:] = [now, free_cores()]
+    return _FREE_CORES[1]
+
+
+def in_worker_process() -> bool:
+    """True in a process started by multiprocessing (rbgp's pools, Dask's workers): it runs one task
+    per core already, so it starts no threads or pools of its own."""
+    import multiprocessing
+
+    return multiprocessing.parent_process() is not None
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to new processes (Linux: MemAvailable), or None if unknown."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, OSError, ValueError):
+        return None
+
+
+#: Below this many training points BLAS/LAPACK runs single-threaded: a multi-threaded OpenBLAS costs more
+#: in synchronisation than it saves on small matrices, and on a loaded machine its spin-waiting made
+#: one NLML evaluation at n = 80 take 8–150 ms instead of 0.5 ms (measured).
+SINGLE_THREAD_BELOW = 700
+_CONTROLLER = []
+
+
+def blas_threads(n: int):
+    """Context manager: BLAS/LAPACK single-threaded for problems with n < SINGLE_THREAD_BELOW points
+    (n = 0 forces it), inside worker processes, and when fewer than two cores are free (a
+    multi-threaded OpenBLAS pool spin-waits for its threads; on a busy machine they lose whole time
+    slices: one NLML evaluation at n = 1752 took 0.93 s with 2 threads instead of 0.23 s with one,
+    measured at load 4). Otherwise the pools are left as they are. The threadpoolctl controller is
+    built once: building it scans the loaded libraries (about 0.9 ms), reusing it costs about 0.015 ms."""
+    import contextlib
+
+    if n >= SINGLE_THREAD_BELOW and not in_worker_process() and free_cores() >= 2:
+        return contextlib.nullcontext()
+    if not _CONTROLLER:
+        try:
+            from threadpoolctl import ThreadpoolController
+        except ImportError:  # pragma: no cover - threadpoolctl is a dependency; stay usable without it
+            return contextlib.nullcontext()
+        _CONTROLLER.append(ThreadpoolController())
+    return _CONTROLLER[0].limit(limits=1, user_api="blas")
+
+
+#: n × n float64 matrices a worker holds at once while fitting one GP output on n points (distances,
+#: K, C, C⁻¹ / W, W ∘ K and the factor it returns).
+WORKER_MATRICES = 6
+
+
+def default_jobs(tasks: int, n: int | None = None) -> int:
+    """Worker processes for ``tasks`` independent fits on ``n`` points each: one per task when the
+    process may use two or more cores and half the available memory holds them
+    (WORKER_MATRICES n × n matrices each); 1 inside a worker process, so that pools never nest (e.g.
+    under cross-validation folds that run in workers of their own), and 1 on a single core.
+
+    More workers than cores cost nothing on an idle machine (the fits are CPU-bound and BLAS runs
+    single-threaded in each worker, without spinning threads), and on a busy one the operating system
+    shares the cores per task: with another program keeping both cores busy, 6 workers for 6 outputs
+    took 1.5× their time on the machine as it was, 2 workers 2.3× (measured, benchmarks/README.md)."""
+    if tasks <= 1 or in_worker_process() or usable_cores() < 2:
+        return 1
+    jobs = int(tasks)
+    if n:
+        avail = available_memory()
+        if avail is not None:
+            jobs = min(jobs, max(1, int(0.5 * avail // (WORKER_MATRICES * 8 * n * n))))
+    return max(1, jobs)
+
+
+# ----------------------------------------------------------------------------- thread pools
+#: Threads of every :func:`thread_pool` (at most this many, and at most the CPU count).
+POOL_THREADS = 4
+_THREAD_POOLS: dict = {}
+
+
+def thread_pool(name: str):
+    """The process's shared ``ThreadPoolExecutor`` called ``name`` (created on first use, and again
+    in a forked child). Work that submits to one pool and waits must not run on the same pool: the
+    GP's prediction chunks (pool "predict") wait for distance blocks (pool "distance")."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    pool = _THREAD_POOLS.get(name)
+    if pool is None or pool[1] != os.getpid():
+        pool = (ThreadPoolExecutor(max_workers=max(1, min(POOL_THREADS, os.cpu_count() or 1)),
+                                   thread_name_prefix=f"rbgp-{name}"), os.getpid())
+        _THREAD_POOLS[name] = pool
+    return pool[0]
+
+
+def thread_workers(work: int, min_work: int) -> int:
+    """Threads for ``work`` units (e.g. query × training pairs): the cores free right now (at most
+    POOL_THREADS; :func:`free_cores_recently`) when ``work`` ≥ ``min_work``, else 1; and 1 in worker
+    processes, which run one per core already. Such threads do not spin, but they only pay where a
+    core is free."""
+    if work < min_work or in_worker_process():
+        return 1
+    return max(1, min(POOL_THREADS, free_cores_recently()))
+
+
+# ----------------------------------------------------------------------------- process pools
+def fork_context():
+    """The multiprocessing context for short-lived workers that read this process's arrays: fork on
+    Linux (a worker starts in milliseconds and reads the parent's memory copy-on-write), spawn
+    elsewhere (macOS, Windows: fork is unsafe or missing)."""
+    import multiprocessing
+
+    if sys.platform.startswith("linux"):
+        return multiprocessing.get_context("fork")
+    return multiprocessing.get_context("spawn")
+
 
 #: How long to wait for a Dask scheduler given by address.
 CONNECT_TIMEOUT = "10s"
 
 
-def single_threaded(fn, args):
-    """``fn(args)`` with BLAS/OpenMP pools limited to one thread (for workers)."""
+def one_thread():
+    """Context manager: every BLAS and OpenMP pool limited to one thread (threadpoolctl) while the block
+    runs; a no-op without threadpoolctl."""
+    import contextlib
+
     try:
         from threadpoolctl import threadpool_limits
     except ImportError:  # pragma: no cover - threadpoolctl is a dependency
-        return fn(args)
-    with threadpool_limits(limits=1):
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1)
+
+
+def blas_pools() -> list[dict]:
+    """The BLAS/OpenMP pools loaded in this process: ``[{"library", "api", "threads"}]`` (threadpoolctl)."""
+    try:
+        from threadpoolctl import threadpool_info
+    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
+        return []
+    return [{"library": os.path.basename(d.get("filepath", "")), "api": d.get("internal_api"),
+             "threads": d.get("num_threads")} for d in threadpool_info()]
+
+
+def single_threaded(fn, args):
+    """``fn(args)`` with BLAS/OpenMP pools limited to one thread (for workers)."""
+    with one_thread():
         return fn(args)
 
 
@@ -98,14 +287,10 @@ def die_with_parent(parent_pid: int | None = None, init=None) -> None:
         init()
 
 
-def _worker_init() -> None:
-    """Local worker processes: BLAS single-threaded for the worker's lifetime."""
-    try:
-        from threadpoolctl import threadpool_limits
-
-        _worker_init.limits = threadpool_limits(limits=1)
-    except ImportError:  # pragma: no cover
-        pass
+def worker_init() -> None:
+    """Local worker processes' start-up: BLAS single-threaded for the worker's lifetime (and, through
+    :func:`in_worker_process`, no thread pools of its own)."""
+    worker_init.limits = one_thread()  # a threadpoolctl limit applies as it is made; kept alive here
 
 
 def process_pool(max_workers: int, *, context=None, init=None):
@@ -209,7 +394,7 @@ def run_tasks(fn, args: list, *, jobs: int | None = None, scheduler: str | None 
     if scheduler:
         pairs = iter_dask(fn, args, jobs=jobs, scheduler=scheduler, label=label)
     else:
-        n_jobs = jobs if jobs is not None else min(len(args), os.cpu_count() or 1)
+        n_jobs = jobs if jobs is not None else min(len(args), usable_cores())
         n_jobs = max(1, min(int(n_jobs), len(args)))
         pairs = ((i, fn(a)) for i, a in enumerate(args)) if n_jobs == 1 else iter_processes(fn, args, n_jobs, label=label)
     for i, r in pairs:
@@ -224,7 +409,7 @@ def _names(indices, label) -> str:
     return ", ".join(names[:4]) + (f" and {len(names) - 4} more" if len(names) > 4 else "")
 
 
-def iter_processes(fn, args, n_jobs: int, *, label=None, init=_worker_init):
+def iter_processes(fn, args, n_jobs: int, *, label=None, init=worker_init):
     """Yield ``(index, fn(args[index]))`` as the tasks finish in ``n_jobs`` fresh (spawned) worker
     processes (:func:`process_pool`; BLAS single-threaded). A pool that loses a worker (killed, out of
     memory) is started again for the unfinished tasks, :data:`RETRIES` times; then
@@ -357,7 +542,7 @@ def iter_dask(fn, args: list, *, jobs: int | None = None, scheduler: str = "loca
     restore = _quiet_dask()
     try:
         if scheduler == "local":
-            n = max(1, min(int(jobs or os.cpu_count() or 1), len(args)))
+            n = max(1, min(int(jobs or usable_cores()), len(args)))
             try:
                 # the workers' stderr to /dev/null: a Ctrl-C while they import prints their tracebacks
                 with dask.config.set({"distributed.scheduler.allowed-failures": RETRIES}), _children_stderr_off():
