@@ -62,6 +62,8 @@ from _common import blas_line, fmt_s, limit_blas_threads, machine_line, syntheti
 
 import rbgp_cli.compute as compute  # noqa: E402
 import rbgp_cli.gp.exact as exact  # noqa: E402
+import rbgp_cli.gp.likelihood as likelihood  # noqa: E402
+import rbgp_cli.gp.optimise as optimise  # noqa: E402
 from rbgp_cli.geometry.so3 import euler_from_quat  # noqa: E402
 from rbgp_cli.kernels import SquaredExponential  # noqa: E402
 
@@ -71,14 +73,15 @@ PRED_POINTS = 10001
 
 # ------------------------------------------------------------------------------ timing of evaluations
 class EvalTimer:
-    """Wraps ``exact.nlml_and_gradient`` (looked up as a module global by the fit) to time each call.
+    """Wraps ``optimise.nlml_and_gradient`` (looked up as a module global of :mod:`rbgp_cli.gp.optimise` by
+    the fit's objective, :class:`rbgp_cli.gp.optimise.Objective`) to time each call.
 
     Adds one ``perf_counter`` pair per call (~1 µs); records (seconds, feasible) per evaluation.
     """
 
     def __init__(self):
         self.records: list[tuple[float, bool]] = []
-        self._orig = exact.nlml_and_gradient
+        self._orig = optimise.nlml_and_gradient
 
     def __enter__(self):
         orig = self._orig
@@ -86,14 +89,14 @@ class EvalTimer:
         def timed(*a, **kw):
             t0 = time.perf_counter()
             out = orig(*a, **kw)
-            self.records.append((time.perf_counter() - t0, out[0] < exact.INFEASIBLE_NLML))
+            self.records.append((time.perf_counter() - t0, out[0] < likelihood.INFEASIBLE_NLML))
             return out
 
-        exact.nlml_and_gradient = timed
+        optimise.nlml_and_gradient = timed
         return self
 
     def __exit__(self, *exc):
-        exact.nlml_and_gradient = self._orig
+        optimise.nlml_and_gradient = self._orig
 
     @property
     def total(self) -> float:
@@ -115,14 +118,14 @@ def time_one_evaluation(kernel, X, gp, repeats: int) -> float:
     # the same BLAS thread policy as fit_gp (single-threaded BLAS in every fit since issue 11)
     policy = getattr(compute, "blas_threads", None)
     with policy(0) if policy is not None else contextlib.nullcontext():
-        exact.nlml_and_gradient(kernel, pre, calls[0][0], calls[0][1], calls[0][2])  # warm-up
+        likelihood.nlml_and_gradient(kernel, pre, calls[0][0], calls[0][1], calls[0][2])  # warm-up
         times = []
         for r in range(repeats):
             values, y, free = calls[r % len(calls)]
             t0 = time.perf_counter()
-            f, _ = exact.nlml_and_gradient(kernel, pre, values, y, free)
+            f, _ = likelihood.nlml_and_gradient(kernel, pre, values, y, free)
             times.append(time.perf_counter() - t0)
-            if f >= exact.INFEASIBLE_NLML:
+            if f >= likelihood.INFEASIBLE_NLML:
                 raise RuntimeError("the fitted hyperparameters are infeasible: cannot time a typical evaluation")
     return statistics.median(times)
 
@@ -445,7 +448,7 @@ def main(argv=None) -> int:
                 runs = [(key, None, 1)]
                 if not shared and not args.no_workers:
                     runs.append((key + "_w", None, args.workers or compute.default_jobs(Y.shape[1], n)))
-                if key == "po_arc" and n > 2 * exact.SUBSAMPLE_SIZE and not args.no_all_starts:
+                if key == "po_arc" and n > 2 * optimise.SUBSAMPLE_SIZE and not args.no_all_starts:
                     runs.append(("po_arc_all", 0, 1))
                 for key_, explore, jobs in runs:
                     d = r[key_] = bench_ours(X, Y, metric, shared, ev_rep, Xt, Yt_true, explore, jobs)

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rbgp_cli.gp.exact import NOISE
+from rbgp_cli.gp.likelihood import NOISE
 
 #: The factors c_s tried on the subset: 1 to 4096 in steps of √2.
 FACTOR_GRID = tuple(float(2 ** (k / 2)) for k in range(25))

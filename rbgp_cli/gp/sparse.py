@@ -56,7 +56,10 @@ from scipy.linalg import blas, lapack
 
 from rbgp_cli.compute import blas_threads
 from rbgp_cli.errors import RbgpRuntimeError
-from rbgp_cli.gp.exact import BASIN_GAP, INFEASIBLE_NLML, NOISE, OutputFit, _all_noise, _Objective, _smooth_start
+from rbgp_cli.gp.likelihood import INFEASIBLE_NLML, NOISE
+from rbgp_cli.gp.optimise import (BASIN_GAP, EXPLORE_FTOL, POLISH_MAX_EVALS, Objective, all_noise, fd_hessian, fit_one,
+                                  free_spec, polish, random_start, smooth_start)
+from rbgp_cli.gp.results import OutputFit
 from rbgp_cli.kernels.base import Kernel, output_scale
 
 __all__ = [
@@ -621,7 +624,7 @@ def _stage_sizes(n: int, M: int, top: int) -> list[int]:
 
 
 def _minimise(objective, theta0, log_bounds, max_evals, ftol):
-    """L-BFGS-B from theta0 with an infeasible-point penalty as in :mod:`rbgp_cli.gp.exact`; returns
+    """L-BFGS-B from theta0 with an infeasible-point penalty as in :func:`rbgp_cli.gp.optimise.fit_one`; returns
     (θ, f, converged, message)."""
     from scipy.optimize import minimize
 
@@ -646,9 +649,9 @@ def _minimise(objective, theta0, log_bounds, max_evals, ftol):
     return np.array(res.x), f, bool(res.success), str(res.message)
 
 
-class _StageObjective(_Objective):
+class _StageObjective(Objective):
     """−F on one stage's points (``fn(θ) -> (−F, gradient)``) as the exact GP's objective, for
-    :func:`rbgp_cli.gp.exact._polish`: the same counting and memory of the last point."""
+    :func:`rbgp_cli.gp.optimise.polish`: the same counting and memory of the last point."""
 
     def __init__(self, fn, free, log_bounds):
         self.fn, self.free, self.log_bounds = fn, list(free), log_bounds
@@ -665,7 +668,7 @@ def _record(st, free, theta0, f, status, evaluations, kind):
 
 
 def _polish_starts(objective, st, free, log_bounds, hessians, scale, points, cap, count, subset):
-    """The first bound stage from the explored starts, as the exact GP polishes (:func:`exact._polish`):
+    """The first bound stage from the explored starts, as the exact GP polishes (:func:`rbgp_cli.gp.optimise.polish`):
     quasi-Newton steps from each start with its Hessian on the explored subset scaled to the stage
     (``scale`` = stage points / subset points: −F, like the NLML, is a sum over the points). The best
     explored optimum gets POLISH_MAX_EVALS evaluations, every other start RACE_EVALUATIONS (it stops
@@ -677,14 +680,12 @@ def _polish_starts(objective, st, free, log_bounds, hessians, scale, points, cap
     explored optima lead to), on a random subset (large n, where it would cost most) only where the best
     optimum so far explains less than the noise (σf < σn, the all-noise basin). Returns (θ, −F) of the
     best, or None."""
-    from rbgp_cli.gp.exact import POLISH_MAX_EVALS, _polish
-
     obj = _StageObjective(objective, free, log_bounds)
     atol = SUBSET_ATOL if subset else None
     polished, best = [], None
     where = f"(bound, {points} points)"
     for i, (theta0, kind, H) in enumerate(zip(st["theta"], st["kinds"], hessians)):
-        if kind == "smooth start" and subset and best is not None and not _all_noise(free, best[0]):
+        if kind == "smooth start" and subset and best is not None and not all_noise(free, best[0]):
             _record(st, free, theta0, float("nan"), "not tried: on a subset, and the best optimum has σf ≥ σn", 0,
                     f"{kind} {where}")
             continue
@@ -700,7 +701,7 @@ def _polish_starts(objective, st, free, log_bounds, hessians, scale, points, cap
                                         STAGE_FTOL)
             res = {"theta": th, "nlml": f, "status": msg, "start": theta0}
         else:
-            res = _polish(obj, theta0, H * scale, points, polished, max_evals=budget, atol=atol)
+            res = polish(obj, theta0, H * scale, points, polished, max_evals=budget, atol=atol)
         th, f, status = res["theta"], res["nlml"], res["status"]
         method = "L-BFGS-B" if lbfgs else "polish"
         _record(st, free, res["start"], f, status, count[0] - ev0, f"{kind}, {method} {where}")
@@ -835,7 +836,6 @@ def fit_sparse_gp(
     kernel) keep nothing of size n × M; others keep one stage's pairwise arrays (n × M each). Same data,
     options and seed → the same inducing inputs and bit-identical hyperparameters.
     """
-    from rbgp_cli.gp.exact import EXPLORE_FTOL, _fd_hessian, _fit_one, _free_spec
     from rbgp_cli.progress import as_progress
 
     X = np.ascontiguousarray(np.asarray(X, dtype=np.float64))
@@ -871,7 +871,7 @@ def fit_sparse_gp(
         scale = None
         targets = [(Y[:, l], f"output {l}") for l in range(L)]
         rngs = [np.random.default_rng(s) for s in ss.spawn(L)]
-    specs = [_free_spec(kernel, pre_sub, y, noise, fixed, bounds) for y, _ in targets]
+    specs = [free_spec(kernel, pre_sub, y, noise, fixed, bounds) for y, _ in targets]
     progress(f"sparse GP: {M} inducing poses ({inducing_method}) for {n} points")
     if hyper_points is None:
         top = max(HYPER_FACTOR * M, HYPER_MIN_POINTS) if hyper == "bound" else HYPER_MIN_POINTS
@@ -910,8 +910,8 @@ def fit_sparse_gp(
                     count[0] += 1
                     task.update(status=f"{label}: exploring, {count[0]} evaluations on {len(idx)} points")
 
-                _b, recs, counter, _v, optima = _fit_one(kernel, pre_e, y[idx], spec, free, restarts, rng, max_iter,
-                                                         ftol=EXPLORE_FTOL, on_evaluation=tick)
+                _b, recs, counter, _v, optima = fit_one(kernel, pre_e, y[idx], spec, free, restarts, rng, max_iter,
+                                                        ftol=EXPLORE_FTOL, on_evaluation=tick)
                 ok = sorted((o for o in optima if o is not None), key=lambda o: o[1])
                 if ok:
                     # every distinct basin within BASIN_GAP of the best goes on to the bound on more points
@@ -923,13 +923,13 @@ def fit_sparse_gp(
                             keep.append(o)
                     st["theta"] = [o[0] for o in keep]
                     st["kinds"] = ["best explored optimum"] + ["another explored basin"] * (len(keep) - 1)
-                    smooth = _smooth_start(spec, free)
+                    smooth = smooth_start(spec, free)
                     if smooth is not None:
                         st["theta"].append(smooth)
                         st["kinds"].append("smooth start")
                     # each start's Hessian on the subset, for the quasi-Newton polish of the first bound stage
-                    obj_e = _Objective(kernel, pre_e, y[idx], spec, free, on_evaluation=tick)
-                    st["hessians"] = [_fd_hessian(obj_e, th) for th in st["theta"]]
+                    obj_e = Objective(kernel, pre_e, y[idx], spec, free, on_evaluation=tick)
+                    st["hessians"] = [fd_hessian(obj_e, th) for th in st["theta"]]
                     st["hessian_points"] = len(idx)
                     counter = {key: counter[key] + obj_e.counter[key] for key in counter}
                 st["records"] += [{**r, "kind": r["kind"] + f" (exact NLML, {len(idx)} points)"} for r in recs]
@@ -940,9 +940,7 @@ def fit_sparse_gp(
                 task.advance()
         else:
             for (y, label), (spec, free), rng, st in zip(targets, specs, rngs, state):
-                from rbgp_cli.gp.exact import _random_start
-
-                st["theta"] += [_random_start(spec, free, rng) for _ in range(restarts - 1)]
+                st["theta"] += [random_start(spec, free, rng) for _ in range(restarts - 1)]
                 st["kinds"] += ["random"] * (restarts - 1)
         # 2. the bound on growing subsets, the last one all points
         blocks = None

@@ -403,7 +403,8 @@ def load_model(path):
     """Load and verify a model file; returns a :class:`~rbgp_cli.dynamics.model.MotionModel`."""
     from rbgp_cli.dynamics.model import MotionModel
     from rbgp_cli.dynamics.representations import representation_from_dict
-    from rbgp_cli.gp.exact import GaussianProcess, OutputFit
+    from rbgp_cli.gp.exact import GaussianProcess
+    from rbgp_cli.gp.results import OutputFit
     from rbgp_cli.gp.sparse import SparseGP, SparseOutputFit
     from rbgp_cli.kernels import kernel_from_dict
 

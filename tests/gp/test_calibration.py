@@ -14,7 +14,8 @@ from rbgp_cli.gp.calibration import (
     demonstration_noise_factors,
     scale_noise,
 )
-from rbgp_cli.gp.exact import GaussianProcess, OutputFit, fit_gp
+from rbgp_cli.gp.exact import GaussianProcess, fit_gp
+from rbgp_cli.gp.results import OutputFit
 from rbgp_cli.gp.sparse import SparseGP, fit_sparse_gp
 from rbgp_cli.kernels import SquaredExponential
 

@@ -19,8 +19,9 @@ from rbgp_cli.compute import blas_threads, default_jobs, usable_cores
 from rbgp_cli.dynamics.model import MotionModel
 from rbgp_cli.dynamics.rollout import rollout, starts_near
 from rbgp_cli.errors import RbgpRuntimeError
-from rbgp_cli.gp import exact
-from rbgp_cli.gp.exact import INFEASIBLE_NLML, GaussianProcess, fit_gp
+from rbgp_cli.gp import optimise
+from rbgp_cli.gp.exact import GaussianProcess, fit_gp
+from rbgp_cli.gp.likelihood import INFEASIBLE_NLML
 from rbgp_cli.kernels import Kernel, SquaredExponential
 from tests.gp.test_gp import poses, smooth_outputs
 
@@ -64,15 +65,15 @@ def _check_polished(gp, kernel, X, Y):
             continue
         y = Y / gp.y_scale if gp.shared else Y[:, l]
         free = [nm for nm in fit.free if nm not in fit.at_bounds]
-        spec, _ = exact._free_spec(kernel, pre, y, None, None, None)
-        obj = exact._Objective(kernel, pre, y, spec, free)
+        spec, _ = optimise.free_spec(kernel, pre, y, None, None, None)
+        obj = optimise.Objective(kernel, pre, y, spec, free)
         theta = np.log([fit.values[nm] for nm in free])
         obj.fixed_values.update({nm: fit.values[nm] for nm in fit.values if nm not in free})
         f, g = obj(theta)
-        H = exact._fd_hessian(obj, theta)
+        H = optimise.fd_hessian(obj, theta)
         assert H is not None and np.all(np.linalg.eigvalsh(H) > 0), (l, H)
         decrease = 0.5 * g @ np.linalg.solve(H, g)
-        assert decrease < 10 * exact.POLISH_RTOL * max(abs(f), len(X)), (l, decrease, f)
+        assert decrease < 10 * optimise.POLISH_RTOL * max(abs(f), len(X)), (l, decrease, f)
 
 
 def test_an_optimum_is_a_point_that_was_evaluated_feasible(monkeypatch):
@@ -93,7 +94,7 @@ def test_an_optimum_is_a_point_that_was_evaluated_feasible(monkeypatch):
         feasible.append(t)
         return -10.0 * t, np.array([-10.0 if nm == "length_scale" else 0.0 for nm in names])
 
-    monkeypatch.setattr(exact, "nlml_and_gradient", toy)
+    monkeypatch.setattr(optimise, "nlml_and_gradient", toy)  # the objective looks it up there
     gp = fit_gp(X, y, kernel, noise=0.1, fixed={"signal_std": 1.0}, restarts=1)
     fit = gp.fits[0]
     t = math.log(fit.values["length_scale"]) - t0

@@ -9,7 +9,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from rbgp_cli.errors import RbgpRuntimeError
-from rbgp_cli.gp.exact import INFEASIBLE_NLML, GaussianProcess, OutputFit, fit_gp, nlml_and_gradient
+from rbgp_cli.gp.exact import GaussianProcess, fit_gp
+from rbgp_cli.gp.likelihood import INFEASIBLE_NLML, nlml_and_gradient
+from rbgp_cli.gp.results import OutputFit
 from rbgp_cli.kernels import DotProduct, SquaredExponential
 
 
@@ -230,7 +232,7 @@ def test_indefinite_kernel_fit_never_explodes_away_from_the_data():
     """Regression: 80 uniformly random rotations, the paper's arc kernel, per-output fits. Cholesky and
     rcond passed but λ_min(K + σn²I) was ~1e-12 σf²: held-out RMSE 25–320 instead of ~0.1. The noise
     margin (λ_min >= NOISE_MARGIN σn², refit when missed) keeps every output bounded."""
-    from rbgp_cli.gp.exact import NOISE_MARGIN
+    from rbgp_cli.gp.likelihood import NOISE_MARGIN
 
     def data(n, seed):
         rng = np.random.default_rng(seed)
@@ -288,12 +290,12 @@ def test_subsample_exploration_reaches_the_optimum_of_full_size_restarts(shared)
 def test_subsample_exploration_polishes_each_new_basin(monkeypatch):
     """Every basin the starts reached on the subsample is polished on all points, best first (one
     polish per basin, even from far away); the best result is kept."""
-    import rbgp_cli.gp.exact as exact
+    import rbgp_cli.gp.optimise as optimise
 
     X = poses(200, 22)
     Y = smooth_outputs(X, np.random.default_rng(22))[:, :1]
     kernel = SquaredExponential("chordal", 3, 0.7)
-    real_fit_one = exact._fit_one
+    real_fit_one = optimise.fit_one
     # per start (data-driven, random, random, random): the third is the data-driven basin again,
     # the second and fourth are one new basin (0.05 apart < DISTINCT_LOG)
     fake = [np.log([0.5, 0.8, 0.1]), np.log([0.3, 3.0, 0.05]), np.log([0.5, 0.8, 0.1]) + 0.05,
@@ -307,7 +309,7 @@ def test_subsample_exploration_polishes_each_new_basin(monkeypatch):
             return best, records, counter, values_of, [(t, float(i)) for i, t in enumerate(fake)]
         return real_fit_one(kernel_, pre, y, spec, free, restarts, rng, max_iter, margin, theta_starts, kinds, **kw)
 
-    monkeypatch.setattr(exact, "_fit_one", fit_one)
+    monkeypatch.setattr(optimise, "fit_one", fit_one)  # looked up there by fit_target
     gp = fit_gp(X, Y, kernel, restarts=4, seed=0, explore_size=60)
     full_runs = [s for s in gp.fits[0].starts if "all points" in s["kind"]]
     assert [s["kind"] for s in full_runs] == ["polish (all points)", "polish (all points)"]

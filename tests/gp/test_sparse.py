@@ -10,7 +10,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from rbgp_cli.errors import RbgpRuntimeError
-from rbgp_cli.gp.exact import GaussianProcess, OutputFit, fit_gp, nlml_and_gradient
+from rbgp_cli.gp.exact import GaussianProcess, fit_gp
+from rbgp_cli.gp.likelihood import nlml_and_gradient
+from rbgp_cli.gp.results import OutputFit
 from rbgp_cli.gp.sparse import (
     RowBlocks,
     SparseGP,
