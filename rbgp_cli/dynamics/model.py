@@ -17,7 +17,8 @@ from rbgp_cli.dynamics.defaults import DEFAULT_KERNELS, DEFAULTS
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.dynamics.velocities import VelocityOptions, estimate_velocities, integration_drift, window_problem
 from rbgp_cli.errors import InputError, warn
-from rbgp_cli.gp.exact import GaussianProcess, fit_gp
+from rbgp_cli.gp.exact import fit_gp
+from rbgp_cli.gp.posterior import Posterior
 from rbgp_cli.kernels import DotProduct, Kernel, SquaredExponential
 
 __all__ = ["MotionModel", "make_kernel", "training_set", "train_model", "choose_gp", "KERNELS", "DEFAULTS", "default_velocity"]
@@ -59,7 +60,8 @@ class MotionModel:
     """Everything needed to predict and to say how it was made.
 
     representation : how poses become GP inputs and outputs integrate back
-    gp : the fitted GP (inputs X (n, d), outputs Y (n, L))
+    gp : the fitted GP, exact or sparse (a :class:`~rbgp_cli.gp.posterior.Posterior`): inputs X (n, d),
+        outputs Y (n, L)
     dt : the training step, seconds (default rollout step): 1/rate when velocities were estimated on a
         resampled grid, else the demonstrations' median time step
     starts : demonstrations' start poses, shape (D, 7) = (qx, qy, qz, qw, x, y, z)
@@ -81,7 +83,7 @@ class MotionModel:
     """
 
     representation: Representation
-    gp: GaussianProcess
+    gp: Posterior
     dt: float
     starts: np.ndarray
     durations: np.ndarray
@@ -441,7 +443,7 @@ def training_set(trajs: list[Trajectory], representation: Representation, *, sub
 SPARSE_ABOVE = 3000
 
 
-def _keep_sparse_if_no_worse(gp, gp_choice: dict, info: dict, seed: int, progress):
+def _keep_sparse_if_no_worse(gp, gp_choice: dict, info: dict, seed: int, progress) -> tuple[Posterior, dict]:
     """The automatic choice's check (issue 21): the sparse GP on all points is kept only where, on
     demonstrations left out (:func:`rbgp_cli.gp.selection.held_out_comparison`), it predicts no worse
     than the exact GP on the subset that chose its hyperparameters; otherwise that exact GP is the model."""

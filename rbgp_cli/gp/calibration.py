@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from rbgp_cli.gp.likelihood import NOISE
+from rbgp_cli.gp.posterior import Posterior
 
 #: The factors c_s tried on the subset: 1 to 4096 in steps of √2.
 FACTOR_GRID = tuple(float(2 ** (k / 2)) for k in range(25))
@@ -37,7 +38,7 @@ CALIBRATION_POINTS = 1000
 CALIBRATION_FOLDS = 5
 
 
-def demonstration_noise_factors(gp, groups: np.ndarray, *, points: int = CALIBRATION_POINTS,
+def demonstration_noise_factors(gp: Posterior, groups: np.ndarray, *, points: int = CALIBRATION_POINTS,
                                 folds: int = CALIBRATION_FOLDS, seed: int = 0,
                                 grid: tuple = FACTOR_GRID) -> list[dict] | None:
     """Per fitted hyperparameter set, the factor c ≥ 1 on σn² that predicts held-out demonstrations best.
@@ -90,7 +91,8 @@ def demonstration_noise_factors(gp, groups: np.ndarray, *, points: int = CALIBRA
     return out
 
 
-def calibrate_to_demonstrations(gp, groups: np.ndarray, *, seed: int = 0, points: int = CALIBRATION_POINTS):
+def calibrate_to_demonstrations(gp: Posterior, groups: np.ndarray, *, seed: int = 0,
+                                points: int = CALIBRATION_POINTS) -> tuple[Posterior, list[dict] | None]:
     """The fitted GP (exact or sparse) with σn² of each hyperparameter set scaled by its factor c
     (:func:`demonstration_noise_factors`) for the posterior; the hyperparameters found by the fit are
     kept in each fit's ``calibration`` record. Returns (gp, records); the GP unchanged and None when
@@ -108,7 +110,7 @@ def calibrate_to_demonstrations(gp, groups: np.ndarray, *, seed: int = 0, points
     return _with_fits(gp, fits), [f.calibration for f in fits]
 
 
-def scale_noise(gp, factor: float):
+def scale_noise(gp: Posterior, factor: float) -> Posterior:
     """The fitted GP (exact or sparse) with σn² of every hyperparameter set multiplied by ``factor`` > 0
     for the posterior (the hyperparameters otherwise kept); each fit's ``calibration`` record keeps it
     as ``extra_factor`` (a record with ``factor`` 1 and the fitted σn is made where there was none). ``factor`` 1 returns ``gp`` itself. Costs one
@@ -129,7 +131,7 @@ def scale_noise(gp, factor: float):
     return _with_fits(gp, fits)
 
 
-def _with_fits(gp, fits):
+def _with_fits(gp: Posterior, fits: list) -> Posterior:
     """A GP of the same kind and data as ``gp`` with the hyperparameter records ``fits``."""
     if getattr(gp, "sparse", False):
         from rbgp_cli.gp.sparse import SparseGP
