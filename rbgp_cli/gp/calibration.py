@@ -69,7 +69,7 @@ def demonstration_noise_factors(gp: Posterior, groups: np.ndarray, *, points: in
     pre = gp.kernel.precompute(X[idx])
     c_grid = np.asarray(grid, dtype=np.float64)
     out = []
-    for fit, outs in gp._group_outputs():
+    for fit, outs in gp.group_outputs():
         K, _ = gp.kernel.gram(pre, fit.values)
         s2 = float(fit.values[NOISE]) ** 2
         jitter = float(fit.jitter)  # the exact posterior's K + (σn² + jitter) I (0 for a sparse GP)

@@ -96,7 +96,8 @@ class GaussianProcess:
     def n_outputs(self) -> int:
         return self.Y.shape[1]
 
-    def _group_outputs(self):
+    def group_outputs(self):
+        """``[(fit, outputs)]``: each fit with the output columns it serves (the Posterior protocol)."""
         if self.shared:
             return [(self.fits[0], list(range(self.n_outputs)))]
         return [(f, [l]) for l, f in enumerate(self.fits)]
@@ -106,7 +107,7 @@ class GaussianProcess:
         pre = self.kernel.precompute(self.X)
         self._L = []
         self._alpha = []
-        for fit, outs in self._group_outputs():
+        for fit, outs in self.group_outputs():
             K, _ = self.kernel.gram(pre, fit.values)
             s2 = fit.values[NOISE] ** 2
             c = cholesky(K, s2, fit.jitter)
@@ -186,7 +187,7 @@ class GaussianProcess:
         """Mean (and std) of query rows a:b into ``mean`` / ``std``; returns how many variances were clipped."""
         Xc = Xs[a:b]
         plan = self._cross_plan()
-        groups = self._group_outputs()
+        groups = self.group_outputs()
         # the pairwise distances once for all groups; with one group, distances and kernel fused
         pre = self.kernel.cross_precompute(plan, Xc) if len(groups) > 1 else None
         clipped = 0

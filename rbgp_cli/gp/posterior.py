@@ -41,6 +41,11 @@ class Posterior(Protocol):
         """L, the number of outputs."""
         ...
 
+    def group_outputs(self) -> list:
+        """``[(fit, outputs)]``: each set of hyperparameters with the output columns it serves (one
+        pair per output, or one for all of them when ``shared``)."""
+        ...
+
     def predict(self, Xs, return_std: bool = False, noisy: bool = False, chunk_elements: int = 2_000_000,
                 manage_threads: bool = True):
         """Predictive mean at query inputs Xs (m, d), shape (m, L), and with ``return_std`` also the

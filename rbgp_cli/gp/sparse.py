@@ -472,7 +472,8 @@ class SparseGP:
     def n_inducing(self) -> int:
         return len(self.Z)
 
-    def _group_outputs(self):
+    def group_outputs(self):
+        """``[(fit, outputs)]``: each fit with the output columns it serves (the Posterior protocol)."""
         if self.shared:
             return [(self.fits[0], list(range(self.n_outputs)))]
         return [(f, [l]) for l, f in enumerate(self.fits)]
@@ -492,7 +493,7 @@ class SparseGP:
         self._Lm, self._LB, self._w, self.stats = [], [], [], []
         bad = RbgpRuntimeError("the stored hyperparameters, inducing poses and posterior factors disagree",
                                hint="refit the model (rbgp train)")
-        for g, (fit, outs) in enumerate(self._group_outputs()):
+        for g, (fit, outs) in enumerate(self.group_outputs()):
             s = fit.values[NOISE] ** 2
             Kmm, _ = self.kernel.gram(pre_mm, fit.values)
             j = float(getattr(fit, "kmm_jitter", JITTER)) * float(np.mean(np.diagonal(Kmm)))
@@ -552,7 +553,7 @@ class SparseGP:
         for a in range(0, m, step):
             Xc = Xs[a:a + step]
             pre = self.kernel.precompute(Xc, self.Z)
-            for (fit, outs), Lm, LB, w in zip(self._group_outputs(), self._Lm, self._LB, self._w):
+            for (fit, outs), Lm, LB, w in zip(self.group_outputs(), self._Lm, self._LB, self._w):
                 Ks, _ = self.kernel.gram(pre, fit.values)  # (mc, M)
                 scale = self.y_scale[outs]
                 mean[a:a + step, outs] = (Ks @ w) * scale

@@ -51,7 +51,7 @@ def test_something_without_the_members_is_not_a_posterior(gps):
     assert not isinstance(MeanOnly(), Posterior)
 
 
-@pytest.mark.parametrize("name", ["predict", "predict_mean"])
+@pytest.mark.parametrize("name", ["predict", "predict_mean", "group_outputs"])
 def test_the_predict_methods_take_the_protocols_arguments(name):
     """runtime_checkable only checks that the members exist: the signatures are compared here."""
     want = inspect.signature(getattr(Posterior, name)).parameters
@@ -84,3 +84,11 @@ def test_the_motion_model_holds_a_posterior():
     from rbgp_cli.dynamics.model import MotionModel
 
     assert typing.get_type_hints(MotionModel)["gp"] is Posterior
+
+
+def test_group_outputs_cover_every_output_once(gps):
+    _X, Y, exact, sparse = gps
+    for gp in (exact, sparse):
+        groups = gp.group_outputs()
+        assert sorted(o for _fit, outs in groups for o in outs) == list(range(Y.shape[1]))
+        assert [fit for fit, _outs in groups] == list(gp.fits)
