@@ -491,7 +491,8 @@ class RigidBodyGP:
         ----------
         poses : (n, 7) ``(qx, qy, qz, qw, x, y, z)``, a pair (quat, position), or a Trajectory (all its poses)
         tau : (n,) the time since the start (seconds, or the phase t/D of a phase model); needed by a
-            model with a time input. For a Trajectory it defaults to its own time (or phase).
+            model with a time input. For a Trajectory it defaults to its own time (or phase), and a
+            start-conditioned model follows the path from the trajectory's first pose.
         return_std : also return the predictive std (False, as scikit-learn)
         noisy : the std of a new noisy observation instead of the latent function's
 
@@ -502,9 +503,10 @@ class RigidBodyGP:
         from rbgp_cli.dynamics.trajectory import Trajectory
 
         m = self._check()
-        scale = 1.0
+        scale, first = 1.0, None
         if isinstance(poses, Trajectory):
             q, p = poses.quat, poses.position
+            first = (q[0], p[0])  # a start-conditioned prior follows the path from its own start
             if tau is None and m.time_input:
                 tau = poses.t - poses.t[0]
                 if m.time_input == "phase":
@@ -512,7 +514,7 @@ class RigidBodyGP:
                     tau = tau / scale
         else:
             q, p = start_poses(poses)
-        mean, std = m.predict(q, p, return_std=True, noisy=noisy, tau=tau)
+        mean, std = m.predict(q, p, return_std=True, noisy=noisy, tau=tau, start=first)
         return (mean / scale, std / scale) if return_std else mean / scale
 
     def rollout(self, start, *, duration: float | None = None, steps: int | None = None, dt: float | None = None,

@@ -233,7 +233,8 @@ def predict_file(model, path, options: ReadOptions | None = None, noisy: bool = 
         tau = tr.t - tr.t[0]
         scale = max(tr.duration, 1e-12) if model.time_input == "phase" else 1.0
         mean, std = model.predict(tr.quat, tr.position, return_std=True, noisy=noisy,
-                                  tau=tau / scale if model.time_input == "phase" else tau)
+                                  tau=tau / scale if model.time_input == "phase" else tau,
+                                  start=(tr.quat[0], tr.position[0]))
         ts.append(tr.t)
         qs.append(tr.quat)
         ps.append(tr.position)

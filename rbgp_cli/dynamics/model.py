@@ -186,9 +186,13 @@ class MotionModel:
             return out[0] + m, out[1]
         return out + m
 
-    def predict(self, quat, position, return_std: bool = True, noisy: bool = False, tau=None):
+    def predict(self, quat, position, return_std: bool = True, noisy: bool = False, tau=None, start=None):
         """Output mean and std at poses (quat (m, 4) x, y, z, w; position (m, 3)); ``tau`` (m,) the
-        time since the start (seconds or phase, as the model was trained) for models with a time input."""
+        time since the start (seconds or phase, as the model was trained) for models with a time input.
+
+        ``start``: the pose (quat (4,) or (m, 4), position (3,) or (m, 3)) at which the motion through
+        these poses started. A start-conditioned prior (docs/method.md §7) is then the path from that
+        start, as in a rollout from it; without it, the mean path itself (a typical start)."""
         X = self.representation.state_from_pose(np.asarray(quat, float).reshape(-1, 4), np.asarray(position, float).reshape(-1, 3))
         if self.time_input:
             if tau is None:
@@ -196,7 +200,12 @@ class MotionModel:
                                  "as an input", hint="give a time column with the poses")
             X = np.concatenate([X, np.asarray(tau, float).reshape(-1, 1)], axis=1)
         mean, std = self.gp.predict(X, return_std=True, noisy=noisy)
-        m = self.prior_mean(X)
+        dev = None
+        if start is not None:
+            dev = self.start_deviation(np.asarray(start[0], float).reshape(-1, 4), np.asarray(start[1], float).reshape(-1, 3))
+            if dev is not None:
+                dev = np.broadcast_to(dev, (len(X), 6))
+        m = self.prior_mean(X, dev)
         if m is not None:
             mean = mean + m
         return (mean, std) if return_std else mean

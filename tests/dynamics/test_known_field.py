@@ -57,9 +57,12 @@ def relative_rmse(model, unseen, count=300):
     q = np.concatenate([d.quat for d in unseen])
     p = np.concatenate([d.position for d in unseen])
     tau = np.concatenate([(d.t - d.t[0]) / (d.duration if model.time_input == "phase" else 1.0) for d in unseen])
+    # each pose's own demonstration's start (a start-conditioned prior follows the path from it)
+    q0 = np.concatenate([np.repeat(d.quat[:1], len(d.t), axis=0) for d in unseen])
+    p0 = np.concatenate([np.repeat(d.position[:1], len(d.t), axis=0) for d in unseen])
     pick = np.linspace(0, len(q) - 1, count).astype(int)
-    q, p, tau = q[pick], p[pick], tau[pick]
-    out = model.predict(q, p, return_std=False, tau=tau if model.time_input else None)
+    q, p, tau, q0, p0 = q[pick], p[pick], tau[pick], q0[pick], p0[pick]
+    out = model.predict(q, p, return_std=False, tau=tau if model.time_input else None, start=(q0, p0))
     if model.time_input == "phase":
         out = out / unseen[0].duration  # outputs per unit phase -> per second (all last 3 s)
     X = model.representation.state_from_pose(q, p)

@@ -170,3 +170,25 @@ def test_a_start_that_tells_nothing_leaves_the_mean_path():
     assert chosen.count(float("inf")) >= 3
     out = start_map(np.random.default_rng(0).normal(size=(30, 21, 6)) * np.linspace(0.2, 1.0, 21)[None, :, None])
     assert out["ridge"] == float("inf") and np.all(out["map"] == 0.0)
+
+
+def test_predict_given_the_start_uses_the_path_from_that_start_as_a_rollout_does(demos):
+    """MotionModel.predict(..., start=) : the prior of a start-conditioned model is the path from the
+    given start (the one the GP's residual was trained against, and the one a rollout follows);
+    without it, the mean path. The velocities differ where the start is not typical."""
+    train, unseen = demos
+    model = train_model(train, start_conditioning=True, **FAST)
+    d = unseen[0]
+    tau = (d.t - d.t[0]) / d.duration
+    X = np.concatenate([model.representation.state_from_pose(d.quat, d.position), tau[:, None]], axis=1)
+    dev = model.start_deviation(d.quat[:1], d.position[:1])
+    assert np.abs(dev).max() > 1e-3  # this start is not the mean start
+    want = model.predict_output(X, start_dev=np.broadcast_to(dev, (len(X), 6)))
+    got = model.predict(d.quat, d.position, return_std=False, tau=tau, start=(d.quat[0], d.position[0]))
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+    typical = model.predict(d.quat, d.position, return_std=False, tau=tau)
+    np.testing.assert_allclose(typical, model.predict_output(X), rtol=1e-12, atol=1e-12)
+    assert np.abs(got - typical).max() > 1e-3
+    plain = train_model(train, start_conditioning=False, **FAST)  # no conditioning: the start changes nothing
+    np.testing.assert_array_equal(plain.predict(d.quat, d.position, return_std=False, tau=tau, start=(d.quat[0], d.position[0])),
+                                  plain.predict(d.quat, d.position, return_std=False, tau=tau))
