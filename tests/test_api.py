@@ -96,6 +96,7 @@ def test_save_load_matches_cli_model(gp, demos, tmp_path):
     np.testing.assert_array_equal(gp.rollout(demos[0], steps=5).quat, cli.rollout(demos[0], steps=5).quat)
 
 
+@pytest.mark.slow
 def test_crossval_result(demos):
     cv = rbgp.crossval(demos, rbgp.RigidBodyGP(**FAST_KW), folds=3, samples=0, jobs=1)
     f = cv.to_frame()
@@ -139,6 +140,7 @@ def test_as_flags_maps_param_and_underscored_names_only():
     assert as_flags(InputError("steps are many"), flags) == "steps are many"  # not the parameter: left alone
 
 
+@pytest.mark.slow
 def test_docs_example_runs(capsys):
     ns = runpy.run_path(str(REPO / "docs" / "examples" / "python_api.py"), run_name="example")
     out = ns["main"]()
@@ -154,6 +156,7 @@ def test_docs_example_runs(capsys):
     assert out["mean"].shape == out["std"].shape == (len(out["demos"][0]), 6)
 
 
+@pytest.mark.slow
 def test_docstring_examples_run():
     import doctest
 
@@ -163,6 +166,7 @@ def test_docstring_examples_run():
     assert res.attempted >= 9 and res.failed == 0
 
 
+@pytest.mark.slow
 def test_readme_python_section_runs(tmp_path):
     """The README's "Python" section: its code runs as shown (with this checkout's package)."""
     import os

@@ -37,6 +37,7 @@ def test_in_process_keeps_order_and_reports_each_result():
     assert run_tasks(_square, [], jobs=4) == []
 
 
+@pytest.mark.slow
 def test_unknown_scheduler_address_is_an_input_error(monkeypatch):
     pytest.importorskip("distributed")
     monkeypatch.setattr("rbgp_cli.compute.CONNECT_TIMEOUT", "1s")
@@ -80,6 +81,7 @@ def _assert_same(a, b, path="result"):
         assert a == b, path
 
 
+@pytest.mark.slow
 def test_crossval_on_a_local_dask_cluster_matches_in_process(demos):
     pytest.importorskip("distributed")
     from rbgp_cli.evaluation.crossval import REPLAY, Config, crossval
@@ -96,6 +98,7 @@ def test_crossval_on_a_local_dask_cluster_matches_in_process(demos):
     assert sum(", fold " in m for m in messages) == 6  # one message per finished fit
 
 
+@pytest.mark.slow
 def test_a_running_cluster_by_address_single_threaded_blas_and_failures():
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
@@ -106,6 +109,7 @@ def test_a_running_cluster_by_address_single_threaded_blas_and_failures():
             run_tasks(_fail, [1, 2, 3], scheduler=address)
 
 
+@pytest.mark.slow
 def test_crossval_command_passes_scheduler_and_inducing(monkeypatch):
     """The command line hands --scheduler to the executor (an unreachable one is a one-line input
     error) and --inducing to every fold's training."""
@@ -137,6 +141,7 @@ def _die_once(marker):
     return "done"
 
 
+@pytest.mark.slow
 def test_a_lost_local_worker_is_retried_once_then_named():
     """Before: the generic ``internal error: BrokenProcessPool`` at the first lost worker."""
     import tempfile
@@ -158,6 +163,7 @@ def _sleep(seconds):
     return seconds
 
 
+@pytest.mark.slow
 def test_a_dask_study_with_no_worker_left_fails_within_the_timeout(monkeypatch):
     """Before: with every worker gone the study waited forever, with no output."""
     distributed = pytest.importorskip("distributed")

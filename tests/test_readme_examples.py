@@ -430,6 +430,7 @@ def test_a_line_that_only_installs_installs_an_extra_of_this_project():
 @pytest.mark.slow
 @pytest.mark.parametrize("line", [e for e in EXAMPLES if not runs_tests(e) and not only_installs(e)],
                          ids=lambda e: " ".join(e.split()[:4])[:60])
+@pytest.mark.slow
 def test_readme_example_runs(line, workdir, small_model):
     command = runnable(line, workdir, small_model)
     assert command, line

@@ -125,6 +125,7 @@ def test_theorem_part_finds_the_counterexample_and_a_psd_chordal_kernel():
 
 
 # ------------------------------------------------------------------------------------------ starts
+@pytest.mark.slow
 def test_paper_start_is_uniform_0_3_and_independent_of_the_output_order():
     rng = np.random.default_rng(3)
     f = P.RandomDynamics.draw(rng)(rotvec_from_quat(random_quat(rng, 60)))
@@ -148,6 +149,7 @@ def test_paper_start_is_uniform_0_3_and_independent_of_the_output_order():
 
 
 # ------------------------------------------------------------------------------------------ statistics
+@pytest.mark.slow
 def test_paired_ratio_counts_and_tests():
     b = np.linspace(1.0, 2.0, 12)
     a = 0.5 * b
@@ -172,6 +174,7 @@ def _table_rows(md: str, header_start: str) -> list[list[str]]:
     return rows
 
 
+@pytest.mark.slow
 def test_quick_run_json_and_markdown(tmp_path):
     md_path = tmp_path / "paper.md"
     res = runner.invoke(app, ["bench", "paper", "--quick", "--json", "--markdown", str(md_path)], catch_exceptions=False)
@@ -201,6 +204,7 @@ def test_quick_run_json_and_markdown(tmp_path):
     assert "BLAS single-threaded" in md and d["settings"]["command"] in md
 
 
+@pytest.mark.slow
 def test_a_part_alone_gives_the_numbers_of_the_full_run():
     full = P.run_paper_bench(("theorem", "accuracy"), repeats=1, seed=4, quick=True)
     res = runner.invoke(app, ["bench", "paper", "accuracy", "--repeats", "1", "--seed", "4", "--json"], catch_exceptions=False)
@@ -220,6 +224,7 @@ def test_text_output_and_bad_part():
     assert bad.stderr.strip().startswith("rbgp: error: unknown part 'everything'")
 
 
+@pytest.mark.slow
 def test_bench_help_imports_nothing_heavy():
     import subprocess
     import sys

@@ -25,6 +25,7 @@ def run(*args):
 
 
 @pytest.mark.parametrize("gp", ["exact", "sparse"])
+@pytest.mark.slow
 def test_train_calibrate_noise_scales_the_posterior_noise_and_the_model_file_says_how(tmp_path, gp):
     path = tmp_path / "m.rbgp"
     extra = ["--inducing", "48"] if gp == "sparse" else []
@@ -59,6 +60,7 @@ def test_train_calibrate_noise_scales_the_posterior_noise_and_the_model_file_say
     assert plain["gp"].get("calibration") is None and plain["outputs"][0]["calibration"] is None
 
 
+@pytest.mark.slow
 def test_crossval_takes_the_option():
     res = run("crossval", CSV_DIR, "--folds", "3", *FAST, "--representation", "axis-angle", "--calibrate-noise", "--no-peers", "--json")
     assert res.exit_code == 0, res.stderr
@@ -66,6 +68,7 @@ def test_crossval_takes_the_option():
     assert any(r.get("velocity_rmse") is not None and np.isfinite(r["score"]) for r in rows)
 
 
+@pytest.mark.slow
 def test_train_noise_scale_multiplies_the_calibrated_noise_and_the_model_file_keeps_it(tmp_path):
     res = run("train", CSV_DIR, "-o", tmp_path / "a.rbgp", *FAST, "--json")
     base = json.loads(res.stdout)["outputs"][0]

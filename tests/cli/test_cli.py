@@ -164,6 +164,7 @@ def test_evaluate_against_one_demonstration_refuses_and_one_rollout_warns(model,
     assert d["reliable"] is False and any("needs at least 7 generated" in w for w in d["warnings"])
 
 
+@pytest.mark.slow
 def test_real_subprocess_pipe_rollout_into_evaluate(model):
     """stdout carries only data: rollout -o - | evaluate - works through a real (non-seekable) pipe."""
     env = dict(os.environ, PYTHONWARNINGS="ignore")
@@ -187,6 +188,7 @@ def test_inspect_csv_and_mcap():
     assert res.exit_code == 0 and "/shoe/trial_07/pose" in res.stdout
 
 
+@pytest.mark.slow
 def test_a_folder_with_a_licence_and_a_readme_trains(tmp_path):
     """The issue's data/ folder: takes plus the dataset's LICENSE.txt and README.md. Every command that
     takes a folder reads the takes and says once what it skipped; the LICENSE named alone is an error."""
@@ -214,6 +216,7 @@ def test_a_folder_with_a_licence_and_a_readme_trains(tmp_path):
     assert_one_line_error(run("train", data / "LICENSE.txt", "-o", model), 2, "LICENSE.txt:", "no rotation columns")
 
 
+@pytest.mark.slow
 def test_help_does_not_import_heavy_modules():
     code = (
         "import sys\n"
@@ -261,6 +264,7 @@ def test_model_file_errors(tmp_path):
     assert_one_line_error(run("info", bad), 2, "bad.rbgp")
 
 
+@pytest.mark.slow
 def test_demo_quick_prints_three_scores(tmp_path):
     res = run("demo", "--quick", "--count", "5", "--out", tmp_path / "demo", "--json")
     assert res.exit_code == 0, res.stderr
@@ -271,6 +275,7 @@ def test_demo_quick_prints_three_scores(tmp_path):
     assert (tmp_path / "demo" / "axis-angle.rbgp").exists()
 
 
+@pytest.mark.slow
 def test_csv_and_mcap_give_the_same_model(tmp_path):
     """The sample data's CSV files and its ROS 2 MCAP (one topic per trial) hold the same instants and
     poses, so the models agree (times pass through integer nanoseconds: same to ~1e-9 s)."""
@@ -302,6 +307,7 @@ def test_mcap_topic_pattern_errors_name_the_topics():
     assert_one_line_error(res, 2, "/hand/*")
 
 
+@pytest.mark.slow
 def test_train_explore_size_reaches_the_fit_and_the_provenance(tmp_path):
     """--explore-size N: above 2N training points the starts explore N points first (reported per
     output and recorded in the model's provenance); 0 runs every start on all points."""

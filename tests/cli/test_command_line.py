@@ -54,6 +54,7 @@ def _command(name):
 
 
 # ---------------------------------------------------------------------------------------------- globs
+@pytest.mark.slow
 def test_unquoted_glob_after_one_flag_means_the_same_as_the_folder(work):
     """rollout --from-demos data/*.csv (expanded by bash) gives the same starts as --from-demos data."""
     res = bash("rbgp rollout m.rbgp --from-demos data/*.csv --count 4 --steps 5 --no-std -o glob.csv", work)
@@ -64,6 +65,7 @@ def test_unquoted_glob_after_one_flag_means_the_same_as_the_folder(work):
     assert (work / "glob.csv").read_text() == (work / "folder.csv").read_text()
 
 
+@pytest.mark.slow
 def test_evaluate_with_model_and_an_unquoted_glob(work):
     res = bash("rbgp evaluate --model m.rbgp --count 4 --demos data/*.csv --json", work)
     assert res.returncode == 0, res.stderr
@@ -73,6 +75,7 @@ def test_evaluate_with_model_and_an_unquoted_glob(work):
     assert json.loads(res.stdout)["n_demos"] == 3
 
 
+@pytest.mark.slow
 def test_a_list_that_took_the_model_says_what_to_write_and_that_works(work):
     """--from-demos data/*.csv m.rbgp: the model file went into the list; the one-line error shows the
     command line to type instead, and running that line succeeds."""
@@ -88,6 +91,7 @@ def test_a_list_that_took_the_model_says_what_to_write_and_that_works(work):
     assert (work / "fixed.csv").read_text().count("\n") == 2 + 2 * 4
 
 
+@pytest.mark.slow
 def test_generated_file_after_the_demo_list(work):
     """evaluate --demos data/*.csv gen.csv: gen.csv went into the list, and no --model was given."""
     assert run("rollout", work / "m.rbgp", "--count", 3, "--steps", 30, "--no-std", "-o", work / "gen.csv").exit_code == 0
@@ -101,6 +105,7 @@ def test_generated_file_after_the_demo_list(work):
     assert json.loads(ok.stdout)["n_generated"] == 3 and json.loads(ok.stdout)["n_demos"] == 3
 
 
+@pytest.mark.slow
 def test_compare_takes_several_files_too(work, tmp_path):
     pytest.importorskip("matplotlib")
     for k in (1, 2):
@@ -146,6 +151,7 @@ _path = st.text(alphabet="abcxyz_./0123456789", min_size=1, max_size=8)
 
 @settings(max_examples=100, deadline=None, derandomize=True, database=None)
 @given(st.lists(st.lists(_path, min_size=1, max_size=4), min_size=1, max_size=3), _path, st.booleans())
+@pytest.mark.slow
 def test_parsed_lists_hold_exactly_the_paths_typed(runs, model, model_first):
     """Any mix of runs of paths after --from-demos: Click ends up with every path, in order."""
     typed = [model] if model_first else []
@@ -170,6 +176,7 @@ def test_quiet_after_the_command_name(work, tmp_path):
     assert "--quiet" in run("train", "--help").stdout
 
 
+@pytest.mark.slow
 def test_quiet_after_the_command_name_in_a_real_shell(work):
     res = bash("rbgp rollout m.rbgp --steps 20 --no-std -q -o q.csv", work)
     assert res.returncode == 0 and res.stderr == "", res.stderr

@@ -26,6 +26,7 @@ def run(*args):
     return runner.invoke(app, ["crossval", *[str(a) for a in args]])
 
 
+@pytest.mark.slow
 def test_two_grids_give_every_combination_labelled_in_the_table_and_the_json(folder):
     res = run(folder, *FAST, "--grid", "prior-gain=3,10", "--grid", "inducing=0,20", "--no-peers", "--json")
     assert res.exit_code == 0, res.stderr
@@ -48,6 +49,7 @@ def test_two_grids_give_every_combination_labelled_in_the_table_and_the_json(fol
             assert sum(line.startswith("axis-angle") and f"prior-gain={g} inducing={m}" in line for line in lines) == 1
 
 
+@pytest.mark.slow
 def test_a_grid_value_equal_to_the_default_gives_the_numbers_of_the_run_without_grid(folder):
     plain = run(folder, *FAST, "--json")
     grid = run(folder, *FAST, "--grid", "prior-gain=10,default", "--json")  # 10 is the default gain
@@ -93,6 +95,7 @@ def _crossval_option(name):
     return next(p for p in cmd.params if p.name == name)
 
 
+@pytest.mark.slow
 def test_every_declared_training_option_is_accepted_by_grid(folder, monkeypatch):
     """Introspected from train_kwargs: an option added there is covered here without editing the test.
     Each gets a grid of its default (spelled as typed) and 'default'; the fold runs are replaced by a

@@ -136,6 +136,7 @@ def _leftovers(folder: Path):
       for sig, delay in [(signal.SIGKILL, 0.0), (signal.SIGKILL, 1.0), (signal.SIGTERM, 0.5)]],
     ("dask", signal.SIGKILL, 1.0), ("dask", signal.SIGTERM, 1.0),
 ])
+@pytest.mark.slow
 def test_killed_runs_leave_no_worker_and_no_temporary_file(tmp_path, command, sig, delay):
     """Before: all 6 training workers (crossval: 2 and the resource tracker) kept running for minutes.
     Dask's workers end with the cluster's process once they have started (Dask's own check, a few
@@ -257,6 +258,7 @@ def test_a_killed_writers_temporary_file_is_removed_by_the_next_write(tmp_path):
     assert target.read_bytes()[:7] != b"partial"
 
 
+@pytest.mark.slow
 def test_quiet_train_prints_nothing_on_stderr_json_still_prints_the_summary(tmp_path):
     """-q: the 11-line training summary is information, not a warning (before: printed anyway)."""
     args = ["train", str(CSV_DIR), "-o", str(tmp_path / "m.rbgp"), "--max-points", "60", "--restarts", "1",

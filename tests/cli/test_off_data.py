@@ -143,6 +143,7 @@ def test_the_envelope_is_stored_and_an_older_model_file_computes_it_from_its_tra
     assert "envelope from the model's training points" in res.stderr
 
 
+@pytest.mark.slow
 def test_crossval_reports_how_many_rollouts_left(narrow):
     folder, _, _, _ = narrow
     res = runner.invoke(app, ["crossval", str(folder), "--folds", "3", *FAST, "--jobs", "1", "--json"])

@@ -73,6 +73,7 @@ def test_json_writer_turns_numpy_scalars_into_numbers():
 
 
 # --------------------------------------------------------------------------- file modes (22.2)
+@pytest.mark.slow
 def test_every_output_gets_the_mode_of_a_plain_open(model, tmp_path, umask_022):
     """Outputs were 0600 (mkstemp's mode): colleagues could not read them. Under umask 022: 0644."""
     m = tmp_path / "m.rbgp"
@@ -201,6 +202,7 @@ def test_a_failing_write_is_one_line_naming_the_file_and_keeps_the_old_one(model
     assert gen.read_text() == "old\n" and no_temp_files(tmp_path)
 
 
+@pytest.mark.slow
 def test_a_full_disk_under_the_model_and_the_figure(model, tmp_path, monkeypatch):
     """Writes that go through a library (matplotlib's savefig) and the model file."""
     import rbgp_cli.io.atomic as atomic
@@ -223,6 +225,7 @@ def test_a_full_disk_under_the_model_and_the_figure(model, tmp_path, monkeypatch
 
 
 @pytest.mark.parametrize("option", ["-o", "--rerun"])
+@pytest.mark.slow
 def test_a_file_size_limit_is_one_line_in_a_real_process(model, tmp_path, option):
     """RLIMIT_FSIZE with SIGXFSZ ignored (Python's default): the write raises EFBIG ("File too
     large"). With --rerun, rerun's own file sink blocked for good in 2 of 3 runs."""
@@ -296,6 +299,7 @@ def _all_help_texts():
         yield path, res.stdout
 
 
+@pytest.mark.slow
 def test_help_texts_cite_no_file_the_user_does_not_have():
     """MATH.md is not shipped: --help says in words what it meant."""
     texts = dict((" ".join(p), t) for p, t in _all_help_texts())
@@ -319,6 +323,7 @@ def test_a_recording_that_cannot_be_written_is_one_line(model, tmp_path, monkeyp
     assert (tmp_path / "gen.csv").exists()
 
 
+@pytest.mark.slow
 def test_stdout_redirected_into_a_file_past_the_size_limit_is_one_line(model, tmp_path):
     """``rbgp rollout ... > gen.csv`` under a file-size limit: the shell's file is stdout."""
     code = textwrap.dedent(f"""

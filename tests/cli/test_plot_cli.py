@@ -33,6 +33,7 @@ def _png(path: Path) -> bool:
     return path.exists() and path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and path.stat().st_size > 10_000
 
 
+@pytest.mark.slow
 def test_one_demonstration_with_plot_writes_the_figure_and_exits_2_for_the_missing_score(tmp_path, one_demo):
     """One long take as the only demonstration: no score (exit 2, the same one error line as without
     --plot), but the figure the user asked for is written, without the score panels."""
@@ -53,6 +54,7 @@ def test_one_demonstration_with_plot_writes_the_figure_and_exits_2_for_the_missi
     assert "cannot score against 1 demonstration" in res.stderr and "figure" not in res.stderr
 
 
+@pytest.mark.slow
 def test_one_demonstration_with_plot_and_model_still_rolls_out(tmp_path, one_demo):
     model = tmp_path / "m.rbgp"
     assert run("train", CSV_DIR, "-o", model, "--max-points", "100", "--restarts", "1",
@@ -71,6 +73,7 @@ def test_plot_help_says_what_happens_without_a_score():
     assert "without the score panels" in text and "exits 2" in text
 
 
+@pytest.mark.slow
 def test_a_scored_plot_still_exits_0(tmp_path):
     gen = sorted(CSV_DIR.glob("*.csv"))[:4]
     fig = tmp_path / "fig.png"

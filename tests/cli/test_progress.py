@@ -156,6 +156,7 @@ def test_bars_draw_units_and_times_and_nested_bars_go_away():
 
 
 # ---------------------------------------------------------------------------------------------- library
+@pytest.mark.slow
 def test_training_reports_outputs_times_evaluations(model):
     from rbgp_cli.dynamics.model import train_model
     from rbgp_cli.workflows import load_demonstrations
@@ -187,6 +188,7 @@ def test_rollout_reports_its_steps(model):
     assert task["statuses"] == ["2 trajectories"] and task["closed"] is True
 
 
+@pytest.mark.slow
 def test_the_demo_is_one_task_around_each_representations_training_and_rollout(tmp_path):
     """The pattern a cross-validation follows: one outer task whose units are folds (here:
     representations), with the training and rollout tasks of each nested inside it."""
@@ -218,6 +220,7 @@ def test_a_plain_callable_still_receives_the_messages():
 
 
 # ---------------------------------------------------------------------------------------------- end to end
+@pytest.mark.slow
 def test_in_a_pipe_the_rollout_prints_one_line_not_one_per_100_steps(model):
     res = run("rollout", model, "--steps", 450, "--count", 2, "--no-std", "-o", "-")
     assert res.exit_code == 0, res.stderr
@@ -261,6 +264,7 @@ def _run_on_a_terminal(args, timeout=240):
     return proc.returncode, out.decode(), b"".join(chunks).decode(errors="replace")
 
 
+@pytest.mark.slow
 def test_on_a_terminal_a_progress_bar_with_times_and_stdout_stays_data(model):
     code, out, term = _run_on_a_terminal(["rollout", model, "--steps", 400, "--count", 3, "--no-std", "--output-rate", 0, "-o", "-"])
     assert code == 0, term
@@ -272,6 +276,7 @@ def test_on_a_terminal_a_progress_bar_with_times_and_stdout_stays_data(model):
     assert code == 0 and term.strip() == "" and out.count("\n") == 2 + 3 * 401
 
 
+@pytest.mark.slow
 def test_on_a_terminal_training_shows_outputs(tmp_path):
     code, _, term = _run_on_a_terminal(["train", CSV_DIR, "-o", tmp_path / "m.rbgp", "--max-points", "100",
                                         "--restarts", "1"])
@@ -280,6 +285,7 @@ def test_on_a_terminal_training_shows_outputs(tmp_path):
     assert "safeguards:" in term  # the summary follows the bar
 
 
+@pytest.mark.slow
 def test_an_error_stops_the_bar_before_the_error_line(tmp_path):
     bad = tmp_path / "bad.rbgp"
     bad.write_bytes(b"nope")

@@ -65,6 +65,7 @@ def test_mcap_without_poses_says_so(realdata):
         assert "no pose topic" in one_error_line(run("train", f, "-o", "/tmp/never.rbgp")), f
 
 
+@pytest.mark.slow
 def test_vendor_exports_inspect_and_train(realdata, tmp_path):
     for f in sorted((realdata / "qtm_6d_tsv").glob("*.tsv")):
         assert run("inspect", f).exit_code == 0
@@ -81,6 +82,7 @@ def test_vendor_exports_inspect_and_train(realdata, tmp_path):
 
 
 @pytest.mark.parametrize("folder", ["handover_object_csv", "hand_raise_csv"])
+@pytest.mark.slow
 def test_crossval_on_the_real_demonstration_sets(realdata, folder):
     """rbgp crossval runs on every real set with at least 4 demonstrations (a quick configuration: the
     README has the full table), and its rows hold what the issue asks for."""
@@ -97,6 +99,7 @@ def test_crossval_on_the_real_demonstration_sets(realdata, folder):
     assert 0.0 < rows["axis-angle"]["velocity_rmse"] < 1.0  # better than predicting zero on held-out pairs
 
 
+@pytest.mark.slow
 def test_crossval_on_the_sample_data():
     from rbgp_cli.workflows import SAMPLE_DATA
 

@@ -46,6 +46,7 @@ def test_train_inducing_writes_a_sparse_model_that_says_so(sparse_model):
     assert all(np.any(np.all(arrays["X"] == z, axis=1)) for z in arrays["Z"])
 
 
+@pytest.mark.slow
 def test_hyper_points_choose_how_many_points_the_bound_covers_and_the_summary_says_so(tmp_path):
     base = ["train", CSV_DIR, *FAST, "--train-rate", "30", "--inducing", "32", "--json"]
     res = run(*base, "-o", tmp_path / "a.rbgp", "--hyper-points", "300")

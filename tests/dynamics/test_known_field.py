@@ -71,6 +71,7 @@ def relative_rmse(model, unseen, count=300):
     return float(np.sqrt(np.mean((twist - truth) ** 2)) / np.sqrt(np.mean(truth**2)))
 
 
+@pytest.mark.slow
 def test_the_field_turns_the_body_widely(data):
     train, _ = data
     swept = [np.linalg.norm((Rotation.from_quat(d.quat[-1]) * Rotation.from_quat(d.quat[0]).inv()).as_rotvec()) for d in train]
@@ -78,6 +79,7 @@ def test_the_field_turns_the_body_widely(data):
     assert min(swept) > 1.0 and max(largest) > 2.0
 
 
+@pytest.mark.slow
 def test_default_kernel_and_velocities_learn_the_field(data):
     """Default options (chordal kernel, velocities at 10 Hz, all pairs, the phase input) with a zero
     prior mean: the GP's own velocity field is within 10 % of the truth at unseen poses (measured 0.04;
@@ -88,6 +90,7 @@ def test_default_kernel_and_velocities_learn_the_field(data):
     assert relative_rmse(model, unseen) <= 0.10
 
 
+@pytest.mark.slow
 def test_the_default_prior_mean_costs_field_accuracy_but_stays_bounded(data):
     """With the default mean-path prior the GP models the residual of a pull toward the demonstrations'
     mean path; off the training demonstrations that pull is not the field, and the error grows (measured

@@ -65,6 +65,7 @@ def test_the_regression_recovers_an_offset_that_stays(demos):
     assert np.all(r[:, 0] == 0.0)
 
 
+@pytest.mark.slow
 def test_a_conditioned_rollout_keeps_its_starts_offset_where_the_mean_path_prior_loses_it():
     """Offsets that stay and nothing else: the conditioned prior is the answer and the GP's residual is
     ~0; without conditioning the GP must learn to cancel the pull toward the mean path near each
@@ -87,6 +88,7 @@ def test_a_conditioned_rollout_keeps_its_starts_offset_where_the_mean_path_prior
     assert errors[True] < 0.5 * errors[False], errors
 
 
+@pytest.mark.slow
 def test_the_conditioned_path_at_the_mean_start_is_the_mean_path_plus_its_mean_deviation(demos):
     from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
 
@@ -106,6 +108,7 @@ def test_the_conditioned_path_at_the_mean_start_is_the_mean_path_plus_its_mean_d
     np.testing.assert_allclose(c, 0.0, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_the_conditioned_prior_survives_the_model_file(demos, tmp_path):
     from rbgp_cli.io.model_store import load_model, save_model
 

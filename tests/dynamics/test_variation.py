@@ -46,6 +46,7 @@ def test_draws_reproduce_the_known_deviation_variance_given_the_start():
     assert np.all(sd[0] == 0.0)
 
 
+@pytest.mark.slow
 def test_fresh_demonstrations_fall_inside_the_draws_90_percent_band():
     """Coverage of fresh draws of the process by 20 samples' 90 % regions is 0.90 ± 0.03, averaged over
     training sets (one set of 40 demonstrations estimates the covariance to ±11 % in σ, so a single set's

@@ -27,6 +27,7 @@ def _draws(rng, n, T=15, rot_sd=0.05, pos_sd=0.02):
 
 
 @pytest.mark.parametrize("K", [8, 20])
+@pytest.mark.slow
 def test_fresh_draws_of_the_same_process_are_covered_90_percent_of_the_time(K):
     rng = np.random.default_rng(K)
     total = Coverage()
@@ -39,6 +40,7 @@ def test_fresh_draws_of_the_same_process_are_covered_90_percent_of_the_time(K):
     assert 0.0 < c["band_position"] < 0.2 and 0.0 < c["band_rotation"] < 0.5
 
 
+@pytest.mark.slow
 def test_samples_too_narrow_or_shifted_cover_less_and_too_wide_cover_more():
     rng = np.random.default_rng(5)
     narrow, wide = Coverage(), Coverage()

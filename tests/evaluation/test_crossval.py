@@ -59,6 +59,7 @@ def test_folds_hold_out_every_demonstration_once(n, k, seed):
     assert [f.tolist() for f in make_folds(n, k, seed)] == [f.tolist() for f in folds]  # seeded
 
 
+@pytest.mark.slow
 def test_training_never_sees_a_held_out_demonstration(monkeypatch):
     """Every fit trains on exactly the demonstrations outside its fold, and rolls out from the held-out
     ones' own starts: no demonstration leaks across folds."""
@@ -125,6 +126,7 @@ def test_trajectory_errors_are_zero_for_identical_and_known_for_offsets():
     assert math.sqrt(sr / n) == pytest.approx(0.2, rel=1e-9)
 
 
+@pytest.mark.slow
 def test_results_do_not_depend_on_the_number_of_worker_processes():
     demos = reaching_demos(6)
     configs = [Config("axis-angle", "se-chordal", QUICK), Config(REPLAY)]
@@ -134,6 +136,7 @@ def test_results_do_not_depend_on_the_number_of_worker_processes():
     assert strip(a) == strip(b)
 
 
+@pytest.mark.slow
 def test_model_rows_and_velocity_rmse_on_a_learnable_motion():
     """On demonstrations of one smooth motion a model generalises to held-out starts: its velocity
     RMSE is far below predicting zero (1.0), and the rows are sorted by score / floor."""
@@ -166,6 +169,7 @@ def _write(demos, folder):
     return folder
 
 
+@pytest.mark.slow
 def test_cli_json_has_the_documented_keys(tmp_path):
     folder = _write(reaching_demos(6), tmp_path / "demos")
     res = CliRunner().invoke(app, ["crossval", str(folder), "--folds", "3", "--representation", "all", "--kernel", "se",
@@ -184,6 +188,7 @@ def test_cli_json_has_the_documented_keys(tmp_path):
     assert res.stderr == ""  # -q: no progress
 
 
+@pytest.mark.slow
 def test_cli_table_and_bad_options(tmp_path):
     folder = _write(reaching_demos(4), tmp_path / "demos")
     runner = CliRunner()
@@ -198,6 +203,7 @@ def test_cli_table_and_bad_options(tmp_path):
     assert res.exit_code == 2 and "unknown representation" in res.stderr
 
 
+@pytest.mark.slow
 def test_sample_columns_score_one_sample_per_start_and_pool_the_coverage(monkeypatch):
     """docs/method.md §11 in crossval: sample_score is one sampled rollout per held-out start scored as score is
     (against the training demonstrations), sample_ratio its ratio to the floor, and the coverage columns

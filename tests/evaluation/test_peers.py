@@ -93,6 +93,7 @@ def test_promp_samples_are_seeded_draws_around_the_mean(fold):
     assert len(many) == len(test) and all(len(m) == 2 for m in many)
 
 
+@pytest.mark.slow
 def test_dmp_row_starts_at_the_new_start_and_ends_at_the_nearest_goal(fold):
     dmp_mod = pytest.importorskip("movement_primitives.dmp")
     pr = pytest.importorskip("pytransform3d.rotations")
@@ -126,6 +127,7 @@ def test_dmp_row_starts_at_the_new_start_and_ends_at_the_nearest_goal(fold):
     assert np.max(quat_angle_between(own.quat[:n], src.quat[i])) < 0.1
 
 
+@pytest.mark.slow
 def test_peers_are_left_out_with_one_note_without_the_package(monkeypatch, tmp_path):
     """movement_primitives cannot be imported: crossval runs without the rows and says why once."""
     for name in [m for m in sys.modules if m.split(".")[0] == "movement_primitives"] + ["movement_primitives"]:

@@ -62,6 +62,7 @@ def test_arc_distance_is_positive_for_different_rotations(r1, r2):
 
 @MORE
 @given(rotvecs(), rotvecs(), rotvecs())
+@pytest.mark.slow
 def test_arc_distance_triangle_inequality(a, b, c):
     assert dist.arc_distance(a, c) <= dist.arc_distance(a, b) + dist.arc_distance(b, c) + 1e-14
 
@@ -107,6 +108,7 @@ def test_small_distances_are_accurate(r, u, e):
 
 @FAST
 @given(stacked(rotvecs(), (2, 3)), stacked(rotvecs(), (2, 3)))
+@pytest.mark.slow
 def test_elementwise_distances_vectorise_and_broadcast(a, b):
     for fn in (dist.arc_distance, dist.chordal_distance):
         got = fn(a, b)

@@ -54,6 +54,7 @@ def twists():
 
 @MORE
 @given(poses(), poses())
+@pytest.mark.slow
 def test_compose_pose_matches_scipy(g2, g1):
     got = se3.compose_pose(g2, g1)
     assert_canonical(got[:3])
@@ -254,6 +255,7 @@ def test_integrate_quat_keeps_the_sign_of_its_input():
 
 @settings(max_examples=30, deadline=None)
 @given(stacked(poses(), (2, 3)), stacked(poses(), (2, 3)))
+@pytest.mark.slow
 def test_se3_functions_vectorise_over_leading_axes(a, b):
     pts = b[..., 3:]
     cases = [

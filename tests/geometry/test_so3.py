@@ -49,6 +49,7 @@ def theta_of(r) -> float:
 
 @MORE
 @given(raw_rotvecs())
+@pytest.mark.slow
 def test_canonical_rotvec_is_canonical_same_rotation_and_idempotent(r):
     c = so3.canonical_rotvec(r)
     assert_canonical(c)
@@ -354,6 +355,7 @@ def test_compose_rotvec_matches_scipy(r2, r1):
 
 @MORE
 @given(rotvecs(), rotvecs())
+@pytest.mark.slow
 def test_compose_via_quaternions_equals_corrected_eq8_closed_form(r2, r1):
     a = so3.compose_rotvec(r2, r1)
     b = so3.compose_rotvec_closed_form(r2, r1)
@@ -412,6 +414,7 @@ def test_rotvec_composition_is_associative(a, b, c):
 
 @MORE
 @given(raw_rotvecs())
+@pytest.mark.slow
 def test_exp_log_so3(omega):
     R = so3.exp_so3(omega)
     np.testing.assert_allclose(R, Rotation.from_rotvec(omega).as_matrix(), atol=2e-15 * max(1, theta_of(omega)))
@@ -583,6 +586,7 @@ def test_random_quat_is_uniform_unit_and_reproducible():
 
 @FAST
 @given(stacked(rotvecs(), (2, 3)), stacked(rotvecs(), (2, 3)))
+@pytest.mark.slow
 def test_compose_and_conversions_vectorise_on_hard_cases(a, b):
     got = so3.compose_rotvec(a, b)
     for i in range(2):

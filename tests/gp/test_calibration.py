@@ -60,6 +60,7 @@ def deviating():
     return fitted(X, Y), groups
 
 
+@pytest.mark.slow
 def test_deviating_demonstrations_get_a_large_factor_and_new_ones_are_predicted_better(deviating):
     gp, groups = deviating
     cal, records = calibrate_to_demonstrations(gp, groups, seed=0)
@@ -77,6 +78,7 @@ def test_deviating_demonstrations_get_a_large_factor_and_new_ones_are_predicted_
     assert after < 0.5 * before  # measured: 0.054 against 0.218
 
 
+@pytest.mark.slow
 def test_independent_samples_keep_a_factor_near_one():
     rng = np.random.default_rng(3)
     X, Y, groups = demonstrations(14, 120, seed=1, deviation=0.0)
@@ -86,6 +88,7 @@ def test_independent_samples_keep_a_factor_near_one():
     assert rec["subset_factor"] <= 2 ** 0.5
 
 
+@pytest.mark.slow
 def test_the_calibrated_gp_is_the_gp_with_the_scaled_noise_and_records_the_fitted_one(deviating):
     gp, groups = deviating
     cal, records = calibrate_to_demonstrations(gp, groups, seed=0)
@@ -104,6 +107,7 @@ def test_the_calibrated_gp_is_the_gp_with_the_scaled_noise_and_records_the_fitte
     assert none is None and same is gp
 
 
+@pytest.mark.slow
 def test_a_sparse_gp_is_calibrated_the_same_way():
     X, Y, groups = demonstrations(10, 100, seed=4)
     sp = fit_sparse_gp(X, Y, KERNEL, inducing=60, restarts=1, seed=0, explore_size=200)
@@ -114,6 +118,7 @@ def test_a_sparse_gp_is_calibrated_the_same_way():
     assert not np.allclose(cal.predict(X[::29]), sp.predict(X[::29]))
 
 
+@pytest.mark.slow
 def test_a_further_noise_scale_multiplies_the_calibrated_variance_and_moves_the_mean_toward_the_prior(deviating):
     gp, groups = deviating
     cal, records = calibrate_to_demonstrations(gp, groups, seed=0)

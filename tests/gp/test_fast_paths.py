@@ -31,6 +31,7 @@ REPO = Path(__file__).resolve().parents[2]
 # ----------------------------------------------------------------------------- the polish
 @pytest.mark.parametrize("metric", ["arc", "chordal"])
 @pytest.mark.parametrize("shared", [False, True])
+@pytest.mark.slow
 def test_polish_finds_optima_as_good_as_full_size_lbfgsb(metric, shared):
     """Seeded problems with the paper's (indefinite) kernel and the chordal one: the subsample
     exploration + polish ends at optima at least as good (within the issue's 0.1 %) as L-BFGS-B
@@ -104,6 +105,7 @@ def test_an_optimum_is_a_point_that_was_evaluated_feasible(monkeypatch):
 
 
 # ----------------------------------------------------------------------------- worker processes
+@pytest.mark.slow
 def test_worker_processes_give_bit_identical_fits_and_predictions():
     X = poses(260, 21)
     Y = smooth_outputs(X, np.random.default_rng(21))[:, :3]
@@ -148,6 +150,7 @@ def test_default_jobs_never_nests_worker_pools():
         fit_gp(poses(5, 1), np.zeros(5), SquaredExponential("chordal"), jobs=0)
 
 
+@pytest.mark.slow
 def test_train_jobs_option_gives_the_same_model(tmp_path):
     from rbgp_cli.cli.app import app
     from rbgp_cli.io.model_store import read_header
@@ -201,6 +204,7 @@ def _with_kernel(model, kernel):
 
 @pytest.mark.parametrize("kernel", ["se", "se-chordal"])
 @pytest.mark.parametrize("shared", [True, False])
+@pytest.mark.slow
 def test_rollouts_equal_the_precise_distance_path(kernel, shared):
     """Batched rollouts through the matrix-product kernel (fused for shared hyperparameters, one
     distance block for all outputs otherwise) give the poses of the precise path to 1e-9 after 300
@@ -255,6 +259,7 @@ def _phase_model(kernel: str, n: int = 300):
 
 
 @pytest.mark.parametrize("kernel", ["se", "se-chordal"])
+@pytest.mark.slow
 def test_rollouts_with_phase_and_path_prior_equal_the_precise_path(kernel):
     """A model with the phase input and the mean-path prior: the fast path (the phase term in the
     same matrix product; the prior's reference pose computed once per step for trajectories that

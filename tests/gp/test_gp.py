@@ -130,6 +130,7 @@ def vector_field(quat, pos):
 
 
 @pytest.mark.parametrize("representation", ["axis-angle", "euler", "quaternion"])
+@pytest.mark.slow
 def test_learns_a_smooth_vector_field_to_held_out_accuracy(representation):
     """Held-out RMSE of every output below 0.15 × its standard deviation (stated bound), for each
     representation with its own kernel (docs/method.md §6), on poses spread around a centre pose."""
@@ -228,6 +229,7 @@ def test_constant_and_zero_outputs_give_sane_hyperparameters(shared):
     assert np.all(np.isfinite(mean)) and np.max(np.abs(mean)) < 2 and np.max(std) < 2
 
 
+@pytest.mark.slow
 def test_indefinite_kernel_fit_never_explodes_away_from_the_data():
     """Regression: 80 uniformly random rotations, the paper's arc kernel, per-output fits. Cholesky and
     rcond passed but λ_min(K + σn²I) was ~1e-12 σf²: held-out RMSE 25–320 instead of ~0.1. The noise
@@ -257,6 +259,7 @@ def test_indefinite_kernel_fit_never_explodes_away_from_the_data():
 
 
 @pytest.mark.parametrize("shared", [False, True])
+@pytest.mark.slow
 def test_subsample_exploration_reaches_the_optimum_of_full_size_restarts(shared):
     """Above 2·explore_size points the starts run on a subsample first; on all points the best
     subsample optimum (and any other basin) is polished by quasi-Newton steps: same optimum (NLML,

@@ -141,6 +141,7 @@ def test_stored_factors_rebuild_the_same_posterior_and_are_checked():
         SparseGP(k, X, Y, gp.Z, gp.fits, gp.shared, gp.y_scale, stats=bad)
 
 
+@pytest.mark.slow
 def test_fit_is_seeded_and_learns_the_field_from_all_points():
     k = SquaredExponential("chordal", 3, 0.7)
     X = poses(1500, 13)
@@ -162,6 +163,7 @@ def test_fit_is_seeded_and_learns_the_field_from_all_points():
     assert np.all(s > 0) and np.all(np.isfinite(s))
 
 
+@pytest.mark.slow
 def test_by_default_the_hyperparameters_are_the_exact_gps_on_a_subset_and_the_posterior_uses_all_points():
     """hyper="exact" (the default): the hyperparameters are exactly those fit_gp finds on the same random
     subset (HYPER_MIN_POINTS of the rows, drawn as the bound's subsets are), never the bound's; the
@@ -186,6 +188,7 @@ def test_by_default_the_hyperparameters_are_the_exact_gps_on_a_subset_and_the_po
         fit_sparse_gp(X[:50], Y[:50], k, inducing=10, hyper="elbo")
 
 
+@pytest.mark.slow
 def test_the_bound_overestimates_the_noise_when_the_inducing_poses_are_too_few():
     """Why the default is hyper="exact" (issue 21): with fewer inducing poses than the field's
     length-scale needs, the collapsed bound explains the rest of the data as noise (the variational
@@ -204,6 +207,7 @@ def test_the_bound_overestimates_the_noise_when_the_inducing_poses_are_too_few()
     assert sn_b > 3 * sn_d, (sn_b, sn_d)
 
 
+@pytest.mark.slow
 def test_hyperparameters_come_from_a_random_subset_and_the_posterior_from_all_points():
     """hyper="bound": the bound covers max(4 M, 2000) random points (HYPER_FACTOR, HYPER_MIN_POINTS), polished
     from the explored optima in a few evaluations; hyper_points=0 covers all n. Either way the posterior
@@ -282,6 +286,7 @@ def test_inducing_selection_is_seeded_distinct_and_spread(method):
     np.testing.assert_allclose(d2, ref, atol=1e-10)
 
 
+@pytest.mark.slow
 def test_with_every_pose_inducing_the_fit_finds_the_exact_optimum_on_real_handovers(realdata):
     """The trap that made sparse models lose held out: on one crossval fold of the handover recordings
     every start of the first output explored on 400 points ends, on all points, in the all-noise basin

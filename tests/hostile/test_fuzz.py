@@ -208,6 +208,7 @@ def fuzz_dir(tmp_path_factory) -> Path:
 
 @fuzz_settings
 @given(case=mutated(TEXT_SEEDS))
+@pytest.mark.slow
 def test_fuzz_text_readers(case, fuzz_dir):
     """CSV / TSV / QTM / Motive / Vicon bytes, mutated: clean data or InputError, nothing else."""
     name, data = case.name, case.data
@@ -216,6 +217,7 @@ def test_fuzz_text_readers(case, fuzz_dir):
 
 @fuzz_settings
 @given(case=mutated(MCAP_SEEDS))
+@pytest.mark.slow
 def test_fuzz_mcap_file(case, fuzz_dir):
     """MCAP files, mutated (seekable: summary first, then a linear scan after damage)."""
     name, data = case.name, case.data
@@ -224,6 +226,7 @@ def test_fuzz_mcap_file(case, fuzz_dir):
 
 @fuzz_settings
 @given(case=mutated(MCAP_SEEDS))
+@pytest.mark.slow
 def test_fuzz_mcap_pipe(case):
     """The same on a non-seekable stream (``rbgp train - < rec.mcap`` through a pipe)."""
     read_and_prepare(["-"], stdin=io.BufferedReader(_Pipe(case.data)))
@@ -284,6 +287,7 @@ def model_headers(draw):
 
 @fuzz_settings
 @given(edit=model_headers())
+@pytest.mark.slow
 def test_fuzz_model_header_values(edit, fuzz_dir):
     from rbgp_cli.io.model_store import load_model
 
@@ -307,6 +311,7 @@ _runner = CliRunner()
 
 @settings(fuzz_settings, max_examples=max(10, fuzz_settings.max_examples // 4))
 @given(case=mutated(("demo.csv", "zstd.mcap", "take_6D.tsv")))
+@pytest.mark.slow
 def test_fuzz_train_end_to_end(case, fuzz_dir):
     """``rbgp train`` on mutated files: exit 0, or exit 2 with one error line; never a traceback, an
     internal error, or a model file when it fails."""
@@ -330,6 +335,7 @@ def test_fuzz_train_end_to_end(case, fuzz_dir):
     assert not list(fuzz_dir.glob(".*.tmp"))
 
 
+@pytest.mark.slow
 def test_mcap_cut_anywhere_gives_a_prefix_of_the_recording_or_input_error(tmp_path):
     """Cut an MCAP file at every 13th byte (file and pipe): what comes back is exactly the first n
     samples of the recording (n >= 2) with a warning, or an InputError; never other samples, never

@@ -939,6 +939,7 @@ def test_the_table_is_big_enough():
     assert sum(1 for c in CASES if c.error) >= 20 and sum(1 for c in CASES if not c.error) >= 10
 
 
+@pytest.mark.slow
 def test_mcap_truncated_at_many_offsets_through_the_cli(tmp_path):
     """``rbgp train`` on a recording cut at 30 offsets from the magic bytes to the footer: each run
     learns from exactly the samples before the cut and says how many, or exits 2 with one line and

@@ -271,6 +271,7 @@ def test_every_cli_output_is_renamed_into_place(tmp_path, renames):
     _assert_renamed_into_place(renames, [model, out / "pred.csv", out / "gen.csv", out / "steps.csv"])
 
 
+@pytest.mark.slow
 def test_recordings_and_figures_are_renamed_into_place(tmp_path, tiny_model, renames):
     pytest.importorskip("rerun")
     pytest.importorskip("matplotlib")

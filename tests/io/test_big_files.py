@@ -92,6 +92,7 @@ def layouts(tmp_path):
     return out
 
 
+@pytest.mark.slow
 def test_big_files_are_read_from_disk_exactly_as_the_text_path_reads_them(tmp_path, monkeypatch):
     for name, (path, options) in layouts(tmp_path).items():
         expected = via_text(path, options)
@@ -125,6 +126,7 @@ def problems(tmp_path):
     return out
 
 
+@pytest.mark.slow
 def test_what_the_fast_path_does_not_cover_reads_or_fails_like_the_text_path(tmp_path):
     for name, path in problems(tmp_path).items():
         try:
@@ -139,6 +141,7 @@ def test_what_the_fast_path_does_not_cover_reads_or_fails_like_the_text_path(tmp
         assert_same(rcsv.read(path), expected)
 
 
+@pytest.mark.slow
 def test_reading_a_big_table_needs_about_its_size_in_memory(tmp_path):
     """Peak of the memory Python and numpy allocate while reading (tracemalloc: the arrays, the text)
     stays under 3× the file (the text path needs about 6×: bytes, text, lines, a joined copy)."""
@@ -159,6 +162,7 @@ def test_reading_a_big_table_needs_about_its_size_in_memory(tmp_path):
     assert peak < 3 * size, f"peak {peak / size:.1f}x the file size"
 
 
+@pytest.mark.slow
 def test_the_benchmark_reports_peak_rss_and_rows_per_second(tmp_path):
     out = tmp_path / "bench.json"
     res = subprocess.run([sys.executable, str(REPO / "benchmarks" / "bench_reading.py"), "--rows", "20000",
@@ -172,6 +176,7 @@ def test_the_benchmark_reports_peak_rss_and_rows_per_second(tmp_path):
     assert "rows/s" in res.stdout and "peak RSS" in res.stdout
 
 
+@pytest.mark.slow
 def test_describe_counts_the_rows_of_a_big_file_without_decoding_it(tmp_path):
     """``rbgp inspect`` on a big file: the header from the head, the rows counted on a memory map, the
     same count as the text path (blank and comment lines are not rows)."""

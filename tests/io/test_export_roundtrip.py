@@ -99,6 +99,7 @@ def roundtrip(write, read, trajs, suffix, options):
 @SETTINGS
 @given(trajs=bodies(), layout=st.sampled_from(["current", "old"]), euler=st.sampled_from(["XYZ", "ZYX", "YXZ"]),
        unit=st.sampled_from(["mm", "cm", "m"]), lost=st.sampled_from(["zeros", "null", "empty"]))
+@pytest.mark.slow
 def test_qtm_roundtrip(trajs, layout, euler, unit, lost):
     def write(trs, path):
         export.write_qtm_tsv(trs, path, layout=layout, euler=euler, length_unit=unit, lost=lost,
@@ -114,6 +115,7 @@ def test_qtm_roundtrip(trajs, layout, euler, unit, lost):
 
 @SETTINGS
 @given(trajs=bodies(uniform_times=False))
+@pytest.mark.slow
 def test_qtm_current_layout_keeps_irregular_times(trajs):
     back, _ = roundtrip(export.write_qtm_tsv, qtm.read, trajs, "_6D.tsv", ReadOptions(body="all"))
     for a, b in zip(trajs, back, strict=True):
@@ -123,6 +125,7 @@ def test_qtm_current_layout_keeps_irregular_times(trajs):
 @SETTINGS
 @given(trajs=bodies(uniform_times=False), rotation_type=st.sampled_from(["Quaternion", "XYZ", "ZXY", "YZX"]),
        unit=st.sampled_from(["Meters", "Centimeters", "Millimeters"]), labels=st.booleans())
+@pytest.mark.slow
 def test_motive_roundtrip(trajs, rotation_type, unit, labels):
     def write(trs, path):
         export.write_motive_csv(trs, path, rotation_type=rotation_type, length_unit=unit, header_labels=labels)
@@ -138,6 +141,7 @@ def test_motive_roundtrip(trajs, rotation_type, unit, labels):
 @SETTINGS
 @given(trajs=bodies(), style=st.sampled_from([(",", False), (";", False), (";", True), ("\t", False)]),
        rotation=st.sampled_from(["helical", "XYZ", "zyx"]), unit=st.sampled_from(["mm", "cm", "m"]))
+@pytest.mark.slow
 def test_vicon_roundtrip(trajs, style, rotation, unit):
     delimiter, comma = style
     euler = None if rotation == "helical" else rotation

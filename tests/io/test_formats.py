@@ -105,6 +105,7 @@ def test_a_registered_toy_format_is_a_format_choice_of_the_cli(tmp_path):
     assert_one_line_error(run("inspect", "--format", "toy", path), 2, "unknown --format 'toy'")
 
 
+@pytest.mark.slow
 def test_the_format_help_comes_from_the_registry():
     code = ("import sys; from rbgp_cli.io import formats; "
             "formats.register(formats.Format(name='toy', title='Toy', read=print)); "

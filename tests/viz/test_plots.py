@@ -43,6 +43,7 @@ def _image(path):
     return imread(path)  # (rows, cols, channels) floats in [0, 1]
 
 
+@pytest.mark.slow
 def test_png_has_the_stated_size_and_is_not_blank(figure):
     path, _ = figure
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -98,6 +99,7 @@ def test_rotations_do_not_jump_at_pi(figure, data):
             assert np.max(np.abs(np.diff(line.get_ydata()))) < 0.3  # ... the plotted features stay continuous
 
 
+@pytest.mark.slow
 def test_without_compare_and_with_a_title(tmp_path, data):
     demos, generated, _, result = data
     result3 = evaluate(generated[:3], demos)
@@ -131,6 +133,7 @@ def test_missing_matplotlib_is_an_input_error(tmp_path, data, monkeypatch):
     assert not (tmp_path / "c.png").exists()
 
 
+@pytest.mark.slow
 def test_distance_panel_stays_linear_when_the_first_step_is_almost_zero(tmp_path, data):
     """Generated trajectories that start where the demonstrations start score ~1e-25 at the first
     step; a log axis would span 25 decades and flatten the curve, so the axis stays linear from 0."""
@@ -161,6 +164,7 @@ def test_a_few_spikes_are_clipped_and_said_so():
     assert distance_axis_top(np.zeros(5)) == (pytest.approx(1.3e-12), False)
 
 
+@pytest.mark.slow
 def test_the_clipped_panel_names_the_largest_distance(tmp_path, data):
     from dataclasses import replace
 
@@ -197,6 +201,7 @@ def large(tmp_path_factory):
     return demos, gen, result, fig
 
 
+@pytest.mark.slow
 def test_a_divergent_rollout_does_not_squash_the_axis(large):
     from rbgp_cli.viz.plots import _features
 
@@ -248,6 +253,7 @@ def test_the_time_axis_is_labelled_without_a_unit(large):
     assert labels == {"normalised time (0–1)"}
 
 
+@pytest.mark.slow
 def test_each_part_of_the_score_has_its_own_axis(tmp_path, data):
     """A rotation part of ~0.003 beside a translation part of ~1 is readable on its own axis."""
     demos, generated, _, result = data
@@ -260,6 +266,7 @@ def test_each_part_of_the_score_has_its_own_axis(tmp_path, data):
         assert low == 0.0 and series.max() <= high <= 1.3 * series.max() + 1e-12
 
 
+@pytest.mark.slow
 def test_a_part_flattened_by_the_other_set_is_written_out(tmp_path, data):
     demos, generated, compare, result = data
     far = [c.with_(position=c.position + 0.3) for c in compare]  # translation part far larger than ours
@@ -269,6 +276,7 @@ def test_a_part_flattened_by_the_other_set_is_written_out(tmp_path, data):
     assert "flat" not in texts[1]
 
 
+@pytest.mark.slow
 def test_monte_carlo_samples_get_their_own_band(tmp_path):
     """A rollout CSV with samples (names 3, 3.s0, 3.s1, ... as rbgp rollout --samples writes them, and
     file#3.s0 after reading back): mean rollouts and samples are drawn as two bands."""
@@ -331,6 +339,7 @@ def test_axis_limits_cover_the_demonstrations_and_the_bulk_of_the_generated_set(
     assert low < 0 < high
 
 
+@pytest.mark.slow
 def test_without_a_score_the_figure_has_no_score_panels_and_says_why(tmp_path, data):
     demos, generated, _, _ = data
     result = evaluate(generated, demos[:1], sample_size="record")

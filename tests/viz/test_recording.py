@@ -380,6 +380,7 @@ def _write_demos_csv(path):
 TRAIN = ["--restarts", "1", "--max-points", "60", "--share-hyperparameters"]
 
 
+@pytest.mark.slow
 def test_commands_without_flags_import_neither_rerun_nor_matplotlib(tmp_path):
     """--help, train, rollout -o FILE and evaluate run in a fresh interpreter without loading either."""
     _write_demos_csv(tmp_path / "demos.csv")
@@ -404,6 +405,7 @@ def test_commands_without_flags_import_neither_rerun_nor_matplotlib(tmp_path):
     assert (tmp_path / "out.csv").stat().st_size > 0
 
 
+@pytest.mark.slow
 def test_cli_flags_write_readable_files(tmp_path):
     pytest.importorskip("matplotlib")
     from typer.testing import CliRunner
