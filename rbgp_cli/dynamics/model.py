@@ -579,6 +579,47 @@ def train_model(
     training residuals use each demonstration's own start, a rollout its start (docs/method.md §11).
     """
     t0 = time.perf_counter()
+    rep, kernel, kern = _checked_model_options(representation, kernel, rho_rot, time_input, prior, prior_gain, euler_order)
+    velocity = velocity or default_velocity()
+    X, Y, info = training_set(trajs, rep, subsample=subsample, max_points=None, seed=seed, velocity=velocity,
+                              time_input=time_input)
+    trajs, info = _without_empty_demos(trajs, info, velocity)
+    gp_choice = choose_gp(info["points"], inducing, max_points, kernel)
+    if gp_choice["type"] == "exact" and max_points is not None and info["points"] > max_points:
+        X, Y, info = training_set(trajs, rep, subsample=subsample, max_points=max_points, seed=seed, velocity=velocity,
+                                  time_input=time_input)
+    mean, start_dev = _prior_of(trajs, info, prior, prior_gain, start_conditioning, seed)
+    if mean is not None:
+        Y = Y - prior_mean_outputs(rep, X[:, : len(rep.input_names)], mean, X[:, -1] if time_input == "phase" else None,
+                                   start_dev=start_dev)
+    if progress:
+        progress(f"{len(trajs)} demonstrations, {info['pairs']} pairs, training on {info['points']} points "
+                 f"({rep.name}, kernel {kernel}, {'shared' if shared else 'per-output'} hyperparameters)")
+    fit = dict(noise=noise, restarts=restarts, seed=seed, shared=shared, progress=progress, explore_size=explore_size)
+    if gp_choice["type"] == "sparse":
+        gp, gp_choice, info = _fit_sparse(X, Y, kern, gp_choice, info, hyper_points, jobs, **fit)
+    else:
+        if jobs is None:
+            jobs = default_jobs(1 if shared else Y.shape[1], len(X))
+        gp = fit_gp(X, Y, kern, jobs=jobs, **fit)
+    gp = _scaled_posterior_noise(gp, gp_choice, info, calibrate, noise_scale, seed, progress)
+    recorded_dt = float(np.median(np.concatenate([np.diff(tr.t) for tr in trajs])))
+    dt = 1.0 / velocity.rate if velocity.rate is not None else recorded_dt
+    starts = np.array([np.concatenate([tr.quat[0], tr.position[0]]) for tr in trajs])
+    durations = np.array([tr.duration for tr in trajs])
+    from rbgp_cli.dynamics.envelope import envelope_from_demos
+    from rbgp_cli.dynamics.variation import demonstration_variation
+
+    variation = demonstration_variation(trajs)
+    summary = _train_summary(rep, kernel, kern, trajs, info, shared, velocity, gp, gp_choice, mean, variation,
+                             time_input, recorded_dt, t0)
+    return MotionModel(rep, gp, float(dt), starts, durations, summary=summary, velocity=velocity,
+                       time_input=time_input, mean=mean, variation=variation, envelope=envelope_from_demos(trajs))
+
+
+def _checked_model_options(representation, kernel, rho_rot, time_input, prior, prior_gain, euler_order):
+    """:func:`train_model`'s model options checked (InputError naming the parameter): the
+    representation, the kernel's name and the kernel (with ρ1 fixed, or learned for ``"learn"``)."""
     if representation not in DEFAULT_KERNELS:
         raise InputError(f"unknown representation {representation!r}; expected one of {', '.join(DEFAULT_KERNELS)}")
     kernel = kernel or DEFAULT_KERNELS[representation]
@@ -596,24 +637,28 @@ def train_model(
                          hint="add prior none (or goal), or use time_input phase", param="prior")
     if prior and not (np.isfinite(prior_gain) and prior_gain >= 0):
         raise InputError(f"prior_gain must be a non-negative number, got {prior_gain}", param="prior_gain")
-    kern = make_kernel(rep, kernel, rho, learn_rho, time_dims=1 if time_input else 0)
-    velocity = velocity or default_velocity()
-    X, Y, info = training_set(trajs, rep, subsample=subsample, max_points=None, seed=seed, velocity=velocity,
-                              time_input=time_input)
+    return rep, kernel, make_kernel(rep, kernel, rho, learn_rho, time_dims=1 if time_input else 0)
+
+
+def _without_empty_demos(trajs, info, velocity):
+    """The demonstrations that give at least one training pair (and ``info["per_demo"]`` for them); the
+    others are not demonstrations of the motion (no start, duration or path of their own): one warning."""
     empty = [k for k, c in enumerate(info["per_demo"]) if c == 0]
-    if empty:  # no training pair: not a demonstration of the motion (no start, duration or path of its own)
-        names = [trajs[k].name or trajs[k].source or f"demonstration {k + 1}" for k in empty]
-        shown = ", ".join(names[:8]) + (f" and {len(names) - 8} more" if len(names) > 8 else "")
-        grid = f"the {velocity.rate:g} Hz training grid" if velocity.rate else "the recorded samples"
-        warn(f"left out {len(empty)} of {len(trajs)} demonstrations that give no training pair on {grid} "
-             f"(too few samples or too short): {shown}")
-        keep = [k for k, c in enumerate(info["per_demo"]) if c > 0]
-        trajs = [trajs[k] for k in keep]
-        info["per_demo"] = [info["per_demo"][k] for k in keep]
-    gp_choice = choose_gp(info["points"], inducing, max_points, kernel)
-    if gp_choice["type"] == "exact" and max_points is not None and info["points"] > max_points:
-        X, Y, info = training_set(trajs, rep, subsample=subsample, max_points=max_points, seed=seed, velocity=velocity,
-                                  time_input=time_input)
+    if not empty:
+        return trajs, info
+    names = [trajs[k].name or trajs[k].source or f"demonstration {k + 1}" for k in empty]
+    shown = ", ".join(names[:8]) + (f" and {len(names) - 8} more" if len(names) > 8 else "")
+    grid = f"the {velocity.rate:g} Hz training grid" if velocity.rate else "the recorded samples"
+    warn(f"left out {len(empty)} of {len(trajs)} demonstrations that give no training pair on {grid} "
+         f"(too few samples or too short): {shown}")
+    keep = [k for k, c in enumerate(info["per_demo"]) if c > 0]
+    info["per_demo"] = [info["per_demo"][k] for k in keep]
+    return [trajs[k] for k in keep], info
+
+
+def _prior_of(trajs, info, prior, prior_gain, start_conditioning, seed):
+    """The prior mean (docs/method.md §7: ``path``, ``goal`` or None) and, for a start-conditioned mean
+    path (3 or more demonstrations), each training row's start deviation (n, 6), else None."""
     mean = None
     if prior == "path":
         mean = {"kind": "path", "gain": float(prior_gain), **mean_path(trajs)}
@@ -629,45 +674,48 @@ def train_model(
         demo_of_row = np.repeat(np.arange(len(trajs)), info["per_demo"])[np.asarray(info["indices"])]
         start_dev = PathReference(mean).start_deviation(np.array([tr.quat[0] for tr in trajs]),
                                                         np.array([tr.position[0] for tr in trajs]))[demo_of_row]
-    if mean is not None:
-        Y = Y - prior_mean_outputs(rep, X[:, : len(rep.input_names)], mean, X[:, -1] if time_input == "phase" else None,
-                                   start_dev=start_dev)
-    if progress:
-        progress(f"{len(trajs)} demonstrations, {info['pairs']} pairs, training on {info['points']} points "
-                 f"({rep.name}, kernel {kernel}, {'shared' if shared else 'per-output'} hyperparameters)")
-    if gp_choice["type"] == "sparse":
-        from rbgp_cli.gp.sparse import HYPER_MIN_POINTS, fit_sparse_gp
+    return mean, start_dev
 
-        if progress:
-            progress(f"sparse GP: {gp_choice['reason']}")
-        if jobs is None:  # worker processes for the exact fit that chooses the hyperparameters
-            hp = len(X) if hyper_points == 0 else min(len(X), hyper_points or HYPER_MIN_POINTS)
-            jobs = default_jobs(1 if shared else Y.shape[1], hp)
-        gp = fit_sparse_gp(X, Y, kern, inducing=gp_choice["inducing"], noise=noise, restarts=restarts, seed=seed,
-                           shared=shared, progress=progress, explore_size=explore_size, hyper_points=hyper_points,
-                           jobs=jobs)
-        gp_choice["inducing"] = int(gp.n_inducing)
-        # the stage that chose the hyperparameters: the exact GP's fit on a subset (the default) or the bound
-        stages = [st for f in gp.fits for st in f.stages]
-        last = "bound" if any(st["objective"] == "bound" for st in stages) else "exact NLML"
-        covered = max((int(st["points"]) for st in stages if st["objective"] == last), default=len(X))
-        gp_choice["hyper_points"] = covered
-        gp_choice["hyperparameters"] = "the bound" if last == "bound" else "the exact GP's NLML"
-        if covered < len(X):
-            gp_choice["reason"] += (f"; hyperparameters from {gp_choice['hyperparameters']} on a random {covered} of them "
-                                    "(--hyper-points 0: all), the posterior on all")
-        else:
-            gp_choice["reason"] += f"; hyperparameters from {gp_choice['hyperparameters']} on all of them"
-        if not gp_choice["forced"] and getattr(gp, "hyper_gp", None) is not None:
-            rows = gp.hyper_rows
-            gp, gp_choice = _keep_sparse_if_no_worse(gp, gp_choice, info, seed, progress)
-            if gp_choice["type"] == "exact":  # the training points are now the subset's
-                info = dict(info, indices=np.asarray(info["indices"])[rows], points=int(len(rows)))
+
+def _fit_sparse(X, Y, kern, gp_choice, info, hyper_points, jobs, *, noise, restarts, seed, shared, progress,
+                explore_size):
+    """The sparse GP of ``gp_choice`` on all points (:func:`rbgp_cli.gp.sparse.fit_sparse_gp`), or,
+    chosen automatically, the exact GP on its hyperparameter subset where that measures better
+    (:func:`_keep_sparse_if_no_worse`). Returns (gp, gp_choice, info), ``gp_choice`` saying which and why."""
+    from rbgp_cli.gp.sparse import HYPER_MIN_POINTS, fit_sparse_gp
+
+    if progress:
+        progress(f"sparse GP: {gp_choice['reason']}")
+    if jobs is None:  # worker processes for the exact fit that chooses the hyperparameters
+        hp = len(X) if hyper_points == 0 else min(len(X), hyper_points or HYPER_MIN_POINTS)
+        jobs = default_jobs(1 if shared else Y.shape[1], hp)
+    gp = fit_sparse_gp(X, Y, kern, inducing=gp_choice["inducing"], noise=noise, restarts=restarts, seed=seed,
+                       shared=shared, progress=progress, explore_size=explore_size, hyper_points=hyper_points,
+                       jobs=jobs)
+    gp_choice["inducing"] = int(gp.n_inducing)
+    # the stage that chose the hyperparameters: the exact GP's fit on a subset (the default) or the bound
+    stages = [st for f in gp.fits for st in f.stages]
+    last = "bound" if any(st["objective"] == "bound" for st in stages) else "exact NLML"
+    covered = max((int(st["points"]) for st in stages if st["objective"] == last), default=len(X))
+    gp_choice["hyper_points"] = covered
+    gp_choice["hyperparameters"] = "the bound" if last == "bound" else "the exact GP's NLML"
+    if covered < len(X):
+        gp_choice["reason"] += (f"; hyperparameters from {gp_choice['hyperparameters']} on a random {covered} of them "
+                                "(--hyper-points 0: all), the posterior on all")
     else:
-        if jobs is None:
-            jobs = default_jobs(1 if shared else Y.shape[1], len(X))
-        gp = fit_gp(X, Y, kern, noise=noise, restarts=restarts, seed=seed, shared=shared, progress=progress,
-                    explore_size=explore_size, jobs=jobs)
+        gp_choice["reason"] += f"; hyperparameters from {gp_choice['hyperparameters']} on all of them"
+    if not gp_choice["forced"] and getattr(gp, "hyper_gp", None) is not None:
+        rows = gp.hyper_rows
+        gp, gp_choice = _keep_sparse_if_no_worse(gp, gp_choice, info, seed, progress)
+        if gp_choice["type"] == "exact":  # the training points are now the subset's
+            info = dict(info, indices=np.asarray(info["indices"])[rows], points=int(len(rows)))
+    return gp, gp_choice, info
+
+
+def _scaled_posterior_noise(gp, gp_choice, info, calibrate, noise_scale, seed, progress):
+    """The posterior's σn² scaled: by held-out demonstrations (``calibrate``,
+    :func:`rbgp_cli.gp.calibration.calibrate_to_demonstrations`), then by ``noise_scale``
+    (:func:`rbgp_cli.gp.calibration.scale_noise`); ``gp_choice`` records the factors."""
     if calibrate:
         from rbgp_cli.gp.calibration import calibrate_to_demonstrations
 
@@ -687,10 +735,14 @@ def train_model(
         gp_choice["noise_scale"] = float(noise_scale)
         if progress:
             progress(f"noise scale: sigma_n^2 x {noise_scale:g} more in the posterior")
-    recorded_dt = float(np.median(np.concatenate([np.diff(tr.t) for tr in trajs])))
-    dt = 1.0 / velocity.rate if velocity.rate is not None else recorded_dt
-    starts = np.array([np.concatenate([tr.quat[0], tr.position[0]]) for tr in trajs])
-    durations = np.array([tr.duration for tr in trajs])
+    return gp
+
+
+def _train_summary(rep, kernel, kern, trajs, info, shared, velocity, gp, gp_choice, mean, variation, time_input,
+                   recorded_dt, t0) -> dict:
+    """The model's ``summary`` (:func:`train_model`): demonstrations, pairs, points, per output the
+    hyperparameters and NLML, the safeguards used, the GP chosen, the prior, the variation, the time taken.
+    Moves the start map's ridge from ``mean`` into it."""
     names = ["all"] if shared else list(rep.output_names)
     summary = {
         "representation": rep.name,
@@ -722,10 +774,5 @@ def train_model(
     if mean is not None and "start_ridge" in mean:  # the cross-validated ridge (None: ∞, no conditioning)
         lam = float(mean.pop("start_ridge"))
         summary["prior"]["start_ridge"] = lam if np.isfinite(lam) else None
-    from rbgp_cli.dynamics.envelope import envelope_from_demos
-    from rbgp_cli.dynamics.variation import demonstration_variation
-
-    variation = demonstration_variation(trajs)
     summary["variation"] = None if variation is None else {"demos": variation.demos, "dof": variation.dof}
-    return MotionModel(rep, gp, float(dt), starts, durations, summary=summary, velocity=velocity,
-                       time_input=time_input, mean=mean, variation=variation, envelope=envelope_from_demos(trajs))
+    return summary
