@@ -720,7 +720,8 @@ def _scaled_posterior_noise(gp, gp_choice, info, calibrate, noise_scale, seed, p
         from rbgp_cli.gp.calibration import calibrate_to_demonstrations
 
         groups = np.repeat(np.arange(len(info["per_demo"])), info["per_demo"])[info["indices"]]
-        gp, records = calibrate_to_demonstrations(gp, groups, seed=seed)
+        # the noise scale in the same posterior (one factorisation, not two)
+        gp, records = calibrate_to_demonstrations(gp, groups, seed=seed, extra_factor=noise_scale)
         gp_choice["calibration"] = None if records is None else {
             "noise_variance_factors": [round(r["factor"], 3) for r in records],
             "points": records[0]["points"], "folds": records[0]["folds"]}
@@ -729,9 +730,10 @@ def _scaled_posterior_noise(gp, gp_choice, info, calibrate, noise_scale, seed, p
                      "sigma_n^2 x " + ", ".join(f"{r['factor']:.3g}" for r in records)
                      + f" (leaving demonstrations out, {records[0]['folds']} folds on {records[0]['points']} points)"))
     if noise_scale != 1.0:
-        from rbgp_cli.gp.calibration import scale_noise
+        if not calibrate:
+            from rbgp_cli.gp.calibration import scale_noise
 
-        gp = scale_noise(gp, noise_scale)
+            gp = scale_noise(gp, noise_scale)
         gp_choice["noise_scale"] = float(noise_scale)
         if progress:
             progress(f"noise scale: sigma_n^2 x {noise_scale:g} more in the posterior")

@@ -92,21 +92,28 @@ def demonstration_noise_factors(gp: Posterior, groups: np.ndarray, *, points: in
 
 
 def calibrate_to_demonstrations(gp: Posterior, groups: np.ndarray, *, seed: int = 0,
-                                points: int = CALIBRATION_POINTS) -> tuple[Posterior, list[dict] | None]:
+                                points: int = CALIBRATION_POINTS,
+                                extra_factor: float = 1.0) -> tuple[Posterior, list[dict] | None]:
     """The fitted GP (exact or sparse) with σn² of each hyperparameter set scaled by its factor c
     (:func:`demonstration_noise_factors`) for the posterior; the hyperparameters found by the fit are
-    kept in each fit's ``calibration`` record. Returns (gp, records); the GP unchanged and None when
-    there are fewer than two demonstrations. Costs the cross-validation plus one posterior."""
+    kept in each fit's ``calibration`` record. ``extra_factor`` ≠ 1 multiplies σn² further, as
+    :func:`scale_noise` would, in the same posterior. Returns (gp, records); the GP unchanged (but for
+    ``extra_factor``) and None when there are fewer than two demonstrations. Costs the
+    cross-validation plus one posterior."""
     from dataclasses import replace
 
     records = demonstration_noise_factors(gp, groups, seed=seed, points=points)
     if records is None:
-        return gp, None
+        return scale_noise(gp, extra_factor), None
+    extra = float(extra_factor)
+    if not extra > 0:
+        raise ValueError(f"extra_factor must be positive, got {extra_factor}")
     fits = []
     for fit, rec in zip(gp.fits, records):
         sn = float(fit.values[NOISE])
-        rec = {**rec, "noise_std_fitted": sn}
-        fits.append(replace(fit, values={**fit.values, NOISE: sn * float(np.sqrt(rec["factor"]))}, calibration=rec))
+        rec = {**rec, "noise_std_fitted": sn, **({"extra_factor": extra} if extra != 1.0 else {})}
+        sn_post = sn * float(np.sqrt(rec["factor"])) * (float(np.sqrt(extra)) if extra != 1.0 else 1.0)
+        fits.append(replace(fit, values={**fit.values, NOISE: sn_post}, calibration=rec))
     return _with_fits(gp, fits), [f.calibration for f in fits]
 
 
