@@ -330,9 +330,11 @@ class start_workers:
 
 
 def stop_pool(pool) -> None:
-    """End a process pool now: cancel what has not started and terminate the running workers (on an
-    error or an interrupt; ``shutdown(wait=True)`` would wait for their fits to finish)."""
+    """End a process pool now: cancel what has not started, terminate the running workers (on an
+    error or an interrupt; ``shutdown(wait=True)`` would wait for their fits to finish) and wait for
+    the pool's manager thread to end, so that nothing of the pool is left for the exit handlers."""
     workers = list((getattr(pool, "_processes", None) or {}).values())
+    manager = getattr(pool, "_executor_manager_thread", None)  # shutdown() forgets it
     pool.shutdown(wait=False, cancel_futures=True)
     for proc in workers:
         try:
@@ -343,6 +345,14 @@ def stop_pool(pool) -> None:
         try:
             proc.join(2.0)
         except (OSError, ValueError, AssertionError, AttributeError):
+            pass
+    # The pool's manager thread notices the terminated workers and closes its wake-up pipe; at exit the
+    # standard library writes to every pool's pipe unlocked (3.11), so a SIGTERM exit that overtook the
+    # closing printed an "OSError: Bad file descriptor" traceback. Waiting for the thread here settles it.
+    if manager is not None:
+        try:
+            manager.join(5.0)
+        except RuntimeError:  # not started
             pass
 
 

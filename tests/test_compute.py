@@ -242,3 +242,31 @@ def test_blas_threads_limits_small_problems_and_one_thread_limits_every_pool():
         with compute.one_thread():
             assert {p["threads"] for p in compute.blas_pools()} == {1}
         assert {p["num_threads"] for p in threadpoolctl.threadpool_info() if p["user_api"] == "blas"} == {2}
+
+
+def _sleep(seconds):
+    import time
+
+    time.sleep(seconds)
+    return seconds
+
+
+@pytest.mark.slow
+def test_a_stopped_pool_leaves_no_manager_thread_for_the_exit_handlers():
+    """Before: ``stop_pool`` returned with the pool's manager thread still closing its wake-up pipe, and
+    a SIGTERM exit that overtook it printed the standard library's "Bad file descriptor" traceback
+    (CI, crossval killed after 0.5 s)."""
+    import time
+
+    from rbgp_cli.compute import process_pool, start_workers, stop_pool
+
+    for delay in (0.0, 0.3, 1.0):  # while the workers start, and while they run
+        pool = process_pool(2)
+        with start_workers():
+            futures = [pool.submit(_sleep, 30.0) for _ in range(4)]
+        time.sleep(delay)
+        manager = pool._executor_manager_thread
+        assert manager is not None and manager.is_alive()
+        stop_pool(pool)
+        assert not manager.is_alive(), delay
+        assert all(f.done() for f in futures)
