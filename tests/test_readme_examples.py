@@ -327,18 +327,20 @@ def check_rollout(res, folder, shown):
     assert np.all(gen.filter(like="std_").to_numpy() >= 0) and set(gen["left_data"].unique()) <= {0, 1}
 
 
-EVALUATE = re.compile(r"bhattacharyya mean (\S+)  rotation (\S+)  translation (\S+)  \((\d+) steps, (\d+) generated, "
-                      r"(\d+) demonstrations\); (\d+) of (\d+) generated left the demonstrations' envelope")
+EVALUATE = re.compile(r"bhattacharyya mean (\S+)  rotation (\S+)  translation (\S+)  offset (\S+)  spread (\S+)  "
+                      r"\((\d+) steps, (\d+) generated, (\d+) demonstrations\); (\d+) of (\d+) generated left the "
+                      r"demonstrations' envelope")
 
 
 def check_evaluate(res, folder, shown):
     assert EVALUATE.fullmatch(shown.strip()), shown  # the README's line has the form checked here
     m = EVALUATE.fullmatch(res.stdout.strip())
     assert m, res.stdout
-    mean, rot, trans = (float(m.group(k)) for k in (1, 2, 3))
-    assert min(mean, rot, trans) >= 0 and abs(mean - rot - trans) <= 1.5e-4
+    mean, rot, trans, offset, spread = (float(m.group(k)) for k in (1, 2, 3, 4, 5))
+    assert min(mean, rot, trans, offset, spread) >= 0
+    assert abs(mean - rot - trans) <= 1.5e-4 and abs(mean - offset - spread) <= 1.5e-4
     n_gen = _read_csv(folder / "gen.csv")["trajectory"].nunique()
-    assert int(m.group(5)) == int(m.group(8)) == n_gen and int(m.group(6)) == 9 and int(m.group(7)) <= n_gen
+    assert int(m.group(7)) == int(m.group(10)) == n_gen and int(m.group(8)) == 9 and int(m.group(9)) <= n_gen
     assert (folder / "fig.png").read_bytes()[:4] == b"\x89PNG"
 
 

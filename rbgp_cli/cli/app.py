@@ -346,7 +346,7 @@ def evaluate(
     else:
         b = result.to_dict()["bhattacharyya"]
         print(f"bhattacharyya mean {b['mean']:.4f}  rotation {b['rotation']:.4f}  translation {b['translation']:.4f}"
-              f"  ({result.steps} steps, {result.n_generated} generated, {result.n_demos} demonstrations)"
+              f"  offset {b['offset']:.4f}  spread {b['spread']:.4f}  ({result.steps} steps, {result.n_generated} generated, {result.n_demos} demonstrations)"
               f"; {left['count']} of {left['of']} generated left the demonstrations' envelope")
 
 

@@ -123,13 +123,15 @@ def format_model_info(path: str, h: dict) -> str:
 
 
 def write_per_step(result, fh) -> None:
-    """Columns: step, s (normalised time), bhattacharyya, rotation, translation; floats as the
+    """Columns: step, s (normalised time), bhattacharyya, rotation, translation, offset, spread (the
+    total's two parts: the sets' means apart, their spreads unlike; they add up to it); floats as the
     shortest text that reads back to the same float64 (``float.__repr__`` of Python floats: the
     ``repr`` of a numpy scalar is ``np.float64(…)``, which no CSV reader takes for a number)."""
     import numpy as np
 
-    rows = np.column_stack([result.s, result.per_step, result.per_step_rotation, result.per_step_translation])
-    fh.write("step,s,bhattacharyya,rotation,translation\n")
+    rows = np.column_stack([result.s, result.per_step, result.per_step_rotation, result.per_step_translation,
+                            result.per_step_offset, result.per_step_spread])
+    fh.write("step,s,bhattacharyya,rotation,translation,offset,spread\n")
     fh.writelines(f"{i}," + ",".join(map(float.__repr__, row)) + "\n"
                   for i, row in enumerate(rows.astype(np.float64).tolist()))
 

@@ -58,6 +58,8 @@ __all__ = [
     "SampleSizeCheck",
     "check_sample_sizes",
     "MAX_UPSAMPLING",
+    "bhattacharyya_diag_parts",
+    "bhattacharyya_gaussian_parts",
 ]
 
 #: Accepted values of ``evaluate(covariance=...)``.
@@ -114,6 +116,14 @@ def bhattacharyya_diag(mu1, var1, mu2, var2) -> np.ndarray:
     ndarray, shape (..., k)
         Nonnegative terms.
     """
+    offset, spread = bhattacharyya_diag_parts(mu1, var1, mu2, var2)
+    return offset + spread
+
+
+def bhattacharyya_diag_parts(mu1, var1, mu2, var2) -> tuple[np.ndarray, np.ndarray]:
+    """The two parts of :func:`bhattacharyya_diag`, shapes (..., k) each: the *offset* (mean) part
+    ``Δ_i² / (4 (v1_i + v2_i))`` and the *spread* (variance) part ``½ ln cosh(½ ln(v1_i/v2_i))``.
+    The offset is 0 when the means agree, the spread when the variances do; their sum is D_B,i."""
     arrays = (np.asarray(a, dtype=np.float64) for a in (mu1, var1, mu2, var2))
     mu1, var1, mu2, var2 = np.broadcast_arrays(*arrays)
     if np.any(var1 < 0) or np.any(var2 < 0):
@@ -125,7 +135,7 @@ def bhattacharyya_diag(mu1, var1, mu2, var2) -> np.ndarray:
         maha = np.where(both_zero, np.where(d2 == 0, 0.0, np.inf), d2 / (4.0 * np.where(both_zero, 1.0, vs)))
         y = 0.5 * (np.log(np.where(both_zero, 1.0, var1)) - np.log(np.where(both_zero, 1.0, var2)))
     logterm = 0.5 * _log_cosh(y)  # y = ±inf when exactly one variance is 0 -> +inf
-    return maha + logterm
+    return maha, logterm
 
 
 def _logdet_psd(S: np.ndarray) -> np.ndarray:
@@ -173,6 +183,14 @@ def bhattacharyya_gaussian(mu1, S1, mu2, S2) -> np.ndarray:
     -------
     ndarray, shape (...)
     """
+    offset, spread = bhattacharyya_gaussian_parts(mu1, S1, mu2, S2)
+    return offset + spread
+
+
+def bhattacharyya_gaussian_parts(mu1, S1, mu2, S2) -> tuple[np.ndarray, np.ndarray]:
+    """The two parts of :func:`bhattacharyya_gaussian`, shapes (...) each: the *offset* (mean) part
+    ``⅛ Δᵀ Σ⁻¹ Δ`` and the *spread* (covariance) part ``½ ln(det Σ / sqrt(det S1 det S2))``; their sum
+    is D_B (NaN in both where Σ is singular)."""
     mu1 = np.asarray(mu1, dtype=np.float64)
     mu2 = np.asarray(mu2, dtype=np.float64)
     S1 = np.asarray(S1, dtype=np.float64)
@@ -211,8 +229,7 @@ def bhattacharyya_gaussian(mu1, S1, mu2, S2) -> np.ndarray:
         logdet_sigma = np.sum(np.log(lam_safe), axis=-1)
     with np.errstate(invalid="ignore"):
         logterm = np.maximum(0.5 * (logdet_sigma - 0.5 * (_logdet_psd(S1) + _logdet_psd(S2))), 0.0)
-    out = 0.125 * maha + logterm
-    return np.where(regular, out, np.nan)
+    return np.where(regular, 0.125 * maha, np.nan), np.where(regular, logterm, np.nan)
 
 
 def _plural(n: int, word: str) -> str:
@@ -330,6 +347,13 @@ class EvaluationResult:
         D_B per step: total, rotation part, translation part.
     mean, rotation, translation : float
         Their means over the T steps.
+    per_step_offset, per_step_spread : ndarray, shape (T,)
+        The two parts of the per-step total (they add up to it): the *offset*, ⅛ Δᵀ Σ⁻¹ Δ (diag: Σ_i
+        Δ_i² / (4 (v_d,i + v_g,i))), how far the generated set's mean is from the demonstrations' in
+        units of their pooled spread; the *spread*, ½ ln(det Σ / √(det Σ_d det Σ_g)), how much the two
+        sets' spreads differ (too narrow or too wide alike). docs/method.md §9.
+    offset, spread : float
+        Their means over the T steps (offset + spread = mean).
     s : ndarray, shape (T,)
         Normalised time of each step, ``j/(T − 1)``.
     reference : ndarray, shape (T, 4)
@@ -355,6 +379,10 @@ class EvaluationResult:
     mean: float
     rotation: float
     translation: float
+    per_step_offset: np.ndarray
+    per_step_spread: np.ndarray
+    offset: float
+    spread: float
     s: np.ndarray
     reference: np.ndarray
     demo_mean: np.ndarray
@@ -370,11 +398,11 @@ class EvaluationResult:
     def to_dict(self, include_series: bool = False) -> dict:
         """Plain data (floats, ints, str, lists) for JSON output.
 
-        ``{"bhattacharyya": {"mean", "rotation", "translation"}, "steps", "n_generated",
+        ``{"bhattacharyya": {"mean", "rotation", "translation", "offset", "spread"}, "steps", "n_generated",
         "n_demos", "covariance", "ridge", "reliable", "warnings"}`` (``reliable`` false and
         ``warnings`` saying why and how many trajectories are needed when the sets are too small for
         the covariance or barely vary), plus ``"per_step": {"s", "total", "rotation",
-        "translation"}`` (lists of length T) when ``include_series``. Non-finite values (only
+        "translation", "offset", "spread"}`` (lists of length T) when ``include_series``. Non-finite values (only
         possible with ``ridge=0``) stay ``inf``/``nan`` floats.
         """
         out = {
@@ -382,6 +410,8 @@ class EvaluationResult:
                 "mean": float(self.mean),
                 "rotation": float(self.rotation),
                 "translation": float(self.translation),
+                "offset": float(self.offset),
+                "spread": float(self.spread),
             },
             "steps": int(self.steps),
             "n_generated": int(self.n_generated),
@@ -397,6 +427,8 @@ class EvaluationResult:
                 "total": [float(v) for v in self.per_step],
                 "rotation": [float(v) for v in self.per_step_rotation],
                 "translation": [float(v) for v in self.per_step_translation],
+                "offset": [float(v) for v in self.per_step_offset],
+                "spread": [float(v) for v in self.per_step_spread],
             }
         return out
 
@@ -542,14 +574,17 @@ def evaluate(
             warn(note)
 
     if covariance == "diag":
-        terms = bhattacharyya_diag(mu_d, var_d + ridge, mu_g, var_g + ridge)  # (T, 6)
+        off, spr = bhattacharyya_diag_parts(mu_d, var_d + ridge, mu_g, var_g + ridge)  # (T, 6) each
+        terms = off + spr
         per_rot = terms[:, rot].sum(axis=-1)
         per_tra = terms[:, tra].sum(axis=-1)
         per_step = per_rot + per_tra
+        per_off, per_spr = off.sum(axis=-1), spr.sum(axis=-1)
     else:
         eye = ridge * np.eye(6)
         S_d, S_g = cov_d + eye, cov_g + eye
-        per_step = bhattacharyya_gaussian(mu_d, S_d, mu_g, S_g)
+        per_off, per_spr = bhattacharyya_gaussian_parts(mu_d, S_d, mu_g, S_g)
+        per_step = per_off + per_spr
         per_rot = bhattacharyya_gaussian(mu_d[:, rot], S_d[:, rot, rot], mu_g[:, rot], S_g[:, rot, rot])
         per_tra = bhattacharyya_gaussian(mu_d[:, tra], S_d[:, tra, tra], mu_g[:, tra], S_g[:, tra, tra])
 
@@ -565,6 +600,10 @@ def evaluate(
         mean=float(np.mean(per_step)),
         rotation=float(np.mean(per_rot)),
         translation=float(np.mean(per_tra)),
+        per_step_offset=per_off,
+        per_step_spread=per_spr,
+        offset=float(np.mean(per_off)),
+        spread=float(np.mean(per_spr)),
         s=normalised_time(T),
         reference=ref,
         demo_mean=mu_d,

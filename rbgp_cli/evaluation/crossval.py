@@ -7,7 +7,10 @@ folds of the demonstrations (seeded; a demonstration is never split across folds
 2. rolls out one trajectory from each held-out demonstration's own start pose for its own duration;
 3. **score**: the Bhattacharyya distance (docs/method.md §9) of the generated set against the *training*
    demonstrations; **floor**: the same for the held-out demonstrations themselves (same counts, same
-   resampling length, same training set): what a fresh real demonstration scores;
+   resampling length, same training set): what a fresh real demonstration scores; ``offset`` and
+   ``spread`` (and ``floor_offset``, ``floor_spread``, ``sample_offset``, ``sample_spread``) are the
+   score's two terms (docs/method.md §9): the generated set's mean away from the demonstrations', and
+   its spread unlike theirs;
 4. **left_data**: how many generated trajectories leave the training demonstrations' envelope
    (:mod:`rbgp_cli.dynamics.envelope`; ``floor_left_data``: how many held-out demonstrations do);
 5. **trajectory errors**: each generated trajectory against the held-out demonstration that starts
@@ -225,12 +228,13 @@ def _sample_columns(drawn, train: list[Trajectory], test: list[Trajectory], T: i
     if not drawn:
         return None
     one = [d[0] for d in drawn]
-    sample_score = evaluate(one, train, length=T, covariance=covariance, sample_size="record").mean
+    scored = evaluate(one, train, length=T, covariance=covariance, sample_size="record")
     cov = Coverage()
     if len(drawn[0]) >= MIN_SAMPLES:
         for d, real in zip(drawn, test):
             cov = cov + prediction_coverage(d, real, T)
-    return {"sample_score": float(sample_score), "coverage": list(cov.astuple())}
+    return {"sample_score": float(scored.mean), "sample_offset": float(scored.offset),
+            "sample_spread": float(scored.spread), "coverage": list(cov.astuple())}
 
 
 def run_fold(config: Config, train: list[Trajectory], test: list[Trajectory], *, length: int | None = None,
@@ -250,6 +254,7 @@ def run_fold(config: Config, train: list[Trajectory], test: list[Trajectory], *,
         left = left_envelope(gen, envelope_from_demos(train))["count"]
     out = {
         "score": score.mean, "rotation": score.rotation, "translation": score.translation,
+        "offset": score.offset, "spread": score.spread,
         "reliable": bool(getattr(score, "reliable", True)),
         "steps": T, "position_sq": sp, "rotation_sq": sr, "count": count,
         "train_s": train_s, "rollout_s": gen_s, "velocity": vel, "left_data": left,
@@ -305,6 +310,7 @@ def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[di
             "score": r["score"], "floor": floor.mean, "ratio": r["score"] / floor.mean if floor.mean > 0 else float("inf"),
             "rotation": r["rotation"], "translation": r["translation"],
             "floor_rotation": floor.rotation, "floor_translation": floor.translation,
+            "offset": r["offset"], "spread": r["spread"], "floor_offset": floor.offset, "floor_spread": floor.spread,
             "position_rmse": _pooled_rmse(r["position_sq"], r["count"]),
             "rotation_rmse": _pooled_rmse(r["rotation_sq"], r["count"]),
             **_velocity_summary([r["velocity"]]),
@@ -329,6 +335,10 @@ def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[di
         "ratio": score / floor if floor > 0 else float("inf"),
         "rotation": float(np.mean([r["rotation"] for r in results])),
         "translation": float(np.mean([r["translation"] for r in results])),
+        "offset": float(np.mean([r["offset"] for r in results])),
+        "spread": float(np.mean([r["spread"] for r in results])),
+        "floor_offset": float(np.mean([f.offset for f in floors])),
+        "floor_spread": float(np.mean([f.spread for f in floors])),
         "position_rmse": _pooled_rmse(sum(r["position_sq"] for r in results), count),
         "rotation_rmse": _pooled_rmse(sum(r["rotation_sq"] for r in results), count),
         **_velocity_summary([r["velocity"] for r in results]),
@@ -345,7 +355,8 @@ def _sampled_summary(results: list[dict], floors: list[float]) -> dict:
     columns, or all None where the row has no samples (the replay peer, or samples=0)."""
     from rbgp_cli.evaluation.coverage import Coverage
 
-    keys = ("sample_score", "sample_ratio", "coverage_position", "coverage_rotation", "band_position", "band_rotation")
+    keys = ("sample_score", "sample_ratio", "sample_offset", "sample_spread", "coverage_position", "coverage_rotation",
+            "band_position", "band_rotation")
     if not results or any("sample_score" not in r for r in results):
         return dict.fromkeys(keys)
     score = float(np.mean([r["sample_score"] for r in results]))
@@ -354,7 +365,8 @@ def _sampled_summary(results: list[dict], floors: list[float]) -> dict:
     for r in results:
         total = total + Coverage(*r["coverage"])
     cov = {k: (None if not math.isfinite(v) else v) for k, v in total.to_dict().items()}
-    return {"sample_score": score, "sample_ratio": score / floor if floor > 0 else float("inf"), **cov}
+    parts = {k: float(np.mean([r[k] for r in results])) for k in ("sample_offset", "sample_spread")}
+    return {"sample_score": score, "sample_ratio": score / floor if floor > 0 else float("inf"), **parts, **cov}
 
 
 def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, seed: int = 0,

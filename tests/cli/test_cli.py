@@ -132,10 +132,11 @@ def test_evaluate_json_schema(model, tmp_path):
     res = run("evaluate", gen, "--demos", CSV_DIR, "--json", "--per-step", per)
     assert res.exit_code == 0, res.stderr
     d = json.loads(res.stdout)
-    assert set(d["bhattacharyya"]) == {"mean", "rotation", "translation"}
+    assert set(d["bhattacharyya"]) == {"mean", "rotation", "translation", "offset", "spread"}
     assert d["n_generated"] == 6 and d["n_demos"] == 9 and d["steps"] > 100
     b = d["bhattacharyya"]
     assert b["mean"] == pytest.approx(b["rotation"] + b["translation"])  # diag: parts add up
+    assert b["mean"] == pytest.approx(b["offset"] + b["spread"]) and min(b["offset"], b["spread"]) >= 0
     assert len(per.read_text().splitlines()) == d["steps"] + 1
 
 

@@ -45,7 +45,8 @@ def test_evaluate_per_step_csv_reads_back_as_numbers(model, tmp_path):
     assert res.exit_code == 0, res.stderr
     steps = json.loads(res.stdout)["steps"]
     df = pd.read_csv(per)
-    assert list(df.columns) == ["step", "s", "bhattacharyya", "rotation", "translation"]
+    assert list(df.columns) == ["step", "s", "bhattacharyya", "rotation", "translation", "offset", "spread"]
+    np.testing.assert_allclose(df["offset"] + df["spread"], df["bhattacharyya"], rtol=1e-12)
     assert all(pd.api.types.is_numeric_dtype(df[c]) for c in df.columns), df.dtypes
     np.testing.assert_array_equal(df["step"].to_numpy(), np.arange(steps))
     np.testing.assert_allclose(df["s"].to_numpy(), np.arange(steps) / (steps - 1), rtol=0, atol=1e-15)

@@ -294,7 +294,8 @@ def test_to_dict_is_plain_json(sets):
     assert set(d) == {"bhattacharyya", "steps", "n_generated", "n_demos", "covariance", "ridge", "reliable",
                       "warnings"}
     assert d["reliable"] is True and d["warnings"] == []
-    assert d["bhattacharyya"] == {"mean": res.mean, "rotation": res.rotation, "translation": res.translation}
+    assert d["bhattacharyya"] == {"mean": res.mean, "rotation": res.rotation, "translation": res.translation,
+                                  "offset": res.offset, "spread": res.spread}
     assert d["steps"] == 20 and d["covariance"] == "diag" and d["ridge"] == 1e-6
     full = json.loads(json.dumps(res.to_dict(include_series=True)))
     assert len(full["per_step"]["total"]) == 20
@@ -429,3 +430,57 @@ def test_sets_without_spread_are_flagged(sets):
     with pytest.warns(RbgpWarning, match=r"generated trajectories barely differ: at 100 % .*below the ridge"):
         res = evaluate([gen[0]] * 5, demos)
     assert not res.reliable and "barely differ" in res.to_dict()["warnings"][0]
+
+
+# ---------------------------------------------------------------------------------------------
+# Offset and spread: the two parts of the score
+# ---------------------------------------------------------------------------------------------
+
+
+@given(st.integers(0, 10_000), st.integers(1, 6))
+@SETTINGS
+def test_the_parts_add_up_and_are_each_the_closed_form(seed, k):
+    from rbgp_cli.evaluation.bhattacharyya import bhattacharyya_diag_parts, bhattacharyya_gaussian_parts
+
+    rng = np.random.default_rng(seed)
+    mu1, mu2 = rng.normal(size=(2, 4, k))
+    S1, S2 = random_spd(rng, k, (4,)), random_spd(rng, k, (4,))
+    off, spr = bhattacharyya_gaussian_parts(mu1, S1, mu2, S2)
+    np.testing.assert_allclose(off + spr, bhattacharyya_gaussian(mu1, S1, mu2, S2), rtol=1e-12, atol=1e-14)
+    S = 0.5 * (S1 + S2)  # an independent oracle: the textbook formulas with inverse and determinants
+    d = mu1 - mu2
+    np.testing.assert_allclose(off, 0.125 * np.einsum("bi,bij,bj->b", d, np.linalg.inv(S), d), rtol=1e-8)
+    ref = 0.5 * np.log(np.linalg.det(S) / np.sqrt(np.linalg.det(S1) * np.linalg.det(S2)))
+    np.testing.assert_allclose(spr, np.maximum(ref, 0.0), rtol=1e-6, atol=1e-9)
+    v1, v2 = np.exp(rng.normal(size=(2, 4, k)))
+    doff, dspr = bhattacharyya_diag_parts(mu1, v1, mu2, v2)
+    np.testing.assert_allclose(doff, d ** 2 / (4 * (v1 + v2)), rtol=1e-12)
+    np.testing.assert_allclose(dspr, 0.5 * np.log((v1 + v2) / (2 * np.sqrt(v1 * v2))), rtol=1e-9, atol=1e-15)
+    assert np.all(doff >= 0) and np.all(dspr >= 0)
+
+
+@pytest.mark.parametrize("cov", ["diag", "full"])
+def test_a_shifted_set_is_all_offset_and_a_widened_set_all_spread(sets, cov):
+    """The decomposition says *why* a score is high: generated motions off to one side (offset) or too
+    narrow / too wide a set (spread)."""
+    demos, gen = sets
+    base = evaluate(gen, demos, covariance=cov)
+    assert base.offset + base.spread == pytest.approx(base.mean, rel=1e-12)
+    shifted = evaluate([g.with_(position=g.position + [0.05, 0.0, 0.0]) for g in gen], demos, covariance=cov)
+    assert shifted.spread == pytest.approx(base.spread, rel=1e-9, abs=1e-12)  # the same spread
+    assert shifted.offset > base.offset + 1.0
+    # on a common time grid, positions pushed away from the generated set's own per-step mean by a
+    # factor 3: the mean stays
+    from rbgp_cli.evaluation import resample_all
+
+    T = base.steps
+    q, p = resample_all(gen, T)
+    mu = p.mean(axis=0)
+    grid = [Trajectory(t=np.linspace(0.0, 1.0, T), quat=q[m], position=p[m]) for m in range(len(gen))]
+    again = evaluate(grid, demos, covariance=cov)
+    wide = evaluate([g.with_(position=mu + 3.0 * (g.position - mu)) for g in grid], demos, covariance=cov)
+    assert wide.offset <= again.offset  # the means stay; the pooled Σ grows, so the offset can only shrink
+    assert wide.spread > again.spread + 0.5
+    d = wide.to_dict(include_series=True)
+    assert d["bhattacharyya"]["offset"] == pytest.approx(wide.offset)
+    np.testing.assert_allclose(np.add(d["per_step"]["offset"], d["per_step"]["spread"]), d["per_step"]["total"])

@@ -220,6 +220,13 @@ def test_sample_columns_score_one_sample_per_start_and_pool_the_coverage(monkeyp
     assert row["band_position"] > 0 and row["band_rotation"] > 0
     assert row["sample_ratio"] == pytest.approx(row["sample_score"] / row["floor"])
     assert row["sample_score"] == pytest.approx(np.mean([f["sample_score"] for f in row["per_fold"]]))
+    # the score's two terms, for the mean rollouts, the samples and the floor (docs/method.md §9)
+    for prefix in ("", "sample_", "floor_"):
+        off, spr = row[prefix + "offset"], row[prefix + "spread"]
+        assert off >= 0 and spr >= 0
+        whole = row["floor"] if prefix == "floor_" else row[prefix + "score"]
+        assert off + spr == pytest.approx(whole, rel=1e-9)
+    assert rows[REPLAY]["offset"] + rows[REPLAY]["spread"] == pytest.approx(rows[REPLAY]["score"], rel=1e-9)
     assert all(rows[REPLAY][k] is None for k in ("sample_score", "coverage_position", "band_rotation"))
     # one fold recomputed by hand: the model's samples from the held-out starts, seeded as crossval seeds them
     from rbgp_cli.dynamics.model import train_model
