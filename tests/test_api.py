@@ -140,6 +140,45 @@ def test_as_flags_maps_param_and_underscored_names_only():
     assert as_flags(InputError("steps are many"), flags) == "steps are many"  # not the parameter: left alone
 
 
+def test_as_flags_maps_several_params_and_on_off_flags():
+    from rbgp_cli.cli.common import as_flags
+
+    flags = {"rate": "--rate", "columns": "--columns", "fmt": "--format", "format": "--format",
+             "degrees": "--degrees", "degrees=True": "--degrees", "degrees=False": "--radians"}
+    # the names of a tuple param, in the hint; the message uses "columns" plainly after its start
+    e = InputError("no time column (columns are tme, x, y)", hint="pass rate HZ or columns t=tme",
+                   param=("rate", "columns"))
+    assert as_flags(e, flags) == "no time column (columns are tme, x, y); pass --rate HZ or --columns t=tme"
+    e = InputError("columns qw=w0: the file has no column 'w0'; columns are t, x", param="columns")
+    assert as_flags(e, flags) == "--columns qw=w0: the file has no column 'w0'; columns are t, x"
+    # an on/off flag: NAME=True / NAME=False, the plain word stays
+    e = InputError("angles in degrees or radians?", hint="pass degrees=True or degrees=False", param="degrees")
+    assert as_flags(e, flags) == "angles in degrees or radians?; pass --degrees or --radians"
+    # the flag's own name where the command's parameter is named differently (fmt)
+    assert as_flags(InputError("format 'x' is unknown", param="format"), flags) == "--format 'x' is unknown"
+    assert as_flags(e, {}) == "angles in degrees or radians?; pass degrees=True or degrees=False"  # no command
+
+
+def test_cli_option_flags_of_the_running_command():
+    """_option_flags: each option under its parameter's name and its flag's, on/off flags as NAME=True/False."""
+    import typer
+    from typer.testing import CliRunner
+
+    from rbgp_cli.cli.common import _option_flags
+
+    app, seen = typer.Typer(), {}
+
+    @app.command()
+    def cmd(fmt: str = typer.Option("auto", "--format"), degrees: bool = typer.Option(None, "--degrees/--radians"),
+            max_points: int = 0):
+        seen.update(_option_flags())
+
+    assert CliRunner().invoke(app, []).exit_code == 0
+    assert seen["fmt"] == seen["format"] == "--format" and seen["max_points"] == "--max-points"
+    assert seen["degrees"] == seen["degrees=True"] == "--degrees" and seen["degrees=False"] == "--radians"
+
+
+
 @pytest.mark.slow
 def test_docs_example_runs(capsys):
     ns = runpy.run_path(str(REPO / "docs" / "examples" / "python_api.py"), run_name="example")

@@ -116,7 +116,7 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
     if issubclass(category, RbgpWarning):  # parameter names with an underscore shown as the options
         from rbgp_cli.errors import RbgpError
 
-        _stderr(f"rbgp: warning: {as_flags(RbgpError(str(message)))}")
+        _stderr(f"rbgp: warning: {as_flags(getattr(message, 'error', None) or RbgpError(str(message)))}")
     elif not _QUIET["on"] and os.environ.get("RBGP_DEBUG"):
         _stderr(f"rbgp: warning: {category.__name__}: {message}")
 
@@ -185,7 +185,10 @@ def command(func):
 
 def _option_flags() -> dict:
     """{Python name: its long flag} of the running command's options (``steps`` → ``--steps``,
-    ``fmt`` → ``--format``), from Click's context; {} outside a command."""
+    ``fmt`` → ``--format``), from Click's context; {} outside a command. Each option is also there
+    under its flag's own name (``format`` → ``--format``: the library's name where the command's
+    differs), and an on/off flag under ``NAME=True`` and ``NAME=False`` (``degrees=False`` →
+    ``--radians``)."""
     try:  # Typer >= 0.29 vendors click (/work/shared/ECOSYSTEM.md)
         from typer._click.globals import get_current_context
     except ImportError:  # pragma: no cover - an older Typer on click
@@ -200,32 +203,55 @@ def _option_flags() -> dict:
             longs = [o for o in p.opts if o.startswith("--")] or list(p.opts)
             if longs:
                 flags[p.name] = longs[0]
+                flags.setdefault(longs[0][2:].replace("-", "_"), longs[0])
+                off = [o for o in getattr(p, "secondary_opts", ()) if o.startswith("--")]
+                if getattr(p, "is_flag", False) and off:
+                    flags[f"{p.name}=True"], flags[f"{p.name}=False"] = longs[0], off[0]
     return flags
 
 
 def as_flags(exc, flags: Optional[dict] = None) -> str:
     """The one-line text of an rbgp error as the command line says it: the library names the
-    parameter a message is about (``exc.param``, e.g. ``steps``), the command line its option
-    (``--steps``). Replaced, as whole words in the message and the hint: ``exc.param`` and every
-    option name with an underscore (``max_points`` → ``--max-points``), where the running command
-    has that option; a name already written as a flag stays as it is."""
+    parameters a message is about, the command line its options (``steps`` → ``--steps``), where
+    the running command has that option. Replaced, as whole words:
+
+    * every option name with an underscore (``max_points`` → ``--max-points``), anywhere;
+    * the names in ``exc.param`` (one name, e.g. ``steps``, or a tuple of them) at the start of the
+      message and anywhere in the hint, so that the message can use the same word plainly
+      ("no time column (columns are ...)"; hint "pass rate HZ or columns t=NAME"). An on/off
+      flag's name is replaced only as ``NAME=True`` / ``NAME=False`` (``degrees=False`` →
+      ``--radians``), so that "in degrees" stays a plain word.
+
+    A name already written as a flag stays as it is."""
     import re
 
     flags = _option_flags() if flags is None else flags
-    names = {n for n in flags if "_" in n and n != "rbgp_quiet"}
+    under = {n for n in flags if "_" in n and n != "rbgp_quiet"}
     text = f"{exc.message} {exc.hint or ''}"
-    if exc.param in flags and flags[exc.param] not in text:  # a message that names the flag already
-        names.add(exc.param)  # (the readers' do) keeps its plain words: "no rotation columns found"
-    if not names:
+    params = (exc.param,) if isinstance(exc.param, str) else tuple(exc.param or ())
+    ones = set()
+    for param in params:
+        for name in ((f"{param}=True", f"{param}=False") if f"{param}=True" in flags else (param,)):
+            if name in flags and flags[name] not in text:  # a message that names the flag already
+                ones.add(name)
+    if not under and not ones:
         return exc.format()
-    pattern = re.compile(r"(?<![\w\-])(?<!\d )(" + "|".join(sorted(map(re.escape, names), key=len, reverse=True)) + r")(?![\w\-])")
 
-    def sub(text):
-        return None if text is None else pattern.sub(lambda m: flags[m.group(1)], text)
+    def pattern(names, start=False):
+        alts = "|".join(sorted(map(re.escape, names), key=len, reverse=True))
+        return re.compile(("^" if start else r"(?<![\w\-])(?<!\d )") + f"({alts})" + r"(?![\w\-])") if names else None
+
+    def sub(text, *patterns):
+        for pat in patterns:
+            if text is not None and pat is not None:
+                text = pat.sub(lambda m: flags[m.group(1)], text)
+        return text
 
     from rbgp_cli.errors import RbgpError
 
-    return RbgpError(sub(exc.message), path=exc.path, row=exc.row, topic=exc.topic, hint=sub(exc.hint)).format()
+    anywhere = pattern(under | ones)
+    message = sub(exc.message, pattern(under), pattern(ones, start=True))
+    return RbgpError(message, path=exc.path, row=exc.row, topic=exc.topic, hint=sub(exc.hint, anywhere)).format()
 
 
 def flag_words(text: str) -> str:
