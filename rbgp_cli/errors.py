@@ -7,9 +7,9 @@ The command line maps them to exit codes and one line on stderr:
 
 Messages are one line and say *where* (file, row, topic) and *what to do*. They name the Python
 API's parameters (``steps``, ``quat_order``), never the command line's flags: ``param=`` says which
-one-word names are parameters (the message starts with it, or the hint names it: "pass rate HZ"),
-names with an underscore are parameters anyway, and the command line writes its options instead
-(``rbgp_cli.cli.common.as_flags``: ``--steps``, ``--quat-order``).
+one-word names are parameters (where a "; " part of the message starts with one, and anywhere in
+the hint: "pass rate HZ"), names with an underscore are parameters anyway, and the command line
+writes its options instead (``rbgp_cli.cli.common.as_flags``: ``--steps``, ``--quat-order``).
 """
 
 from __future__ import annotations
@@ -35,8 +35,9 @@ class RbgpError(Exception):
         self.message = message
         #: the library parameter the message is about (e.g. "steps"), named as the Python API names it,
         #: or a tuple of them (a message that names two: ("rate", "columns")); the command line shows
-        #: the matching options instead (--steps) where the message starts with the name and anywhere
-        #: in the hint (rbgp_cli.cli.common.as_flags); names with an underscore (max_points) anywhere
+        #: the matching options instead (--steps) where the message or one of its "; " parts starts
+        #: with the name, and anywhere in the hint (rbgp_cli.cli.common.as_flags); names with an
+        #: underscore (max_points) anywhere
         self.param = param
         self.path = None if path is None else str(path)
         self.row = row
@@ -106,12 +107,12 @@ class RbgpWarning(UserWarning):
 
 
 def warn(message: str, *, path: str | None = None, row: int | None = None, topic: str | None = None,
-         param: str | tuple[str, ...] | None = None) -> None:
-    """Emit an :class:`RbgpWarning` whose text names the file/row/topic like the errors do;
-    ``param`` names the parameter(s) it is about, as for :class:`RbgpError`."""
+         hint: str | None = None, param: str | tuple[str, ...] | None = None) -> None:
+    """Emit an :class:`RbgpWarning` whose text names the file/row/topic like the errors do, with
+    ``hint`` after it; ``param`` names the parameter(s) it is about, as for :class:`RbgpError`."""
     import warnings
 
-    error = RbgpError(message, path=path, row=row, topic=topic, param=param)
+    error = RbgpError(message, path=path, row=row, topic=topic, hint=hint, param=param)
     w = RbgpWarning(error.format())
     w.error = error
     warnings.warn(w, stacklevel=2)

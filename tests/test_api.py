@@ -149,22 +149,29 @@ def test_as_flags_maps_several_params_and_on_off_flags():
     e = InputError("no time column (columns are tme, x, y)", hint="pass rate HZ or columns t=tme",
                    param=("rate", "columns"))
     assert as_flags(e, flags) == "no time column (columns are tme, x, y); pass --rate HZ or --columns t=tme"
-    e = InputError("columns qw=w0: the file has no column 'w0'; columns are t, x", param="columns")
-    assert as_flags(e, flags) == "--columns qw=w0: the file has no column 'w0'; columns are t, x"
+    e = InputError("columns qw=w0: the file has no column 'w0' (columns are t, x)", param="columns")
+    assert as_flags(e, flags) == "--columns qw=w0: the file has no column 'w0' (columns are t, x)"
+    # and where a "; " part of the message starts with it
+    e = InputError("with 1 the score measures the ridge; rate 2 needs more; say rate", param="rate")
+    assert as_flags(e, flags) == "with 1 the score measures the ridge; --rate 2 needs more; say rate"
     # an on/off flag: NAME=True / NAME=False, the plain word stays
     e = InputError("angles in degrees or radians?", hint="pass degrees=True or degrees=False", param="degrees")
     assert as_flags(e, flags) == "angles in degrees or radians?; pass --degrees or --radians"
     # the flag's own name where the command's parameter is named differently (fmt)
     assert as_flags(InputError("format 'x' is unknown", param="format"), flags) == "--format 'x' is unknown"
     assert as_flags(e, {}) == "angles in degrees or radians?; pass degrees=True or degrees=False"  # no command
+    # a name in brackets is not the parameter (a pip extra)
+    e = InputError("plot needs matplotlib", hint="pip install 'rbgp-cli[plot]'", param="plot")
+    assert as_flags(e, {"plot": "--plot"}) == "--plot needs matplotlib; pip install 'rbgp-cli[plot]'"
 
 
 def test_cli_option_flags_of_the_running_command():
-    """_option_flags: each option under its parameter's name and its flag's, on/off flags as NAME=True/False."""
+    """_option_flags: each option under its parameter's name and its flag's, on/off flags as NAME=True/False;
+    as_flags maps another command's option only where the error names it as its parameter."""
     import typer
     from typer.testing import CliRunner
 
-    from rbgp_cli.cli.common import _option_flags
+    from rbgp_cli.cli.common import _option_flags, as_flags
 
     app, seen = typer.Typer(), {}
 
@@ -172,10 +179,21 @@ def test_cli_option_flags_of_the_running_command():
     def cmd(fmt: str = typer.Option("auto", "--format"), degrees: bool = typer.Option(None, "--degrees/--radians"),
             max_points: int = 0):
         seen.update(_option_flags())
+        seen["other"] = _option_flags(other_commands=True)
+        e = InputError("model header: time_input = 'x'; max_points too", hint="retrain with time_input none")
+        seen["plain"] = as_flags(e)
+        seen["param"] = as_flags(InputError(e.message, hint=e.hint, param="time_input"))
 
-    assert CliRunner().invoke(app, []).exit_code == 0
+    @app.command()
+    def train(time_input: str = "phase"):
+        pass
+
+    assert CliRunner().invoke(app, ["cmd"]).exit_code == 0
     assert seen["fmt"] == seen["format"] == "--format" and seen["max_points"] == "--max-points"
     assert seen["degrees"] == seen["degrees=True"] == "--degrees" and seen["degrees=False"] == "--radians"
+    assert "time_input" not in seen and seen["other"]["time_input"] == "--time-input"
+    assert seen["plain"] == "model header: time_input = 'x'; --max-points too; retrain with time_input none"
+    assert seen["param"] == "model header: --time-input = 'x'; --max-points too; retrain with --time-input none"
 
 
 
