@@ -455,7 +455,7 @@ def iter_processes(fn, args, n_jobs: int, *, label=None, init=worker_init):
         stop_pool(pool)
         todo = [i for i in todo if i not in finished]
     raise RbgpRuntimeError(f"a worker process ended unexpectedly (killed, or out of memory) {RETRIES + 1} times; "
-                           f"unfinished: {_names(todo, label)}", hint="if memory is short, use fewer --jobs")
+                           f"unfinished: {_names(todo, label)}", hint="if memory is short, use fewer jobs", param="jobs")
 
 
 def _quiet_dask():
@@ -546,8 +546,8 @@ def iter_dask(fn, args: list, *, jobs: int | None = None, scheduler: str = "loca
         import dask
         from distributed import Client, LocalCluster, wait
     except ImportError:
-        raise InputError("--scheduler needs Dask's distributed scheduler, which is not installed",
-                         hint='pip install "rbgp-cli[distributed]"') from None
+        raise InputError("scheduler needs Dask's distributed scheduler, which is not installed",
+                         hint='pip install "rbgp-cli[distributed]"', param="scheduler") from None
     cluster = None
     restore = _quiet_dask()
     try:
@@ -562,15 +562,15 @@ def iter_dask(fn, args: list, *, jobs: int | None = None, scheduler: str = "loca
                 if not isinstance(exc, Exception):
                     raise
                 raise RbgpRuntimeError(f"the local Dask cluster did not start ({type(exc).__name__}: {exc})",
-                                       hint="run without --scheduler") from exc
+                                       hint="run without scheduler", param="scheduler") from exc
             client = Client(cluster)
         else:
             try:
                 client = Client(scheduler, timeout=CONNECT_TIMEOUT)
             except (OSError, TimeoutError, ValueError) as exc:
-                raise InputError(f"cannot reach the Dask scheduler at {scheduler!r} ({type(exc).__name__})",
-                                 hint="start one with 'dask scheduler' (and workers with 'dask worker ADDRESS'), "
-                                      "or use --scheduler local") from None
+                raise InputError(f"cannot reach the Dask scheduler at {scheduler!r} ({type(exc).__name__}); start one "
+                                 "with 'dask scheduler' (and workers with 'dask worker ADDRESS')",
+                                 hint="or use scheduler local", param="scheduler") from None
         with client:
             # pure=False: identical arguments (two configurations that happen to be equal) still both run
             futs = [client.submit(single_threaded, fn, a, pure=False) for a in args]
@@ -604,8 +604,8 @@ def iter_dask(fn, args: list, *, jobs: int | None = None, scheduler: str = "loca
                             if type(exc).__name__ == "KilledWorker":
                                 raise RbgpRuntimeError(f"{_names([i], label)} was lost with its Dask worker "
                                                        "(killed, or out of memory) on every try",
-                                                       hint="check the cluster's memory, or run without --scheduler"
-                                                       ) from None
+                                                       hint="check the cluster's memory, or run without scheduler",
+                                                       param="scheduler") from None
                             # a task that failed on a worker fails the study, as in-process
                             raise RbgpRuntimeError(f"a task failed on a Dask worker: {type(exc).__name__}: {exc}") from exc
                         yield i, r

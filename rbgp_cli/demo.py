@@ -41,7 +41,7 @@ def run_demo(out, *, count: int = 100, representations=("axis-angle", "euler", "
     progress = as_progress(progress)
 
     if os.path.exists(out) and not os.path.isdir(out):
-        raise InputError("is a file, not a folder", path=str(out), hint="give a folder for the demo's outputs with --out")
+        raise InputError("is a file, not a folder", path=str(out), hint="give a folder for the demo's outputs as out", param="out")
     try:
         os.makedirs(out, exist_ok=True)  # before the work, which fills it
     except OSError as exc:

@@ -5,7 +5,11 @@ The command line maps them to exit codes and one line on stderr:
 * :class:`InputError` (bad input or bad usage): exit code 2.
 * :class:`RbgpRuntimeError` (a computation that failed on valid input): exit code 1.
 
-Messages are one line and say *where* (file, row, topic) and *what to do*.
+Messages are one line and say *where* (file, row, topic) and *what to do*. They name the Python
+API's parameters (``steps``, ``quat_order``), never the command line's flags: ``param=`` says which
+one-word names are parameters (where a "; " part of the message starts with one, and anywhere in
+the hint: "pass rate HZ"), names with an underscore are parameters anyway, and the command line
+writes its options instead (``rbgp_cli.cli.common.as_flags``: ``--steps``, ``--quat-order``).
 """
 
 from __future__ import annotations
@@ -26,11 +30,14 @@ class RbgpError(Exception):
         row: int | None = None,
         topic: str | None = None,
         hint: str | None = None,
-        param: str | None = None,
+        param: str | tuple[str, ...] | None = None,
     ) -> None:
         self.message = message
-        #: the library parameter the message is about (e.g. "steps"), named as the Python API names it;
-        #: the command line shows the matching option instead (--steps)
+        #: the library parameter the message is about (e.g. "steps"), named as the Python API names it,
+        #: or a tuple of them (a message that names two: ("rate", "columns")); the command line shows
+        #: the matching options instead (--steps) where the message or one of its "; " parts starts
+        #: with the name, and anywhere in the hint (rbgp_cli.cli.common.as_flags); names with an
+        #: underscore (max_points) anywhere
         self.param = param
         self.path = None if path is None else str(path)
         self.row = row
@@ -92,12 +99,20 @@ def closest(name: str, candidates) -> str | None:
 
 class RbgpWarning(UserWarning):
     """Something was repaired or looks suspicious but the result is still correct (e.g. "dropped 3
-    lost frames"). The command line prints these to stderr as ``rbgp: warning: ...``."""
+    lost frames"). The command line prints these to stderr as ``rbgp: warning: ...``. One made by
+    :func:`warn` keeps its parts in ``error`` (an :class:`RbgpError`: message, path, ``param``), so
+    that the command line can name its options as it does for errors."""
+
+    error: RbgpError | None = None
 
 
-def warn(message: str, *, path: str | None = None, row: int | None = None, topic: str | None = None) -> None:
-    """Emit an :class:`RbgpWarning` whose text names the file/row/topic like the errors do."""
+def warn(message: str, *, path: str | None = None, row: int | None = None, topic: str | None = None,
+         hint: str | None = None, param: str | tuple[str, ...] | None = None) -> None:
+    """Emit an :class:`RbgpWarning` whose text names the file/row/topic like the errors do, with
+    ``hint`` after it; ``param`` names the parameter(s) it is about, as for :class:`RbgpError`."""
     import warnings
 
-    text = RbgpError(message, path=path, row=row, topic=topic).format()
-    warnings.warn(text, RbgpWarning, stacklevel=2)
+    error = RbgpError(message, path=path, row=row, topic=topic, hint=hint, param=param)
+    w = RbgpWarning(error.format())
+    w.error = error
+    warnings.warn(w, stacklevel=2)

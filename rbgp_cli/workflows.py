@@ -197,8 +197,9 @@ def read_start_poses(path, options: ReadOptions | None = None) -> tuple[np.ndarr
             what, hint = "has an all-zero quaternion", "remove or fix that row"
         else:
             what = f"has a quaternion of norm {norm[k]:.6g}, far from 1"
-            hint = "check which columns hold the quaternion and their order (--columns, --quat-order)"
-        raise InputError(f"pose {k + 1} {what}", path=str(path), row=line_of(trajs[j], k - offsets[j]), hint=hint)
+            hint = "check the column mapping and the quaternion order (columns, quat_order)"
+        raise InputError(f"pose {k + 1} {what}", path=str(path), row=line_of(trajs[j], k - offsets[j]), hint=hint,
+                         param="columns")
     return q / norm[:, None], p
 
 
@@ -225,8 +226,8 @@ def predict_file(model, path, options: ReadOptions | None = None, noisy: bool = 
             raise
         what = "the phase (t − t0)/duration" if model.time_input == "phase" else "the time since the start"
         raise InputError(f"this model takes {what} as an input, and the poses have no time column", path=str(path),
-                         hint="give the poses as trajectories with a time column t (or --rate HZ), or train a model of "
-                              "the pose alone with --time-input none --prior none") from None
+                         hint="give the poses as trajectories with a time column t (or rate HZ), or train a model of "
+                              "the pose alone with time_input none and prior none", param=("rate", "time_input", "prior")) from None
     trajs, _ = prepare_all(raw, max_gap=max_gap)
     ts, qs, ps, means, stds = [], [], [], [], []
     for tr in trajs:
@@ -296,7 +297,7 @@ def rollout_starts(model, *, start=(), start_quat=(), starts=None, from_demos=No
 
 def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, samples=0, seed=0, with_std=True,
                   progress=None, durations=None, rate=None, off_data: str = "keep"):
-    """``rbgp rollout``: steps from --steps, or --duration / dt, or the demonstrations' median duration.
+    """``rbgp rollout``: steps from ``steps``, or ``duration`` / dt, or the demonstrations' median duration.
 
     ``durations`` (B,) seconds: each trajectory its own duration instead (``steps``/``duration`` are
     then ignored; :func:`~rbgp_cli.dynamics.rollout.rollout_for`).
@@ -367,7 +368,7 @@ def evaluate_files(generated_sources, demo_sources, *, options: ReadOptions | No
     if model is not None:
         refusal = check_sample_sizes(count, len(demos), covariance).refusal
         if refusal is not None and not unscored:  # before seconds of rollouts that could not be scored
-            raise InputError(refusal, hint="pass more demonstrations (e.g. a folder of takes)")
+            raise InputError(refusal, hint="pass more demonstrations (e.g. a folder of takes)", param="covariance")
         generated = generate_like_paper(model, demos, count=count, spread=spread, seed=seed,
                                         progress=progress).trajectories()
     else:
@@ -377,7 +378,7 @@ def evaluate_files(generated_sources, demo_sources, *, options: ReadOptions | No
     if unscored and check_sample_sizes(len(generated), len(demos), covariance).refusal is not None:
         result = evaluate(generated, demos, length=length, covariance=covariance, sample_size="record")
         for note in result.warnings[1:]:  # [0] is the refusal, which the caller reports as the error
-            warn(note)
+            warn(note, param="covariance")
         return result, generated, demos
     result = evaluate(generated, demos, length=length, covariance=covariance)
     return result, generated, demos

@@ -3,6 +3,8 @@ and the errors that name parameters (the command line shows its flags instead)."
 
 from __future__ import annotations
 
+import ast
+import re
 import runpy
 import subprocess
 import sys
@@ -129,6 +131,60 @@ def test_cli_shows_flags_for_parameters(tmp_path):
     assert res.exit_code == 2 and "--subsample must lie in (0, 1]" in res.stderr
 
 
+def _numbered_quaternion_csv(tmp_path):
+    """A CSV whose quaternion columns are q0..q3: their order (w first or last) is the user's to say."""
+    t = np.arange(20) * 0.02
+    rows = ["t,x,y,z,q0,q1,q2,q3"] + [f"{s:.2f},{0.1 * s:.4f},0,1,1,0,0,0" for s in t]
+    path = tmp_path / "numbered.csv"
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def test_reader_errors_name_the_read_option_and_the_cli_its_flag(tmp_path):
+    """The same file: rbgp.read_demonstrations says quat_order (param "quat_order"), rbgp train --quat-order."""
+    path = _numbered_quaternion_csv(tmp_path)
+    with pytest.raises(InputError) as err:
+        rbgp.read_demonstrations(path)
+    assert err.value.param == "quat_order" and "--" not in str(err.value)
+    assert "q0, q1, q2, q3 are numbered" in str(err.value)
+    assert err.value.hint == "pass quat_order xyzw (w last) or quat_order wxyz (w first)"
+    res = run("train", path, "-o", tmp_path / "m.rbgp", *FAST)
+    assert res.exit_code == 2 and "q0, q1, q2, q3 are numbered" in res.stderr
+    assert "pass --quat-order xyzw (w last) or --quat-order wxyz (w first)" in res.stderr and "quat_order" not in res.stderr
+    assert len(rbgp.read_demonstrations(path, quat_order="wxyz")) == 1
+
+    # two one-word parameters in one hint: rate and columns (param is a tuple)
+    nort = tmp_path / "no_time.csv"
+    nort.write_text("tme,x,y,z,qx,qy,qz,qw\n" + "".join(f"{i},{0.01 * i},0,1,0,0,0,1\n" for i in range(20)))
+    with pytest.raises(InputError) as err:
+        rbgp.read_demonstrations(nort)
+    assert err.value.param == ("rate", "columns") and "--" not in str(err.value)
+    assert "no time column (columns are tme, x, y, z, qx, qy, qz, qw)" in str(err.value)
+    assert err.value.hint == "did you mean 'tme'? pass columns t=tme, or rate HZ"
+    res = run("inspect", nort)
+    assert res.exit_code == 2 and "did you mean 'tme'? pass --columns t=tme, or --rate HZ" in res.stdout
+    assert "still needed  --rate HZ (no time column)" in res.stdout and "--columns (see the error)" in res.stdout
+
+
+def test_library_warnings_name_parameters_and_the_cli_its_flags(tmp_path):
+    """warn(param=): the library says "rate 50 is ignored", rbgp inspect "--rate 50 is ignored"."""
+    import warnings
+
+    from rbgp_cli.errors import RbgpWarning
+    from rbgp_cli.io import export
+    from tests.hostile import builders as B
+
+    path = tmp_path / "vicon.csv"
+    export.write_vicon_csv([B.smooth_motion(name="Subj:Pelvis")], path, rate=100.0)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        rbgp.read_demonstrations(path, rate=50.0)
+    texts = [str(w.message) for w in caught if issubclass(w.category, RbgpWarning)]
+    assert any("rate 50 is ignored: the file states 100 Hz" in t and "--rate" not in t for t in texts), texts
+    res = run("inspect", path, "--rate", "50")
+    assert "rbgp: warning: " in res.stderr and "--rate 50 is ignored: the file states 100 Hz" in res.stderr, res.stderr
+
+
 def test_as_flags_maps_param_and_underscored_names_only():
     from rbgp_cli.cli.common import as_flags
 
@@ -138,6 +194,119 @@ def test_as_flags_maps_param_and_underscored_names_only():
     e = InputError("9 demonstrations cannot make 10 folds", hint="use folds 9 or fewer", param="folds")
     assert as_flags(e, flags) == "9 demonstrations cannot make 10 folds; use --folds 9 or fewer"
     assert as_flags(InputError("steps are many"), flags) == "steps are many"  # not the parameter: left alone
+
+
+def test_as_flags_maps_several_params_and_on_off_flags():
+    from rbgp_cli.cli.common import as_flags
+
+    flags = {"rate": "--rate", "columns": "--columns", "fmt": "--format", "format": "--format",
+             "degrees": "--degrees", "degrees=True": "--degrees", "degrees=False": "--radians"}
+    # the names of a tuple param, in the hint; the message uses "columns" plainly after its start
+    e = InputError("no time column (columns are tme, x, y)", hint="pass rate HZ or columns t=tme",
+                   param=("rate", "columns"))
+    assert as_flags(e, flags) == "no time column (columns are tme, x, y); pass --rate HZ or --columns t=tme"
+    e = InputError("columns qw=w0: the file has no column 'w0' (columns are t, x)", param="columns")
+    assert as_flags(e, flags) == "--columns qw=w0: the file has no column 'w0' (columns are t, x)"
+    # and where a "; " part of the message starts with it
+    e = InputError("with 1 the score measures the ridge; rate 2 needs more; say rate", param="rate")
+    assert as_flags(e, flags) == "with 1 the score measures the ridge; --rate 2 needs more; say rate"
+    # an on/off flag: NAME=True / NAME=False, the plain word stays
+    e = InputError("angles in degrees or radians?", hint="pass degrees=True or degrees=False", param="degrees")
+    assert as_flags(e, flags) == "angles in degrees or radians?; pass --degrees or --radians"
+    # the flag's own name where the command's parameter is named differently (fmt)
+    assert as_flags(InputError("format 'x' is unknown", param="format"), flags) == "--format 'x' is unknown"
+    assert as_flags(e, {}) == "angles in degrees or radians?; pass degrees=True or degrees=False"  # no command
+    # a name in brackets is not the parameter (a pip extra)
+    e = InputError("plot needs matplotlib", hint="pip install 'rbgp-cli[plot]'", param="plot")
+    assert as_flags(e, {"plot": "--plot"}) == "--plot needs matplotlib; pip install 'rbgp-cli[plot]'"
+
+
+def test_cli_option_flags_of_the_running_command():
+    """_option_flags: each option under its parameter's name and its flag's, on/off flags as NAME=True/False;
+    as_flags maps another command's option only where the error names it as its parameter."""
+    import typer
+    from typer.testing import CliRunner
+
+    from rbgp_cli.cli.common import _option_flags, as_flags
+
+    app, seen = typer.Typer(), {}
+
+    @app.command()
+    def cmd(fmt: str = typer.Option("auto", "--format"), degrees: bool = typer.Option(None, "--degrees/--radians"),
+            max_points: int = 0):
+        seen.update(_option_flags())
+        seen["other"] = _option_flags(other_commands=True)
+        e = InputError("model header: time_input = 'x'; max_points too", hint="retrain with time_input none")
+        seen["plain"] = as_flags(e)
+        seen["param"] = as_flags(InputError(e.message, hint=e.hint, param="time_input"))
+
+    @app.command()
+    def train(time_input: str = "phase"):
+        pass
+
+    assert CliRunner().invoke(app, ["cmd"]).exit_code == 0
+    assert seen["fmt"] == seen["format"] == "--format" and seen["max_points"] == "--max-points"
+    assert seen["degrees"] == seen["degrees=True"] == "--degrees" and seen["degrees=False"] == "--radians"
+    assert "time_input" not in seen and seen["other"]["time_input"] == "--time-input"
+    assert seen["plain"] == "model header: time_input = 'x'; --max-points too; retrain with time_input none"
+    assert seen["param"] == "model header: --time-input = 'x'; --max-points too; retrain with --time-input none"
+
+
+#: A CLI flag in a library message: ``--steps``, ``--quat-order`` (the command line adds them, as_flags).
+_FLAG = re.compile(r"(?<![\w-])--[a-z][a-z-]+")
+#: Calls whose text reaches the user as an error, a hint or a warning.
+_MESSAGE_CALLS = {"InputError", "RbgpRuntimeError", "NotPoseData", "RbgpError", "warn"}
+
+
+def _message_strings(tree):
+    """{(line, text)} of the string constants and f-string parts in the arguments of the message calls,
+    of what is raised (``raise _bad(path, "...")``) and of every ``hint=``, and in what their
+    arguments' names are assigned (``hint = f"..."; raise InputError(m, hint=hint)``), function by
+    function."""
+    found = set()
+
+    def strings(node):
+        found.update((sub.lineno, sub.value) for sub in ast.walk(node)
+                     if isinstance(sub, ast.Constant) and isinstance(sub.value, str))
+
+    scopes = [n for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))] + [tree]
+    for scope in scopes:
+        calls = [n for n in ast.walk(scope) if isinstance(n, ast.Call)
+                 and (getattr(n.func, "id", None) or getattr(n.func, "attr", None)) in _MESSAGE_CALLS]
+        calls += [n.exc for n in ast.walk(scope) if isinstance(n, ast.Raise) and isinstance(n.exc, ast.Call)]
+        args = [a for c in calls for a in (*c.args, *(k.value for k in c.keywords if k.arg in (None, "hint")))]
+        args += [k.value for n in ast.walk(scope) if isinstance(n, ast.Call) for k in n.keywords if k.arg == "hint"]
+        for a in args:
+            strings(a)
+        names = {n.id for a in args for n in ast.walk(a) if isinstance(n, ast.Name)}
+        for node in ast.walk(scope):
+            if isinstance(node, (ast.Assign, ast.AugAssign, ast.AnnAssign)) and node.value is not None:
+                targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+                if any(isinstance(t, ast.Name) and t.id in names for t in targets):
+                    strings(node.value)
+            elif (isinstance(node, ast.Call) and getattr(node.func, "attr", None) in ("append", "extend")
+                  and isinstance(node.func.value, ast.Name) and node.func.value.id in names):
+                for a in node.args:
+                    strings(a)
+    return found
+
+
+def test_library_messages_name_parameters_not_flags():
+    """Library errors, hints and warnings name parameters (``quat_order``, ``steps`` with param=);
+    only rbgp_cli/cli/ writes ``--flags`` (as_flags turns the names into the running command's options)."""
+    bad = ast.parse('def f(n):\n    hint = f"use --steps {n}"\n    raise InputError("x", hint=hint)\n'
+                    'def g():\n    warn("ignoring --rate")\n    raise _bad("p", "retrain with fewer --max-points")\n')
+    assert sorted(t for _, t in _message_strings(bad) if _FLAG.search(t)) == [
+        "ignoring --rate", "retrain with fewer --max-points", "use --steps "]  # the scan sees them
+    pkg = REPO / "rbgp_cli"
+    found = []
+    for path in sorted(pkg.rglob("*.py")):
+        if (pkg / "cli") in path.parents:
+            continue
+        for line, text in sorted(_message_strings(ast.parse(path.read_text(encoding="utf-8")))):
+            if _FLAG.search(text):
+                found.append(f"{path.relative_to(REPO)}:{line}: {text.strip()!r}")
+    assert not found, "library messages that name CLI flags:\n" + "\n".join(found)
 
 
 @pytest.mark.slow

@@ -18,7 +18,8 @@ from rbgp_cli.cli.train_options import (
     CalibrateOpt, HyperPointsOpt, InducingOpt, SmoothWindowOpt, SubsampleOpt, TimeInputOpt, TrainRateOpt, defaults, kernel_help, train_kwargs,
 )
 from rbgp_cli.cli.common import (
-    ReadArgs, command, emit_json, flag_words, check_outputs, is_quiet, progress, set_json, set_quiet, with_read_options, write_text_output,
+    ReadArgs, as_flags, command, emit_json, flag_words, check_outputs, is_quiet, need_flags, progress, set_json, set_quiet,
+    with_read_options, write_text_output,
 )
 
 app = typer.Typer(
@@ -338,7 +339,8 @@ def evaluate(
         plot_evaluation(plot, result, gen, dem, compare=other,
                         labels=(label, Path(compare[0]).stem if compare else "compare"))
         if refusal:
-            raise InputError(refusal, hint=f"the figure {plot} was written without a score; pass more demonstrations")
+            raise InputError(refusal, hint=f"the figure {plot} was written without a score; pass more demonstrations",
+                             param="covariance")
         progress(f"wrote {plot}")
     left = workflows.left_data(gen, dem)  # a score never hides motions that went where no demonstration goes
     if json_out:
@@ -372,7 +374,11 @@ def inspect(
     from rbgp_cli.workflows import expand_paths
 
     opts = read.options
-    results = [inspect_file(f, opts, max_gap=read.max_gap) for f in expand_paths(files, opts)]
+    results = [inspect_file(f, opts, max_gap=read.max_gap, words=as_flags) for f in expand_paths(files, opts)]
+    for r in results:  # the library names the read options; the command says its flags
+        r["needs"] = [need_flags(n) for n in r.get("needs") or []]
+        if isinstance(r.get("description"), dict) and r["description"].get("needs"):
+            r["description"]["needs"] = [need_flags(n) for n in r["description"]["needs"]]
     if json_out:
         emit_json(results if len(results) != 1 else results[0])
     elif verbose or len(results) <= COMPACT_ABOVE:

@@ -116,7 +116,7 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
     if issubclass(category, RbgpWarning):  # parameter names with an underscore shown as the options
         from rbgp_cli.errors import RbgpError
 
-        _stderr(f"rbgp: warning: {as_flags(RbgpError(str(message)))}")
+        _stderr(f"rbgp: warning: {as_flags(getattr(message, 'error', None) or RbgpError(str(message)))}")
     elif not _QUIET["on"] and os.environ.get("RBGP_DEBUG"):
         _stderr(f"rbgp: warning: {category.__name__}: {message}")
 
@@ -183,9 +183,13 @@ def command(func):
     return wrapper
 
 
-def _option_flags() -> dict:
+def _option_flags(other_commands: bool = False) -> dict:
     """{Python name: its long flag} of the running command's options (``steps`` → ``--steps``,
-    ``fmt`` → ``--format``), from Click's context; {} outside a command."""
+    ``fmt`` → ``--format``), from Click's context; {} outside a command. Each option is also there
+    under its flag's own name (``format`` → ``--format``: the library's name where the command's
+    differs), and an on/off flag under ``NAME=True`` and ``NAME=False`` (``degrees=False`` →
+    ``--radians``). ``other_commands``: then also the other commands' options that the running one
+    lacks (a message can say what to train or retrain with)."""
     try:  # Typer >= 0.29 vendors click (/work/shared/ECOSYSTEM.md)
         from typer._click.globals import get_current_context
     except ImportError:  # pragma: no cover - an older Typer on click
@@ -194,38 +198,76 @@ def _option_flags() -> dict:
     ctx = get_current_context(silent=True)
     if ctx is None:
         return {}
-    flags = {}
-    for p in ctx.command.params:
-        if getattr(p, "param_type_name", "") == "option" and p.name:
-            longs = [o for o in p.opts if o.startswith("--")] or list(p.opts)
-            if longs:
-                flags[p.name] = longs[0]
+
+    def commands(cmd):
+        yield cmd
+        for sub in (getattr(cmd, "commands", None) or {}).values():
+            yield from commands(sub)
+
+    flags: dict = {}
+    for cmd in (ctx.command, *(commands(ctx.find_root().command) if other_commands else ())):
+        own: dict = {}
+        for p in cmd.params:
+            if getattr(p, "param_type_name", "") == "option" and p.name:
+                longs = [o for o in p.opts if o.startswith("--")] or list(p.opts)
+                if longs:
+                    own[p.name] = longs[0]
+                    own.setdefault(longs[0][2:].replace("-", "_"), longs[0])
+                    off = [o for o in getattr(p, "secondary_opts", ()) if o.startswith("--")]
+                    if getattr(p, "is_flag", False) and off:
+                        own[f"{p.name}=True"], own[f"{p.name}=False"] = longs[0], off[0]
+        for name, flag in own.items():
+            flags.setdefault(name, flag)
     return flags
 
 
 def as_flags(exc, flags: Optional[dict] = None) -> str:
     """The one-line text of an rbgp error as the command line says it: the library names the
-    parameter a message is about (``exc.param``, e.g. ``steps``), the command line its option
-    (``--steps``). Replaced, as whole words in the message and the hint: ``exc.param`` and every
-    option name with an underscore (``max_points`` → ``--max-points``), where the running command
-    has that option; a name already written as a flag stays as it is."""
+    parameters a message is about, the command line its options (``steps`` → ``--steps``).
+    Replaced, as whole words:
+
+    * every option name of the running command with an underscore (``max_points`` →
+      ``--max-points``), anywhere;
+    * the names in ``exc.param`` (one name, e.g. ``steps``, or a tuple of them), options of the
+      running command or else of another one (``rbgp predict``: "train a model with time_input
+      none" → ``--time-input none``): with an underscore anywhere, a one-word name at the start of
+      the message or of one of its "; "-separated parts and anywhere in the hint, so that the
+      message can use the same word plainly ("no time column (columns are ...)"; hint "pass rate
+      HZ or columns t=NAME"). An on/off flag's name is replaced only as ``NAME=True`` /
+      ``NAME=False`` (``degrees=False`` → ``--radians``), so that "in degrees" stays a plain word.
+
+    A name already written as a flag, or in brackets (``rbgp-cli[plot]``), stays as it is."""
     import re
 
-    flags = _option_flags() if flags is None else flags
-    names = {n for n in flags if "_" in n and n != "rbgp_quiet"}
+    own = _option_flags() if flags is None else flags
+    flags = _option_flags(other_commands=True) if flags is None else flags
+    under = {n for n in own if "_" in n and n != "rbgp_quiet"}
     text = f"{exc.message} {exc.hint or ''}"
-    if exc.param in flags and flags[exc.param] not in text:  # a message that names the flag already
-        names.add(exc.param)  # (the readers' do) keeps its plain words: "no rotation columns found"
-    if not names:
+    params = (exc.param,) if isinstance(exc.param, str) else tuple(exc.param or ())
+    ones = set()
+    for param in params:
+        for name in ((f"{param}=True", f"{param}=False") if f"{param}=True" in flags else (param,)):
+            if name in flags and flags[name] not in text:  # a message that names the flag already
+                (under if "_" in name else ones).add(name)
+    if not under and not ones:
         return exc.format()
-    pattern = re.compile(r"(?<![\w\-])(?<!\d )(" + "|".join(sorted(map(re.escape, names), key=len, reverse=True)) + r")(?![\w\-])")
 
-    def sub(text):
-        return None if text is None else pattern.sub(lambda m: flags[m.group(1)], text)
+    def pattern(names, start=False):
+        alts = "|".join(sorted(map(re.escape, names), key=len, reverse=True))
+        before = r"(?:^|(?<=; ))" if start else r"(?<![\w\-/\[])(?<!\d )"
+        return re.compile(before + f"({alts})" + r"(?![\w\-/\]])") if names else None
+
+    def sub(text, *patterns):
+        for pat in patterns:
+            if text is not None and pat is not None:
+                text = pat.sub(lambda m: flags[m.group(1)], text)
+        return text
 
     from rbgp_cli.errors import RbgpError
 
-    return RbgpError(sub(exc.message), path=exc.path, row=exc.row, topic=exc.topic, hint=sub(exc.hint)).format()
+    anywhere = pattern(under | ones)
+    message = sub(exc.message, pattern(under), pattern(ones, start=True))
+    return RbgpError(message, path=exc.path, row=exc.row, topic=exc.topic, hint=sub(exc.hint, anywhere)).format()
 
 
 def flag_words(text: str) -> str:
@@ -240,6 +282,21 @@ def flag_words(text: str) -> str:
         return text
     pattern = re.compile(r"(?<![\w\-])(?<!\d )(" + "|".join(sorted(map(re.escape, names), key=len, reverse=True)) + r")(?![\w\-])")
     return pattern.sub(lambda m: flags[m.group(1)], text)
+
+
+def need_flags(text: str) -> str:
+    """One entry of what ``rbgp inspect`` says is still needed (:func:`rbgp_cli.io.inspect.needs`):
+    it starts with the parameters it needs, joined by "or" (``rate HZ (no time column)``, ``rate or
+    columns (see the error)``); those written as the running command's options, and the names with
+    an underscore anywhere (:func:`flag_words`)."""
+    flags = _option_flags()
+    words = text.split(" ")
+    for i, w in enumerate(words):
+        if w in flags and w != "rbgp_quiet":
+            words[i] = flags[w]
+        elif w != "or" or i == 0:
+            break
+    return flag_words(" ".join(words))
 
 
 def emit_json(obj) -> None:

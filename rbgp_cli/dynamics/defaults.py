@@ -22,7 +22,7 @@ DEFAULTS = {
     "prior_gain": 10.0,
     # the mean path moved by the deviation the demonstrations keep from a start like the rollout's
     # (a ridge map over all six coordinates, its strength by cross-validation; docs/method.md §7);
-    # off: with --noise-scale 256 it gives the best rollouts on every real set, but a velocity field
+    # off: with noise_scale 256 it gives the best rollouts on every real set, but a velocity field
     # worse than predicting zero on held-out pairs (docs/defaults.md)
     "start_conditioning": False,
     # σn² of the posterior scaled by held-out demonstrations (gp/calibration.py): the mean rollout then

@@ -99,10 +99,11 @@ def _where(traj: Trajectory, k: int) -> tuple[int | None, str]:
     return line_of(traj, k), f"sample {k + 1}{tt}"
 
 
-def _error(traj: Trajectory, k: int, message: str, hint: str | None = None) -> InputError:
+def _error(traj: Trajectory, k: int, message: str, hint: str | None = None, param=None) -> InputError:
     line, where = _where(traj, k)
     label = f"{traj.name}: " if traj.name else ""
-    return InputError(f"{label}{message.format(where=where)}", path=traj.source or None, row=line, hint=hint)
+    return InputError(f"{label}{message.format(where=where)}", path=traj.source or None, row=line, hint=hint,
+                      param=param)
 
 
 def _slerp(q0: np.ndarray, q1: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -164,8 +165,8 @@ def prepare_trajectory(
             traj,
             int(vi[j]),
             f"quaternion norm {norms[j]:.6g} at {{where}} is far from 1 (tolerance {unit_tolerance:g})",
-            hint="check which columns hold the quaternion, their order and units (--columns, --quat-order); "
-            "a unit quaternion's components lie in [-1, 1]",
+            hint="check the column mapping, the quaternion order and units (columns, quat_order); "
+            "a unit quaternion's components lie in [-1, 1]", param="columns",
         )
     # sample-and-hold (docs/method.md §4.1): a valid sample that repeats its predecessor's pose bit for bit at
     # a later time is the tracker holding the last pose, not motion: a lost frame like any other
@@ -454,7 +455,7 @@ def quaternion_order_note(traj: Trajectory) -> str | None:
     so the text says how to confirm the order.
     """
     rot = str((traj.info or {}).get("rotation") or "")
-    if (traj.info or {}).get("format") != "csv" or not rot.startswith("quaternion ") or "--quat-order" in rot or len(traj) < 2:
+    if (traj.info or {}).get("format") != "csv" or not rot.startswith("quaternion ") or "quat_order" in rot or len(traj) < 2:
         return None
     labelled = rot.split()[1]
     if labelled not in ("xyzw", "wxyz"):

@@ -245,7 +245,7 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
         return t / dur
 
     def fall_back(X, mu, k, dur, dev):
-        """--off-data prior: the prior mean's velocity where X (at step k) is outside the envelope."""
+        """``off_data="prior"``: the prior mean's velocity where X (at step k) is outside the envelope."""
         off = envelope.outside(rep.pose_from_state(X[:, :pd])[1], phase_of(k * dt, dur[:, 0]))
         if np.any(off):
             mu = mu.copy()

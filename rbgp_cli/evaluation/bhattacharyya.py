@@ -285,7 +285,7 @@ def check_sample_sizes(n_generated: int, n_demos: int, covariance: str = "diag",
         refusal = (
             f"cannot score against {_plural(n_demos, 'demonstration')}: the demonstrations' per-step "
             f"variance would be the ridge ({ridge:g} rad², m²) alone, so the score would measure the ridge, "
-            f"not the motions; --covariance {covariance} needs at least {need} demonstrations"
+            f"not the motions; covariance {covariance} needs at least {need} demonstrations"
         )
     for n, what in ((n_demos, "demonstrations"), (n_generated, "generated trajectories")):
         if what == "demonstrations" and refusal is not None:
@@ -295,18 +295,18 @@ def check_sample_sizes(n_generated: int, n_demos: int, covariance: str = "diag",
             few = f"only {one}" if n == 1 else f"no {what}"
             warnings_.append(
                 f"{few}: the per-step variance is the ridge ({ridge:g}) alone, so the variance part of "
-                f"the score measures the ridge, not the motions; --covariance {covariance} needs at least "
+                f"the score measures the ridge, not the motions; covariance {covariance} needs at least "
                 f"{need} {what}"
             )
         elif covariance == "full" and n < need:
             msg = (
                 f"{n} {what} give a 6×6 per-step covariance of rank at most {n - 1}, so in {need - n} of its 6 "
                 f"directions the variance is the ridge ({ridge:g}) alone and the total measures it; "
-                f"--covariance full needs at least {need} {what}"
+                f"covariance full needs at least {need} {what}"
             )
             if n < parts:
                 msg += f" (the rotation and translation parts at least {parts})"
-            warnings_.append(msg + "; --covariance diag needs 2")
+            warnings_.append(msg + "; covariance diag needs 2")
     return SampleSizeCheck(refusal=refusal, warnings=tuple(warnings_),
                            needed={"demos": need, "generated": need})
 
@@ -534,7 +534,7 @@ def evaluate(
         raise ValueError(f"sample_size must be one of {SAMPLE_SIZE_POLICIES}, got {sample_size!r}")
     sizes = check_sample_sizes(len(generated), len(demos), covariance, ridge)
     if sizes.refusal is not None and sample_size == "refuse":
-        raise InputError(sizes.refusal, hint="pass more demonstrations (e.g. a folder of takes)")
+        raise InputError(sizes.refusal, hint="pass more demonstrations (e.g. a folder of takes)", param="covariance")
 
     longest = max(len(d) for d in demos)
     if length is None:
@@ -571,7 +571,7 @@ def evaluate(
             notes.append(spread)
     if sample_size != "record":
         for note in notes:
-            warn(note)
+            warn(note, param="covariance")
 
     if covariance == "diag":
         off, spr = bhattacharyya_diag_parts(mu_d, var_d + ridge, mu_g, var_g + ridge)  # (T, 6) each

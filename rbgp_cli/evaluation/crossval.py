@@ -405,8 +405,8 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
     smallest = min(len(f) for f in fold_idx)
     if smallest < 2:
         warn(f"with {len(fold_idx)} folds of {len(demos)} demonstrations some folds hold out only one: a score "
-             "of one trajectory rests on the ridge variance, not on the motions; use --folds "
-             f"{max(2, len(demos) // 2)} or fewer (at least 2 held out per fold)")
+             "of one trajectory rests on the ridge variance, not on the motions",
+             hint=f"use folds {max(2, len(demos) // 2)} or fewer (at least 2 held out per fold)", param="folds")
     floors = [evaluate(test, train, length=length, covariance=covariance, sample_size="record") for train, test in splits]
     # the held-out demonstrations themselves against the training envelope: what real new motions do
     floor_left = sum(left_envelope(test, envelope_from_demos(train))["count"] for train, test in splits)

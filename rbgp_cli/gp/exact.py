@@ -297,7 +297,7 @@ def _collect_worker_fits(tasks, jobs, ctx, progress, task, results, failures):
         first = min(failures)
         if isinstance(failures[first], BrokenProcessPool):
             raise RbgpRuntimeError("a worker process fitting the outputs ended unexpectedly (out of memory?)",
-                                   hint="train with --jobs 1") from failures[first]
+                                   hint="train with jobs 1", param="jobs") from failures[first]
         raise failures[first]
     return results
 

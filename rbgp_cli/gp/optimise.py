@@ -482,7 +482,7 @@ def fit_target(kernel, pre, y, label, rng, o: FitOptions, sub=None, pre_sub=None
     if best is None:
         raise RbgpRuntimeError(
             f"no hyperparameters gave a positive definite covariance for {label}",
-            hint="use --kernel se-chordal, fix a smaller length-scale, or learn the noise",
+            hint="use kernel se-chordal, fix a smaller length-scale, or learn the noise", param="kernel",
         )
     values = values_of(best[0])
     if K is None:
@@ -491,7 +491,7 @@ def fit_target(kernel, pre, y, label, rng, o: FitOptions, sub=None, pre_sub=None
     if jitter is None:
         raise RbgpRuntimeError(
             f"the fitted covariance for {label} is numerically singular even with jitter",
-            hint="use --kernel se-chordal or subsample fewer, less redundant points",
+            hint="use kernel se-chordal or subsample fewer, less redundant points", param="kernel",
         )
     del K
     alpha, _info = lapack.dpotrs(c, np.asfortranarray(y.reshape(n, -1)), lower=1)

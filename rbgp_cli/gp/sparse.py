@@ -986,7 +986,7 @@ def fit_sparse_gp(
                     best = _race_starts(objective, st, free, log_bounds, cap, count, len(idx))
                 if best is None:
                     raise RbgpRuntimeError(f"no hyperparameters gave a positive definite sparse covariance for {label}",
-                                           hint="use --kernel se-chordal, more noise, or fewer inducing poses")
+                                           hint="use kernel se-chordal, more noise, or fewer inducing poses", param="kernel")
                 prev = st.get("bound_theta")
                 st["settled"] = prev is not None and float(np.max(np.abs(best[0] - prev), initial=0.0)) < SETTLED_LOG
                 st["theta"], st["kinds"], st["f"], st["bound_theta"] = [best[0]], ["previous stage"], best[1], best[0]
@@ -1006,7 +1006,7 @@ def fit_sparse_gp(
             f, _g, bstate = _bound(kernel, blocks, pre_mm, values, y, [], jitter, False)
             if bstate is None:
                 raise RbgpRuntimeError(f"the fitted sparse covariance for {label} is not positive definite",
-                                       hint="use --kernel se-chordal or fewer inducing poses")
+                                       hint="use kernel se-chordal or fewer inducing poses", param="kernel")
             stats.append((np.tril(bstate["Lm"]), np.tril(bstate["LB"]), np.asarray(bstate["c"])))
             Lm = stats[-1][0]
             rcond, info = lapack.dpocon(Lm, float(np.max(np.sum(np.abs(Lm @ Lm.T), axis=0))), uplo="L")

@@ -9,13 +9,13 @@ position or by guessing from values:
 
 * time: ``t``, ``time``, ``timestamp``, ``stamp``, ``sec`` (also ``header.stamp``-style names ending in
   ``_time`` / ``_stamp``), numbers or ISO 8601 date-times; a ``sec`` + ``nanosec`` pair is added up; no
-  time column → ``--rate`` (``frame`` / rate when a frame column exists).
+  time column → ``rate`` (``frame`` / rate when a frame column exists).
 * position: ``x y z``, ``pos_x``, ``px``, ``tx``, ``position_x``, ``pose.position.x`` ...
 * rotation, in this order of preference:
   quaternion with named components (``qx qy qz qw``, ``quat_x``, ``orientation_x``, ``rot_x..rot_w``,
-  ``rx ry rz rw``) in any column order; numbered ``q0..q3`` / ``q1..q4`` (needs ``--quat-order``);
+  ``rx ry rz rw``) in any column order; numbered ``q0..q3`` / ``q1..q4`` (needs ``quat_order``);
   rotation vector ``rx ry rz``; Euler angles about named axes ``rot_x rot_y rot_z`` or ``roll pitch
-  yaw`` (needs ``--euler-order``, scipy's convention, and degrees/radians from the name or the option).
+  yaw`` (needs ``euler_order``, scipy's convention, and degrees/radians from the name or the option).
 * several demonstrations in one file: a ``demo`` / ``trial`` / ``trajectory`` / ``episode`` /
   ``sequence`` column; each value becomes ``<file stem>#<value>`` in order of first appearance.
 
@@ -23,9 +23,9 @@ Units come from a suffix of the column name (``x_mm``, ``x [mm]``, ``x(cm)``, ``
 ``yaw_deg``), from a ``# ... length_unit=m time_unit=s`` comment line above the header (as written by
 :func:`write_trajectories_csv`), or from :class:`~rbgp_cli.io.options.ReadOptions`, which wins over the
 file. When nothing states a unit: lengths are metres unless the values look like millimetres (median
-``|p|`` > 10 → :class:`InputError` hinting ``--length-unit mm``), and times are seconds unless the implied
+``|p|`` > 10 → :class:`InputError` hinting ``length_unit mm``), and times are seconds unless the implied
 sampling interval is implausible (median dt > 5 s or < 1e-5 s → :class:`InputError` naming the
-``--time-unit`` that makes it plausible).
+``time_unit`` that makes it plausible).
 
 Readers return *raw* trajectories (SI units, quaternions x, y, z, w): empty / NaN / ``null`` cells are
 lost frames kept as NaN rows for :func:`rbgp_cli.dynamics.prepare.prepare_trajectory`; the cells that
@@ -223,24 +223,24 @@ def _rotation(plan: Plan, data: dict, options: ReadOptions, source: str):
         order = "".join(sorted("xyzw", key=lambda c: plan.roles[f"q{c}"].index))
         chosen = (options.quat_order or "").lower()
         if chosen in ("xyzw", "wxyz") and chosen != order:
-            # --quat-order overrides the labels: the four columns, in file order, are `chosen`
+            # quat_order overrides the labels: the four columns, in file order, are `chosen`
             in_file = np.stack([data[f"q{c}"] for c in order], axis=-1)
             q = in_file if chosen == "xyzw" else in_file[:, [1, 2, 3, 0]]
-            return q, f"quaternion {chosen} (--quat-order, over columns labelled {order})"
-        return q, f"quaternion {order}" + (" (--quat-order)" if chosen == order else "")
+            return q, f"quaternion {chosen} (quat_order, over columns labelled {order})"
+        return q, f"quaternion {order}" + (" (quat_order)" if chosen == order else "")
     if kind == "numbered":
         names = ", ".join(plan.roles[r].name for r in KIND_ROLES[kind])
         order = (options.quat_order or "").lower()
         if order not in ("xyzw", "wxyz"):
             raise InputError(
                 f"quaternion columns {names} are numbered, so their order (scalar first or last) is unknown"
-                + (f" (--quat-order {options.quat_order!r} is not xyzw or wxyz)" if options.quat_order else ""),
+                + (f" (quat_order {options.quat_order!r} is not xyzw or wxyz)" if options.quat_order else ""),
                 path=source,
-                hint="pass --quat-order xyzw (w last) or --quat-order wxyz (w first)", param="quat_order"
+                hint="pass quat_order xyzw (w last) or quat_order wxyz (w first)", param="quat_order"
             )
         raw = np.stack([data[r] for r in KIND_ROLES[kind]], axis=-1)
         q = raw if order == "xyzw" else raw[:, [1, 2, 3, 0]]
-        return q, f"quaternion {order} (--quat-order)"
+        return q, f"quaternion {order} (quat_order)"
     from scipy.spatial.transform import Rotation
 
     n = len(data["x"])
@@ -257,7 +257,7 @@ def _rotation(plan: Plan, data: dict, options: ReadOptions, source: str):
                 raise InputError(
                     f"rotation vectors have median length {np.median(norms):.4g}, more than 2π radians",
                     path=source,
-                    hint="if they are in degrees pass --degrees", param="degrees"
+                    hint="if they are in degrees pass degrees=True", param="degrees"
                 )
             q[ok] = Rotation.from_rotvec(rv[ok]).as_quat()
         return q, "rotation vector (deg)" if deg else "rotation vector (rad)"
@@ -269,12 +269,12 @@ def _rotation(plan: Plan, data: dict, options: ReadOptions, source: str):
         raise InputError(
             f"Euler angles ({names}) need their rotation order",
             path=source,
-            hint="pass --euler-order, scipy's convention: lowercase extrinsic (e.g. xyz), uppercase "
+            hint="pass euler_order, scipy's convention: lowercase extrinsic (e.g. xyz), uppercase "
             "intrinsic (e.g. ZYX)", param="euler_order"
         )
     if not re.fullmatch(r"[xyz]{3}|[XYZ]{3}", seq) or len(set(seq.lower())) != 3:
         raise InputError(
-            f"--euler-order {seq!r}: the columns name the axis of each angle, so the order must use each of "
+            f"euler_order {seq!r}: the columns name the axis of each angle, so the order must use each of "
             "x, y, z once, all lowercase (extrinsic) or all uppercase (intrinsic)",
             path=source, param="euler_order"
         )
@@ -522,15 +522,14 @@ def _trajectories(table: Table, cols: list, plan: Plan, data, options: ReadOptio
                 guess = closest("time", [c.name for c in cols if c.index not in used])
                 tcands = [guess] if guess else []
             raise InputError(
-                "no time column; pass --rate HZ"
-                + (" or --columns t=NAME" if tcands else "")
-                + f" (columns are {columns_list(cols)})",
+                f"no time column (columns are {columns_list(cols)})",
                 path=source,
-                hint=f"did you mean {tcands[0]!r}? pass --columns t={tcands[0]}" if tcands else None, param="rate"
+                hint=(f"did you mean {tcands[0]!r}? pass columns t={tcands[0]}, or rate HZ" if tcands else "pass rate HZ"),
+                param=("rate", "columns") if tcands else "rate",
             )
         rate = float(options.rate)
         if not np.isfinite(rate) or rate <= 0:
-            raise InputError(f"--rate must be a positive number of Hz, got {options.rate!r}", param="rate")
+            raise InputError(f"rate must be a positive number of Hz, got {options.rate!r}", param="rate")
         t = np.empty(n)
         if "frame" in plan.roles:
             t = data["frame"] / rate
@@ -616,12 +615,12 @@ def describe(path, options: ReadOptions | None = None, *, text: str | None = Non
         for role, col in plan.roles.items():
             taken[col.index] = role_key(role)
         if "t" not in plan.roles and not options.rate:
-            problem = "no time column; pass --rate HZ"
-            needs.append("--rate HZ (no time column)")
+            problem = "no time column; pass rate HZ"
+            needs.append("rate HZ (no time column)")
         if rotation == "numbered" and (options.quat_order or "").lower() not in ("xyzw", "wxyz"):
-            needs.append("--quat-order xyzw or wxyz (the quaternion columns are numbered)")
+            needs.append("quat_order xyzw or wxyz (the quaternion columns are numbered)")
         if rotation in ("euler_axis", "rpy") and not options.euler_order:
-            needs.append("--euler-order (the Euler angle columns do not say their order)")
+            needs.append("euler_order (the Euler angle columns do not say their order)")
     except InputError as exc:
         problem = str(exc)
     columns = [

@@ -1,7 +1,7 @@
 """Which column of a CSV/TSV table is what (:mod:`rbgp_cli.io.csv`): each name is normalised (lower
 case, separators equivalent, a unit suffix split off) and matched against the vocabulary of
 :mod:`rbgp_cli.io.vocabulary`; the plan then picks the time, position and rotation columns (or the ones
-``--columns`` names), and :func:`sniff_pose_columns` says from the head of a file whether it holds
+``columns`` names), and :func:`sniff_pose_columns` says from the head of a file whether it holds
 pose columns at all.
 """
 
@@ -137,7 +137,7 @@ def columns_list(cols: list) -> str:
 
 
 def role_key(role: str) -> str:
-    """The ``--columns`` key (or display name) of an internal role."""
+    """The ``columns`` key (or display name) of an internal role."""
     return {"qn0": "q0", "qn1": "q1", "qn2": "q2", "qn3": "q3", "ex": "rot_x", "ey": "rot_y", "ez": "rot_z"}.get(
         role, role
     )
@@ -158,7 +158,7 @@ def _best(cols: list, role: str, used: set, source: str):
     if len(best) > 1:
         key = role_key(role)
         names = [c.name.strip() for c in best]
-        if len(set(names)) < len(names):  # --columns maps by name, so it cannot choose between them
+        if len(set(names)) < len(names):  # columns maps by name, so it cannot choose between them
             raise InputError(
                 f"several columns are named {names[0]!r} (columns "
                 + ", ".join(str(c.index + 1) for c in best) + ")",
@@ -168,7 +168,7 @@ def _best(cols: list, role: str, used: set, source: str):
         raise InputError(
             f"several columns could be '{key}': " + ", ".join(repr(c.name) for c in best),
             path=source,
-            hint=f"choose one with --columns {key if key in CANONICAL_KEYS else 'KEY'}=NAME", param="columns"
+            hint=f"choose one with columns {key if key in CANONICAL_KEYS else 'KEY'}=NAME", param="columns"
         )
     return best[0] if best else None
 
@@ -178,13 +178,13 @@ def _missing_error(role_key: str, what: str, cols: list, used: set, source: str)
     guess = closest(role_key, unused) or closest(role_key, [c.base for c in cols if c.index not in used])
     if guess and guess not in unused:  # matched a normalised name: report the file's name
         guess = next(c.name for c in cols if c.base == guess)
-    msg = f"{what} column '{role_key}' not found; columns are {columns_list(cols)}"
+    msg = f"{what} column '{role_key}' not found (columns are {columns_list(cols)})"
     if guess:
         msg += f"; did you mean {guess!r}?"
-        hint = f"rename the column or pass --columns {role_key}={guess}"
+        hint = f"rename the column or pass columns {role_key}={guess}"
     else:
-        hint = f"rename the column or pass --columns {role_key}=NAME"
-    return InputError(msg, path=source, hint=hint)
+        hint = f"rename the column or pass columns {role_key}=NAME"
+    return InputError(msg, path=source, hint=hint, param="columns")
 
 
 def _renumber_one_based(cols: list) -> None:
@@ -207,14 +207,14 @@ def plan_columns(cols: list, options: ReadOptions, source: str) -> Plan:
         if k not in CANONICAL_KEYS:
             guess = closest(k, CANONICAL_KEYS)
             raise InputError(
-                f"unknown --columns key {key!r}; keys are {', '.join(CANONICAL_KEYS)}"
+                f"columns key {key!r} is unknown; keys are {', '.join(CANONICAL_KEYS)}"
                 + (f"; did you mean {guess!r}?" if guess else ""), param="columns"
             )
         col = by_name.get(fname) or by_lower.get(str(fname).strip().lower())
         if col is None:
             guess = closest(str(fname), [c.name for c in cols])
             raise NotPoseData(
-                f"--columns {k}={fname}: the file has no column {fname!r}; columns are {columns_list(cols)}"
+                f"columns {k}={fname}: the file has no column {fname!r} (columns are {columns_list(cols)})"
                 + (f"; did you mean {guess!r}?" if guess else ""),
                 path=source,
                 reason=f"no column {fname!r}", param="columns"
@@ -253,10 +253,10 @@ def plan_columns(cols: list, options: ReadOptions, source: str) -> Plan:
                 reason="not a table",
             )
         raise NotPoseData(
-            f"no rotation columns found; columns are {columns_list(cols)}",
+            f"no rotation columns found (columns are {columns_list(cols)}); expected quaternion columns "
+            "qx,qy,qz,qw (any order), a rotation vector rx,ry,rz, or Euler angles roll,pitch,yaw",
             path=source,
-            hint="expected quaternion columns qx,qy,qz,qw (any order), a rotation vector rx,ry,rz, or "
-            "Euler angles roll,pitch,yaw; map other names with --columns qx=NAME,...",
+            hint="map other names with columns qx=NAME,...",
             reason="no pose columns", param="columns"
         )
     no_position = not any(r in roles or _candidates(cols, r, used()) for r in ("x", "y", "z"))
@@ -268,7 +268,7 @@ def plan_columns(cols: list, options: ReadOptions, source: str) -> Plan:
             err = _missing_error(role_key(r), "rotation" if r in KIND_ROLES[kind] else "position", cols,
                                  used(), source)  # fmt: skip
             if no_position and r in ("x", "y", "z"):  # rotations only (an IMU log): not poses
-                raise NotPoseData(err.message, path=source, hint=err.hint, reason="no position columns")
+                raise NotPoseData(err.message, path=source, hint=err.hint, reason="no position columns", param=err.param)
             raise err
         roles[r] = c
     if "t" not in roles:
@@ -279,7 +279,7 @@ def plan_columns(cols: list, options: ReadOptions, source: str) -> Plan:
                 raise InputError(
                     "several columns could be the time: " + ", ".join(repr(x.name) for x in cands),
                     path=source,
-                    hint="choose one with --columns t=NAME", param="columns"
+                    hint="choose one with columns t=NAME", param="columns"
                 )
             roles["t"], roles["t_nsec"] = pair
         elif cands:
@@ -299,7 +299,7 @@ def plan_columns(cols: list, options: ReadOptions, source: str) -> Plan:
             raise InputError(
                 f"column {c.name!r} is used both as '{role_key(seen[c.index])}' and as '{role_key(r)}'",
                 path=source,
-                hint="fix the mapping with --columns", param="columns"
+                hint="fix the mapping with columns", param="columns"
             )
         seen[c.index] = r
     return Plan(roles=roles, rotation=kind, columns=cols)

@@ -32,7 +32,7 @@ def infer_length_unit(plan: Plan, table: Table, options: ReadOptions, position: 
         raise InputError(
             f"the position columns disagree on units ({', '.join(sorted(units))})",
             path=table.source,
-            hint="pass --length-unit to override", param="length_unit"
+            hint="pass length_unit to override", param="length_unit"
         )
     if units:
         return units.pop(), "column name"
@@ -48,7 +48,7 @@ def infer_length_unit(plan: Plan, table: Table, options: ReadOptions, position: 
                 f"positions ({names}) have no unit and their median distance from the origin is "
                 f"{med:.4g}, which looks like millimetres, not metres",
                 path=table.source,
-                hint="pass --length-unit mm (or cm, or m if they really are metres)", param="length_unit"
+                hint="pass length_unit mm (or cm, or m if they really are metres)", param="length_unit"
             )
     return "m", "assumed"
 
@@ -65,7 +65,7 @@ def infer_time_unit(plan: Plan, table: Table, options: ReadOptions, t: np.ndarra
         raise InputError(
             f"time column {col.name!r} has a {col.unit_kind} unit ({col.unit})",
             path=table.source,
-            hint="pass --time-unit s|ms|us|ns", param="time_unit"
+            hint="pass time_unit s|ms|us|ns", param="time_unit"
         )
     if table.declared.get("time_unit") in TIME_UNITS:
         return table.declared["time_unit"], "file comment"
@@ -91,15 +91,15 @@ def infer_time_unit(plan: Plan, table: Table, options: ReadOptions, t: np.ndarra
                         break
             what = f"{1.0 / med:.4g} Hz" if med > 0 else "?"
             hint = (
-                f"pass --time-unit {suggestion} ({1.0 / (med * TIME_UNITS[suggestion]):.4g} Hz)"
+                f"pass time_unit {suggestion} ({1.0 / (med * TIME_UNITS[suggestion]):.4g} Hz)"
                 if suggestion
-                else "pass --time-unit s|ms|us|ns, or --rate HZ with --columns to ignore the time column"
+                else "pass time_unit s|ms|us|ns, or rate HZ with columns to ignore the time column"
             )
             raise InputError(
                 f"time column {col.name!r} has no unit and read as seconds its median step is {med:.4g} s "
                 f"({what}), which is implausible for motion capture",
                 path=table.source,
-                hint=hint,
+                hint=hint, param="time_unit" if suggestion else ("time_unit", "rate", "columns"),
             )
     return "s", "assumed"
 
@@ -111,7 +111,7 @@ def angles_in_degrees(plan: Plan, kind: str, options: ReadOptions, source: str) 
         return bool(options.degrees)
     if len(units) > 1:
         raise InputError(
-            "the angle columns disagree on units (deg and rad)", path=source, hint="pass --degrees or --radians",
+            "the angle columns disagree on units (deg and rad)", path=source, hint="pass degrees=True or degrees=False",
             param="degrees",
         )
     if units:
@@ -122,5 +122,5 @@ def angles_in_degrees(plan: Plan, kind: str, options: ReadOptions, source: str) 
     raise InputError(
         f"Euler angles ({names}) do not say whether they are degrees or radians",
         path=source,
-        hint="pass --degrees or --radians (or name the columns e.g. roll_deg)", param="degrees"
+        hint="pass degrees=True or degrees=False (or name the columns e.g. roll_deg)", param="degrees"
     )

@@ -110,7 +110,7 @@ def write_qtm_tsv(trajectories, path, *, length_unit: str = "mm", layout: str = 
         Destination (written atomically).
     length_unit : {"mm", "cm", "m"}
         Unit of the X, Y, Z columns (QTM writes mm; the file does not state it, so a reader needs
-        ``--length-unit`` for anything else).
+        ``length_unit`` for anything else).
     layout : {"current", "old"}
         ``current``: ``FILE_VERSION 2.0.0`` and ``Frame Time <Body> X Y Z <angles> Residual Rot[0..8]``;
         ``old`` (2010): no Frame/Time columns (times must be ``k / rate`` from 0), one anonymous block

@@ -72,7 +72,8 @@ class Format:
         file without ``--topic``); without it inspect reads the file as train does.
     needs : callable, optional
         ``needs(description, options) -> list[str]``: options still needed to train on a file of this
-        format because it holds several of what one option chooses ("--body NAME, ... (3 bodies)").
+        format because it holds several of what one option chooses ("body NAME, ... (3 bodies)"; named as
+        :class:`~rbgp_cli.io.options.ReadOptions` names it, first).
     write : callable, optional
         ``write(trajectories, path, **options)``: writes the format (where rbgp does).
     suffix : str

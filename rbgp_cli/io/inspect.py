@@ -6,13 +6,14 @@ QTM, Motive and Vicon exports what the header says (layout, bodies, rate, units,
 time, ignored assets), in aligned rows of plain words; then per trajectory: samples, duration, median
 rate, gaps (steps longer than 1.5× the median), lost frames, units and conventions, and the position
 range; then the options still needed to train on the file (:func:`needs`). A file rbgp cannot read
-still gets a description with the reader's error message.
+still gets a description with the reader's error message. Like the errors, the text names the read
+options as :class:`~rbgp_cli.io.options.ReadOptions` does (``rate``, ``quat_order``); ``rbgp
+inspect`` writes its flags instead.
 """
 
 from __future__ import annotations
 
 import os
-import re
 import sys
 from pathlib import Path
 
@@ -72,12 +73,12 @@ def _describe(fmt: str, path: str, options: ReadOptions):
     return describe(path, options) if describe is not None else None
 
 
-def prepared_summary(traj, options: ReadOptions, max_gap: float | None = None) -> dict:
+def prepared_summary(traj, options: ReadOptions, max_gap: float | None = None, words=str) -> dict:
     """What train's preparation (:func:`rbgp_cli.dynamics.prepare.prepare_all`, the same call with the
     same options) does to one raw trajectory, as plain data: sample-and-hold repeats and their runs,
     lost frames dropped or filled, duplicates, breaks that split it, gaps no training pair crosses (at
     the default training rate), the demonstrations and repetitions it becomes, a suspect quaternion
-    order, or the error train would stop with (``prepare_error``)."""
+    order, or the error train would stop with (``prepare_error``, as ``words(error)`` says it)."""
     from rbgp_cli.dynamics.defaults import DEFAULTS
     from rbgp_cli.dynamics.prepare import prepare_all
     from rbgp_cli.dynamics.velocities import segment_split
@@ -91,7 +92,7 @@ def prepared_summary(traj, options: ReadOptions, max_gap: float | None = None) -
             warnings.simplefilter("ignore", RbgpWarning)
             pieces, (rep,) = prepare_all([traj], max_gap=max_gap, quiet=True, **options.prepare_kwargs())
     except InputError as exc:
-        return {"prepare_error": str(exc)}
+        return {"prepare_error": words(exc)}
     gaps = []
     thr = None
     for c in pieces:
@@ -121,19 +122,21 @@ def prepared_summary(traj, options: ReadOptions, max_gap: float | None = None) -
     return out
 
 
-def inspect_file(path, options: ReadOptions | None = None, stdin=None, *, max_gap: float | None = None) -> dict:
+def inspect_file(path, options: ReadOptions | None = None, stdin=None, *, max_gap: float | None = None,
+                 words=str) -> dict:
     """Describe one file (``-``: stdin) as plain data.
 
     Returns ``{"path", "format", "bytes", "description", "trajectories": [...], "error", "needs"}``:
     ``description`` is the format-specific part (CSV columns and what each is taken as, MCAP topics,
     the vendor reader's ``describe()``), ``trajectories`` one :func:`trajectory_summary` per
     trajectory read, ``error`` the message rbgp would stop with (None when the file reads), and
-    ``needs`` the options still needed to train on it (:func:`needs`).
+    ``needs`` the options still needed to train on it (:func:`needs`). ``words(error)`` is the text
+    of an error (``str``: as the library says it; the command line names its flags instead).
     """
     options = options or ReadOptions()
     path = str(path)
     if path == "-":
-        return _inspect_stdin(options, stdin, max_gap)
+        return _inspect_stdin(options, stdin, max_gap, words)
     from rbgp_cli.io import formats
     from rbgp_cli.io.read import _format_option, detect_format, read_file
 
@@ -145,32 +148,33 @@ def inspect_file(path, options: ReadOptions | None = None, stdin=None, *, max_ga
     out: dict = {"path": path, "format": None, "bytes": p.stat().st_size, "description": None,
                  "trajectories": [], "error": None}  # fmt: skip
     if out["bytes"] == 0:
-        out["error"] = str(InputError("the file is empty", path=path))
+        out["error"] = words(InputError("the file is empty", path=path))
         return _finish(out, options)
     fmt = _format_option(options)
     out["format"] = detect_format(path) if fmt == "auto" else fmt
     try:
         out["description"] = _describe(out["format"], path, options)
     except InputError as exc:
-        out["error"] = str(exc)
-        return _finish(out, options)
+        out["error"] = words(exc)
+        return _finish(out, options, exc.param)
     entry = formats.get(out["format"])
+    error_param = None
     try:
         # inspect shows everything the options leave open (every body, every pose topic)
         trajs = entry.read_all(path, options) if entry.read_all is not None else read_file(path, options)
     except InputError as exc:
-        out["error"] = str(exc)
+        out["error"], error_param = words(exc), exc.param
         trajs = []
-    out["trajectories"] = [{**trajectory_summary(t), **prepared_summary(t, options, max_gap)} for t in trajs]
-    return _finish(out, options)
+    out["trajectories"] = [{**trajectory_summary(t), **prepared_summary(t, options, max_gap, words)} for t in trajs]
+    return _finish(out, options, error_param)
 
 
-def _finish(out: dict, options: ReadOptions) -> dict:
-    out["needs"] = needs(out, options)
+def _finish(out: dict, options: ReadOptions, error_param=None) -> dict:
+    out["needs"] = needs(out, options, error_param)
     return out
 
 
-def _inspect_stdin(options: ReadOptions, stdin, max_gap=None) -> dict:
+def _inspect_stdin(options: ReadOptions, stdin, max_gap=None, words=str) -> dict:
     import tempfile
 
     from rbgp_cli.io import formats
@@ -187,7 +191,7 @@ def _inspect_stdin(options: ReadOptions, stdin, max_gap=None) -> dict:
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
-        out = inspect_file(tmp, options, max_gap=max_gap)
+        out = inspect_file(tmp, options, max_gap=max_gap, words=words)
     finally:
         os.unlink(tmp)
 
@@ -206,14 +210,12 @@ def _inspect_stdin(options: ReadOptions, stdin, max_gap=None) -> dict:
 # --------------------------------------------------------------------------------------------------
 # what is still needed
 
-_FLAG = re.compile(r"--[a-z][a-z-]+")
-
-
-def needs(d: dict, options: ReadOptions | None = None) -> list[str]:
-    """The options still needed to train on the file described by ``d`` (plain strings, each an
-    option and why): those the format's description names, those its ``Format.needs`` adds (``--body``
-    / ``--topic`` when the file holds several bodies or pose topics), and the flags the reading error
-    names."""
+def needs(d: dict, options: ReadOptions | None = None, error_param=None) -> list[str]:
+    """The options still needed to train on the file described by ``d`` (plain strings, each the
+    option, then a value or ``or`` another option, then why: ``rate HZ (no time column)``): those
+    the format's description names, those its ``Format.needs`` adds (``body`` / ``topic`` when the
+    file holds several bodies or pose topics), and the parameters the reading error is about
+    (``error_param``: its :attr:`~rbgp_cli.errors.RbgpError.param`)."""
     options = options or ReadOptions()
     desc = d.get("description") if isinstance(d.get("description"), dict) else {}
     out = list(desc.get("needs") or [])
@@ -222,11 +224,12 @@ def needs(d: dict, options: ReadOptions | None = None) -> list[str]:
     entry = formats.get(d["format"]) if d.get("format") in formats.names() else None
     if entry is not None and entry.needs is not None:  # a choice the file leaves open: bodies, topics
         out += entry.needs(desc, options)
-    if d.get("error"):  # the options the error names (it says why, on the line below)
+    if d.get("error") and error_param:  # the options the error is about (it says why, on the line below)
         have = {n.split()[0] for n in out}
-        flags = [f for f in dict.fromkeys(_FLAG.findall(d["error"])) if f not in have]
-        if flags:
-            out.append(" or ".join(flags) + " (see the error)")
+        params = (error_param,) if isinstance(error_param, str) else tuple(error_param)
+        names = [p for p in dict.fromkeys(params) if p not in have]
+        if names:
+            out.append(" or ".join(names) + " (see the error)")
     return out
 
 
@@ -341,7 +344,7 @@ def _train_acts(tr: dict) -> list[str]:
     if tr.get("dropped"):
         acts.append(f"drops {_plural(tr['dropped'], 'lost frame')}")
     if tr.get("filled"):
-        acts.append(f"fills {_plural(tr['filled'], 'lost frame')} (--max-gap)")
+        acts.append(f"fills {_plural(tr['filled'], 'lost frame')} (max_gap)")
     if tr.get("duplicates"):
         acts.append(f"drops {_plural(tr['duplicates'], 'duplicate sample')}")
     used = tr.get("samples_used")
@@ -350,7 +353,7 @@ def _train_acts(tr: dict) -> list[str]:
     b = tr.get("breaks") or {}
     if b.get("count"):
         acts.append(f"splits it at {_plural(b['count'], 'break')} (up to {_fmt_num(b['largest_s'], ' s')} without a sample; "
-                    f"--split-gap decides) into {_plural(tr['demonstrations'], 'demonstration')}")
+                    f"split_gap decides) into {_plural(tr['demonstrations'], 'demonstration')}")
     if "repetitions" in tr:
         spans = ", ".join(f"{_fmt_num(a, '', 3)}–{_fmt_num(e, ' s', 3)}" for a, e in tr["repetition_spans_s"][:6])
         acts.append(f"splits it at rest into {_plural(tr['repetitions'], 'repetition')} ({spans}"

@@ -6,7 +6,7 @@ Message types that carry a 6D pose (schema names with or without ``/msg/``):
 ROS 2 ``geometry_msgs/msg/PoseStamped``                ``header.stamp``, ``pose``
 ``geometry_msgs/msg/PoseWithCovarianceStamped``        ``header.stamp``, ``pose.pose``
 ``geometry_msgs/msg/TransformStamped``                 ``header.stamp``, ``transform``, child frame
-``tf2_msgs/msg/TFMessage``                             per transform; one child frame (``--frame``)
+``tf2_msgs/msg/TFMessage``                             per transform; one child frame (``frame``)
 ``nav_msgs/msg/Odometry``                              ``header.stamp``, ``pose.pose``
 ``geometry_msgs/msg/PoseArray``                        ``header.stamp``; one trajectory per index
 ``foxglove.PoseInFrame`` / ``foxglove.PosesInFrame``   ``timestamp``; PosesInFrame: one per index
@@ -393,7 +393,7 @@ def _choose_topic(topics: dict, options: ReadOptions, source: str) -> _Topic:
                 + (f"; did you mean {guess!r}?" if guess else "")
                 + (f" pose topics are: {_listing(pose)}" if pose else f" (the file has no pose topic; topics are: {_listing(topics.values()) or 'none'})"),
                 path=source,
-                hint="pass --topic with one of them",
+                hint="pass topic with one of them", param="topic",
             )
         if t.kind is None:
             raise error(
@@ -417,9 +417,9 @@ def _choose_topic(topics: dict, options: ReadOptions, source: str) -> _Topic:
     if not nonempty:
         raise InputError(f"the pose topics hold no messages: {_listing(pose)}", path=source)
     raise InputError(
-        f"several pose topics; choose one with --topic: {_listing(nonempty)}",
+        f"several pose topics: {_listing(nonempty)}",
         path=source,
-        hint=f"e.g. --topic {nonempty[0].topic}", param="topic"
+        hint=f"choose one with topic, e.g. topic {nonempty[0].topic}", param="topic"
     )
 
 
@@ -439,7 +439,7 @@ def _select_subs(scan: _Scan, topic: _Topic, options: ReadOptions, *, select_all
                     + (f"; did you mean {guess!r}?" if guess else ""),
                     path=scan.source,
                     topic=topic.topic,
-                    hint="pass --frame with one of them", param="frame"
+                    hint="pass frame with one of them", param="frame"
                 )
             return hit
         if len(frames) > 1:
@@ -448,7 +448,7 @@ def _select_subs(scan: _Scan, topic: _Topic, options: ReadOptions, *, select_all
                 + ", ".join(f"{f} ({counts[f]})" for f in frames),
                 path=scan.source,
                 topic=topic.topic,
-                hint=f"choose one with --frame, e.g. --frame {frames[0]}", param="frame"
+                hint=f"choose one with frame, e.g. frame {frames[0]}", param="frame"
             )
     return [k for k in keys if scan.series[k]]
 
@@ -650,7 +650,7 @@ def _is_pattern(topic: str | None) -> bool:
 
 
 def _read_matching(stream, source: str, options: ReadOptions) -> list[Trajectory]:
-    """``--topic all`` or a glob (``'/shoe/*'``): every matching pose topic, one demonstration each."""
+    """``topic="all"`` or a glob (``'/shoe/*'``): every matching pose topic, one demonstration each."""
     import fnmatch
 
     pattern = options.topic
@@ -660,7 +660,7 @@ def _read_matching(stream, source: str, options: ReadOptions) -> list[Trajectory
                  or fnmatch.fnmatchcase(t.info.get("topic", "").strip("/"), pattern.strip("/"))]
     if not trajs:
         raise InputError(f"no pose topic matches {pattern!r}", path=source,
-                         hint="list the topics with rbgp inspect, then pass --topic NAME or a pattern like '/body/*'",
+                         hint="list the topics with rbgp inspect, then pass topic NAME or a pattern like '/body/*'",
                          param="topic")
     return trajs
 
@@ -765,17 +765,17 @@ def describe(path, options: ReadOptions | None = None) -> dict:
 
 
 def _inspect_read(path, options: ReadOptions | None = None) -> list[Trajectory]:
-    """What ``rbgp inspect`` reads: the topic ``--topic`` names, else every pose topic."""
+    """What ``rbgp inspect`` reads: the topic ``topic`` names, else every pose topic."""
     options = options or ReadOptions()
     return read(path, options) if options.topic else read_all(path, options)
 
 
 def _topic_needs(desc: dict, options: ReadOptions) -> list[str]:
-    """``--topic`` when the file holds several pose topics with messages and the options name none."""
+    """``topic`` when the file holds several pose topics with messages and the options name none."""
     pose = [t["topic"] for t in desc.get("topics", []) if t.get("pose") and t.get("messages") != 0]
     if options.topic or len(pose) < 2:
         return []
-    return [f"--topic NAME, or --topic all / a pattern for one demonstration per topic ({len(pose)} pose topics)"]
+    return [f"topic NAME, or all / a pattern for one demonstration per topic ({len(pose)} pose topics)"]
 
 
 def describe_rows(desc: dict) -> list[str]:

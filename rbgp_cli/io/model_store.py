@@ -180,8 +180,8 @@ def save_model(model, path) -> dict:
     return header
 
 
-def _bad(path, what, hint="retrain it with rbgp train or restore it from a backup"):
-    return InputError(what, path=str(path), hint=hint)
+def _bad(path, what, hint="retrain it with rbgp train or restore it from a backup", param=None):
+    return InputError(what, path=str(path), hint=hint, param=param)
 
 
 def canonical_json(header: dict) -> bytes:
@@ -431,11 +431,11 @@ def load_model(path):
             envelope = Envelope.from_dict(header["envelope"])
     except RbgpError as exc:
         raise _bad(path, f"the model cannot be rebuilt: {exc.message}") from None
-    except MemoryError:  # not --max-points of a training: this file's GP needs more memory than there is
+    except MemoryError:  # not max_points of a training: this file's GP needs more memory than there is
         n = len(arrays["X"])
         raise _bad(path, f"not enough memory to rebuild the model's GP on {n} training points "
                          f"(an {n} × {n} matrix: {8 * n * n / 2**30:.3g} GiB)",
-                   "use a machine with more memory, or retrain with fewer --max-points") from None
+                   "use a machine with more memory, or retrain it on fewer points (max_points)", param="max_points") from None
     except (KeyError, TypeError, ValueError, IndexError, AttributeError, ArithmeticError) as exc:
         raise _bad(path, f"the model header is inconsistent ({type(exc).__name__}: {str(exc)[:80]})") from None
     variation = None

@@ -24,11 +24,11 @@ Euler angles (the decision and its source)
     (or any permutation) is read as the intrinsic scipy sequence of the same letters, and each angle
     is taken from the column labelled with its axis (so column order does not matter). The
     phausamann/rigid-body-motion loader (``qx * qy * qz`` for ``XYZ``) agrees. When the header does
-    not state the rotation type, ``--euler-order`` must (``XYZ`` for modern Motive, ``yzx`` for
-    pre-1.6 exports); it also overrides the header. Angles are degrees (``--degrees`` false: radians).
+    not state the rotation type, ``euler_order`` must (``XYZ`` for modern Motive, ``yzx`` for
+    pre-1.6 exports); it also overrides the header. Angles are degrees (``degrees=False``: radians).
 
 Length units come from ``Length Units``; without it the reader refuses to guess (cm and mm both
-occur) and asks for ``--length-unit``, which also overrides the header.
+occur) and asks for ``length_unit``, which also overrides the header.
 """
 
 from __future__ import annotations
@@ -150,7 +150,7 @@ class _Layout:
 
     def euler_order(self, options: ReadOptions) -> tuple[str | None, str]:
         if options.euler_order:
-            return options.euler_order, "--euler-order"
+            return options.euler_order, "euler_order"
         stated = self.header.get("Rotation Type", "")
         if stated.upper() in EULER_TYPES:
             return stated.upper(), f"Rotation Type {stated} (Motive: relative = intrinsic)"
@@ -165,7 +165,7 @@ class _Layout:
         unit = UNIT_NAMES.get(stated.lower())
         if unit is None:
             raise InputError(f"unknown Length Units {stated!r}", path=self.path, row=1,
-                             hint="give the unit with --length-unit m|cm|mm", param="length_unit")
+                             hint="give the unit with length_unit m|cm|mm", param="length_unit")
         return unit
 
     def other_assets(self) -> dict[str, list[str]]:
@@ -178,7 +178,7 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
 
     Returns one raw :class:`Trajectory` per selected body (``options.body``: None -> the only rigid
     body, ``"all"`` -> every one): t in seconds, quaternions x, y, z, w (body -> world), positions in
-    metres, lost frames as NaN rows. Raises InputError naming ``--length-unit`` / ``--euler-order``
+    metres, lost frames as NaN rows. Raises InputError naming ``length_unit`` / ``euler_order``
     when the header does not state the length unit / the Euler convention.
     """
     options = options or ReadOptions()
@@ -216,17 +216,17 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
     if unit is None:
         peak = max((np.nanmax(np.abs(col[j])) for c in cols.values() for j in c["Position"]
                     if np.isfinite(col[j]).any()), default=float("nan"))
-        missing.append(("Length Units", f"--length-unit m|cm|mm (positions reach {peak:.4g})"))
+        missing.append(("Length Units", f"length_unit m|cm|mm (positions reach {peak:.4g})"))
     if seq is None and "euler" in kinds.values():
         stated = f" (it says {seq_source!r})" if seq_source else ""
         missing.append(("the Euler convention (Rotation Type)" + stated,
-                        "--euler-order XYZ (Motive 1.6+ exports relative XYZ; pre-1.6: yzx)"))
+                        "euler_order XYZ (Motive 1.6+ exports relative XYZ; pre-1.6: yzx)"))
     if missing:
         what = (f"states neither {missing[0][0]} nor {missing[1][0]}" if len(missing) == 2
                 else f"does not state {missing[0][0]}")
         raise InputError(f"the header {what}", path=path, row=1,
-                         hint="give " + " and ".join(h for _, h in missing))
-    scale = metres_per(unit, path=path, hint="use --length-unit m|cm|mm")
+                         hint="give " + " and ".join(h for _, h in missing), param=tuple(h.split()[0] for _, h in missing))
+    scale = metres_per(unit, path=path, hint="use length_unit m|cm|mm")
 
     rate = layout.rate()
     if time_col is not None:
@@ -237,10 +237,10 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
         rate = rate or options.rate
         if rate is None or frame_col is None:
             raise InputError("no Time column and no frame rate in the header", path=path,
-                             hint="give the sample rate with --rate HZ", param="rate")
+                             hint="give the samples per second with rate HZ", param="rate")
         t, time_source = col[frame_col] / rate, "Frame / frame rate"
     if options.rate and layout.rate() and abs(options.rate - layout.rate()) > 1e-9 * layout.rate():
-        warn(f"ignoring --rate {options.rate:g}: the header states {layout.rate():g} Hz", path=path)
+        warn(f"rate {options.rate:g} is ignored: the header states {layout.rate():g} Hz", path=path, param="rate")
 
     from scipy.spatial.transform import Rotation as R
 
@@ -297,16 +297,16 @@ def describe(path, options: ReadOptions | None = None) -> dict:
     needs = []
     if unit is None:
         stated = layout.header.get("Length Units")
-        needs.append("--length-unit m|cm|mm (" + (f"unknown Length Units {stated!r}" if stated else
+        needs.append("length_unit m|cm|mm (" + (f"unknown Length Units {stated!r}" if stated else
                                                   "the header states no Length Units") + ")")
     if seq is None and "euler" in kinds.values():
-        needs.append("--euler-order XYZ for Motive 1.6+ exports, yzx before 1.6 (the header states no Rotation Type)")
+        needs.append("euler_order XYZ for Motive 1.6+ exports, yzx before 1.6 (the header states no Rotation Type)")
     time_col = next((a for a in layout.meta if a.startswith("Time") and a != "TimeCode"), None)
     return {
         "format": "motive",
         "header": dict(layout.header),
         "bodies": list(layout.bodies),
-        "rotation": {n: (k if k != "euler" else f"euler {seq or '? (use --euler-order)'}") for n, k in kinds.items()},
+        "rotation": {n: (k if k != "euler" else f"euler {seq or '? (use euler_order)'}") for n, k in kinds.items()},
         "rotation_type": layout.header.get("Rotation Type"),
         "length_unit": unit,
         "length_units_stated": layout.header.get("Length Units"),

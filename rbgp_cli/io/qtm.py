@@ -225,7 +225,7 @@ class _Layout:
     def rotation_plan(self, fields, options: ReadOptions):
         """``(rot_cols, angle_cols, euler_seq, euler_source, angle_names)`` for one body's fields;
         ``rot_cols`` is None without Rot[0..8], ``angle_cols`` None unless there are three angle
-        columns, ``euler_seq`` None when neither the angle names nor ``--euler-order`` define it."""
+        columns, ``euler_seq`` None when neither the angle names nor ``euler_order`` define it."""
         rot = [fields[f] for f in ROT_FIELDS] if all(f in fields for f in ROT_FIELDS) else None
         skip = {"X", "Y", "Z", "Residual", *ROT_FIELDS}
         angle_names = [f for f in sorted(fields, key=fields.get) if f not in skip]
@@ -233,7 +233,7 @@ class _Layout:
         seq, source = None, None
         if angles is not None:
             if options.euler_order:
-                seq, source = options.euler_order, "--euler-order"
+                seq, source = options.euler_order, "euler_order"
             else:
                 axes = [ANGLE_AXES.get(a.lower()) for a in angle_names]
                 if None not in axes and len(set(axes)) == 3:
@@ -274,14 +274,14 @@ def _time_axis(layout: _Layout, values, options: ReadOptions, n: int):
     f_file = layout.frequency()
     rate = f_file or options.rate
     if options.rate and f_file and abs(options.rate - f_file) > 1e-9 * f_file:
-        warn(f"ignoring --rate {options.rate:g}: the file states FREQUENCY {f_file:g} Hz", path=layout.path)
+        warn(f"rate {options.rate:g} is ignored: the file states FREQUENCY {f_file:g} Hz", path=layout.path, param="rate")
     if "Time" in values:
         return values["Time"], "Time column", rate
     if rate is None:
         raise InputError(
             "FREQUENCY is not a number (external timebase?) and there is no Time column",
             path=layout.path,
-            hint="give the sample rate with --rate HZ", param="rate"
+            hint="give the samples per second with rate HZ", param="rate"
         )
     if "Frame" in values:
         return (values["Frame"] - 1.0) / rate, "(Frame - 1) / FREQUENCY", rate
@@ -299,7 +299,7 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
     options = options or ReadOptions()
     layout = _Layout(path, read_text(path))
     chosen = select_bodies(list(layout.blocks), options.body, path=path)
-    scale = metres_per(options.length_unit or "mm", path=path, hint="use --length-unit m|cm|mm")
+    scale = metres_per(options.length_unit or "mm", path=path, hint="use length_unit m|cm|mm")
     degrees = True if options.degrees is None else bool(options.degrees)
     from scipy.spatial.transform import Rotation as R  # the io edge may use scipy
 
@@ -321,7 +321,7 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
                     else "no Euler angle columns")
             raise InputError(
                 f"body {name!r} has no Rot[0..8] matrix and {what}", path=path, row=layout.header_line + 1,
-                hint="give the angles' convention with --euler-order (e.g. XYZ for Roll Pitch Yaw)", param="euler_order"
+                hint="give the angles' convention with euler_order (e.g. XYZ for Roll Pitch Yaw)", param="euler_order"
             )
         plans[name] = plan
         wanted += [fields[f] for f in ("X", "Y", "Z")] + (rot or angles)  # angles: only when no Rot[]
@@ -402,11 +402,11 @@ def describe(path, options: ReadOptions | None = None) -> dict:
         rot, angles, seq, seq_source, angle_names = layout.rotation_plan(fields, options)
         bodies[name] = {
             "rotation": "Rot[] matrix (column-major)" if rot is not None else (
-                f"euler {seq} ({seq_source})" if seq else "unknown (use --euler-order)"),
+                f"euler {seq} ({seq_source})" if seq else "unknown (use euler_order)"),
             "angle_columns": angle_names,
         }
         if rot is None and not seq and not needs:
-            needs.append(f"--euler-order (body {name!r} has no Rot[] matrix and angle columns "
+            needs.append(f"euler_order (body {name!r} has no Rot[] matrix and angle columns "
                          f"{' '.join(angle_names) or 'none'} of unknown convention)")
     if "Time" in layout.meta:
         time_source = "Time column"
@@ -415,7 +415,7 @@ def describe(path, options: ReadOptions | None = None) -> dict:
     else:
         time_source = None
         freq = (layout.header.get("FREQUENCY") or ["missing"])[0]
-        needs.append(f"--rate HZ (FREQUENCY is {freq} and there is no Time column)")
+        needs.append(f"rate HZ (FREQUENCY is {freq} and there is no Time column)")
     return {
         "format": "qtm",
         "layout": layout.layout,

@@ -203,7 +203,7 @@ def skip_reason(path, options: ReadOptions | None = None) -> str | None:
 
     Empty files, binary files (images, videos, ``.DS_Store``, zip archives), text that is not a table
     or a table without pose columns (:func:`rbgp_cli.io.csv.sniff_pose_columns`), QTM exports of 3D
-    markers, and (with ``--format``) files that are not of that format.
+    markers, and (with ``format``) files that are not of that format.
     """
     options = options or ReadOptions()
     path = str(path)

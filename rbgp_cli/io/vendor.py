@@ -123,7 +123,7 @@ def select_bodies(names, body, *, path, aliases=None) -> list[str]:
         raise InputError(
             f"the file holds {len(names)} rigid bodies: {listed}; choose one",
             path=str(path),
-            hint="use --body NAME, or --body all to read every body", param="body"
+            hint="use body NAME, or body all to read them all", param="body"
         )
     if body in names:
         return [body]
@@ -140,7 +140,7 @@ def select_bodies(names, body, *, path, aliases=None) -> list[str]:
     raise InputError(
         f"no rigid body named {body!r}; the bodies are {listed}",
         path=str(path),
-        hint=f"did you mean --body {guess!r}?" if guess else "use --body NAME or --body all", param="body"
+        hint=f"did you mean body {guess!r}?" if guess else "use body NAME or body all", param="body"
     )
 
 
@@ -173,7 +173,7 @@ def head_lines(head: bytes):
 
 
 def read_every_body(read):
-    """A :attr:`rbgp_cli.io.formats.Format.read_all` for a vendor export: ``read`` with ``--body all``
+    """A :attr:`rbgp_cli.io.formats.Format.read_all` for a vendor export: ``read`` with ``body="all"``
     unless the options name a body."""
 
     def read_all(path, options=None):
@@ -188,11 +188,11 @@ def read_every_body(read):
 
 
 def body_needs(desc: dict, options) -> list[str]:
-    """A :attr:`rbgp_cli.io.formats.Format.needs` for a vendor export: ``--body`` when the file holds
+    """A :attr:`rbgp_cli.io.formats.Format.needs` for a vendor export: ``body`` when the file holds
     several bodies and the options name none."""
     bodies = desc.get("bodies") or []
     if options.body is None and len(bodies) > 1:
-        return [f"--body NAME, or --body all for every body ({len(bodies)} bodies)"]
+        return [f"body NAME, or all for every body ({len(bodies)} bodies)"]
     return []
 
 

@@ -17,11 +17,11 @@ Rotation (a documented assumption, overridable)
     ``RX, RY, RZ`` are read as the **helical** angles of the segment, i.e. the rotation vector
     ``θ·u`` (axis times angle) in the units line's unit (degrees by default), the Vicon default for
     segment export (ECOSYSTEM.md §2.3, unverified against Vicon's own documentation). With
-    ``ReadOptions.rotation == "euler"`` they are Euler angles instead: ``--euler-order`` (scipy
+    ``ReadOptions.rotation == "euler"`` they are Euler angles instead: ``euler_order`` (scipy
     notation, e.g. ``XYZ`` intrinsic) is then required, and each angle is taken from the column of
     its axis (RX for X, ...).
 
-Positions ``TX TY TZ`` are in the units line's unit (mm); ``--length-unit`` overrides it and is
+Positions ``TX TY TZ`` are in the units line's unit (mm); ``length_unit`` overrides it and is
 required when the file has no units line.
 """
 
@@ -177,11 +177,11 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
 
     rotation = (options.rotation or "helical").lower()
     if rotation not in ("helical", "euler"):
-        raise InputError(f"unknown --rotation {options.rotation!r} for Vicon RX,RY,RZ", path=path,
-                         hint="use --rotation helical (axis-angle, default) or --rotation euler", param="rotation")
+        raise InputError(f"rotation {options.rotation!r} is unknown for Vicon RX,RY,RZ", path=path,
+                         hint="use rotation helical (axis-angle, default) or rotation euler", param="rotation")
     if rotation == "euler" and not options.euler_order:
-        raise InputError("--rotation euler needs the Euler convention of RX,RY,RZ", path=path,
-                         hint="give it with --euler-order (e.g. XYZ intrinsic, xyz extrinsic)", param="euler_order")
+        raise InputError("rotation euler needs the Euler convention of RX,RY,RZ", path=path,
+                         hint="give it with euler_order (e.g. XYZ intrinsic, xyz extrinsic)", param=("rotation", "euler_order"))
     first = poses[chosen[0]]
     units = section.units or []
     if options.length_unit:
@@ -190,23 +190,23 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
         length_unit = units[first["TX"]]
     else:
         raise InputError("no units line under the column line, so the length unit is unknown", path=path,
-                         row=section.column_row + 1, hint="give it with --length-unit m|cm|mm", param="length_unit")
-    scale = metres_per(length_unit, path=path, hint="use --length-unit m|cm|mm")
+                         row=section.column_row + 1, hint="give it with length_unit m|cm|mm", param="length_unit")
+    scale = metres_per(length_unit, path=path, hint="use length_unit m|cm|mm")
     if options.degrees is not None:
         degrees = bool(options.degrees)
     else:
         stated = units[first["RX"]].lower() if first["RX"] < len(units) else ""
         if stated and stated not in _ANGLE_UNITS:
             raise InputError(f"unknown angle unit {stated!r} for RX", path=path, row=section.column_row + 2,
-                             hint="say whether angles are degrees with --degrees / --no-degrees", param="degrees")
+                             hint="say whether angles are degrees with degrees=True / degrees=False", param="degrees")
         degrees = _ANGLE_UNITS.get(stated, True)
 
     rate = section.rate or options.rate
     if section.rate is None and options.rate is None:
         raise InputError(f"the rate line of section {section.title!r} is not a number", path=path,
-                         row=section.column_row - 1, hint="give the sample rate with --rate HZ", param="rate")
+                         row=section.column_row - 1, hint="give the samples per second with rate HZ", param="rate")
     if options.rate and section.rate and abs(options.rate - section.rate) > 1e-9 * section.rate:
-        warn(f"ignoring --rate {options.rate:g}: the file states {section.rate:g} Hz", path=path)
+        warn(f"rate {options.rate:g} is ignored: the file states {section.rate:g} Hz", path=path, param="rate")
 
     rows = [layout.lines[i].split(layout.delimiter) for i in section.data]
     line_no = [i + 1 for i in section.data]
@@ -235,7 +235,7 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
             ang = np.stack([col[b["R" + a.upper()]] for a in seq], axis=1)
             lost |= ~np.all(np.isfinite(ang), axis=1)
             quat = quat_from_valid(~lost, lambda a: R.from_euler(seq, a, degrees=degrees), ang)
-            source = f"euler {seq} {'deg' if degrees else 'rad'} (--euler-order)"
+            source = f"euler {seq} {'deg' if degrees else 'rad'} (euler_order)"
         pos[lost] = np.nan
         info = {
             "format": "vicon",
@@ -281,11 +281,11 @@ def describe(path, options: ReadOptions | None = None) -> dict:
         length_unit = options.length_unit or (units[first["TX"]] if first["TX"] < len(units) else None) or None
         angle_unit = (units[first["RX"]] if first["RX"] < len(units) else None) or None
         if length_unit is None:
-            needs.append("--length-unit m|cm|mm (no units line under the column line)")
+            needs.append("length_unit m|cm|mm (no units line under the column line)")
         if pose.rate is None and not options.rate:
-            needs.append(f"--rate HZ (the rate line of section {pose.title!r} is not a number)")
+            needs.append(f"rate HZ (the rate line of section {pose.title!r} is not a number)")
         if (options.rotation or "").lower() == "euler" and not options.euler_order:
-            needs.append("--euler-order (--rotation euler needs the convention of RX, RY, RZ)")
+            needs.append("euler_order (rotation euler needs the convention of RX, RY, RZ)")
     return {
         "format": "vicon",
         "delimiter": layout.delimiter,

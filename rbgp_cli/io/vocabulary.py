@@ -30,7 +30,7 @@ def is_missing(cell: str) -> bool:
     return cell.strip().lower() in MISSING_TOKENS
 
 
-#: Keys accepted by ``ReadOptions.columns`` (``--columns KEY=NAME``).
+#: Keys accepted by ``ReadOptions.columns`` (``{KEY: NAME}``).
 CANONICAL_KEYS = (
     "t", "x", "y", "z", "qx", "qy", "qz", "qw", "q0", "q1", "q2", "q3",
     "rx", "ry", "rz", "roll", "pitch", "yaw", "frame", "demo",

@@ -79,7 +79,7 @@ def _matplotlib():
         from matplotlib.backends.backend_agg import FigureCanvasAgg
         from matplotlib.figure import Figure
     except ImportError:
-        raise InputError("--plot needs matplotlib", hint="pip install 'rbgp-cli[plot]'") from None
+        raise InputError("plot needs matplotlib", hint="pip install 'rbgp-cli[plot]'", param="plot") from None
     return Figure, FigureCanvasAgg
 
 

@@ -77,13 +77,13 @@ def _rerun():
         import rerun as rr
         import rerun.blueprint as rrb
     except ImportError:
-        raise InputError("--rerun needs rerun-sdk", hint="pip install 'rerun-sdk>=0.41'") from None
+        raise InputError("rerun needs rerun-sdk", hint="pip install 'rerun-sdk>=0.41'", param="rerun") from None
     return rr, rrb
 
 
 def _check_up(up: str) -> str:
     if up not in UP_AXES:
-        raise InputError(f"--up must be z or y, got {up!r}")
+        raise InputError(f"up must be z or y, got {up!r}", param="up")
     return up
 
 

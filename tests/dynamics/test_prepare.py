@@ -97,7 +97,7 @@ def test_far_from_unit_quaternion_is_an_error_naming_the_line():
     with pytest.raises(InputError) as e:
         prepare_trajectory(tr.with_(quat=q))
     msg = str(e.value)
-    assert msg.startswith("d.csv:8: demo: quaternion norm 1.5 at sample 7") and "--quat-order" in msg
+    assert msg.startswith("d.csv:8: demo: quaternion norm 1.5 at sample 7") and "(columns, quat_order)" in msg
 
 
 def test_error_without_line_information_names_the_sample():

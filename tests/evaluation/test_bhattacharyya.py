@@ -361,10 +361,10 @@ def test_length_above_the_longest_demo_warns_within_the_limit(sets):
 def test_one_demonstration_is_refused_because_the_score_would_measure_the_ridge(sets):
     demos, gen = sets
     for cov in ("diag", "full"):
-        with pytest.raises(InputError, match=rf"1 demonstration: .*ridge.*--covariance {cov} needs at least "
+        with pytest.raises(InputError, match=rf"1 demonstration: .*ridge.*; covariance {cov} needs at least "
                                              rf"{MIN_TRAJECTORIES[cov]} demonstrations") as info:
             evaluate(gen, demos[:1], covariance=cov)
-        assert info.value.exit_code == 2 and "\n" not in str(info.value)
+        assert info.value.exit_code == 2 and "\n" not in str(info.value) and info.value.param == "covariance"
     # why: with one demonstration the number follows the ridge, with six it does not
     one = [evaluate(gen, demos[:1], ridge=r, sample_size="record").mean for r in (1e-6, 1e-7)]
     six = [evaluate(gen, demos, ridge=r).mean for r in (1e-6, 1e-7)]

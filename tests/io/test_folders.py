@@ -78,7 +78,7 @@ def test_a_folder_with_a_licence_readme_and_other_files_reads_only_the_takes(tmp
 
 def test_an_explicitly_named_file_that_is_not_pose_data_stays_an_error(tmp_path):
     d, _ = user_folder(tmp_path)
-    with pytest.raises(NotPoseData, match=r"LICENSE: no rotation columns found; columns are MIT, License"):
+    with pytest.raises(NotPoseData, match=r"LICENSE: no rotation columns found \(columns are MIT, License\)"):
         rread.read_demonstrations([str(d / "LICENSE")])
     with pytest.raises(InputError, match="chatter.mcap: no pose topic found"):
         rread.read_demonstrations([str(d), str(d / "chatter.mcap")])

@@ -61,7 +61,7 @@ def test_ros2_types_read_back(tmp_path, type_name):
 def test_tf_message_needs_a_frame_when_it_has_several(tmp_path):
     p = tmp_path / "tf.mcap"
     stamps, pos, q = F.write_ros2(p, "tf2_msgs/msg/TFMessage")
-    with pytest.raises(InputError, match=r"topic /pose: transforms to several child frames: a \(50\), b \(50\).*--frame"):
+    with pytest.raises(InputError, match=r"topic /pose: transforms to several child frames: a \(50\), b \(50\).*choose one with frame, e.g. frame a"):
         rmcap.read(p)
     check(rmcap.read(p, ReadOptions(frame="b")), stamps, pos, q, frames=[1])
     trajs = rmcap.read(p, ReadOptions(frame="/a"))  # leading slashes do not matter
@@ -185,7 +185,7 @@ def test_several_pose_topics_are_listed(tmp_path):
     with pytest.raises(InputError) as e:
         rmcap.read(p)
     msg = str(e.value)
-    assert "several pose topics; choose one with --topic" in msg
+    assert "several pose topics: " in msg and "; choose one with topic, e.g. topic /a/pose" in msg
     assert "/a/pose (geometry_msgs/msg/PoseStamped, 20 messages)" in msg and "/b/odom (nav_msgs/msg/Odometry, 20 messages)" in msg
     check(rmcap.read(p, ReadOptions(topic="/b/odom")), *truth)
     check(rmcap.read(p, ReadOptions(topic="a/pose")), *truth)  # leading slash optional

@@ -106,7 +106,7 @@ def test_euler_order_option_overrides_the_header(tmp_path):
     np.testing.assert_allclose(matrices(extrinsic.quat)[0], rx(30) @ ry(-40) @ rz(110), atol=1e-12)
     (zyx,) = motive.read(path, ReadOptions(euler_order="ZYX"))
     np.testing.assert_allclose(matrices(zyx.quat)[0], rz(110) @ ry(-40) @ rx(30), atol=1e-12)
-    assert "--euler-order" in zyx.info["rotation_source"]
+    assert "euler_order" in zyx.info["rotation_source"]
 
 
 def test_degrees_false_reads_radians(tmp_path):
@@ -140,7 +140,7 @@ def test_missing_length_units_names_the_option(tmp_path):
     path = write(tmp_path, motive_text(rigid_body("cup"), [[0, 0, 0, *POS_CM]], first=first_line(units=None)))
     with pytest.raises(InputError) as err:
         motive.read(path)
-    assert "does not state Length Units" in str(err.value) and "--length-unit" in str(err.value)
+    assert "does not state Length Units" in str(err.value) and "length_unit m|cm|mm" in str(err.value)
     assert "positions reach 150" in str(err.value) and err.value.row == 1
     (tr,) = motive.read(path, ReadOptions(length_unit="cm"))
     assert tr.info["length_unit"] == "cm"
@@ -148,20 +148,20 @@ def test_missing_length_units_names_the_option(tmp_path):
 
 def test_missing_rotation_type_for_euler_names_the_option(tmp_path):
     path = write(tmp_path, motive_text(rigid_body("cup"), [[0, 0, 0, *POS_CM]], first=first_line(rotation_type=None)))
-    with pytest.raises(InputError, match="Rotation Type.*--euler-order XYZ"):
+    with pytest.raises(InputError, match="Rotation Type.*euler_order XYZ"):
         motive.read(path)
 
 
 def test_both_missing_are_named_in_one_error(tmp_path):
     first = first_line(rotation_type=None, units=None)
     path = write(tmp_path, motive_text(rigid_body("cup"), [[0, 0, 0, *POS_CM]], first=first))
-    with pytest.raises(InputError, match="states neither Length Units nor .*--length-unit.* and --euler-order"):
+    with pytest.raises(InputError, match="states neither Length Units nor .*length_unit.* and euler_order"):
         motive.read(path)
 
 
 def test_unknown_length_units(tmp_path):
     path = write(tmp_path, motive_text(rigid_body("cup"), [[0, 0, 0, *POS_CM]], first=first_line(units="Inches")))
-    with pytest.raises(InputError, match="unknown Length Units 'Inches'.*--length-unit"):
+    with pytest.raises(InputError, match="unknown Length Units 'Inches'.*length_unit"):
         motive.read(path)
 
 
@@ -203,9 +203,9 @@ def test_file_without_rigid_bodies(tmp_path):
 def test_body_selection(tmp_path):
     cols = rigid_body("RigidBody 01") + rigid_body("RigidBody 02")
     path = write(tmp_path, motive_text(cols, [[0, 0, 0, 1, 2, 3, 0, 0, 0, 4, 5, 6]]))
-    with pytest.raises(InputError, match="2 rigid bodies: 'RigidBody 01', 'RigidBody 02'.*--body"):
+    with pytest.raises(InputError, match="2 rigid bodies: 'RigidBody 01', 'RigidBody 02'.*use body NAME"):
         motive.read(path)
-    with pytest.raises(InputError, match="did you mean --body 'RigidBody 02'"):
+    with pytest.raises(InputError, match="did you mean body 'RigidBody 02'"):
         motive.read(path, ReadOptions(body="RigidBody 2"))
     (tr,) = motive.read(path, ReadOptions(body="rigidbody 02"))
     np.testing.assert_allclose(tr.position[0], [0.04, 0.05, 0.06], rtol=1e-15)

@@ -101,7 +101,7 @@ def test_motive_file_needs_units_and_euler_order(realdata):
     for path in files(realdata, "motive_csv"):
         with pytest.raises(InputError) as err:
             motive.read(path, ReadOptions(body="RigidBody 01"))
-        assert "--length-unit" in str(err.value) and "--euler-order" in str(err.value)
+        assert "length_unit" in str(err.value) and "euler_order" in str(err.value)
         with pytest.raises(InputError, match="2 rigid bodies: 'RigidBody 01', 'RigidBody 02'"):
             motive.read(path, ReadOptions(length_unit="cm", euler_order="XYZ"))
 

@@ -126,7 +126,7 @@ def test_missing_matplotlib_is_an_input_error(tmp_path, data, monkeypatch):
     demos, generated, _, result = data
     for name in ("matplotlib", "matplotlib.figure", "matplotlib.backends.backend_agg"):
         monkeypatch.setitem(sys.modules, name, None)
-    with pytest.raises(InputError, match="--plot needs matplotlib") as info:
+    with pytest.raises(InputError, match="plot needs matplotlib") as info:
         plot_evaluation(tmp_path / "c.png", result, generated, demos)
     assert "pip install 'rbgp-cli[plot]'" in str(info.value)
     assert info.value.exit_code == 2

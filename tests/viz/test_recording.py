@@ -234,7 +234,7 @@ def test_up_axis_selects_the_view_coordinates(tmp_path):
     right, up_, forward, back = d.Right.value, d.Up.value, d.Forward.value, d.Back.value
     assert got["z"] == [[right, forward, up_]]  # RIGHT_HAND_Z_UP: x right, y forward, z up
     assert got["y"] == [[right, up_, back]]  # RIGHT_HAND_Y_UP: x right, y up, z back
-    with pytest.raises(InputError, match="--up must be z or y"):
+    with pytest.raises(InputError, match="up must be z or y"):
         record_rollout(tmp_path / "x.rrd", res, up="x")
     assert not (tmp_path / "x.rrd").exists()
 
@@ -360,7 +360,7 @@ def test_failure_leaves_the_destination_untouched(tmp_path):
 def test_missing_rerun_is_an_input_error(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "rerun", None)
     monkeypatch.setitem(sys.modules, "rerun.blueprint", None)
-    with pytest.raises(InputError, match="--rerun needs rerun-sdk") as info:
+    with pytest.raises(InputError, match="rerun needs rerun-sdk") as info:
         record_rollout(tmp_path / "r.rrd", synth_rollout(B=1, steps=3, K=0))
     assert info.value.exit_code == 2
     assert not (tmp_path / "r.rrd").exists()
