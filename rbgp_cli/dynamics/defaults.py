@@ -19,19 +19,21 @@ DEFAULTS = {
     "smooth_degree": 2,
     "time_input": "phase",
     "prior": "path",
-    "prior_gain": 10.0,
+    # the pull toward the (start-conditioned) mean path, per unit phase: weak, because the reference
+    # path already starts where the rollout starts; 10 kept rollouts on it as well but turned the
+    # velocity field off the path into the pull (held-out velocities worse than predicting zero on
+    # the handovers; docs/defaults.md, "December 2026 (last)")
+    "prior_gain": 1.0,
     # the mean path moved by the deviation the demonstrations keep from a start like the rollout's
-    # (a ridge map over all six coordinates, its strength by cross-validation; docs/method.md §7);
-    # off: with noise_scale 256 it gives the best rollouts on every real set, but a velocity field
-    # worse than predicting zero on held-out pairs (docs/defaults.md)
-    "start_conditioning": False,
+    # (a ridge map over all six coordinates, its strength by cross-validation; docs/method.md §7)
+    "start_conditioning": True,
     # σn² of the posterior scaled by held-out demonstrations (gp/calibration.py): the mean rollout then
     # follows the shared motion and the sampled rollouts carry the variation between demonstrations
     "calibrate": True,
     # a further factor on σn² of the posterior, after the calibration (1: none): the GP's residual
-    # field trusts the training pairs less and the mean stays nearer the (start-conditioned) mean path
-    # (docs/defaults.md measured 1, 16, 256, 4096)
-    "noise_scale": 1.0,
+    # field trusts the training pairs less and the mean stays nearer the start-conditioned mean path
+    # (docs/defaults.md measured 1, 16, 256, 4096; 256 with the weak pull is the default)
+    "noise_scale": 256.0,
 }
 
 #: The kernel each representation trains with unless one is named (``kernel=None``).

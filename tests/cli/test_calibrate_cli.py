@@ -39,7 +39,10 @@ def test_train_calibrate_noise_scales_the_posterior_noise_and_the_model_file_say
     assert "by held-out demonstrations (fitted σn=" in format_train_summary(summary)
     out = summary["outputs"][0]
     fitted = out["calibration"]["noise_std_fitted"]
-    assert out["values"]["noise_std"] == pytest.approx(fitted * np.sqrt(out["calibration"]["factor"]))
+    # the calibrated factor, times the default noise scale (dynamics/defaults.py) after it
+    scale = out["calibration"].get("extra_factor", 1.0)
+    assert scale == summary["gp"]["noise_scale"]
+    assert out["values"]["noise_std"] == pytest.approx(fitted * np.sqrt(out["calibration"]["factor"] * scale))
     header, _arrays = read_header(path)
     assert header["provenance"]["train_options"]["calibrate"] is True
     model, _ = load_model(path)
@@ -57,7 +60,13 @@ def test_train_calibrate_noise_scales_the_posterior_noise_and_the_model_file_say
     assert json.loads(res.stdout)["gp"]["calibration"] == cal
     res = run("train", CSV_DIR, "-o", tmp_path / "plain.rbgp", *FAST, *extra, "--no-calibrate-noise", "--json")
     plain = json.loads(res.stdout)
-    assert plain["gp"].get("calibration") is None and plain["outputs"][0]["calibration"] is None
+    # no calibration: the fitted σn, times the default noise scale alone (its own record)
+    assert plain["gp"].get("calibration") is None
+    record = plain["outputs"][0]["calibration"]
+    assert record["factor"] == 1.0 and record["extra_factor"] == plain["gp"]["noise_scale"]
+    res = run("train", CSV_DIR, "-o", tmp_path / "raw.rbgp", *FAST, *extra, "--no-calibrate-noise",
+              "--noise-scale", "1", "--json")
+    assert json.loads(res.stdout)["outputs"][0]["calibration"] is None  # nothing scaled, nothing recorded
 
 
 @pytest.mark.slow
@@ -70,7 +79,7 @@ def test_crossval_takes_the_option():
 
 @pytest.mark.slow
 def test_train_noise_scale_multiplies_the_calibrated_noise_and_the_model_file_keeps_it(tmp_path):
-    res = run("train", CSV_DIR, "-o", tmp_path / "a.rbgp", *FAST, "--json")
+    res = run("train", CSV_DIR, "-o", tmp_path / "a.rbgp", *FAST, "--noise-scale", "1", "--json")
     base = json.loads(res.stdout)["outputs"][0]
     path = tmp_path / "b.rbgp"
     res = run("train", CSV_DIR, "-o", path, *FAST, "--noise-scale", "16", "--json")

@@ -52,14 +52,17 @@ def test_two_grids_give_every_combination_labelled_in_the_table_and_the_json(fol
 @pytest.mark.slow
 def test_a_grid_value_equal_to_the_default_gives_the_numbers_of_the_run_without_grid(folder):
     plain = run(folder, *FAST, "--json")
-    grid = run(folder, *FAST, "--grid", "prior-gain=10,default", "--json")  # 10 is the default gain
+    from rbgp_cli.dynamics.defaults import DEFAULTS
+
+    gain = DEFAULTS["prior_gain"]
+    grid = run(folder, *FAST, "--grid", f"prior-gain={gain:g},default", "--json")  # the default gain twice
     assert plain.exit_code == 0 and grid.exit_code == 0, plain.stderr + grid.stderr
     base = next(r for r in json.loads(plain.stdout)["results"] if r["representation"] == "axis-angle")
     rows = [r for r in json.loads(grid.stdout)["results"] if r["representation"] == "axis-angle"]
-    assert len(rows) == 1  # 10 and 'default' are one value
+    assert len(rows) == 1  # the default's value and 'default' are one value
     for key in ("score", "floor", "position_rmse", "rotation_rmse", "velocity_rmse"):
         assert rows[0][key] == base[key]
-    assert base["options"] == {} and rows[0]["options"] == {"prior-gain": 10.0}
+    assert base["options"] == {} and rows[0]["options"] == {"prior-gain": gain}
 
 
 @pytest.mark.parametrize("grid, message", [
