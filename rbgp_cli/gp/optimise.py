@@ -36,7 +36,7 @@ from rbgp_cli.kernels.base import Hyperparameter, Kernel, output_scale
 
 __all__ = ["SUBSAMPLE_SIZE", "DISTINCT_LOG", "BASIN_GAP", "DISTINCT_NLML", "EXPLORE_FTOL", "POLISH_RTOL",
            "POLISH_MAX_EVALS", "free_spec", "random_start", "Objective", "fit_one", "fd_hessian", "polish",
-           "smooth_start", "all_noise", "FitOptions", "fit_target"]
+           "smooth_start", "all_noise", "FitOptions", "fit_target", "training_data", "fit_targets"]
 
 #: An infeasible start is moved by this much in log λ (down) and log σn (up), at most _START_MOVES times.
 _START_STEP = math.log(1.25)
@@ -59,6 +59,33 @@ BASIN_GAP = 10.0
 DISTINCT_NLML = 0.1
 #: L-BFGS-B's relative-reduction tolerance on the subsample (its default is 2.2e-9).
 EXPLORE_FTOL = 1e-7
+
+
+# ----------------------------------------------------------------------------- what is fitted
+def training_data(X, Y) -> tuple[np.ndarray, np.ndarray]:
+    """The training inputs X as a C-contiguous float64 array (n, d) and outputs Y as float64 (n, L),
+    checked as the exact and the sparse GP need them: at least 2 rows, all finite (ValueError)."""
+    X = np.ascontiguousarray(np.asarray(X, dtype=np.float64))
+    Y = np.asarray(Y, dtype=np.float64).reshape(len(X), -1)
+    if len(X) < 2:
+        raise ValueError("a GP needs at least 2 training points")
+    if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
+        raise ValueError("training inputs and outputs must be finite")
+    return X, Y
+
+
+def fit_targets(Y: np.ndarray, shared: bool, ss: np.random.SeedSequence):
+    """What gets its own hyperparameters: one target per output column of Y (n, L), or with ``shared``
+    one target, every output divided by its root mean square (:func:`output_scale`).
+
+    Returns (targets, scale, seeds): ``targets`` [(y, label)], y of shape (n,) (``"output l"``) or
+    (n, L) (``"all outputs"``); ``scale`` (L,) or None; ``seeds`` one SeedSequence per target
+    (``ss`` itself when shared, else ``ss.spawn(L)``)."""
+    L = Y.shape[1]
+    if shared:
+        scale = np.array([output_scale(Y[:, l]) for l in range(L)])
+        return [(Y / scale, "all outputs")], scale, [ss]
+    return [(Y[:, l], f"output {l}") for l in range(L)], None, ss.spawn(L)
 
 
 # ----------------------------------------------------------------------------- starts and L-BFGS-B

@@ -58,9 +58,9 @@ from rbgp_cli.compute import blas_threads
 from rbgp_cli.errors import RbgpRuntimeError
 from rbgp_cli.gp.likelihood import INFEASIBLE_NLML, NOISE
 from rbgp_cli.gp.optimise import (BASIN_GAP, EXPLORE_FTOL, POLISH_MAX_EVALS, Objective, all_noise, fd_hessian, fit_one,
-                                  free_spec, polish, random_start, smooth_start)
+                                  fit_targets, free_spec, polish, random_start, smooth_start, training_data)
 from rbgp_cli.gp.results import OutputFit
-from rbgp_cli.kernels.base import Kernel, output_scale
+from rbgp_cli.kernels.base import Kernel
 
 __all__ = [
     "SparseGP",
@@ -839,12 +839,7 @@ def fit_sparse_gp(
     """
     from rbgp_cli.progress import as_progress
 
-    X = np.ascontiguousarray(np.asarray(X, dtype=np.float64))
-    Y = np.asarray(Y, dtype=np.float64).reshape(len(X), -1)
-    if len(X) < 2:
-        raise ValueError("a GP needs at least 2 training points")
-    if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
-        raise ValueError("training inputs and outputs must be finite")
+    X, Y = training_data(X, Y)
     if int(inducing) < 1:
         raise ValueError(f"the number of inducing inputs must be positive, got {inducing}")
     if hyper not in HYPER_SOURCES:
@@ -854,7 +849,7 @@ def fit_sparse_gp(
     restarts = max(1, int(restarts))
     explore = 400 if explore_size is None else int(explore_size)
     progress = as_progress(progress)
-    n, L = Y.shape
+    n = len(Y)
     t_start = time.perf_counter()
     with blas_threads(0):
         Z = X[select_inducing(X, int(inducing), kernel, seed=seed, method=inducing_method)]
@@ -864,14 +859,8 @@ def fit_sparse_gp(
     perm = np.random.default_rng(np.random.SeedSequence([int(seed), 3])).permutation(n)
     sub = np.sort(perm[: min(n, 600)])
     pre_sub = kernel.precompute(X[sub])
-    if shared:
-        scale = np.array([output_scale(Y[:, l]) for l in range(L)])
-        targets = [(Y / scale, "all outputs")]
-        rngs = [np.random.default_rng(ss)]
-    else:
-        scale = None
-        targets = [(Y[:, l], f"output {l}") for l in range(L)]
-        rngs = [np.random.default_rng(s) for s in ss.spawn(L)]
+    targets, scale, seeds = fit_targets(Y, shared, ss)
+    rngs = [np.random.default_rng(s) for s in seeds]
     specs = [free_spec(kernel, pre_sub, y, noise, fixed, bounds) for y, _ in targets]
     progress(f"sparse GP: {M} inducing poses ({inducing_method}) for {n} points")
     if hyper_points is None:
