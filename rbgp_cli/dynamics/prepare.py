@@ -119,6 +119,181 @@ def _slerp(q0: np.ndarray, q1: np.ndarray, u: np.ndarray) -> np.ndarray:
     return q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
+def _unit_norms(traj: Trajectory, vi: np.ndarray, unit_tolerance: float) -> tuple[np.ndarray, np.ndarray]:
+    """The norms (V,) of the recorded quaternions of the valid rows ``vi`` and their deviations from 1;
+    an InputError where one deviates by more than ``unit_tolerance`` (not a unit quaternion)."""
+    q = traj.quat
+    norms = np.linalg.norm(q[vi], axis=1)
+    dev = np.abs(norms - 1.0)
+    if len(vi) and dev.max() > unit_tolerance:
+        j = int(np.argmax(dev > unit_tolerance))
+        raise _error(
+            traj,
+            int(vi[j]),
+            f"quaternion norm {norms[j]:.6g} at {{where}} is far from 1 (tolerance {unit_tolerance:g})",
+            hint="check the column mapping, the quaternion order and units (columns, quat_order); "
+            "a unit quaternion's components lie in [-1, 1]", param="columns",
+        )
+    return norms, dev
+
+
+def _held_samples(t: np.ndarray, q: np.ndarray, p: np.ndarray, vi: np.ndarray) -> tuple[np.ndarray, int, int]:
+    """Rows (mask (N,)) among the valid rows ``vi`` that repeat their valid predecessor's pose exactly
+    at a later time, their count and the number of runs they form."""
+    n = len(t)
+    # sample-and-hold (docs/method.md §4.1): a valid sample that repeats its predecessor's pose bit for bit at
+    # a later time is the tracker holding the last pose, not motion: a lost frame like any other
+    held = np.zeros(n, dtype=bool)
+    if len(vi) > 1:
+        a, b = vi[:-1], vi[1:]
+        same_q = np.all(q[a] == q[b], axis=1) | np.all(q[a] == -q[b], axis=1)
+        held[b] = same_q & np.all(p[a] == p[b], axis=1) & (t[b] > t[a])
+    n_held = int(held.sum())
+    held_runs = int(np.sum(held[1:] & ~held[:-1]) + held[0]) if n else 0
+    return held, n_held, held_runs
+
+
+def _exact_duplicates(traj: Trajectory, vi: np.ndarray) -> np.ndarray:
+    """Check the times of the valid rows ``vi``: an InputError where time goes backwards or a time
+    repeats with a different pose; returns the mask (N,) of the exact duplicates (same time and pose)."""
+    t, q, p = traj.t, traj.quat, traj.position
+    n = len(t)
+    # times of the valid samples: strictly increasing, exact duplicates dropped
+    tv = t[vi]
+    dt = np.diff(tv)
+    back = np.flatnonzero(dt < 0)
+    if back.size:
+        k = int(back[0])
+        raise _error(
+            traj,
+            int(vi[k + 1]),
+            f"time goes backwards at {{where}}, after t = {tv[k]:.9g} s",
+            hint="sort the rows by time, or split the demonstrations with a demo column",
+        )
+    same = np.flatnonzero(dt == 0)
+    dup_raw = np.zeros(n, dtype=bool)
+    if same.size:
+        a, b = vi[same], vi[same + 1]
+        equal_p = np.all(p[a] == p[b], axis=1)
+        equal_q = np.all(q[a] == q[b], axis=1) | np.all(q[a] == -q[b], axis=1)
+        differ = ~(equal_p & equal_q)
+        if differ.any():
+            j = int(np.argmax(differ))
+            raise _error(
+                traj,
+                int(b[j]),
+                "{where} has the same time as the sample before it but a different pose",
+                hint="remove one of them, or split interleaved demonstrations or bodies with a demo column",
+            )
+        dup_raw[b] = True
+    return dup_raw
+
+
+def _filled_gaps(t, p, qn, lost, keep, max_gap):
+    """With ``max_gap``, the lost rows inside gaps of at most ``max_gap`` seconds between two kept rows
+    (masks ``lost``, ``keep`` (N,)), interpolated at their own times from the unit quaternions ``qn``
+    (N, 4) (slerp) and positions ``p`` (N, 3) (linear): (rows (F,), quaternions (F, 4), positions (F, 3))."""
+    # fill interior gaps of lost frames
+    fill_idx = np.empty(0, dtype=np.int64)
+    fill_q = np.empty((0, 4))
+    fill_p = np.empty((0, 3))
+    if max_gap is not None and lost.any():
+        kept = np.flatnonzero(keep)
+        li = np.flatnonzero(lost & np.isfinite(t))
+        pos = np.searchsorted(kept, li)
+        interior = (pos > 0) & (pos < len(kept))
+        li, pos = li[interior], pos[interior]
+        a, b = kept[pos - 1], kept[pos]
+        ok = (t[b] - t[a] <= max_gap) & (t[a] < t[li]) & (t[li] < t[b])
+        # the lost rows of one gap must be in time order among themselves
+        for gap_start in np.unique(a[ok]):
+            rows = ok & (a == gap_start)
+            if np.any(np.diff(t[li[rows]]) <= 0):
+                ok &= ~rows
+        li, a, b = li[ok], a[ok], b[ok]
+        if li.size:
+            u = (t[li] - t[a]) / (t[b] - t[a])
+            qa, qb = qn[a], qn[b]
+            qb = np.where((np.sum(qa * qb, axis=1) < 0)[:, None], -qb, qb)
+            fill_q = _slerp(qa, qb, u)
+            fill_p = p[a] + u[:, None] * (p[b] - p[a])
+            fill_idx = li
+    return fill_idx, fill_q, fill_p
+
+
+def _too_few_samples(traj: Trajectory, rows: np.ndarray, n: int, n_lost: int, dup_raw: np.ndarray) -> InputError:
+    """The error for a trajectory with fewer than 2 clean ``rows`` left of ``n``, saying what was lost
+    (with a hint where the recorder left the quaternions all zero)."""
+    q = traj.quat
+    finite_q = np.all(np.isfinite(q), axis=1)
+    n_zero = int(np.sum(finite_q & (np.linalg.norm(np.where(np.isfinite(q), q, 0.0), axis=1) < ZERO_QUAT_NORM)))
+    hint = "check that the file holds a whole demonstration and that the right columns were used"
+    if n_zero:
+        hint = (f"{n_zero} samples have an all-zero quaternion (an unset protobuf/foxglove Quaternion "
+                "defaults to w = 0): the recorder did not fill in the orientation")  # fmt: skip
+    return InputError(
+        f"{traj.name + ': ' if traj.name else ''}needs at least 2 samples for a velocity, "
+        f"{len(rows)} left of {n} ({n_lost} lost frames"
+        + (f", {int(dup_raw.sum())} duplicates" if dup_raw.any() else "")
+        + ")",
+        path=traj.source or None,
+        hint=hint,
+    )
+
+
+def _continuous_signs(q_out: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit quaternions (K, 4) with each flipped into its predecessor's hemisphere, and where a sign
+    changed (mask (K − 1,))."""
+    # sign continuity
+    d = np.sum(q_out[1:] * q_out[:-1], axis=1)
+    flips = d < 0
+    sign = np.concatenate([[1.0], np.cumprod(np.where(flips, -1.0, 1.0))])
+    q_out = q_out * sign[:, None]
+    return q_out, flips
+
+
+def _check_steps(traj: Trajectory, q_out: np.ndarray, rows: np.ndarray) -> None:
+    """An InputError at the first step between consecutive clean quaternions (K, 4) (raw ``rows``
+    (K,)) that rotates by π or more."""
+    # no step of π or more
+    step = 4.0 * np.arctan2(
+        np.linalg.norm(q_out[1:] - q_out[:-1], axis=1), np.linalg.norm(q_out[1:] + q_out[:-1], axis=1)
+    )
+    big = np.flatnonzero(step >= STEP_LIMIT)
+    if big.size:
+        k = int(big[0])
+        raise _error(
+            traj,
+            int(rows[k + 1]),
+            f"the rotation from the previous sample to {{where}} is {step[k]:.6g} rad (π or more): the "
+            "sampling is too coarse to tell which way the body turned",
+            hint="record at a higher rate, or remove the corrupted sample",
+        )
+
+
+def _warn_repairs(traj: Trajectory, report: dict) -> None:
+    """One warning listing what :func:`prepare_trajectory` repaired (its ``report``), if anything."""
+    n_held, n_filled = report["held"], report["filled"]
+    parts = []
+    if n_held:
+        parts.append(f"{n_held} sample{'s' * (n_held != 1)} repeat{'s' * (n_held == 1)} the previous pose exactly "
+                     "(the tracker held it): treated as lost frame" + "s" * (n_held != 1))
+    if report["dropped"]:
+        parts.append(f"dropped {report['dropped']} lost frame{'s' * (report['dropped'] != 1)}")
+    if n_filled:
+        parts.append(f"filled {n_filled} lost frame{'s' * (n_filled != 1)}")
+    if report["duplicates"]:
+        parts.append(f"dropped {report['duplicates']} duplicate sample{'s' * (report['duplicates'] != 1)}")
+    sign_note = sign_change_note(traj.info, report["sign_flips"])
+    if sign_note:
+        parts.append(sign_note)
+    if report["max_norm_deviation"] > _NOTE_NORM:
+        parts.append(f"normalised quaternions (largest | |q| - 1 | = {report['max_norm_deviation']:.3g})")
+    if parts:
+        label = f"{traj.name}: " if traj.name else ""
+        warn(label + ", ".join(parts), path=traj.source or None)
+
+
 def prepare_trajectory(
     traj: Trajectory, *, max_gap: float | None = None, unit_tolerance: float = 0.1
 ) -> tuple[Trajectory, dict]:
@@ -157,26 +332,9 @@ def prepare_trajectory(
     lost = lost_frame_mask(traj)
     valid = ~lost
     vi = np.flatnonzero(valid)
-    norms = np.linalg.norm(q[vi], axis=1)
-    dev = np.abs(norms - 1.0)
-    if len(vi) and dev.max() > unit_tolerance:
-        j = int(np.argmax(dev > unit_tolerance))
-        raise _error(
-            traj,
-            int(vi[j]),
-            f"quaternion norm {norms[j]:.6g} at {{where}} is far from 1 (tolerance {unit_tolerance:g})",
-            hint="check the column mapping, the quaternion order and units (columns, quat_order); "
-            "a unit quaternion's components lie in [-1, 1]", param="columns",
-        )
-    # sample-and-hold (docs/method.md §4.1): a valid sample that repeats its predecessor's pose bit for bit at
-    # a later time is the tracker holding the last pose, not motion: a lost frame like any other
-    held = np.zeros(n, dtype=bool)
-    if len(vi) > 1:
-        a, b = vi[:-1], vi[1:]
-        same_q = np.all(q[a] == q[b], axis=1) | np.all(q[a] == -q[b], axis=1)
-        held[b] = same_q & np.all(p[a] == p[b], axis=1) & (t[b] > t[a])
-    n_held = int(held.sum())
-    held_runs = int(np.sum(held[1:] & ~held[:-1]) + held[0]) if n else 0
+    norms, dev = _unit_norms(traj, vi, unit_tolerance)
+    # sample-and-hold: the tracker holding the last pose is a lost frame (docs/method.md §4.1)
+    held, n_held, held_runs = _held_samples(t, q, p, vi)
     if n_held:
         lost = lost | held
         valid = ~lost
@@ -184,62 +342,9 @@ def prepare_trajectory(
         vi, norms = vi[keep_v], norms[keep_v]
     qn = np.full_like(q, np.nan)
     qn[vi] = q[vi] / norms[:, None]
-
-    # times of the valid samples: strictly increasing, exact duplicates dropped
-    tv = t[vi]
-    dt = np.diff(tv)
-    back = np.flatnonzero(dt < 0)
-    if back.size:
-        k = int(back[0])
-        raise _error(
-            traj,
-            int(vi[k + 1]),
-            f"time goes backwards at {{where}}, after t = {tv[k]:.9g} s",
-            hint="sort the rows by time, or split the demonstrations with a demo column",
-        )
-    same = np.flatnonzero(dt == 0)
-    dup_raw = np.zeros(n, dtype=bool)
-    if same.size:
-        a, b = vi[same], vi[same + 1]
-        equal_p = np.all(p[a] == p[b], axis=1)
-        equal_q = np.all(q[a] == q[b], axis=1) | np.all(q[a] == -q[b], axis=1)
-        differ = ~(equal_p & equal_q)
-        if differ.any():
-            j = int(np.argmax(differ))
-            raise _error(
-                traj,
-                int(b[j]),
-                "{where} has the same time as the sample before it but a different pose",
-                hint="remove one of them, or split interleaved demonstrations or bodies with a demo column",
-            )
-        dup_raw[b] = True
+    dup_raw = _exact_duplicates(traj, vi)
     keep = valid & ~dup_raw
-
-    # fill interior gaps of lost frames
-    fill_idx = np.empty(0, dtype=np.int64)
-    fill_q = np.empty((0, 4))
-    fill_p = np.empty((0, 3))
-    if max_gap is not None and lost.any():
-        kept = np.flatnonzero(keep)
-        li = np.flatnonzero(lost & np.isfinite(t))
-        pos = np.searchsorted(kept, li)
-        interior = (pos > 0) & (pos < len(kept))
-        li, pos = li[interior], pos[interior]
-        a, b = kept[pos - 1], kept[pos]
-        ok = (t[b] - t[a] <= max_gap) & (t[a] < t[li]) & (t[li] < t[b])
-        # the lost rows of one gap must be in time order among themselves
-        for gap_start in np.unique(a[ok]):
-            rows = ok & (a == gap_start)
-            if np.any(np.diff(t[li[rows]]) <= 0):
-                ok &= ~rows
-        li, a, b = li[ok], a[ok], b[ok]
-        if li.size:
-            u = (t[li] - t[a]) / (t[b] - t[a])
-            qa, qb = qn[a], qn[b]
-            qb = np.where((np.sum(qa * qb, axis=1) < 0)[:, None], -qb, qb)
-            fill_q = _slerp(qa, qb, u)
-            fill_p = p[a] + u[:, None] * (p[b] - p[a])
-            fill_idx = li
+    fill_idx, fill_q, fill_p = _filled_gaps(t, p, qn, lost, keep, max_gap)
     rows = np.concatenate([np.flatnonzero(keep), fill_idx])
     order = np.argsort(rows, kind="stable")
     rows = rows[order]
@@ -249,42 +354,9 @@ def prepare_trajectory(
     n_lost = int(lost.sum()) - n_held
     n_filled = int(fill_idx.size)
     if len(rows) < 2:
-        finite_q = np.all(np.isfinite(q), axis=1)
-        n_zero = int(np.sum(finite_q & (np.linalg.norm(np.where(np.isfinite(q), q, 0.0), axis=1) < ZERO_QUAT_NORM)))
-        hint = "check that the file holds a whole demonstration and that the right columns were used"
-        if n_zero:
-            hint = (f"{n_zero} samples have an all-zero quaternion (an unset protobuf/foxglove Quaternion "
-                    "defaults to w = 0): the recorder did not fill in the orientation")  # fmt: skip
-        raise InputError(
-            f"{traj.name + ': ' if traj.name else ''}needs at least 2 samples for a velocity, "
-            f"{len(rows)} left of {n} ({n_lost} lost frames"
-            + (f", {int(dup_raw.sum())} duplicates" if dup_raw.any() else "")
-            + ")",
-            path=traj.source or None,
-            hint=hint,
-        )
-
-    # sign continuity
-    d = np.sum(q_out[1:] * q_out[:-1], axis=1)
-    flips = d < 0
-    sign = np.concatenate([[1.0], np.cumprod(np.where(flips, -1.0, 1.0))])
-    q_out = q_out * sign[:, None]
-
-    # no step of π or more
-    step = 4.0 * np.arctan2(
-        np.linalg.norm(q_out[1:] - q_out[:-1], axis=1), np.linalg.norm(q_out[1:] + q_out[:-1], axis=1)
-    )
-    big = np.flatnonzero(step >= STEP_LIMIT)
-    if big.size:
-        k = int(big[0])
-        raise _error(
-            traj,
-            int(rows[k + 1]),
-            f"the rotation from the previous sample to {{where}} is {step[k]:.6g} rad (π or more): the "
-            "sampling is too coarse to tell which way the body turned",
-            hint="record at a higher rate, or remove the corrupted sample",
-        )
-
+        raise _too_few_samples(traj, rows, n, n_lost, dup_raw)
+    q_out, flips = _continuous_signs(q_out)
+    _check_steps(traj, q_out, rows)
     report = {
         "samples_in": int(n),
         "samples_out": int(len(rows)),
@@ -297,24 +369,7 @@ def prepare_trajectory(
         "sign_flips": int(flips.sum()),
         "max_norm_deviation": float(dev.max()) if len(vi) else 0.0,
     }
-    parts = []
-    if n_held:
-        parts.append(f"{n_held} sample{'s' * (n_held != 1)} repeat{'s' * (n_held == 1)} the previous pose exactly "
-                     "(the tracker held it): treated as lost frame" + "s" * (n_held != 1))
-    if report["dropped"]:
-        parts.append(f"dropped {report['dropped']} lost frame{'s' * (report['dropped'] != 1)}")
-    if n_filled:
-        parts.append(f"filled {n_filled} lost frame{'s' * (n_filled != 1)}")
-    if report["duplicates"]:
-        parts.append(f"dropped {report['duplicates']} duplicate sample{'s' * (report['duplicates'] != 1)}")
-    sign_note = sign_change_note(traj.info, report["sign_flips"])
-    if sign_note:
-        parts.append(sign_note)
-    if report["max_norm_deviation"] > _NOTE_NORM:
-        parts.append(f"normalised quaternions (largest | |q| - 1 | = {report['max_norm_deviation']:.3g})")
-    if parts:
-        label = f"{traj.name}: " if traj.name else ""
-        warn(label + ", ".join(parts), path=traj.source or None)
+    _warn_repairs(traj, report)
     clean = traj.with_(t=t_out, quat=q_out, position=p_out, info={"repairs": report})
     return clean, report
 

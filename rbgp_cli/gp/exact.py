@@ -35,8 +35,8 @@ from rbgp_cli.compute import (blas_threads, fork_context, process_pool, start_wo
                               thread_workers, worker_init)
 from rbgp_cli.errors import RbgpRuntimeError
 from rbgp_cli.gp.likelihood import NOISE, NOISE_MARGIN, cholesky
-from rbgp_cli.gp.optimise import SUBSAMPLE_SIZE, FitOptions, fit_target
-from rbgp_cli.kernels.base import Kernel, output_scale
+from rbgp_cli.gp.optimise import SUBSAMPLE_SIZE, FitOptions, fit_target, fit_targets, training_data
+from rbgp_cli.kernels.base import Kernel
 
 __all__ = ["GaussianProcess", "fit_gp"]
 
@@ -355,12 +355,7 @@ def fit_gp(
         single-threaded there; the results do not depend on ``jobs``); 1 fits in this process.
         :func:`rbgp_cli.compute.default_jobs` gives the usual choice. Ignored with ``shared`` or a single output.
     """
-    X = np.ascontiguousarray(np.asarray(X, dtype=np.float64))
-    Y = np.asarray(Y, dtype=np.float64).reshape(len(X), -1)
-    if len(X) < 2:
-        raise ValueError("a GP needs at least 2 training points")
-    if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
-        raise ValueError("training inputs and outputs must be finite")
+    X, Y = training_data(X, Y)
     restarts = max(1, int(restarts))
     explore = SUBSAMPLE_SIZE if explore_size is None else int(explore_size)
     if explore < 0:
@@ -380,20 +375,12 @@ def fit_gp(
 
 
 def _fit_gp(X, Y, kernel, o, seed, shared, progress, explore, jobs, task):
-    L = Y.shape[1]
     n = len(X)
     ss = np.random.SeedSequence(int(seed))
     sub = None
     if explore > 1 and n > 2 * explore:
         sub = np.sort(np.random.default_rng(np.random.SeedSequence([int(seed), 1])).choice(n, explore, replace=False))
-    if shared:
-        scale = np.array([output_scale(Y[:, l]) for l in range(L)])
-        targets = [(Y / scale, "all outputs")]
-        seeds = [ss]
-    else:
-        scale = None
-        targets = [(Y[:, l], f"output {l}") for l in range(L)]
-        seeds = ss.spawn(L)
+    targets, scale, seeds = fit_targets(Y, shared, ss)
     if jobs > 1 and len(targets) > 1:
         jobs = min(jobs, len(targets))
         progress(f"fitting {len(targets)} outputs in {jobs} worker processes")

@@ -36,7 +36,7 @@ from rbgp_cli.kernels.base import Hyperparameter, Kernel, output_scale
 
 __all__ = ["SUBSAMPLE_SIZE", "DISTINCT_LOG", "BASIN_GAP", "DISTINCT_NLML", "EXPLORE_FTOL", "POLISH_RTOL",
            "POLISH_MAX_EVALS", "free_spec", "random_start", "Objective", "fit_one", "fd_hessian", "polish",
-           "smooth_start", "all_noise", "FitOptions", "fit_target"]
+           "smooth_start", "all_noise", "FitOptions", "fit_target", "training_data", "fit_targets"]
 
 #: An infeasible start is moved by this much in log λ (down) and log σn (up), at most _START_MOVES times.
 _START_STEP = math.log(1.25)
@@ -59,6 +59,33 @@ BASIN_GAP = 10.0
 DISTINCT_NLML = 0.1
 #: L-BFGS-B's relative-reduction tolerance on the subsample (its default is 2.2e-9).
 EXPLORE_FTOL = 1e-7
+
+
+# ----------------------------------------------------------------------------- what is fitted
+def training_data(X, Y) -> tuple[np.ndarray, np.ndarray]:
+    """The training inputs X as a C-contiguous float64 array (n, d) and outputs Y as float64 (n, L),
+    checked as the exact and the sparse GP need them: at least 2 rows, all finite (ValueError)."""
+    X = np.ascontiguousarray(np.asarray(X, dtype=np.float64))
+    Y = np.asarray(Y, dtype=np.float64).reshape(len(X), -1)
+    if len(X) < 2:
+        raise ValueError("a GP needs at least 2 training points")
+    if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
+        raise ValueError("training inputs and outputs must be finite")
+    return X, Y
+
+
+def fit_targets(Y: np.ndarray, shared: bool, ss: np.random.SeedSequence):
+    """What gets its own hyperparameters: one target per output column of Y (n, L), or with ``shared``
+    one target, every output divided by its root mean square (:func:`output_scale`).
+
+    Returns (targets, scale, seeds): ``targets`` [(y, label)], y of shape (n,) (``"output l"``) or
+    (n, L) (``"all outputs"``); ``scale`` (L,) or None; ``seeds`` one SeedSequence per target
+    (``ss`` itself when shared, else ``ss.spawn(L)``)."""
+    L = Y.shape[1]
+    if shared:
+        scale = np.array([output_scale(Y[:, l]) for l in range(L)])
+        return [(Y / scale, "all outputs")], scale, [ss]
+    return [(Y[:, l], f"output {l}") for l in range(L)], None, ss.spawn(L)
 
 
 # ----------------------------------------------------------------------------- starts and L-BFGS-B
@@ -393,73 +420,65 @@ class FitOptions:
     max_iter: int
 
 
-def fit_target(kernel, pre, y, label, rng, o: FitOptions, sub=None, pre_sub=None, on_evaluation=None):
-    """Fit one target (an output, or all outputs scaled in shared mode): returns (OutputFit, L, α)
-    with L the lower Cholesky factor of K + (σn² + jitter)I at the optimum and α = C⁻¹y."""
-    t0 = time.perf_counter()
+def _explore_then_polish(kernel, pre, y, spec, free, obj, rng, o: FitOptions, sub, pre_sub, on_evaluation):
+    """:func:`fit_target` on more than 2·SUBSAMPLE_SIZE points: every start on the rows ``sub`` of y (n,)
+    or (n, L), then on all points the polish of each distinct subsample basin (``obj``: the objective on
+    all points), L-BFGS-B where a polish stalls. Returns (best, records, counter, sub_info): best
+    (θ, NLML) on all points or None, the starts' records, the evaluations on all points and those on
+    the subsample."""
     n = len(y)
-    spec, free = free_spec(kernel, pre, y, o.noise, o.fixed, o.bounds)
-    obj = Objective(kernel, pre, y, spec, free, on_evaluation=on_evaluation)
-    values_of = obj.values_of
-    best, records, sub_info = None, [], None
+    best = None
     counter = {"evals": 0, "infeasible": 0}
-    if sub is not None and free:
-        # Explore: every start on the subsample. On all points: a quasi-Newton polish of the best
-        # subsample optimum, and of each other optimum that lies in a basin not reached before.
-        _b, records_s, counter_s, _v, optima = fit_one(kernel, pre_sub, y[sub], spec, free, o.restarts, rng, o.max_iter,
-                                                        ftol=EXPLORE_FTOL, on_evaluation=on_evaluation)
-        records = [{**r, "kind": r["kind"] + f" (subsample of {len(sub)})"} for r in records_s]
-        basins, basin_nlml = [], []
-        for theta, f_s in sorted((x for x in optima if x is not None), key=lambda t: t[1]):
-            if (f_s <= _optima_best(optima) + BASIN_GAP
-                    and all(np.max(np.abs(theta - b)) > DISTINCT_LOG for b in basins)
-                    and all(abs(f_s - fb) > DISTINCT_NLML for fb in basin_nlml)):
-                basins.append(theta)
-                basin_nlml.append(f_s)
-        obj_s = Objective(kernel, pre_sub, y[sub], spec, free, on_evaluation=on_evaluation)
-        polished = []
-        for theta_s in basins:
-            ev0 = obj.counter["evals"]
-            H = fd_hessian(obj_s, theta_s)
-            if H is not None:
-                res = polish(obj, theta_s, H * (n / len(sub)), n, polished)
-                th, fv, status, start = res["theta"], res["nlml"], res["status"], res["start"]
-            else:
-                th, fv, status, start = theta_s, INFEASIBLE_NLML, "no Hessian on the subsample", theta_s
-            records.append({"start": {nm: float(math.exp(t)) for nm, t in zip(free, start)}, "nlml": float(fv),
-                            "status": status, "evaluations": obj.counter["evals"] - ev0, "kind": "polish (all points)"})
-            if status in ("budget", "stalled") or fv >= INFEASIBLE_NLML:
-                # hand over to L-BFGS-B on all points (from the polish's best point, or, if it found
-                # no feasible one, from the subsample optimum with the usual infeasible-start moves)
-                b2, rec2, c2, _v, _o = fit_one(kernel, pre, y, spec, free, 1, rng, o.max_iter, theta_starts=[th],
-                                                kinds=["L-BFGS-B after the polish (all points)"],
-                                                on_evaluation=on_evaluation)
-                records += rec2
-                counter = {k: counter[k] + c2[k] for k in counter}
-                if b2 is not None:
-                    th, fv = b2
-            if fv < INFEASIBLE_NLML:
-                polished.append((np.array(th), fv))
-                if best is None or fv < best[1]:
-                    best = (np.array(th), fv)
-        counter = {k: counter[k] + obj.counter[k] for k in counter}
-        sub_info = {"size": len(sub), "evaluations": counter_s["evals"] + obj_s.counter["evals"],
-                    "infeasible": counter_s["infeasible"] + obj_s.counter["infeasible"]}
-    if best is None:
-        best, rec_full, c_full, _v, _ = fit_one(kernel, pre, y, spec, free, o.restarts, rng, o.max_iter,
-                                                 on_evaluation=on_evaluation)
-        records += rec_full
-        counter = {k: counter[k] + c_full[k] for k in counter}
-    smooth = smooth_start(spec, free)
-    if best is not None and smooth is not None and all_noise(free, best[0]):
-        # the all-noise basin: one more start at long length scales, on all points, kept if better
-        b2, rec2, c2, _v, _ = fit_one(kernel, pre, y, spec, free, 1, rng, o.max_iter, theta_starts=[smooth],
-                                       kinds=["smooth start, the best optimum being all noise (all points)"],
-                                       on_evaluation=on_evaluation)
-        records += rec2
-        counter = {k: counter[k] + c2[k] for k in counter}
-        if b2 is not None and b2[1] < best[1]:
-            best = b2
+    # Explore: every start on the subsample. On all points: a quasi-Newton polish of the best
+    # subsample optimum, and of each other optimum that lies in a basin not reached before.
+    _b, records_s, counter_s, _v, optima = fit_one(kernel, pre_sub, y[sub], spec, free, o.restarts, rng, o.max_iter,
+                                                    ftol=EXPLORE_FTOL, on_evaluation=on_evaluation)
+    records = [{**r, "kind": r["kind"] + f" (subsample of {len(sub)})"} for r in records_s]
+    basins, basin_nlml = [], []
+    for theta, f_s in sorted((x for x in optima if x is not None), key=lambda t: t[1]):
+        if (f_s <= _optima_best(optima) + BASIN_GAP
+                and all(np.max(np.abs(theta - b)) > DISTINCT_LOG for b in basins)
+                and all(abs(f_s - fb) > DISTINCT_NLML for fb in basin_nlml)):
+            basins.append(theta)
+            basin_nlml.append(f_s)
+    obj_s = Objective(kernel, pre_sub, y[sub], spec, free, on_evaluation=on_evaluation)
+    polished = []
+    for theta_s in basins:
+        ev0 = obj.counter["evals"]
+        H = fd_hessian(obj_s, theta_s)
+        if H is not None:
+            res = polish(obj, theta_s, H * (n / len(sub)), n, polished)
+            th, fv, status, start = res["theta"], res["nlml"], res["status"], res["start"]
+        else:
+            th, fv, status, start = theta_s, INFEASIBLE_NLML, "no Hessian on the subsample", theta_s
+        records.append({"start": {nm: float(math.exp(t)) for nm, t in zip(free, start)}, "nlml": float(fv),
+                        "status": status, "evaluations": obj.counter["evals"] - ev0, "kind": "polish (all points)"})
+        if status in ("budget", "stalled") or fv >= INFEASIBLE_NLML:
+            # hand over to L-BFGS-B on all points (from the polish's best point, or, if it found
+            # no feasible one, from the subsample optimum with the usual infeasible-start moves)
+            b2, rec2, c2, _v, _o = fit_one(kernel, pre, y, spec, free, 1, rng, o.max_iter, theta_starts=[th],
+                                            kinds=["L-BFGS-B after the polish (all points)"],
+                                            on_evaluation=on_evaluation)
+            records += rec2
+            counter = {k: counter[k] + c2[k] for k in counter}
+            if b2 is not None:
+                th, fv = b2
+        if fv < INFEASIBLE_NLML:
+            polished.append((np.array(th), fv))
+            if best is None or fv < best[1]:
+                best = (np.array(th), fv)
+    counter = {k: counter[k] + obj.counter[k] for k in counter}
+    sub_info = {"size": len(sub), "evaluations": counter_s["evals"] + obj_s.counter["evals"],
+                "infeasible": counter_s["infeasible"] + obj_s.counter["infeasible"]}
+    return best, records, counter, sub_info
+
+
+def _refit_with_margin(kernel, pre, y, spec, free, rng, o: FitOptions, best, values_of, on_evaluation):
+    """An optimum ``best`` (θ, NLML) of :func:`fit_target` whose covariance misses the noise margin
+    (:func:`rbgp_cli.gp.likelihood.meets_margin`) is fitted again with the margin enforced. Returns
+    (best, K, guarded, records, counter): the optimum kept (None if no feasible one), its Gram matrix
+    K (None when refitted), whether it was refitted, and the refit's records and evaluations."""
+    records, counter = [], {"evals": 0, "infeasible": 0}
     guarded = False
     K = None
     if best is not None:
@@ -479,6 +498,41 @@ def fit_target(kernel, pre, y, label, rng, o: FitOptions, sub=None, pre_sub=None
             counter = {k: counter[k] + counter2[k] for k in counter}
             best = best2
             K = None
+    return best, K, guarded, records, counter
+
+
+def fit_target(kernel, pre, y, label, rng, o: FitOptions, sub=None, pre_sub=None, on_evaluation=None):
+    """Fit one target (an output, or all outputs scaled in shared mode): returns (OutputFit, L, α)
+    with L the lower Cholesky factor of K + (σn² + jitter)I at the optimum and α = C⁻¹y."""
+    t0 = time.perf_counter()
+    n = len(y)
+    spec, free = free_spec(kernel, pre, y, o.noise, o.fixed, o.bounds)
+    obj = Objective(kernel, pre, y, spec, free, on_evaluation=on_evaluation)
+    values_of = obj.values_of
+    best, records, sub_info = None, [], None
+    counter = {"evals": 0, "infeasible": 0}
+    if sub is not None and free:
+        best, records, counter, sub_info = _explore_then_polish(kernel, pre, y, spec, free, obj, rng, o, sub, pre_sub,
+                                                                on_evaluation)
+    if best is None:
+        best, rec_full, c_full, _v, _ = fit_one(kernel, pre, y, spec, free, o.restarts, rng, o.max_iter,
+                                                 on_evaluation=on_evaluation)
+        records += rec_full
+        counter = {k: counter[k] + c_full[k] for k in counter}
+    smooth = smooth_start(spec, free)
+    if best is not None and smooth is not None and all_noise(free, best[0]):
+        # the all-noise basin: one more start at long length scales, on all points, kept if better
+        b2, rec2, c2, _v, _ = fit_one(kernel, pre, y, spec, free, 1, rng, o.max_iter, theta_starts=[smooth],
+                                       kinds=["smooth start, the best optimum being all noise (all points)"],
+                                       on_evaluation=on_evaluation)
+        records += rec2
+        counter = {k: counter[k] + c2[k] for k in counter}
+        if b2 is not None and b2[1] < best[1]:
+            best = b2
+    best, K, guarded, records_m, counter_m = _refit_with_margin(kernel, pre, y, spec, free, rng, o, best, values_of,
+                                                                on_evaluation)
+    records += records_m
+    counter = {k: counter[k] + counter_m[k] for k in counter}
     if best is None:
         raise RbgpRuntimeError(
             f"no hyperparameters gave a positive definite covariance for {label}",

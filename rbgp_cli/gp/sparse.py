@@ -58,9 +58,9 @@ from rbgp_cli.compute import blas_threads
 from rbgp_cli.errors import RbgpRuntimeError
 from rbgp_cli.gp.likelihood import INFEASIBLE_NLML, NOISE
 from rbgp_cli.gp.optimise import (BASIN_GAP, EXPLORE_FTOL, POLISH_MAX_EVALS, Objective, all_noise, fd_hessian, fit_one,
-                                  free_spec, polish, random_start, smooth_start)
+                                  fit_targets, free_spec, polish, random_start, smooth_start, training_data)
 from rbgp_cli.gp.results import OutputFit
-from rbgp_cli.kernels.base import Kernel, output_scale
+from rbgp_cli.kernels.base import Kernel
 
 __all__ = [
     "SparseGP",
@@ -766,6 +766,156 @@ def _exact_hyperparameters(X, Y, kernel, idx, targets, specs, state, **fit_optio
         st["seconds"] += seconds
 
 
+def _start_state(specs) -> list[dict]:
+    """Each target's fit state before the stages, from its (spec, free) in ``specs``: the data-driven
+    start, no records yet; ``settled`` (nothing to optimise) when every hyperparameter is fixed."""
+    state = []  # per target: {"theta", "f", "records", "stages", "evals", "infeasible", "t"}
+    for spec, free in specs:
+        # with every hyperparameter fixed there is nothing to optimise: only the posterior is computed
+        state.append({"theta": [np.array([math.log(spec[nm].value) for nm in free])], "kinds": ["data-driven"],
+                      "records": [], "stages": [], "evals": 0, "infeasible": 0, "seconds": 0.0,
+                      "settled": not free})
+    return state
+
+
+def _explore_starts(kernel, X, perm, explore, targets, specs, rngs, state, restarts, max_iter, task) -> None:
+    """Stage 1 of ``fit_sparse_gp(hyper="bound")``, *explore*: every start of each target minimises the
+    exact NLML on the first ``explore`` rows of ``perm`` (a random subset); each distinct optimum within
+    BASIN_GAP of the best, and the smooth start, become the target's starts in ``state``, with their
+    Hessians on the subset (for the polish of the first bound stage) and the stage's records."""
+    n = len(X)
+    idx = np.sort(perm[: min(n, explore)])
+    pre_e = kernel.precompute(X[idx])
+    for (y, label), (spec, free), rng, st in zip(targets, specs, rngs, state):
+        if st["settled"]:
+            task.advance()
+            continue
+        t0 = time.perf_counter()
+        count = [0]
+
+        def tick(label=label, count=count):
+            count[0] += 1
+            task.update(status=f"{label}: exploring, {count[0]} evaluations on {len(idx)} points")
+
+        _b, recs, counter, _v, optima = fit_one(kernel, pre_e, y[idx], spec, free, restarts, rng, max_iter,
+                                                ftol=EXPLORE_FTOL, on_evaluation=tick)
+        ok = sorted((o for o in optima if o is not None), key=lambda o: o[1])
+        if ok:
+            # every distinct basin within BASIN_GAP of the best goes on to the bound on more points
+            # (as the exact GP's polish does): on 400 points the all-noise basin (σf ≪ σn, λ → 0)
+            # can be the best, and only more points tell it from the structured one (measured)
+            keep = [ok[0]]
+            for o in ok[1:]:
+                if o[1] <= ok[0][1] + BASIN_GAP and all(np.max(np.abs(o[0] - k[0])) > 0.1 for k in keep):
+                    keep.append(o)
+            st["theta"] = [o[0] for o in keep]
+            st["kinds"] = ["best explored optimum"] + ["another explored basin"] * (len(keep) - 1)
+            smooth = smooth_start(spec, free)
+            if smooth is not None:
+                st["theta"].append(smooth)
+                st["kinds"].append("smooth start")
+            # each start's Hessian on the subset, for the quasi-Newton polish of the first bound stage
+            obj_e = Objective(kernel, pre_e, y[idx], spec, free, on_evaluation=tick)
+            st["hessians"] = [fd_hessian(obj_e, th) for th in st["theta"]]
+            st["hessian_points"] = len(idx)
+            counter = {key: counter[key] + obj_e.counter[key] for key in counter}
+        st["records"] += [{**r, "kind": r["kind"] + f" (exact NLML, {len(idx)} points)"} for r in recs]
+        st["stages"].append({"points": int(len(idx)), "objective": "exact NLML", "evaluations": counter["evals"],
+                             "value": float(min((o[1] for o in ok), default=float("nan")))})
+        st["infeasible"] += counter["infeasible"]
+        st["seconds"] += time.perf_counter() - t0
+        task.advance()
+
+
+def _bound_stages(kernel, X, Z, pre_mm, perm, sizes, top, targets, specs, state, max_iter, final_evaluations, jitter,
+                  task):
+    """Stages 2 and 3 of ``fit_sparse_gp(hyper="bound")``: −F on the nested random subsets of ``sizes``
+    (the first ``size`` rows of ``perm``, all rows when ``size >= n``), per target the first stage from
+    the explored starts (:func:`_polish_starts`, or racing L-BFGS-B runs: :func:`_race_starts`), each
+    later one from the stage before; a target whose hyperparameters settled skips the rest. Updates
+    each target's optimum, records and stages in ``state``; returns the last stage's :class:`RowBlocks`
+    (None without stages)."""
+    n = len(X)
+    blocks = None
+    for k, size in enumerate(sizes):
+        idx = np.arange(n) if size >= n else np.sort(perm[:size])
+        blocks = None
+        for (y, label), (spec, free), st in zip(targets, specs, state):
+            if st.get("settled"):
+                task.advance()
+                continue
+            blocks = blocks or RowBlocks(kernel, X[idx], Z)
+            t0 = time.perf_counter()
+            fixed_values = {nm: h.value for nm, h in spec.items() if nm not in free}
+            log_bounds = [spec[nm].log_bounds for nm in free]
+            yk = y[idx]
+            count = [0]
+
+            def values_of(theta, fixed_values=fixed_values, free=free):
+                v = dict(fixed_values)
+                v.update({nm: math.exp(t) for nm, t in zip(free, theta)})
+                return v
+
+            def objective(theta, values_of=values_of, yk=yk, free=free, label=label, count=count, st=st):
+                count[0] += 1
+                task.update(status=f"{label}: bound on {len(yk)} points, {count[0]} evaluations")
+                f, g = sparse_bound_and_gradient(kernel, blocks, pre_mm, values_of(theta), yk, free, jitter)
+                if f >= INFEASIBLE_NLML:
+                    st["infeasible"] += 1
+                return f, g
+
+            if st.get("bound_theta") is None:  # the first bound stage: to convergence
+                cap = min(max_iter, FIRST_STAGE_EVALUATIONS)
+            elif size >= top:
+                cap = final_evaluations
+            else:
+                cap = min(max_iter, max(STAGE_MIN_EVALUATIONS, int(STAGE_BUDGET * top / len(idx))))
+            hessians = st.pop("hessians", None)
+            if st.get("bound_theta") is None and hessians is not None:
+                best = _polish_starts(objective, st, free, log_bounds, hessians, len(idx) / st["hessian_points"],
+                                      len(idx), cap, count, subset=size < n)
+            else:
+                best = _race_starts(objective, st, free, log_bounds, cap, count, len(idx))
+            if best is None:
+                raise RbgpRuntimeError(f"no hyperparameters gave a positive definite sparse covariance for {label}",
+                                       hint="use kernel se-chordal, more noise, or fewer inducing poses", param="kernel")
+            prev = st.get("bound_theta")
+            st["settled"] = prev is not None and float(np.max(np.abs(best[0] - prev), initial=0.0)) < SETTLED_LOG
+            st["theta"], st["kinds"], st["f"], st["bound_theta"] = [best[0]], ["previous stage"], best[1], best[0]
+            st["stages"].append({"points": int(len(idx)), "objective": "bound", "evaluations": count[0],
+                                 "value": float(best[1])})
+            if size >= n:
+                st["evals"] = count[0]
+            st["seconds"] += time.perf_counter() - t0
+            task.advance()
+    return blocks
+
+
+def _posterior_fits(kernel, blocks, pre_mm, n, targets, specs, state, jitter, progress):
+    """The SGPR posterior of each target at its optimum, from one pass over ``blocks`` (all n points):
+    returns (fits, stats), one :class:`SparseOutputFit` and one (L_m, L_B, c) per target."""
+    fits, stats = [], []
+    for (y, label), (spec, free), st in zip(targets, specs, state):
+        values = {nm: h.value for nm, h in spec.items() if nm not in free}
+        values.update({nm: math.exp(t) for nm, t in zip(free, st["theta"][0])})
+        f, _g, bstate = _bound(kernel, blocks, pre_mm, values, y, [], jitter, False)
+        if bstate is None:
+            raise RbgpRuntimeError(f"the fitted sparse covariance for {label} is not positive definite",
+                                   hint="use kernel se-chordal or fewer inducing poses", param="kernel")
+        stats.append((np.tril(bstate["Lm"]), np.tril(bstate["LB"]), np.asarray(bstate["c"])))
+        Lm = stats[-1][0]
+        rcond, info = lapack.dpocon(Lm, float(np.max(np.sum(np.abs(Lm @ Lm.T), axis=0))), uplo="L")
+        at_bounds = [nm for nm, t in zip(free, st["theta"][0])
+                     if min(abs(t - spec[nm].log_bounds[0]), abs(t - spec[nm].log_bounds[1])) < 1e-6]
+        fits.append(SparseOutputFit(
+            values=values, nlml=float(f), jitter=0.0, rcond=float(rcond) if info == 0 else 0.0, positive_definite=True,
+            n_evaluations=st["evals"], n_infeasible=st["infeasible"], starts=st["records"], at_bounds=at_bounds,
+            free=list(free), seconds=st["seconds"], kmm_jitter=float(bstate["rel"]), stages=st["stages"]))
+        progress(f"{label}: bound {f:.6g} on all {n} points; evaluations per stage "
+                 + ", ".join(f"{s['evaluations']} on {s['points']}" for s in st["stages"]))
+    return fits, stats
+
+
 def fit_sparse_gp(
     X,
     Y,
@@ -839,12 +989,7 @@ def fit_sparse_gp(
     """
     from rbgp_cli.progress import as_progress
 
-    X = np.ascontiguousarray(np.asarray(X, dtype=np.float64))
-    Y = np.asarray(Y, dtype=np.float64).reshape(len(X), -1)
-    if len(X) < 2:
-        raise ValueError("a GP needs at least 2 training points")
-    if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
-        raise ValueError("training inputs and outputs must be finite")
+    X, Y = training_data(X, Y)
     if int(inducing) < 1:
         raise ValueError(f"the number of inducing inputs must be positive, got {inducing}")
     if hyper not in HYPER_SOURCES:
@@ -854,7 +999,7 @@ def fit_sparse_gp(
     restarts = max(1, int(restarts))
     explore = 400 if explore_size is None else int(explore_size)
     progress = as_progress(progress)
-    n, L = Y.shape
+    n = len(Y)
     t_start = time.perf_counter()
     with blas_threads(0):
         Z = X[select_inducing(X, int(inducing), kernel, seed=seed, method=inducing_method)]
@@ -864,14 +1009,8 @@ def fit_sparse_gp(
     perm = np.random.default_rng(np.random.SeedSequence([int(seed), 3])).permutation(n)
     sub = np.sort(perm[: min(n, 600)])
     pre_sub = kernel.precompute(X[sub])
-    if shared:
-        scale = np.array([output_scale(Y[:, l]) for l in range(L)])
-        targets = [(Y / scale, "all outputs")]
-        rngs = [np.random.default_rng(ss)]
-    else:
-        scale = None
-        targets = [(Y[:, l], f"output {l}") for l in range(L)]
-        rngs = [np.random.default_rng(s) for s in ss.spawn(L)]
+    targets, scale, seeds = fit_targets(Y, shared, ss)
+    rngs = [np.random.default_rng(s) for s in seeds]
     specs = [free_spec(kernel, pre_sub, y, noise, fixed, bounds) for y, _ in targets]
     progress(f"sparse GP: {M} inducing poses ({inducing_method}) for {n} points")
     if hyper_points is None:
@@ -879,12 +1018,7 @@ def fit_sparse_gp(
     else:
         top = n if int(hyper_points) <= 0 else int(hyper_points)
     sizes = _stage_sizes(n, M, top) if hyper == "bound" else []
-    state = []  # per target: {"theta", "f", "records", "stages", "evals", "infeasible", "t"}
-    for (y, label), (spec, free) in zip(targets, specs):
-        # with every hyperparameter fixed there is nothing to optimise: only the posterior is computed
-        state.append({"theta": [np.array([math.log(spec[nm].value) for nm in free])], "kinds": ["data-driven"],
-                      "records": [], "stages": [], "evals": 0, "infeasible": 0, "seconds": 0.0,
-                      "settled": not free})
+    state = _start_state(specs)
     if hyper == "exact" and any(not st["settled"] for st in state):
         _exact_hyperparameters(X, Y, kernel, perm[: min(n, top)], targets, specs, state, noise=noise, restarts=restarts,
                                seed=seed, shared=shared, fixed=fixed, bounds=bounds, max_iter=max_iter,
@@ -898,126 +1032,18 @@ def fit_sparse_gp(
         if hyper == "exact":
             pass  # the exact GP's fit chose them (above)
         elif explore > 1:
-            idx = np.sort(perm[: min(n, explore)])
-            pre_e = kernel.precompute(X[idx])
-            for (y, label), (spec, free), rng, st in zip(targets, specs, rngs, state):
-                if st["settled"]:
-                    task.advance()
-                    continue
-                t0 = time.perf_counter()
-                count = [0]
-
-                def tick(label=label, count=count):
-                    count[0] += 1
-                    task.update(status=f"{label}: exploring, {count[0]} evaluations on {len(idx)} points")
-
-                _b, recs, counter, _v, optima = fit_one(kernel, pre_e, y[idx], spec, free, restarts, rng, max_iter,
-                                                        ftol=EXPLORE_FTOL, on_evaluation=tick)
-                ok = sorted((o for o in optima if o is not None), key=lambda o: o[1])
-                if ok:
-                    # every distinct basin within BASIN_GAP of the best goes on to the bound on more points
-                    # (as the exact GP's polish does): on 400 points the all-noise basin (σf ≪ σn, λ → 0)
-                    # can be the best, and only more points tell it from the structured one (measured)
-                    keep = [ok[0]]
-                    for o in ok[1:]:
-                        if o[1] <= ok[0][1] + BASIN_GAP and all(np.max(np.abs(o[0] - k[0])) > 0.1 for k in keep):
-                            keep.append(o)
-                    st["theta"] = [o[0] for o in keep]
-                    st["kinds"] = ["best explored optimum"] + ["another explored basin"] * (len(keep) - 1)
-                    smooth = smooth_start(spec, free)
-                    if smooth is not None:
-                        st["theta"].append(smooth)
-                        st["kinds"].append("smooth start")
-                    # each start's Hessian on the subset, for the quasi-Newton polish of the first bound stage
-                    obj_e = Objective(kernel, pre_e, y[idx], spec, free, on_evaluation=tick)
-                    st["hessians"] = [fd_hessian(obj_e, th) for th in st["theta"]]
-                    st["hessian_points"] = len(idx)
-                    counter = {key: counter[key] + obj_e.counter[key] for key in counter}
-                st["records"] += [{**r, "kind": r["kind"] + f" (exact NLML, {len(idx)} points)"} for r in recs]
-                st["stages"].append({"points": int(len(idx)), "objective": "exact NLML", "evaluations": counter["evals"],
-                                     "value": float(min((o[1] for o in ok), default=float("nan")))})
-                st["infeasible"] += counter["infeasible"]
-                st["seconds"] += time.perf_counter() - t0
-                task.advance()
+            _explore_starts(kernel, X, perm, explore, targets, specs, rngs, state, restarts, max_iter, task)
         else:
             for (y, label), (spec, free), rng, st in zip(targets, specs, rngs, state):
                 st["theta"] += [random_start(spec, free, rng) for _ in range(restarts - 1)]
                 st["kinds"] += ["random"] * (restarts - 1)
         # 2. the bound on growing subsets, the last one all points
-        blocks = None
-        for k, size in enumerate(sizes):
-            idx = np.arange(n) if size >= n else np.sort(perm[:size])
-            blocks = None
-            for (y, label), (spec, free), st in zip(targets, specs, state):
-                if st.get("settled"):
-                    task.advance()
-                    continue
-                blocks = blocks or RowBlocks(kernel, X[idx], Z)
-                t0 = time.perf_counter()
-                fixed_values = {nm: h.value for nm, h in spec.items() if nm not in free}
-                log_bounds = [spec[nm].log_bounds for nm in free]
-                yk = y[idx]
-                count = [0]
-
-                def values_of(theta, fixed_values=fixed_values, free=free):
-                    v = dict(fixed_values)
-                    v.update({nm: math.exp(t) for nm, t in zip(free, theta)})
-                    return v
-
-                def objective(theta, values_of=values_of, yk=yk, free=free, label=label, count=count, st=st):
-                    count[0] += 1
-                    task.update(status=f"{label}: bound on {len(yk)} points, {count[0]} evaluations")
-                    f, g = sparse_bound_and_gradient(kernel, blocks, pre_mm, values_of(theta), yk, free, jitter)
-                    if f >= INFEASIBLE_NLML:
-                        st["infeasible"] += 1
-                    return f, g
-
-                if st.get("bound_theta") is None:  # the first bound stage: to convergence
-                    cap = min(max_iter, FIRST_STAGE_EVALUATIONS)
-                elif size >= top:
-                    cap = final_evaluations
-                else:
-                    cap = min(max_iter, max(STAGE_MIN_EVALUATIONS, int(STAGE_BUDGET * top / len(idx))))
-                hessians = st.pop("hessians", None)
-                if st.get("bound_theta") is None and hessians is not None:
-                    best = _polish_starts(objective, st, free, log_bounds, hessians, len(idx) / st["hessian_points"],
-                                          len(idx), cap, count, subset=size < n)
-                else:
-                    best = _race_starts(objective, st, free, log_bounds, cap, count, len(idx))
-                if best is None:
-                    raise RbgpRuntimeError(f"no hyperparameters gave a positive definite sparse covariance for {label}",
-                                           hint="use kernel se-chordal, more noise, or fewer inducing poses", param="kernel")
-                prev = st.get("bound_theta")
-                st["settled"] = prev is not None and float(np.max(np.abs(best[0] - prev), initial=0.0)) < SETTLED_LOG
-                st["theta"], st["kinds"], st["f"], st["bound_theta"] = [best[0]], ["previous stage"], best[1], best[0]
-                st["stages"].append({"points": int(len(idx)), "objective": "bound", "evaluations": count[0],
-                                     "value": float(best[1])})
-                if size >= n:
-                    st["evals"] = count[0]
-                st["seconds"] += time.perf_counter() - t0
-                task.advance()
+        blocks = _bound_stages(kernel, X, Z, pre_mm, perm, sizes, top, targets, specs, state, max_iter,
+                               final_evaluations, jitter, task)
         # the posterior on all points at the optimum (the last stage's cached blocks if it had them all)
         if blocks is None or len(blocks.X) < n:
             blocks = RowBlocks(kernel, X, Z)  # cached (O(n M)) and shared by the outputs
-        fits, stats = [], []
-        for (y, label), (spec, free), st in zip(targets, specs, state):
-            values = {nm: h.value for nm, h in spec.items() if nm not in free}
-            values.update({nm: math.exp(t) for nm, t in zip(free, st["theta"][0])})
-            f, _g, bstate = _bound(kernel, blocks, pre_mm, values, y, [], jitter, False)
-            if bstate is None:
-                raise RbgpRuntimeError(f"the fitted sparse covariance for {label} is not positive definite",
-                                       hint="use kernel se-chordal or fewer inducing poses", param="kernel")
-            stats.append((np.tril(bstate["Lm"]), np.tril(bstate["LB"]), np.asarray(bstate["c"])))
-            Lm = stats[-1][0]
-            rcond, info = lapack.dpocon(Lm, float(np.max(np.sum(np.abs(Lm @ Lm.T), axis=0))), uplo="L")
-            at_bounds = [nm for nm, t in zip(free, st["theta"][0])
-                         if min(abs(t - spec[nm].log_bounds[0]), abs(t - spec[nm].log_bounds[1])) < 1e-6]
-            fits.append(SparseOutputFit(
-                values=values, nlml=float(f), jitter=0.0, rcond=float(rcond) if info == 0 else 0.0, positive_definite=True,
-                n_evaluations=st["evals"], n_infeasible=st["infeasible"], starts=st["records"], at_bounds=at_bounds,
-                free=list(free), seconds=st["seconds"], kmm_jitter=float(bstate["rel"]), stages=st["stages"]))
-            progress(f"{label}: bound {f:.6g} on all {n} points; evaluations per stage "
-                     + ", ".join(f"{s['evaluations']} on {s['points']}" for s in st["stages"]))
+        fits, stats = _posterior_fits(kernel, blocks, pre_mm, n, targets, specs, state, jitter, progress)
     gp = SparseGP(kernel, X, Y, Z, fits, shared=shared, y_scale=scale, stats=stats)
     gp.fit_seconds = time.perf_counter() - t_start
     # hyper="exact": the exact GP whose fit chose the hyperparameters, and its rows (not stored in model files)

@@ -226,17 +226,7 @@ def test_text_output_and_bad_part():
 
 @pytest.mark.slow
 def test_bench_help_imports_nothing_heavy():
-    import subprocess
-    import sys
+    from tests.cli.common import assert_help_imports_none_of
 
-    code = (
-        "import sys\n"
-        "from typer.testing import CliRunner\n"
-        "from rbgp_cli.cli.app import app\n"
-        "for args in (['bench', '--help'], ['bench', 'paper', '--help']):\n"
-        "    assert CliRunner().invoke(app, args).exit_code == 0, args\n"
-        "bad = [m for m in ('rbgp_cli.bench.paper', 'scipy.optimize', 'scipy.stats', 'pandas', 'rerun') if m in sys.modules]\n"
-        "assert not bad, bad\n"
-    )
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert res.returncode == 0, res.stdout + res.stderr
+    assert_help_imports_none_of((["bench", "--help"], ["bench", "paper", "--help"]),
+                                ("rbgp_cli.bench.paper", "scipy.optimize", "scipy.stats", "pandas", "rerun"))

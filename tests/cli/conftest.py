@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from tests.cli.test_cli import CSV_DIR, FAST, run
+from tests.cli.common import CSV_DIR, run
+from tests.cli.test_cli import FAST
 
 
 @pytest.fixture(scope="session")

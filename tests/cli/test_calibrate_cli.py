@@ -4,24 +4,16 @@ predicts with the scaled one after loading; crossval takes the option too."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
-from typer.testing import CliRunner
 
 from rbgp_cli.cli.app import app
 from rbgp_cli.cli.report import format_train_summary
 from rbgp_cli.io.model_store import load_model, read_header
+from tests.cli.common import CSV_DIR, run, runner
 
-REPO = Path(__file__).resolve().parents[2]
-CSV_DIR = REPO / "sample_data" / "csv"
-runner = CliRunner()
 FAST = ["--restarts", "1", "--share-hyperparameters", "--explore-size", "100", "--max-points", "400"]
-
-
-def run(*args):
-    return runner.invoke(app, [str(a) for a in args], catch_exceptions=False)
 
 
 @pytest.mark.parametrize("gp", ["exact", "sparse"])

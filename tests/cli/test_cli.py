@@ -10,20 +10,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from typer.testing import CliRunner
 
-from rbgp_cli.cli.app import app
 from rbgp_cli.io.model_store import FORMAT_VERSION
+from tests.cli.common import CSV_DIR, REPO, assert_help_imports_none_of, run
 
-REPO = Path(__file__).resolve().parents[2]
-CSV_DIR = REPO / "sample_data" / "csv"
 MCAP = REPO / "sample_data" / "shoe_demos.mcap"
-runner = CliRunner()
 FAST = ["--max-points", "150", "--restarts", "1", "--share-hyperparameters"]
-
-
-def run(*args, input=None):
-    return runner.invoke(app, [str(a) for a in args], input=input, catch_exceptions=False)
 
 
 def assert_one_line_error(res, code=2, *fragments):
@@ -219,19 +211,9 @@ def test_a_folder_with_a_licence_and_a_readme_trains(tmp_path):
 
 @pytest.mark.slow
 def test_help_does_not_import_heavy_modules():
-    code = (
-        "import sys\n"
-        "from typer.testing import CliRunner\n"
-        "from rbgp_cli.cli.app import app\n"
-        "r = CliRunner()\n"
-        "for args in (['--help'], ['train', '--help'], ['rollout', '--help'], ['evaluate', '--help'], ['inspect', '--help']):\n"
-        "    assert r.invoke(app, args).exit_code == 0, args\n"
-        "bad = [m for m in ('rerun', 'mcap', 'pandas', 'scipy.optimize', 'matplotlib') if m in sys.modules]\n"
-        "print(bad)\n"
-        "assert not bad, bad\n"
-    )
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert res.returncode == 0, res.stdout + res.stderr
+    assert_help_imports_none_of(
+        (["--help"], ["train", "--help"], ["rollout", "--help"], ["evaluate", "--help"], ["inspect", "--help"]),
+        ("rerun", "mcap", "pandas", "scipy.optimize", "matplotlib"))
 
 
 @pytest.mark.parametrize(

@@ -15,20 +15,13 @@ import pytest
 import typer
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from typer.testing import CliRunner
 
 from rbgp_cli.cli.app import app
 from rbgp_cli.cli.args import PATHS_METAVAR, expand_path_lists
+from tests.cli.common import CSV_DIR, run
 
-REPO = Path(__file__).resolve().parents[2]
-CSV_DIR = REPO / "sample_data" / "csv"
 FAST = ["--max-points", "100", "--restarts", "1", "--share-hyperparameters"]
 BIN = Path(sys.executable).parent
-runner = CliRunner()
-
-
-def run(*args, input=None):
-    return runner.invoke(app, [str(a) for a in args], input=input, catch_exceptions=False)
 
 
 def bash(script: str, cwd: Path) -> subprocess.CompletedProcess:

@@ -6,19 +6,10 @@ import json
 from pathlib import Path
 
 import pytest
-from typer.testing import CliRunner
 
-from rbgp_cli.cli.app import app
+from tests.cli.common import CSV_DIR, run
 
 pytest.importorskip("matplotlib")
-
-REPO = Path(__file__).resolve().parents[2]
-CSV_DIR = REPO / "sample_data" / "csv"
-runner = CliRunner()
-
-
-def run(*args):
-    return runner.invoke(app, [str(a) for a in args], catch_exceptions=False)
 
 
 @pytest.fixture()

@@ -9,23 +9,14 @@ import select
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import pytest
-from typer.testing import CliRunner
 
-from rbgp_cli.cli.app import app
 from rbgp_cli.cli.progress import BarProgress, LineProgress, format_duration, make_progress
 from rbgp_cli.progress import Progress, Task, as_progress
+from tests.cli.common import CSV_DIR, run
 
-REPO = Path(__file__).resolve().parents[2]
-CSV_DIR = REPO / "sample_data" / "csv"
 FAST = ["--max-points", "100", "--restarts", "1", "--share-hyperparameters"]
-runner = CliRunner()
-
-
-def run(*args):
-    return runner.invoke(app, [str(a) for a in args], catch_exceptions=False)
 
 
 @pytest.fixture(scope="module")

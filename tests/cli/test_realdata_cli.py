@@ -6,16 +6,10 @@ import json
 
 import numpy as np
 import pytest
-from typer.testing import CliRunner
 
-from rbgp_cli.cli.app import app
+from tests.cli.common import run
 
-runner = CliRunner()
 FAST = ["--max-points", "120", "--restarts", "1", "--share-hyperparameters"]
-
-
-def run(*args):
-    return runner.invoke(app, [str(a) for a in args], catch_exceptions=False)
 
 
 def one_error_line(res):

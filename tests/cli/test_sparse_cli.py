@@ -5,25 +5,17 @@ from __future__ import annotations
 
 import json
 import zipfile
-from pathlib import Path
 
 import numpy as np
 import pytest
-from typer.testing import CliRunner
 
 from rbgp_cli.cli.app import app
 from rbgp_cli.dynamics.model import SPARSE_ABOVE, choose_gp
 from rbgp_cli.errors import InputError
 from rbgp_cli.io.model_store import load_model, read_header, save_model
+from tests.cli.common import CSV_DIR, run, runner
 
-REPO = Path(__file__).resolve().parents[2]
-CSV_DIR = REPO / "sample_data" / "csv"
-runner = CliRunner()
 FAST = ["--restarts", "1", "--share-hyperparameters", "--kernel", "se-chordal", "--explore-size", "100"]
-
-
-def run(*args):
-    return runner.invoke(app, [str(a) for a in args], catch_exceptions=False)
 
 
 @pytest.fixture(scope="module")

@@ -11,8 +11,8 @@ from rbgp_cli.dynamics.model import PathReference, train_model
 from rbgp_cli.dynamics.rollout import rollout_for
 from rbgp_cli.dynamics.trajectory import interpolate_poses
 from rbgp_cli.dynamics.variation import demonstration_deviations, start_regression
-from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.geometry.so3 import exp_quat, quat_make_continuous, quat_multiply
+from tests.dynamics.synthetic import timed_demos
 
 FAST = dict(restarts=1, max_points=400, shared=True, explore_size=0)
 
@@ -21,18 +21,15 @@ def offset_demos(n, seed, samples=80, drift=1.0):
     """A shared reaching motion (0.5 m, a 0.6 rad turn), each demonstration moved by its own start
     offset b_d that stays for the whole motion (β = 1: sd 0.05 m, 0.08 rad), plus a smooth deviation
     a_d·s that the start does not predict (sd 0.01 m, 0.02 rad at the end)."""
-    rng = np.random.default_rng(seed)
-    out = []
-    for d in range(n):
-        T = rng.uniform(1.5, 2.5)
-        t = np.linspace(0.0, T, samples)
-        s = t / T
+
+    def pose(rng, s):
         e = 0.5 - 0.5 * np.cos(np.pi * s)  # smooth start and stop
         p = np.stack([0.5 * e, 0.1 * np.sin(np.pi * s), 1.0 - 0.2 * e], axis=1)
         p = p + rng.normal(0, 0.05, 3) + drift * np.outer(s, rng.normal(0, 0.01, 3))
         rot = np.outer(e, [0.0, 0.2, 0.6]) + rng.normal(0, 0.08, 3) + drift * np.outer(s, rng.normal(0, 0.02, 3))
-        out.append(Trajectory(t + 3.0, quat_multiply(exp_quat(rot), exp_quat(np.array([0.1, 0.0, 0.3]))), p, name=f"d{d}"))
-    return out
+        return quat_multiply(exp_quat(rot), exp_quat(np.array([0.1, 0.0, 0.3]))), p
+
+    return timed_demos(n, seed, samples, pose)
 
 
 @pytest.fixture(scope="module")

@@ -9,6 +9,7 @@ import pytest
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.dynamics.variation import Variation, demonstration_variation
 from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
+from tests.dynamics.synthetic import timed_demos
 
 SIGMA_POS, SIGMA_ROT = 0.05, 0.08
 
@@ -17,21 +18,17 @@ def hierarchical_demos(n, seed, samples=60):
     """A shared motion plus, per demonstration, its own smooth deviation a_d·s (position, m, and
     rotation, rad, world frame) and a start offset b_d that stays: given the start, the deviation at
     phase s has the known standard deviation σ·s."""
-    rng = np.random.default_rng(seed)
-    out = []
-    for d in range(n):
-        T = rng.uniform(1.5, 2.5)
-        t = np.linspace(0.0, T, samples)
-        s = t / T
+
+    def pose(rng, s):
         a_pos, b_pos = rng.normal(0, SIGMA_POS, 3), rng.normal(0, 0.03, 3)
         a_rot, b_rot = rng.normal(0, SIGMA_ROT, 3), rng.normal(0, 0.05, 3)
         base_p = np.stack([0.4 * s, 0.2 * np.sin(np.pi * s), 1.0 - 0.3 * s**2], axis=1)
         p = base_p + np.outer(s, a_pos) + b_pos
         base_q = exp_quat(np.outer(s, [0.2, 1.0, 0.4]) + [0.0, 0.0, 2.8])  # through θ = π
         dev = np.outer(s, a_rot) + b_rot
-        q = quat_multiply(exp_quat(dev), base_q)
-        out.append(Trajectory(t + 3.0, q, p, name=f"d{d}"))
-    return out
+        return quat_multiply(exp_quat(dev), base_q), p
+
+    return timed_demos(n, seed, samples, pose)
 
 
 def test_draws_reproduce_the_known_deviation_variance_given_the_start():

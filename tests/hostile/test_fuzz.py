@@ -183,6 +183,21 @@ def read_and_prepare(sources, stdin=None):
     return clean
 
 
+def load_or_refuse(path) -> None:
+    """load_model: an InputError, or a model whose predictions at its own starts are finite (std >= 0)."""
+    from rbgp_cli.io.model_store import load_model
+
+    try:
+        model, _ = load_model(path)
+    except InputError:
+        event("InputError")
+        return
+    event("loaded")
+    tau = np.zeros(len(model.starts)) if model.time_input else None  # the default model takes the phase
+    mean, std = model.predict(model.starts[:, :4], model.starts[:, 4:], tau=tau)
+    assert np.all(np.isfinite(mean)) and np.all(np.isfinite(std)) and np.all(std >= 0)
+
+
 class _Pipe(io.RawIOBase):
     """A non-seekable stream, like stdin from a pipe (the MCAP reader then reads front to back)."""
 
@@ -206,49 +221,30 @@ def fuzz_dir(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("fuzz")
 
 
+@pytest.mark.parametrize(
+    "names, pipe",
+    [(TEXT_SEEDS, False), (MCAP_SEEDS, False), (MCAP_SEEDS, True)],
+    ids=["text-file", "mcap-file", "mcap-pipe"],
+)
 @fuzz_settings
-@given(case=mutated(TEXT_SEEDS))
+@given(data=st.data())
 @pytest.mark.slow
-def test_fuzz_text_readers(case, fuzz_dir):
-    """CSV / TSV / QTM / Motive / Vicon bytes, mutated: clean data or InputError, nothing else."""
-    name, data = case.name, case.data
-    read_and_prepare([str(write(fuzz_dir, name, data))])
-
-
-@fuzz_settings
-@given(case=mutated(MCAP_SEEDS))
-@pytest.mark.slow
-def test_fuzz_mcap_file(case, fuzz_dir):
-    """MCAP files, mutated (seekable: summary first, then a linear scan after damage)."""
-    name, data = case.name, case.data
-    read_and_prepare([str(write(fuzz_dir, name, data))])
-
-
-@fuzz_settings
-@given(case=mutated(MCAP_SEEDS))
-@pytest.mark.slow
-def test_fuzz_mcap_pipe(case):
-    """The same on a non-seekable stream (``rbgp train - < rec.mcap`` through a pipe)."""
-    read_and_prepare(["-"], stdin=io.BufferedReader(_Pipe(case.data)))
+def test_fuzz_readers(names, pipe, data, fuzz_dir):
+    """Mutated files: clean data or InputError, nothing else. CSV / TSV / QTM / Motive / Vicon bytes;
+    MCAP files (seekable: summary first, then a linear scan after damage); and the same MCAP bytes on
+    a non-seekable stream (``rbgp train - < rec.mcap`` through a pipe)."""
+    case = data.draw(mutated(names), label="case")
+    if pipe:
+        read_and_prepare(["-"], stdin=io.BufferedReader(_Pipe(case.data)))
+    else:
+        read_and_prepare([str(write(fuzz_dir, case.name, case.data))])
 
 
 @fuzz_settings
 @given(case=mutated(("tiny.rbgp",)))
 def test_fuzz_model_loader(case, fuzz_dir):
     """Model files, mutated: a verified model or InputError; a model that loads predicts finitely."""
-    from rbgp_cli.io.model_store import load_model
-
-    name, data = case.name, case.data
-    path = write(fuzz_dir, name, data)
-    try:
-        model, header = load_model(path)
-    except InputError:
-        event("InputError")
-        return
-    event("loaded")
-    tau = np.zeros(len(model.starts)) if model.time_input else None  # the default model takes the phase
-    mean, std = model.predict(model.starts[:, :4], model.starts[:, 4:], tau=tau)
-    assert np.all(np.isfinite(mean)) and np.all(np.isfinite(std)) and np.all(std >= 0)
+    load_or_refuse(write(fuzz_dir, case.name, case.data))
 
 
 @st.composite
@@ -289,21 +285,10 @@ def model_headers(draw):
 @given(edit=model_headers())
 @pytest.mark.slow
 def test_fuzz_model_header_values(edit, fuzz_dir):
-    from rbgp_cli.io.model_store import load_model
-
     header, what = edit
     note(str(what))
     _, arrays = B.read_model_npz(seeds()["tiny.rbgp"])
-    path = B.write_model_npz(fuzz_dir / f"{next(_counter)}-h.rbgp", header, arrays)
-    try:
-        model, _ = load_model(path)
-    except InputError:
-        event("InputError")
-        return
-    event("loaded")
-    tau = np.zeros(len(model.starts)) if model.time_input else None  # the default model takes the phase
-    mean, std = model.predict(model.starts[:, :4], model.starts[:, 4:], tau=tau)
-    assert np.all(np.isfinite(mean)) and np.all(np.isfinite(std))
+    load_or_refuse(B.write_model_npz(fuzz_dir / f"{next(_counter)}-h.rbgp", header, arrays))
 
 
 _runner = CliRunner()

@@ -28,39 +28,16 @@ int32 sec
 uint32 nanosec
 """
 
-POSE_DEFS = f"""{_SEP}
-MSG: geometry_msgs/Pose
-Point position
-Quaternion orientation
-{_SEP}
-MSG: geometry_msgs/Point
-float64 x
-float64 y
-float64 z
-{_SEP}
-MSG: geometry_msgs/Quaternion
-float64 x 0
-float64 y 0
-float64 z 0
-float64 w 1
-"""
 
-TRANSFORM_DEFS = f"""{_SEP}
-MSG: geometry_msgs/Transform
-Vector3 translation
-Quaternion rotation
-{_SEP}
-MSG: geometry_msgs/Vector3
-float64 x
-float64 y
-float64 z
-{_SEP}
-MSG: geometry_msgs/Quaternion
-float64 x 0
-float64 y 0
-float64 z 0
-float64 w 1
-"""
+def _xyz_def(name: str) -> str:
+    """The definition of a geometry_msgs type of three float64 fields x, y, z (Point, Vector3)."""
+    return f"{_SEP}\nMSG: geometry_msgs/{name}\nfloat64 x\nfloat64 y\nfloat64 z\n"
+
+
+QUATERNION_DEF = f"{_SEP}\nMSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n"
+POSE_DEFS = f"{_SEP}\nMSG: geometry_msgs/Pose\nPoint position\nQuaternion orientation\n" + _xyz_def("Point") + QUATERNION_DEF
+TRANSFORM_DEFS = (f"{_SEP}\nMSG: geometry_msgs/Transform\nVector3 translation\nQuaternion rotation\n"
+                  + _xyz_def("Vector3") + QUATERNION_DEF)
 
 MSGDEFS = {
     "geometry_msgs/msg/PoseStamped": "std_msgs/Header header\nPose pose\n" + HEADER_DEFS + POSE_DEFS,
@@ -88,7 +65,7 @@ MSGDEFS = {
         + POSE_DEFS
         + f"{_SEP}\nMSG: geometry_msgs/TwistWithCovariance\nTwist twist\nfloat64[36] covariance\n"
         + f"{_SEP}\nMSG: geometry_msgs/Twist\nVector3 linear\nVector3 angular\n"
-        + f"{_SEP}\nMSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n"
+        + _xyz_def("Vector3")
     ),
     "std_msgs/msg/String": "string data\n",
 }
@@ -109,18 +86,20 @@ def _stamp(ns: int) -> dict:
     return {"sec": int(ns // 1_000_000_000), "nanosec": int(ns % 1_000_000_000)}
 
 
+def _xyz(p) -> dict:
+    return {"x": float(p[0]), "y": float(p[1]), "z": float(p[2])}
+
+
+def _xyzw(q) -> dict:
+    return {"x": float(q[0]), "y": float(q[1]), "z": float(q[2]), "w": float(q[3])}
+
+
 def _pose(p, q) -> dict:
-    return {
-        "position": {"x": float(p[0]), "y": float(p[1]), "z": float(p[2])},
-        "orientation": {"x": float(q[0]), "y": float(q[1]), "z": float(q[2]), "w": float(q[3])},
-    }
+    return {"position": _xyz(p), "orientation": _xyzw(q)}
 
 
 def _transform(p, q) -> dict:
-    return {
-        "translation": {"x": float(p[0]), "y": float(p[1]), "z": float(p[2])},
-        "rotation": {"x": float(q[0]), "y": float(q[1]), "z": float(q[2]), "w": float(q[3])},
-    }
+    return {"translation": _xyz(p), "rotation": _xyzw(q)}
 
 
 def ros2_message(type_name: str, ns: int, p, q, child: str = "body", extra=None) -> dict:

@@ -387,28 +387,20 @@ def test_short_first_row_and_trailing_delimiters(tmp_path):
     np.testing.assert_array_equal(tr.position[1:], P[1:])
 
 
-def test_empty_file(tmp_path):
-    p = write(tmp_path, "")
-    with pytest.raises(InputError, match="empty"):
-        rcsv.read(p)
-
-
-def test_header_only(tmp_path):
-    p = write(tmp_path, "t,x,y,z,qx,qy,qz,qw\n")
-    with pytest.raises(InputError, match=r":1: the file has a header but no data rows"):
-        rcsv.read(p)
-
-
-def test_binary_garbage(tmp_path):
-    p = tmp_path / "g.csv"
-    p.write_bytes(bytes(np.random.default_rng(1).integers(0, 256, 2000, dtype=np.uint8)))
-    with pytest.raises(InputError, match="not a text file"):
-        rcsv.read(p)
-
-
-def test_numbers_without_header(tmp_path):
-    p = write(tmp_path, "0.0,1,2,3,0,0,0,1\n0.1,1,2,3,0,0,0,1\n")
-    with pytest.raises(InputError, match=r":1: no header line.*add a header"):
+@pytest.mark.parametrize(
+    "content, match",
+    [
+        ("", "empty"),
+        ("t,x,y,z,qx,qy,qz,qw\n", r":1: the file has a header but no data rows"),
+        (bytes(np.random.default_rng(1).integers(0, 256, 2000, dtype=np.uint8)), "not a text file"),
+        ("0.0,1,2,3,0,0,0,1\n0.1,1,2,3,0,0,0,1\n", r":1: no header line.*add a header"),
+    ],
+    ids=["empty", "header-only", "binary-garbage", "numbers-without-header"],
+)
+def test_a_file_without_demonstrations_is_an_input_error(tmp_path, content, match):
+    p = tmp_path / "demo.csv"
+    p.write_bytes(content if isinstance(content, bytes) else content.encode("utf-8"))
+    with pytest.raises(InputError, match=match):
         rcsv.read(p)
 
 
