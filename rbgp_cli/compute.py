@@ -524,6 +524,26 @@ class _children_stderr_off:
         return False
 
 
+def _dask_result(fut, i: int, label):
+    """The result of task ``i``'s finished future; its InputError or RbgpRuntimeError as raised, any
+    other failure (the worker lost on every try, or an exception in the task) as RbgpRuntimeError."""
+    from rbgp_cli.errors import InputError, RbgpRuntimeError
+
+    try:
+        r = fut.result()
+    except (InputError, RbgpRuntimeError):
+        raise
+    except Exception as exc:
+        if type(exc).__name__ == "KilledWorker":
+            raise RbgpRuntimeError(f"{_names([i], label)} was lost with its Dask worker "
+                                   "(killed, or out of memory) on every try",
+                                   hint="check the cluster's memory, or run without scheduler",
+                                   param="scheduler") from None
+        # a task that failed on a worker fails the study, as in-process
+        raise RbgpRuntimeError(f"a task failed on a Dask worker: {type(exc).__name__}: {exc}") from exc
+    return r
+
+
 def iter_dask(fn, args: list, *, jobs: int | None = None, scheduler: str = "local", label=None):
     """Yield ``(index, fn(args[index]))`` as the tasks finish on a Dask cluster.
 
@@ -596,19 +616,7 @@ def iter_dask(fn, args: list, *, jobs: int | None = None, scheduler: str = "loca
                     alone_since = None
                     for fut in sorted(done, key=lambda f: index[f.key]):
                         i = index[fut.key]
-                        try:
-                            r = fut.result()
-                        except (InputError, RbgpRuntimeError):
-                            raise
-                        except Exception as exc:
-                            if type(exc).__name__ == "KilledWorker":
-                                raise RbgpRuntimeError(f"{_names([i], label)} was lost with its Dask worker "
-                                                       "(killed, or out of memory) on every try",
-                                                       hint="check the cluster's memory, or run without scheduler",
-                                                       param="scheduler") from None
-                            # a task that failed on a worker fails the study, as in-process
-                            raise RbgpRuntimeError(f"a task failed on a Dask worker: {type(exc).__name__}: {exc}") from exc
-                        yield i, r
+                        yield i, _dask_result(fut, i, label)
             finally:
                 client.cancel([f for f in futs if not f.done()])
     except BaseException as exc:

@@ -739,6 +739,88 @@ def _claims(res: dict) -> list[str]:
     return _table(["claim", "paper", "rbgp measures"], rows, text_columns=3) if rows else []
 
 
+def _theorem_section(th: dict) -> list[str]:
+    """Theorem 1's part of the report: the counterexample and the random sets' smallest eigenvalues."""
+    lines = []
+    lines += ["**Theorem 1.** Smallest eigenvalue of K_ij = exp(−d(r_i, r_j)²/(2λ²)) (σf = 1, no noise), "
+              "geodesic d = d_arc against chordal d = 2 sin(d_arc/2); λ in radians.", "",
+              "8 rotations about one axis, π/4 apart:", ""]
+    lines += _table(["λ", "geodesic", "chordal"],
+                    [[_f(c["lambda"]), _f(c["geodesic"]), _f(c["chordal"])] for c in th["counterexample"]])
+    lines += ["", f"{th['sets']} sets of uniformly random rotations per size (min and median over the sets; "
+              "'negative' counts sets below −n²ε, the round-off bound):", ""]
+    lines += _table(["n", "λ", "geodesic min", "geodesic median", "negative sets", "chordal min", "chordal negative sets"],
+                    [[r["n"], _f(r["lambda"]), _f(r["geodesic_min"]), _f(r["geodesic_median"]),
+                      f"{r['geodesic_negative_sets']}/{r['sets']}", _f(r["chordal_min"]),
+                      f"{r['chordal_negative_sets']}/{r['sets']}"] for r in th["search"]])
+    lines.append("")
+    return lines
+
+
+def _runtime_section(rt: dict) -> list[str]:
+    """Sec. 4.1's part of the report: prediction times, their ratios to axis-angle's and Welch's tests."""
+    lines = []
+    pools = ", ".join(f"{b['library']} ({b['threads']} thread{'s' if b['threads'] != 1 else ''})" for b in rt["blas"]) or "n/a"
+    lines += [f"**Sec. 4.1, prediction time.** {rt['repeats']} repetitions: GPs on {rt['training_points']} random "
+              f"poses (ρ1 = {rt['rho_rot']}, one output), prediction at {rt['prediction_poses']} new poses, "
+              f"models in a random order each repetition. BLAS single-threaded for every model ({pools}); "
+              "rbgp's prediction splits the rows into chunks on its own thread pool, as for users. "
+              "Times in ms: median [quartiles]; ratio = time / axis-angle's time in the same repetition."
+              + (f" {len(rt['skipped'])} repetitions skipped (a fit failed)." if rt.get("skipped") else ""), ""]
+    rows = []
+    for r in rt["rows"]:
+        cells = [r["model"]]
+        for kind in ("mean_only", "mean_std"):
+            t = r[kind]
+            rr = t["ratio_to_axis_angle"]
+            cells += [f"{_f(1e3 * t['median'])} [{_f(1e3 * t['q25'])}–{_f(1e3 * t['q75'])}]",
+                      f"{_f(rr['median'])} [{_f(rr['q25'])}–{_f(rr['q75'])}]"]
+        rows.append(cells)
+    lines += _table(["model", "mean (ms)", "ratio", "mean + std (ms)", "ratio"], rows)
+    lines += ["", "Welch's t-test, axis-angle against each model (positive t: axis-angle slower):", ""]
+    labels = {r["key"]: r["model"] for r in rt["rows"]}
+    lines += _table(["model", "prediction", "t", "df", "p", "mean difference (ms)"], text_columns=2, rows=
+                    [[labels[w["b"]], "mean" if w["kind"] == "mean_only" else "mean + std", _f(w["t"]), _f(w["df"]),
+                      _p(w["p"]), _f(1e3 * w["mean_difference_s"])] for w in rt["welch"]])
+    lines.append("")
+    return lines
+
+
+def _accuracy_section(ac: dict) -> list[str]:
+    """Sec. 4.2's part of the report: the errors per setting and model, and the paired comparisons."""
+    lines = []
+    st = ac["settings"]
+    lines += [f"**Sec. 4.2, accuracy.** {ac['repeats']} random dynamics of eq. 30 (f_i = g(d/c ± d̃ ×/÷ c̃), "
+              "g ∈ {sin, cos, atan, acot}; acot is MATLAB's atan(1/x), which jumps by π at 0), "
+              f"{st['training_points']} training rotations drawn from {st['test_points']} test rotations, as in "
+              "the paper. Fitted per output, with the paper's single start λ, σf ~ U(0, 3) and σn = 1 or learned, "
+              f"or with rbgp's starts ({st['rbgp_starts']}). Errors per dynamics: RMSE of the rotation-vector "
+              "components (the paper's measure; rad) and root mean square geodesic angle (rad); mean, median "
+              f"and {int(100 * st['trim'])} % trimmed mean over the dynamics. Euler angles: {st['euler_order']}. "
+              f"Blow-up: RMSE above {st['blow_up_factor']:g}× the zero predictor's (median zero-predictor RMSE "
+              f"{_f(ac['zero_rmse']['median'])}).", ""]
+    rows = []
+    for r in ac["rows"]:
+        e, g = r["rmse"], r["geodesic_rmse"]
+        rows.append([r["setting"], r["model"], f"{_f(e['mean'])} ± {_f(e['std'], 2)}", _f(e["median"]),
+                     _f(e["trimmed_mean"]), f"{_f(g['mean'])} ± {_f(g['std'], 2)}", _f(g["median"]),
+                     _f(g["trimmed_mean"]), r["blow_ups"], r["failed"],
+                     _f(r["median_vs_zero"]), r["refit_with_noise_margin"]])
+    lines += _table(["setting", "model", "RMSE mean ± std", "median", "trimmed", "geodesic mean ± std", "median", "trimmed",
+                     "blow-ups", "failed", "median / zero predictor", "noise-margin refits"], rows, text_columns=2)
+    lines += ["", "Paired comparisons (ratio a / b per dynamics; below 1: a is more accurate):", ""]
+    rows = []
+    for c in ac["comparisons"]:
+        rows.append([c["setting"], f"{c['a_model']} / {c['b_model']}", "rotation vector" if c["error"] == "rmse" else "geodesic",
+                     f"{_f(c['median_ratio'])} [{_f(c['ratio_q25'])}–{_f(c['ratio_q75'])}]", _f(c["ratio_of_means"]),
+                     f"{c['a_better']}/{c['pairs']}", _p(c["wilcoxon_p"]),
+                     f"{_f(c['welch']['t'])} ({_f(c['welch']['df'])})", _p(c["welch"]["p"])])
+    lines += _table(["setting", "a / b", "error", "median ratio [quartiles]", "ratio of means", "a better",
+                     "Wilcoxon p", "Welch t (df)", "Welch p"], rows, text_columns=3)
+    lines.append("")
+    return lines
+
+
 def format_report(res: dict) -> str:
     """The result of :func:`run_paper_bench` as Markdown: the claims, then one section per part."""
     s = res["settings"]
@@ -753,72 +835,11 @@ def format_report(res: dict) -> str:
         lines += claims + [""]
     th = res.get("theorem")
     if th:
-        lines += ["**Theorem 1.** Smallest eigenvalue of K_ij = exp(−d(r_i, r_j)²/(2λ²)) (σf = 1, no noise), "
-                  "geodesic d = d_arc against chordal d = 2 sin(d_arc/2); λ in radians.", "",
-                  "8 rotations about one axis, π/4 apart:", ""]
-        lines += _table(["λ", "geodesic", "chordal"],
-                        [[_f(c["lambda"]), _f(c["geodesic"]), _f(c["chordal"])] for c in th["counterexample"]])
-        lines += ["", f"{th['sets']} sets of uniformly random rotations per size (min and median over the sets; "
-                  "'negative' counts sets below −n²ε, the round-off bound):", ""]
-        lines += _table(["n", "λ", "geodesic min", "geodesic median", "negative sets", "chordal min", "chordal negative sets"],
-                        [[r["n"], _f(r["lambda"]), _f(r["geodesic_min"]), _f(r["geodesic_median"]),
-                          f"{r['geodesic_negative_sets']}/{r['sets']}", _f(r["chordal_min"]),
-                          f"{r['chordal_negative_sets']}/{r['sets']}"] for r in th["search"]])
-        lines.append("")
+        lines += _theorem_section(th)
     rt = res.get("runtime")
     if rt:
-        pools = ", ".join(f"{b['library']} ({b['threads']} thread{'s' if b['threads'] != 1 else ''})" for b in rt["blas"]) or "n/a"
-        lines += [f"**Sec. 4.1, prediction time.** {rt['repeats']} repetitions: GPs on {rt['training_points']} random "
-                  f"poses (ρ1 = {rt['rho_rot']}, one output), prediction at {rt['prediction_poses']} new poses, "
-                  f"models in a random order each repetition. BLAS single-threaded for every model ({pools}); "
-                  "rbgp's prediction splits the rows into chunks on its own thread pool, as for users. "
-                  "Times in ms: median [quartiles]; ratio = time / axis-angle's time in the same repetition."
-                  + (f" {len(rt['skipped'])} repetitions skipped (a fit failed)." if rt.get("skipped") else ""), ""]
-        rows = []
-        for r in rt["rows"]:
-            cells = [r["model"]]
-            for kind in ("mean_only", "mean_std"):
-                t = r[kind]
-                rr = t["ratio_to_axis_angle"]
-                cells += [f"{_f(1e3 * t['median'])} [{_f(1e3 * t['q25'])}–{_f(1e3 * t['q75'])}]",
-                          f"{_f(rr['median'])} [{_f(rr['q25'])}–{_f(rr['q75'])}]"]
-            rows.append(cells)
-        lines += _table(["model", "mean (ms)", "ratio", "mean + std (ms)", "ratio"], rows)
-        lines += ["", "Welch's t-test, axis-angle against each model (positive t: axis-angle slower):", ""]
-        labels = {r["key"]: r["model"] for r in rt["rows"]}
-        lines += _table(["model", "prediction", "t", "df", "p", "mean difference (ms)"], text_columns=2, rows=
-                        [[labels[w["b"]], "mean" if w["kind"] == "mean_only" else "mean + std", _f(w["t"]), _f(w["df"]),
-                          _p(w["p"]), _f(1e3 * w["mean_difference_s"])] for w in rt["welch"]])
-        lines.append("")
+        lines += _runtime_section(rt)
     ac = res.get("accuracy")
     if ac:
-        st = ac["settings"]
-        lines += [f"**Sec. 4.2, accuracy.** {ac['repeats']} random dynamics of eq. 30 (f_i = g(d/c ± d̃ ×/÷ c̃), "
-                  "g ∈ {sin, cos, atan, acot}; acot is MATLAB's atan(1/x), which jumps by π at 0), "
-                  f"{st['training_points']} training rotations drawn from {st['test_points']} test rotations, as in "
-                  "the paper. Fitted per output, with the paper's single start λ, σf ~ U(0, 3) and σn = 1 or learned, "
-                  f"or with rbgp's starts ({st['rbgp_starts']}). Errors per dynamics: RMSE of the rotation-vector "
-                  "components (the paper's measure; rad) and root mean square geodesic angle (rad); mean, median "
-                  f"and {int(100 * st['trim'])} % trimmed mean over the dynamics. Euler angles: {st['euler_order']}. "
-                  f"Blow-up: RMSE above {st['blow_up_factor']:g}× the zero predictor's (median zero-predictor RMSE "
-                  f"{_f(ac['zero_rmse']['median'])}).", ""]
-        rows = []
-        for r in ac["rows"]:
-            e, g = r["rmse"], r["geodesic_rmse"]
-            rows.append([r["setting"], r["model"], f"{_f(e['mean'])} ± {_f(e['std'], 2)}", _f(e["median"]),
-                         _f(e["trimmed_mean"]), f"{_f(g['mean'])} ± {_f(g['std'], 2)}", _f(g["median"]),
-                         _f(g["trimmed_mean"]), r["blow_ups"], r["failed"],
-                         _f(r["median_vs_zero"]), r["refit_with_noise_margin"]])
-        lines += _table(["setting", "model", "RMSE mean ± std", "median", "trimmed", "geodesic mean ± std", "median", "trimmed",
-                         "blow-ups", "failed", "median / zero predictor", "noise-margin refits"], rows, text_columns=2)
-        lines += ["", "Paired comparisons (ratio a / b per dynamics; below 1: a is more accurate):", ""]
-        rows = []
-        for c in ac["comparisons"]:
-            rows.append([c["setting"], f"{c['a_model']} / {c['b_model']}", "rotation vector" if c["error"] == "rmse" else "geodesic",
-                         f"{_f(c['median_ratio'])} [{_f(c['ratio_q25'])}–{_f(c['ratio_q75'])}]", _f(c["ratio_of_means"]),
-                         f"{c['a_better']}/{c['pairs']}", _p(c["wilcoxon_p"]),
-                         f"{_f(c['welch']['t'])} ({_f(c['welch']['df'])})", _p(c["welch"]["p"])])
-        lines += _table(["setting", "a / b", "error", "median ratio [quartiles]", "ratio of means", "a better",
-                         "Wilcoxon p", "Welch t (df)", "Welch p"], rows, text_columns=3)
-        lines.append("")
+        lines += _accuracy_section(ac)
     return "\n".join(lines).rstrip() + "\n"

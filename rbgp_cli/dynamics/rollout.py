@@ -200,8 +200,36 @@ def _path_samples(variation, res: RolloutResult, K: int, seed: int, durations) -
     return res
 
 
+def _rollout_result(rep, states, sstates, std, steps, dt, B, K, pd, envelope, duration, phase_of, off_data):
+    """The :class:`RolloutResult` of the integrated states (steps + 1, B, d) (``sstates`` (steps + 1,
+    B·K, d) of the samples, ``std`` (steps + 1, B, L) or None): poses, where they leave the
+    ``envelope`` and, with ``off_data="stop"``, where each trajectory ends."""
+    from rbgp_cli.dynamics.envelope import exits_report
+
+    quat, pos = rep.pose_from_state(states[..., :pd].reshape(-1, pd))
+    quat = quat_make_continuous(quat.reshape(steps + 1, B, 4).transpose(1, 0, 2))
+    pos = pos.reshape(steps + 1, B, 3).transpose(1, 0, 2)
+    res = RolloutResult(
+        t=np.arange(steps + 1) * dt, quat=quat, position=pos,
+        std=None if std is None else std.transpose(1, 0, 2), output_names=tuple(rep.output_names),
+    )
+    t = res.t
+    res.outside = envelope.outside(pos, phase_of(t[None, :], duration))
+    res.left = exits_report(res.outside, t, pos, envelope)
+    if off_data == "stop":
+        first = np.where(res.outside.any(axis=1), res.outside.argmax(axis=1), steps)
+        res.ends = np.maximum(first, 1)
+    if K > 0:
+        sq, sp = rep.pose_from_state(sstates[..., :pd].reshape(-1, pd))
+        res.sample_quat = quat_make_continuous(sq.reshape(steps + 1, B, K, 4).transpose(1, 2, 0, 3))
+        res.sample_position = sp.reshape(steps + 1, B, K, 3).transpose(1, 2, 0, 3)
+    return res
+
+
 def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, task, durations, off_data="keep"):
-    from rbgp_cli.dynamics.envelope import OFF_DATA, exits_report
+    """:func:`rollout`'s integration: the B mean trajectories and, with ``samples`` = K, K Monte Carlo
+    rollouts per start (a latent velocity drawn at every step from ``seed``), advanced in one loop."""
+    from rbgp_cli.dynamics.envelope import OFF_DATA
 
     if off_data not in OFF_DATA:
         raise InputError(f"off_data must be one of {', '.join(OFF_DATA)}, got {off_data!r}", param="off_data")
@@ -274,24 +302,8 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
                 sstates[k + 1] = sstate
         if not last:
             task.advance()
-    quat, pos = rep.pose_from_state(states[..., :pd].reshape(-1, pd))
-    quat = quat_make_continuous(quat.reshape(steps + 1, B, 4).transpose(1, 0, 2))
-    pos = pos.reshape(steps + 1, B, 3).transpose(1, 0, 2)
-    res = RolloutResult(
-        t=np.arange(steps + 1) * dt, quat=quat, position=pos,
-        std=None if std is None else std.transpose(1, 0, 2), output_names=tuple(rep.output_names),
-    )
-    t = res.t
-    res.outside = envelope.outside(pos, phase_of(t[None, :], duration))
-    res.left = exits_report(res.outside, t, pos, envelope)
-    if off_data == "stop":
-        first = np.where(res.outside.any(axis=1), res.outside.argmax(axis=1), steps)
-        res.ends = np.maximum(first, 1)
-    if K > 0:
-        sq, sp = rep.pose_from_state(sstates[..., :pd].reshape(-1, pd))
-        res.sample_quat = quat_make_continuous(sq.reshape(steps + 1, B, K, 4).transpose(1, 2, 0, 3))
-        res.sample_position = sp.reshape(steps + 1, B, K, 3).transpose(1, 2, 0, 3)
-    return res
+    return _rollout_result(rep, states, sstates if K > 0 else None, std, steps, dt, B, K, pd, envelope, duration,
+                           phase_of, off_data)
 
 
 def rollout_for(model, start_quat, start_position, durations, dt: float | None = None, **kwargs) -> RolloutResult:

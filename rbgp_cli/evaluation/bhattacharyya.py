@@ -451,6 +451,70 @@ def _default_length(demos: Sequence[Trajectory]) -> int:
     return int(math.floor(float(np.median([len(d) for d in demos])) + 0.5))
 
 
+def _check_arguments(generated, demos, covariance, ridge, sample_size) -> float:
+    """:func:`evaluate`'s arguments checked (InputError, ValueError for ``sample_size``); returns
+    ``ridge`` as a float."""
+    if not generated:
+        raise InputError("no generated trajectories to evaluate", hint="pass at least one")
+    if not demos:
+        raise InputError("no demonstrations to compare with", hint="pass at least one demonstration")
+    if covariance not in COVARIANCES:
+        raise InputError(f"unknown covariance {covariance!r}", hint="use 'diag' or 'full'")
+    try:
+        ridge = float(ridge)
+    except (TypeError, ValueError):
+        raise InputError(f"ridge must be a number, got {ridge!r}") from None
+    if not (math.isfinite(ridge) and ridge >= 0):
+        raise InputError(f"ridge must be finite and >= 0, got {ridge}", hint="use e.g. 1e-6")
+    if sample_size not in SAMPLE_SIZE_POLICIES:
+        raise ValueError(f"sample_size must be one of {SAMPLE_SIZE_POLICIES}, got {sample_size!r}")
+    return ridge
+
+
+def _steps(demos, length) -> int:
+    """T, the steps of normalised time: ``length`` (checked against the length rule of
+    :func:`evaluate`, with a warning above the longest demonstration) or the demonstrations' median."""
+    longest = max(len(d) for d in demos)
+    if length is None:
+        T = _check_length(max(_default_length(demos), 2))
+    else:
+        T = _check_length(length)
+        if T > MAX_UPSAMPLING * longest:
+            raise InputError(
+                f"length {T} is more than {MAX_UPSAMPLING}x the longest demonstration ({longest} samples)",
+                hint=f"use a length of at most {MAX_UPSAMPLING * longest}, or omit it for the median "
+                f"demonstration length ({_default_length(demos)})",
+            )
+        if T > longest:
+            warn(
+                f"length {T} exceeds the longest demonstration ({longest} samples); "
+                "the demonstrations are upsampled by interpolation"
+            )
+    return T
+
+
+def _distances(covariance, ridge, mu_d, cov_d, var_d, mu_g, cov_g, var_g):
+    """D_B per step (T,): the total, its rotation and translation parts, and its offset and spread
+    terms, from the sets' per-step means (T, 6), covariances (T, 6, 6) and variances (T, 6) (without
+    the ridge)."""
+    rot, tra = slice(0, 3), slice(3, 6)
+    if covariance == "diag":
+        off, spr = bhattacharyya_diag_parts(mu_d, var_d + ridge, mu_g, var_g + ridge)  # (T, 6) each
+        terms = off + spr
+        per_rot = terms[:, rot].sum(axis=-1)
+        per_tra = terms[:, tra].sum(axis=-1)
+        per_step = per_rot + per_tra
+        per_off, per_spr = off.sum(axis=-1), spr.sum(axis=-1)
+    else:
+        eye = ridge * np.eye(6)
+        S_d, S_g = cov_d + eye, cov_g + eye
+        per_off, per_spr = bhattacharyya_gaussian_parts(mu_d, S_d, mu_g, S_g)
+        per_step = per_off + per_spr
+        per_rot = bhattacharyya_gaussian(mu_d[:, rot], S_d[:, rot, rot], mu_g[:, rot], S_g[:, rot, rot])
+        per_tra = bhattacharyya_gaussian(mu_d[:, tra], S_d[:, tra, tra], mu_g[:, tra], S_g[:, tra, tra])
+    return per_step, per_rot, per_tra, per_off, per_spr
+
+
 def evaluate(
     generated: Sequence[Trajectory],
     demos: Sequence[Trajectory],
@@ -518,41 +582,12 @@ def evaluate(
     """
     generated = list(generated)
     demos = list(demos)
-    if not generated:
-        raise InputError("no generated trajectories to evaluate", hint="pass at least one")
-    if not demos:
-        raise InputError("no demonstrations to compare with", hint="pass at least one demonstration")
-    if covariance not in COVARIANCES:
-        raise InputError(f"unknown covariance {covariance!r}", hint="use 'diag' or 'full'")
-    try:
-        ridge = float(ridge)
-    except (TypeError, ValueError):
-        raise InputError(f"ridge must be a number, got {ridge!r}") from None
-    if not (math.isfinite(ridge) and ridge >= 0):
-        raise InputError(f"ridge must be finite and >= 0, got {ridge}", hint="use e.g. 1e-6")
-    if sample_size not in SAMPLE_SIZE_POLICIES:
-        raise ValueError(f"sample_size must be one of {SAMPLE_SIZE_POLICIES}, got {sample_size!r}")
+    ridge = _check_arguments(generated, demos, covariance, ridge, sample_size)
     sizes = check_sample_sizes(len(generated), len(demos), covariance, ridge)
     if sizes.refusal is not None and sample_size == "refuse":
         raise InputError(sizes.refusal, hint="pass more demonstrations (e.g. a folder of takes)", param="covariance")
 
-    longest = max(len(d) for d in demos)
-    if length is None:
-        T = _check_length(max(_default_length(demos), 2))
-    else:
-        T = _check_length(length)
-        if T > MAX_UPSAMPLING * longest:
-            raise InputError(
-                f"length {T} is more than {MAX_UPSAMPLING}x the longest demonstration ({longest} samples)",
-                hint=f"use a length of at most {MAX_UPSAMPLING * longest}, or omit it for the median "
-                f"demonstration length ({_default_length(demos)})",
-            )
-        if T > longest:
-            warn(
-                f"length {T} exceeds the longest demonstration ({longest} samples); "
-                "the demonstrations are upsampled by interpolation"
-            )
-
+    T = _steps(demos, length)
     q_d, p_d = resample_all(demos, T)  # (M_D, T, 4), (M_D, T, 3)
     q_g, p_g = resample_all(generated, T)  # (M_G, T, 4), (M_G, T, 3)
     ref = mean_rotation(q_d)  # (T, 4)
@@ -563,7 +598,6 @@ def evaluate(
     mu_g, cov_g = _moments(x_g)
     var_d = np.diagonal(cov_d, axis1=-2, axis2=-1)  # (T, 6), without the ridge
     var_g = np.diagonal(cov_g, axis1=-2, axis2=-1)
-    rot, tra = slice(0, 3), slice(3, 6)
     notes = ([sizes.refusal] if sizes.refusal else []) + list(sizes.warnings)
     for var, n, what in ((var_d, len(demos), "demonstrations"), (var_g, len(generated), "generated trajectories")):
         spread = _spread_warning(var, ridge, what) if n >= 2 else None
@@ -573,20 +607,8 @@ def evaluate(
         for note in notes:
             warn(note, param="covariance")
 
-    if covariance == "diag":
-        off, spr = bhattacharyya_diag_parts(mu_d, var_d + ridge, mu_g, var_g + ridge)  # (T, 6) each
-        terms = off + spr
-        per_rot = terms[:, rot].sum(axis=-1)
-        per_tra = terms[:, tra].sum(axis=-1)
-        per_step = per_rot + per_tra
-        per_off, per_spr = off.sum(axis=-1), spr.sum(axis=-1)
-    else:
-        eye = ridge * np.eye(6)
-        S_d, S_g = cov_d + eye, cov_g + eye
-        per_off, per_spr = bhattacharyya_gaussian_parts(mu_d, S_d, mu_g, S_g)
-        per_step = per_off + per_spr
-        per_rot = bhattacharyya_gaussian(mu_d[:, rot], S_d[:, rot, rot], mu_g[:, rot], S_g[:, rot, rot])
-        per_tra = bhattacharyya_gaussian(mu_d[:, tra], S_d[:, tra, tra], mu_g[:, tra], S_g[:, tra, tra])
+    per_step, per_rot, per_tra, per_off, per_spr = _distances(covariance, ridge, mu_d, cov_d, var_d, mu_g, cov_g,
+                                                              var_g)
 
     return EvaluationResult(
         steps=T,

@@ -766,6 +766,17 @@ def _exact_hyperparameters(X, Y, kernel, idx, targets, specs, state, **fit_optio
         st["seconds"] += seconds
 
 
+def _stage_plan(hyper: str, hyper_points: int | None, n: int, M: int) -> tuple[int, list[int]]:
+    """How many points choose the hyperparameters (``top``: the exact GP's subset, or the last bound
+    stage's) and, with ``hyper="bound"``, the stages' subset sizes (:func:`_stage_sizes`)."""
+    if hyper_points is None:
+        top = max(HYPER_FACTOR * M, HYPER_MIN_POINTS) if hyper == "bound" else HYPER_MIN_POINTS
+    else:
+        top = n if int(hyper_points) <= 0 else int(hyper_points)
+    sizes = _stage_sizes(n, M, top) if hyper == "bound" else []
+    return top, sizes
+
+
 def _start_state(specs) -> list[dict]:
     """Each target's fit state before the stages, from its (spec, free) in ``specs``: the data-driven
     start, no records yet; ``settled`` (nothing to optimise) when every hyperparameter is fixed."""
@@ -1013,11 +1024,7 @@ def fit_sparse_gp(
     rngs = [np.random.default_rng(s) for s in seeds]
     specs = [free_spec(kernel, pre_sub, y, noise, fixed, bounds) for y, _ in targets]
     progress(f"sparse GP: {M} inducing poses ({inducing_method}) for {n} points")
-    if hyper_points is None:
-        top = max(HYPER_FACTOR * M, HYPER_MIN_POINTS) if hyper == "bound" else HYPER_MIN_POINTS
-    else:
-        top = n if int(hyper_points) <= 0 else int(hyper_points)
-    sizes = _stage_sizes(n, M, top) if hyper == "bound" else []
+    top, sizes = _stage_plan(hyper, hyper_points, n, M)
     state = _start_state(specs)
     if hyper == "exact" and any(not st["settled"] for st in state):
         _exact_hyperparameters(X, Y, kernel, perm[: min(n, top)], targets, specs, state, noise=noise, restarts=restarts,

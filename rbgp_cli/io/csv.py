@@ -493,15 +493,11 @@ def _groups(demo) -> dict:
     return dict(zip(uniques.tolist(), np.split(order, bounds)))
 
 
-def _trajectories(table: Table, cols: list, plan: Plan, data, options: ReadOptions, source: str) -> list:
-    """Raw trajectories from the parsed columns: demonstrations split by the ``demo`` column, times,
-    units, rotations and the facts in ``info``."""
-    if data is None or len(data["x"]) == 0:
-        raise InputError("the file has a header but no data rows", path=source, row=table.header_line,
-                         hint="the export stopped before the first sample: export or record it again")
+def _times(table: Table, cols: list, plan: Plan, data, options: ReadOptions, groups: dict, source: str):
+    """(t (n,) seconds, the facts of the time for ``info``): the time column (seconds + nanoseconds,
+    ISO dates, or its unit inferred), else ``--rate`` per frame or per row of each demonstration
+    (``groups``); an error, naming a likely time column, without either."""
     n = len(data["x"])
-    # groups of rows (demonstrations); one group is a slice, so its arrays are views, not copies
-    groups = _groups(data["demo"]) if "demo" in plan.roles else {None: slice(None)}
     # time
     if "t" in plan.roles:
         if data.get("t_datetime"):
@@ -539,6 +535,18 @@ def _trajectories(table: Table, cols: list, plan: Plan, data, options: ReadOptio
                 t[idx] = np.arange(len(t[idx])) / rate
             time_info = {"time_unit": "row / rate", "time_unit_source": "--rate"}
         time_info["rate_option_hz"] = rate
+    return t, time_info
+
+
+def _trajectories(table: Table, cols: list, plan: Plan, data, options: ReadOptions, source: str) -> list:
+    """Raw trajectories from the parsed columns: demonstrations split by the ``demo`` column, times,
+    units, rotations and the facts in ``info``."""
+    if data is None or len(data["x"]) == 0:
+        raise InputError("the file has a header but no data rows", path=source, row=table.header_line,
+                         hint="the export stopped before the first sample: export or record it again")
+    # groups of rows (demonstrations); one group is a slice, so its arrays are views, not copies
+    groups = _groups(data["demo"]) if "demo" in plan.roles else {None: slice(None)}
+    t, time_info = _times(table, cols, plan, data, options, groups, source)
     position = np.stack([data["x"], data["y"], data["z"]], axis=-1)
     length_unit, length_source = infer_length_unit(plan, table, options, position)
     if LENGTH_UNITS[length_unit] != 1.0:

@@ -197,8 +197,9 @@ def _renumber_one_based(cols: list) -> None:
         c.roles = [(r, k) for r, k in c.roles if r != "qn4"]
 
 
-def plan_columns(cols: list, options: ReadOptions, source: str) -> Plan:
-    _renumber_one_based(cols)
+def _mapped_roles(cols: list, options: ReadOptions, source: str) -> dict:
+    """{role: Column} of the columns ``--columns`` (``options.columns``) names; an error for an unknown
+    key or a column the file does not have."""
     by_name = {c.name: c for c in cols}
     by_lower = {c.name.strip().lower(): c for c in cols}
     roles: dict = {}
@@ -220,11 +221,13 @@ def plan_columns(cols: list, options: ReadOptions, source: str) -> Plan:
                 reason=f"no column {fname!r}", param="columns"
             )
         roles[KEY_ROLE.get(k, k)] = col
-    explicit = set(roles)
+    return roles
 
-    def used() -> set:
-        return {c.index for c in roles.values()}
 
+def _rotation_kind(cols: list, roles: dict, explicit: set, used, source: str) -> str:
+    """The rotation's columns family (:data:`ROTATION_KINDS`): the one the mapped roles ``explicit``
+    name, else the first complete one among the columns not ``used()``; an error naming what is
+    missing otherwise."""
     # rotation kind: explicit keys decide, else the first complete family
     kind = next((k for k in ROTATION_KINDS if explicit & set(KIND_ROLES[k])), None)
     if kind is None:
@@ -259,6 +262,12 @@ def plan_columns(cols: list, options: ReadOptions, source: str) -> Plan:
             hint="map other names with columns qx=NAME,...",
             reason="no pose columns", param="columns"
         )
+    return kind
+
+
+def _pose_roles(cols: list, roles: dict, kind: str, used, source: str) -> None:
+    """Add the best column for each rotation role of ``kind`` and for x, y, z to ``roles``; an error
+    where one is missing (NotPoseData for a table of rotations only)."""
     no_position = not any(r in roles or _candidates(cols, r, used()) for r in ("x", "y", "z"))
     for r in KIND_ROLES[kind] + ("x", "y", "z"):
         if r in roles:
@@ -271,27 +280,32 @@ def plan_columns(cols: list, options: ReadOptions, source: str) -> Plan:
                 raise NotPoseData(err.message, path=source, hint=err.hint, reason="no position columns", param=err.param)
             raise err
         roles[r] = c
-    if "t" not in roles:
-        cands = _candidates(cols, "t", used())
-        if len(cands) > 1:
-            pair = sec_nsec_pair(cands)
-            if pair is None:
-                raise InputError(
-                    "several columns could be the time: " + ", ".join(repr(x.name) for x in cands),
-                    path=source,
-                    hint="choose one with columns t=NAME", param="columns"
-                )
-            roles["t"], roles["t_nsec"] = pair
-        elif cands:
-            roles["t"] = cands[0]
-            partner = nsec_partner(cands[0], cols)
-            if partner is not None and partner.index not in used():
-                roles["t_nsec"] = partner
-    for r in ("frame", "demo"):
-        if r not in roles:
-            c = _best(cols, r, used(), source)
-            if c is not None:
-                roles[r] = c
+
+
+def _time_roles(cols: list, roles: dict, used, source: str) -> None:
+    """Add the time column (and its nanoseconds partner, or a seconds/nanoseconds pair) to ``roles``
+    unless it is mapped; an error where several columns could be the time."""
+    if "t" in roles:
+        return
+    cands = _candidates(cols, "t", used())
+    if len(cands) > 1:
+        pair = sec_nsec_pair(cands)
+        if pair is None:
+            raise InputError(
+                "several columns could be the time: " + ", ".join(repr(x.name) for x in cands),
+                path=source,
+                hint="choose one with columns t=NAME", param="columns"
+            )
+        roles["t"], roles["t_nsec"] = pair
+    elif cands:
+        roles["t"] = cands[0]
+        partner = nsec_partner(cands[0], cols)
+        if partner is not None and partner.index not in used():
+            roles["t_nsec"] = partner
+
+
+def _one_role_each(roles: dict, source: str) -> None:
+    """An error where one column has two roles."""
     # one column, one role
     seen: dict = {}
     for r, c in roles.items():
@@ -302,6 +316,28 @@ def plan_columns(cols: list, options: ReadOptions, source: str) -> Plan:
                 hint="fix the mapping with columns", param="columns"
             )
         seen[c.index] = r
+
+
+def plan_columns(cols: list, options: ReadOptions, source: str) -> Plan:
+    """Which of the classified ``cols`` (:func:`classify`) is which role: the columns ``--columns`` maps,
+    then the rotation family, position, time, frame and demo columns; an InputError (NotPoseData where
+    the table holds no poses) where that is not clear."""
+    _renumber_one_based(cols)
+    roles = _mapped_roles(cols, options, source)
+    explicit = set(roles)
+
+    def used() -> set:
+        return {c.index for c in roles.values()}
+
+    kind = _rotation_kind(cols, roles, explicit, used, source)
+    _pose_roles(cols, roles, kind, used, source)
+    _time_roles(cols, roles, used, source)
+    for r in ("frame", "demo"):
+        if r not in roles:
+            c = _best(cols, r, used(), source)
+            if c is not None:
+                roles[r] = c
+    _one_role_each(roles, source)
     return Plan(roles=roles, rotation=kind, columns=cols)
 
 

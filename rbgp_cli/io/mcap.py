@@ -513,12 +513,15 @@ def _trajectory(scan: _Scan, topic: _Topic, key, time_source: str, source: str) 
 # public API
 
 
-def _read(stream, source: str, options: ReadOptions, *, select_all: bool) -> list[Trajectory]:
-    from mcap.exceptions import EndOfFile, InvalidMagic
+def _scan_stream(stream, source: str, options: ReadOptions, *, select_all: bool):
+    """Read the messages of the wanted topics from ``stream`` (seekable: the summary's topics, then one
+    topic or all pose topics; after damage or without a summary: a linear scan of every record).
+    Returns (scan, topics, chosen, seekable, start): the :class:`_Scan`, {topic: :class:`_Topic`},
+    the topic chosen from the summary (or None), and where the stream starts; None when ``select_all``
+    finds no pose topic in the summary."""
+    from mcap.exceptions import InvalidMagic
     from mcap.reader import NonSeekingReader, SeekingReader
 
-    options = options or ReadOptions()
-    time_source = _time_source(options)
     factories = _decoder_factories()
     corrupt = _corrupt_errors()
     chosen: _Topic | None = None
@@ -544,7 +547,7 @@ def _read(stream, source: str, options: ReadOptions, *, select_all: bool) -> lis
             if select_all:
                 wanted = {t.topic for t in topics.values() if t.kind is not None}
                 if not wanted:
-                    return []
+                    return None
             else:
                 chosen = _choose_topic(topics, options, source)
                 wanted = {chosen.topic}
@@ -575,35 +578,53 @@ def _read(stream, source: str, options: ReadOptions, *, select_all: bool) -> lis
                 topics[ch.topic] = _Topic(
                     ch.topic, sc.name if sc else "", sc.encoding if sc else "", ch.message_encoding, 0
                 )
-    if scan.error is not None and scan.messages == 0:
-        exc = scan.error
-        if isinstance(exc, InvalidMagic):
-            raise InputError("not an MCAP file (bad magic bytes)", path=source) from None
-        if not topics and isinstance(exc, (EndOfFile, struct.error)):  # a short read: cut before any record
-            empty = False
-            if seekable:
-                stream.seek(0, 2)
-                empty = stream.tell() <= start
-            raise InputError(
-                "the file is empty"
-                if empty
-                else f"the MCAP file is truncated or corrupt: it ends before its first message ({type(exc).__name__})",
-                path=source,
-                hint="record or copy the file again",
-            ) from None
-        if chosen is None and not any(t.kind for t in topics.values()):
-            raise InputError(
-                f"no pose topic found before the damage (the file is truncated or corrupt: "
-                f"{type(exc).__name__}: {exc}); topics are: {_listing(topics.values()) or 'none'}",
-                path=source,
-                hint="run `mcap recover` on it, or record it again",
-            ) from None
-        raise InputError(
-            f"the MCAP file is truncated or corrupt ({type(exc).__name__}: {exc}) and no pose message "
-            "could be read before the damage",
+    return scan, topics, chosen, seekable, start
+
+
+def _unreadable(scan: _Scan, topics: dict, chosen, stream, seekable: bool, start: int, source: str) -> InputError:
+    """The error for a file whose damage (``scan.error``) came before any message: not an MCAP file,
+    empty, cut before its first message, or no pose topic before the damage."""
+    from mcap.exceptions import EndOfFile, InvalidMagic
+
+    exc = scan.error
+    if isinstance(exc, InvalidMagic):
+        return InputError("not an MCAP file (bad magic bytes)", path=source)
+    if not topics and isinstance(exc, (EndOfFile, struct.error)):  # a short read: cut before any record
+        empty = False
+        if seekable:
+            stream.seek(0, 2)
+            empty = stream.tell() <= start
+        return InputError(
+            "the file is empty"
+            if empty
+            else f"the MCAP file is truncated or corrupt: it ends before its first message ({type(exc).__name__})",
+            path=source,
+            hint="record or copy the file again",
+        )
+    if chosen is None and not any(t.kind for t in topics.values()):
+        return InputError(
+            f"no pose topic found before the damage (the file is truncated or corrupt: "
+            f"{type(exc).__name__}: {exc}); topics are: {_listing(topics.values()) or 'none'}",
             path=source,
             hint="run `mcap recover` on it, or record it again",
-        ) from None
+        )
+    return InputError(
+        f"the MCAP file is truncated or corrupt ({type(exc).__name__}: {exc}) and no pose message "
+        "could be read before the damage",
+        path=source,
+        hint="run `mcap recover` on it, or record it again",
+    )
+
+
+def _read(stream, source: str, options: ReadOptions, *, select_all: bool) -> list[Trajectory]:
+    options = options or ReadOptions()
+    time_source = _time_source(options)
+    found = _scan_stream(stream, source, options, select_all=select_all)
+    if found is None:
+        return []
+    scan, topics, chosen, seekable, start = found
+    if scan.error is not None and scan.messages == 0:
+        raise _unreadable(scan, topics, chosen, stream, seekable, start, source) from None
     if select_all:
         if not any(t.kind for t in topics.values()):
             _choose_topic(topics, replace(options, topic=None), source)  # says so: no pose topic found

@@ -172,30 +172,20 @@ class _Layout:
         return {k: sorted(v) for k, v in sorted(self.others.items())}
 
 
-@reader_guard("a Motive CSV export", _HINT)
-def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
-    """Read the selected rigid bodies of a Motive CSV export.
+def _no_rigid_bodies(layout: _Layout, path) -> NotPoseData:
+    """The error for an export without rigid bodies, naming the assets it has instead."""
+    others = layout.other_assets()
+    listed = "; ".join(f"{k}: {', '.join(v)}" for k, v in others.items()) or "none"
+    return NotPoseData(f"no Rigid Body columns (only rigid bodies are poses); other assets: {listed}",
+                       path=path, row=layout.axis_line,
+                       hint="enable Rigid Bodies in Motive's CSV export options",
+                       reason="no rigid bodies, only " + (", ".join(k.lower() + "s" for k in others) or "markers"))
 
-    Returns one raw :class:`Trajectory` per selected body (``options.body``: None -> the only rigid
-    body, ``"all"`` -> every one): t in seconds, quaternions x, y, z, w (body -> world), positions in
-    metres, lost frames as NaN rows. Raises InputError naming ``length_unit`` / ``euler_order``
-    when the header does not state the length unit / the Euler convention.
-    """
-    options = options or ReadOptions()
-    layout = _Layout(path, read_text(path))
-    if not layout.bodies:
-        others = layout.other_assets()
-        listed = "; ".join(f"{k}: {', '.join(v)}" for k, v in others.items()) or "none"
-        raise NotPoseData(f"no Rigid Body columns (only rigid bodies are poses); other assets: {listed}",
-                          path=path, row=layout.axis_line,
-                          hint="enable Rigid Bodies in Motive's CSV export options",
-                          reason="no rigid bodies, only " + (", ".join(k.lower() + "s" for k in others) or "markers"))
-    chosen = select_bodies(list(layout.bodies), options.body, path=path)
-    kinds = {name: layout.rotation_kind(name) for name in chosen}
-    seq, seq_source = layout.euler_order(options)
-    unit = layout.length_unit(options)
-    degrees = True if options.degrees is None else bool(options.degrees)
 
+def _numbers(layout: _Layout, chosen: list, path):
+    """The numbers of the columns the chosen bodies, the time and the frame need: returns (col, cols,
+    time_col, frame_col), ``col`` {column index: values (N,)}, ``cols`` {body: {"Position": [3
+    indices], "Rotation": [indices X, Y, Z(, W)]}}, the Time and Frame column indices or None."""
     rows = list(csv.reader(layout.lines[i] for i in layout.data))
     line_no = [i + 1 for i in layout.data]
     labels = {j: f"{layout.name[j]} {layout.field[j]} {layout.axis[j]}".strip() for j in range(len(layout.axis))}
@@ -211,7 +201,12 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
                     | {j for j in (time_col, frame_col) if j is not None})
     table = numeric_cells(rows, wanted, line_no, path=path, labels=labels, hint=_HINT)
     col = {j: table[:, k] for k, j in enumerate(wanted)}
+    return col, cols, time_col, frame_col
 
+
+def _check_header_states(unit, seq, seq_source, kinds: dict, col: dict, cols: dict, path) -> None:
+    """An error naming the options to give where the header states neither the length unit nor (for
+    Euler rotations) the Euler convention."""
     missing = []
     if unit is None:
         peak = max((np.nanmax(np.abs(col[j])) for c in cols.values() for j in c["Position"]
@@ -226,8 +221,12 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
                 else f"does not state {missing[0][0]}")
         raise InputError(f"the header {what}", path=path, row=1,
                          hint="give " + " and ".join(h for _, h in missing), param=tuple(h.split()[0] for _, h in missing))
-    scale = metres_per(unit, path=path, hint="use length_unit m|cm|mm")
 
+
+def _times(layout: _Layout, col: dict, time_col, frame_col, options: ReadOptions, path):
+    """(t (N,) seconds, where they come from, the rate in Hz or None): the Time column, else the
+    frames over the header's (or ``--rate``'s) frame rate; a warning where ``--rate`` disagrees with the
+    header."""
     rate = layout.rate()
     if time_col is not None:
         t, time_source = col[time_col], layout.axis[time_col]
@@ -241,6 +240,33 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
         t, time_source = col[frame_col] / rate, "Frame / frame rate"
     if options.rate and layout.rate() and abs(options.rate - layout.rate()) > 1e-9 * layout.rate():
         warn(f"rate {options.rate:g} is ignored: the header states {layout.rate():g} Hz", path=path, param="rate")
+    return t, time_source, rate
+
+
+@reader_guard("a Motive CSV export", _HINT)
+def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
+    """Read the selected rigid bodies of a Motive CSV export.
+
+    Returns one raw :class:`Trajectory` per selected body (``options.body``: None -> the only rigid
+    body, ``"all"`` -> every one): t in seconds, quaternions x, y, z, w (body -> world), positions in
+    metres, lost frames as NaN rows. Raises InputError naming ``length_unit`` / ``euler_order``
+    when the header does not state the length unit / the Euler convention.
+    """
+    options = options or ReadOptions()
+    layout = _Layout(path, read_text(path))
+    if not layout.bodies:
+        raise _no_rigid_bodies(layout, path)
+    chosen = select_bodies(list(layout.bodies), options.body, path=path)
+    kinds = {name: layout.rotation_kind(name) for name in chosen}
+    seq, seq_source = layout.euler_order(options)
+    unit = layout.length_unit(options)
+    degrees = True if options.degrees is None else bool(options.degrees)
+
+    col, cols, time_col, frame_col = _numbers(layout, chosen, path)
+    _check_header_states(unit, seq, seq_source, kinds, col, cols, path)
+    scale = metres_per(unit, path=path, hint="use length_unit m|cm|mm")
+
+    t, time_source, rate = _times(layout, col, time_col, frame_col, options, path)
 
     from scipy.spatial.transform import Rotation as R
 

@@ -288,25 +288,10 @@ def _time_axis(layout: _Layout, values, options: ReadOptions, n: int):
     return np.arange(n) / rate, "row / FREQUENCY", rate
 
 
-@reader_guard("a QTM 6D TSV file", _HINT)
-def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
-    """Read the selected rigid bodies of a QTM 6DOF TSV export.
-
-    Returns one raw :class:`Trajectory` per selected body (``options.body``: None -> the only body,
-    ``"all"`` -> every body): t in seconds, quaternions x, y, z, w (body -> world), positions in metres
-    (the file's mm unless ``options.length_unit`` says otherwise), lost frames as NaN rows.
-    """
-    options = options or ReadOptions()
-    layout = _Layout(path, read_text(path))
-    chosen = select_bodies(list(layout.blocks), options.body, path=path)
-    scale = metres_per(options.length_unit or "mm", path=path, hint="use length_unit m|cm|mm")
-    degrees = True if options.degrees is None else bool(options.degrees)
-    from scipy.spatial.transform import Rotation as R  # the io edge may use scipy
-
-    rows = [layout.lines[i].split("\t") for i in layout.data]
-    line_no = [i + 1 for i in layout.data]
-    labels = {j: c for j, c in enumerate(layout.columns)}
-    meta_cols = {k: layout.meta[k] for k in ("Frame", "Time") if k in layout.meta}
+def _column_plans(layout: _Layout, chosen: list, meta_cols: dict, options: ReadOptions, path):
+    """Each chosen body's rotation plan (:meth:`_Layout.rotation_plan`) and the columns to read (the
+    Frame and Time columns ``meta_cols``, positions, the Rot[] matrix or else the angles, residuals);
+    an error for a body without positions or without a rotation it can read."""
     plans, wanted = {}, list(meta_cols.values())
     for name in chosen:
         fields = layout.blocks[name]
@@ -327,6 +312,67 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
         wanted += [fields[f] for f in ("X", "Y", "Z")] + (rot or angles)  # angles: only when no Rot[]
         if "Residual" in fields:
             wanted.append(fields["Residual"])
+    return plans, wanted
+
+
+def _body_quaternions(name: str, plan, fields: dict, col: dict, pos, lost, rows, line_no, labels, degrees, path):
+    """One body's quaternions (N, 4) and where they come from: its Rot[] matrices (the Euler angles
+    for rows whose matrix is not a rotation, or those rows lost, with a warning), else its angles.
+    Marks the rows without a rotation in ``lost`` (N,) (changed in place)."""
+    from scipy.spatial.transform import Rotation as R  # the io edge may use scipy
+
+    rot, angles, seq, seq_source, angle_names = plan
+    if rot is not None:
+        m = np.stack([col[j] for j in rot], axis=1).reshape(-1, 3, 3).transpose(0, 2, 1)  # column-major
+        empty, bad = _check_matrices(m)
+        lost |= empty
+        bad &= ~lost
+        quat = quat_from_valid(~lost & ~bad, R.from_matrix, m)
+        source = "Rot[] matrix (column-major)"
+        if bad.any():
+            if angles is not None and seq is not None:
+                idx = np.flatnonzero(bad)
+                eul = numeric_cells([rows[i] for i in idx], angles, [line_no[i] for i in idx], path=path,
+                                    labels=labels, hint=_HINT)
+                use = np.all(np.isfinite(eul), axis=1)
+                lost[idx[~use]] = True
+                quat[idx[use]] = R.from_euler(seq, eul[use], degrees=degrees).as_quat()
+                warn(f"body {name!r}: {int(bad.sum())} Rot[] matrices are not rotations; "
+                     f"used the Euler angles ({seq}) for those rows", path=path)
+            else:
+                lost |= bad
+                warn(f"body {name!r}: {int(bad.sum())} Rot[] matrices are not rotations; kept as lost frames",
+                     path=path)
+    else:
+        eul = np.stack([col[j] for j in angles], axis=1)
+        finite = np.all(np.isfinite(eul), axis=1)
+        lost |= ~finite
+        if "Residual" not in fields:
+            lost |= finite & np.all(eul == 0.0, axis=1) & np.all(pos == 0.0, axis=1)
+        quat = quat_from_valid(~lost, lambda a: R.from_euler(seq, a, degrees=degrees), eul)
+        source = f"euler {seq} {'deg' if degrees else 'rad'} ({seq_source})"
+    return quat, source
+
+
+@reader_guard("a QTM 6D TSV file", _HINT)
+def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
+    """Read the selected rigid bodies of a QTM 6DOF TSV export.
+
+    Returns one raw :class:`Trajectory` per selected body (``options.body``: None -> the only body,
+    ``"all"`` -> every body): t in seconds, quaternions x, y, z, w (body -> world), positions in metres
+    (the file's mm unless ``options.length_unit`` says otherwise), lost frames as NaN rows.
+    """
+    options = options or ReadOptions()
+    layout = _Layout(path, read_text(path))
+    chosen = select_bodies(list(layout.blocks), options.body, path=path)
+    scale = metres_per(options.length_unit or "mm", path=path, hint="use length_unit m|cm|mm")
+    degrees = True if options.degrees is None else bool(options.degrees)
+
+    rows = [layout.lines[i].split("\t") for i in layout.data]
+    line_no = [i + 1 for i in layout.data]
+    labels = {j: c for j, c in enumerate(layout.columns)}
+    meta_cols = {k: layout.meta[k] for k in ("Frame", "Time") if k in layout.meta}
+    plans, wanted = _column_plans(layout, chosen, meta_cols, options, path)
     wanted = sorted(set(wanted))
     table = numeric_cells(rows, wanted, line_no, path=path, labels=labels, hint=_HINT)
     col = {j: table[:, k] for k, j in enumerate(wanted)}
@@ -340,35 +386,8 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
         lost = ~np.all(np.isfinite(pos), axis=1)
         if "Residual" in fields:
             lost |= col[fields["Residual"]] < 0  # QTM writes -1 for an untracked body
-        if rot is not None:
-            m = np.stack([col[j] for j in rot], axis=1).reshape(-1, 3, 3).transpose(0, 2, 1)  # column-major
-            empty, bad = _check_matrices(m)
-            lost |= empty
-            bad &= ~lost
-            quat = quat_from_valid(~lost & ~bad, R.from_matrix, m)
-            source = "Rot[] matrix (column-major)"
-            if bad.any():
-                if angles is not None and seq is not None:
-                    idx = np.flatnonzero(bad)
-                    eul = numeric_cells([rows[i] for i in idx], angles, [line_no[i] for i in idx], path=path,
-                                        labels=labels, hint=_HINT)
-                    use = np.all(np.isfinite(eul), axis=1)
-                    lost[idx[~use]] = True
-                    quat[idx[use]] = R.from_euler(seq, eul[use], degrees=degrees).as_quat()
-                    warn(f"body {name!r}: {int(bad.sum())} Rot[] matrices are not rotations; "
-                         f"used the Euler angles ({seq}) for those rows", path=path)
-                else:
-                    lost |= bad
-                    warn(f"body {name!r}: {int(bad.sum())} Rot[] matrices are not rotations; kept as lost frames",
-                         path=path)
-        else:
-            eul = np.stack([col[j] for j in angles], axis=1)
-            finite = np.all(np.isfinite(eul), axis=1)
-            lost |= ~finite
-            if "Residual" not in fields:
-                lost |= finite & np.all(eul == 0.0, axis=1) & np.all(pos == 0.0, axis=1)
-            quat = quat_from_valid(~lost, lambda a: R.from_euler(seq, a, degrees=degrees), eul)
-            source = f"euler {seq} {'deg' if degrees else 'rad'} ({seq_source})"
+        quat, source = _body_quaternions(name, plans[name], fields, col, pos, lost, rows, line_no, labels, degrees,
+                                         path)
         pos[lost] = np.nan
         quat[lost] = np.nan
         info = {

@@ -158,23 +158,9 @@ def _float(text: str, delimiter: str) -> float | None:
     return value if value > 0 else None
 
 
-@reader_guard("a Vicon CSV export", _HINT)
-def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
-    """Read the selected segments of a Vicon CSV export.
-
-    Returns one raw :class:`Trajectory` per selected segment (``options.body`` matches
-    ``Subject:Segment`` or the segment name alone; None -> the only one, ``"all"`` -> every one):
-    t in seconds, quaternions x, y, z, w (segment -> world), positions in metres, lost frames as NaN.
-    """
-    options = options or ReadOptions()
-    layout = _Layout(path, read_text(path))
-    section = layout.pose_section()
-    poses = section.poses
-    aliases = {n.split(":", 1)[1]: n for n in poses if ":" in n}
-    if len(set(aliases.values())) != len(aliases) or len(aliases) != len({a.lower() for a in aliases}):
-        aliases = {}
-    chosen = select_bodies(list(poses), options.body, path=path, aliases=aliases)
-
+def _rotation(options: ReadOptions, path) -> str:
+    """How RX, RY, RZ are read: ``helical`` (a rotation vector, the default) or ``euler`` (which then
+    needs ``--euler-order``)."""
     rotation = (options.rotation or "helical").lower()
     if rotation not in ("helical", "euler"):
         raise InputError(f"rotation {options.rotation!r} is unknown for Vicon RX,RY,RZ", path=path,
@@ -182,7 +168,12 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
     if rotation == "euler" and not options.euler_order:
         raise InputError("rotation euler needs the Euler convention of RX,RY,RZ", path=path,
                          hint="give it with euler_order (e.g. XYZ intrinsic, xyz extrinsic)", param=("rotation", "euler_order"))
-    first = poses[chosen[0]]
+    return rotation
+
+
+def _units(section, first: dict, options: ReadOptions, path):
+    """(length unit, metres per unit, degrees?) of the first chosen segment's columns ``first``: the
+    options' or the section's units line; an error where neither says."""
     units = section.units or []
     if options.length_unit:
         length_unit = options.length_unit
@@ -200,13 +191,41 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
             raise InputError(f"unknown angle unit {stated!r} for RX", path=path, row=section.column_row + 2,
                              hint="say whether angles are degrees with degrees=True / degrees=False", param="degrees")
         degrees = _ANGLE_UNITS.get(stated, True)
+    return length_unit, scale, degrees
 
+
+def _rate(section, options: ReadOptions, path) -> float:
+    """The section's rate in Hz (or ``--rate`` where the file gives none; a warning where they disagree)."""
     rate = section.rate or options.rate
     if section.rate is None and options.rate is None:
         raise InputError(f"the rate line of section {section.title!r} is not a number", path=path,
                          row=section.column_row - 1, hint="give the samples per second with rate HZ", param="rate")
     if options.rate and section.rate and abs(options.rate - section.rate) > 1e-9 * section.rate:
         warn(f"rate {options.rate:g} is ignored: the file states {section.rate:g} Hz", path=path, param="rate")
+    return rate
+
+
+@reader_guard("a Vicon CSV export", _HINT)
+def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
+    """Read the selected segments of a Vicon CSV export.
+
+    Returns one raw :class:`Trajectory` per selected segment (``options.body`` matches
+    ``Subject:Segment`` or the segment name alone; None -> the only one, ``"all"`` -> every one):
+    t in seconds, quaternions x, y, z, w (segment -> world), positions in metres, lost frames as NaN.
+    """
+    options = options or ReadOptions()
+    layout = _Layout(path, read_text(path))
+    section = layout.pose_section()
+    poses = section.poses
+    aliases = {n.split(":", 1)[1]: n for n in poses if ":" in n}
+    if len(set(aliases.values())) != len(aliases) or len(aliases) != len({a.lower() for a in aliases}):
+        aliases = {}
+    chosen = select_bodies(list(poses), options.body, path=path, aliases=aliases)
+
+    rotation = _rotation(options, path)
+    first = poses[chosen[0]]
+    length_unit, scale, degrees = _units(section, first, options, path)
+    rate = _rate(section, options, path)
 
     rows = [layout.lines[i].split(layout.delimiter) for i in section.data]
     line_no = [i + 1 for i in section.data]

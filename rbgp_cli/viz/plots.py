@@ -174,6 +174,68 @@ class _Set:
         return self.x.shape[0]
 
 
+def _plot_sets(result, generated, demos, compare, gen_label, cmp_label):
+    """The sets drawn (:class:`_Set`: demonstrations first, then the generated set, split into mean
+    rollouts and Monte Carlo samples when it mixes both, and ``compare``) and the evaluation of
+    ``compare`` against the same demonstrations (None without it)."""
+    from rbgp_cli.evaluation import evaluate
+
+    sets = [_Set("demonstrations", "demonstrations", _features(demos, result), result.demo_mean, result.demo_std,
+                 _DEMO, "-")]
+    x_g = _features(generated, result)  # (M_G, T, 6)
+    is_sample = np.array([is_monte_carlo_sample(t) for t in generated])
+    if is_sample.any() and not is_sample.all():
+        n_s = int(is_sample.sum())
+        sets.append(_Set("generated", f"{gen_label}: mean rollouts", x_g[~is_sample], *_band(x_g[~is_sample]),
+                         _GEN, "--"))
+        sets.append(_Set("samples", f"Monte Carlo samples ({n_s})", x_g[is_sample],
+                         *_band(x_g[is_sample]), _SAMPLES, ":", lines=False))
+    else:
+        sets.append(_Set("generated", gen_label, x_g, result.gen_mean, result.gen_std, _GEN, "--"))
+    res_c = None
+    if compare:
+        res_c = evaluate(compare, demos, length=int(result.steps), covariance=result.covariance, ridge=result.ridge,
+                         sample_size="record")  # the main evaluation already said what it had to
+        sets.append(_Set("compare", cmp_label, _features(compare, result), res_c.gen_mean, res_c.gen_std, _CMP, "-."))
+    return sets, res_c
+
+
+def _distance_row(fig, grid, s, result, res_c, gen_label, cmp_label) -> None:
+    """The bottom row: the per-step distance, its rotation and its translation part, one panel each,
+    ``result`` solid and ``res_c`` (the compare set's evaluation, or None) dash-dotted."""
+    parts = (("per_step", "mean", f"Bhattacharyya distance per step ({result.covariance}, "
+                                   f"{result.n_demos} demos)"),
+             ("per_step_rotation", "rotation", "its rotation part"),
+             ("per_step_translation", "translation", "its translation part"))
+    for k, (series, mean, heading) in enumerate(parts):
+        ax = fig.add_subplot(grid[3, 2 * k:2 * k + 2])
+        curves = [(getattr(result, series), getattr(result, mean), gen_label, "-", "black")]
+        if res_c is not None:
+            curves.append((getattr(res_c, series), getattr(res_c, mean), cmp_label, "-.", _CMP))
+        _distance_panel(ax, s, curves)
+        ax.set_title(heading, fontsize=10)
+        ax.set_xlabel(TIME_LABEL)
+        if k == 0:
+            ax.set_ylabel("$D_B$ [–]")
+
+
+def _figure_title(title, result, res_c, gen_label, cmp_label, refusal) -> str:
+    """The figure's title: ``title``, or the mean distances (without a score: the set against the
+    demonstrations); with the ``refusal`` of a score, why there is none."""
+    scored = refusal is None
+    if title is None:
+        if scored:
+            title = f"{gen_label}: mean Bhattacharyya distance {result.mean:.2f}"
+            if res_c is not None:
+                title += f"   {cmp_label}: {res_c.mean:.2f}"
+        else:
+            title = f"{gen_label} against {result.n_demos} demonstration{'s' if result.n_demos != 1 else ''}"
+    if not scored:
+        why = refusal.split(":")[0] + (";" + refusal.rsplit(";", 1)[1] if ";" in refusal else "")
+        title += "\n" + textwrap.fill(f"no score: {why}", 140)
+    return title
+
+
 def plot_evaluation(path, result, generated: Sequence[Trajectory], demos: Sequence[Trajectory],
                     compare: Sequence[Trajectory] | None = None, labels=("generated", "compare"),
                     title: str | None = None):
@@ -222,7 +284,7 @@ def plot_evaluation(path, result, generated: Sequence[Trajectory], demos: Sequen
         ``band:<set>`` and set means lines with the gid ``mean:<set>``, individual lines
         ``line:<set>``, where ``<set>`` is ``demonstrations``, ``generated``, ``samples`` or ``compare``.
     """
-    from rbgp_cli.evaluation import check_sample_sizes, evaluate
+    from rbgp_cli.evaluation import check_sample_sizes
 
     Figure, FigureCanvasAgg = _matplotlib()
     generated, demos = list(generated), list(demos)
@@ -235,23 +297,7 @@ def plot_evaluation(path, result, generated: Sequence[Trajectory], demos: Sequen
     refusal = check_sample_sizes(result.n_generated, result.n_demos, result.covariance, result.ridge).refusal
 
     s = np.asarray(result.s)
-    sets = [_Set("demonstrations", "demonstrations", _features(demos, result), result.demo_mean, result.demo_std,
-                 _DEMO, "-")]
-    x_g = _features(generated, result)  # (M_G, T, 6)
-    is_sample = np.array([is_monte_carlo_sample(t) for t in generated])
-    if is_sample.any() and not is_sample.all():
-        n_s = int(is_sample.sum())
-        sets.append(_Set("generated", f"{gen_label}: mean rollouts", x_g[~is_sample], *_band(x_g[~is_sample]),
-                         _GEN, "--"))
-        sets.append(_Set("samples", f"Monte Carlo samples ({n_s})", x_g[is_sample],
-                         *_band(x_g[is_sample]), _SAMPLES, ":", lines=False))
-    else:
-        sets.append(_Set("generated", gen_label, x_g, result.gen_mean, result.gen_std, _GEN, "--"))
-    res_c = None
-    if compare:
-        res_c = evaluate(compare, demos, length=int(result.steps), covariance=result.covariance, ridge=result.ridge,
-                         sample_size="record")  # the main evaluation already said what it had to
-        sets.append(_Set("compare", cmp_label, _features(compare, result), res_c.gen_mean, res_c.gen_std, _CMP, "-."))
+    sets, res_c = _plot_sets(result, generated, demos, compare, gen_label, cmp_label)
     demo_set, others = sets[0], sets[1:]
 
     fig = Figure(figsize=FIGSIZE_IN, dpi=DPI, layout="constrained")
@@ -273,31 +319,9 @@ def plot_evaluation(path, result, generated: Sequence[Trajectory], demos: Sequen
                ncols=4 if len(order) <= 4 else 3, fontsize=9, frameon=False)
 
     if scored:
-        parts = (("per_step", "mean", f"Bhattacharyya distance per step ({result.covariance}, "
-                                       f"{result.n_demos} demos)"),
-                 ("per_step_rotation", "rotation", "its rotation part"),
-                 ("per_step_translation", "translation", "its translation part"))
-        for k, (series, mean, heading) in enumerate(parts):
-            ax = fig.add_subplot(grid[3, 2 * k:2 * k + 2])
-            curves = [(getattr(result, series), getattr(result, mean), gen_label, "-", "black")]
-            if res_c is not None:
-                curves.append((getattr(res_c, series), getattr(res_c, mean), cmp_label, "-.", _CMP))
-            _distance_panel(ax, s, curves)
-            ax.set_title(heading, fontsize=10)
-            ax.set_xlabel(TIME_LABEL)
-            if k == 0:
-                ax.set_ylabel("$D_B$ [–]")
+        _distance_row(fig, grid, s, result, res_c, gen_label, cmp_label)
 
-    if title is None:
-        if scored:
-            title = f"{gen_label}: mean Bhattacharyya distance {result.mean:.2f}"
-            if res_c is not None:
-                title += f"   {cmp_label}: {res_c.mean:.2f}"
-        else:
-            title = f"{gen_label} against {result.n_demos} demonstration{'s' if result.n_demos != 1 else ''}"
-    if not scored:
-        why = refusal.split(":")[0] + (";" + refusal.rsplit(";", 1)[1] if ";" in refusal else "")
-        title += "\n" + textwrap.fill(f"no score: {why}", 140)
+    title = _figure_title(title, result, res_c, gen_label, cmp_label, refusal)
     fig.suptitle(title, fontsize=12)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=DPI)
