@@ -5,6 +5,18 @@ from __future__ import annotations
 __all__ = ["format_train_summary", "format_model_info", "write_per_step", "format_crossval"]
 
 
+def _noise_factors(cal: dict) -> str:
+    """What scaled an output's σn² in the posterior: the noise scale (``extra_factor``) and the
+    calibration by held-out demonstrations (its record has their ``errors``; a record made by the noise
+    scale alone has neither), e.g. ``σn² × 256 noise scale × 16 by held-out demonstrations``."""
+    parts = []
+    if cal.get("extra_factor", 1.0) != 1.0:
+        parts.append(f"× {cal['extra_factor']:g} noise scale")
+    if "errors" in cal or cal.get("factor", 1.0) != 1.0:
+        parts.append(f"× {cal['factor']:.3g} by held-out demonstrations")
+    return "σn² " + " ".join(parts or ["× 1"])
+
+
 def _fmt_values(values: dict) -> str:
     short = {"signal_std": "σf", "length_scale": "λ", "rho_rot": "ρ1", "noise_std": "σn", "time_scale": "λτ"}
     return "  ".join(f"{short.get(k, k)}={v:.4g}" for k, v in values.items())
@@ -51,7 +63,7 @@ def format_train_summary(s: dict) -> str:
             flags.append(f"{o['n_infeasible']}/{o['n_evaluations']} evaluations infeasible")
         if o.get("calibration"):
             cal = o["calibration"]
-            flags.append(f"σn² × {cal['factor']:.3g} by held-out demonstrations (fitted σn={cal['noise_std_fitted']:.4g})")
+            flags.append(f"{_noise_factors(cal)} (fitted σn={cal['noise_std_fitted']:.4g})")
         lines.append(f"  {o['output']:<7} NLML {o['nlml']:11.4g}  {_fmt_values(o['values'])}" + (f"  [{'; '.join(flags)}]" if flags else ""))
     explored = [o["subsample"] for o in s["outputs"] if o.get("subsample")]
     if explored:
@@ -105,8 +117,7 @@ def format_model_info(path: str, h: dict) -> str:
     for nm, f in zip(names, h["fits"]):
         cal = f.get("calibration")
         lines.append(f"  {nm:<7} NLML {f['nlml']:11.4g}  {_fmt_values(f['values'])}  jitter {f['jitter']:.2g}"
-                     + (f"  [σn² × {cal['factor']:.3g} by held-out demonstrations; fitted σn={cal['noise_std_fitted']:.4g}]"
-                        if cal else ""))
+                     + (f"  [{_noise_factors(cal)}; fitted σn={cal['noise_std_fitted']:.4g}]" if cal else ""))
     for inp in prov.get("inputs", []):
         lines.append(f"input: {inp.get('name')}  sha256 {inp.get('sha256', '-')[:16]}…")
     if prov.get("train_options"):

@@ -88,3 +88,16 @@ def test_train_noise_scale_multiplies_the_calibrated_noise_and_the_model_file_ke
     # below 1 is bad usage, named as the option
     res = runner.invoke(app, ["train", str(CSV_DIR), "-o", str(tmp_path / "c.rbgp"), "--noise-scale", "0.5"])
     assert res.exit_code == 2 and "--noise-scale" in res.stderr and not (tmp_path / "c.rbgp").exists()
+
+
+def test_the_summary_names_each_factor_on_the_noise():
+    """With the noise scale on by default, the summary said "σn² × 1 by held-out demonstrations" where
+    no calibration ran (one demonstration) and left the noise scale out where one did."""
+    from rbgp_cli.cli.report import _noise_factors
+
+    only_scale = {"factor": 1.0, "noise_std_fitted": 0.1, "extra_factor": 256.0}
+    assert _noise_factors(only_scale) == "σn² × 256 noise scale"
+    both = {"factor": 16.0, "noise_std_fitted": 0.1, "errors": [0.5, 0.4], "extra_factor": 256.0}
+    assert _noise_factors(both) == "σn² × 256 noise scale × 16 by held-out demonstrations"
+    calibrated_to_one = {"factor": 1.0, "noise_std_fitted": 0.1, "errors": [0.5]}
+    assert _noise_factors(calibrated_to_one) == "σn² × 1 by held-out demonstrations"
