@@ -244,13 +244,6 @@ def test_blas_threads_limits_small_problems_and_one_thread_limits_every_pool():
         assert {p["num_threads"] for p in threadpoolctl.threadpool_info() if p["user_api"] == "blas"} == {2}
 
 
-def _sleep(seconds):
-    import time
-
-    time.sleep(seconds)
-    return seconds
-
-
 @pytest.mark.slow
 def test_a_stopped_pool_leaves_no_manager_thread_for_the_exit_handlers():
     """Before: ``stop_pool`` returned with the pool's manager thread still closing its wake-up pipe, and
