@@ -183,8 +183,9 @@ _FIT = obj({
     "seconds": _ANY_NUMBER,
     "guarded": boolean,
     "subsample": _DICT_OR_NULL,
-    "calibration": nullable(obj({"factor": positive(1e-12, 1e12), "noise_std_fitted": _HYPER}, ("factor", "noise_std_fitted"),
-                                extra=True)),
+    "calibration": nullable(obj({"factor": positive(1e-12, 1e12), "noise_std_fitted": _HYPER,
+                                 "extra_factor": positive(1e-12, 1e12)},  # the noise scale, when not 1
+                                ("factor", "noise_std_fitted"), extra=True)),
     "kmm_jitter": num(0.0, 1.0, what="a number in [0, 1)"),
     "stages": list_of(anything),
 }, ("values", "nlml", "jitter"))  # fmt: skip
