@@ -165,21 +165,37 @@ class MotionModel:
             return None
         return path.start_deviation(quat, position)
 
-    def prior_mean(self, X, start_dev=None) -> np.ndarray | None:
+    def phase_step(self, durations=None, dt: float | None = None):
+        """The phase step h = dt / D over which a mean-path prior with a secant feed-forward
+        (``mean["feedforward"] == "secant"``, :func:`path_secant`) means its velocity: one step of
+        ``dt`` seconds (default the training step) of a motion lasting ``durations`` seconds (scalar
+        or (m,)), by default the demonstrations' median duration; None for any other model (the tangent)."""
+        if not self.mean or self.mean.get("feedforward") != "secant" or self.time_input != "phase":
+            return None
+        if durations is None:
+            durations = float(np.median(self.durations)) if len(self.durations) else 1.0
+        return float(self.dt if dt is None else dt) / np.asarray(durations, dtype=np.float64)
+
+    def prior_mean(self, X, start_dev=None, step=None) -> np.ndarray | None:
         """The prior mean of the outputs at inputs X (m, d), or None for a zero-mean GP; ``start_dev``
         (m, 6): each row's start deviation (:meth:`start_deviation`) for a start-conditioned prior
-        (None: the mean path's own start, δ(0) = μ(0))."""
+        (None: the mean path's own start, δ(0) = μ(0)); ``step`` (scalar or (m,)): the phase step of a
+        secant feed-forward (default :meth:`phase_step`; ignored by a model with the tangent)."""
         if not self.mean:
             return None
         phase = X[:, -1] if self.time_input == "phase" else None
+        if self.mean.get("feedforward") != "secant":
+            step = None
+        elif step is None:
+            step = self.phase_step()
         return prior_mean_outputs(self.representation, X[:, : self.pose_dims], self.mean, phase,
-                                  path=self.path_reference(), start_dev=start_dev)
+                                  path=self.path_reference(), start_dev=start_dev, step=step)
 
-    def predict_output(self, X, return_std: bool = False, manage_threads: bool = True, start_dev=None):
+    def predict_output(self, X, return_std: bool = False, manage_threads: bool = True, start_dev=None, step=None):
         """Outputs (velocities in the representation's coordinates, per second or per unit phase) at
-        inputs X (m, d): the GP's prediction plus the prior mean (``start_dev``: :meth:`prior_mean`)."""
+        inputs X (m, d): the GP's prediction plus the prior mean (``start_dev``, ``step``: :meth:`prior_mean`)."""
         out = self.gp.predict(X, return_std=return_std, manage_threads=manage_threads)
-        m = self.prior_mean(np.asarray(X, dtype=np.float64), start_dev)
+        m = self.prior_mean(np.asarray(X, dtype=np.float64), start_dev, step)
         if m is None:
             return out
         if return_std:
@@ -252,14 +268,20 @@ class PathReference:
         rot = log_quat(quat_multiply(quat, quat_conjugate(self.quat[:1])))
         return np.concatenate([rot, position - self.position[:1]], axis=1) - self.start_mean[:1]
 
-    def conditioned_at(self, s: np.ndarray, dev: np.ndarray):
+    def conditioned_at(self, s: np.ndarray, dev: np.ndarray, step=None):
         """The start-conditioned path at phases s (m,) for start deviations ``dev`` (m, 6)
         (:meth:`start_deviation`): with Δ(s) = μ(s) + B(s) dev (linear between grid phases; B (S, 6, 6)
         from :func:`~rbgp_cli.dynamics.variation.start_map`, or per-coordinate β(s) ⊙ dev), the
         pose (exp(Δ_rot) R̄(s), p̄(s) + Δ_pos) and the twist per unit phase ξ̄(s) + Δ'(s) (to first
-        order in Δ_rot); shapes (m, 4), (m, 3), (m, 6)."""
+        order in Δ_rot); shapes (m, 4), (m, 3), (m, 6). With ``step`` h (scalar or (m,), > 0) the twist
+        is the secant over one step instead (:func:`path_secant`)."""
         from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
 
+        if step is not None:
+            q, p, _ = self.conditioned_at(s, dev)
+            s_next = np.asarray(s, dtype=np.float64).reshape(-1) + np.asarray(step, dtype=np.float64)
+            q2, p2, _ = self.conditioned_at(np.broadcast_to(s_next, np.shape(q)[:1]), dev)
+            return q, p, path_secant(q, p, q2, p2, step)
         q, p, ff = self.at(s)
         x = self.s
         s = np.clip(np.asarray(s, dtype=np.float64).reshape(-1), x[0], x[-1])
@@ -278,10 +300,17 @@ class PathReference:
         q = quat_multiply(exp_quat(delta[:, :3]), q)
         return q, p + delta[:, 3:], ff + self._dmu[k] + slope
 
-    def at(self, s: np.ndarray):
-        """(quat (T, 4), position (T, 3), velocity (T, 6)) at phases s (T,), clamped to the path."""
+    def at(self, s: np.ndarray, step=None):
+        """(quat (T, 4), position (T, 3), velocity (T, 6)) at phases s (T,), clamped to the path; the
+        velocity is the mean path's twist per unit phase on the grid interval, or with ``step`` h
+        (scalar or (T,), > 0) the secant over [s, s + h] (:func:`path_secant`)."""
         from rbgp_cli.geometry.so3 import exp_quat, quat_make_continuous, quat_multiply
 
+        if step is not None:
+            q, p, _ = self.at(s)
+            s_next = np.asarray(s, dtype=np.float64).reshape(-1) + np.asarray(step, dtype=np.float64)
+            q2, p2, _ = self.at(np.broadcast_to(s_next, np.shape(q)[:1]))
+            return q, p, path_secant(q, p, q2, p2, step)
         x = self.s
         s = np.clip(np.asarray(s, dtype=np.float64).reshape(-1), x[0], x[-1])
         k = np.clip(np.searchsorted(x, s, side="right") - 1, 0, len(x) - 2)
@@ -294,8 +323,26 @@ class PathReference:
         return q, p, self.velocity[k]
 
 
+def path_secant(q, p, q_next, p_next, step) -> np.ndarray:
+    """The constant twist per unit phase that carries the pose (q, p) to (q_next, p_next) in one
+    phase step h, in the convention of a rollout's step (:func:`~rbgp_cli.geometry.se3.integrate_quat`,
+    q' = exp(ω h) ⊗ q, p' = p + v h):
+
+        ξ = (log(q_next ⊗ q*), p_next − p) / h,   shapes (m, 4), (m, 3), ..., h scalar or (m,) → (m, 6).
+
+    The tangent of the path at s is what a rollout's Euler step would need to be exact at a vanishing
+    step; over a step of finite h it cuts corners wherever the path curves (on the hand raises, 20
+    steps a motion, 1 cm and 0.05 rad of bias; docs/method.md §7). The secant lands on the path."""
+    from rbgp_cli.geometry.so3 import log_quat, quat_conjugate, quat_multiply
+
+    h = np.asarray(step, dtype=np.float64)
+    h = h.reshape(-1, 1) if h.ndim else h
+    return np.concatenate([log_quat(quat_multiply(q_next, quat_conjugate(q))), p_next - p], axis=1) / h
+
+
 def prior_mean_outputs(representation: Representation, state: np.ndarray, mean: dict, phase=None,
-                       path: PathReference | None = None, start_dev: np.ndarray | None = None) -> np.ndarray:
+                       path: PathReference | None = None, start_dev: np.ndarray | None = None,
+                       step=None) -> np.ndarray:
     """The prior mean as the representation's outputs at ``state`` (m, d).
 
     ``goal``: ξ_m = a·(log(R_goal Rᵀ), p_goal − p), a pull toward the demonstrations' mean final
@@ -307,6 +354,9 @@ def prior_mean_outputs(representation: Representation, state: np.ndarray, mean: 
     (m, 6) each row's start deviation (:meth:`PathReference.start_deviation`), the reference is that
     row's start-conditioned path (:meth:`PathReference.conditioned_at`) instead of the mean path: the
     pull keeps the deviation the demonstrations keep from such a start (docs/method.md §11).
+    ``step`` (scalar or (m,)): the phase step h over which the velocity is meant, as a rollout's
+    step or a forward difference of the training pairs: ξ̄ is then the reference's secant over
+    [s, s + h] (:func:`path_secant`) instead of its tangent (None or 0).
     """
     from rbgp_cli.geometry.so3 import log_quat, quat_conjugate, quat_multiply
 
@@ -316,14 +366,20 @@ def prior_mean_outputs(representation: Representation, state: np.ndarray, mean: 
         path = path or PathReference(mean)
         s = np.asarray(phase, dtype=np.float64).reshape(-1)
         m = len(s)
+        h = None if step is None else np.broadcast_to(np.asarray(step, dtype=np.float64), (m,))
+        if h is not None and not np.all(h > 0):
+            if np.any(h > 0):
+                raise ValueError("phase steps must all be positive, or all zero (the tangent)")
+            h = None
         if path.conditioned and start_dev is not None:
-            ref_q, ref_p, ff = path.conditioned_at(s, np.broadcast_to(np.asarray(start_dev, dtype=np.float64), (m, 6)))
+            ref_q, ref_p, ff = path.conditioned_at(s, np.broadcast_to(np.asarray(start_dev, dtype=np.float64), (m, 6)), h)
         else:
-            if m > 1 and np.all(s == s[0]):
+            if m > 1 and np.all(s == s[0]) and (h is None or np.all(h == h[0])):
                 # a rollout's trajectories share their phase (unless their durations differ): the
                 # reference pose once, for every row (the same numbers as row by row)
                 s = s[:1]
-            ref_q, ref_p, ff = path.at(s)
+                h = None if h is None else h[:1]
+            ref_q, ref_p, ff = path.at(s, h)
             if len(s) < m:
                 ref_q, ref_p = np.broadcast_to(ref_q, (m, 4)), np.broadcast_to(ref_p, (m, 3))
     else:
@@ -373,15 +429,18 @@ def default_velocity() -> VelocityOptions:
 
 
 def demonstration_pairs(trajs: list[Trajectory], representation: Representation,
-                        velocity: VelocityOptions | None = None, time_input: str | None = None):
+                        velocity: VelocityOptions | None = None, time_input: str | None = None,
+                        with_steps: bool = False):
     """Training pairs of every demonstration (docs/method.md §4, §4.1), before any subsampling.
 
     With a ``time_input`` the inputs get a last column: seconds since the demonstration's start, or
     its phase (t − t_0)/D with outputs multiplied by D (velocities per unit phase).
-    Returns X (n, d), Y (n, L), per-demonstration pair counts, and the velocity segments.
+    Returns X (n, d), Y (n, L), per-demonstration pair counts, and the velocity segments; with
+    ``with_steps`` also each pair's phase step (t_{k+1} − t_k)/D (n,), the step its forward difference
+    spans, or None where the velocities are not forward differences over phase.
     """
     velocity = velocity or VelocityOptions()
-    Xs, Ys, per_demo, segments = [], [], [], []
+    Xs, Ys, per_demo, segments, steps = [], [], [], [], []
     for tr in trajs:
         segs = estimate_velocities(tr, velocity)
         count = 0
@@ -393,6 +452,7 @@ def demonstration_pairs(trajs: list[Trajectory], representation: Representation,
                     D = max(tr.duration, 1e-9)
                     tau = tau / D
                     Y = Y * D
+                    steps.append(np.diff(seg.traj.t)[: len(X)] / D)
                 X = np.concatenate([X, tau[:, None]], axis=1)
             Xs.append(X)
             Ys.append(Y)
@@ -402,6 +462,9 @@ def demonstration_pairs(trajs: list[Trajectory], representation: Representation,
     d, L = len(representation.input_names) + (1 if time_input else 0), len(representation.output_names)
     X = np.concatenate(Xs) if Xs else np.zeros((0, d))
     Y = np.concatenate(Ys) if Ys else np.zeros((0, L))
+    if with_steps:
+        forward = time_input == "phase" and not velocity.window  # forward differences, not local polynomials
+        return X, Y, per_demo, segments, (np.concatenate(steps) if steps else np.zeros(0)) if forward else None
     return X, Y, per_demo, segments
 
 
@@ -411,8 +474,9 @@ def training_set(trajs: list[Trajectory], representation: Representation, *, sub
     """All training pairs of all demonstrations, then a seeded random subset.
 
     Returns X (n, d), Y (n, L) and a dict with ``pairs`` (before subsampling), ``points`` (after),
-    ``per_demo`` pair counts, the chosen ``indices`` into the concatenated pairs and the velocity
-    ``segments``.
+    ``per_demo`` pair counts, the chosen ``indices`` into the concatenated pairs, the velocity
+    ``segments`` and the chosen pairs' ``phase_steps`` (:func:`demonstration_pairs`; None unless forward
+    differences over phase).
     """
     if not trajs:
         raise InputError("no demonstrations given", hint="pass one or more demonstration files")
@@ -420,7 +484,7 @@ def training_set(trajs: list[Trajectory], representation: Representation, *, sub
     problem = window_problem(trajs, velocity or VelocityOptions())
     if problem:
         raise InputError(problem, hint="use a longer smooth_window or 0 for forward differences", param="smooth_window")
-    X, Y, per_demo, segments = demonstration_pairs(trajs, representation, velocity, time_input)
+    X, Y, per_demo, segments, steps = demonstration_pairs(trajs, representation, velocity, time_input, with_steps=True)
     n = len(X)
     if n < 2:  # two samples give one velocity: nothing for a GP to fit (nor a length scale to learn)
         sources = sorted({tr.source or tr.name for tr in trajs if tr.source or tr.name})
@@ -443,7 +507,7 @@ def training_set(trajs: list[Trajectory], representation: Representation, *, sub
         k = min(k, int(max_points))
     idx = np.sort(rng.choice(n, size=k, replace=False)) if k < n else np.arange(n)
     return X[idx], Y[idx], {"pairs": int(n), "points": int(len(idx)), "per_demo": per_demo, "indices": idx,
-                            "segments": segments}
+                            "segments": segments, "phase_steps": None if steps is None else steps[idx]}
 
 
 #: Automatic choice: above this many training points (and above ``max_points``) a sparse GP on all of
@@ -590,8 +654,11 @@ def train_model(
                                   time_input=time_input)
     mean, start_dev = _prior_of(trajs, info, prior, prior_gain, start_conditioning, seed)
     if mean is not None:
+        step = None
+        if mean.get("feedforward") == "secant":  # each pair's own phase step: its forward difference's
+            step = info["phase_steps"]
         Y = Y - prior_mean_outputs(rep, X[:, : len(rep.input_names)], mean, X[:, -1] if time_input == "phase" else None,
-                                   start_dev=start_dev)
+                                   start_dev=start_dev, step=step)
     if progress:
         progress(f"{len(trajs)} demonstrations, {info['pairs']} pairs, training on {info['points']} points "
                  f"({rep.name}, kernel {kernel}, {'shared' if shared else 'per-output'} hyperparameters)")
@@ -662,6 +729,8 @@ def _prior_of(trajs, info, prior, prior_gain, start_conditioning, seed):
     mean = None
     if prior == "path":
         mean = {"kind": "path", "gain": float(prior_gain), **mean_path(trajs)}
+        if info.get("phase_steps") is not None:  # forward differences: the path's secant over each step
+            mean["feedforward"] = "secant"
     elif prior == "goal":
         mean = {"kind": "goal", "gain": float(prior_gain), "goal": goal_pose(trajs).tolist()}
     start_dev = None

@@ -257,6 +257,9 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
     # a start-conditioned prior: each trajectory's own reference path, from its start (None: the mean path)
     dev = model.start_deviation(q0, p0) if hasattr(model, "start_deviation") else None
     sdev = None if dev is None or K == 0 else np.repeat(dev, K, axis=0)
+    # a secant feed-forward: the reference's displacement over each trajectory's own phase step dt/D
+    step = model.phase_step(duration[:, 0], dt)
+    sstep = None if step is None or K == 0 else np.repeat(step, K)
     d = state.shape[1]
     L = gp.n_outputs
     states = np.empty((steps + 1, B, d))
@@ -272,31 +275,31 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
     def phase_of(t, dur):  # a phase model's own phase (what it feeds the GP); others: one box for all
         return t / dur
 
-    def fall_back(X, mu, k, dur, dev):
+    def fall_back(X, mu, k, dur, dev, h):
         """``off_data="prior"``: the prior mean's velocity where X (at step k) is outside the envelope."""
         off = envelope.outside(rep.pose_from_state(X[:, :pd])[1], phase_of(k * dt, dur[:, 0]))
         if np.any(off):
             mu = mu.copy()
-            mu[off] = model.prior_mean(X[off], None if dev is None else dev[off])
+            mu[off] = model.prior_mean(X[off], None if dev is None else dev[off], None if h is None else h[off])
         return mu
 
     for k in range(steps + 1):
         last = k == steps
         if with_std:
-            mu, sd = model.predict_output(state, return_std=True, manage_threads=False, start_dev=dev)
+            mu, sd = model.predict_output(state, return_std=True, manage_threads=False, start_dev=dev, step=step)
             std[k] = sd / duration if model.time_input == "phase" else sd  # per second
         elif not last:
-            mu = model.predict_output(state, manage_threads=False, start_dev=dev)
+            mu = model.predict_output(state, manage_threads=False, start_dev=dev, step=step)
         if not last:
             if off_data == "prior":
-                mu = fall_back(state, mu, k, duration, dev)
+                mu = fall_back(state, mu, k, duration, dev, step)
             state = model.advance(state, mu, dt, duration)
             _check_finite(state, k + 1)
             states[k + 1] = state
             if K > 0:
-                smu, ssd = model.predict_output(sstate, return_std=True, manage_threads=False, start_dev=sdev)
+                smu, ssd = model.predict_output(sstate, return_std=True, manage_threads=False, start_dev=sdev, step=sstep)
                 if off_data == "prior":
-                    smu = fall_back(sstate, smu, k, np.repeat(duration, K, axis=0), sdev)
+                    smu = fall_back(sstate, smu, k, np.repeat(duration, K, axis=0), sdev, sstep)
                 sstate = model.advance(sstate, smu + ssd * rng.standard_normal(smu.shape), dt, np.repeat(duration, K, axis=0))
                 _check_finite(sstate, k + 1)
                 sstates[k + 1] = sstate

@@ -202,6 +202,7 @@ _PRIOR = nullable(obj({
     "gain": num(0.0, 1e6, what="a non-negative finite number (at most 1e6)"),
     "goal": list_of(num(), 7, 7),
     "start": string(("mean", "conditioned")),
+    "feedforward": string(("tangent", "secant")),
 }, ("kind", "gain")))  # fmt: skip
 
 _GP = obj({"type": string(("exact", "sparse")), "inducing": integer(1, 10**6)}, ("type",))

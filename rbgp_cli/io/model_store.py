@@ -15,10 +15,15 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
   also holds ``Z`` (M, d) inducing inputs and, per hyperparameter set g (one per output, or one shared),
   the posterior's factors ``Lm`` (G, M, M), ``LB`` (G, M, M) and ``c`` (M, L) (the columns of set g's
   outputs); loading checks them against k(Z, Z) instead of refactorising all n points.
-* Version 4 (what this rbgp writes, exact and sparse): ``checksums.header`` is the SHA-256 of the
-  header's :func:`canonical_json` without that entry, and ``gp`` is always present (``{"type":
-  "exact"}`` or the sparse one). Versions 1–3 have no header checksum and still load (a header
-  checksum is verified wherever present; a version-4 file without one is refused).
+* Version 4: ``checksums.header`` is the SHA-256 of the header's :func:`canonical_json` without that
+  entry, and ``gp`` is always present (``{"type": "exact"}`` or the sparse one). Versions 1–3 have
+  no header checksum and still load (a header checksum is verified wherever present; a file of
+  version 4 or later without one is refused).
+* Version 5 (what this rbgp writes): a mean-path prior trained on forward differences says
+  ``"feedforward": "secant"`` (its feed-forward is the path's displacement over one step,
+  :func:`rbgp_cli.dynamics.model.path_secant`); without it (every earlier file) the tangent, as that
+  model was trained. An rbgp that reads only version 4 refuses these files instead of rolling them
+  out with the other feed-forward.
 
 Loading reads the zip itself (never unpickling: .npy members of plain numbers only) with limits
 checked before anything large is decompressed: a member may decompress to at most
@@ -54,7 +59,7 @@ __all__ = ["FORMAT", "FORMAT_VERSION", "save_model", "load_model", "read_header"
 
 FORMAT = "rbgp-model"
 #: The version this rbgp writes (4: the header checksummed, ``gp`` always present); it reads 1–4.
-FORMAT_VERSION = 4
+FORMAT_VERSION = 5
 #: Limits checked before anything large is read (a model of 10⁶ training points is ~100 MB).
 MAX_HEADER_BYTES = 16 << 20
 MAX_HEADER_DEPTH = 32
@@ -131,6 +136,8 @@ def save_model(model, path) -> dict:
         else:
             for name, key in _PRIOR_ARRAYS.items():
                 arrays[name] = np.ascontiguousarray(mean[key], dtype=np.float64)
+            if mean.get("feedforward") == "secant":  # the path's secant over a step (dynamics.model.path_secant)
+                prior["feedforward"] = "secant"
             if "start_beta" in mean:  # the start-conditioned path (dynamics.model.PathReference)
                 prior["start"] = "conditioned"
                 for name, key in _START_ARRAYS.items():
@@ -473,6 +480,8 @@ def _model_extras(header: dict, arrays: dict, rep, X):
     if prior["kind"] != "path" or time_input != "phase":
         raise ValueError(f"unknown prior {prior['kind']!r} for time input {time_input!r}")
     mean = {"kind": "path", "gain": gain}
+    if prior.get("feedforward") == "secant":  # absent in files before it: the tangent, as they were trained
+        mean["feedforward"] = "secant"
     for name, key in _PRIOR_ARRAYS.items():
         if name not in arrays:
             raise ValueError(f"array {name!r} of the mean-path prior is missing")

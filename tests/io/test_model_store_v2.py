@@ -28,12 +28,14 @@ def test_round_trip_keeps_what_prediction_needs(tmp_path, options):
     model = train_model(demos, **SMALL, **options)
     path = tmp_path / "m.rbgp"
     header = save_model(model, path)
-    assert header["version"] == FORMAT_VERSION == 4  # every model since the header checksum (version 4)
+    assert header["version"] == FORMAT_VERSION == 5  # version 5: the mean path's feed-forward is named
     loaded, h = load_model(path)
     assert loaded.time_input == model.time_input and loaded.velocity == model.velocity
     assert (loaded.mean is None) == (model.mean is None)
     if model.mean:
         assert loaded.mean["kind"] == model.mean["kind"] and loaded.mean["gain"] == model.mean["gain"]
+        assert loaded.mean.get("feedforward") == model.mean.get("feedforward")
+        assert (model.mean.get("feedforward") == "secant") == (options["prior"] == "path")  # forward differences
     q0, p0 = np.array([d.quat[0] for d in demos[:3]]), np.array([d.position[0] for d in demos[:3]])
     a = rollout(model, q0, p0, 12, with_std=True, durations=[1.2, 1.0, 0.8])
     b = rollout(loaded, q0, p0, 12, with_std=True, durations=[1.2, 1.0, 0.8])
