@@ -16,7 +16,10 @@ folds of the demonstrations (seeded; a demonstration is never split across folds
 5. **trajectory errors**: each generated trajectory against the held-out demonstration that starts
    where it starts, on normalised time (T steps, slerp / linear): position RMSE (m) and rotation
    RMSE (rad, the angle of R_genᵀ R_demo);
-6. **velocity RMSE** on the held-out training pairs (estimated exactly as the model's training pairs
+6. **sampled rollouts** (``samples`` K per start): ``sample_score``, the score of a set of one sample
+   per held-out start, as the floor is scored, averaged over the K such sets (``sample_score_one``:
+   the first set alone); the coverage of each held-out motion by its start's K samples;
+7. **velocity RMSE** on the held-out training pairs (estimated exactly as the model's training pairs
    were), with each prediction mapped to a world-frame twist (ω, v): ``velocity_rmse`` is the relative
    error √((Σ‖Δω‖²/Σ‖ω‖² + Σ‖Δv‖²/Σ‖v‖²)/2) (1 = no better than predicting zero), with the raw
    parts in rad/s and m/s.
@@ -61,6 +64,7 @@ __all__ = [
     "trajectory_errors",
     "velocity_errors",
     "run_fold",
+    "sample_seed",
     "crossval",
     "REPLAY",
 ]
@@ -145,7 +149,7 @@ def velocity_errors(model, demos: list[Trajectory]) -> dict:
 
     rep = model.representation
     sums = {"dw2": 0.0, "dv2": 0.0, "w2": 0.0, "v2": 0.0, "pairs": 0}
-    states, quats, xis, scale, devs = [], [], [], [], []
+    states, quats, xis, scale, devs, steps = [], [], [], [], [], []
     for tr in demos:
         D = max(tr.duration, 1e-9)
         dev = model.start_deviation(tr.quat[:1], tr.position[:1])  # its own start (a conditioned prior)
@@ -161,12 +165,14 @@ def velocity_errors(model, demos: list[Trajectory]) -> dict:
             quats.append(seg.traj.quat[:K])
             xis.append(seg.xi)
             scale.append(np.full(K, D if model.time_input == "phase" else 1.0))
+            steps.append(np.diff(seg.traj.t)[:K] / D)  # each pair's phase step (a secant feed-forward's)
             if dev is not None:
                 devs.append(np.repeat(dev, K, axis=0))
     if not states:
         return sums
     X, Q, XI = np.concatenate(states), np.concatenate(quats), np.concatenate(xis)
-    out = model.predict_output(X, start_dev=np.concatenate(devs) if devs else None) / np.concatenate(scale)[:, None]  # per second
+    step = np.concatenate(steps) if model.phase_step() is not None and not model.velocity.window else None
+    out = model.predict_output(X, start_dev=np.concatenate(devs) if devs else None, step=step) / np.concatenate(scale)[:, None]  # per second
     tw = rep.twist_from_output(X[:, : model.pose_dims], Q, out)
     sums["dw2"] = float(np.sum((tw[:, :3] - XI[:, :3]) ** 2))
     sums["dv2"] = float(np.sum((tw[:, 3:] - XI[:, 3:]) ** 2))
@@ -181,10 +187,16 @@ def velocity_errors(model, demos: list[Trajectory]) -> dict:
 SAMPLES = 20
 
 
-def _generate(config: Config, train: list[Trajectory], test: list[Trajectory], samples: int = 0):
+def sample_seed(seed: int, fold: int) -> int:
+    """The seed of fold ``fold``'s sampled rollouts: one stream per fold (from the train options' seed),
+    so that the folds' draws are independent of each other instead of the same normal numbers again."""
+    return int(np.random.SeedSequence([int(seed), 8311, int(fold)]).generate_state(1)[0])
+
+
+def _generate(config: Config, train: list[Trajectory], test: list[Trajectory], samples: int = 0, fold: int = 0):
     """Generated trajectories (one per held-out demonstration), training seconds, the model or None,
     and per held-out start its ``samples`` sampled rollouts (a list of lists; None for the replay peer or
-    without samples)."""
+    without samples), seeded by :func:`sample_seed` of the fold."""
     if config.representation == REPLAY:
         return [replay_nearest(train, tr.quat[0], tr.position[0]) for tr in test], 0.0, None, None
     if config.representation in PEERS:  # ProMP / DMP from movement-primitives (rbgp_cli.evaluation.peers)
@@ -197,7 +209,7 @@ def _generate(config: Config, train: list[Trajectory], test: list[Trajectory], s
         gen = [g.with_(name=f"{config.representation} from {tr.name}") for g, tr in zip(gen, test)]
         drawn = None  # the DMP is deterministic: no samples; the ProMP's are its conditioned distribution's
         if samples > 0 and config.representation == PROMP:
-            drawn = peers.promp_samples(train, *starts, k=samples, seed=0)
+            drawn = peers.promp_samples(train, *starts, k=samples, seed=sample_seed(0, fold))
         return gen, time.perf_counter() - t0, None, drawn
     from rbgp_cli.dynamics.model import train_model
     from rbgp_cli.dynamics.rollout import rollout_for
@@ -208,7 +220,7 @@ def _generate(config: Config, train: list[Trajectory], test: list[Trajectory], s
     q0 = np.array([tr.quat[0] for tr in test])
     p0 = np.array([tr.position[0] for tr in test])
     res = rollout_for(model, q0, p0, [tr.duration for tr in test], with_std=False,  # each its own duration
-                      samples=samples, seed=int(config.train.get("seed", 0)))
+                      samples=samples, seed=sample_seed(config.train.get("seed", 0), fold))
     trajs = res.trajectories(include_samples=samples > 0)
     gen = [g.with_(name=f"from {tr.name}") for g, tr in zip(trajs[: len(test)], test)]
     drawn = None
@@ -219,32 +231,39 @@ def _generate(config: Config, train: list[Trajectory], test: list[Trajectory], s
 
 
 def _sample_columns(drawn, train: list[Trajectory], test: list[Trajectory], T: int, covariance: str) -> dict | None:
-    """The variety and calibration columns of one fold (docs/method.md §11): ``sample_score``, one sampled
-    rollout per held-out start scored against the training demonstrations as ``score`` is, and the
+    """The variety and calibration columns of one fold (docs/method.md §11): ``sample_score``, a set of one
+    sampled rollout per held-out start scored against the training demonstrations as ``score`` is
+    (the mean over the K such sets, ``sample_scores`` each one's), and the
     coverage of each held-out motion by its start's samples (:func:`rbgp_cli.evaluation.coverage.prediction_coverage`,
     sums that pool over folds)."""
     from rbgp_cli.evaluation.coverage import MIN_SAMPLES, Coverage, prediction_coverage
 
     if not drawn:
         return None
-    one = [d[0] for d in drawn]
-    scored = evaluate(one, train, length=T, covariance=covariance, sample_size="record")
+    # every sample index k makes a set of one sample per start; the score is their mean over the K
+    # sets (the same expectation as one set's, without the luck of one draw: on 8 held-out hand raises
+    # one set's score varies by ±25 % from draw to draw)
+    sets = [evaluate([d[k] for d in drawn], train, length=T, covariance=covariance, sample_size="record")
+            for k in range(min(len(d) for d in drawn))]
     cov = Coverage()
     if len(drawn[0]) >= MIN_SAMPLES:
         for d, real in zip(drawn, test):
             cov = cov + prediction_coverage(d, real, T)
-    return {"sample_score": float(scored.mean), "sample_offset": float(scored.offset),
-            "sample_spread": float(scored.spread), "coverage": list(cov.astuple())}
+    scores = [float(e.mean) for e in sets]
+    return {"sample_score": float(np.mean(scores)), "sample_offset": float(np.mean([e.offset for e in sets])),
+            "sample_spread": float(np.mean([e.spread for e in sets])), "sample_scores": scores,
+            "coverage": list(cov.astuple())}
 
 
 def run_fold(config: Config, train: list[Trajectory], test: list[Trajectory], *, length: int | None = None,
-             covariance: str = "diag", samples: int = SAMPLES) -> dict:
+             covariance: str = "diag", samples: int = SAMPLES, fold: int = 0) -> dict:
     """Train (unless replay), generate from the held-out starts, and score one fold (plain data);
-    ``samples`` sampled rollouts per held-out start give the sample columns (0: none)."""
+    ``samples`` sampled rollouts per held-out start give the sample columns (0: none); ``fold`` its
+    number (the samples' seed, :func:`sample_seed`)."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         t0 = time.perf_counter()
-        gen, train_s, model, drawn = _generate(config, train, test, samples=samples)
+        gen, train_s, model, drawn = _generate(config, train, test, samples=samples, fold=fold)
         gen_s = time.perf_counter() - t0 - train_s
         score = evaluate(gen, train, length=length, covariance=covariance, sample_size="record")
         T = score.steps
@@ -268,8 +287,8 @@ def run_fold(config: Config, train: list[Trajectory], test: list[Trajectory], *,
 
 
 def _task(args):
-    config, train, test, length, covariance, samples = args
-    return run_fold(config, train, test, length=length, covariance=covariance, samples=samples)
+    config, train, test, length, covariance, samples, fold = args
+    return run_fold(config, train, test, length=length, covariance=covariance, samples=samples, fold=fold)
 
 
 def _run_in_processes(args: list, n_jobs: int, label=None):
@@ -355,8 +374,8 @@ def _sampled_summary(results: list[dict], floors: list[float]) -> dict:
     columns, or all None where the row has no samples (the replay peer, or samples=0)."""
     from rbgp_cli.evaluation.coverage import Coverage
 
-    keys = ("sample_score", "sample_ratio", "sample_offset", "sample_spread", "coverage_position", "coverage_rotation",
-            "band_position", "band_rotation")
+    keys = ("sample_score", "sample_ratio", "sample_score_one", "sample_offset", "sample_spread", "coverage_position",
+            "coverage_rotation", "band_position", "band_rotation")
     if not results or any("sample_score" not in r for r in results):
         return dict.fromkeys(keys)
     score = float(np.mean([r["sample_score"] for r in results]))
@@ -366,7 +385,10 @@ def _sampled_summary(results: list[dict], floors: list[float]) -> dict:
         total = total + Coverage(*r["coverage"])
     cov = {k: (None if not math.isfinite(v) else v) for k, v in total.to_dict().items()}
     parts = {k: float(np.mean([r[k] for r in results])) for k in ("sample_offset", "sample_spread")}
-    return {"sample_score": score, "sample_ratio": score / floor if floor > 0 else float("inf"), **parts, **cov}
+    # the first set alone (one draw per start), as a single `rollout --samples 1` per start would score
+    one = float(np.mean([r["sample_scores"][0] for r in results])) if all(r.get("sample_scores") for r in results) else None
+    return {"sample_score": score, "sample_ratio": score / floor if floor > 0 else float("inf"), "sample_score_one": one,
+            **parts, **cov}
 
 
 def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, seed: int = 0,
@@ -385,9 +407,10 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
         and one message per finished fit
     scheduler : None, ``"local"`` (a Dask ``LocalCluster`` of ``jobs`` workers) or the address of a Dask
         scheduler: the fits run there (:func:`rbgp_cli.compute.iter_dask`); the results are the same
-    samples : sampled rollouts per held-out start (``rbgp rollout --samples``, seeded by the train
-        options' seed) for the columns of docs/method.md §11: ``sample_score`` / ``sample_ratio`` (one sample per
-        start, scored as ``score``), ``coverage_position`` / ``coverage_rotation`` (the held-out motion
+    samples : sampled rollouts per held-out start (``rbgp rollout --samples``, seeded per fold from the
+        train options' seed, :func:`sample_seed`) for the columns of docs/method.md §11: ``sample_score`` /
+        ``sample_ratio`` (a set of one sample per start, scored as ``score``: the mean over the K sets;
+        ``sample_score_one`` the first set's), ``coverage_position`` / ``coverage_rotation`` (the held-out motion
         inside the samples' 90 % prediction regions; 0.90 for a perfect Gaussian model) and the bands'
         mean half-widths ``band_position`` (m) / ``band_rotation`` (rad); 0: none (those columns None)
 
@@ -411,7 +434,7 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
     # the held-out demonstrations themselves against the training envelope: what real new motions do
     floor_left = sum(left_envelope(test, envelope_from_demos(train))["count"] for train, test in splits)
     tasks = [(c, f) for c in configs for f in range(len(splits))]
-    args = [(c, splits[f][0], splits[f][1], length, covariance, samples) for c, f in tasks]
+    args = [(c, splits[f][0], splits[f][1], length, covariance, samples, f) for c, f in tasks]
     n_jobs = jobs if jobs is not None else min(len(tasks), usable_cores())
     n_jobs = max(1, min(int(n_jobs), len(tasks)))
     results: list = [None] * len(tasks)

@@ -16,7 +16,7 @@ from rbgp_cli.cli.app import app
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.evaluation import evaluate
 from rbgp_cli.evaluation import crossval as cv
-from rbgp_cli.evaluation.crossval import REPLAY, Config, crossval, make_folds, replay_nearest, trajectory_errors
+from rbgp_cli.evaluation.crossval import REPLAY, Config, crossval, make_folds, replay_nearest, sample_seed, trajectory_errors
 from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
 from tests.helpers import quat_angle_between
 
@@ -237,12 +237,17 @@ def test_sample_columns_score_one_sample_per_start_and_pool_the_coverage(monkeyp
     train = [d for i, d in enumerate(demos) if i not in set(test_idx)]
     m = train_model(train, representation="axis-angle", kernel="se-chordal", **QUICK)
     r = rollout_for(m, np.array([t.quat[0] for t in test]), np.array([t.position[0] for t in test]),
-                    [t.duration for t in test], with_std=False, samples=6, seed=0)
+                    [t.duration for t in test], with_std=False, samples=6, seed=sample_seed(0, 0))
     trajs = r.trajectories(include_samples=True)[len(test):]
     T = evaluate(test, train).steps  # the length crossval resamples to (the training demonstrations' median)
     fold0 = row["per_fold"][0]
-    one = [trajs[b * 6] for b in range(len(test))]
-    assert fold0["sample_score"] == pytest.approx(evaluate(one, train, length=T).mean, rel=1e-9)
+    # the score of each set of one sample per start (sample k of every start), and their mean
+    sets = [evaluate([trajs[b * 6 + k] for b in range(len(test))], train, length=T).mean for k in range(6)]
+    assert fold0["sample_score"] == pytest.approx(np.mean(sets), rel=1e-9)
+    assert fold0["sample_score_one"] == pytest.approx(sets[0], rel=1e-9)
+    assert np.std(sets) > 0  # the sets differ: averaging them is not a no-op
+    # each fold draws its own numbers: fold 1's samples are not fold 0's seed again
+    assert sample_seed(0, 1) != sample_seed(0, 0) and sample_seed(1, 0) != sample_seed(0, 0)
     cov = Coverage()
     for b, real in enumerate(test):
         cov = cov + prediction_coverage(trajs[b * 6:(b + 1) * 6], real, T)
