@@ -22,7 +22,7 @@ DEFAULTS = {
     # the pull toward the (start-conditioned) mean path, per unit phase: weak, because the reference
     # path already starts where the rollout starts; 10 kept rollouts on it as well but turned the
     # velocity field off the path into the pull (held-out velocities worse than predicting zero on
-    # the handovers; docs/defaults.md, "December 2026 (last)")
+    # the handovers; docs/defaults.md, "December 2026 (before the secant)")
     "prior_gain": 1.0,
     # the mean path moved by the deviation the demonstrations keep from a start like the rollout's
     # (a ridge map over all six coordinates, its strength by cross-validation; docs/method.md §7)
