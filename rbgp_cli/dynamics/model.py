@@ -278,10 +278,7 @@ class PathReference:
         from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
 
         if step is not None:
-            q, p, _ = self.conditioned_at(s, dev)
-            s_next = np.asarray(s, dtype=np.float64).reshape(-1) + np.asarray(step, dtype=np.float64)
-            q2, p2, _ = self.conditioned_at(np.broadcast_to(s_next, np.shape(q)[:1]), dev)
-            return q, p, path_secant(q, p, q2, p2, step)
+            return self._over_step(self.conditioned_at, s, step, dev)
         q, p, ff = self.at(s)
         x = self.s
         s = np.clip(np.asarray(s, dtype=np.float64).reshape(-1), x[0], x[-1])
@@ -300,6 +297,15 @@ class PathReference:
         q = quat_multiply(exp_quat(delta[:, :3]), q)
         return q, p + delta[:, 3:], ff + self._dmu[k] + slope
 
+    @staticmethod
+    def _over_step(pose_at, s, step, *args):
+        """``pose_at(s, *args)``'s pose at s and, as its velocity, the secant to its pose at s + step
+        (:func:`path_secant`)."""
+        q, p, _ = pose_at(s, *args)
+        s_next = np.asarray(s, dtype=np.float64).reshape(-1) + np.asarray(step, dtype=np.float64)
+        q2, p2, _ = pose_at(np.broadcast_to(s_next, np.shape(q)[:1]), *args)
+        return q, p, path_secant(q, p, q2, p2, step)
+
     def at(self, s: np.ndarray, step=None):
         """(quat (T, 4), position (T, 3), velocity (T, 6)) at phases s (T,), clamped to the path; the
         velocity is the mean path's twist per unit phase on the grid interval, or with ``step`` h
@@ -307,10 +313,7 @@ class PathReference:
         from rbgp_cli.geometry.so3 import exp_quat, quat_make_continuous, quat_multiply
 
         if step is not None:
-            q, p, _ = self.at(s)
-            s_next = np.asarray(s, dtype=np.float64).reshape(-1) + np.asarray(step, dtype=np.float64)
-            q2, p2, _ = self.at(np.broadcast_to(s_next, np.shape(q)[:1]))
-            return q, p, path_secant(q, p, q2, p2, step)
+            return self._over_step(self.at, s, step)
         x = self.s
         s = np.clip(np.asarray(s, dtype=np.float64).reshape(-1), x[0], x[-1])
         k = np.clip(np.searchsorted(x, s, side="right") - 1, 0, len(x) - 2)
