@@ -528,7 +528,8 @@ class RigidBodyGP:
             Trajectory objects (their first pose)
         duration : seconds (default: the demonstrations' median duration); or ``steps``, not both
         steps : integration steps
-        dt : integration step in seconds (default: the model's training step)
+        dt : integration step in seconds (default: the model's rollout step, the recorded sample
+            interval, for a duration; the training step for ``steps``)
         samples : sampled rollouts per start;  seed : seeds the draws
         return_std : record the predictive std along the mean trajectories
         off_data : keep, stop or prior: what a rollout does outside the demonstrations' envelope

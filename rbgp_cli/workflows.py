@@ -302,10 +302,13 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
     ``durations`` (B,) seconds: each trajectory its own duration instead (``steps``/``duration`` are
     then ignored; :func:`~rbgp_cli.dynamics.rollout.rollout_for`).
 
-    ``rate`` (Hz): write the result at this rate instead of the integration grid: the integration
-    stays on the step ``dt`` (the model's training step by default: the dynamics were learned for
-    it), and the poses and stds are interpolated between the steps
-    (:meth:`~rbgp_cli.dynamics.rollout.RolloutResult.resampled`); None keeps the integration grid.
+    ``dt``: the integration step, by default the model's rollout step for a duration
+    (:attr:`~rbgp_cli.dynamics.model.MotionModel.rollout_dt`, the recorded sample interval, so that
+    a rollout written at the recorded rate is integrated at every sample it writes) and the training
+    step for ``steps`` (``steps`` counts steps of the dynamics as learned).
+    ``rate`` (Hz): write the result at this rate instead of the integration grid: the poses and stds
+    are interpolated between the steps (:meth:`~rbgp_cli.dynamics.rollout.RolloutResult.resampled`);
+    None keeps the integration grid.
 
     ``off_data`` (keep, stop, prior): what a rollout does outside the demonstrations' envelope
     (:mod:`rbgp_cli.dynamics.rollout`); rollouts that left it are named in one warning (the result's
@@ -315,7 +318,9 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
     from rbgp_cli.dynamics.rollout import rollout, rollout_for
     from rbgp_cli.errors import warn
 
-    step = float(model.dt if dt is None else dt)
+    if dt is None:
+        dt = model.dt if steps is not None and durations is None else model.rollout_dt
+    step = float(dt)
     kwargs = {"samples": samples, "seed": seed, "with_std": with_std, "progress": progress, "off_data": off_data}
     if durations is not None:
         res = rollout_for(model, quat, pos, durations, step, **kwargs)

@@ -65,7 +65,8 @@ def test_fit_predict_rollout_shapes(gp, demos):
     d = r.to_dict()
     assert np.array(d["quat"]).shape == (2, 11, 4)
     one = gp.rollout(np.r_[demos[0].quat[0], demos[0].position[0]], duration=1.0)  # a (7,) start, 1 s
-    assert one.quat.shape[:2] == (1, 11) and one.sample_quat is None
+    # a duration integrates on the recorded interval, at most 10 steps per 0.1 s training step
+    assert one.quat.shape[:2] == (1, 101) and one.sample_quat is None
     np.testing.assert_allclose(one.position[0, 0], demos[0].position[0])
 
 

@@ -312,13 +312,14 @@ def _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_s
 def rollout_for(model, start_quat, start_position, durations, dt: float | None = None, **kwargs) -> RolloutResult:
     """Roll out B starts, each for its own duration ``durations`` (B,) seconds.
 
-    Trajectory b takes S_b = round(D_b / dt) steps (at least 1; dt the model's step by default); all
+    Trajectory b takes S_b = round(D_b / dt) steps (at least 1; dt by default the model's rollout step,
+    :attr:`~rbgp_cli.dynamics.model.MotionModel.rollout_dt`: the recorded sample interval); all
     are advanced together for max S_b steps (a phase model advances trajectory b's phase by
     dt / (S_b dt) per step, see :func:`rollout`), and ``lengths`` = S_b + 1 cuts each of them (and its
     Monte Carlo samples) to its own duration in :meth:`RolloutResult.trajectories`. ``kwargs`` go to
     :func:`rollout` (samples, seed, with_std, progress).
     """
-    dt = float(model.dt if dt is None else dt)
+    dt = float(model.rollout_dt if dt is None else dt)
     durations = np.asarray(durations, dtype=np.float64).reshape(-1)
     if not np.all(np.isfinite(durations) & (durations > 0)):
         raise InputError("every rollout duration must be a positive number of seconds")

@@ -43,7 +43,8 @@ def test_rollout_is_written_at_the_recorded_rate_by_default(model, tmp_path):
     assert res.exit_code == 0, res.stderr
     meta = json.loads(res.stdout)
     rate = _recorded_rate()
-    assert meta["steps"] == 20 and meta["dt"] == pytest.approx(0.1) and meta["output_rate_hz"] == pytest.approx(rate)
+    # integrated on the recorded interval, but at most 10 steps per 0.1 s training step (180 Hz data)
+    assert meta["steps"] == 200 and meta["dt"] == pytest.approx(0.01) and meta["output_rate_hz"] == pytest.approx(rate)
     names, traj, v = _table(out)
     assert names[:9] == ["trajectory", "t", "x", "y", "z", "qx", "qy", "qz", "qw"]
     assert names[9:] == [f"std_{n}" for n in ("wx", "wy", "wz", "vx", "vy", "vz")] + ["left_data"]
@@ -114,7 +115,7 @@ def test_each_duration_gives_each_start_its_demonstrations_duration(model, tmp_p
             want = 1.0
         else:  # drawn near (here: at) a demonstration's start: that demonstration's duration
             (d,) = [d for d in demos if np.allclose(d.position[0], rows[0, 1:4], atol=1e-12)]
-            want = round(d.duration / 0.1) * 0.1  # on the 10 Hz integration steps
+            want = round(d.duration / 0.01) * 0.01  # on the integration steps (0.01 s: 180 Hz, 10 per training step)
         assert want - 1 / rate < rows[-1, 0] <= want + 1e-9, (b, rows[-1, 0], want)
     assert len({round(e, 3) for e in ends}) > 3  # not one duration for all
 

@@ -125,3 +125,33 @@ def test_a_model_trusting_its_prior_rolls_out_the_mean_path_at_a_coarse_step(dem
         q_ref, p_ref, _ = path.at(np.full(1, k / 15))
         rot, pos = _pose_error(res.quat[:, k], res.position[:, k], q_ref, p_ref)
         assert rot < 1e-6 and pos < 1e-6, k
+
+
+def test_a_rollout_for_a_duration_integrates_at_the_recorded_rate_and_so_stays_on_a_curved_path(demos):
+    """``rbgp rollout`` writes at the recorded rate. By default it also integrates there
+    (``MotionModel.rollout_dt``), so every written sample of a model trusting its prior is on the mean
+    path; integrated on the 0.1 s training step and interpolated between steps, the samples between
+    steps cut the path's curves (the shared offset docs/method.md §8 measured on the hand raises)."""
+    from rbgp_cli.workflows import rollout_model
+
+    train, _ = demos
+    model = train_model(train, **FAST, time_input="phase", prior="path", prior_gain=1.0, start_conditioning=False,
+                        noise_scale=1e12)
+    rate = model.recorded_rate
+    assert model.dt == pytest.approx(0.1) and model.rollout_dt == pytest.approx(1.0 / rate) and 1.0 / rate < 0.05
+    path = model.path_reference()
+    q0, p0, _ = path.at(np.zeros(1))
+    D = 2.0
+
+    def worst(res):
+        n = res.length(0)
+        q_ref, p_ref, _ = path.at(res.t[:n] / res.t[n - 1])
+        return _pose_error(res.quat[0, :n], res.position[0, :n], q_ref, p_ref)
+
+    fine = rollout_model(model, q0, p0, duration=D, with_std=False, rate=rate)
+    coarse = rollout_model(model, q0, p0, duration=D, dt=model.dt, with_std=False, rate=rate)
+    assert np.allclose(np.diff(fine.t), 1.0 / rate) and np.allclose(np.diff(coarse.t), 1.0 / rate)
+    rot_fine, pos_fine = worst(fine)
+    rot_coarse, pos_coarse = worst(coarse)
+    assert rot_fine < 1e-6 and pos_fine < 1e-6
+    assert pos_coarse > 3e-3 and rot_coarse > 3e-3  # the interpolation between steps leaves the path (7 mm, 8 mrad)
