@@ -344,7 +344,8 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
 
 def generate_like_paper(model, demos, count=100, spread=0.02, seed=0, progress=None):
     """The paper's protocol (sec. 4.3): ``count`` rollouts from unseen starts near the demonstrations'
-    start poses, each as long as the demonstrations' median duration, at the model's time step."""
+    start poses, each as long as the demonstrations' median duration, at the model's rollout step
+    (:attr:`~rbgp_cli.dynamics.model.MotionModel.rollout_dt`)."""
     from rbgp_cli.dynamics.rollout import start_vectors, starts_near
 
     starts = start_vectors(demos) if demos else model.starts
