@@ -115,8 +115,8 @@ class MotionModel:
 
         Written at the recorded rate, every output sample is then an integrated state instead of an
         interpolation between steps ``dt`` apart, which cuts a curved motion's corners the same way
-        for every rollout (docs/method.md §8: on the hand raises at 30 Hz, a shared offset that made
-        the sampled set score 10 % worse than integrated at 30 Hz)."""
+        for every rollout (docs/method.md §8: on the hand raises at 30 Hz, a shared offset; the sampled
+        set scored 1.40 times the floor on the 0.1 s step, 1.26 integrated at 30 Hz)."""
         rate = self.recorded_rate
         if rate is None or 1.0 / rate >= self.dt:
             return float(self.dt)

@@ -171,7 +171,8 @@ def velocity_errors(model, demos: list[Trajectory]) -> dict:
     if not states:
         return sums
     X, Q, XI = np.concatenate(states), np.concatenate(quats), np.concatenate(xis)
-    step = np.concatenate(steps) if model.phase_step() is not None and not model.velocity.window else None
+    # a secant feed-forward (forward differences over phase, by construction): each pair's own step
+    step = np.concatenate(steps) if model.phase_step() is not None else None
     out = model.predict_output(X, start_dev=np.concatenate(devs) if devs else None, step=step) / np.concatenate(scale)[:, None]  # per second
     tw = rep.twist_from_output(X[:, : model.pose_dims], Q, out)
     sums["dw2"] = float(np.sum((tw[:, :3] - XI[:, :3]) ** 2))
