@@ -48,7 +48,7 @@ limit_blas_threads({threads!r})
 from rbgp_cli.gp.exact import fit_gp
 from rbgp_cli.gp.sparse import fit_sparse_gp
 from rbgp_cli.kernels import SquaredExponential
-kind, n, M = {kind!r}, {n}, {M}
+kind, n, M, hyper_points = {kind!r}, {n}, {M}, {hyper_points!r}
 q, X, Y = synthetic_data(n, seed=1)
 qs, Xs, _ = synthetic_data(3000, seed=99)
 truth = velocity_field(qs, Xs[:, 3:])
@@ -60,7 +60,7 @@ if kind == "exact":
     evals = sum(f.n_evaluations for f in gp.fits)
     stages = None
 else:
-    gp = fit_sparse_gp(X, Y, k, inducing=M, restarts=3, seed=0)
+    gp = fit_sparse_gp(X, Y, k, inducing=M, restarts=3, seed=0, hyper_points=hyper_points)
     evals = sum(f.n_evaluations for f in gp.fits)
     stages = [[(s["points"], s["evaluations"]) for s in f.stages] for f in gp.fits]
 fit_s = time.perf_counter() - t0
@@ -69,15 +69,15 @@ t1 = time.perf_counter()
 gp.predict(Xs, return_std=True)
 pred_s = time.perf_counter() - t1
 peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-print(json.dumps({{"kind": kind, "n": n, "M": M, "fit_s": fit_s, "rmse": rmse.tolist(), "rmse_mean": float(rmse.mean()),
+print(json.dumps({{"kind": kind, "n": n, "M": M, "hyper_points": hyper_points, "fit_s": fit_s, "rmse": rmse.tolist(), "rmse_mean": float(rmse.mean()),
                   "nlml": float(sum(f.nlml for f in gp.fits)), "evaluations_all_points": int(evals), "stages": stages,
                   "peak_rss_mb": peak / 1024, "above_start_mb": (peak - base) / 1024, "predict_3000_std_s": pred_s,
                   "load": os.getloadavg()[0] if hasattr(os, "getloadavg") else None}}))
 '''.replace("import json, resource, sys, time", "import json, os, resource, sys, time")
 
 
-def run_child(kind: str, n: int, M: int, threads) -> dict:
-    code = _CHILD.format(here=str(HERE), threads=threads, kind=kind, n=n, M=M)
+def run_child(kind: str, n: int, M: int, threads, hyper_points=None) -> dict:
+    code = _CHILD.format(here=str(HERE), threads=threads, kind=kind, n=n, M=M, hyper_points=hyper_points)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     result = json.loads(out.stdout.strip().splitlines()[-1])
     print(json.dumps(result), file=sys.stderr, flush=True)  # each run as it ends (a long run may be stopped)
@@ -92,16 +92,19 @@ def part1(args) -> str:
     for n in exact_sizes:
         print(f"exact n={n} ...", file=sys.stderr, flush=True)
         runs.append(run_child("exact", n, 0, args.blas_threads))
+    hypers = [None if h == "default" else int(h) for h in args.hyper_points.split(",")]
     for n in sparse_sizes:
-        print(f"sparse n={n} M={args.inducing} ...", file=sys.stderr, flush=True)
-        runs.append(run_child("sparse", n, args.inducing, args.blas_threads))
+        for h in hypers:
+            print(f"sparse n={n} M={args.inducing} hyper_points={h or 'default'} ...", file=sys.stderr, flush=True)
+            runs.append(run_child("sparse", n, args.inducing, args.blas_threads, h))
     t_ref = next(r["fit_s"] for r in runs if r["kind"] == "exact" and r["n"] == ref)
     lines = [f"Measured {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; {machine_line()}. {blas_line()}",
-             "", f"| GP | n | M | fit (s) | fit / exact at n = {ref} | evaluations on all points | peak RSS (MB) | "
+             "", f"| GP | n | M | hyperparameters from | fit (s) | fit / exact at n = {ref} | evaluations on all points | peak RSS (MB) | "
              "RSS above start (MB) | held-out RMSE (mean of 6) | predict mean+std at 3000 poses (s) | load |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in runs:
-        lines.append(f"| {r['kind']} | {r['n']} | {r['M'] or '–'} | {r['fit_s']:.1f} | {r['fit_s'] / t_ref:.2f} | "
+        hp = "–" if r["kind"] == "exact" else (r.get("hyper_points") or "default")
+        lines.append(f"| {r['kind']} | {r['n']} | {r['M'] or '–'} | {hp} | {r['fit_s']:.1f} | {r['fit_s'] / t_ref:.2f} | "
                      f"{r['evaluations_all_points']} | {r['peak_rss_mb']:.0f} | {r['above_start_mb']:.0f} | "
                      f"{r['rmse_mean']:.4f} | {r['predict_3000_std_s']:.3f} | {r['load']:.1f} |")
     lines.append("")
@@ -164,6 +167,8 @@ def main():
     ap.add_argument("--sizes", default="1000,2000", help="exact GP sizes")
     ap.add_argument("--sparse-sizes", default="10000,100000", help="sparse GP sizes")
     ap.add_argument("--inducing", type=int, default=512)
+    ap.add_argument("--hyper-points", default="default",
+                    help="part 1: the sparse fits' hyper_points, comma-separated ('default': the library's)")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--sets", default="handover,sample", help="part 2: handover and/or sample")
     ap.add_argument("--rates", default="10,recorded", help="part 2: velocity rates for the handover set")
