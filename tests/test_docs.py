@@ -81,7 +81,7 @@ def test_docs_method_md_covers_what_each_section_is_cited_for():
         "8": ["Single-step mean prediction", "N(μ(g_k), σ²(g_k))"],
         "9": ["chordal mean", "D_B = ⅛", "log(R̄_tᵀ R)"],
         "10": ["Theorem 1", "sec. 4.2"],
-        "11": ["(a)", "t_{K−1, 0.95}", "F_{0.90}(3, K−3)", "K = 20"],
+        "11": ["(a)", "t_{K−1, 0.95}", "F_{0.90}(3, K−3)", "K = 20", "c_rot² = q_0.90"],
     }
     for section, phrases in expect.items():
         for phrase in phrases:

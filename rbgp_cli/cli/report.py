@@ -44,6 +44,8 @@ def format_train_summary(s: dict) -> str:
         per = "per unit phase" if s.get("time_input") == "phase" else "per second"
         lines.append(f"time input: {s.get('time_input') or 'none'}   prior mean: "
                      + (f"{what[prior['kind']]} (gain {prior['gain']:g} {per})" if prior else "zero"))
+    if s.get("variation"):
+        lines.append(_variation_text(s["variation"]))
     gp = s.get("gp") or {}
     if gp.get("type") == "sparse":
         lines.append(f"sparse GP, {gp['inducing']} inducing poses (NLML column: the negative variational bound): {gp['reason']}")
@@ -96,6 +98,16 @@ def _value(v) -> str:
     return str(v)
 
 
+def _variation_text(v: dict) -> str:
+    """One line on the deviation process that --samples draws (docs/method.md §11)."""
+    line = f"samples: the {v['demos']} demonstrations' deviations from the mean path (Student-t, ν = {v['demos'] - 2})"
+    scale = v.get("band_scale")
+    if scale:
+        line += (f"; widened ×{scale['rotation']:.3g} in rotation, ×{scale['position']:.3g} in position so that "
+                 "the demonstrations left out fall inside the 90 % bands")
+    return line
+
+
 def _kernel_text(k) -> str:
     if not isinstance(k, dict):
         return _value(k)
@@ -112,7 +124,8 @@ def format_model_info(path: str, h: dict) -> str:
         f"inputs: {', '.join(h.get('input_names', []))}   outputs: {', '.join(h.get('output_names', []))}",
         f"training points: {h.get('training_points', '?')}   time step: {h['dt']:.6g} s   shared hyperparameters: {_value(h['shared'])}",
     ] + ([f"sparse GP: {h['gp']['inducing']} inducing poses (NLML: the negative variational bound)"]
-         if (h.get("gp") or {}).get("type") == "sparse" else [])
+         if (h.get("gp") or {}).get("type") == "sparse" else []) + (
+        [_variation_text(h["variation"])] if h.get("variation") else [])
     names = ["all"] if h["shared"] else h.get("output_names", [])
     for nm, f in zip(names, h["fits"]):
         cal = f.get("calibration")

@@ -697,7 +697,11 @@ def train_model(
     from rbgp_cli.dynamics.envelope import envelope_from_demos
     from rbgp_cli.dynamics.variation import demonstration_variation
 
-    variation = demonstration_variation(trajs)
+    # the bands' scale measures each demonstration left out against the mean rollout's own prediction
+    # of it: the start map (its ridge; ∞ without conditioning) and the pull that closes a start's gap
+    ridge = float(mean["start_ridge"]) if mean is not None and "start_ridge" in mean else float("inf")
+    gain = float(mean["gain"]) if mean is not None and mean["kind"] == "path" else 0.0
+    variation = demonstration_variation(trajs, ridge=ridge, gain=gain)
     summary = _train_summary(rep, kernel, kern, trajs, info, shared, velocity, gp, gp_choice, mean, variation,
                              time_input, recorded_dt, t0)
     return MotionModel(rep, gp, float(dt), starts, durations, summary=summary, velocity=velocity,
@@ -865,5 +869,7 @@ def _train_summary(rep, kernel, kern, trajs, info, shared, velocity, gp, gp_choi
     if mean is not None and "start_ridge" in mean:  # the cross-validated ridge (None: ∞, no conditioning)
         lam = float(mean.pop("start_ridge"))
         summary["prior"]["start_ridge"] = lam if np.isfinite(lam) else None
-    summary["variation"] = None if variation is None else {"demos": variation.demos, "dof": variation.dof}
+    summary["variation"] = None if variation is None else {
+        "demos": variation.demos, "dof": variation.dof,
+        "band_scale": {"rotation": float(variation.band_scale[0]), "position": float(variation.band_scale[1])}}
     return summary

@@ -248,7 +248,12 @@ TOP: dict = {
         "margin": num(0.0, 1e9, what="a non-negative finite number of metres"),
         "source": string(("demonstrations", "training points")),
     }, ("lo", "hi", "margin")))),
-    "variation": (10**6, nullable(obj({"demos": integer(3, 10**7), "steps": integer(2, 10**5)}, ("demos", "steps")))),
+    "variation": (10**6, nullable(obj({
+        "demos": integer(3, 10**7), "steps": integer(2, 10**5),
+        # version 6: the factors on the draws' rotation and position (dynamics/variation.band_scale)
+        "band_scale": obj({"rotation": num(1.0, 1e6, what="a factor of at least 1"),
+                           "position": num(1.0, 1e6, what="a factor of at least 1")}, ("rotation", "position")),
+    }, ("demos", "steps")))),
 }
 
 

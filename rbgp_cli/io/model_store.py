@@ -19,11 +19,15 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
   entry, and ``gp`` is always present (``{"type": "exact"}`` or the sparse one). Versions 1–3 have
   no header checksum and still load (a header checksum is verified wherever present; a file of
   version 4 or later without one is refused).
-* Version 5 (what this rbgp writes): a mean-path prior trained on forward differences says
+* Version 5: a mean-path prior trained on forward differences says
   ``"feedforward": "secant"`` (its feed-forward is the path's displacement over one step,
   :func:`rbgp_cli.dynamics.model.path_secant`); without it (every earlier file) the tangent, as that
   model was trained. An rbgp that reads only version 4 refuses these files instead of rolling them
   out with the other feed-forward.
+* Version 6 (what this rbgp writes): the deviation process says how much its draws are widened
+  (``variation.band_scale``: ``rotation`` and ``position`` factors ≥ 1,
+  :func:`rbgp_cli.dynamics.variation.band_scale`); files without it sample with factors 1, as they were
+  trained. An rbgp that reads only version 5 refuses these files instead of sampling narrower bands.
 
 Loading reads the zip itself (never unpickling: .npy members of plain numbers only) with limits
 checked before anything large is decompressed: a member may decompress to at most
@@ -59,7 +63,7 @@ __all__ = ["FORMAT", "FORMAT_VERSION", "save_model", "load_model", "read_header"
 
 FORMAT = "rbgp-model"
 #: The version this rbgp writes (4: the header checksummed, ``gp`` always present); it reads 1–4.
-FORMAT_VERSION = 5
+FORMAT_VERSION = 6
 #: Limits checked before anything large is read (a model of 10⁶ training points is ~100 MB).
 MAX_HEADER_BYTES = 16 << 20
 MAX_HEADER_DEPTH = 32
@@ -172,7 +176,9 @@ def save_model(model, path) -> dict:
     }
     header["gp"] = {"type": "sparse", "inducing": int(len(gp.Z))} if sparse else {"type": "exact"}
     if variation is not None:
-        header["variation"] = {"demos": int(variation.demos), "steps": int(len(variation.s))}
+        header["variation"] = {"demos": int(variation.demos), "steps": int(len(variation.s)),
+                               "band_scale": {"rotation": float(variation.band_scale[0]),
+                                              "position": float(variation.band_scale[1])}}
     if getattr(model, "envelope", None) is not None:  # optional: files without it load (computed then)
         header["envelope"] = model.envelope.to_dict()
     header = json.loads(canonical_json(header))  # as a reader will parse it (keys as strings, tuples as lists)
@@ -449,7 +455,7 @@ def load_model(path):
     if header.get("variation"):
         from rbgp_cli.dynamics.variation import Variation
 
-        variation = Variation.from_arrays(arrays)
+        variation = Variation.from_arrays(arrays, header["variation"].get("band_scale"))
     return MotionModel(rep, gp, dt, arrays["starts"], arrays["durations"],
                        summary=header.get("summary", {}), provenance=header.get("provenance", {}),
                        velocity=velocity, time_input=time_input, mean=mean, variation=variation, envelope=envelope), header

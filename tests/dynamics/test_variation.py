@@ -14,14 +14,17 @@ from tests.dynamics.synthetic import timed_demos
 SIGMA_POS, SIGMA_ROT = 0.05, 0.08
 
 
-def hierarchical_demos(n, seed, samples=60):
+def hierarchical_demos(n, seed, samples=60, wide=0.0):
     """A shared motion plus, per demonstration, its own smooth deviation a_d·s (position, m, and
     rotation, rad, world frame) and a start offset b_d that stays: given the start, the deviation at
-    phase s has the known standard deviation σ·s."""
+    phase s has the known standard deviation σ·s. With ``wide`` > 0 that fraction of the demonstrations
+    (at random) deviates three times as much: a heavy-tailed mixture, as a few people doing the task
+    another way."""
 
     def pose(rng, s):
-        a_pos, b_pos = rng.normal(0, SIGMA_POS, 3), rng.normal(0, 0.03, 3)
-        a_rot, b_rot = rng.normal(0, SIGMA_ROT, 3), rng.normal(0, 0.05, 3)
+        k = 3.0 if wide and rng.random() < wide else 1.0
+        a_pos, b_pos = rng.normal(0, k * SIGMA_POS, 3), rng.normal(0, 0.03, 3)
+        a_rot, b_rot = rng.normal(0, k * SIGMA_ROT, 3), rng.normal(0, 0.05, 3)
         base_p = np.stack([0.4 * s, 0.2 * np.sin(np.pi * s), 1.0 - 0.3 * s**2], axis=1)
         p = base_p + np.outer(s, a_pos) + b_pos
         base_q = exp_quat(np.outer(s, [0.2, 1.0, 0.4]) + [0.0, 0.0, 2.8])  # through θ = π
@@ -41,6 +44,57 @@ def test_draws_reproduce_the_known_deviation_variance_given_the_start():
     inner = slice(5, 51)  # away from the start, where the variance is ~0 and relative errors meaningless
     np.testing.assert_allclose(sd[inner], want[inner], rtol=0.15)
     assert np.all(sd[0] == 0.0)
+
+
+def _loo_rotation_m2(demos):
+    """The oracle of :func:`band_scale` for a model that keeps the start's offset (ridge ∞, gain 0),
+    written out demonstration by demonstration: each one's rotation deviation from the others' mean
+    deviation, less its offset at the start, against the draws' covariance without it (D, S − 1)."""
+    from rbgp_cli.dynamics.variation import demonstration_deviations, start_regression
+
+    _, delta = demonstration_deviations(demos)
+    _, _, r = start_regression(delta)
+    D = len(delta)
+    out = []
+    for d in range(D):
+        others = [k for k in range(D) if k != d]
+        e = delta[d] - delta[others].mean(axis=0)
+        e = e - e[0]
+        m2 = []
+        for j in range(1, delta.shape[1]):
+            C = sum(np.outer(r[k, j, :3], r[k, j, :3]) for k in others) * (1 + 1 / D) / (D - 4) * D / (D - 1)
+            m2.append(e[j, :3] @ np.linalg.solve(C, e[j, :3]))
+        out.append(m2)
+    return np.array(out)
+
+
+def test_the_bands_scale_makes_the_demonstrations_left_out_fall_inside_at_the_level():
+    """band_scale against the oracle above: with c_rot applied, 90 % of the left-out demonstrations'
+    (demonstration, phase) rotations lie inside the χ²₃ region, where fewer did before."""
+    from scipy import stats
+
+    demos = hierarchical_demos(30, 5, wide=0.25)
+    v = demonstration_variation(demos)
+    c_rot = v.band_scale[0]
+    m2 = _loo_rotation_m2(demos)
+    chi2 = stats.chi2.ppf(0.90, 3)
+    assert np.mean(m2 <= chi2) < 0.85  # a quarter of them deviate three times as much: too narrow
+    np.testing.assert_allclose(c_rot**2, np.quantile(m2, 0.90) / chi2, rtol=1e-6)  # the ridge of 1e-9 apart
+    assert abs(np.mean(m2 <= c_rot**2 * chi2) - 0.90) <= 1.0 / len(demos)  # m² is one number per demonstration here
+
+
+def test_the_bands_scale_is_about_one_for_gaussian_deviations_and_widens_a_heavy_tailed_mixture():
+    """Gaussian deviations (the model's own assumption) need no widening, on average over training
+    sets; a mixture whose fifth deviates three times as much needs about 1.18 in rotation (its 90 %
+    point of the squared Mahalanobis distance against χ²₃'s), and about none per position axis (a
+    one-dimensional mixture with the same variance holds 90 % inside a narrower interval)."""
+    gauss = np.array([demonstration_variation(hierarchical_demos(40, 200 + i)).band_scale for i in range(8)])
+    mixed = np.array([demonstration_variation(hierarchical_demos(40, 300 + i, wide=0.2)).band_scale for i in range(8)])
+    assert np.all(gauss >= 1.0) and np.all(mixed >= 1.0)
+    assert gauss.mean(axis=0).max() < 1.08, gauss.mean(axis=0)
+    assert mixed[:, 0].mean() > 1.10, mixed[:, 0].mean()
+    assert mixed[:, 1].mean() < 1.08, mixed[:, 1].mean()
+    assert demonstration_variation(hierarchical_demos(5, 0)).band_scale == (1.0, 1.0)  # too few to leave one out
 
 
 @pytest.mark.slow
@@ -86,7 +140,9 @@ def test_sampled_rollouts_start_at_the_start_are_smooth_seeded_and_saved_with_th
 
     demos = hierarchical_demos(12, 7)
     m = train_model(demos, max_points=200, restarts=1, shared=True, explore_size=100, jobs=1)
-    assert m.variation is not None and m.summary["variation"] == {"demos": 12, "dof": 10}
+    assert m.variation is not None and {k: m.summary["variation"][k] for k in ("demos", "dof")} == {"demos": 12, "dof": 10}
+    assert set(m.summary["variation"]["band_scale"]) == {"rotation", "position"}
+    assert min(m.summary["variation"]["band_scale"].values()) >= 1.0
     q0, p0 = np.array([d.quat[0] for d in demos[:3]]), np.array([d.position[0] for d in demos[:3]])
     a = rollout_for(m, q0, p0, [2.0, 1.5, 2.5], with_std=False, samples=8, seed=4)
     b = rollout_for(m, q0, p0, [2.0, 1.5, 2.5], with_std=False, samples=8, seed=4)
@@ -103,7 +159,20 @@ def test_sampled_rollouts_start_at_the_start_are_smooth_seeded_and_saved_with_th
     path = tmp_path / "m.rbgp"
     save_model(m, path)
     m2, header = load_model(path)
-    assert header["variation"] == {"demos": 12, "steps": 51}
+    assert header["variation"] == {"demos": 12, "steps": 51, "band_scale": m.summary["variation"]["band_scale"]}
+    assert m2.variation.band_scale == m.variation.band_scale
+    # a version 5 file (no band_scale) samples as it was trained, with factors 1
+    from tests.hostile import builders as B
+
+    h5, arrays = B.read_model_npz(path)
+    h5 = {**h5, "version": 5, "variation": {"demos": 12, "steps": 51}}
+    m5, _ = load_model(B.write_model_npz(tmp_path / "v5.rbgp", h5, arrays))
+    assert m5.variation.band_scale == (1.0, 1.0) and m.variation.band_scale != (1.0, 1.0)
+    d5 = rollout_for(m5, q0, p0, [2.0, 1.5, 2.5], with_std=False, samples=8, seed=4)
+    np.testing.assert_allclose(d5.position, a.position, atol=1e-6)  # the same mean rollouts
+    c_pos = m.variation.band_scale[1]
+    np.testing.assert_allclose(a.sample_position - a.position[:, None],
+                               c_pos * (d5.sample_position - d5.position[:, None]), atol=1e-6)
     c = rollout_for(m2, q0, p0, [2.0, 1.5, 2.5], with_std=False, samples=8, seed=4)
     np.testing.assert_allclose(c.sample_position, a.sample_position, atol=1e-6)  # the posterior is refactorised on load
     with pytest.raises(Exception, match="unknown sampling"):
