@@ -636,7 +636,7 @@ def evaluate(generated, demos, *, length: int | None = None, covariance: str = "
 
 def crossval(demos, estimators=None, *, folds: int = 5, seed: int = 0, replay: bool = True, peers: bool = False,
              samples: int | None = None, length: int | None = None, covariance: str = "diag",
-             jobs: int | None = None) -> Crossval:
+             jobs: int | None = None, repeats: int = 1) -> Crossval:
     """Cross-validate by demonstration (``rbgp crossval``): each configuration is trained on the other
     folds and rolled out from each held-out demonstration's start, on the same folds.
 
@@ -645,6 +645,8 @@ def crossval(demos, estimators=None, *, folds: int = 5, seed: int = 0, replay: b
     demos : a list of Trajectory or files
     estimators : a :class:`RigidBodyGP` (its options, unfitted is fine), a list of them, or None (the defaults)
     folds, seed : K folds of a seeded permutation of the demonstrations
+    repeats : R sets of K folds (fold seeds seed … seed + R − 1), each row over all of them, with
+        ``by_repeat`` per repetition (``rbgp crossval --repeats``)
     replay : add the replay peer;  peers : add the ProMP and DMP peers (needs movement-primitives)
     samples : sampled rollouts per held-out start for the sample columns (None: the CLI's default; 0: none)
     length, covariance : as :func:`evaluate`;  jobs : worker processes (None: one per core)
@@ -678,5 +680,5 @@ def crossval(demos, estimators=None, *, folds: int = 5, seed: int = 0, replay: b
     extra, _ = crossval_configs([DEFAULTS["representation"]], None, {}, replay=replay, peers=peers)
     configs.extend(extra[1:])  # the peers only
     result = _crossval(trajs, configs, folds=folds, seed=seed, jobs=jobs, length=length, covariance=covariance,
-                       samples=SAMPLES if samples is None else samples)
+                       samples=SAMPLES if samples is None else samples, repeats=repeats)
     return Crossval(rows=list(result.get("results", [])), folds=int(folds), result=result)

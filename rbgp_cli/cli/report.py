@@ -176,8 +176,10 @@ def _options_label(row: dict) -> str:
 def format_crossval(result: dict, per_fold: bool = False) -> str:
     """The cross-validation table (stdout): one row per configuration, best score / floor first."""
     sizes = ", ".join(str(n) for n in result["fold_sizes"])
+    R = int(result.get("repeats", 1))
+    seeds = f"seed {result['seed']}" if R == 1 else f"{R} repeats (fold seeds {result['seed']}–{result['seed'] + R - 1})"
     lines = [
-        f"{result['demonstrations']} demonstrations, {result['folds']} folds ({sizes} held out), seed {result['seed']}; "
+        f"{result['demonstrations']} demonstrations, {result['folds']} folds ({sizes} held out), {seeds}; "
         f"floor {result['floor']:.3f} (the held-out demonstrations scored against the same training sets)",
         "score: Bhattacharyya distance of the rollouts from the held-out starts to the training demonstrations "
         "(lower is better); ratio = score / floor; pos/rot: RMSE against the held-out demonstration with the "
@@ -185,7 +187,7 @@ def format_crossval(result: dict, per_fold: bool = False) -> str:
         "sampled rollout per start scored like score, over the floor; cov_pos/cov_rot: how often the held-out "
         "motion lies inside the samples' 90 % prediction region (0.90 = honest bands); left: rollouts "
         "that left the training demonstrations' envelope"
-        + (f" (held-out demonstrations: {result['floor_left_data']} of {result['demonstrations']})"
+        + (f" (held-out demonstrations: {result['floor_left_data']} of {result['demonstrations'] * R})"
            if result.get("floor_left_data") is not None else ""),
         "",
         f"{'representation':<14} {'kernel':<10} {'score':>8} {'floor':>7} {'ratio':>7} {'rotation':>9} {'translation':>11}"
@@ -208,7 +210,14 @@ def format_crossval(result: dict, per_fold: bool = False) -> str:
         lines.append(row(r, r["representation"], r["kernel"] or "-", options[id(r)]))
         if per_fold:
             for f in r["per_fold"]:
-                lines.append(row(f, f"  fold {f['fold'] + 1}", f"({f['n_test']} held)"))
+                name = f"  fold {f['fold'] + 1}" if "repeat" not in f else f"  r{f['repeat'] + 1} fold {f['fold'] + 1}"
+                lines.append(row(f, name, f"({f['n_test']} held)"))
+    if R > 1:
+        lines.append("")
+        lines.append("per repetition (fold seed: ratio, sample ratio):")
+        for r in result["results"]:
+            parts = [f"{b['seed']}: {b['ratio']:.2f}, {_num(b.get('sample_ratio'), '.2f')}" for b in r.get("by_repeat", [])]
+            lines.append(f"  {r['label']:<24} " + "; ".join(parts) + (f"  {options[id(r)]}" if options[id(r)] else ""))
     if any(not r.get("reliable", True) for r in result["results"]):
         lines.append("* some folds have too few trajectories for their per-step variances (see the warnings)")
     return "\n".join(lines)

@@ -33,6 +33,12 @@ Overall numbers: score, floor, rotation and translation parts are means over fol
 score / floor of those means); trajectory and velocity errors are pooled over all held-out
 demonstrations; ``train_s`` is the mean training time per fold.
 
+**Repeats** (``repeats`` R > 1): the K folds are drawn again from R seeds (seed, seed + 1, …) and every
+configuration runs on all R × K splits; the overall numbers are over all of them, and ``by_repeat``
+gives each repetition's own score, floor, ratio and sample ratio. One set of folds can mislead: on the
+40 hand raises the floor moved from 0.17 to 0.38 with the fold seed alone, because a take held out at
+random has its neighbours in time in the training set (docs/defaults.md).
+
 Folds of every configuration run as independent tasks, in worker processes with single-threaded BLAS
 (``jobs``), or in this process (``jobs=1``); results do not depend on ``jobs``.
 """
@@ -188,16 +194,19 @@ def velocity_errors(model, demos: list[Trajectory]) -> dict:
 SAMPLES = 20
 
 
-def sample_seed(seed: int, fold: int) -> int:
-    """The seed of fold ``fold``'s sampled rollouts: one stream per fold (from the train options' seed),
-    so that the folds' draws are independent of each other instead of the same normal numbers again."""
-    return int(np.random.SeedSequence([int(seed), 8311, int(fold)]).generate_state(1)[0])
+def sample_seed(seed: int, fold: int, repeat: int = 0) -> int:
+    """The seed of fold ``fold``'s sampled rollouts (of repetition ``repeat``): one stream per fold (from
+    the train options' seed), so that the folds' draws are independent of each other instead of the
+    same normal numbers again."""
+    key = [int(seed), 8311, int(fold)] + ([int(repeat)] if repeat else [])
+    return int(np.random.SeedSequence(key).generate_state(1)[0])
 
 
-def _generate(config: Config, train: list[Trajectory], test: list[Trajectory], samples: int = 0, fold: int = 0):
+def _generate(config: Config, train: list[Trajectory], test: list[Trajectory], samples: int = 0, fold: int = 0,
+              repeat: int = 0):
     """Generated trajectories (one per held-out demonstration), training seconds, the model or None,
     and per held-out start its ``samples`` sampled rollouts (a list of lists; None for the replay peer or
-    without samples), seeded by :func:`sample_seed` of the fold."""
+    without samples), seeded by :func:`sample_seed` of the fold and repetition."""
     if config.representation == REPLAY:
         return [replay_nearest(train, tr.quat[0], tr.position[0]) for tr in test], 0.0, None, None
     if config.representation in PEERS:  # ProMP / DMP from movement-primitives (rbgp_cli.evaluation.peers)
@@ -210,7 +219,7 @@ def _generate(config: Config, train: list[Trajectory], test: list[Trajectory], s
         gen = [g.with_(name=f"{config.representation} from {tr.name}") for g, tr in zip(gen, test)]
         drawn = None  # the DMP is deterministic: no samples; the ProMP's are its conditioned distribution's
         if samples > 0 and config.representation == PROMP:
-            drawn = peers.promp_samples(train, *starts, k=samples, seed=sample_seed(0, fold))
+            drawn = peers.promp_samples(train, *starts, k=samples, seed=sample_seed(0, fold, repeat))
         return gen, time.perf_counter() - t0, None, drawn
     from rbgp_cli.dynamics.model import train_model
     from rbgp_cli.dynamics.rollout import rollout_for
@@ -221,7 +230,7 @@ def _generate(config: Config, train: list[Trajectory], test: list[Trajectory], s
     q0 = np.array([tr.quat[0] for tr in test])
     p0 = np.array([tr.position[0] for tr in test])
     res = rollout_for(model, q0, p0, [tr.duration for tr in test], with_std=False,  # each its own duration
-                      samples=samples, seed=sample_seed(config.train.get("seed", 0), fold))
+                      samples=samples, seed=sample_seed(config.train.get("seed", 0), fold, repeat))
     trajs = res.trajectories(include_samples=samples > 0)
     gen = [g.with_(name=f"from {tr.name}") for g, tr in zip(trajs[: len(test)], test)]
     drawn = None
@@ -257,14 +266,14 @@ def _sample_columns(drawn, train: list[Trajectory], test: list[Trajectory], T: i
 
 
 def run_fold(config: Config, train: list[Trajectory], test: list[Trajectory], *, length: int | None = None,
-             covariance: str = "diag", samples: int = SAMPLES, fold: int = 0) -> dict:
+             covariance: str = "diag", samples: int = SAMPLES, fold: int = 0, repeat: int = 0) -> dict:
     """Train (unless replay), generate from the held-out starts, and score one fold (plain data);
-    ``samples`` sampled rollouts per held-out start give the sample columns (0: none); ``fold`` its
-    number (the samples' seed, :func:`sample_seed`)."""
+    ``samples`` sampled rollouts per held-out start give the sample columns (0: none); ``fold`` and
+    ``repeat`` its number and repetition (the samples' seed, :func:`sample_seed`)."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         t0 = time.perf_counter()
-        gen, train_s, model, drawn = _generate(config, train, test, samples=samples, fold=fold)
+        gen, train_s, model, drawn = _generate(config, train, test, samples=samples, fold=fold, repeat=repeat)
         gen_s = time.perf_counter() - t0 - train_s
         score = evaluate(gen, train, length=length, covariance=covariance, sample_size="record")
         T = score.steps
@@ -288,8 +297,9 @@ def run_fold(config: Config, train: list[Trajectory], test: list[Trajectory], *,
 
 
 def _task(args):
-    config, train, test, length, covariance, samples, fold = args
-    return run_fold(config, train, test, length=length, covariance=covariance, samples=samples, fold=fold)
+    config, train, test, length, covariance, samples, fold, repeat = args
+    return run_fold(config, train, test, length=length, covariance=covariance, samples=samples, fold=fold,
+                    repeat=repeat)
 
 
 def _run_in_processes(args: list, n_jobs: int, label=None):
@@ -322,11 +332,15 @@ def _velocity_summary(parts: list[dict]) -> dict:
     }
 
 
-def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[dict]) -> dict:
+def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[dict], k: int | None = None,
+         seeds: list[int] | None = None) -> dict:
+    """One configuration's row over its splits (``k`` folds per repetition, ``seeds`` the repetitions'
+    fold seeds; by default one repetition)."""
+    k = len(folds) if k is None else int(k)
     per_fold = []
     for i, (test_idx, floor, r) in enumerate(zip(folds, floors, results)):
         entry = {
-            "fold": i, "n_test": int(len(test_idx)),
+            "fold": i % k, **({"repeat": i // k} if len(folds) > k else {}), "n_test": int(len(test_idx)),
             "score": r["score"], "floor": floor.mean, "ratio": r["score"] / floor.mean if floor.mean > 0 else float("inf"),
             "rotation": r["rotation"], "translation": r["translation"],
             "floor_rotation": floor.rotation, "floor_translation": floor.translation,
@@ -345,6 +359,16 @@ def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[di
     score = float(np.mean([r["score"] for r in results]))
     floor = float(np.mean([f.mean for f in floors]))
     count = sum(r["count"] for r in results)
+    extra = {}
+    if len(folds) > k:  # each repetition's own numbers, as a run with its seed alone would give them
+        extra["by_repeat"] = []
+        for j in range(len(folds) // k):
+            part = slice(j * k, (j + 1) * k)
+            sc = float(np.mean([r["score"] for r in results[part]]))
+            fl = float(np.mean([f.mean for f in floors[part]]))
+            extra["by_repeat"].append({"seed": None if seeds is None else int(seeds[j]), "score": sc, "floor": fl,
+                                       "ratio": sc / fl if fl > 0 else float("inf"),
+                                       "sample_ratio": _sampled_summary(results[part], [f.mean for f in floors[part]])["sample_ratio"]})
     return {
         "representation": config.representation,
         "kernel": config.kernel,
@@ -366,6 +390,7 @@ def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[di
         **_sampled_summary(results, [f.mean for f in floors]),
         "left_data": sum(int(r.get("left_data") or 0) for r in results),
         "reliable": all(e["reliable"] for e in per_fold),
+        **extra,
         "per_fold": per_fold,
     }
 
@@ -394,7 +419,7 @@ def _sampled_summary(results: list[dict], floors: list[float]) -> dict:
 
 def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, seed: int = 0,
              jobs: int | None = None, length: int | None = None, covariance: str = "diag",
-             progress=None, scheduler: str | None = None, samples: int = SAMPLES) -> dict:
+             progress=None, scheduler: str | None = None, samples: int = SAMPLES, repeats: int = 1) -> dict:
     """Cross-validate every configuration on the same folds (see the module docstring).
 
     Parameters
@@ -402,6 +427,7 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
     demos : clean demonstrations (at least ``folds``)
     configs : rows to compute (model configurations and/or ``Config(REPLAY)``)
     folds, seed : K folds of a seeded permutation of the demonstrations
+    repeats : R ≥ 1 sets of K folds, from the seeds seed, seed + 1, …, seed + R − 1 (module docstring)
     jobs : worker processes (None: one per core, at most the number of tasks; 1: in this process)
     length, covariance : passed to :func:`~rbgp_cli.evaluation.bhattacharyya.evaluate`
     progress : a :class:`rbgp_cli.progress.Progress` (or callable(str), or None): a task over the fits,
@@ -415,11 +441,16 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
         inside the samples' 90 % prediction regions; 0.90 for a perfect Gaussian model) and the bands'
         mean half-widths ``band_position`` (m) / ``band_rotation`` (rad); 0: none (those columns None)
 
-    Returns ``{"folds": K, "seed", "demonstrations", "fold_sizes", "results": [row, ...]}`` with the
-    rows sorted by score / floor (best first); each row as in the module docstring.
+    Returns ``{"folds": K, "repeats": R, "seed", "demonstrations", "fold_sizes", "results": [row, ...]}``
+    with the rows sorted by score / floor (best first); each row as in the module docstring (with
+    ``by_repeat`` when R > 1; its ``per_fold`` entries then say their ``repeat``).
     """
     demos = list(demos)
-    fold_idx = make_folds(len(demos), folds, seed)
+    if isinstance(repeats, bool) or not isinstance(repeats, (int, np.integer)) or repeats < 1:
+        raise InputError(f"repeats must be a whole number of at least 1, got {repeats!r}", param="repeats")
+    seeds = [int(seed) + r for r in range(int(repeats))]
+    fold_idx = [f for s in seeds for f in make_folds(len(demos), folds, s)]
+    k = len(fold_idx) // len(seeds)
     splits = []
     for test_idx in fold_idx:
         held = set(test_idx.tolist())
@@ -428,33 +459,37 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
         splits.append((train, test))
     smallest = min(len(f) for f in fold_idx)
     if smallest < 2:
-        warn(f"with {len(fold_idx)} folds of {len(demos)} demonstrations some folds hold out only one: a score "
+        warn(f"with {k} folds of {len(demos)} demonstrations some folds hold out only one: a score "
              "of one trajectory rests on the ridge variance, not on the motions",
              hint=f"use folds {max(2, len(demos) // 2)} or fewer (at least 2 held out per fold)", param="folds")
     floors = [evaluate(test, train, length=length, covariance=covariance, sample_size="record") for train, test in splits]
     # the held-out demonstrations themselves against the training envelope: what real new motions do
     floor_left = sum(left_envelope(test, envelope_from_demos(train))["count"] for train, test in splits)
     tasks = [(c, f) for c in configs for f in range(len(splits))]
-    args = [(c, splits[f][0], splits[f][1], length, covariance, samples, f) for c, f in tasks]
+    args = [(c, splits[f][0], splits[f][1], length, covariance, samples, f % k, f // k) for c, f in tasks]
     n_jobs = jobs if jobs is not None else min(len(tasks), usable_cores())
     n_jobs = max(1, min(int(n_jobs), len(tasks)))
     results: list = [None] * len(tasks)
     caught: set = set()
     progress = as_progress(progress)
-    progress(f"{len(demos)} demonstrations in {len(splits)} folds ({', '.join(str(len(f)) for f in fold_idx)} held out); "
+    progress(f"{len(demos)} demonstrations in {k} folds ({', '.join(str(len(f)) for f in fold_idx[:k])} held out)"
+             + (f" × {len(seeds)} repeats (fold seeds {seeds[0]}–{seeds[-1]})" if len(seeds) > 1 else "") + "; "
              f"{len(configs)} configuration{'s' * (len(configs) != 1)}, {len(tasks)} fits"
              + (f" on the Dask cluster {scheduler!r}" if scheduler else f" in {n_jobs} worker processes" if n_jobs > 1 else ""))
 
+    def name_of(f):  # a split's name in messages
+        return f"fold {f % k + 1}/{k}" + (f" of repeat {f // k + 1}/{len(seeds)}" if len(seeds) > 1 else "")
+
     def label(i):
         c, f = tasks[i]
-        return f"{c.name} fold {f + 1}/{len(splits)}"
+        return f"{c.name} {name_of(f)}"
 
     with progress.task("cross-validation", total=len(tasks), unit="fits") as bar:
         def done(i, r):
             results[i] = r
             caught.update(r.get("warnings", []))
             c, f = tasks[i]
-            msg = (f"{c.name}, fold {f + 1}/{len(splits)}: score {r['score']:.3f} (floor {floors[f].mean:.3f})"
+            msg = (f"{c.name}, {name_of(f)}: score {r['score']:.3f} (floor {floors[f].mean:.3f})"
                    + (f", trained in {r['train_s']:.1f} s" if r["train_s"] else ""))
             bar.update(completed=sum(x is not None for x in results), status=msg)  # the count includes this fit
             progress(msg)
@@ -473,13 +508,14 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
     rows = []
     for ci, c in enumerate(configs):
         res = [results[ci * len(splits) + f] for f in range(len(splits))]
-        rows.append(_row(c, fold_idx, floors, res))
+        rows.append(_row(c, fold_idx, floors, res, k=k, seeds=seeds))
     rows.sort(key=lambda r: (r["ratio"], r["label"]))
     return {
-        "folds": len(splits),
+        "folds": k,
+        "repeats": len(seeds),
         "seed": int(seed),
         "demonstrations": len(demos),
-        "fold_sizes": [int(len(f)) for f in fold_idx],
+        "fold_sizes": [int(len(f)) for f in fold_idx[:k]],
         "floor": float(np.mean([f.mean for f in floors])),
         "floor_left_data": int(floor_left),
         "results": rows,
