@@ -3,7 +3,7 @@
 Part 1 (default), synthetic: the six smooth outputs of ``_common.synthetic_data`` (random poses,
 noise 0.05). In one run, each fit in a fresh Python process (so that its peak RSS is its own), one
 after the other: the exact GP (``fit_gp``) on n = 2000 random points and, as peer, the sparse GP
-(``fit_sparse_gp``, M = 512) on n = 100 000 — both per-output hyperparameters, 3 starts, the chordal
+(``fit_sparse_gp``, M = DEFAULT_INDUCING, 256) on n = 100 000 — both per-output hyperparameters, 3 starts, the chordal
 kernel (ρ1 = 0.7) — plus the sizes around the crossover (``--sizes``). Reported: wall time of the fit,
 peak RSS of the process (``ru_maxrss``) and above the imports and data, held-out RMSE against the
 noise-free field at 3000 unseen poses (the outputs' RMS is ≈ 0.35), and the ratio of each sparse fit's
@@ -166,7 +166,7 @@ def main():
     ap.add_argument("--crossval", action="store_true", help="part 2: held-out quality on real recordings")
     ap.add_argument("--sizes", default="1000,2000", help="exact GP sizes")
     ap.add_argument("--sparse-sizes", default="10000,100000", help="sparse GP sizes")
-    ap.add_argument("--inducing", type=int, default=512)
+    ap.add_argument("--inducing", type=int, default=None, help="M (default: the library's DEFAULT_INDUCING)")
     ap.add_argument("--hyper-points", default="default",
                     help="part 1: the sparse fits' hyper_points, comma-separated ('default': the library's)")
     ap.add_argument("--jobs", type=int, default=2)
@@ -180,6 +180,10 @@ def main():
     ap.add_argument("--json")
     ap.add_argument("--markdown")
     args = ap.parse_args()
+    if args.inducing is None:
+        from rbgp_cli.gp.sparse import DEFAULT_INDUCING
+
+        args.inducing = DEFAULT_INDUCING
     text = part2(args) if args.crossval else part1(args)
     print(text)
     if args.markdown:

@@ -560,7 +560,8 @@ def _keep_sparse_if_no_worse(gp, gp_choice: dict, info: dict, seed: int, progres
     if progress:
         progress(f"the exact GP instead: {verdict}")
     return exact, {"type": "exact", "inducing": None, "forced": False, "check": gp_choice["check"],
-                   "reason": f"{gp_choice['reason']}; the exact GP on the {len(gp.hyper_rows)} points that chose the "
+                   "hyper_points": gp_choice.get("hyper_points"), "hyperparameters": gp_choice.get("hyperparameters"),
+                   "reason": f"{gp_choice['reason']}; the exact GP on a random {len(gp.hyper_rows)} of them at those "
                              f"hyperparameters instead: {verdict} (--inducing {gp.n_inducing} keeps the sparse GP)"}
 
 
@@ -653,7 +654,7 @@ def train_model(
     ``noise_scale`` ≥ 1: after that, σn² of the posterior is multiplied by this factor as well
     (:func:`rbgp_cli.gp.calibration.scale_noise`; 1: not), so the mean rollout leans further on the prior.
     ``hyper_points`` (sparse GP only): the hyperparameters are the exact GP's fit on at most this many
-    random points (None: 2000, the exact GP's default ``max_points``; 0: all), and the posterior uses all
+    random points (None: 1000, HYPER_EXACT_POINTS; 0: all), and the posterior uses all
     (:func:`rbgp_cli.gp.sparse.fit_sparse_gp`, ``hyper="exact"``); ``summary["gp"]["hyper_points"]`` is
     how many the fit covered and ``summary["gp"]["hyperparameters"]`` says which objective chose them.
     ``start_conditioning`` (mean-path prior, 3 or more demonstrations): the prior pulls each
@@ -684,7 +685,7 @@ def train_model(
                  f"({rep.name}, kernel {kernel}, {'shared' if shared else 'per-output'} hyperparameters)")
     fit = dict(noise=noise, restarts=restarts, seed=seed, shared=shared, progress=progress, explore_size=explore_size)
     if gp_choice["type"] == "sparse":
-        gp, gp_choice, info = _fit_sparse(X, Y, kern, gp_choice, info, hyper_points, jobs, **fit)
+        gp, gp_choice, info = _fit_sparse(X, Y, kern, gp_choice, info, hyper_points, jobs, max_points=max_points, **fit)
     else:
         if jobs is None:
             jobs = default_jobs(1 if shared else Y.shape[1], len(X))
@@ -770,17 +771,39 @@ def _prior_of(trajs, info, prior, prior_gain, start_conditioning, seed):
     return mean, start_dev
 
 
+def _widen_exact(gp, max_points, seed) -> None:
+    """Make the sparse fit's exact GP (``gp.hyper_gp`` on ``gp.hyper_rows``, the subset that chose the
+    hyperparameters) the one the automatic choice compares with and falls back on: the same
+    hyperparameters on a random ``max_points`` of the rows (those rows among them), so that the
+    fallback is as strong as ``--inducing 0``'s exact GP on as many points. Nothing changes when the
+    subset has ``max_points`` rows already."""
+    from rbgp_cli.gp.exact import GaussianProcess
+
+    rows = np.asarray(gp.hyper_rows)
+    want = min(len(gp.X), int(max_points) if max_points else len(rows))
+    if want <= len(rows):
+        return
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 31]))
+    extra = rng.choice(np.setdiff1d(np.arange(len(gp.X)), rows), size=want - len(rows), replace=False)
+    rows = np.sort(np.concatenate([rows, extra]))
+    exact = gp.hyper_gp
+    gp.hyper_gp = GaussianProcess(exact.kernel, gp.X[rows], gp.Y[rows], exact.fits, shared=exact.shared,
+                                  y_scale=exact.y_scale)
+    gp.hyper_rows = rows
+
+
 def _fit_sparse(X, Y, kern, gp_choice, info, hyper_points, jobs, *, noise, restarts, seed, shared, progress,
-                explore_size):
+                explore_size, max_points=None):
     """The sparse GP of ``gp_choice`` on all points (:func:`rbgp_cli.gp.sparse.fit_sparse_gp`), or,
-    chosen automatically, the exact GP on its hyperparameter subset where that measures better
-    (:func:`_keep_sparse_if_no_worse`). Returns (gp, gp_choice, info), ``gp_choice`` saying which and why."""
-    from rbgp_cli.gp.sparse import HYPER_MIN_POINTS, fit_sparse_gp
+    chosen automatically, the exact GP on a random ``max_points`` of them at the same hyperparameters
+    where that measures better (:func:`_widen_exact`, :func:`_keep_sparse_if_no_worse`). Returns (gp,
+    gp_choice, info), ``gp_choice`` saying which and why."""
+    from rbgp_cli.gp.sparse import HYPER_EXACT_POINTS, fit_sparse_gp
 
     if progress:
         progress(f"sparse GP: {gp_choice['reason']}")
     if jobs is None:  # worker processes for the exact fit that chooses the hyperparameters
-        hp = len(X) if hyper_points == 0 else min(len(X), hyper_points or HYPER_MIN_POINTS)
+        hp = len(X) if hyper_points == 0 else min(len(X), hyper_points or HYPER_EXACT_POINTS)
         jobs = default_jobs(1 if shared else Y.shape[1], hp)
     gp = fit_sparse_gp(X, Y, kern, inducing=gp_choice["inducing"], noise=noise, restarts=restarts, seed=seed,
                        shared=shared, progress=progress, explore_size=explore_size, hyper_points=hyper_points,
@@ -798,6 +821,7 @@ def _fit_sparse(X, Y, kern, gp_choice, info, hyper_points, jobs, *, noise, resta
     else:
         gp_choice["reason"] += f"; hyperparameters from {gp_choice['hyperparameters']} on all of them"
     if not gp_choice["forced"] and getattr(gp, "hyper_gp", None) is not None:
+        _widen_exact(gp, max_points, seed)
         rows = gp.hyper_rows
         gp, gp_choice = _keep_sparse_if_no_worse(gp, gp_choice, info, seed, progress)
         if gp_choice["type"] == "exact":  # the training points are now the subset's

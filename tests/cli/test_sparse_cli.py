@@ -109,7 +109,7 @@ def test_automatic_choice_rule():
     assert choose_gp(4000, None, 5000, "se")["type"] == "exact"
     # above both: sparse on all points, and the summary says why and how to force the exact GP
     auto = choose_gp(SPARSE_ABOVE + 1, None, 2000, "se-chordal")
-    assert auto["type"] == "sparse" and not auto["forced"] and auto["inducing"] == 512
+    assert auto["type"] == "sparse" and not auto["forced"] and auto["inducing"] == 256
     assert "--inducing 0" in auto["reason"] and str(SPARSE_ABOVE + 1) in auto["reason"]
     assert choose_gp(10**5, None, None, "se")["type"] == "sparse"
     # the dot-product kernel stays exact; forcing a sparse one is an input error

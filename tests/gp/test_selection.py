@@ -74,3 +74,35 @@ def test_train_model_keeps_the_sparse_gp_only_where_it_measures_no_worse(monkeyp
 
     res = rollout(m, q, p, 5, with_std=True)
     assert np.all(np.isfinite(res.position)) and np.all(np.isfinite(res.std))
+
+
+def test_the_fallback_exact_gp_has_max_points_rows_at_the_sparse_fits_hyperparameters(monkeypatch):
+    """With fewer hyperparameter points than --max-points (the default: 1000 against 2000), the exact GP
+    the automatic choice compares with and falls back on is widened to --max-points rows (the
+    hyperparameter subset among them) at the same hyperparameters: as strong as --inducing 0's."""
+    import rbgp_cli.dynamics.model as model_mod
+    import rbgp_cli.gp.selection as sel
+    from rbgp_cli.workflows import load_demonstrations
+
+    demos, _, _ = load_demonstrations(["sample_data/csv"])
+    monkeypatch.setattr(model_mod, "SPARSE_ABOVE", 100)
+    real = sel.held_out_comparison
+    seen = {}
+
+    def rigged(gp, groups, **kw):
+        seen["rows"] = np.asarray(gp.hyper_rows)
+        out = real(gp, groups, **kw)
+        return dict(out, sparse=out["exact"] * 2.0)  # the exact GP wins
+
+    monkeypatch.setattr(sel, "held_out_comparison", rigged)
+    m = model_mod.train_model(demos, max_points=150, hyper_points=90, restarts=1, shared=True, explore_size=60, jobs=1)
+    gp = m.summary["gp"]
+    assert gp["type"] == "exact" and gp["hyper_points"] == 90 and "random 150 of them" in gp["reason"]
+    assert len(seen["rows"]) == 150 and len(np.unique(seen["rows"])) == 150
+    assert m.summary["points"] == 150 and len(m.gp.X) == 150
+    fitted = [f.values for f in m.gp.fits]
+    forced = model_mod.train_model(demos, inducing=40, hyper_points=90, restarts=1, shared=True, explore_size=60, jobs=1,
+                                   calibrate=False, noise_scale=1.0)
+    noise = "noise_std"
+    assert [{k: v for k, v in f.items() if k != noise} for f in fitted] == \
+        [{k: v for k, v in f.values.items() if k != noise} for f in forced.gp.fits]

@@ -166,20 +166,20 @@ def test_fit_is_seeded_and_learns_the_field_from_all_points():
 @pytest.mark.slow
 def test_by_default_the_hyperparameters_are_the_exact_gps_on_a_subset_and_the_posterior_uses_all_points():
     """hyper="exact" (the default): the hyperparameters are exactly those fit_gp finds on the same random
-    subset (HYPER_MIN_POINTS of the rows, drawn as the bound's subsets are), never the bound's; the
+    subset (HYPER_EXACT_POINTS of the rows, drawn as the bound's subsets are), never the bound's; the
     inducing poses are farthest-point ones; the posterior is the one recomputed from all of X, Y."""
-    from rbgp_cli.gp.sparse import HYPER_MIN_POINTS
+    from rbgp_cli.gp.sparse import HYPER_EXACT_POINTS
 
     k = SquaredExponential("chordal", 3, 0.7)
     X = poses(2600, 41)
     Y = field(X, np.random.default_rng(42))[:, :2]
     gp = fit_sparse_gp(X, Y, k, inducing=40, restarts=2, seed=1, explore_size=200)
     perm = np.random.default_rng(np.random.SeedSequence([1, 3])).permutation(len(X))
-    idx = np.sort(perm[:HYPER_MIN_POINTS])
+    idx = np.sort(perm[:HYPER_EXACT_POINTS])
     ex = fit_gp(X[idx], Y[idx], k, restarts=2, seed=1, explore_size=200)
     assert [f.values for f in gp.fits] == [f.values for f in ex.fits]
     for f in gp.fits:
-        assert [st["objective"] for st in f.stages] == ["exact NLML"] and f.stages[0]["points"] == HYPER_MIN_POINTS
+        assert [st["objective"] for st in f.stages] == ["exact NLML"] and f.stages[0]["points"] == HYPER_EXACT_POINTS
     np.testing.assert_array_equal(gp.Z, X[select_inducing(X, 40, k, seed=1, method="farthest")])
     again = SparseGP(k, X, Y, gp.Z, gp.fits, shared=False)
     Xs = poses(100, 43)
