@@ -29,6 +29,8 @@ def _stderr(text: str) -> None:
 
 _QUIET = {"on": False}
 _JSON = {"on": False}
+#: Ctrl-C has arrived while the command ran (:func:`_signals_as_exceptions`)
+_INTERRUPTED = {"on": False}
 #: the reporter of the running command (see :func:`_progress_session`)
 _REPORTER: dict = {"now": None}
 
@@ -97,7 +99,15 @@ def _signals_as_exceptions():
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+
+    def interrupt(signum, frame):
+        # noted, so that a failure it causes is reported as the interruption: a KeyboardInterrupt
+        # inside a C extension's import comes out as "ImportError: initialization failed"
+        _INTERRUPTED["on"] = True
+        raise KeyboardInterrupt
+
+    _INTERRUPTED["on"] = False
+    previous = signal.signal(signal.SIGINT, interrupt)
     try:
         with ending_on_sigterm():
             yield
@@ -171,6 +181,9 @@ def command(func):
                 _stderr("rbgp: error: out of memory; use --max-points or --subsample to train on fewer points")
                 raise typer.Exit(1) from None
             except Exception as exc:  # noqa: BLE001 - the last line of defence: no tracebacks for users
+                if _INTERRUPTED["on"]:  # a failure Ctrl-C caused (e.g. inside an import) is the interruption
+                    _stderr("rbgp: interrupted")
+                    raise typer.Exit(130) from None
                 if os.environ.get("RBGP_DEBUG"):
                     raise
                 text = " ".join(str(exc).split())[:300]

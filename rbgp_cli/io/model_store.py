@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import hashlib
+import io
 import json
 import math
 import os
@@ -184,9 +185,13 @@ def save_model(model, path) -> dict:
     header = json.loads(canonical_json(header))  # as a reader will parse it (keys as strings, tuples as lists)
     header["checksums"]["header"] = header_sha256(header)
     raw = canonical_json(header)
+    # compressed in memory first: the temporary file then exists only for the write, the fsync and the
+    # rename, so that a SIGKILL (which nothing can clean up after) rarely finds one
+    buf = io.BytesIO()
+    np.savez_compressed(buf, header=np.frombuffer(raw, dtype=np.uint8), **arrays)
     try:
         with atomic_open(path, "wb") as fh:
-            np.savez_compressed(fh, header=np.frombuffer(raw, dtype=np.uint8), **arrays)
+            fh.write(buf.getbuffer())
     except (FileNotFoundError, NotADirectoryError, PermissionError, IsADirectoryError) as exc:
         raise InputError(f"cannot write the model file ({exc.strerror or type(exc).__name__})", path=str(path),
                          hint="check that the folder exists and is writable") from None

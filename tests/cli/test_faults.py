@@ -308,3 +308,32 @@ def test_a_dask_study_whose_workers_keep_dying_fails_with_one_line_naming_the_fo
         _assert_all_gone(procs)
     finally:
         run.cleanup(procs)
+
+
+def test_a_failure_that_ctrl_c_caused_is_reported_as_the_interruption(capsys):
+    """Ctrl-C inside a C extension's import comes out of the import as "ImportError: initialization
+    failed" (seen when the SIGINT met scipy.special's first import at the end of training): reported
+    as the interruption (exit 130), not as an internal error; without a Ctrl-C it stays one."""
+    import typer
+
+    from rbgp_cli.cli.common import command
+
+    @command
+    def interrupted_import():
+        try:
+            os.kill(os.getpid(), signal.SIGINT)  # the command's handler raises KeyboardInterrupt here
+            time.sleep(5)
+        except KeyboardInterrupt:
+            raise ImportError("initialization failed") from None
+
+    @command
+    def broken():
+        raise ImportError("initialization failed")
+
+    with pytest.raises(typer.Exit) as exc:
+        interrupted_import()
+    assert exc.value.exit_code == 130 and "rbgp: interrupted" in capsys.readouterr().err
+    with pytest.raises(typer.Exit) as exc:
+        broken()
+    err = capsys.readouterr().err
+    assert exc.value.exit_code == 1 and "internal error: ImportError" in err and "interrupted" not in err
