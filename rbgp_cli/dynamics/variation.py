@@ -166,6 +166,12 @@ RIDGE_GRID = (0.001, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0, 3.0, 10.0, float("inf"))
 RIDGE_FOLDS = 10
 
 
+def _coordinate_scale(delta: np.ndarray) -> np.ndarray:
+    """Each coordinate's RMS deviation (6,) (1 where it does not vary): the units of the ridge map."""
+    scale = np.sqrt(np.mean(delta**2, axis=(0, 1)))
+    return np.where(scale > 1e-12, scale, 1.0)
+
+
 def _ridge_map(delta: np.ndarray, scale: np.ndarray, lam: float):
     """μ (S, 6) and the ridge regression B (S, 6, 6) of the deviations δ (D, S, 6) at every phase on
     their start value, in coordinates scaled by ``scale`` (6,) (see :func:`start_map`)."""
@@ -203,8 +209,7 @@ def start_map(delta: np.ndarray, *, grid=RIDGE_GRID, folds: int = RIDGE_FOLDS, s
     """
     delta = np.asarray(delta, dtype=np.float64)
     D = len(delta)
-    scale = np.sqrt(np.mean(delta**2, axis=(0, 1)))
-    scale = np.where(scale > 1e-12, scale, 1.0)
+    scale = _coordinate_scale(delta)
     grid = tuple(float(g) for g in grid)
     errors = np.zeros(len(grid))
     if D > MIN_DEMOS:
@@ -250,12 +255,11 @@ def band_scale(delta: np.ndarray, residuals: np.ndarray, s: np.ndarray, *, ridge
     if D < MIN_BAND_DEMOS:
         return 1.0, 1.0
     nu = D - 2
-    scale = np.sqrt(np.mean(delta**2, axis=(0, 1)))
-    scale = np.where(scale > 1e-12, scale, 1.0)
+    scale = _coordinate_scale(delta)
     decay = np.exp(-float(gain) * np.asarray(s, dtype=np.float64))[1:, None]
     outer = np.einsum("dsi,dsj->dsij", r[:, 1:], r[:, 1:])  # (D, S−1, 6, 6), phase 0 left out (r = 0 there)
     total = outer.sum(axis=0)
-    factor = (1.0 + 1.0 / D) / (nu - 2) * D / (D - 1) if nu > 2 else (1.0 + 1.0 / D) * D / (D - 1)
+    factor = (1.0 + 1.0 / D) / (nu - 2) * D / (D - 1)  # ν − 2 ≥ 2: D ≥ MIN_BAND_DEMOS
     m2, z = [], []
     for d in range(D):  # a loop over demonstrations, each a batch of 6 × 6 solves over phase
         mu, B = _ridge_map(np.delete(delta, d, axis=0), scale, ridge)

@@ -449,8 +449,8 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
     if isinstance(repeats, bool) or not isinstance(repeats, (int, np.integer)) or repeats < 1:
         raise InputError(f"repeats must be a whole number of at least 1, got {repeats!r}", param="repeats")
     seeds = [int(seed) + r for r in range(int(repeats))]
-    fold_idx = [f for s in seeds for f in make_folds(len(demos), folds, s)]
-    k = len(fold_idx) // len(seeds)
+    fold_idx = [f for s in seeds for f in make_folds(len(demos), folds, s)]  # repetition by repetition
+    k = int(folds)
     splits = []
     for test_idx in fold_idx:
         held = set(test_idx.tolist())
