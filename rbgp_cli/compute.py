@@ -420,8 +420,10 @@ def _names(indices, label) -> str:
 
 
 def iter_processes(fn, args, n_jobs: int, *, label=None, init=worker_init):
-    """Yield ``(index, fn(args[index]))`` as the tasks finish in ``n_jobs`` fresh (spawned) worker
-    processes (:func:`process_pool`; BLAS single-threaded). A pool that loses a worker (killed, out of
+    """Yield ``(index, fn(args[index]))`` as the tasks finish in ``n_jobs`` worker processes
+    (:func:`process_pool` in :func:`fork_context`: forked on Linux, where a worker has no start-up
+    message to read from its parent, so one killed at any moment leaves no worker printing
+    multiprocessing's ``EOFError`` traceback; BLAS single-threaded). A pool that loses a worker (killed, out of
     memory) is started again for the unfinished tasks, :data:`RETRIES` times; then
     :class:`RbgpRuntimeError` names them. On any other error, Ctrl-C or SIGTERM the pending tasks are
     cancelled and the workers terminated at once."""
@@ -432,7 +434,7 @@ def iter_processes(fn, args, n_jobs: int, *, label=None, init=worker_init):
 
     todo = list(range(len(args)))
     for attempt in range(RETRIES + 1):
-        pool = process_pool(max(1, min(n_jobs, len(todo))), init=init)
+        pool = process_pool(max(1, min(n_jobs, len(todo))), context=fork_context(), init=init)
         finished, broken = set(), False
         try:
             with ending_on_sigterm():

@@ -304,7 +304,7 @@ def _task(args):
 
 def _run_in_processes(args: list, n_jobs: int, label=None):
     """Yield (index, result) of ``_task(a)`` for every ``a`` in ``args`` as they finish, in ``n_jobs``
-    fresh (spawned) worker processes with single-threaded BLAS that end with this process
+    worker processes (forked on Linux) with single-threaded BLAS that end with this process
     (:func:`rbgp_cli.compute.iter_processes`: on an error, Ctrl-C or SIGTERM the pending tasks are
     cancelled and the workers stopped; a lost worker's fits are run again once, then named)."""
     from rbgp_cli.compute import iter_processes
