@@ -191,7 +191,8 @@ def train_options(*, rho_rot=DEFAULTS["rho_rot"], restarts: int = DEFAULTS["rest
                   inducing: int | None = None, hyper_points: int | None = None,
                   calibrate_noise: bool = DEFAULTS["calibrate"],
                   start_conditioning: bool = DEFAULTS["start_conditioning"],
-                  noise_scale: float = DEFAULTS["noise_scale"]) -> dict:
+                  noise_scale: float = DEFAULTS["noise_scale"],
+                  pull_profile: bool = DEFAULTS["pull_profile"]) -> dict:
     """Check the training options (named and spelled as ``rbgp train``'s, with ``_`` for ``-``) and
     build the keyword arguments of :func:`rbgp_cli.dynamics.model.train_model` (without representation,
     kernel and jobs). ``noise`` is ``"learn"`` or a positive number; ``time_input`` and ``prior`` accept
@@ -225,6 +226,7 @@ def train_options(*, rho_rot=DEFAULTS["rho_rot"], restarts: int = DEFAULTS["rest
         "calibrate": bool(calibrate_noise),
         "start_conditioning": bool(start_conditioning),
         "noise_scale": scale,
+        "pull_profile": bool(pull_profile),
     }
 
 
@@ -381,7 +383,8 @@ class RigidBodyGP:
     ``noise`` ("learn" or a number), ``share_hyperparameters``, ``subsample``, ``max_points``,
     ``time_input`` (none, seconds, phase), ``prior`` (none, goal, path), ``prior_gain``,
     ``train_rate`` (Hz; 0 keeps the recorded samples), ``smooth_window``, ``smooth_degree``,
-    ``inducing``, ``hyper_points``, ``calibrate_noise``, ``start_conditioning``, ``noise_scale``, ``jobs`` (0: automatic).
+    ``inducing``, ``hyper_points``, ``calibrate_noise``, ``start_conditioning``, ``noise_scale``, ``pull_profile``,
+    ``jobs`` (0: automatic).
 
     Attributes
     ----------
@@ -410,7 +413,8 @@ class RigidBodyGP:
                  smooth_degree: int = DEFAULTS["smooth_degree"], inducing: int | None = None,
                  hyper_points: int | None = None, calibrate_noise: bool = DEFAULTS["calibrate"],
                  start_conditioning: bool = DEFAULTS["start_conditioning"],
-                 noise_scale: float = DEFAULTS["noise_scale"], jobs: int = 0):
+                 noise_scale: float = DEFAULTS["noise_scale"], pull_profile: bool = DEFAULTS["pull_profile"],
+                 jobs: int = 0):
         self.representation = representation
         self.kernel = kernel
         self.rho_rot = rho_rot
@@ -432,11 +436,12 @@ class RigidBodyGP:
         self.calibrate_noise = calibrate_noise
         self.start_conditioning = start_conditioning
         self.noise_scale = noise_scale
+        self.pull_profile = pull_profile
         self.jobs = jobs
 
     _TRAIN = ("rho_rot", "restarts", "explore_size", "seed", "noise", "share_hyperparameters", "subsample",
               "max_points", "train_rate", "smooth_window", "smooth_degree", "time_input", "prior", "prior_gain",
-              "inducing", "hyper_points", "calibrate_noise", "start_conditioning", "noise_scale")
+              "inducing", "hyper_points", "calibrate_noise", "start_conditioning", "noise_scale", "pull_profile")
 
     def get_params(self, deep: bool = True) -> dict:
         """The constructor's parameters (scikit-learn convention)."""

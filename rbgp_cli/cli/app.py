@@ -14,7 +14,7 @@ import typer
 from rbgp_cli import __version__
 from rbgp_cli.cli.args import RbgpGroup, paths_option
 from rbgp_cli.cli.train_options import (
-    ExploreOpt, MaxPointsOpt, NoiseOpt, NoiseScaleOpt, PriorGainOpt, PriorOpt, StartCondOpt, RestartsOpt, RhoOpt, SeedOpt, ShareOpt, SmoothDegreeOpt,
+    ExploreOpt, MaxPointsOpt, NoiseOpt, NoiseScaleOpt, PriorGainOpt, PriorOpt, PullProfileOpt, StartCondOpt, RestartsOpt, RhoOpt, SeedOpt, ShareOpt, SmoothDegreeOpt,
     CalibrateOpt, HyperPointsOpt, InducingOpt, SmoothWindowOpt, SubsampleOpt, TimeInputOpt, TrainRateOpt, defaults, kernel_help, train_kwargs,
 )
 from rbgp_cli.cli.common import (
@@ -70,6 +70,7 @@ def train(
     smooth_degree: SmoothDegreeOpt = _D["smooth_degree"], inducing: InducingOpt = None,
     hyper_points: HyperPointsOpt = None, calibrate_noise: CalibrateOpt = _D["calibrate"],
     start_conditioning: StartCondOpt = _D["start_conditioning"], noise_scale: NoiseScaleOpt = _D["noise_scale"],
+    pull_profile: PullProfileOpt = _D["pull_profile"],
     jobs: Annotated[int, typer.Option(min=0, help="Worker processes for the per-output fits (BLAS single-threaded in each; the model does not depend on it); 0 = one per output, fewer if memory is short, 1 on a single core.", rich_help_panel=_TRAIN)] = 0,
     json_out: Annotated[bool, typer.Option("--json", help="Print the summary as JSON on stdout.", rich_help_panel=_OUT)] = False,
     rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd) of the demonstrations and training points.", rich_help_panel=_OUT)] = None,
@@ -89,7 +90,8 @@ def train(
                           train_rate=train_rate, smooth_window=smooth_window, smooth_degree=smooth_degree,
                           time_input=time_input, prior=prior, prior_gain=prior_gain, inducing=inducing,
                           hyper_points=hyper_points, calibrate_noise=calibrate_noise,
-                          start_conditioning=start_conditioning, noise_scale=noise_scale)
+                          start_conditioning=start_conditioning, noise_scale=noise_scale,
+                          pull_profile=pull_profile)
     if up not in ("z", "y"):
         raise InputError(f"--up must be z or y, got {up!r}")
     check_outputs(output, rerun)
@@ -424,6 +426,7 @@ def crossval(
     smooth_degree: SmoothDegreeOpt = _D["smooth_degree"], inducing: InducingOpt = None,
     hyper_points: HyperPointsOpt = None, calibrate_noise: CalibrateOpt = _D["calibrate"],
     start_conditioning: StartCondOpt = _D["start_conditioning"], noise_scale: NoiseScaleOpt = _D["noise_scale"],
+    pull_profile: PullProfileOpt = _D["pull_profile"],
     read: ReadArgs = None,
 ):
     """How well do generated motions hold up from start poses the model has not seen? Cross-validation
@@ -447,7 +450,8 @@ def crossval(
                           train_rate=train_rate, smooth_window=smooth_window, smooth_degree=smooth_degree,
                           time_input=time_input, prior=prior, prior_gain=prior_gain, inducing=inducing,
                           hyper_points=hyper_points, calibrate_noise=calibrate_noise,
-                          start_conditioning=start_conditioning, noise_scale=noise_scale)
+                          start_conditioning=start_conditioning, noise_scale=noise_scale,
+                          pull_profile=pull_profile)
     variants, lists = grid_variants(ctx, grid)
     for name, given in (("representation", representation), ("kernel", kernel)):
         if name in lists and given:

@@ -43,7 +43,9 @@ def format_train_summary(s: dict) -> str:
         what = {"path": "the demonstrations' mean path", "goal": "a pull toward the mean final pose"}
         per = "per unit phase" if s.get("time_input") == "phase" else "per second"
         lines.append(f"time input: {s.get('time_input') or 'none'}   prior mean: "
-                     + (f"{what[prior['kind']]} (gain {prior['gain']:g} {per})" if prior else "zero"))
+                     + (f"{what[prior['kind']]} (gain {prior['gain']:g} {per}" + (
+                         f", up to {prior['gain_max']:.3g} where the demonstrations converge" if prior.get("gain_max") else "")
+                        + ")" if prior else "zero"))
     if s.get("variation"):
         lines.append(_variation_text(s["variation"]))
     gp = s.get("gp") or {}

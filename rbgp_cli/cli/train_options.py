@@ -38,6 +38,7 @@ TimeInputOpt = Annotated[str, typer.Option("--time-input", help="What the GP see
 PriorOpt = Annotated[str, typer.Option("--prior", help="The GP's prior mean: none (zero, the paper), goal (a pull toward the demonstrations' mean final pose) or path (the demonstrations' mean path over phase: its velocity plus a pull toward it; needs --time-input phase). The GP models the residual.", rich_help_panel=ModelPanel)]
 PriorGainOpt = Annotated[float, typer.Option("--prior-gain", min=0.0, help="How strongly the prior pulls toward its pose: per unit phase (per second with --time-input seconds or none).", rich_help_panel=ModelPanel)]
 StartCondOpt = Annotated[bool, typer.Option("--start-conditioning/--no-start-conditioning", help="With --prior path: pull each motion toward the mean path displaced by the deviation the demonstrations keep from a start like its own (its conditional mean given the start: a ridge map over all six coordinates, its strength by cross-validation), not toward the mean path itself; chosen by crossval.", rich_help_panel=ModelPanel)]
+PullProfileOpt = Annotated[bool, typer.Option("--pull-profile/--no-pull-profile", help="With --start-conditioning: the pull's gain per phase and coordinate follows how fast the demonstrations converge on their start-conditioned paths (rising up to 20 per unit phase where they close in on a common pose, e.g. the end of a reach; --prior-gain elsewhere), so a rollout converges as they do; --no-pull-profile: --prior-gain throughout. Chosen by crossval.", rich_help_panel=ModelPanel)]
 NoiseScaleOpt = Annotated[float, typer.Option("--noise-scale", min=1.0, help="After the fit (and --calibrate-noise), multiply the posterior's noise variance by this factor (1: not): the mean rollout then leans further on the prior's motion (--prior path: the start-conditioned mean path) and less on the training demonstrations' own deviations; chosen by crossval.", rich_help_panel=ModelPanel)]
 TrainRateOpt = Annotated[float, typer.Option("--train-rate", min=0.0, help="Resample each demonstration to this rate (Hz) before estimating velocities; the rollout step follows it. 0 keeps the recorded samples.", rich_help_panel=_VEL)]
 SmoothWindowOpt = Annotated[float, typer.Option("--smooth-window", min=0.0, help="Estimate velocities by a local polynomial fit over this many seconds around each sample (Savitzky–Golay type, in the rotation's tangent space); 0: forward differences.", rich_help_panel=_VEL)]
@@ -49,7 +50,7 @@ def train_kwargs(*, rho_rot: str, restarts: int, explore_size: int, seed: int, n
                  time_input: str, prior: str, prior_gain: float, inducing: int | None = None,
                  hyper_points: int | None = None, calibrate_noise: bool = DEFAULTS["calibrate"],
                  start_conditioning: bool = DEFAULTS["start_conditioning"],
-                 noise_scale: float = DEFAULTS["noise_scale"]) -> dict:
+                 noise_scale: float = DEFAULTS["noise_scale"], pull_profile: bool = DEFAULTS["pull_profile"]) -> dict:
     """Check the option values and build the keyword arguments of
     :func:`rbgp_cli.dynamics.model.train_model` (without representation and kernel): the library's
     :func:`rbgp_cli.api.train_options`, whose errors name the parameters (the command shows the flags)."""
@@ -60,7 +61,7 @@ def train_kwargs(*, rho_rot: str, restarts: int, explore_size: int, seed: int, n
                          train_rate=train_rate, smooth_window=smooth_window, smooth_degree=smooth_degree,
                          time_input=time_input, prior=prior, prior_gain=prior_gain, inducing=inducing,
                          hyper_points=hyper_points, calibrate_noise=calibrate_noise,
-                         start_conditioning=start_conditioning, noise_scale=noise_scale)
+                         start_conditioning=start_conditioning, noise_scale=noise_scale, pull_profile=pull_profile)
 
 
 def defaults() -> dict:

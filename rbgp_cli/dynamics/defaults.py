@@ -27,6 +27,10 @@ DEFAULTS = {
     # the mean path moved by the deviation the demonstrations keep from a start like the rollout's
     # (a ridge map over all six coordinates, its strength by cross-validation; docs/method.md §7)
     "start_conditioning": True,
+    # with start conditioning: the pull's gain rises (up to 20 per unit phase) where the demonstrations
+    # converge on their start-conditioned paths, so rollouts converge as people do (the end of a hand
+    # raise); --prior-gain elsewhere (docs/method.md §7, "The pull's profile"; docs/defaults.md)
+    "pull_profile": True,
     # σn² of the posterior scaled by held-out demonstrations (gp/calibration.py): the mean rollout then
     # follows the shared motion and the sampled rollouts carry the variation between demonstrations
     "calibrate": True,

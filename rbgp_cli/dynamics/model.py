@@ -407,8 +407,25 @@ def prior_mean_outputs(representation: Representation, state: np.ndarray, mean: 
         ref_q, ref_p = np.broadcast_to(goal[:4], quat.shape), goal[4:]
         ff = 0.0
     rot = log_quat(quat_multiply(ref_q, quat_conjugate(quat)))
+    if mean["kind"] == "path" and mean.get("gain_profile") is not None:
+        a = pull_gains(mean, phase, h)
     xi = ff + a * np.concatenate([rot, ref_p - pos], axis=1)
     return representation.output_from_velocity(state, quat, xi)
+
+
+def pull_gains(mean: dict, phase, step=None) -> np.ndarray:
+    """The pull's gains (m, 6) at phases (m,) of a mean path with a profile (``mean["gain_profile"]``
+    (S, 6) on ``mean["s"]``, :func:`~rbgp_cli.dynamics.variation.pull_profile`): the grid interval's
+    value (its left end), and with a step h (scalar or (m,), nonzero) at most 1/|h|, so that one step
+    of a rollout never carries a pose past its reference (e_{k+1} = (1 − a h) e_k ≥ 0)."""
+    s = np.clip(np.asarray(phase, dtype=np.float64).reshape(-1), 0.0, 1.0)
+    grid = np.asarray(mean["s"], dtype=np.float64)
+    prof = np.asarray(mean["gain_profile"], dtype=np.float64)
+    a = prof[np.clip(np.searchsorted(grid, s, side="right") - 1, 0, len(grid) - 1)]
+    if step is not None:
+        h = np.abs(np.broadcast_to(np.asarray(step, dtype=np.float64), s.shape))
+        a = np.minimum(a, 1.0 / np.maximum(h, 1e-12)[:, None])
+    return a
 
 
 def mean_path(trajs: list[Trajectory], steps: int = 51) -> dict:
@@ -627,6 +644,7 @@ def train_model(
     calibrate: bool = DEFAULTS["calibrate"],
     start_conditioning: bool = DEFAULTS["start_conditioning"],
     noise_scale: float = DEFAULTS["noise_scale"],
+    pull_profile: bool = DEFAULTS["pull_profile"],
 ) -> MotionModel:
     """Train a motion model on clean demonstrations (see :func:`rbgp_cli.dynamics.prepare.prepare_all`).
 
@@ -673,7 +691,7 @@ def train_model(
     if gp_choice["type"] == "exact" and max_points is not None and info["points"] > max_points:
         X, Y, info = training_set(trajs, rep, subsample=subsample, max_points=max_points, seed=seed, velocity=velocity,
                                   time_input=time_input)
-    mean, start_dev = _prior_of(trajs, info, prior, prior_gain, start_conditioning, seed)
+    mean, start_dev = _prior_of(trajs, info, prior, prior_gain, start_conditioning, seed, pull_profile)
     if mean is not None:
         step = None
         if mean.get("feedforward") == "secant":  # each pair's own phase step: its forward difference's
@@ -748,9 +766,11 @@ def _without_empty_demos(trajs, info, velocity):
     return [trajs[k] for k in keep], info
 
 
-def _prior_of(trajs, info, prior, prior_gain, start_conditioning, seed):
+def _prior_of(trajs, info, prior, prior_gain, start_conditioning, seed, pull_profile=False):
     """The prior mean (docs/method.md §7: ``path``, ``goal`` or None) and, for a start-conditioned mean
-    path (3 or more demonstrations), each training row's start deviation (n, 6), else None."""
+    path (3 or more demonstrations), each training row's start deviation (n, 6), else None. With
+    ``pull_profile`` a start-conditioned path's pull gain follows the demonstrations' convergence
+    (``mean["gain_profile"]`` (S, 6), :func:`~rbgp_cli.dynamics.variation.pull_profile`)."""
     mean = None
     if prior == "path":
         mean = {"kind": "path", "gain": float(prior_gain), **mean_path(trajs)}
@@ -760,11 +780,13 @@ def _prior_of(trajs, info, prior, prior_gain, start_conditioning, seed):
         mean = {"kind": "goal", "gain": float(prior_gain), "goal": goal_pose(trajs).tolist()}
     start_dev = None
     if mean is not None and mean["kind"] == "path" and start_conditioning and len(trajs) >= 3:
-        from rbgp_cli.dynamics.variation import demonstration_deviations, start_map
+        from rbgp_cli.dynamics.variation import demonstration_deviations, pull_profile as profile_of, start_map
 
         _, delta = demonstration_deviations(trajs, len(mean["s"]))
         cond = start_map(delta, seed=seed)
         mean["start_mean"], mean["start_beta"], mean["start_ridge"] = cond["mean"], cond["map"], cond["ridge"]
+        if pull_profile:
+            mean["gain_profile"] = profile_of(delta, cond["mean"], cond["map"], np.asarray(mean["s"]), float(prior_gain))
         demo_of_row = np.repeat(np.arange(len(trajs)), info["per_demo"])[np.asarray(info["indices"])]
         start_dev = PathReference(mean).start_deviation(np.array([tr.quat[0] for tr in trajs]),
                                                         np.array([tr.position[0] for tr in trajs]))[demo_of_row]
@@ -890,6 +912,8 @@ def _train_summary(rep, kernel, kern, trajs, info, shared, velocity, gp, gp_choi
     summary["gp"] = gp_choice
     summary["prior"] = None if mean is None else {"kind": mean["kind"], "gain": mean["gain"],
                                                   "start_conditioned": "start_beta" in mean}
+    if mean is not None and mean.get("gain_profile") is not None:  # the pull's profile: its largest gain
+        summary["prior"]["gain_max"] = float(np.max(mean["gain_profile"]))
     if mean is not None and "start_ridge" in mean:  # the cross-validated ridge (None: ∞, no conditioning)
         lam = float(mean.pop("start_ridge"))
         summary["prior"]["start_ridge"] = lam if np.isfinite(lam) else None

@@ -53,7 +53,8 @@ import numpy as np
 from rbgp_cli.dynamics.trajectory import Trajectory
 
 __all__ = ["Variation", "demonstration_variation", "demonstration_deviations", "start_regression", "start_map",
-           "band_scale", "STEPS", "MIN_DEMOS", "MIN_BAND_DEMOS", "RIDGE_GRID", "BAND_LEVEL"]
+           "band_scale", "pull_profile", "STEPS", "MIN_DEMOS", "MIN_BAND_DEMOS", "RIDGE_GRID", "BAND_LEVEL",
+           "PULL_CAP", "PULL_WINDOW"]
 
 #: Phase grid of the deviations (as the mean path's).
 STEPS = 51
@@ -64,6 +65,11 @@ MIN_DEMOS = 3
 MIN_BAND_DEMOS = 6
 #: The level at which :func:`band_scale` makes the bands hold (the level crossval's coverage checks).
 BAND_LEVEL = 0.90
+#: The largest pull gain per unit phase :func:`pull_profile` gives (the demonstrations' spread shrinking
+#: e-fold in a twentieth of the motion); a rollout's step caps it further at 1/h (no overshoot).
+PULL_CAP = 20.0
+#: The phase window over which :func:`pull_profile` measures how fast the spread shrinks.
+PULL_WINDOW = 0.1
 
 
 @dataclass
@@ -230,6 +236,38 @@ def start_map(delta: np.ndarray, *, grid=RIDGE_GRID, folds: int = RIDGE_FOLDS, s
     lam = grid[best]
     mu, B = _ridge_map(delta, scale, lam)
     return {"mean": mu, "map": B, "ridge": lam, "errors": errors.tolist()}
+
+
+def pull_profile(delta: np.ndarray, start_mean: np.ndarray, start_map_: np.ndarray, s: np.ndarray, floor: float, *,
+                 window: float = PULL_WINDOW, cap: float = PULL_CAP) -> np.ndarray:
+    """The prior's pull gain per phase and coordinate that follows the demonstrations' convergence
+    (docs/method.md §7, "The pull's profile").
+
+    With the start-conditioned paths Δ_d(s) = μ(s) + B(s) c_d(0) (:func:`start_map`; c_d = δ_d − μ),
+    the demonstrations' spread about their own paths is σ_j(s) = √(mean_d r_dj(s)²), r_d = c_d − B c_d(0).
+    A deviation that a pull of gain a_j closes obeys e' = −a_j e; one that shrinks as the demonstrations
+    do follows e ∝ σ_j, so
+
+        a_j(s) = clip(−(ln σ_j(s + w/2) − ln σ_j(s − w/2)) / w,  floor, cap),
+
+    over a window of w = ``window`` in phase (the grid's intervals nearest to it; one-sided at the ends).
+    Where people spread out or keep their spread the gain is the constant ``floor`` (``--prior-gain``);
+    where they converge on a common pose (the end of a reach, a hand-over point) it rises, so that a
+    rollout converges as they do instead of keeping the deviation it picked up on the way.
+
+    delta (D, S, 6), start_mean μ (S, 6), start_map_ B (S, 6, 6), s (S,) → (S, 6), rotation first.
+    """
+    delta = np.asarray(delta, dtype=np.float64)
+    s = np.asarray(s, dtype=np.float64)
+    S = len(s)
+    c = delta - np.asarray(start_mean, dtype=np.float64)[None]
+    r = c - np.einsum("sij,dj->dsi", np.asarray(start_map_, dtype=np.float64), c[:, 0])
+    log_sigma = np.log(np.sqrt(np.mean(r ** 2, axis=0)) + 1e-12)  # (S, 6)
+    w = max(1, min(S - 1, int(round(window / float(np.median(np.diff(s)))))))
+    hi = np.clip(np.arange(S) - w // 2 + w, w, S - 1)
+    lo = hi - w
+    rate = -(log_sigma[hi] - log_sigma[lo]) / (s[hi] - s[lo])[:, None]
+    return np.clip(rate, float(floor), max(float(cap), float(floor)))
 
 
 def band_scale(delta: np.ndarray, residuals: np.ndarray, s: np.ndarray, *, ridge: float = float("inf"),

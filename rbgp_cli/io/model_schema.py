@@ -203,6 +203,7 @@ _PRIOR = nullable(obj({
     "goal": list_of(num(), 7, 7),
     "start": string(("mean", "conditioned")),
     "feedforward": string(("tangent", "secant")),
+    "gain_profile": boolean,
 }, ("kind", "gain")))  # fmt: skip
 
 _GP = obj({"type": string(("exact", "sparse")), "inducing": integer(1, 10**6)}, ("type",))
@@ -325,6 +326,8 @@ def _agree(h: dict) -> None:
             raise SchemaError("unknown field 'prior.goal' (a path prior has no goal)")
         if prior["kind"] == "goal" and "start" in prior:
             raise SchemaError("unknown field 'prior.start' (a goal prior has no start conditioning)")
+        if prior.get("gain_profile") and prior.get("start") != "conditioned":
+            raise SchemaError("prior.gain_profile needs a start-conditioned path prior (prior.start = 'conditioned')")
     gp = h.get("gp") or {"type": "exact"}
     if gp["type"] == "sparse" and "inducing" not in gp:
         raise SchemaError("gp.inducing is missing")
@@ -344,6 +347,8 @@ def expected_arrays(h: dict) -> set:
         req |= {"prior_s", "prior_quat", "prior_position", "prior_velocity"}
         if h["prior"].get("start") == "conditioned":
             req |= {"prior_start_mean", "prior_start_beta"}
+        if h["prior"].get("gain_profile"):
+            req |= {"prior_gain_profile"}
     if h.get("variation"):
         req |= {"variation_s", "variation_residuals"}
     return req
@@ -414,6 +419,11 @@ def validate_arrays(h: dict, arrays: dict) -> None:
             else:
                 _shape(arrays, "prior_start_beta", (S, 6), f"({S}, 6) or ({S}, 6, 6) (per entry of array 'prior_s')")
             _finite(arrays, "prior_start_beta")
+        if "prior_gain_profile" in req:
+            _shape(arrays, "prior_gain_profile", (S, 6), f"({S}, 6) (a row per entry of array 'prior_s')")
+            _finite(arrays, "prior_gain_profile")
+            if not np.all(arrays["prior_gain_profile"] >= 0):
+                raise SchemaError("array 'prior_gain_profile' holds negative gains")
         if not np.all(np.diff(arrays["prior_s"]) > 0):
             raise SchemaError("array 'prior_s' is not increasing")
     if "variation_s" in req:

@@ -24,10 +24,15 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
   :func:`rbgp_cli.dynamics.model.path_secant`); without it (every earlier file) the tangent, as that
   model was trained. An rbgp that reads only version 4 refuses these files instead of rolling them
   out with the other feed-forward.
-* Version 6 (what this rbgp writes): the deviation process says how much its draws are widened
+* Version 6: the deviation process says how much its draws are widened
   (``variation.band_scale``: ``rotation`` and ``position`` factors ≥ 1,
   :func:`rbgp_cli.dynamics.variation.band_scale`); files without it sample with factors 1, as they were
   trained. An rbgp that reads only version 5 refuses these files instead of sampling narrower bands.
+* Version 7 (what this rbgp writes): a start-conditioned path prior whose pull follows the
+  demonstrations' convergence says ``"gain_profile": true`` and holds ``prior_gain_profile`` (S, 6), the
+  gain per phase and coordinate (:func:`rbgp_cli.dynamics.variation.pull_profile`); without it the
+  pull is ``gain`` throughout, as such a model was trained. An rbgp that reads only version 6
+  refuses these files instead of rolling them out with the constant pull.
 
 Loading reads the zip itself (never unpickling: .npy members of plain numbers only) with limits
 checked before anything large is decompressed: a member may decompress to at most
@@ -64,7 +69,7 @@ __all__ = ["FORMAT", "FORMAT_VERSION", "save_model", "load_model", "read_header"
 
 FORMAT = "rbgp-model"
 #: The version this rbgp writes (4: the header checksummed, ``gp`` always present); it reads 1–4.
-FORMAT_VERSION = 6
+FORMAT_VERSION = 7
 #: Limits checked before anything large is read (a model of 10⁶ training points is ~100 MB).
 MAX_HEADER_BYTES = 16 << 20
 MAX_HEADER_DEPTH = 32
@@ -85,6 +90,8 @@ _VARIATION_ARRAYS = ("variation_s", "variation_residuals")
 _PRIOR_ARRAYS = {"prior_s": "s", "prior_quat": "quat", "prior_position": "position", "prior_velocity": "velocity"}
 #: Arrays of a start-conditioned mean-path prior (header ``prior.start == "conditioned"``).
 _START_ARRAYS = {"prior_start_mean": "start_mean", "prior_start_beta": "start_beta"}
+#: The pull's gain per phase and coordinate (header ``prior.gain_profile``).
+_PROFILE_ARRAY = ("prior_gain_profile", "gain_profile")
 
 
 def array_sha256(a: np.ndarray) -> str:
@@ -147,6 +154,9 @@ def save_model(model, path) -> dict:
                 prior["start"] = "conditioned"
                 for name, key in _START_ARRAYS.items():
                     arrays[name] = np.ascontiguousarray(mean[key], dtype=np.float64)
+                if mean.get("gain_profile") is not None:  # the pull's profile (dynamics.variation.pull_profile)
+                    prior["gain_profile"] = True
+                    arrays[_PROFILE_ARRAY[0]] = np.ascontiguousarray(mean[_PROFILE_ARRAY[1]], dtype=np.float64)
     variation = getattr(model, "variation", None)
     if variation is not None:
         arrays.update(variation.to_arrays())
@@ -356,7 +366,7 @@ def read_header(path) -> tuple[dict, dict]:
             if raw.dtype != np.uint8 or raw.ndim != 1:
                 raise _bad(path, "the model header is damaged (not a byte string)")
             header, version = _check_header(path, _parse_header(path, raw.tobytes()))
-            known = (*_ARRAYS, *_PRIOR_ARRAYS, *_START_ARRAYS, *_SPARSE_ARRAYS, *_VARIATION_ARRAYS)
+            known = (*_ARRAYS, *_PRIOR_ARRAYS, *_START_ARRAYS, _PROFILE_ARRAY[0], *_SPARSE_ARRAYS, *_VARIATION_ARRAYS)
             infos = {k: _member_info(zf, path, k, disk) for k in known if k in names}
             total = sum(i.file_size for i in infos.values())
             if total > MAX_RATIO * disk + RATIO_SLACK:
@@ -502,10 +512,15 @@ def _model_extras(header: dict, arrays: dict, rep, X):
             if name not in arrays:
                 raise ValueError(f"array {name!r} of the start-conditioned prior is missing")
             mean[key] = np.asarray(arrays[name], dtype=np.float64)
+        if prior.get("gain_profile"):
+            if _PROFILE_ARRAY[0] not in arrays:
+                raise ValueError(f"array {_PROFILE_ARRAY[0]!r} of the pull's profile is missing")
+            mean[_PROFILE_ARRAY[1]] = np.asarray(arrays[_PROFILE_ARRAY[0]], dtype=np.float64)
     S = len(mean["s"])
     if (S < 2 or mean["quat"].shape != (S, 4) or mean["position"].shape != (S, 3)
             or ("start_mean" in mean and mean["start_mean"].shape != (S, 6))
             or ("start_beta" in mean and mean["start_beta"].shape not in ((S, 6), (S, 6, 6)))
+            or ("gain_profile" in mean and mean["gain_profile"].shape != (S, 6))
             or mean["velocity"].shape != (S - 1, 6) or not all(np.all(np.isfinite(a)) for a in mean.values() if isinstance(a, np.ndarray))
             or not np.all(np.diff(mean["s"]) > 0)):
         raise ValueError("the mean-path prior's arrays are inconsistent")
