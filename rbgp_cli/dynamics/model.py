@@ -377,6 +377,8 @@ def prior_mean_outputs(representation: Representation, state: np.ndarray, mean: 
     ``step`` (scalar or (m,)): the phase step h over which the velocity is meant, as a rollout's
     step or a forward difference of the training pairs: ξ̄ is then the reference's secant over
     [s, s + h] (:func:`path_secant`) instead of its tangent (None or 0).
+    A start-conditioned path with a profile (``mean["gain_profile"]``) pulls each coordinate with its
+    own gain at the phase (:func:`pull_gains`, docs/method.md §7 "The pull's profile") instead of a.
     """
     from rbgp_cli.geometry.so3 import log_quat, quat_conjugate, quat_multiply
 
