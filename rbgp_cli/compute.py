@@ -136,18 +136,18 @@ WORKER_MATRICES = 6
 
 
 def default_jobs(tasks: int, n: int | None = None) -> int:
-    """Worker processes for ``tasks`` independent fits on ``n`` points each: one per task when the
-    process may use two or more cores and half the available memory holds them
-    (WORKER_MATRICES n × n matrices each); 1 inside a worker process, so that pools never nest (e.g.
-    under cross-validation folds that run in workers of their own), and 1 on a single core.
+    """Worker processes for ``tasks`` independent fits on ``n`` points each: one per task, at most one
+    per usable core, while half the available memory holds them (WORKER_MATRICES n × n matrices
+    each); 1 inside a worker process, so that pools never nest (e.g. under cross-validation folds
+    that run in workers of their own), and 1 on a single core.
 
-    More workers than cores cost nothing on an idle machine (the fits are CPU-bound and BLAS runs
-    single-threaded in each worker, without spinning threads), and on a busy one the operating system
-    shares the cores per task: with another program keeping both cores busy, 6 workers for 6 outputs
-    took 1.5× their time on the machine as it was, 2 workers 2.3× (measured, benchmarks/README.md)."""
+    No more workers than cores: the fits are CPU-bound (BLAS single-threaded in each worker), so more
+    add nothing on an idle machine, and on a busy one six workers on two cores took a larger share
+    of the cores from the other programs than rbgp's own (issue 35: the paper-scale run at load 4–9
+    took 57–116 s where the same machine quiet took 13 s)."""
     if tasks <= 1 or in_worker_process() or usable_cores() < 2:
         return 1
-    jobs = int(tasks)
+    jobs = min(int(tasks), usable_cores())
     if n:
         avail = available_memory()
         if avail is not None:

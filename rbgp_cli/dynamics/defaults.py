@@ -42,3 +42,8 @@ DEFAULTS = {
 
 #: The kernel each representation trains with unless one is named (``kernel=None``).
 DEFAULT_KERNELS = {"axis-angle": "se-chordal", "quaternion": "se-chordal", "euler": "se"}
+
+#: The exact GP's hyperparameters come from the NLML of a random subset of this many training points
+#: (``hyper_points=None``; 0: all of them), and its posterior uses every point (docs/defaults.md,
+#: "training in seconds"). The sparse GP has its own default (rbgp_cli.gp.sparse.HYPER_EXACT_POINTS).
+EXACT_HYPER_POINTS = 400

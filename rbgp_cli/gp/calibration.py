@@ -27,13 +27,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from rbgp_cli.compute import blas_threads
 from rbgp_cli.gp.likelihood import NOISE
 from rbgp_cli.gp.posterior import Posterior
 
 #: The factors c_s tried on the subset: 1 to 4096 in steps of √2.
 FACTOR_GRID = tuple(float(2 ** (k / 2)) for k in range(25))
 #: Points of the random subset the cross-validation runs on (one eigendecomposition per fold and output).
-CALIBRATION_POINTS = 1000
+CALIBRATION_POINTS = 400
 #: Folds of whole demonstrations (fewer when there are fewer demonstrations).
 CALIBRATION_FOLDS = 5
 
@@ -66,14 +67,21 @@ def demonstration_noise_factors(gp: Posterior, groups: np.ndarray, *, points: in
     fold_of_name = np.empty(len(names), dtype=int)
     fold_of_name[rng.permutation(len(names))] = np.arange(len(names)) % k  # demonstrations dealt to folds
     fold = fold_of_name[np.searchsorted(names, g)]
-    pre = gp.kernel.precompute(X[idx])
-    c_grid = np.asarray(grid, dtype=np.float64)
+    with blas_threads(0):  # one thread: a BLAS pool spin-waits on a busy machine (compute.blas_threads)
+        return _grouped_factors(gp, X[idx], Y[idx], fold, int(k), n, np.asarray(grid, dtype=np.float64))
+
+
+def _grouped_factors(gp: Posterior, X, Y, fold, k: int, n: int, c_grid) -> list[dict]:
+    """:func:`demonstration_noise_factors` on the subset X (n_s, d), Y (n_s, L) with its folds
+    ``fold`` (n_s,) of ``k``: per hyperparameter set, one eigendecomposition per fold, and the held-out
+    squared error of every factor in ``c_grid``; ``n`` the rows of the whole training set."""
+    pre = gp.kernel.precompute(X)
     out = []
     for fit, outs in gp.group_outputs():
         K, _ = gp.kernel.gram(pre, fit.values)
         s2 = float(fit.values[NOISE]) ** 2
         jitter = float(fit.jitter)  # the exact posterior's K + (σn² + jitter) I (0 for a sparse GP)
-        y = Y[idx][:, outs] / gp.y_scale[outs]
+        y = Y[:, outs] / gp.y_scale[outs]
         sse = np.zeros(len(c_grid))
         for j in range(k):
             h, t = fold == j, fold != j
@@ -86,8 +94,8 @@ def demonstration_noise_factors(gp: Posterior, groups: np.ndarray, *, points: in
                 sse[i] += float(np.sum((y[h] - mean) ** 2))
         best = int(np.argmin(sse))
         c_s = float(c_grid[best])
-        out.append({"factor": 1.0 + (c_s - 1.0) * n / len(idx), "subset_factor": c_s, "points": len(idx),
-                    "folds": int(k), "errors": (sse / (len(idx) * len(outs))).tolist(), "grid": c_grid.tolist()})
+        out.append({"factor": 1.0 + (c_s - 1.0) * n / len(X), "subset_factor": c_s, "points": len(X),
+                    "folds": int(k), "errors": (sse / (len(X) * len(outs))).tolist(), "grid": c_grid.tolist()})
     return out
 
 

@@ -324,6 +324,7 @@ def fit_gp(
     progress=None,
     explore_size: int | None = None,
     jobs: int = 1,
+    hyper_points: int | None = None,
 ) -> GaussianProcess:
     """Fit one GP per output column of Y (or one shared set of hyperparameters) by minimising the NLML.
 
@@ -354,6 +355,13 @@ def fit_gp(
     jobs : worker processes for the per-output fits (each output in one worker, BLAS
         single-threaded there; the results do not depend on ``jobs``); 1 fits in this process.
         :func:`rbgp_cli.compute.default_jobs` gives the usual choice. Ignored with ``shared`` or a single output.
+    hyper_points : None or 0 fits the hyperparameters on all n points (as above); a number below n fits
+        them on a seeded random subset of that many rows (every option above applies to the subset)
+        and the posterior (Cholesky factor and α) on all n rows at those hyperparameters, with the
+        jitter ladder of :func:`rbgp_cli.gp.likelihood.accept` on all rows. The NLML is a sum over
+        the points, so the subset's optimum estimates the full one; each evaluation costs (h/n)³ of
+        one on all points. Where the subset's hyperparameters fail the covariance checks on all rows
+        (an indefinite kernel's noise margin), that output is fitted on all points instead.
     """
     X, Y = training_data(X, Y)
     restarts = max(1, int(restarts))
@@ -371,7 +379,45 @@ def fit_gp(
     # machine is (a 2-thread pool changes the round-off, and on the arc kernel's indefinite edge that
     # changed an optimum), and parallelism comes from the worker processes
     with blas_threads(0), progress.task("training", total=1 if shared else Y.shape[1], unit="outputs") as task:
+        if hyper_points and len(X) > int(hyper_points):
+            rows = np.sort(np.random.default_rng(np.random.SeedSequence([int(seed), 2])).choice(
+                len(X), int(hyper_points), replace=False))
+            on_subset = _fit_gp(X[rows], Y[rows], kernel, o, seed, shared, progress, explore, jobs, task)
+            gp = _posterior_on_all_rows(on_subset, X, Y)
+            if gp is not None:
+                gp.hyper_subset = rows
+                return gp
+            progress(f"the hyperparameters of a random {int(hyper_points)} points fail the covariance checks "
+                     f"on all {len(X)}; fitting on all points")
         return _fit_gp(X, Y, kernel, o, seed, shared, progress, explore, jobs, task)
+
+
+def _posterior_on_all_rows(gp: GaussianProcess, X, Y) -> GaussianProcess | None:
+    """The exact posterior on all rows X (n, d), Y (n, L) at the hyperparameters ``gp`` fitted on a
+    subset of them: per hyperparameter set C = K + (σn² + jitter) I with the jitter of
+    :func:`rbgp_cli.gp.likelihood.accept` on all rows (its rcond and positive definiteness recorded
+    in the fit), L its Cholesky factor and α = C⁻¹ y; None where a set fails those checks or (an
+    indefinite kernel) the noise margin."""
+    from dataclasses import replace
+
+    from rbgp_cli.gp.likelihood import accept, meets_margin
+
+    kernel = gp.kernel
+    pre = kernel.precompute(X)
+    Y2 = np.asarray(Y, dtype=np.float64).reshape(len(X), -1)
+    fits, factors = [], []
+    for fit, outs in gp.group_outputs():
+        K, _ = kernel.gram(pre, fit.values)
+        if not meets_margin(kernel, pre, fit.values, K):
+            return None
+        y = Y2[:, outs] / gp.y_scale[outs]
+        jitter, rc, pd, c = accept(kernel, pre, y, fit.values, K)
+        if jitter is None:
+            return None
+        alpha, _info = lapack.dpotrs(c, np.asfortranarray(y), lower=1)
+        fits.append(replace(fit, jitter=float(jitter), rcond=rc, positive_definite=pd))
+        factors.append((np.tril(c), np.asarray(alpha)))
+    return GaussianProcess(kernel, X, Y2, fits, shared=gp.shared, y_scale=gp.y_scale, factors=factors)
 
 
 def _fit_gp(X, Y, kernel, o, seed, shared, progress, explore, jobs, task):

@@ -15,7 +15,7 @@ import numpy as np
 
 from rbgp_cli.kernels.base import Kernel
 
-__all__ = ["Posterior"]
+__all__ = ["Posterior", "PriorOnly"]
 
 
 @runtime_checkable
@@ -56,3 +56,36 @@ class Posterior(Protocol):
     def predict_mean(self, Xs) -> np.ndarray:
         """Predictive mean, shape (m, L) (single-step mean prediction, docs/method.md §8)."""
         ...
+
+
+class PriorOnly:
+    """A fitted GP with its residual field switched off: every prediction is the GP's prior, mean 0
+    and standard deviation √(k(x, x) (+ σn² with ``noisy``)) · scale per output, whatever the
+    training data. A motion model whose GP is this follows its prior mean alone (the path
+    distribution: the start-conditioned mean path and its pull, docs/method.md §7), which is how
+    ``rbgp crossval`` measures what the GP adds (its "without the GP" rows). Every other member
+    (kernel, X, Y, fits, …) is the wrapped GP's."""
+
+    def __init__(self, gp: Posterior):
+        self._gp = gp
+
+    def __getattr__(self, name):
+        return getattr(self._gp, name)
+
+    def predict(self, Xs, return_std: bool = False, noisy: bool = False, chunk_elements: int = 2_000_000,
+                manage_threads: bool = True):
+        """Mean zeros (m, L); with ``return_std`` the prior standard deviation (m, L)."""
+        Xs = np.asarray(Xs, dtype=np.float64).reshape(-1, self._gp.X.shape[1])
+        L = self._gp.n_outputs
+        mean = np.zeros((len(Xs), L))
+        if not return_std:
+            return mean
+        std = np.empty((len(Xs), L))
+        for fit, outs in self._gp.group_outputs():
+            var = self._gp.kernel.diag(Xs, fit.values) + ((fit.values["noise_std"] ** 2 + fit.jitter) if noisy else 0.0)
+            std[:, outs] = np.sqrt(np.maximum(var, 0.0))[:, None] * self._gp.y_scale[outs]
+        return mean, std
+
+    def predict_mean(self, Xs) -> np.ndarray:
+        """Zeros, shape (m, L)."""
+        return self.predict(Xs)

@@ -142,7 +142,10 @@ def _context():
 
 def test_default_jobs_never_nests_worker_pools():
     assert default_jobs(1) == 1
-    assert default_jobs(6) == (6 if usable_cores() >= 2 else 1)
+    # one worker per task up to one per core: more CPU-bound workers than cores take the cores from
+    # other programs on a busy machine and gain nothing on an idle one (issue 35)
+    assert default_jobs(6) == (min(6, usable_cores()) if usable_cores() >= 2 else 1)
+    assert default_jobs(6) <= usable_cores()
     assert default_jobs(6, n=10**7) == 1  # 6 × (10⁷)² doubles: no machine holds two of those
     with ProcessPoolExecutor(1, mp_context=_context()) as pool:
         assert pool.submit(default_jobs, 6).result() == 1
