@@ -641,7 +641,7 @@ def evaluate(generated, demos, *, length: int | None = None, covariance: str = "
 
 def crossval(demos, estimators=None, *, folds: int = 5, seed: int = 0, replay: bool = True, peers: bool = False,
              samples: int | None = None, length: int | None = None, covariance: str = "diag",
-             jobs: int | None = None, repeats: int = 1) -> Crossval:
+             jobs: int | None = None, repeats: int = 1, without_gp: bool = True) -> Crossval:
     """Cross-validate by demonstration (``rbgp crossval``): each configuration is trained on the other
     folds and rolled out from each held-out demonstration's start, on the same folds.
 
@@ -655,6 +655,8 @@ def crossval(demos, estimators=None, *, folds: int = 5, seed: int = 0, replay: b
     replay : add the replay peer;  peers : add the ProMP and DMP peers (needs movement-primitives)
     samples : sampled rollouts per held-out start for the sample columns (None: the CLI's default; 0: none)
     length, covariance : as :func:`evaluate`;  jobs : worker processes (None: one per core)
+    without_gp : beside every estimator with a prior mean, a row of the same fits with the GP's residual
+        switched off (``"without_gp": True``): the path distribution alone (``rbgp crossval --without-gp``)
 
     Returns
     -------
@@ -665,8 +667,8 @@ def crossval(demos, estimators=None, *, folds: int = 5, seed: int = 0, replay: b
     >>> import rbgp_cli as rbgp
     >>> cv = rbgp.crossval(rbgp.SAMPLE_DATA / "csv", rbgp.RigidBodyGP(restarts=1, max_points=100),
     ...                    folds=3, samples=0, jobs=1)
-    >>> len(cv.rows)
-    2
+    >>> len(cv.rows)  # the estimator, the same fits without the GP, replay
+    3
     """
     from rbgp_cli.evaluation.crossval import SAMPLES
     from rbgp_cli.evaluation.crossval import crossval as _crossval
@@ -685,5 +687,5 @@ def crossval(demos, estimators=None, *, folds: int = 5, seed: int = 0, replay: b
     extra, _ = crossval_configs([DEFAULTS["representation"]], None, {}, replay=replay, peers=peers)
     configs.extend(extra[1:])  # the peers only
     result = _crossval(trajs, configs, folds=folds, seed=seed, jobs=jobs, length=length, covariance=covariance,
-                       samples=SAMPLES if samples is None else samples, repeats=repeats)
+                       samples=SAMPLES if samples is None else samples, repeats=repeats, without_gp=without_gp)
     return Crossval(rows=list(result.get("results", [])), folds=int(folds), result=result)

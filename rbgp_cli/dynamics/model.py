@@ -13,7 +13,7 @@ import numpy as np
 
 from rbgp_cli.compute import default_jobs
 from rbgp_cli.dynamics.representations import Representation, make_representation
-from rbgp_cli.dynamics.defaults import DEFAULT_KERNELS, DEFAULTS
+from rbgp_cli.dynamics.defaults import DEFAULT_KERNELS, DEFAULTS, EXACT_HYPER_POINTS
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.dynamics.velocities import VelocityOptions, estimate_velocities, integration_drift, window_problem
 from rbgp_cli.errors import InputError, warn
@@ -207,6 +207,17 @@ class MotionModel:
             step = self.phase_step()
         return prior_mean_outputs(self.representation, X[:, : self.pose_dims], self.mean, phase,
                                   path=self.path_reference(), start_dev=start_dev, step=step)
+
+    def without_residual(self) -> "MotionModel":
+        """This model with the GP's residual field switched off (:class:`rbgp_cli.gp.posterior.PriorOnly`):
+        its velocities are the prior mean's alone (the start-conditioned mean path, its feed-forward
+        and pull), its samples the same deviation process; what ``rbgp crossval`` rolls out for its
+        rows without the GP. Shares every array with this model."""
+        from dataclasses import replace
+
+        from rbgp_cli.gp.posterior import PriorOnly
+
+        return replace(self, gp=PriorOnly(self.gp))
 
     def predict_output(self, X, return_std: bool = False, manage_threads: bool = True, start_dev=None, step=None):
         """Outputs (velocities in the representation's coordinates, per second or per unit phase) at
@@ -707,9 +718,7 @@ def train_model(
     if gp_choice["type"] == "sparse":
         gp, gp_choice, info = _fit_sparse(X, Y, kern, gp_choice, info, hyper_points, jobs, max_points=max_points, **fit)
     else:
-        if jobs is None:
-            jobs = default_jobs(1 if shared else Y.shape[1], len(X))
-        gp = fit_gp(X, Y, kern, jobs=jobs, **fit)
+        gp, gp_choice = _fit_exact(X, Y, kern, gp_choice, hyper_points, jobs, fit)
     gp = _scaled_posterior_noise(gp, gp_choice, info, calibrate, noise_scale, seed, progress)
     recorded_dt = float(np.median(np.concatenate([np.diff(tr.t) for tr in trajs])))
     dt = 1.0 / velocity.rate if velocity.rate is not None else recorded_dt
@@ -814,6 +823,24 @@ def _widen_exact(gp, max_points, seed) -> None:
     gp.hyper_gp = GaussianProcess(exact.kernel, gp.X[rows], gp.Y[rows], exact.fits, shared=exact.shared,
                                   y_scale=exact.y_scale)
     gp.hyper_rows = rows
+
+
+def _fit_exact(X, Y, kern, gp_choice, hyper_points, jobs, fit):
+    """The exact GP on all rows of X, Y, its hyperparameters from the NLML of a random
+    ``hyper_points`` of them (None: EXACT_HYPER_POINTS; 0: all; :func:`rbgp_cli.gp.exact.fit_gp`).
+    Returns (gp, gp_choice), ``gp_choice`` saying how many points chose the hyperparameters."""
+    hp = EXACT_HYPER_POINTS if hyper_points is None else int(hyper_points)
+    hp = len(X) if hp <= 0 else min(len(X), hp)
+    if jobs is None:
+        jobs = default_jobs(1 if fit["shared"] else Y.shape[1], hp)
+    gp = fit_gp(X, Y, kern, jobs=jobs, hyper_points=hp if hp < len(X) else None, **fit)
+    covered = len(getattr(gp, "hyper_subset", X))
+    gp_choice["hyper_points"] = covered
+    gp_choice["hyperparameters"] = "the exact GP's NLML"
+    if covered < len(X):
+        why = f"hyperparameters from the NLML of a random {covered} of them (--hyper-points 0: all), the posterior on all"
+        gp_choice["reason"] = f"{gp_choice['reason']}; {why}" if gp_choice["reason"] else why
+    return gp, gp_choice
 
 
 def _fit_sparse(X, Y, kern, gp_choice, info, hyper_points, jobs, *, noise, restarts, seed, shared, progress,

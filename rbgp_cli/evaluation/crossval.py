@@ -222,22 +222,30 @@ def _generate(config: Config, train: list[Trajectory], test: list[Trajectory], s
             drawn = peers.promp_samples(train, *starts, k=samples, seed=sample_seed(0, fold, repeat))
         return gen, time.perf_counter() - t0, None, drawn
     from rbgp_cli.dynamics.model import train_model
-    from rbgp_cli.dynamics.rollout import rollout_for
 
     t0 = time.perf_counter()
     model = train_model(train, representation=config.representation, kernel=config.kernel, **config.train)
     train_s = time.perf_counter() - t0
+    gen, drawn = _model_rollouts(model, test, samples, sample_seed(config.train.get("seed", 0), fold, repeat))
+    return gen, train_s, model, drawn
+
+
+def _model_rollouts(model, test: list[Trajectory], samples: int, seed: int):
+    """A model's mean rollout from each held-out start for its duration, named after it, and per start
+    its ``samples`` sampled rollouts (None without samples)."""
+    from rbgp_cli.dynamics.rollout import rollout_for
+
     q0 = np.array([tr.quat[0] for tr in test])
     p0 = np.array([tr.position[0] for tr in test])
     res = rollout_for(model, q0, p0, [tr.duration for tr in test], with_std=False,  # each its own duration
-                      samples=samples, seed=sample_seed(config.train.get("seed", 0), fold, repeat))
+                      samples=samples, seed=seed)
     trajs = res.trajectories(include_samples=samples > 0)
     gen = [g.with_(name=f"from {tr.name}") for g, tr in zip(trajs[: len(test)], test)]
     drawn = None
     if samples > 0:  # trajectories() lists the samples start by start after the means
         rest = trajs[len(test):]
         drawn = [rest[b * samples:(b + 1) * samples] for b in range(len(test))]
-    return gen, train_s, model, drawn
+    return gen, drawn
 
 
 def _sample_columns(drawn, train: list[Trajectory], test: list[Trajectory], T: int, covariance: str) -> dict | None:
@@ -275,22 +283,42 @@ def run_fold(config: Config, train: list[Trajectory], test: list[Trajectory], *,
         t0 = time.perf_counter()
         gen, train_s, model, drawn = _generate(config, train, test, samples=samples, fold=fold, repeat=repeat)
         gen_s = time.perf_counter() - t0 - train_s
-        score = evaluate(gen, train, length=length, covariance=covariance, sample_size="record")
-        T = score.steps
-        sp, sr, count = trajectory_errors(gen, test, T)
-        vel = velocity_errors(model, test) if model is not None else None
-        sampled = _sample_columns(drawn, train, test, T, covariance)
-        left = left_envelope(gen, envelope_from_demos(train))["count"]
+        out = _fold_scores(gen, drawn, model, train, test, length, covariance)
+        out.update(train_s=train_s, rollout_s=gen_s)
+        if model is not None and model.mean:
+            # the same fit with the GP's residual switched off: the path distribution alone, from the
+            # same starts with the same draws (what the GP adds, issue 35)
+            t0 = time.perf_counter()
+            prior = model.without_residual()
+            gen0, drawn0 = _model_rollouts(prior, test, samples, sample_seed(config.train.get("seed", 0), fold, repeat))
+            out["without_gp"] = {**_fold_scores(gen0, drawn0, prior, train, test, length, covariance),
+                                 "train_s": train_s, "rollout_s": time.perf_counter() - t0}
+    warned = {str(w.message) for w in caught}
+    out["warnings"] = sorted(warned | set(out["warnings"]))
+    if "without_gp" in out:
+        out["without_gp"]["warnings"] = out["warnings"]
+    return out
+
+
+def _fold_scores(gen, drawn, model, train: list[Trajectory], test: list[Trajectory], length, covariance) -> dict:
+    """One fold's columns for the generated trajectories ``gen`` (one per held-out demonstration) and
+    their samples ``drawn``: the score and its parts, trajectory errors, the velocity errors of
+    ``model`` (None for a peer), the sample columns and how many left the training envelope."""
+    score = evaluate(gen, train, length=length, covariance=covariance, sample_size="record")
+    T = score.steps
+    sp, sr, count = trajectory_errors(gen, test, T)
     out = {
         "score": score.mean, "rotation": score.rotation, "translation": score.translation,
         "offset": score.offset, "spread": score.spread,
         "reliable": bool(getattr(score, "reliable", True)),
         "steps": T, "position_sq": sp, "rotation_sq": sr, "count": count,
-        "train_s": train_s, "rollout_s": gen_s, "velocity": vel, "left_data": left,
-        "warnings": sorted({str(w.message) for w in caught} | set(score.warnings)),
+        "velocity": velocity_errors(model, test) if model is not None else None,
+        "left_data": left_envelope(gen, envelope_from_demos(train))["count"],
+        "warnings": sorted(set(score.warnings)),
     }
     if model is not None:
         out["points"] = int(model.summary.get("points", 0))
+    sampled = _sample_columns(drawn, train, test, T, covariance)
     if sampled is not None:
         out.update(sampled)
     return out
@@ -419,7 +447,8 @@ def _sampled_summary(results: list[dict], floors: list[float]) -> dict:
 
 def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, seed: int = 0,
              jobs: int | None = None, length: int | None = None, covariance: str = "diag",
-             progress=None, scheduler: str | None = None, samples: int = SAMPLES, repeats: int = 1) -> dict:
+             progress=None, scheduler: str | None = None, samples: int = SAMPLES, repeats: int = 1,
+             without_gp: bool = True) -> dict:
     """Cross-validate every configuration on the same folds (see the module docstring).
 
     Parameters
@@ -440,6 +469,10 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
         ``sample_score_one`` the first set's), ``coverage_position`` / ``coverage_rotation`` (the held-out motion
         inside the samples' 90 % prediction regions; 0.90 for a perfect Gaussian model) and the bands'
         mean half-widths ``band_position`` (m) / ``band_rotation`` (rad); 0: none (those columns None)
+    without_gp : beside every model row with a prior mean, a row "…, without the GP" from the same fits
+        with the GP's residual switched off (:meth:`MotionModel.without_residual`): the path
+        distribution alone, rolled out from the same starts with the same draws (``"without_gp": True``
+        in the row); its velocity RMSE is the prior mean's
 
     Returns ``{"folds": K, "repeats": R, "seed", "demonstrations", "fold_sizes", "results": [row, ...]}``
     with the rows sorted by score / floor (best first); each row as in the module docstring (with
@@ -509,6 +542,10 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
     for ci, c in enumerate(configs):
         res = [results[ci * len(splits) + f] for f in range(len(splits))]
         rows.append(_row(c, fold_idx, floors, res, k=k, seeds=seeds))
+        if without_gp and all("without_gp" in r for r in res):
+            off = Config(c.representation, c.kernel, c.train, label=f"{c.name}, without the GP", options=c.options)
+            row = _row(off, fold_idx, floors, [r["without_gp"] for r in res], k=k, seeds=seeds)
+            rows.append({**row, "without_gp": True})
     rows.sort(key=lambda r: (r["ratio"], r["label"]))
     return {
         "folds": k,

@@ -1,0 +1,135 @@
+"""The whole `rbgp train` command at the defaults against a whole process that fits a ProMP (issue 35).
+
+    .venv/bin/python benchmarks/bench_train_promp.py                  # every set in ../shared/realdata, quiet and busy
+    .venv/bin/python benchmarks/bench_train_promp.py --sets hand_raise_csv --rounds 3 --no-busy
+    .venv/bin/python benchmarks/bench_train_promp.py --demos sample_data/csv
+
+For each set of demonstrations, in one run, alternated ``--rounds`` times (the best of the rounds is
+kept on each side, and the ratio of the bests printed; target at most 3):
+
+* **rbgp**: ``rbgp train DEMOS -o MODEL -q`` as a subprocess at the defaults: the interpreter's start,
+  the imports, reading and cleaning the files, the fit, the calibration, the bands' scale and writing
+  the model file;
+* **ProMP**: ``python -c ...`` as a subprocess that reads and cleans the same files with the same reader
+  (rbgp's ``load_demonstrations``: the peers read what rbgp reads) and fits ``movement-primitives``' ProMP
+  as ``rbgp crossval``'s ProMP row does (:func:`rbgp_cli.evaluation.peers.fit_promp`: 6 dimensions, its
+  basis functions on normalised time), then writes its weights' mean and covariance with ``numpy.savez``.
+
+Wall time and CPU time (the child's user + system, its workers included) are printed for each. With
+``--busy`` (the default runs both) a second CPU-bound process (a Python busy loop, in a session of its
+own like another user's program) runs beside both for the whole measurement.
+
+The machine may be shared: the load average is printed with every run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _common import machine_line  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+REALDATA = ROOT.parent / "shared" / "realdata"
+#: The sets of ../shared/realdata that hold several demonstrations of one motion (the others are
+#: single recordings for the readers: one demonstration is too few for a ProMP's covariance).
+SETS = ("handover_object_csv", "hand_raise_csv", "handover_variation_csv")
+
+PROMP_SCRIPT = """
+import sys, numpy as np
+from rbgp_cli.workflows import load_demonstrations
+from rbgp_cli.evaluation.peers import fit_promp
+trajs, _, _ = load_demonstrations(sys.argv[2:])
+peer = fit_promp(trajs)
+np.savez(sys.argv[1], mean=peer.promp.weight_mean, cov=peer.promp.weight_cov, ref=peer.ref)
+"""
+
+
+def run_timed(cmd: list[str]) -> tuple[float, float]:
+    """(wall s, CPU s of the child and its children) of one command, which must succeed."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if proc.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd[:3])} failed ({proc.returncode}): {proc.stderr.strip()[-500:]}")
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return wall, cpu
+
+
+def load_line() -> str:
+    try:
+        with open("/proc/loadavg") as fh:
+            parts = fh.read().split()
+        return f"load {parts[0]}, runnable {parts[3]}"
+    except OSError:
+        return "load n/a"
+
+
+def measure(demos: str, rounds: int, tmp: str) -> dict:
+    """Best wall / CPU of rbgp train and of the ProMP process over ``rounds`` alternated runs."""
+    rbgp = [str(Path(sys.executable).parent / "rbgp"), "train", demos, "-o", os.path.join(tmp, "model.rbgp"), "-q"]
+    promp = [sys.executable, "-c", PROMP_SCRIPT, os.path.join(tmp, "promp.npz"), demos]
+    runs = {"rbgp": [], "promp": []}
+    for _ in range(rounds):
+        for name, cmd in (("rbgp", rbgp), ("promp", promp)):
+            runs[name].append(run_timed(cmd))
+    best = {k: (min(w for w, _ in v), min(c for _, c in v)) for k, v in runs.items()}
+    return {"rbgp_wall": best["rbgp"][0], "rbgp_cpu": best["rbgp"][1], "promp_wall": best["promp"][0],
+            "promp_cpu": best["promp"][1], "ratio": best["rbgp"][0] / best["promp"][0],
+            "cpu_ratio": best["rbgp"][1] / best["promp"][1], "runs": runs, "load": load_line()}
+
+
+def busy_process() -> subprocess.Popen:
+    """A CPU-bound Python loop in a session of its own (another program on the machine)."""
+    return subprocess.Popen([sys.executable, "-c", "while True: pass"], start_new_session=True)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--sets", nargs="*", default=list(SETS), help="folders of ../shared/realdata")
+    ap.add_argument("--demos", nargs="*", default=[], help="other folders of demonstrations")
+    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--busy", action=argparse.BooleanOptionalAction, default=True,
+                    help="also measure beside a second CPU-bound process")
+    ap.add_argument("--quiet-runs", action=argparse.BooleanOptionalAction, default=True,
+                    help="measure on the machine as it is")
+    ap.add_argument("--json", help="also write the numbers to this file")
+    args = ap.parse_args(argv)
+    folders = [str(REALDATA / s) for s in args.sets if (REALDATA / s).is_dir()] + list(args.demos)
+    print(machine_line())
+    print(f"{'set':<26} {'condition':<9} {'rbgp s':>8} {'ProMP s':>8} {'ratio':>6} {'rbgp CPU':>9} {'ProMP CPU':>10}"
+          f" {'CPU ratio':>9}  load")
+    out = []
+    conditions = (["as it is"] if args.quiet_runs else []) + (["busy"] if args.busy else [])
+    with tempfile.TemporaryDirectory() as tmp:
+        for folder in folders:
+            for cond in conditions:
+                loop = busy_process() if cond == "busy" else None
+                try:
+                    r = measure(folder, args.rounds, tmp)
+                finally:
+                    if loop is not None:
+                        loop.kill()
+                        loop.wait()
+                name = Path(folder).name
+                print(f"{name:<26} {cond:<9} {r['rbgp_wall']:8.2f} {r['promp_wall']:8.2f} {r['ratio']:6.2f}"
+                      f" {r['rbgp_cpu']:9.2f} {r['promp_cpu']:10.2f} {r['cpu_ratio']:9.2f}  {r['load']}", flush=True)
+                out.append({"set": name, "condition": cond, **r})
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
