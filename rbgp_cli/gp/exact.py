@@ -111,7 +111,8 @@ class GaussianProcess:
             K, _ = self.kernel.gram(pre, fit.values)
             s2 = fit.values[NOISE] ** 2
             c = cholesky(K, s2, fit.jitter)
-            if c is None or cholesky(K, (1.0 - NOISE_MARGIN) * s2 + fit.jitter) is None:
+            if c is None or (not self.kernel.positive_semidefinite
+                             and cholesky(K, (1.0 - NOISE_MARGIN) * s2 + fit.jitter) is None):
                 raise RbgpRuntimeError(
                     "the stored hyperparameters do not give a well-conditioned positive definite covariance",
                     hint="refit the model (rbgp train)",

@@ -127,7 +127,10 @@ def nlml_and_gradient(kernel: Kernel, pre: dict, values: dict, y: np.ndarray, gr
 
 # ----------------------------------------------------------------------------- acceptance of an optimum
 def meets_margin(kernel, pre, values, K=None) -> bool:
-    """λ_min(K + σn²I) >= NOISE_MARGIN σn² (always true for a positive semi-definite kernel)."""
+    """λ_min(K + σn²I) >= NOISE_MARGIN σn² (always true for a positive semi-definite kernel, which is
+    not tested: one Cholesky factorisation of n × n saved)."""
+    if getattr(kernel, "positive_semidefinite", False):
+        return True
     if K is None:
         K, _ = kernel.gram(pre, values)
     return cholesky(K, (1.0 - NOISE_MARGIN) * values[NOISE] ** 2) is not None

@@ -82,6 +82,13 @@ class Kernel:
     #: names of the hyperparameters, in theta order
     names: tuple[str, ...] = ()
 
+    @property
+    def positive_semidefinite(self) -> bool:
+        """True when every Gram matrix of this kernel is positive semi-definite, for every
+        hyperparameter value (docs/method.md §6): then λ_min(K + σn²I) ≥ σn² and the noise margin
+        (:data:`rbgp_cli.gp.likelihood.NOISE_MARGIN`) holds without a test. False unless a kernel says so."""
+        return False
+
     def precompute(self, Xa: np.ndarray, Xb: np.ndarray | None = None) -> dict:
         raise NotImplementedError
 

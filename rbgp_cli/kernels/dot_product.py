@@ -23,6 +23,8 @@ class DotProduct(Kernel):
     """σf² (ρ1 r_i·r_j + (1−ρ1) t_i·t_j); X has shape (n, k + 3), rotation coordinates first."""
 
     kind = "dot_product"
+    #: a weighted sum of inner products: a Gram matrix ZᵀZ, positive semi-definite
+    positive_semidefinite = True
 
     def __init__(self, rotation_dims: int = 3, rho_rot: float = 0.5, learn_rho: bool = False):
         if not 0.0 < rho_rot < 1.0:

@@ -254,6 +254,13 @@ class SquaredExponential(Kernel):
         return E
 
     @property
+    def positive_semidefinite(self) -> bool:
+        """The chordal and Euclidean distances embed isometrically in a Euclidean space, so the squared
+        exponential of them is positive definite for every λ; the geodesic (arc) and S³ angles are not
+        (docs/method.md §6, MATH.md §6)."""
+        return self.metric in ("chordal", "euclidean")
+
+    @property
     def fused_cross_gradient(self) -> bool:
         """The chordal kernel's exponent is one product of features (:meth:`cross_gram`), and so is
         its gradient contraction (:meth:`cross_grad_contract`)."""

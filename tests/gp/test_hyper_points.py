@@ -64,3 +64,21 @@ def test_prior_only_predicts_the_prior():
         np.testing.assert_allclose(noisy[:, l], np.hypot(fit.values["signal_std"], fit.values["noise_std"]),
                                    rtol=1e-9)
     assert off.X is gp.X and off.fits is gp.fits  # everything else is the GP's
+
+
+@pytest.mark.parametrize("metric", ["chordal", "euclidean"])
+def test_kernels_that_skip_the_margin_test_are_positive_semidefinite(metric):
+    """The noise margin is not tested for kernels that declare themselves positive semi-definite:
+    their Gram matrices' smallest eigenvalue is ≥ 0 (to round-off) at every length scale tried."""
+    from rbgp_cli.kernels import DotProduct
+
+    X = poses(150, 11)
+    for k in (SquaredExponential(metric), DotProduct()):
+        assert k.positive_semidefinite
+        pre = k.precompute(X)
+        for ls in (0.05, 0.3, 1.0, 5.0):
+            values = {"signal_std": 1.3, "length_scale": ls, "noise_std": 0.1}
+            values = {n: values.get(n, 0.7) for n in k.names} | {"noise_std": 0.1}
+            K, _ = k.gram(pre, values)
+            assert np.linalg.eigvalsh(K)[0] >= -1e-9 * np.max(np.diag(K))
+    assert not SquaredExponential("arc").positive_semidefinite  # the paper's geodesic kernel is not (MATH.md §6)
