@@ -6,7 +6,7 @@
 
 For each kernel, in one run:
 
-1. ``rbgp train DEMOS -o MODEL --subsample 1 --max-points 1752 --kernel K --json`` (per-output
+1. ``rbgp train DEMOS -o MODEL --subsample 1 --max-points 1752 --hyper-points 0 --kernel K --json`` (per-output
    hyperparameters; ``--jobs`` as given, default the command's own choice) as a subprocess: wall time
    of the whole command (interpreter start, imports, reading and preparing the files, the fit, writing
    the model file), and the fit's own time and evaluations from its JSON summary;
@@ -60,8 +60,10 @@ def runnable() -> str:
 
 def run_train(demos: str, out: str, kernel: str, jobs: int | None, max_points: int) -> dict:
     """One `rbgp train` subprocess; returns wall time and its JSON summary."""
+    # --hyper-points 0: the hyperparameters from all points, as scikit-learn's fits (the default
+    # fits them on a random 400, issue 35, which would not be the same job)
     cmd = [sys.executable, "-m", "rbgp_cli", "train", demos, "-o", out, "--subsample", "1", "--max-points",
-           str(max_points), "--kernel", kernel, "--json"]
+           str(max_points), "--hyper-points", "0", "--kernel", kernel, "--json"]
     if jobs is not None:
         cmd += ["--jobs", str(jobs)]
     before = runnable()

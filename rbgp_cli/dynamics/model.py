@@ -896,7 +896,7 @@ def _scaled_posterior_noise(gp, gp_choice, info, calibrate, noise_scale, seed, p
         if progress:
             progress("noise calibration: " + ("needs at least two demonstrations; skipped" if records is None else
                      "sigma_n^2 x " + ", ".join(f"{r['factor']:.3g}" for r in records)
-                     + f" (leaving demonstrations out, {records[0]['folds']} folds on {records[0]['points']} points)"))
+                     + f" (each of {records[0]['folds']} demonstrations left out in turn, on {records[0]['points']} points)"))
     if noise_scale != 1.0:
         if not calibrate:
             from rbgp_cli.gp.calibration import scale_noise

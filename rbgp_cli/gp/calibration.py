@@ -18,42 +18,54 @@ variance σn² (1 + n_d s²/σn²). So the posterior should use the noise varian
 
 with n the training points and γ = s² n_d / (σn² n) a property of the data, not of how densely it
 was sampled. :func:`demonstration_noise_factors` measures c by grouped cross-validation on a random
-subset of n_s points (whole demonstrations held out, the hyperparameters kept): the factor c_s with
-the smallest held-out squared error, and γ = (c_s − 1)/n_s. Each fold costs one eigendecomposition of
-the training block, after which every factor of the grid costs a matrix-vector product.
+subset of n_s points (each demonstration held out in turn, the hyperparameters kept): the factor c_s
+with the smallest held-out squared error, and γ = (c_s − 1)/n_s. One eigendecomposition of the
+subset's Gram matrix serves every demonstration and every factor of the grid (the partitioned
+inverse: leaving a block out is a downdate, not a refit).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from rbgp_cli.compute import blas_threads
+from rbgp_cli.compute import blas_threads, thread_pool, thread_workers
 from rbgp_cli.gp.likelihood import NOISE
 from rbgp_cli.gp.posterior import Posterior
 
 #: The factors c_s tried on the subset: 1 to 4096 in steps of √2.
 FACTOR_GRID = tuple(float(2 ** (k / 2)) for k in range(25))
 #: Points of the random subset the cross-validation runs on (one eigendecomposition per fold and output).
-CALIBRATION_POINTS = 400
-#: Folds of whole demonstrations (fewer when there are fewer demonstrations).
-CALIBRATION_FOLDS = 5
+CALIBRATION_POINTS = 1000
+#: Folds of whole demonstrations: None holds out each demonstration alone (the partitioned inverse makes
+#: that cheaper than 5 folds of eigendecompositions); a number k deals the demonstrations to k folds.
+CALIBRATION_FOLDS = None
 
 
 def demonstration_noise_factors(gp: Posterior, groups: np.ndarray, *, points: int = CALIBRATION_POINTS,
-                                folds: int = CALIBRATION_FOLDS, seed: int = 0,
+                                folds: int | None = CALIBRATION_FOLDS, seed: int = 0,
                                 grid: tuple = FACTOR_GRID) -> list[dict] | None:
     """Per fitted hyperparameter set, the factor c ≥ 1 on σn² that predicts held-out demonstrations best.
 
     ``gp``: a fitted :class:`~rbgp_cli.gp.exact.GaussianProcess` or :class:`~rbgp_cli.gp.sparse.SparseGP`
     on X (n, d), Y (n, L), one hyperparameter set per output or one for all (``shared``: on Y / y_scale,
-    errors summed over outputs); ``groups`` (n,) the demonstration of each row. On a seeded random subset of at most
-    ``points`` rows, folds of whole demonstrations are held out in turn; for each factor c_s of ``grid``
-    the posterior mean K_ht (K_tt + c_s σn² I)⁻¹ y_t (from K_tt = Q diag(w) Qᵀ) predicts the held-out
-    rows. With the best c_s, c = 1 + (c_s − 1) n / n_s (module docstring).
+    errors summed over outputs); ``groups`` (n,) the demonstration of each row. On a seeded random subset
+    of at most ``points`` rows, whole demonstrations are held out in turn (``folds`` None: each
+    demonstration alone, the default; a number k: k folds of them); for each factor c_s of ``grid`` the
+    posterior mean K_ht (K_tt + c_s σn² I)⁻¹ y_t predicts the held-out rows h. With the best c_s,
+    c = 1 + (c_s − 1) n / n_s (module docstring).
+
+    Leaving a block h out needs no refit (the partitioned inverse): with C = K + (c_s σn² + j) I on the
+    subset, α = C⁻¹ y and B = C⁻¹,
+
+        y_h − K_ht C_tt⁻¹ y_t = (B_hh)⁻¹ α_h,
+
+    and from one eigendecomposition K = Q diag(w) Qᵀ every factor's B = Q diag(1/(w + c_s σn² + j)) Qᵀ
+    costs only its blocks B_hh = Q_h diag(·) Q_hᵀ: Σ_h n_h² n_s per factor, n_s³/D for D demonstrations
+    of equal size, against an eigendecomposition of each training block with k folds.
 
     Returns None with fewer than two demonstrations in the subset, else per fit a dict: ``factor`` c,
-    ``subset_factor`` c_s, ``points`` n_s, ``folds``, ``errors`` (held-out mean squared error per factor
-    of ``grid``, on the outputs as fitted) and ``grid``.
+    ``subset_factor`` c_s, ``points`` n_s, ``folds`` (how many blocks were held out), ``errors``
+    (held-out mean squared error per factor of ``grid``, on the outputs as fitted) and ``grid``.
     """
     X, Y, groups = gp.X, gp.Y, np.asarray(groups)
     n = len(X)
@@ -63,40 +75,57 @@ def demonstration_noise_factors(gp: Posterior, groups: np.ndarray, *, points: in
     names = np.unique(g)
     if len(names) < 2:
         return None
-    k = min(int(folds), len(names))
-    fold_of_name = np.empty(len(names), dtype=int)
-    fold_of_name[rng.permutation(len(names))] = np.arange(len(names)) % k  # demonstrations dealt to folds
-    fold = fold_of_name[np.searchsorted(names, g)]
+    if folds is None:
+        k = len(names)
+        fold = np.searchsorted(names, g)
+    else:
+        k = min(int(folds), len(names))
+        fold_of_name = np.empty(len(names), dtype=int)
+        fold_of_name[rng.permutation(len(names))] = np.arange(len(names)) % k  # demonstrations dealt to folds
+        fold = fold_of_name[np.searchsorted(names, g)]
     with blas_threads(0):  # one thread: a BLAS pool spin-waits on a busy machine (compute.blas_threads)
         return _grouped_factors(gp, X[idx], Y[idx], fold, int(k), n, np.asarray(grid, dtype=np.float64))
 
 
 def _grouped_factors(gp: Posterior, X, Y, fold, k: int, n: int, c_grid) -> list[dict]:
-    """:func:`demonstration_noise_factors` on the subset X (n_s, d), Y (n_s, L) with its folds
-    ``fold`` (n_s,) of ``k``: per hyperparameter set, one eigendecomposition per fold, and the held-out
-    squared error of every factor in ``c_grid``; ``n`` the rows of the whole training set."""
+    """:func:`demonstration_noise_factors` on the subset X (n_s, d), Y (n_s, L) with its blocks
+    ``fold`` (n_s,) of ``k``: per hyperparameter set, one eigendecomposition, and the held-out squared
+    error of every factor in ``c_grid`` by the partitioned inverse; ``n`` the rows of the whole training
+    set. The sets run on threads where cores are free (numpy's LAPACK and BLAS release the GIL; BLAS
+    is single-threaded here)."""
     pre = gp.kernel.precompute(X)
-    out = []
-    for fit, outs in gp.group_outputs():
-        K, _ = gp.kernel.gram(pre, fit.values)
-        s2 = float(fit.values[NOISE]) ** 2
-        jitter = float(fit.jitter)  # the exact posterior's K + (σn² + jitter) I (0 for a sparse GP)
-        y = Y[:, outs] / gp.y_scale[outs]
-        sse = np.zeros(len(c_grid))
-        for j in range(k):
-            h, t = fold == j, fold != j
-            w, Q = np.linalg.eigh(K[np.ix_(t, t)])
-            Qy = Q.T @ y[t]  # (n_t, k)
-            KQ = K[np.ix_(h, t)] @ Q  # (n_h, n_t)
-            for i, c in enumerate(c_grid):
-                # K_tt + c σn² I is positive definite for c ≥ 1: K + σn² I is (the fit checked it)
-                mean = KQ @ (Qy / np.maximum(w + c * s2 + jitter, 1e-300)[:, None])
-                sse[i] += float(np.sum((y[h] - mean) ** 2))
-        best = int(np.argmin(sse))
-        c_s = float(c_grid[best])
-        out.append({"factor": 1.0 + (c_s - 1.0) * n / len(X), "subset_factor": c_s, "points": len(X),
-                    "folds": int(k), "errors": (sse / (len(X) * len(outs))).tolist(), "grid": c_grid.tolist()})
-    return out
+    blocks = [np.flatnonzero(fold == j) for j in range(k)]
+
+    def one(group):
+        fit, outs = group
+        sse = _held_out_errors(gp.kernel.gram(pre, fit.values)[0], Y[:, outs] / gp.y_scale[outs],
+                               float(fit.values[NOISE]) ** 2, float(fit.jitter), blocks, c_grid)
+        c_s = float(c_grid[int(np.argmin(sse))])
+        return {"factor": 1.0 + (c_s - 1.0) * n / len(X), "subset_factor": c_s, "points": len(X),
+                "folds": int(k), "errors": (sse / (len(X) * len(outs))).tolist(), "grid": c_grid.tolist()}
+
+    groups = gp.group_outputs()
+    threads = min(len(groups), thread_workers(len(groups), 2))
+    if threads > 1:
+        return list(thread_pool("calibration").map(one, groups))
+    return [one(g) for g in groups]
+
+
+def _held_out_errors(K, y, s2: float, jitter: float, blocks, c_grid) -> np.ndarray:
+    """Σ over the blocks h of ‖y_h − K_ht (K_tt + (c σn² + j) I)⁻¹ y_t‖² for every factor c of
+    ``c_grid`` (C,), by the partitioned inverse from one eigendecomposition K = Q diag(w) Qᵀ: with
+    B = C⁻¹ and α = C⁻¹ y, the residual of block h is (B_hh)⁻¹ α_h. K (n_s, n_s), y (n_s, L)."""
+    w, Q = np.linalg.eigh(K)
+    # K + c σn² I is positive definite for c ≥ 1: K + σn² I is (the fit checked it)
+    d = 1.0 / np.maximum(w[None, :] + c_grid[:, None] * s2 + jitter, 1e-300)  # (C, n_s)
+    alpha = Q @ (d[:, :, None] * (Q.T @ y)[None])  # (C, n_s, L): C⁻¹ y for every factor
+    sse = np.zeros(len(c_grid))
+    for h in blocks:
+        Qh = Q[h]  # (n_h, n_s)
+        Bhh = (Qh[None] * d[:, None, :]) @ Qh.T  # (C, n_h, n_h): the held-out block of C⁻¹
+        r = np.linalg.solve(Bhh, alpha[:, h, :])  # (C, n_h, L): y_h minus its held-out prediction
+        sse += np.einsum("cil,cil->c", r, r)
+    return sse
 
 
 def calibrate_to_demonstrations(gp: Posterior, groups: np.ndarray, *, seed: int = 0,

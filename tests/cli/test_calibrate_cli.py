@@ -26,7 +26,8 @@ def test_train_calibrate_noise_scales_the_posterior_noise_and_the_model_file_say
     summary = json.loads(res.stdout)
     cal = summary["gp"]["calibration"]
     assert len(cal["noise_variance_factors"]) == 1 and cal["noise_variance_factors"][0] >= 1
-    assert cal["folds"] == 5 and cal["points"] <= 1000
+    # each training demonstration of sample_data (9) held out alone, on at most 1000 points
+    assert cal["folds"] in (8, 9) and cal["points"] <= 1000
     assert "noise calibration: sigma_n^2 x" in res.stderr
     assert "by held-out demonstrations (fitted σn=" in format_train_summary(summary)
     out = summary["outputs"][0]

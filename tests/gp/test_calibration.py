@@ -143,3 +143,36 @@ def test_a_further_noise_scale_multiplies_the_calibrated_variance_and_moves_the_
                                          "extra_factor": 4.0}
     with pytest.raises(ValueError):
         scale_noise(gp, 0.0)
+
+
+@pytest.mark.parametrize("folds", [None, 3])
+def test_held_out_errors_equal_explicit_refits_of_the_other_demonstrations(folds):
+    """The partitioned inverse (one eigendecomposition for every block and factor) gives the held-out
+    errors of explicit predictions K_ht (K_tt + (c σn² + j) I)⁻¹ y_t from the rows of the other
+    demonstrations, for each demonstration left out (folds None) and for folds of them."""
+    X, Y, groups = demonstrations(8, 40, seed=2)
+    gp = fitted(X, Y)
+    rec = demonstration_noise_factors(gp, groups, points=250, folds=folds)[0]
+    idx = np.sort(np.random.default_rng(np.random.SeedSequence([0, 11])).permutation(len(X))[:250])
+    Xs, ys, g = X[idx], Y[idx, 0] / gp.y_scale[0], groups[idx]
+    names = np.unique(g)
+    if folds is None:
+        held = [g == nm for nm in names]
+    else:
+        rng = np.random.default_rng(np.random.SeedSequence([0, 11]))
+        rng.permutation(len(X))  # the subset's draw, then the deal of the demonstrations
+        fold_of_name = np.empty(len(names), dtype=int)
+        fold_of_name[rng.permutation(len(names))] = np.arange(len(names)) % folds
+        fold = fold_of_name[np.searchsorted(names, g)]
+        held = [fold == j for j in range(folds)]
+    assert rec["folds"] == len(held)
+    fit = gp.fits[0]
+    K, _ = KERNEL.gram(KERNEL.precompute(Xs), fit.values)
+    s2 = fit.values["noise_std"] ** 2
+    for c, err in zip(rec["grid"][::6], rec["errors"][::6]):
+        sse = 0.0
+        for h in held:
+            t = ~h
+            mean = K[np.ix_(h, t)] @ np.linalg.solve(K[np.ix_(t, t)] + (c * s2 + fit.jitter) * np.eye(t.sum()), ys[t])
+            sse += float(np.sum((ys[h] - mean) ** 2))
+        assert err == pytest.approx(sse / len(ys), rel=1e-8)
