@@ -55,6 +55,7 @@ import json
 import math
 import os
 import re
+import tokenize
 import zipfile
 import zlib
 
@@ -331,14 +332,36 @@ def _read_array(zf: zipfile.ZipFile, info: zipfile.ZipInfo, path, name: str) -> 
     return buf.view(dtype).reshape(shape, order="F" if fortran else "C")
 
 
-def _open_zip(path) -> zipfile.ZipFile:
-    magic = _head(path, 4)
+#: A model read from a FIFO (``<(cat model.rbgp)``) is held in memory: at most this many bytes.
+MAX_STREAMED_MODEL_BYTES = 1 << 30
+
+
+def _seekable_source(path):
+    """``path`` itself, or for a FIFO or pipe (:func:`rbgp_cli.io.special.is_stream_path`) its bytes
+    in memory (zip needs to seek); a device is refused, and so is a FIFO nobody writes to."""
+    if hasattr(path, "read"):
+        return path
+    from rbgp_cli.io.special import is_stream_path, open_stream_path
+
+    if not is_stream_path(path):
+        return path
+    with open_stream_path(path, "model file") as stream:
+        data = stream.read(MAX_STREAMED_MODEL_BYTES + 1)
+    if len(data) > MAX_STREAMED_MODEL_BYTES:
+        raise _bad(path, f"the stream holds more than {MAX_STREAMED_MODEL_BYTES >> 20} MiB, more than a model file "
+                         "read from a pipe may have", "pass the model file itself")
+    return io.BytesIO(data)
+
+
+def _open_zip(path, src=None) -> zipfile.ZipFile:
+    src = path if src is None else src
+    magic = _head(src, 4)
     if not magic:
         raise _bad(path, "the model file is empty")
     if magic != b"PK\x03\x04":  # np.load would try to unpickle it and suggest allowing that, which misleads
         raise _bad(path, "not an rbgp model file (.rbgp files are zip archives; this one is not)",
                    "pass a file written by rbgp train")
-    return zipfile.ZipFile(path)
+    return zipfile.ZipFile(src)
 
 
 def read_header(path) -> tuple[dict, dict]:
@@ -350,9 +373,10 @@ def read_header(path) -> tuple[dict, dict]:
     (:mod:`rbgp_cli.io.model_schema`). Raises :class:`InputError` naming the file."""
     from rbgp_cli.io.model_schema import SchemaError, validate_arrays, validate_header
 
+    src = _seekable_source(path)
     try:
-        disk = _file_size(path)
-        with _open_zip(path) as zf:
+        disk = _file_size(src)
+        with _open_zip(path, src) as zf:
             names = {n[:-4] for n in zf.namelist() if n.endswith(".npy")}
             if len(zf.infolist()) > MAX_MEMBERS:
                 raise _bad(path, f"the model file has {len(zf.infolist())} members, more than a model file holds")
@@ -382,7 +406,8 @@ def read_header(path) -> tuple[dict, dict]:
     except MemoryError:
         raise _bad(path, "not enough memory to read the model file's arrays") from None
     except (zipfile.BadZipFile, zlib.error, EOFError, ValueError, OSError, KeyError, TypeError,
-            NotImplementedError, RuntimeError) as exc:  # zipfile: unknown compression / "encrypted" flag
+            NotImplementedError, RuntimeError,  # zipfile: unknown compression / "encrypted" flag
+            SyntaxError, tokenize.TokenError) as exc:  # numpy's .npy header parser on a damaged header
         raise _bad(path, f"not a readable rbgp model file ({type(exc).__name__}: {str(exc)[:80]})") from None
     sums = header.get("checksums")
     if not isinstance(sums, dict):

@@ -261,6 +261,11 @@ def read_file(source, options: ReadOptions | None = None) -> list[Trajectory]:
         raise InputError("file not found", path=source, hint=hint)
     if p.is_dir():
         raise InputError("is a directory", path=source, hint="pass the files inside it (or the directory to rbgp train)")
+    from rbgp_cli.io.special import is_stream_path, open_stream_path
+
+    if is_stream_path(source):  # a FIFO, <(cat demo.csv): read once as a stream, like stdin
+        with open_stream_path(source, "data file") as stream:
+            return read_stream(stream, options, source=source)
     try:
         size = p.stat().st_size
         with open(source, "rb") as fh:
@@ -384,8 +389,9 @@ def read_sources(sources, options: ReadOptions | None = None, stdin=None) -> tup
             if stdin_used:
                 raise InputError("'-' (stdin) given more than once")
             stdin_used = True
-            stream = stdin if stdin is not None else sys.stdin.buffer
-            trajs = read_stream(stream, options, source="-")
+            from rbgp_cli.io.special import stdin_stream
+
+            trajs = read_stream(stdin_stream(stdin), options, source="-")
         else:
             try:
                 trajs = read_file(src, options)
