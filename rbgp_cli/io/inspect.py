@@ -158,6 +158,10 @@ def inspect_file(path, options: ReadOptions | None = None, stdin=None, *, max_ga
     fmt = _format_option(options)
     out["format"] = detect_format(path) if fmt == "auto" else fmt
     try:
+        if not formats.get(out["format"]).binary:
+            from rbgp_cli.io.read import check_line_lengths
+
+            check_line_lengths(path)  # a file of one 200 MB line: refused after 1 MiB
         out["description"] = _describe(out["format"], path, options)
     except InputError as exc:
         out["error"] = words(exc)

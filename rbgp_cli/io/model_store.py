@@ -491,6 +491,7 @@ def load_model(path):
                    "use a machine with more memory, or retrain it on fewer points (max_points)", param="max_points") from None
     except (KeyError, TypeError, ValueError, IndexError, AttributeError, ArithmeticError) as exc:
         raise _bad(path, f"the model header is inconsistent ({type(exc).__name__}: {str(exc)[:80]})") from None
+    _check_predicts(path, gp, X)
     variation = None
     if header.get("variation"):
         from rbgp_cli.dynamics.variation import Variation
@@ -499,6 +500,26 @@ def load_model(path):
     return MotionModel(rep, gp, dt, arrays["starts"], arrays["durations"],
                        summary=header.get("summary", {}), provenance=header.get("provenance", {}),
                        velocity=velocity, time_input=time_input, mean=mean, variation=variation, envelope=envelope), header
+
+
+#: Training inputs at which a loaded model must predict finite velocities (spread over the data).
+CHECK_POINTS = 8
+
+
+def _check_predicts(path, gp, X) -> None:
+    """Refuse a model whose GP does not predict finite velocities with finite stds at its own training
+    inputs (X all 1e300 with recomputed checksums: distances overflow), so that every command that
+    loads a model (``info`` as well as ``rollout``) refuses the same files, before any work."""
+    idx = np.unique(np.linspace(0, len(X) - 1, min(CHECK_POINTS, len(X))).astype(int))
+    try:
+        with np.errstate(all="ignore"):
+            mean, std = gp.predict(np.asarray(X)[idx], return_std=True)
+        ok = np.all(np.isfinite(mean)) and np.all(np.isfinite(std))
+    except (ArithmeticError, ValueError, np.linalg.LinAlgError):
+        ok = False
+    if not ok:
+        raise _bad(path, "the model predicts non-finite velocities at its own training inputs: its arrays are "
+                         "damaged or were edited")
 
 
 def _model_extras(header: dict, arrays: dict, rep, X):
