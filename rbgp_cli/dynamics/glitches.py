@@ -18,7 +18,7 @@ slow drift at 256 Hz are each measured against themselves:
    caller refuses the file there (a glitch or two recordings joined cannot be told apart).
 2. **single samples off the path** (the small ones, 0.1 m at 30 Hz, that are no jump): the residual
    of sample k from the interpolation of its neighbours (linear in position, slerp in rotation, at
-   its own time; extrapolation from the two nearest for the first and last sample) above
+   its own time; extrapolation from the two nearest for the first and last sample, with twice the threshold) above
    ``max(K_RESIDUAL · s_r, FLOOR_RESIDUAL)`` (position) or ``max(K_RESIDUAL · s_r, FLOOR_ROT_RESIDUAL)``
    (rotation), where it is the largest of its neighbours' residuals and theirs are at least a quarter
    of it (a one-sample spike pulls its neighbours' interpolations toward it: their residuals are half
@@ -132,7 +132,9 @@ def _jumps(t, p, q, glitch, dt_min, v_max, w_max) -> tuple[int | None, tuple]:
             options.append((forward - k, 0, k + 1, forward + 1))
         if backward is not None:
             options.append((k - backward, 1, backward + 1, k + 1))
-        if forward is None and k + 1 <= MAX_RUN and k + 1 < K - (k + 1) and not glitch[: k + 1].any():
+        marked = np.flatnonzero(glitch[: k + 1])  # none, or a start run 0 … m − 1 this extends
+        from_start = marked.size == 0 or (marked[0] == 0 and marked[-1] == marked.size - 1)
+        if forward is None and k + 1 <= MAX_RUN and k + 1 < K - (k + 1) and from_start:  # (extending a start run)
             options.append((k + 1, 2, 0, k + 1))
         if backward is None and K - (k + 1) <= MAX_RUN and K - (k + 1) < k + 1:
             options.append((K - (k + 1), 2, k + 1, K))
@@ -160,7 +162,7 @@ def _residuals(t, p, q) -> tuple[np.ndarray, np.ndarray]:
 NEIGHBOUR_SHARE = 0.25
 
 
-def _spikes(r: np.ndarray, limit: float) -> np.ndarray:
+def _spikes(r: np.ndarray, limit) -> np.ndarray:
     """Mask (K,) of the residuals ``r`` above ``limit`` that are the largest of their neighbours' and
     whose neighbours' are at least :data:`NEIGHBOUR_SHARE` of them (the first and last sample: their
     one neighbour)."""
@@ -214,7 +216,11 @@ def find_glitches(t, p, q) -> Glitches:
             rr_max = max(K_RESIDUAL * robust_scale(rr[testable]), FLOOR_ROT_RESIDUAL)
         if attempt == 0:
             testable[[0, -1]] = False
-        off = testable & (_spikes(r, r_max) | _spikes(rr, rr_max))
+        # an end is extrapolated, not interpolated: its threshold is twice (a constant acceleration
+        # leaves 3 × the interpolation's residual there, a removed sample next to it more)
+        ends = np.ones(len(idx))
+        ends[[0, -1]] = 2.0
+        off = testable & (_spikes(r, r_max * ends) | _spikes(rr, rr_max * ends))
         if not off.any() and attempt > 0:
             break
         glitch[idx[off]] = True

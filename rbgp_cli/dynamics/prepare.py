@@ -293,7 +293,8 @@ def _glitch_rows(traj: Trajectory, qn: np.ndarray, keep: np.ndarray) -> np.ndarr
             f"(faster than {found.thresholds['speed_m_s']:.3g} m/s or {found.thresholds['turn_rad_s']:.3g} rad/s, "
             f"far beyond this file's own motion) and does not come back within {MAX_RUN} samples: a tracker "
             "glitch, or recordings in different units or frames joined",
-            hint="remove the rows from there on (or before), or keep one part with crop", param="crop")
+            hint="remove the rows from there on (or before), or keep one part with crop_from or crop_to",
+            param=("crop_from", "crop_to"))
     out[rows[found.mask]] = True
     return out
 
