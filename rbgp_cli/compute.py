@@ -563,7 +563,7 @@ def _lost_scheduler_error(label, unfinished):
 
     what = f"; unfinished: {_names(unfinished, label)}" if unfinished else ""
     return RbgpRuntimeError(f"lost the Dask scheduler (stopped or killed) while the tasks ran{what}",
-                            hint="start the scheduler again, or run without scheduler", param="scheduler")
+                            hint="restart it, or run without scheduler", param="scheduler")
 
 
 def iter_dask(fn, args: list, *, jobs: int | None = None, scheduler: str = "local", label=None):

@@ -17,7 +17,7 @@ slow drift at 256 Hz are each measured against themselves:
    MAX_RUN samples makes that side a glitch. A jump that does not come back is *unexplained*: the
    caller refuses the file there (a glitch or two recordings joined cannot be told apart).
 2. **single samples off the path** (the small ones, 0.1 m at 30 Hz, that are no jump): the residual
-   of sample k from the interpolation of its neighbours (linear in position, slerp in rotation, at
+   of sample k from the interpolation of its neighbours (linear in position, nlerp in rotation, at
    its own time; extrapolation from the two nearest for the first and last sample, with twice the threshold) above
    ``max(K_RESIDUAL · s_r, FLOOR_RESIDUAL)`` (position) or ``max(K_RESIDUAL · s_r, FLOOR_ROT_RESIDUAL)``
    (rotation), where it is the largest of its neighbours' residuals and theirs are at least a quarter
@@ -34,8 +34,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-
-from rbgp_cli.geometry.so3 import slerp
 
 __all__ = ["find_glitches", "Glitches", "robust_scale", "MAX_RUN", "K_SPEED", "FLOOR_SPEED", "FLOOR_ROT_SPEED",
            "K_RESIDUAL", "FLOOR_RESIDUAL", "FLOOR_ROT_RESIDUAL", "GAP_FACTOR"]
@@ -153,7 +151,12 @@ def _residuals(t, p, q) -> tuple[np.ndarray, np.ndarray]:
     nxt = np.r_[2, np.arange(2, K), K - 2] if K >= 3 else np.zeros(K, int)
     u = (t - t[prev]) / (t[nxt] - t[prev])
     p_hat = p[prev] + u[:, None] * (p[nxt] - p[prev])
-    q_hat = slerp(q[prev], q[nxt], u)
+    # nlerp: the same path as slerp, exactly the midpoint at u = 1/2 (a regular grid), and the
+    # neighbours of a sample are close; three times faster on 10⁶ rows
+    qa, qb = q[prev], q[nxt]
+    qb = qb * np.where(np.sum(qa * qb, axis=1) < 0, -1.0, 1.0)[:, None]
+    q_hat = (1.0 - u)[:, None] * qa + u[:, None] * qb
+    q_hat /= np.linalg.norm(q_hat, axis=1, keepdims=True)
     return np.linalg.norm(p - p_hat, axis=1), _angles(q, q_hat)
 
 
@@ -202,12 +205,14 @@ def find_glitches(t, p, q) -> Glitches:
     if unexplained is not None:
         return Glitches(glitch, _runs(glitch), unexplained, jump, thresholds)
     r_max = rr_max = None
+    changed = True
     for attempt in range(3):  # interior samples first: a spike next to an end spoils its extrapolation
         idx = np.flatnonzero(~glitch)
         if len(idx) < 5:
             break
         ti = t[idx]
-        r, rr = _residuals(ti, p[idx], q[idx])
+        if changed:  # (the same samples as the attempt before: the same residuals)
+            r, rr = _residuals(ti, p[idx], q[idx])
         gaps = np.diff(ti)
         short = gaps <= GAP_FACTOR * med_dt
         testable = np.r_[short[0] & short[1], short[:-1] & short[1:], short[-1] & short[-2]]
@@ -224,5 +229,6 @@ def find_glitches(t, p, q) -> Glitches:
         if not off.any() and attempt > 0:
             break
         glitch[idx[off]] = True
+        changed = bool(off.any())
     thresholds.update({"residual_m": r_max, "residual_rad": rr_max})
     return Glitches(glitch, _runs(glitch), None, (0.0, 0.0, 0.0), thresholds)

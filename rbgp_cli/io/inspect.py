@@ -109,6 +109,7 @@ def prepared_summary(traj, options: ReadOptions, max_gap: float | None = None, w
         "gaps": {"count": int(len(clean_gaps)), "largest_s": _float(clean_gaps.max()) if len(clean_gaps) else None},
         "held": rep["held"], "held_runs": rep["held_runs"], "lost": rep["lost"], "dropped": rep["dropped"],
         "filled": rep["filled"], "duplicates": rep["duplicates"], "sign_flips": rep["sign_flips"],
+        "glitches": rep.get("glitches", 0), "glitch_rows": rep.get("glitch_rows", []),
         "breaks": {"count": len(brk), "largest_s": max(brk) if brk else None,
                    "after_s": [b["after_s"] for b in rep.get("breaks", [])]},
         "training_gaps": {"count": len(gaps), "largest_s": max(gaps) if gaps else None, "longer_than_s": thr},
@@ -388,8 +389,14 @@ def _train_acts(tr: dict) -> list[str]:
         acts.append(f"fills {_plural(tr['filled'], 'lost frame')} (max_gap)")
     if tr.get("duplicates"):
         acts.append(f"drops {_plural(tr['duplicates'], 'duplicate sample')}")
+    if tr.get("glitches"):
+        from rbgp_cli.dynamics.prepare import _rows_text
+
+        acts.append(f"removes {_plural(tr['glitches'], 'sample')} off the path as tracker glitches "
+                    f"({_rows_text(tr.get('glitch_rows') or [])})")
     used = tr.get("samples_used")
-    if used is not None and tr.get("samples") and used < tr["samples"] - (tr.get("dropped") or 0) - (tr.get("duplicates") or 0):
+    if used is not None and tr.get("samples") and used < (tr["samples"] - (tr.get("dropped") or 0) - (tr.get("duplicates") or 0)
+                                                          - (tr.get("glitches") or 0)):
         acts.append(f"uses {used} of {tr['samples']} samples")
     b = tr.get("breaks") or {}
     if b.get("count"):
