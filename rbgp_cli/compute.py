@@ -536,6 +536,8 @@ def _dask_result(fut, i: int, label):
     except (InputError, RbgpRuntimeError):
         raise
     except Exception as exc:
+        if _scheduler_lost(exc):
+            raise _lost_scheduler_error(label, [i]) from None
         if type(exc).__name__ == "KilledWorker":
             raise RbgpRuntimeError(f"{_names([i], label)} was lost with its Dask worker "
                                    "(killed, or out of memory) on every try",
@@ -544,6 +546,24 @@ def _dask_result(fut, i: int, label):
         # a task that failed on a worker fails the study, as in-process
         raise RbgpRuntimeError(f"a task failed on a Dask worker: {type(exc).__name__}: {exc}") from exc
     return r
+
+
+def _scheduler_lost(exc: BaseException) -> bool:
+    """True for what a client raises when its scheduler is gone: its futures cancelled
+    (``FuturesCancelledError``, a ``CancelledError``), the connection closed or refused."""
+    from concurrent.futures import CancelledError
+
+    names = {type(e).__name__ for e in type(exc).__mro__}
+    return (isinstance(exc, (CancelledError, OSError, TimeoutError))
+            or bool(names & {"FuturesCancelledError", "CommClosedError", "CancelledError"}))
+
+
+def _lost_scheduler_error(label, unfinished):
+    from rbgp_cli.errors import RbgpRuntimeError
+
+    what = f"; unfinished: {_names(unfinished, label)}" if unfinished else ""
+    return RbgpRuntimeError(f"lost the Dask scheduler (stopped or killed) while the tasks ran{what}",
+                            hint="restart it, or run without scheduler", param="scheduler")
 
 
 def iter_dask(fn, args: list, *, jobs: int | None = None, scheduler: str = "local", label=None):
@@ -619,8 +639,17 @@ def iter_dask(fn, args: list, *, jobs: int | None = None, scheduler: str = "loca
                     for fut in sorted(done, key=lambda f: index[f.key]):
                         i = index[fut.key]
                         yield i, _dask_result(fut, i, label)
+            except (InputError, RbgpRuntimeError):
+                raise
+            except Exception as exc:  # wait() or nthreads() with the scheduler gone
+                if not _scheduler_lost(exc):
+                    raise
+                raise _lost_scheduler_error(label, sorted(index[f.key] for f in pending)) from None
             finally:
-                client.cancel([f for f in futs if not f.done()])
+                try:
+                    client.cancel([f for f in futs if not f.done()])
+                except Exception:  # noqa: BLE001 - the scheduler is gone: nothing left to cancel
+                    pass
     except BaseException as exc:
         if not isinstance(exc, Exception):  # interrupted: the process ends, and the cluster's workers
             restore = lambda: None  # noqa: E731 - report their ends while it does; keep Dask quiet

@@ -119,6 +119,10 @@ def check_writable(path) -> None:
     folder = os.path.dirname(os.path.abspath(str(path)))
     if os.path.isdir(str(path)):
         raise InputError("is a directory; give a file name for the output", path=str(path))
+    if os.path.exists(str(path)) and not os.path.isfile(str(path)):  # /dev/null, a FIFO: written into
+        if not os.access(str(path), os.W_OK):
+            raise InputError("cannot write to this device or FIFO (no permission)", path=str(path))
+        return
     if not os.path.isdir(folder):
         raise InputError("the output folder does not exist", path=str(path), hint="create it first")
     if not os.access(folder, os.W_OK):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import stat
 from pathlib import Path
 
 import pytest
@@ -17,3 +18,11 @@ def realdata() -> Path:
     if not REALDATA.is_dir():
         pytest.skip(f"real recordings not found at {REALDATA}")
     return REALDATA
+
+
+@pytest.fixture(scope="session", autouse=True)
+def dev_null_is_still_a_device_after_the_suite():
+    """Issue 40: ``-o /dev/null`` once renamed a file onto the device. The suite writes to /dev/null on
+    purpose (tests/hostile/test_streams_and_devices.py); after the whole session it must still be one."""
+    yield
+    assert stat.S_ISCHR(os.stat("/dev/null").st_mode), "/dev/null is no longer a character device"

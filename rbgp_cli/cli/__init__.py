@@ -23,3 +23,28 @@ def exit_on_signals() -> None:
         _signal.signal(_signal.SIGTERM, _exit_now)
     except (ValueError, OSError):  # not the main thread (embedded use)
         pass
+    occupy_closed_streams()
+
+
+#: The standard streams (0, 1, 2) that were closed when rbgp started (``>&-``, ``<&-``).
+CLOSED_STREAMS: set = set()
+
+
+def occupy_closed_streams() -> None:
+    """Open the null device on a standard file descriptor that was closed when the process started
+    (``rbgp rollout -o - >&-``), and note it in :data:`CLOSED_STREAMS`: otherwise the next file opened
+    (a model's temporary file, a worker's pipe) would get descriptor 1 and anything written to
+    stdout would land in it. Python then has ``sys.stdout = None``; the command wrapper turns a write
+    to it into one error line (:func:`rbgp_cli.cli.common.command`)."""
+    for fd in (0, 1, 2):
+        try:
+            _os.fstat(fd)
+        except OSError:
+            try:
+                null = _os.open(_os.devnull, _os.O_RDONLY if fd == 0 else _os.O_WRONLY)
+                if null != fd:
+                    _os.dup2(null, fd)
+                    _os.close(null)
+            except OSError:  # pragma: no cover - no /dev/null
+                continue
+            CLOSED_STREAMS.add(fd)

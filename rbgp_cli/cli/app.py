@@ -156,7 +156,7 @@ def predict(
     from rbgp_cli import workflows
     from rbgp_cli.io.model_store import load_model
 
-    check_outputs(output)
+    check_outputs(output or "-")
     m, _ = load_model(model)
     t, q, p, mean, std = workflows.predict_file(m, poses, read.options, noisy=noisy, max_gap=read.max_gap)  # '-' too
     names = list(m.representation.output_names)
@@ -224,7 +224,7 @@ def rollout(
     if opts.rate is not None and not (starts or from_demos):
         raise InputError("--rate is the sample rate of input files without a time column, and rollout reads none here",
                          hint="set the rate of the written trajectories with --output-rate HZ")
-    check_outputs(output, rerun)
+    check_outputs(output or "-", rerun)
     m, _ = load_model(model)
     q0, p0, durations = workflows.rollout_starts(
         m, start=start, start_quat=start_quat, starts=starts, from_demos=from_demos, count=count,

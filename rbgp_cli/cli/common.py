@@ -131,6 +131,99 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
         _stderr(f"rbgp: warning: {category.__name__}: {message}")
 
 
+def _resource_error(exc: OSError) -> str | None:
+    """The one line for an OSError that is the machine's limit, not a bug: too many open files."""
+    import errno
+
+    if exc.errno in (errno.EMFILE, errno.ENFILE):
+        limit = ""
+        try:
+            import resource
+
+            limit = f" (the limit is {resource.getrlimit(resource.RLIMIT_NOFILE)[0]})"
+        except (ImportError, OSError, ValueError):  # pragma: no cover - not Unix
+            pass
+        return (f"rbgp: error: too many open files{limit}: rbgp's worker processes need more; raise the limit "
+                "(ulimit -n 1024) or run in this process only with --jobs 1")
+    return None
+
+
+class _Stdout:
+    """``sys.stdout`` while a command runs: a write that fails for a reason of the file system (a full
+    disk, the file-size limit) is ``cannot write stdout: <reason>`` (exit 1), and writing to a stdout
+    that was closed when rbgp started (``>&-``: Python's ``sys.stdout`` is None) is one error line
+    (exit 2) instead of an AttributeError."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def _closed(self):
+        from rbgp_cli.errors import InputError
+
+        return InputError("stdout is closed (>&-): there is nowhere to write the output",
+                          hint="redirect it instead (> FILE, > /dev/null), or write to a file with -o FILE")
+
+    def _failed(self, exc: OSError):
+        from rbgp_cli.io.atomic import write_error
+
+        _drop_stdout()
+        return write_error("stdout", exc)
+
+    def write(self, text):
+        if self._stream is None:
+            raise self._closed()
+        try:
+            return self._stream.write(text)
+        except BrokenPipeError:
+            raise
+        except OSError as exc:
+            raise self._failed(exc) from None
+
+    def flush(self):
+        if self._stream is None:
+            return
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            raise
+        except OSError as exc:
+            raise self._failed(exc) from None
+
+    def isatty(self) -> bool:
+        return self._stream is not None and self._stream.isatty()
+
+    def writelines(self, lines):
+        for text in lines:
+            self.write(text)
+
+    def __getattr__(self, name):
+        if self._stream is None:
+            if name in ("buffer", "fileno"):  # a write would follow
+                raise self._closed()
+            import io
+
+            return getattr(io.StringIO(), name)  # encoding, errors, closed...: what libraries look at
+        return getattr(self._stream, name)
+
+
+def stdout_is_closed() -> bool:
+    """True when stdout was closed when rbgp started (``>&-``)."""
+    stream = sys.stdout._stream if isinstance(sys.stdout, _Stdout) else sys.stdout
+    return stream is None
+
+
+@contextlib.contextmanager
+def _guarded_stdout():
+    """:class:`_Stdout` around ``sys.stdout`` while a command runs."""
+    previous = sys.stdout
+    sys.stdout = previous if isinstance(previous, _Stdout) else _Stdout(previous)
+    try:
+        yield
+    finally:
+        if sys.stdout is not previous and isinstance(sys.stdout, _Stdout):
+            sys.stdout = previous
+
+
 _QUIET_HELP = "No progress messages, bars or summaries on stderr (warnings and errors still); also accepted before the command."
 
 
@@ -160,8 +253,10 @@ def command(func):
                     if not has_json:
                         raise InputError(f"rbgp {func.__name__} has no --json output", hint="leave out --json")
                     kwargs["json_out"] = True
-                with _progress_session(), _signals_as_exceptions():
-                    return func(*args, **kwargs)
+                with _progress_session(), _signals_as_exceptions(), _guarded_stdout():
+                    result = func(*args, **kwargs)
+                    sys.stdout.flush()  # a full disk under stdout fails here, inside the command
+                    return result
             except typer.Exit:
                 raise
             except RbgpError as exc:
@@ -179,6 +274,15 @@ def command(func):
                 raise typer.Exit(0) from None
             except MemoryError:
                 _stderr("rbgp: error: out of memory; use --max-points or --subsample to train on fewer points")
+                raise typer.Exit(1) from None
+            except OSError as exc:
+                line = _resource_error(exc)
+                if line is None:
+                    if os.environ.get("RBGP_DEBUG"):
+                        raise
+                    text = " ".join(str(exc).split())[:300]
+                    line = f"rbgp: internal error: {type(exc).__name__}: {text} (set RBGP_DEBUG=1 for a traceback)"
+                _stderr(line)
                 raise typer.Exit(1) from None
             except Exception as exc:  # noqa: BLE001 - the last line of defence: no tracebacks for users
                 if _INTERRUPTED["on"]:  # a failure Ctrl-C caused (e.g. inside an import) is the interruption
@@ -348,6 +452,11 @@ def check_outputs(*paths: Optional[str]) -> None:
     from rbgp_cli.workflows import check_writable
 
     for path in paths:
+        if path is not None and str(path) == "-" and stdout_is_closed():
+            from rbgp_cli.errors import InputError
+
+            raise InputError("'-' writes to stdout, but stdout is closed (>&-)",
+                             hint="redirect it instead (> FILE), or give a file name")
         if path is not None and str(path) != "-":
             check_writable(path)
 

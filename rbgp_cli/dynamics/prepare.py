@@ -271,6 +271,61 @@ def _check_steps(traj: Trajectory, q_out: np.ndarray, rows: np.ndarray) -> None:
         )
 
 
+def _glitch_rows(traj: Trajectory, qn: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """Mask (N,) of the raw rows among ``keep`` that are tracker glitches
+    (:func:`rbgp_cli.dynamics.glitches.find_glitches`); an InputError at a jump that does not come
+    back. A step of π or more is refused first, as before (:func:`_check_steps`)."""
+    from rbgp_cli.dynamics.glitches import MAX_RUN, find_glitches
+
+    rows = np.flatnonzero(keep)
+    out = np.zeros(len(keep), dtype=bool)
+    if len(rows) < 5:
+        return out
+    q_cont, _ = _continuous_signs(qn[rows])
+    _check_steps(traj, q_cont, rows)
+    found = find_glitches(traj.t[rows], traj.position[rows], q_cont)
+    if found.unexplained is not None:
+        k = found.unexplained
+        metres, radians, seconds = found.jump
+        raise _error(
+            traj, int(rows[k + 1]),
+            f"the pose jumps by {metres:.3g} m and {np.degrees(radians):.3g}° in {seconds * 1e3:.3g} ms at {{where}} "
+            f"(faster than {found.thresholds['speed_m_s']:.3g} m/s or {found.thresholds['turn_rad_s']:.3g} rad/s, "
+            f"far beyond this file's own motion) and does not come back within {MAX_RUN} samples: a tracker "
+            "glitch, or recordings in different units or frames joined",
+            hint="remove the rows from there on (or before), or keep one part with crop_from or crop_to",
+            param=("crop_from", "crop_to"))
+    out[rows[found.mask]] = True
+    return out
+
+
+def _row_runs(traj: Trajectory, mask: np.ndarray) -> list:
+    """Runs of raw rows in ``mask`` as ``[first, last]`` file lines (or 1-based sample numbers when
+    the reader did not record lines), for reports and warnings."""
+    idx = np.flatnonzero(mask)
+    if not idx.size:
+        return []
+    cuts = np.flatnonzero(np.diff(idx) != 1) + 1
+    out = []
+    for run in np.split(idx, cuts):
+        a, b = line_of(traj, int(run[0])), line_of(traj, int(run[-1]))
+        out.append([a, b] if a is not None and b is not None else [int(run[0]) + 1, int(run[-1]) + 1])
+    if line_of(traj, 0) is None:
+        return [["sample", *r] for r in out]
+    return [["line", *r] for r in out]
+
+
+def _rows_text(runs: list, most: int = 8) -> str:
+    """``lines 52–61, 120`` (or ``samples …``) from :func:`_row_runs`, the first ``most`` runs."""
+    if not runs:
+        return ""
+    word = runs[0][0]
+    items = [f"{a}" if a == b else f"{a}–{b}" for _, a, b in runs[:most]]
+    many = len(runs) > 1 or runs[0][1] != runs[0][2]
+    more = f" and {len(runs) - most} more" if len(runs) > most else ""
+    return f"{word}{'s' * many} {', '.join(items)}{more}"
+
+
 def _warn_repairs(traj: Trajectory, report: dict) -> None:
     """One warning listing what :func:`prepare_trajectory` repaired (its ``report``), if anything."""
     n_held, n_filled = report["held"], report["filled"]
@@ -282,6 +337,11 @@ def _warn_repairs(traj: Trajectory, report: dict) -> None:
         parts.append(f"dropped {report['dropped']} lost frame{'s' * (report['dropped'] != 1)}")
     if n_filled:
         parts.append(f"filled {n_filled} lost frame{'s' * (n_filled != 1)}")
+    if report.get("glitches"):
+        n = report["glitches"]
+        parts.append(f"removed {n} sample{'s' * (n != 1)} off the path (tracker glitch{'es' * (n != 1)}: "
+                     f"{'a jump' if n == 1 else 'jumps'} far beyond the file's own motion that came back), "
+                     f"as lost frames: {_rows_text(report['glitch_rows'])}")
     if report["duplicates"]:
         parts.append(f"dropped {report['duplicates']} duplicate sample{'s' * (report['duplicates'] != 1)}")
     sign_note = sign_change_note(traj.info, report["sign_flips"])
@@ -344,6 +404,10 @@ def prepare_trajectory(
     qn[vi] = q[vi] / norms[:, None]
     dup_raw = _exact_duplicates(traj, vi)
     keep = valid & ~dup_raw
+    glitch = _glitch_rows(traj, qn, keep)
+    n_glitch = int(glitch.sum())
+    if n_glitch:  # a tracker glitch is a lost frame: dropped, or filled like one with max_gap
+        lost, keep = lost | glitch, keep & ~glitch
     fill_idx, fill_q, fill_p = _filled_gaps(t, p, qn, lost, keep, max_gap)
     rows = np.concatenate([np.flatnonzero(keep), fill_idx])
     order = np.argsort(rows, kind="stable")
@@ -351,8 +415,9 @@ def prepare_trajectory(
     q_out = np.concatenate([qn[keep], fill_q])[order]
     p_out = np.concatenate([p[keep], fill_p])[order]
     t_out = t[rows]
-    n_lost = int(lost.sum()) - n_held
+    n_lost = int(lost.sum()) - n_held - n_glitch
     n_filled = int(fill_idx.size)
+    n_filled_glitch = int(np.isin(fill_idx, np.flatnonzero(glitch)).sum()) if n_glitch else 0
     if len(rows) < 2:
         raise _too_few_samples(traj, rows, n, n_lost, dup_raw)
     q_out, flips = _continuous_signs(q_out)
@@ -362,7 +427,9 @@ def prepare_trajectory(
         "samples_out": int(len(rows)),
         "lost": n_lost,
         "filled": n_filled,
-        "dropped": n_lost + n_held - n_filled,
+        "dropped": n_lost + n_held - (n_filled - n_filled_glitch),
+        "glitches": n_glitch,
+        "glitch_rows": _row_runs(traj, glitch),
         "held": n_held,
         "held_runs": held_runs,
         "duplicates": int(dup_raw.sum()),

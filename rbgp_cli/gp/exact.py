@@ -269,9 +269,11 @@ def _collect_worker_fits(tasks, jobs, ctx, progress, task, results, failures):
 
     # workers that end with this process (killed or not), and end at once on an error or Ctrl-C
     with process_pool(jobs, context=ctx, init=worker_init) as pool:
-        with start_workers():
-            futures = {pool.submit(_worker_fit, t): t[4] for t in tasks}
         try:
+            # inside the try: a pool that fails while starting its workers (too many open files) ends
+            # them, instead of leaving started workers that the exit handlers wait for forever
+            with start_workers():
+                futures = {pool.submit(_worker_fit, t): t[4] for t in tasks}
             for fut in as_completed(futures):
                 if fut.cancelled():
                     continue

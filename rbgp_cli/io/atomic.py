@@ -5,6 +5,11 @@ Write to a temporary file in the destination's directory, flush and fsync, give 
 ``os.replace`` it onto the destination. On any exception the temporary file is removed and the
 destination is untouched.
 
+A destination that exists and is not a regular file (``/dev/null``, ``/dev/full``, a FIFO) is written
+*into*, never replaced: renaming onto ``/dev/null`` as root would break it for every other program.
+The output is made in a private temporary file and its bytes copied into the device (a FIFO with no
+reader is refused after :data:`FIFO_READER_WAIT_S` seconds; ``/dev/full`` is "no space left").
+
 A write that fails for a reason of the file system (no space left, the file-size limit, no
 permission, a read-only file system, the folder gone) is one :class:`~rbgp_cli.errors.RbgpError`
 ``cannot write PATH: <reason>``: exit code 2 (:class:`~rbgp_cli.errors.InputError`) for what the
@@ -73,6 +78,10 @@ def atomic_path(path, suffix: str | None = None):
     failure anywhere (creating, writing, syncing, renaming) is ``cannot write PATH: <reason>``.
     """
     dest = Path(path)
+    if _not_a_regular_file(dest):  # /dev/null, /dev/full, a FIFO: written into, never replaced
+        with _into_special(dest, suffix) as tmp:
+            yield tmp
+        return
     directory = dest.parent if str(dest.parent) else Path(".")
     suffix = (dest.suffix if suffix is None else suffix) + ".tmp"
     remove_stale(directory, dest.name, suffix)
@@ -103,6 +112,78 @@ def atomic_path(path, suffix: str | None = None):
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+def _not_a_regular_file(dest: Path) -> bool:
+    """True when ``dest`` exists (after symlinks) and is neither a regular file nor a directory: a
+    device or a FIFO, which a rename would replace (``/dev/null`` for every other program)."""
+    try:
+        mode = os.stat(dest).st_mode
+    except (OSError, ValueError):
+        return False
+    return not (stat.S_ISREG(mode) or stat.S_ISDIR(mode))
+
+
+#: Seconds a FIFO given as the output waits for a reader before it is refused.
+FIFO_READER_WAIT_S = 1.0
+
+
+def _open_special(dest: Path) -> int:
+    """A descriptor open for writing on the device or FIFO ``dest`` (no truncation, no creation). A
+    FIFO nobody reads from is refused after :data:`FIFO_READER_WAIT_S` seconds instead of blocking."""
+    import time
+
+    mode = os.stat(dest).st_mode
+    if not stat.S_ISFIFO(mode):
+        return os.open(dest, os.O_WRONLY)
+    deadline = time.monotonic() + FIFO_READER_WAIT_S
+    while True:
+        try:
+            fd = os.open(dest, os.O_WRONLY | os.O_NONBLOCK)
+        except OSError as exc:
+            if exc.errno != errno.ENXIO:  # ENXIO: no reader yet
+                raise
+            if time.monotonic() > deadline:
+                raise InputError(f"cannot write {dest}: nothing reads from this FIFO (named pipe)",
+                                 hint="start the program that reads it first, or write to a file") from None
+            time.sleep(0.02)
+            continue
+        os.set_blocking(fd, True)
+        return fd
+
+
+@contextlib.contextmanager
+def _into_special(dest: Path, suffix: str | None):
+    """:func:`atomic_path` for a device or FIFO: the writer writes a private temporary file (outside
+    the device's folder), whose bytes are then copied into ``dest``, which is never renamed onto,
+    truncated or chmod-ed. Whole-or-nothing cannot hold for a device; a failure before the copy
+    writes nothing into it."""
+    import shutil
+
+    suffix = (dest.suffix if suffix is None else suffix) + ".tmp"
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".rbgp-{os.getpid()}-", suffix=suffix)
+    except OSError as exc:
+        raise write_error(dest, exc) from None
+    os.close(fd)
+    try:
+        try:
+            yield Path(tmp)
+        except OSError as exc:
+            if exc.errno in _PATH_ERRNOS or exc.errno in _LIMIT_ERRNOS:
+                raise write_error(dest, exc) from None
+            raise
+        try:
+            out = _open_special(dest)
+            with open(tmp, "rb") as src, os.fdopen(out, "wb") as dst:
+                shutil.copyfileobj(src, dst, 1 << 20)
+        except BrokenPipeError:
+            raise InputError(f"cannot write {dest}: the program reading the FIFO went away") from None
+        except OSError as exc:
+            raise write_error(dest, exc) from None
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
 
 
 #: A leftover temporary file without a pid in its name (older rbgp) is stale after this many seconds.

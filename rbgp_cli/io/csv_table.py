@@ -56,12 +56,18 @@ def decode(data: bytes, source: str) -> str:
     return text
 
 
-def split_fields(line: str, delimiter: str) -> list[str]:
+def split_fields(line: str, delimiter: str, source: str | None = None, line_no: int | None = None) -> list[str]:
+    """The fields of one line (quotes honoured); an InputError for a cell longer than the csv
+    module's field limit (128 Ki characters): no pose table has one."""
     import csv as _csv
 
     if delimiter == "whitespace":
         return line.split()
-    return next(_csv.reader([line], delimiter=delimiter))
+    try:
+        return next(_csv.reader([line], delimiter=delimiter))
+    except _csv.Error as exc:
+        raise InputError(f"a cell longer than {_csv.field_size_limit()} characters ({exc}): not a table of poses",
+                         path=source, row=line_no, hint="check that this is the exported CSV/TSV file") from None
 
 
 def is_number(s: str) -> bool:
@@ -98,13 +104,13 @@ def parse_table(text: str, source: str) -> Table:
     if header is None:
         raise InputError("the file has no header and no data (only comments or blank lines)", path=source)
     delimiter = sniff_delimiter(header)
-    names = [f.strip() for f in split_fields(header, delimiter)]
+    names = [f.strip() for f in split_fields(header, delimiter, source, header_line)]
     if names and all(is_number(f) for f in names if f.strip()):
         # No header line. numpy.savetxt writes it as a comment ("# t,x,y,...") just above the data.
         cand_fields = None
         if comments:
             cand = comments[-1][1]
-            cand_fields = [f.strip() for f in split_fields(cand, sniff_delimiter(cand))]
+            cand_fields = [f.strip() for f in split_fields(cand, sniff_delimiter(cand), source, comments[-1][0] + 1)]
             if len(cand_fields) != len(names) or any(is_number(f) for f in cand_fields):
                 cand_fields = None
         if cand_fields is None:

@@ -109,6 +109,7 @@ def prepared_summary(traj, options: ReadOptions, max_gap: float | None = None, w
         "gaps": {"count": int(len(clean_gaps)), "largest_s": _float(clean_gaps.max()) if len(clean_gaps) else None},
         "held": rep["held"], "held_runs": rep["held_runs"], "lost": rep["lost"], "dropped": rep["dropped"],
         "filled": rep["filled"], "duplicates": rep["duplicates"], "sign_flips": rep["sign_flips"],
+        "glitches": rep.get("glitches", 0), "glitch_rows": rep.get("glitch_rows", []),
         "breaks": {"count": len(brk), "largest_s": max(brk) if brk else None,
                    "after_s": [b["after_s"] for b in rep.get("breaks", [])]},
         "training_gaps": {"count": len(gaps), "largest_s": max(gaps) if gaps else None, "longer_than_s": thr},
@@ -145,6 +146,11 @@ def inspect_file(path, options: ReadOptions | None = None, stdin=None, *, max_ga
         raise InputError("file not found", path=path, hint="check the path")
     if p.is_dir():
         raise InputError("is a directory", path=path, hint="pass the files inside it")
+    from rbgp_cli.io.special import is_stream_path, open_stream_path
+
+    if is_stream_path(path):  # a FIFO, <(cat demo.csv): read once, described like stdin
+        with open_stream_path(path, "data file") as stream:
+            return _inspect_stdin(options, stream, max_gap, words, name=path)
     out: dict = {"path": path, "format": None, "bytes": p.stat().st_size, "description": None,
                  "trajectories": [], "error": None}  # fmt: skip
     if out["bytes"] == 0:
@@ -153,6 +159,10 @@ def inspect_file(path, options: ReadOptions | None = None, stdin=None, *, max_ga
     fmt = _format_option(options)
     out["format"] = detect_format(path) if fmt == "auto" else fmt
     try:
+        if not formats.get(out["format"]).binary:
+            from rbgp_cli.io.read import check_line_lengths
+
+            check_line_lengths(path)  # a file of one 200 MB line: refused after 1 MiB
         out["description"] = _describe(out["format"], path, options)
     except InputError as exc:
         out["error"] = words(exc)
@@ -174,32 +184,64 @@ def _finish(out: dict, options: ReadOptions, error_param=None) -> dict:
     return out
 
 
-def _inspect_stdin(options: ReadOptions, stdin, max_gap=None, words=str) -> dict:
+def _inspect_stdin(options: ReadOptions, stdin, max_gap=None, words=str, name: str = "-") -> dict:
+    """:func:`inspect_file` of what a stream holds (stdin, a FIFO named ``name``), through a temporary
+    file that is gone when this returns, and gone even when the process is killed (SIGKILL) while it
+    is being read: it is unlinked as soon as it is opened, and read through ``/proc/self/fd``."""
     import tempfile
 
     from rbgp_cli.io import formats
     from rbgp_cli.io.read import _format_option, detect_format
+    from rbgp_cli.io.special import stdin_stream
 
-    stream = stdin if stdin is not None else sys.stdin.buffer
-    data = stream.read()
-    if not data:
-        raise InputError("the input is empty", path="-")
+    stream = stdin_stream(stdin)
     fmt = _format_option(options)
-    if fmt == "auto":
-        fmt = detect_format(data[: formats.HEAD_BYTES])
-    fd, tmp = tempfile.mkstemp(prefix="rbgp-stdin-", suffix=formats.get(fmt).suffix)
+    with tempfile.TemporaryFile(prefix="rbgp-stdin-") as fh:  # unnamed: nothing left if we are killed
+        head = stream.read(formats.HEAD_BYTES)
+        if not head:
+            raise InputError("the input is empty", path=name)
+        if fmt == "auto":
+            fmt = detect_format(head)
+        fh.write(head)
+        for block in iter(lambda: stream.read(1 << 20), b""):
+            fh.write(block)
+        fh.flush()
+        tmp = f"/proc/self/fd/{fh.fileno()}"
+        if not os.path.exists(tmp):  # pragma: no cover - no /proc: a named file, removed at once after
+            return _inspect_named_copy(fh, options, max_gap, words, name, formats.get(fmt).suffix)
+        out = inspect_file(tmp, options, max_gap=max_gap, words=words)
+    return _renamed(out, tmp, name)
+
+
+def _inspect_named_copy(fh, options, max_gap, words, name, suffix) -> dict:  # pragma: no cover - no /proc
+    import shutil
+    import tempfile
+
+    fh.seek(0)
+    fd, tmp = tempfile.mkstemp(prefix="rbgp-stdin-", suffix=suffix)
     try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
+        with os.fdopen(fd, "wb") as out_fh:
+            shutil.copyfileobj(fh, out_fh)
         out = inspect_file(tmp, options, max_gap=max_gap, words=words)
     finally:
         os.unlink(tmp)
+    return _renamed(out, tmp, name)
+
+
+def _renamed(out: dict, tmp: str, name: str) -> dict:
+    """``out`` with the temporary file's path replaced by the stream's name."""
+    stem, new = Path(tmp).stem, "stdin" if name == "-" else Path(name).stem
+
+    def own_name(v):  # a trajectory named after the file: "STEM", "STEM#2", "STEM:body"
+        if isinstance(v, str) and (v == stem or (v.startswith(stem) and v[len(stem)] in "#:/ ")):
+            return new + v[len(stem):]
+        return fix(v)
 
     def fix(x):
         if isinstance(x, str):
-            return x.replace(tmp, "-").replace(Path(tmp).stem, "stdin")
+            return x.replace(f"{tmp}: {stem}", f"{name}: {new}").replace(tmp, name)
         if isinstance(x, dict):
-            return {k: fix(v) for k, v in x.items()}
+            return {k: own_name(v) if k == "name" else fix(v) for k, v in x.items()}
         if isinstance(x, list):
             return [fix(v) for v in x]
         return x
@@ -347,8 +389,14 @@ def _train_acts(tr: dict) -> list[str]:
         acts.append(f"fills {_plural(tr['filled'], 'lost frame')} (max_gap)")
     if tr.get("duplicates"):
         acts.append(f"drops {_plural(tr['duplicates'], 'duplicate sample')}")
+    if tr.get("glitches"):
+        from rbgp_cli.dynamics.prepare import _rows_text
+
+        acts.append(f"removes {_plural(tr['glitches'], 'sample')} off the path as tracker glitches "
+                    f"({_rows_text(tr.get('glitch_rows') or [])})")
     used = tr.get("samples_used")
-    if used is not None and tr.get("samples") and used < tr["samples"] - (tr.get("dropped") or 0) - (tr.get("duplicates") or 0):
+    if used is not None and tr.get("samples") and used < (tr["samples"] - (tr.get("dropped") or 0) - (tr.get("duplicates") or 0)
+                                                          - (tr.get("glitches") or 0)):
         acts.append(f"uses {used} of {tr['samples']} samples")
     b = tr.get("breaks") or {}
     if b.get("count"):

@@ -55,6 +55,7 @@ import json
 import math
 import os
 import re
+import tokenize
 import zipfile
 import zlib
 
@@ -331,14 +332,36 @@ def _read_array(zf: zipfile.ZipFile, info: zipfile.ZipInfo, path, name: str) -> 
     return buf.view(dtype).reshape(shape, order="F" if fortran else "C")
 
 
-def _open_zip(path) -> zipfile.ZipFile:
-    magic = _head(path, 4)
+#: A model read from a FIFO (``<(cat model.rbgp)``) is held in memory: at most this many bytes.
+MAX_STREAMED_MODEL_BYTES = 1 << 30
+
+
+def _seekable_source(path):
+    """``path`` itself, or for a FIFO or pipe (:func:`rbgp_cli.io.special.is_stream_path`) its bytes
+    in memory (zip needs to seek); a device is refused, and so is a FIFO nobody writes to."""
+    if hasattr(path, "read"):
+        return path
+    from rbgp_cli.io.special import is_stream_path, open_stream_path
+
+    if not is_stream_path(path):
+        return path
+    with open_stream_path(path, "model file") as stream:
+        data = stream.read(MAX_STREAMED_MODEL_BYTES + 1)
+    if len(data) > MAX_STREAMED_MODEL_BYTES:
+        raise _bad(path, f"the stream holds more than {MAX_STREAMED_MODEL_BYTES >> 20} MiB, more than a model file "
+                         "read from a pipe may have", "pass the model file itself")
+    return io.BytesIO(data)
+
+
+def _open_zip(path, src=None) -> zipfile.ZipFile:
+    src = path if src is None else src
+    magic = _head(src, 4)
     if not magic:
         raise _bad(path, "the model file is empty")
     if magic != b"PK\x03\x04":  # np.load would try to unpickle it and suggest allowing that, which misleads
         raise _bad(path, "not an rbgp model file (.rbgp files are zip archives; this one is not)",
                    "pass a file written by rbgp train")
-    return zipfile.ZipFile(path)
+    return zipfile.ZipFile(src)
 
 
 def read_header(path) -> tuple[dict, dict]:
@@ -350,9 +373,10 @@ def read_header(path) -> tuple[dict, dict]:
     (:mod:`rbgp_cli.io.model_schema`). Raises :class:`InputError` naming the file."""
     from rbgp_cli.io.model_schema import SchemaError, validate_arrays, validate_header
 
+    src = _seekable_source(path)
     try:
-        disk = _file_size(path)
-        with _open_zip(path) as zf:
+        disk = _file_size(src)
+        with _open_zip(path, src) as zf:
             names = {n[:-4] for n in zf.namelist() if n.endswith(".npy")}
             if len(zf.infolist()) > MAX_MEMBERS:
                 raise _bad(path, f"the model file has {len(zf.infolist())} members, more than a model file holds")
@@ -382,7 +406,8 @@ def read_header(path) -> tuple[dict, dict]:
     except MemoryError:
         raise _bad(path, "not enough memory to read the model file's arrays") from None
     except (zipfile.BadZipFile, zlib.error, EOFError, ValueError, OSError, KeyError, TypeError,
-            NotImplementedError, RuntimeError) as exc:  # zipfile: unknown compression / "encrypted" flag
+            NotImplementedError, RuntimeError,  # zipfile: unknown compression / "encrypted" flag
+            SyntaxError, tokenize.TokenError) as exc:  # numpy's .npy header parser on a damaged header
         raise _bad(path, f"not a readable rbgp model file ({type(exc).__name__}: {str(exc)[:80]})") from None
     sums = header.get("checksums")
     if not isinstance(sums, dict):
@@ -466,6 +491,7 @@ def load_model(path):
                    "use a machine with more memory, or retrain it on fewer points (max_points)", param="max_points") from None
     except (KeyError, TypeError, ValueError, IndexError, AttributeError, ArithmeticError) as exc:
         raise _bad(path, f"the model header is inconsistent ({type(exc).__name__}: {str(exc)[:80]})") from None
+    _check_predicts(path, gp, X)
     variation = None
     if header.get("variation"):
         from rbgp_cli.dynamics.variation import Variation
@@ -474,6 +500,26 @@ def load_model(path):
     return MotionModel(rep, gp, dt, arrays["starts"], arrays["durations"],
                        summary=header.get("summary", {}), provenance=header.get("provenance", {}),
                        velocity=velocity, time_input=time_input, mean=mean, variation=variation, envelope=envelope), header
+
+
+#: Training inputs at which a loaded model must predict finite velocities (spread over the data).
+CHECK_POINTS = 8
+
+
+def _check_predicts(path, gp, X) -> None:
+    """Refuse a model whose GP does not predict finite velocities with finite stds at its own training
+    inputs (X all 1e300 with recomputed checksums: distances overflow), so that every command that
+    loads a model (``info`` as well as ``rollout``) refuses the same files, before any work."""
+    idx = np.unique(np.linspace(0, len(X) - 1, min(CHECK_POINTS, len(X))).astype(int))
+    try:
+        with np.errstate(all="ignore"):
+            mean, std = gp.predict(np.asarray(X)[idx], return_std=True)
+        ok = np.all(np.isfinite(mean)) and np.all(np.isfinite(std))
+    except (ArithmeticError, ValueError, np.linalg.LinAlgError):
+        ok = False
+    if not ok:
+        raise _bad(path, "the model predicts non-finite velocities at its own training inputs: its arrays are "
+                         "damaged or were edited")
 
 
 def _model_extras(header: dict, arrays: dict, rep, X):

@@ -37,7 +37,7 @@ from rbgp_cli.io.mcap import MAGIC as MCAP_MAGIC
 from rbgp_cli.io.options import ReadOptions
 
 __all__ = ["read_demonstrations", "read_sources", "list_sources", "SourceList", "read_file", "read_stream",
-           "detect_format", "expand_sources", "skip_reason", "MCAP_MAGIC"]  # fmt: skip
+           "detect_format", "expand_sources", "skip_reason", "MCAP_MAGIC", "check_line_lengths", "MAX_LINE_BYTES"]  # fmt: skip
 
 _HEAD = formats.HEAD_BYTES
 #: A streamed format (one with ``read_stream``) is recognised from this many first bytes of stdin.
@@ -261,6 +261,11 @@ def read_file(source, options: ReadOptions | None = None) -> list[Trajectory]:
         raise InputError("file not found", path=source, hint=hint)
     if p.is_dir():
         raise InputError("is a directory", path=source, hint="pass the files inside it (or the directory to rbgp train)")
+    from rbgp_cli.io.special import is_stream_path, open_stream_path
+
+    if is_stream_path(source):  # a FIFO, <(cat demo.csv): read once as a stream, like stdin
+        with open_stream_path(source, "data file") as stream:
+            return read_stream(stream, options, source=source)
     try:
         size = p.stat().st_size
         with open(source, "rb") as fh:
@@ -272,7 +277,57 @@ def read_file(source, options: ReadOptions | None = None) -> list[Trajectory]:
     fmt = _format_option(options)
     if fmt == "auto":
         fmt = detect_format(head)
-    return formats.get(fmt).read(source, options)
+    entry = formats.get(fmt)
+    if not entry.binary:
+        check_line_lengths(source)
+    return entry.read(source, options)
+
+
+#: The longest line a text format may have: a pose table with thousands of columns stays far below
+#: it, and a file of one 200 MB line is refused after reading this much, not after gigabytes of parsing.
+MAX_LINE_BYTES = 1 << 20
+
+
+class _LineLengths:
+    """Feed blocks of a text file; an InputError as soon as a line is longer than :data:`MAX_LINE_BYTES`."""
+
+    def __init__(self, source: str):
+        self.source, self.run, self.line = source, 0, 1
+
+    def feed(self, block) -> None:
+        import numpy as np
+
+        nl = np.flatnonzero(np.frombuffer(block, dtype=np.uint8) == 10)
+        if nl.size:
+            lengths = np.diff(nl, prepend=-1) - 1
+            lengths[0] += self.run
+            k = int(np.argmax(lengths))
+            if lengths[k] > MAX_LINE_BYTES:
+                self._refuse(self.line + k, int(lengths[k]))
+            self.line += int(nl.size)
+            self.run = len(block) - int(nl[-1]) - 1
+        else:
+            self.run += len(block)
+        if self.run > MAX_LINE_BYTES:
+            self._refuse(self.line, self.run, more=True)
+
+    def _refuse(self, line: int, length: int, more: bool = False):
+        raise InputError(
+            f"line {line} is {'more than ' if more else ''}{length} bytes long, longer than the "
+            f"{MAX_LINE_BYTES >> 20} MiB a line of a pose table may have: not a table of poses (no line breaks?)",
+            path=self.source, hint="check that this is the exported CSV/TSV file (one sample per line)")
+
+
+def check_line_lengths(path, source: str | None = None) -> None:
+    """An InputError when a line of the text file ``path`` is longer than :data:`MAX_LINE_BYTES`,
+    found reading 1 MiB blocks (memory bounded; a one-line file is refused after its first MiB)."""
+    checker = _LineLengths(str(path) if source is None else source)
+    try:
+        with open(path, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                checker.feed(block)
+    except OSError as exc:
+        raise InputError(f"cannot read the file ({exc.strerror or exc})", path=checker.source) from None
 
 
 class _PrefixedRaw(io.RawIOBase):
@@ -306,6 +361,22 @@ def _seekable(stream) -> bool:
         return bool(stream.seekable())
     except (AttributeError, ValueError, OSError):
         return False
+
+
+def _read_text_checked(stream, head: bytes, source: str) -> bytes:
+    """``head`` and the rest of ``stream``, read in 1 MiB blocks; an InputError as soon as a line is
+    longer than :data:`MAX_LINE_BYTES` (a stream in a binary format has no such lines: its head
+    decides, and then it is read whole)."""
+    first = head + stream.read(max(0, _HEAD - len(head)))
+    blocks = [first]
+    checker = _LineLengths(source) if not formats.get(detect_format(first[:_HEAD])).binary else None
+    if checker is not None:
+        checker.feed(first)
+    for block in iter(lambda: stream.read(1 << 20), b""):
+        if checker is not None:
+            checker.feed(block)
+        blocks.append(block)
+    return b"".join(blocks)
 
 
 def read_stream(stream, options: ReadOptions | None = None, source: str = "-") -> list[Trajectory]:
@@ -344,7 +415,7 @@ def read_stream(stream, options: ReadOptions | None = None, source: str = "-") -
     if streamed is not None and streamed.read_stream is not None:
         s = stream if _seekable(stream) else io.BufferedReader(_PrefixedRaw(head, stream))
         return streamed.read_stream(s, options, source=source)
-    data = stream.read() if _seekable(stream) else head + stream.read()
+    data = _read_text_checked(stream, b"" if _seekable(stream) else head, source)
     entry = formats.get(detect_format(data[:_HEAD]) if fmt == "auto" else fmt)
     if entry.read_bytes is not None:
         return entry.read_bytes(data, source, options)
@@ -384,8 +455,9 @@ def read_sources(sources, options: ReadOptions | None = None, stdin=None) -> tup
             if stdin_used:
                 raise InputError("'-' (stdin) given more than once")
             stdin_used = True
-            stream = stdin if stdin is not None else sys.stdin.buffer
-            trajs = read_stream(stream, options, source="-")
+            from rbgp_cli.io.special import stdin_stream
+
+            trajs = read_stream(stdin_stream(stdin), options, source="-")
         else:
             try:
                 trajs = read_file(src, options)

@@ -215,12 +215,23 @@ def test_a_half_turn_step_is_an_error():
         prepare_trajectory(tr.with_(quat=q))
 
 
-def test_a_large_but_smaller_than_pi_step_is_accepted():
+def test_a_large_but_smaller_than_pi_step_passes_the_step_check_and_is_refused_as_a_jump_that_stays():
+    """Below π the step's direction can be told (no "π or more" error), but turning by π − 1e-3 in one
+    10 ms step and staying there is no motion of this file (issue 40): a glitch that never came back."""
     tr = smooth()
     q = np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (20, 1))
     q[10:] = Rotation.from_rotvec([0, 0, STEP_LIMIT - 1e-3]).as_quat()
+    with pytest.raises(InputError, match="does not come back") as exc:
+        prep(tr.with_(quat=q))
+    assert "π or more" not in str(exc.value)
+
+
+def test_a_large_but_smaller_than_pi_turn_over_a_few_steps_is_accepted():
+    tr = smooth()
+    angle = np.clip((np.arange(20) - 8) / 4, 0, 1) * (STEP_LIMIT - 1e-3)  # a half turn over 4 steps: 78 rad/s
+    q = Rotation.from_rotvec(np.c_[np.zeros(20), np.zeros(20), angle]).as_quat()
     clean, rep, _ = prep(tr.with_(quat=q))
-    assert len(clean) == 20
+    assert len(clean) == 20 and rep["glitches"] == 0
 
 
 def test_invalid_max_gap():

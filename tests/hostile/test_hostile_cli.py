@@ -272,6 +272,58 @@ def _step_of_pi():
     return r
 
 
+def _one_sample_off(k, metres):
+    def f():
+        r = rows()
+        r[k, 1:4] += metres * np.array([0.6, 0.0, 0.8])
+        return r
+
+    return f
+
+
+def _rows_in_mm(a, b):
+    """Rows a … b − 1 in millimetres inside a file in metres (a recorder switching units for a moment)."""
+
+    def f():
+        r = rows()
+        r[a:b, 1:4] *= 1000.0
+        return r
+
+    return f
+
+
+def _rotation_flip(k, degrees=179.95):
+    """Row k's rotation turned by ``degrees`` about x (one frame, 10 ms, then back): below the π the
+    step check refuses, far beyond the motion's own turning."""
+    from scipy.spatial.transform import Rotation
+
+    def f():
+        r = rows()
+        r[k, 4:8] = (Rotation.from_rotvec([np.radians(degrees), 0.0, 0.0]) * Rotation.from_quat(r[k, 4:8])).as_quat()
+        return r
+
+    return f
+
+
+def _jump_that_stays():
+    r = rows()
+    r[60:, 1:4] += np.array([5.0, 0.0, 0.0])  # from row 60 on, 5 m away in 10 ms, and it stays
+    return r
+
+
+def _mcap_rows_in_mm(ctx: Ctx):
+    traj = B.smooth_motion()
+    p = traj.position.copy()
+    p[40:50] *= 1000.0
+    return ctx.train(B.write_mcap(ctx.inp / "rec.mcap", traj.with_(position=p)))
+
+
+def _velocities_like_the_clean_files(ctx: Ctx, res):
+    """The model learned the motion's velocities (below 3 m/s and rad/s), not the glitch's (10⁵)."""
+    m, _ = load_model(ctx.model_out)
+    assert np.max(np.abs(m.gp.Y * m.gp.y_scale)) < 3.0
+
+
 def _wxyz():
     return rows()[:, [0, 1, 2, 3, 7, 4, 5, 6]]
 
@@ -563,6 +615,63 @@ def _model_npz_without_header(ctx: Ctx):
     return ["info", p]
 
 
+def _model_member_header_damaged(command):
+    """One compressed member (X.npy) whose .npy header lost its closing parenthesis, with a valid CRC
+    (damaged before it was compressed, or a flip the zip's checks cannot see): numpy's header parser
+    raised tokenize.TokenError, which is no ValueError."""
+    import io
+    import zipfile
+
+    def build(ctx: Ctx):
+        src = zipfile.ZipFile(io.BytesIO(_model_bytes(ctx)))
+        p = ctx.inp / "tiny.rbgp"
+        with zipfile.ZipFile(p, "w", compression=zipfile.ZIP_DEFLATED) as out:
+            for info in src.infolist():
+                data = src.read(info)
+                if info.filename == "X.npy":
+                    head = data[:128].replace(b"), }", b" , }", 1)
+                    assert head != data[:128]
+                    data = head + data[128:]
+                out.writestr(info.filename, data)
+        return [command, p] if command == "info" else [command, p, "-o", ctx.out / "r.csv"]
+
+    return build
+
+
+def _model_huge_inputs(command):
+    """X all 1e300 with every checksum recomputed (a buggy writer): the GP predicts NaN; ``info``
+    passed it and ``rollout`` refused it later (issue 40)."""
+
+    def build(ctx: Ctx):
+        header, arrays = B.read_model_npz(_model_bytes(ctx))
+        arrays["X"] = np.full_like(arrays["X"], 1e300)
+        p = B.write_model_npz(ctx.inp / "tiny.rbgp", header, arrays)
+        return [command, p] if command == "info" else [command, p, "-o", ctx.out / "r.csv"]
+
+    return build
+
+
+# ---------------------------------------------------------------------------------------------- huge lines
+def _huge_column_name(ctx: Ctx):
+    """A 1 MiB column name (plus the rest of the header: over the 1 MiB line limit)."""
+    return ctx.train(text(ctx, "t," + "x" * (1 << 20) + ",y,z,qx,qy,qz,qw\n" + "0,1,2,3,0,0,0,1\n"))
+
+
+def _long_column_name(ctx: Ctx):
+    """A 200 KiB column name: under the line limit, over the csv module's field limit (128 Ki)."""
+    return ctx.train(text(ctx, "t," + "x" * 200_000 + ",y,z,qx,qy,qz,qw\n" + "0,1,2,3,0,0,0,1\n"))
+
+
+def _one_line_file(header: bool):
+    """3 MiB of numbers without a line break (the issue's 200 MB file, smaller: the same refusal)."""
+
+    def build(ctx: Ctx):
+        head = ",".join(B.COLUMNS) + "\n" if header else ""
+        return ctx.train(text(ctx, head + "0.125," * 500_000))
+
+    return build
+
+
 # ---------------------------------------------------------------------------------------------- start poses
 def _rollout_start(pose):
     def build(ctx: Ctx):
@@ -743,6 +852,26 @@ CASES = [
     Case("step_of_pi", train_on(_step_of_pi),
          error=(f"demo.csv:{line(60)}:", "π or more", "record at a higher rate")),
     # --- time
+    # --- tracker glitches (issue 40): repaired as lost frames with the rows named, or refused
+    Case("one_sample_1_km_off", train_on(_one_sample_off(50, 1000.0)),
+         warning=("demo.csv", "removed 1 sample off the path", f"line {line(50)}"), check=same_model_as(_delete([50]))),
+    Case("one_sample_10_cm_off", train_on(_one_sample_off(70, 0.1)),
+         warning=("removed 1 sample off the path", f"line {line(70)}"), check=same_model_as(_delete([70]))),
+    Case("first_sample_100_m_off", train_on(_one_sample_off(0, 100.0)),
+         warning=("removed 1 sample off the path", f"line {line(0)}"), check=same_model_as(_delete([0]))),
+    Case("ten_rows_in_millimetres", train_on(_rows_in_mm(40, 50)),
+         warning=("demo.csv", "removed 10 samples off the path", f"lines {line(40)}–{line(49)}"),
+         check=same_model_as(_delete(list(range(40, 50))))),
+    Case("rotation_flip_of_179_95_degrees", train_on(_rotation_flip(80)),
+         warning=("removed 1 sample off the path", f"line {line(80)}"), check=same_model_as(_delete([80]))),
+    Case("rotation_flip_of_120_degrees", train_on(_rotation_flip(30, 120.0)),
+         warning=("removed 1 sample off the path", f"line {line(30)}"), check=same_model_as(_delete([30]))),
+    Case("one_sample_off_filled_with_max_gap", train_on(_one_sample_off(50, 1000.0), opts=("--max-gap", "0.05")),
+         warning=("removed 1 sample off the path", "filled 1 lost frame"), check=_velocities_like_the_clean_files),
+    Case("jump_that_does_not_come_back", train_on(_jump_that_stays),
+         error=(f"demo.csv:{line(60)}:", "jumps by 5 m", "does not come back", "--crop-from")),
+    Case("mcap_ten_messages_in_millimetres", _mcap_rows_in_mm,
+         warning=("rec.mcap", "removed 10 samples off the path", "samples 41–50"), check=_velocities_like_the_clean_files),
     Case("unsorted_times", train_on(_unsorted),
          error=(f"demo.csv:{line(31)}:", "time goes backwards", "sort the rows")),
     Case("duplicate_rows", train_on(_duplicates), warning=("dropped 2 duplicate samples",), check=same_model_as(rows)),
@@ -853,6 +982,22 @@ CASES = [
     Case("model_empty_file", lambda c: ["info", text(c, b"", "tiny.rbgp")], error=("tiny.rbgp", "model file is empty")),
     Case("model_npz_without_header", _model_npz_without_header, error=("tiny.rbgp", "no header")),
     Case("model_missing", lambda c: ["info", c.inp / "tiny.rbgp"], error=("tiny.rbgp", "not found")),
+    Case("model_member_header_damaged_info", _model_member_header_damaged("info"),
+         error=("tiny.rbgp", "not a readable rbgp model file", "TokenError")),
+    Case("model_member_header_damaged_rollout", _model_member_header_damaged("rollout"),
+         error=("tiny.rbgp", "not a readable rbgp model file")),
+    Case("model_inputs_all_1e300_info", _model_huge_inputs("info"),
+         error=("tiny.rbgp", "predicts non-finite velocities at its own training inputs")),
+    Case("model_inputs_all_1e300_rollout", _model_huge_inputs("rollout"),
+         error=("tiny.rbgp", "predicts non-finite velocities at its own training inputs")),
+    # --- huge lines (issue 40): refused after reading 1 MiB, one line
+    Case("column_name_of_1_mib", _huge_column_name, error=("demo.csv", "line 1 is", "longer than the 1 MiB")),
+    Case("column_name_over_the_csv_field_limit", _long_column_name,
+         error=("demo.csv:1:", "a cell longer than 131072 characters")),
+    Case("one_line_of_3_mib_with_header", _one_line_file(True), error=("demo.csv", "line 2 is more than", "1 MiB")),
+    Case("one_line_of_3_mib_without_header", _one_line_file(False), error=("demo.csv", "line 1 is more than", "1 MiB")),
+    Case("one_line_of_3_mib_on_stdin", lambda c: (c.train("-"), b"0.125," * 500_000),
+         error=("-: line 1 is more than", "1 MiB")),
     Case("predict_with_truncated_model",
          lambda c: ["predict", _cut_model_file(c), text(c, GOOD_POSES, "poses.csv"), "-o", c.out / "pred.csv"],
          error=("tiny.rbgp", "not a readable rbgp model file")),
