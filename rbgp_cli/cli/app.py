@@ -188,7 +188,7 @@ def rollout(
     each_duration: Annotated[bool, typer.Option("--each-duration", help="With --from-demos: each start lasts as long as the demonstration it was drawn near (other starts: --duration, or the median).")] = False,
     dt: Annotated[Optional[float], typer.Option(help="Integration step in seconds. Default: the demonstrations' recorded sample interval (at most 10 steps per training step; model files without the recorded rate: the training step), so that a curved motion written at the recorded rate is integrated at every sample instead of interpolated between training steps; with --steps, the training step. A different step changes the motion, while --output-rate only writes more points of the same one.")] = None,
     output_rate: Annotated[Optional[float], typer.Option("--output-rate", min=0.0, help="Rate (Hz) of the written trajectories. Default: the demonstrations' recorded rate (their median sample rate, stored in the model; model files from before rbgp stored it: the integration grid). The motion is integrated on --dt either way and resampled, slerp for the rotation and linear for the position and the stds, so the poses at the integration steps do not depend on the rate. 0 writes the integration grid. (--rate is the sample rate of input files without a time column, as in every command.)")] = None,
-    samples: Annotated[int, typer.Option(min=0, help="Monte Carlo rollouts per start, drawing velocities from the predictive Gaussian.")] = 0,
+    samples: Annotated[int, typer.Option(min=0, help="Sampled rollouts per start: the mean rollout displaced by a smooth draw of how the demonstrations differ from one another (the variation model, docs/method.md §11), zero at the start, one alternative way of doing the task each. A model trained on fewer than 3 demonstrations has no variation model; its samples draw each step's velocity from the GP's predictive distribution instead.")] = 0,
     seed: Annotated[int, typer.Option(help="Seed for start perturbations and Monte Carlo draws.")] = 0,
     no_std: Annotated[bool, typer.Option("--no-std", help="Skip the predictive standard deviations (faster).")] = False,
     off_data: Annotated[str, typer.Option("--off-data", help="What a rollout does once it leaves the demonstrations' envelope (the positions they reach near the same phase of the motion, widened by 25 % of their largest extent, at least 5 cm): keep (go on), stop (end the trajectory at its first sample outside) or prior (while outside, follow the prior mean alone: the mean-path prior's pull back toward the demonstrations). Every mode warns and marks those samples (CSV column left_data = 1; --json: left_data).")] = "keep",
@@ -487,8 +487,10 @@ def crossval(
     pull_profile: PullProfileOpt = _D["pull_profile"],
     read: ReadArgs = None,
 ):
-    """How well do generated motions hold up from start poses the model has not seen? Cross-validation
-    by demonstration: train on the other folds (with exactly the options of rbgp train), roll out from
+    """Cross-validate by demonstration: how well generated motions hold up from start poses the model has
+    not seen.
+
+    Train on the other folds (with exactly the options of rbgp train), roll out from
     each held-out demonstration's start for its duration, and score against the training
     demonstrations next to the floor (the held-out demonstrations' own score) and the peers: replay,
     and a ProMP and a DMP from the field's own library (movement-primitives, optional). The left column
