@@ -209,11 +209,8 @@ def rollout(
 
     Example: rbgp rollout shoe.rbgp --count 100 --samples 5 -o rollouts.csv
     """
-    import numpy as np
-
     from rbgp_cli import workflows
     from rbgp_cli.errors import InputError
-    from rbgp_cli.io.csv import write_trajectories_csv
     from rbgp_cli.io.model_store import load_model
 
     if json_out and (output is None or output == "-"):
@@ -240,16 +237,8 @@ def rollout(
                                   with_std=not no_std, progress=progress, durations=durations, rate=rate,
                                   off_data=off_data)
     trajs = res.trajectories(include_samples=samples > 0)
-    B = res.count
-    extra = {}
-    if res.std is not None:
-        per = [res.std[b, :res.length(b)] for b in range(B)] + [np.full((len(tr), res.std.shape[2]), np.nan) for tr in trajs[B:]]
-        extra = {f"std_{n}": [a[:, j] for a in per] for j, n in enumerate(res.output_names)}
-    # 1 where a mean rollout's sample lies outside the demonstrations' envelope (samples: not checked)
-    extra["left_data"] = ([res.outside[b, : res.length(b)].astype(float) for b in range(B)]
-                          + [np.full(len(tr.t), np.nan) for tr in trajs[B:]])
     if fmt == "csv":
-        write_text_output(output, lambda fh: write_trajectories_csv(trajs, fh, extra=extra))
+        _write_rollout_csv(res, trajs, output)
     else:
         _write_rollout_mcap(res, trajs, output, folder=folder, encoding=mcap_encoding,
                             frame_id=frame_id or m.provenance.get("frame_id") or "world", start_time=start_time)
@@ -264,6 +253,23 @@ def rollout(
                    "output_rate_hz": float(rate) if res.integration else 1.0 / step,
                    "durations_s": [float(tr.t[-1]) for tr in trajs[:res.count]],
                    "output": output, "std": res.std is not None, "off_data": off_data, "left_data": res.left})
+
+
+def _write_rollout_csv(res, trajs, output) -> None:
+    """rollout's CSV: the trajectories with the std_<output> and left_data columns (empty for samples)."""
+    import numpy as np
+
+    from rbgp_cli.io.csv import write_trajectories_csv
+
+    B = res.count
+    extra = {}
+    if res.std is not None:
+        per = [res.std[b, :res.length(b)] for b in range(B)] + [np.full((len(tr), res.std.shape[2]), np.nan) for tr in trajs[B:]]
+        extra = {f"std_{n}": [a[:, j] for a in per] for j, n in enumerate(res.output_names)}
+    # 1 where a mean rollout's sample lies outside the demonstrations' envelope (samples: not checked)
+    extra["left_data"] = ([res.outside[b, : res.length(b)].astype(float) for b in range(B)]
+                          + [np.full(len(tr.t), np.nan) for tr in trajs[B:]])
+    write_text_output(output, lambda fh: write_trajectories_csv(trajs, fh, extra=extra))
 
 
 def _rollout_format(output, output_format, encoding) -> tuple[str, bool]:
