@@ -17,7 +17,7 @@ from rbgp_cli.dynamics.defaults import DEFAULT_KERNELS, DEFAULTS
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.dynamics.velocities import VelocityOptions, estimate_velocities, integration_drift, window_problem
 from rbgp_cli.errors import InputError, warn
-from rbgp_cli.gp.exact import fit_gp
+from rbgp_cli.gp.exact import ExactSpec, fit_gp
 from rbgp_cli.gp.posterior import Posterior
 from rbgp_cli.kernels import DotProduct, Kernel, SquaredExponential
 
@@ -575,7 +575,7 @@ def _keep_sparse_if_no_worse(gp, gp_choice: dict, info: dict, seed: int, progres
             progress(f"sparse GP kept: {verdict}")
         return gp, gp_choice
     exact = gp.hyper_gp
-    if isinstance(exact, _ExactSpec):
+    if isinstance(exact, ExactSpec):
         exact = exact.build(gp.X[gp.hyper_rows], gp.Y[gp.hyper_rows])
     exact.fit_seconds = getattr(gp, "fit_seconds", 0.0)
     if progress:
@@ -813,24 +813,8 @@ def _widen_exact(gp, max_points, seed) -> None:
     exact = gp.hyper_gp
     # factorised only if it becomes the model (_keep_sparse_if_no_worse): its Cholesky factors, one
     # max_points² matrix per output (6 × 32 MB at 2000 points), were most of a big file's peak memory
-    gp.hyper_gp = _ExactSpec(exact.kernel, exact.fits, exact.shared, exact.y_scale)
+    gp.hyper_gp = ExactSpec(exact.kernel, exact.fits, exact.shared, exact.y_scale)
     gp.hyper_rows = rows
-
-
-@dataclass(frozen=True)
-class _ExactSpec:
-    """An exact GP not yet factorised: what :func:`rbgp_cli.gp.selection.held_out_comparison` reads of
-    one (kernel, fits, shared, y_scale); :meth:`build` makes it on the rows of a sparse GP."""
-
-    kernel: object
-    fits: list
-    shared: bool
-    y_scale: object
-
-    def build(self, X, Y):
-        from rbgp_cli.gp.exact import GaussianProcess
-
-        return GaussianProcess(self.kernel, X, Y, self.fits, shared=self.shared, y_scale=self.y_scale)
 
 
 def _fit_sparse(X, Y, kern, gp_choice, info, hyper_points, jobs, *, noise, restarts, seed, shared, progress,
