@@ -314,11 +314,16 @@ def _write_rollout_mcap(res, trajs, output, *, folder: bool, encoding: str, fram
             n = res.length(b)
             q, p = res.quat[b, :n], res.position[b, :n]
             bands[b] = (res.t[:n], q, p, band_covariance(q, p, res.sample_quat[b, :, :n], res.sample_position[b, :, :n]))
-    dest = output if output not in (None, "-") else sys.stdout.buffer
-    write_rollouts_mcap(trajs, dest, frame_id=frame_id, start_ns=round(start_time * 1e9), encoding=encoding,
-                        bands=bands or None, folder=folder)
-    if dest is sys.stdout.buffer:
-        sys.stdout.buffer.flush()
+    kwargs = dict(frame_id=frame_id, start_ns=round(start_time * 1e9), encoding=encoding, bands=bands or None)
+    if output not in (None, "-"):
+        write_rollouts_mcap(trajs, output, folder=folder, **kwargs)
+        return
+    import io
+
+    buf = io.BytesIO()  # the mcap writer seeks, which a pipe cannot: the whole file, then stdout
+    write_rollouts_mcap(trajs, buf, **kwargs)
+    sys.stdout.buffer.write(buf.getbuffer())
+    sys.stdout.buffer.flush()
 
 
 # ---------------------------------------------------------------------------------------------- evaluate

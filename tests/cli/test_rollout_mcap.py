@@ -101,3 +101,19 @@ def test_bad_output_choices_are_one_line_errors(model, tmp_path, monkeypatch, ar
     res = run("rollout", model, "--count", "1", *args)
     assert res.exit_code == 2 and message in res.stderr and len(res.stderr.strip().splitlines()) <= 2
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.slow
+def test_mcap_to_a_real_pipe(model):
+    """stdout as a pipe cannot seek, which the mcap writer does: the file is built in memory first."""
+    import io
+    import subprocess
+    import sys
+
+    from mcap.reader import make_reader
+
+    out = subprocess.run([sys.executable, "-m", "rbgp_cli", "rollout", str(model), "--count", "2",
+                          "--output-format", "mcap", "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, timeout=300)
+    assert out.returncode == 0, out.stderr.decode()
+    summary = make_reader(io.BytesIO(out.stdout), validate_crcs=True).get_summary()
+    assert sorted(c.topic for c in summary.channels.values()) == ["/rbgp/rollout_0", "/rbgp/rollout_1"]
