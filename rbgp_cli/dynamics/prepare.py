@@ -150,7 +150,7 @@ def _unit_norms(traj: Trajectory, vi: np.ndarray, unit_tolerance: float) -> tupl
     """The norms (V,) of the recorded quaternions of the valid rows ``vi`` and their deviations from 1;
     an InputError where one deviates by more than ``unit_tolerance`` (not a unit quaternion)."""
     q = _rows(traj.quat, vi)
-    norms = np.sqrt(np.einsum("ij,ij->i", q, q))
+    norms = np.linalg.norm(q, axis=1)  # (not einsum: its sums differ in the last bit with the memory layout)
     dev = np.abs(norms - 1.0)
     if len(vi) and dev.max() > unit_tolerance:
         j = int(np.argmax(dev > unit_tolerance))
@@ -272,7 +272,7 @@ def _continuous_signs(q_out: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit quaternions (K, 4) with each flipped into its predecessor's hemisphere, and where a sign
     changed (mask (K − 1,))."""
     # sign continuity
-    d = np.einsum("ij,ij->i", q_out[1:], q_out[:-1])
+    d = np.sum(q_out[1:] * q_out[:-1], axis=1)
     flips = d < 0
     if not flips.any():
         return q_out, flips
