@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def peak_mb(cmd: list[str], cwd: Path) -> tuple[float, float]:
-    """(peak RSS in MB of the process and its children, wall seconds) of one command run to its end.
+    """(peak RSS in MiB of the process and its children, wall seconds) of one command run to its end.
 
     ``ru_maxrss`` of RUSAGE_CHILDREN is the largest peak among the waited-for descendants so far, so
     each command runs in its own ``python`` wrapper that reports only its own children."""
@@ -61,11 +61,11 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         write_pose_csv(csv, args.rows)
         size_mb = os.path.getsize(csv) / 2**20
-        print(f"file: {args.rows} rows, {size_mb:.1f} MB (written in {time.perf_counter() - t0:.1f} s)")
+        print(f"file: {args.rows} rows, {size_mb:.1f} MiB (written in {time.perf_counter() - t0:.1f} s)")
         floor, _ = peak_mb([rbgp, "--version"], tmp)
         pandas, pandas_s = peak_mb([sys.executable, "-c", "import pandas, sys; pandas.read_csv(sys.argv[1])", str(csv)], tmp)
         train, train_s = peak_mb([rbgp, "train", str(csv), "-o", str(tmp / "m.rbgp"), "-q", *shlex.split(args.args)], tmp)
-    print(f"{'run':<40} {'peak RSS MB':>12} {'/ file size':>12} {'seconds':>8}")
+    print(f"{'run':<40} {'peak RSS MiB':>12} {'/ file size':>12} {'seconds':>8}")
     for name, mb, s in (("rbgp --version (imports)", floor, None), ("python: pandas.read_csv(file)", pandas, pandas_s),
                         (f"rbgp train file {args.args}".strip(), train, train_s)):
         print(f"{name:<40} {mb:12.1f} {mb / size_mb:12.2f} {'' if s is None else f'{s:8.1f}'}")
