@@ -208,3 +208,14 @@ def test_empty_cells_deep_in_a_big_file_read_as_the_text_path_reads_them(tmp_pat
     got = rcsv.read(path)
     assert_same(got, via_text(path))
     assert np.isnan(got[0].position).any()
+
+
+@pytest.mark.slow
+def test_the_memory_benchmark_prints_the_ratio_of_peak_rss_to_the_file_size():
+    res = subprocess.run([sys.executable, str(REPO / "benchmarks" / "bench_memory.py"), "--rows", "3000"],
+                         capture_output=True, text=True, timeout=600, cwd=REPO)
+    assert res.returncode == 0, res.stderr
+    last = res.stdout.strip().splitlines()[-1]
+    assert last.startswith("ratio peak RSS / file size of rbgp train: ")
+    assert float(last.split(": ")[1].split()[0]) > 0
+    assert "rbgp --version (imports)" in res.stdout and "pandas.read_csv" in res.stdout
