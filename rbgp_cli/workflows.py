@@ -110,6 +110,9 @@ def train_from_files(sources, output, *, options: ReadOptions | None = None, max
                           for k, v in train_kwargs.items()},
         "repairs": reports,
     }
+    frames = {t.info.get("frame_id") for t in trajs if getattr(t, "info", None)}
+    if len(frames) == 1 and None not in frames:  # the demonstrations' frame: rollout's MCAP output names it
+        model.provenance["frame_id"] = str(frames.pop())
     header = save_model(model, output)
     return model, header, trajs
 

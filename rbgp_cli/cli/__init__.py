@@ -48,3 +48,24 @@ def occupy_closed_streams() -> None:
             except OSError:  # pragma: no cover - no /dev/null
                 continue
             CLOSED_STREAMS.add(fd)
+
+
+#: glibc's mallopt parameter M_MMAP_THRESHOLD, and the size from which a block gets its own mapping.
+_M_MMAP_THRESHOLD = -3
+MMAP_THRESHOLD_BYTES = 128 * 1024
+
+
+def return_freed_memory() -> None:
+    """Fix glibc's mmap threshold at 128 KiB (its initial value), so that every freed array of that size
+    or more goes back to the system at once. Left dynamic, glibc raises the threshold up to 32 MiB after
+    the first big array is freed; later arrays of a few MB to 32 MB (a 10⁶-row file's columns and
+    quaternions) then come from the heap, whose freed space the process keeps: `rbgp train` on a
+    10⁶-row CSV held ~180 MB more than it used (benchmarks/bench_memory.py). No effect off glibc."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        libc.mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)
+    except (OSError, AttributeError):  # not glibc (musl, macOS, Windows): their allocators differ
+        pass

@@ -188,11 +188,15 @@ def rollout(
     each_duration: Annotated[bool, typer.Option("--each-duration", help="With --from-demos: each start lasts as long as the demonstration it was drawn near (other starts: --duration, or the median).")] = False,
     dt: Annotated[Optional[float], typer.Option(help="Integration step in seconds. Default: the demonstrations' recorded sample interval (at most 10 steps per training step; model files without the recorded rate: the training step), so that a curved motion written at the recorded rate is integrated at every sample instead of interpolated between training steps; with --steps, the training step. A different step changes the motion, while --output-rate only writes more points of the same one.")] = None,
     output_rate: Annotated[Optional[float], typer.Option("--output-rate", min=0.0, help="Rate (Hz) of the written trajectories. Default: the demonstrations' recorded rate (their median sample rate, stored in the model; model files from before rbgp stored it: the integration grid). The motion is integrated on --dt either way and resampled, slerp for the rotation and linear for the position and the stds, so the poses at the integration steps do not depend on the rate. 0 writes the integration grid. (--rate is the sample rate of input files without a time column, as in every command.)")] = None,
-    samples: Annotated[int, typer.Option(min=0, help="Monte Carlo rollouts per start, drawing velocities from the predictive Gaussian.")] = 0,
+    samples: Annotated[int, typer.Option(min=0, help="Sampled rollouts per start: the mean rollout displaced by a smooth draw of how the demonstrations differ from one another (the variation model, docs/method.md §11), zero at the start, one alternative way of doing the task each. A model trained on fewer than 3 demonstrations has no variation model; its samples draw each step's velocity from the GP's predictive distribution instead.")] = 0,
     seed: Annotated[int, typer.Option(help="Seed for start perturbations and Monte Carlo draws.")] = 0,
     no_std: Annotated[bool, typer.Option("--no-std", help="Skip the predictive standard deviations (faster).")] = False,
     off_data: Annotated[str, typer.Option("--off-data", help="What a rollout does once it leaves the demonstrations' envelope (the positions they reach near the same phase of the motion, widened by 25 % of their largest extent, at least 5 cm): keep (go on), stop (end the trajectory at its first sample outside) or prior (while outside, follow the prior mean alone: the mean-path prior's pull back toward the demonstrations). Every mode warns and marks those samples (CSV column left_data = 1; --json: left_data).")] = "keep",
-    output: Annotated[Optional[str], typer.Option("--output", "-o", help="CSV to write ('-' or omitted: stdout).")] = None,
+    output: Annotated[Optional[str], typer.Option("--output", "-o", help="File to write ('-' or omitted: stdout): a CSV, or an MCAP when it ends in .mcap, or a rosbag2 folder (the MCAP and its metadata.yaml) when it ends in '/'.")] = None,
+    output_format: Annotated[Optional[str], typer.Option("--output-format", help="csv or mcap, whatever -o's name (default: from the name as -o says).")] = None,
+    mcap_encoding: Annotated[str, typer.Option("--mcap-encoding", help="MCAP messages: ros2 (geometry_msgs/msg/PoseStamped in CDR, what ros2 bag and RViz read; with --samples 2 or more also a PoseWithCovarianceStamped band per start, the samples' spread about the mean rollout) or foxglove (foxglove.PoseInFrame in protobuf; no band). One topic per trajectory: /rbgp/rollout_0, its samples /rbgp/rollout_0/sample_0, ...")] = "ros2",
+    frame_id: Annotated[Optional[str], typer.Option("--frame-id", help="Frame id of the MCAP messages (default: the demonstrations' frame when the model stored one, else world).")] = None,
+    start_time: Annotated[float, typer.Option("--start-time", help="Time of the MCAP's first message in seconds since the epoch (e.g. a recording's start, to play both side by side): every message's log time and stamp is this plus t.")] = 0.0,
     json_out: Annotated[bool, typer.Option("--json", help="Print a JSON summary on stdout (requires -o FILE).")] = False,
     rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd).")] = None,
     up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.")] = "z",
@@ -205,11 +209,8 @@ def rollout(
 
     Example: rbgp rollout shoe.rbgp --count 100 --samples 5 -o rollouts.csv
     """
-    import numpy as np
-
     from rbgp_cli import workflows
     from rbgp_cli.errors import InputError
-    from rbgp_cli.io.csv import write_trajectories_csv
     from rbgp_cli.io.model_store import load_model
 
     if json_out and (output is None or output == "-"):
@@ -224,7 +225,8 @@ def rollout(
     if opts.rate is not None and not (starts or from_demos):
         raise InputError("--rate is the sample rate of input files without a time column, and rollout reads none here",
                          hint="set the rate of the written trajectories with --output-rate HZ")
-    check_outputs(output or "-", rerun)
+    fmt, folder = _rollout_format(output, output_format, mcap_encoding)
+    check_outputs(None if folder else (output or "-"), rerun)
     m, _ = load_model(model)
     q0, p0, durations = workflows.rollout_starts(
         m, start=start, start_quat=start_quat, starts=starts, from_demos=from_demos, count=count,
@@ -235,15 +237,11 @@ def rollout(
                                   with_std=not no_std, progress=progress, durations=durations, rate=rate,
                                   off_data=off_data)
     trajs = res.trajectories(include_samples=samples > 0)
-    B = res.count
-    extra = {}
-    if res.std is not None:
-        per = [res.std[b, :res.length(b)] for b in range(B)] + [np.full((len(tr), res.std.shape[2]), np.nan) for tr in trajs[B:]]
-        extra = {f"std_{n}": [a[:, j] for a in per] for j, n in enumerate(res.output_names)}
-    # 1 where a mean rollout's sample lies outside the demonstrations' envelope (samples: not checked)
-    extra["left_data"] = ([res.outside[b, : res.length(b)].astype(float) for b in range(B)]
-                          + [np.full(len(tr.t), np.nan) for tr in trajs[B:]])
-    write_text_output(output, lambda fh: write_trajectories_csv(trajs, fh, extra=extra))
+    if fmt == "csv":
+        _write_rollout_csv(res, trajs, output)
+    else:
+        _write_rollout_mcap(res, trajs, output, folder=folder, encoding=mcap_encoding,
+                            frame_id=frame_id or m.provenance.get("frame_id") or "world", start_time=start_time)
     if rerun:
         from rbgp_cli.viz.recording import record_rollout
 
@@ -255,6 +253,77 @@ def rollout(
                    "output_rate_hz": float(rate) if res.integration else 1.0 / step,
                    "durations_s": [float(tr.t[-1]) for tr in trajs[:res.count]],
                    "output": output, "std": res.std is not None, "off_data": off_data, "left_data": res.left})
+
+
+def _write_rollout_csv(res, trajs, output) -> None:
+    """rollout's CSV: the trajectories with the std_<output> and left_data columns (empty for samples)."""
+    import numpy as np
+
+    from rbgp_cli.io.csv import write_trajectories_csv
+
+    B = res.count
+    extra = {}
+    if res.std is not None:
+        per = [res.std[b, :res.length(b)] for b in range(B)] + [np.full((len(tr), res.std.shape[2]), np.nan) for tr in trajs[B:]]
+        extra = {f"std_{n}": [a[:, j] for a in per] for j, n in enumerate(res.output_names)}
+    # 1 where a mean rollout's sample lies outside the demonstrations' envelope (samples: not checked)
+    extra["left_data"] = ([res.outside[b, : res.length(b)].astype(float) for b in range(B)]
+                          + [np.full(len(tr.t), np.nan) for tr in trajs[B:]])
+    write_text_output(output, lambda fh: write_trajectories_csv(trajs, fh, extra=extra))
+
+
+def _rollout_format(output, output_format, encoding) -> tuple[str, bool]:
+    """(csv or mcap, whether -o is a rosbag2 folder), from --output-format or -o's name."""
+    import os
+
+    from rbgp_cli.errors import InputError
+    from rbgp_cli.io.mcap_out import ENCODINGS
+
+    if output_format not in (None, "csv", "mcap"):
+        raise InputError(f"--output-format must be csv or mcap, got {output_format!r}")
+    if encoding not in ENCODINGS:
+        raise InputError(f"--mcap-encoding must be one of {', '.join(ENCODINGS)}, got {encoding!r}")
+    stdout = output is None or output == "-"
+    folder = not stdout and (output.endswith(("/", os.sep)) or os.path.isdir(output))
+    fmt = output_format or ("mcap" if folder or (not stdout and output.lower().endswith(".mcap")) else "csv")
+    if folder:
+        if fmt != "mcap":
+            raise InputError("is a folder; a CSV needs a file name", path=output)
+        if encoding != "ros2":
+            raise InputError("a rosbag2 folder holds ROS 2 messages", path=output,
+                             hint="write --mcap-encoding foxglove to a .mcap file")
+        parent = os.path.dirname(os.path.abspath(output.rstrip("/" + os.sep))) or "."
+        if not os.path.isdir(parent) or not os.access(parent, os.W_OK):
+            raise InputError("the folder that would hold the rosbag2 folder does not exist or is not writable",
+                             path=output)
+    return fmt, folder
+
+
+def _write_rollout_mcap(res, trajs, output, *, folder: bool, encoding: str, frame_id: str, start_time: float) -> None:
+    """Write rollout's trajectories (and, in ROS 2 with two samples or more per start, the bands) as MCAP."""
+    import math
+
+    from rbgp_cli.errors import InputError
+    from rbgp_cli.io.mcap_out import band_covariance, write_rollouts_mcap
+
+    if not math.isfinite(start_time):
+        raise InputError(f"--start-time must be a number of seconds, got {start_time!r}")
+    bands = {}
+    if encoding == "ros2" and res.sample_quat is not None and res.sample_quat.shape[1] >= 2:
+        for b in range(res.count):
+            n = res.length(b)
+            q, p = res.quat[b, :n], res.position[b, :n]
+            bands[b] = (res.t[:n], q, p, band_covariance(q, p, res.sample_quat[b, :, :n], res.sample_position[b, :, :n]))
+    kwargs = dict(frame_id=frame_id, start_ns=round(start_time * 1e9), encoding=encoding, bands=bands or None)
+    if output not in (None, "-"):
+        write_rollouts_mcap(trajs, output, folder=folder, **kwargs)
+        return
+    import io
+
+    buf = io.BytesIO()  # the mcap writer seeks, which a pipe cannot: the whole file, then stdout
+    write_rollouts_mcap(trajs, buf, **kwargs)
+    sys.stdout.buffer.write(buf.getbuffer())
+    sys.stdout.buffer.flush()
 
 
 # ---------------------------------------------------------------------------------------------- evaluate
@@ -430,8 +499,10 @@ def crossval(
     pull_profile: PullProfileOpt = _D["pull_profile"],
     read: ReadArgs = None,
 ):
-    """How well do generated motions hold up from start poses the model has not seen? Cross-validation
-    by demonstration: train on the other folds (with exactly the options of rbgp train), roll out from
+    """Cross-validate by demonstration: how well generated motions hold up from start poses the model has
+    not seen.
+
+    Train on the other folds (with exactly the options of rbgp train), roll out from
     each held-out demonstration's start for its duration, and score against the training
     demonstrations next to the floor (the held-out demonstrations' own score) and the peers: replay,
     and a ProMP and a DMP from the field's own library (movement-primitives, optional). The left column

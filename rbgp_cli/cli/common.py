@@ -227,6 +227,17 @@ def _guarded_stdout():
 _QUIET_HELP = "No progress messages, bars or summaries on stderr (warnings and errors still); also accepted before the command."
 
 
+def prose(doc: str | None) -> str | None:
+    """A docstring as the help shows it: dedented, each paragraph (lines between blank lines) one line,
+    so that the terminal wraps it at its width instead of the source file's line breaks showing as
+    ragged lines (Typer's rich help keeps a docstring's single newlines). Paragraphs stay apart."""
+    if not doc:
+        return doc
+    paragraphs = [" ".join(line.strip() for line in block.splitlines() if line.strip())
+                  for block in inspect.cleandoc(doc).split("\n\n")]
+    return "\n\n".join(p for p in paragraphs if p)
+
+
 def command(func):
     """Wrap a command: rbgp errors become one line on stderr with their exit code (2 for bad input,
     1 for runtime failures); any other exception is an internal error (exit 1, no traceback unless
@@ -237,6 +248,7 @@ def command(func):
     :data:`progress` while the command runs is drawn for the current stderr."""
     sig = inspect.signature(func, eval_str=True)
     has_json = "json_out" in sig.parameters
+    func.__doc__ = prose(func.__doc__)  # functools.wraps copies it to the wrapper Typer reads
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):

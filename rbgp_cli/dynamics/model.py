@@ -17,7 +17,7 @@ from rbgp_cli.dynamics.defaults import DEFAULT_KERNELS, DEFAULTS, EXACT_HYPER_PO
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.dynamics.velocities import VelocityOptions, estimate_velocities, integration_drift, window_problem
 from rbgp_cli.errors import InputError, warn
-from rbgp_cli.gp.exact import fit_gp
+from rbgp_cli.gp.exact import ExactSpec, fit_gp
 from rbgp_cli.gp.posterior import Posterior
 from rbgp_cli.kernels import DotProduct, Kernel, SquaredExponential
 
@@ -586,6 +586,8 @@ def _keep_sparse_if_no_worse(gp, gp_choice: dict, info: dict, seed: int, progres
             progress(f"sparse GP kept: {verdict}")
         return gp, gp_choice
     exact = gp.hyper_gp
+    if isinstance(exact, ExactSpec):
+        exact = exact.build(gp.X[gp.hyper_rows], gp.Y[gp.hyper_rows])
     exact.fit_seconds = getattr(gp, "fit_seconds", 0.0)
     if progress:
         progress(f"the exact GP instead: {verdict}")
@@ -810,8 +812,6 @@ def _widen_exact(gp, max_points, seed) -> None:
     hyperparameters on a random ``max_points`` of the rows (those rows among them), so that the
     fallback is as strong as ``--inducing 0``'s exact GP on as many points. Nothing changes when the
     subset has ``max_points`` rows already."""
-    from rbgp_cli.gp.exact import GaussianProcess
-
     rows = np.asarray(gp.hyper_rows)
     want = min(len(gp.X), int(max_points) if max_points else len(rows))
     if want <= len(rows):
@@ -820,8 +820,9 @@ def _widen_exact(gp, max_points, seed) -> None:
     extra = rng.choice(np.setdiff1d(np.arange(len(gp.X)), rows), size=want - len(rows), replace=False)
     rows = np.sort(np.concatenate([rows, extra]))
     exact = gp.hyper_gp
-    gp.hyper_gp = GaussianProcess(exact.kernel, gp.X[rows], gp.Y[rows], exact.fits, shared=exact.shared,
-                                  y_scale=exact.y_scale)
+    # factorised only if it becomes the model (_keep_sparse_if_no_worse): its Cholesky factors, one
+    # max_points² matrix per output (6 × 32 MB at 2000 points), were most of a big file's peak memory
+    gp.hyper_gp = ExactSpec(exact.kernel, exact.fits, exact.shared, exact.y_scale)
     gp.hyper_rows = rows
 
 

@@ -48,9 +48,36 @@ _NOTE_NORM = 1e-3
 def lost_frame_mask(traj: Trajectory) -> np.ndarray:
     """Boolean mask, shape (N,): rows with a non-finite value or an all-zero quaternion."""
     finite = np.isfinite(traj.t) & np.all(np.isfinite(traj.quat), axis=1) & np.all(np.isfinite(traj.position), axis=1)
-    with np.errstate(invalid="ignore"):
-        norm = np.linalg.norm(np.where(np.isfinite(traj.quat), traj.quat, 0.0), axis=1)
-    return ~(finite & (norm >= ZERO_QUAT_NORM))
+    norm = np.zeros(len(finite))
+    for c in range(4):  # column by column: no temporary of the quaternions' size (big files)
+        col = traj.quat[:, c]
+        norm += np.where(np.isfinite(col), col, 0.0) ** 2
+    return ~(finite & (np.sqrt(norm) >= ZERO_QUAT_NORM))
+
+
+def _rows(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``x[rows]``, or ``x`` itself (no copy) when ``rows`` is every row in order (the usual case: a
+    big file's copies were most of its peak memory)."""
+    return x if len(rows) == len(x) else x[rows]
+
+
+def _pairs(x: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(x[rows[:-1]], x[rows[1:]]): views when ``rows`` is every row in order."""
+    if len(rows) == len(x):
+        return x[:-1], x[1:]
+    return x[rows[:-1]], x[rows[1:]]
+
+
+def _same_rows(a: np.ndarray, b: np.ndarray, either_sign: bool = False) -> np.ndarray:
+    """Rows of ``a`` equal to those of ``b`` bit for bit (or to ``-b``), column by column (no temporary
+    of the arrays' size)."""
+    same = np.ones(len(a), dtype=bool)
+    neg = np.ones(len(a), dtype=bool) if either_sign else None
+    for c in range(a.shape[1]):
+        same &= a[:, c] == b[:, c]
+        if either_sign:
+            neg &= a[:, c] == -b[:, c]
+    return same | neg if either_sign else same
 
 
 def line_of(traj: Trajectory, k: int) -> int | None:
@@ -122,8 +149,8 @@ def _slerp(q0: np.ndarray, q1: np.ndarray, u: np.ndarray) -> np.ndarray:
 def _unit_norms(traj: Trajectory, vi: np.ndarray, unit_tolerance: float) -> tuple[np.ndarray, np.ndarray]:
     """The norms (V,) of the recorded quaternions of the valid rows ``vi`` and their deviations from 1;
     an InputError where one deviates by more than ``unit_tolerance`` (not a unit quaternion)."""
-    q = traj.quat
-    norms = np.linalg.norm(q[vi], axis=1)
+    q = _rows(traj.quat, vi)
+    norms = np.linalg.norm(q, axis=1)  # (not einsum: its sums differ in the last bit with the memory layout)
     dev = np.abs(norms - 1.0)
     if len(vi) and dev.max() > unit_tolerance:
         j = int(np.argmax(dev > unit_tolerance))
@@ -145,9 +172,9 @@ def _held_samples(t: np.ndarray, q: np.ndarray, p: np.ndarray, vi: np.ndarray) -
     # a later time is the tracker holding the last pose, not motion: a lost frame like any other
     held = np.zeros(n, dtype=bool)
     if len(vi) > 1:
-        a, b = vi[:-1], vi[1:]
-        same_q = np.all(q[a] == q[b], axis=1) | np.all(q[a] == -q[b], axis=1)
-        held[b] = same_q & np.all(p[a] == p[b], axis=1) & (t[b] > t[a])
+        same = _same_rows(*_pairs(q, vi), either_sign=True) & _same_rows(*_pairs(p, vi))
+        ta, tb = _pairs(t, vi)
+        held[vi[1:]] = same & (tb > ta)
     n_held = int(held.sum())
     held_runs = int(np.sum(held[1:] & ~held[:-1]) + held[0]) if n else 0
     return held, n_held, held_runs
@@ -159,7 +186,7 @@ def _exact_duplicates(traj: Trajectory, vi: np.ndarray) -> np.ndarray:
     t, q, p = traj.t, traj.quat, traj.position
     n = len(t)
     # times of the valid samples: strictly increasing, exact duplicates dropped
-    tv = t[vi]
+    tv = _rows(t, vi)
     dt = np.diff(tv)
     back = np.flatnonzero(dt < 0)
     if back.size:
@@ -174,8 +201,8 @@ def _exact_duplicates(traj: Trajectory, vi: np.ndarray) -> np.ndarray:
     dup_raw = np.zeros(n, dtype=bool)
     if same.size:
         a, b = vi[same], vi[same + 1]
-        equal_p = np.all(p[a] == p[b], axis=1)
-        equal_q = np.all(q[a] == q[b], axis=1) | np.all(q[a] == -q[b], axis=1)
+        equal_p = _same_rows(p[a], p[b])
+        equal_q = _same_rows(q[a], q[b], either_sign=True)
         differ = ~(equal_p & equal_q)
         if differ.any():
             j = int(np.argmax(differ))
@@ -247,6 +274,8 @@ def _continuous_signs(q_out: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     # sign continuity
     d = np.sum(q_out[1:] * q_out[:-1], axis=1)
     flips = d < 0
+    if not flips.any():
+        return q_out, flips
     sign = np.concatenate([[1.0], np.cumprod(np.where(flips, -1.0, 1.0))])
     q_out = q_out * sign[:, None]
     return q_out, flips
@@ -256,9 +285,11 @@ def _check_steps(traj: Trajectory, q_out: np.ndarray, rows: np.ndarray) -> None:
     """An InputError at the first step between consecutive clean quaternions (K, 4) (raw ``rows``
     (K,)) that rotates by π or more."""
     # no step of π or more
-    step = 4.0 * np.arctan2(
-        np.linalg.norm(q_out[1:] - q_out[:-1], axis=1), np.linalg.norm(q_out[1:] + q_out[:-1], axis=1)
-    )
+    step = np.empty(max(len(q_out) - 1, 0))
+    for a in range(0, len(step), 1 << 16):  # in blocks: no temporary of the quaternions' size
+        b = min(a + (1 << 16), len(step))
+        q1, q0 = q_out[a + 1 : b + 1], q_out[a:b]
+        step[a:b] = 4.0 * np.arctan2(np.linalg.norm(q1 - q0, axis=1), np.linalg.norm(q1 + q0, axis=1))
     big = np.flatnonzero(step >= STEP_LIMIT)
     if big.size:
         k = int(big[0])
@@ -400,8 +431,11 @@ def prepare_trajectory(
         valid = ~lost
         keep_v = ~held[vi]
         vi, norms = vi[keep_v], norms[keep_v]
-    qn = np.full_like(q, np.nan)
-    qn[vi] = q[vi] / norms[:, None]
+    if len(vi) == n:  # every row valid (a big file's usual case): one array, no copies
+        qn = q / norms[:, None]
+    else:
+        qn = np.full_like(q, np.nan)
+        qn[vi] = q[vi] / norms[:, None]
     dup_raw = _exact_duplicates(traj, vi)
     keep = valid & ~dup_raw
     glitch = _glitch_rows(traj, qn, keep)
@@ -409,12 +443,16 @@ def prepare_trajectory(
     if n_glitch:  # a tracker glitch is a lost frame: dropped, or filled like one with max_gap
         lost, keep = lost | glitch, keep & ~glitch
     fill_idx, fill_q, fill_p = _filled_gaps(t, p, qn, lost, keep, max_gap)
-    rows = np.concatenate([np.flatnonzero(keep), fill_idx])
-    order = np.argsort(rows, kind="stable")
-    rows = rows[order]
-    q_out = np.concatenate([qn[keep], fill_q])[order]
-    p_out = np.concatenate([p[keep], fill_p])[order]
-    t_out = t[rows]
+    if fill_idx.size == 0 and keep.all():  # nothing dropped or filled: the raw arrays are the clean ones
+        rows, q_out, p_out, t_out = np.arange(n), qn, p, t
+    else:
+        rows = np.concatenate([np.flatnonzero(keep), fill_idx])
+        order = np.argsort(rows, kind="stable")
+        rows = rows[order]
+        q_out = np.concatenate([qn[keep], fill_q])[order]
+        p_out = np.concatenate([p[keep], fill_p])[order]
+        t_out = t[rows]
+    del qn
     n_lost = int(lost.sum()) - n_held - n_glitch
     n_filled = int(fill_idx.size)
     n_filled_glitch = int(np.isin(fill_idx, np.flatnonzero(glitch)).sum()) if n_glitch else 0

@@ -27,6 +27,7 @@ All BLAS/LAPACK calls go through ``scipy.linalg`` (ECOSYSTEM.md §7).
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import lapack, solve_triangular
@@ -38,7 +39,7 @@ from rbgp_cli.gp.likelihood import NOISE, NOISE_MARGIN, cholesky
 from rbgp_cli.gp.optimise import SUBSAMPLE_SIZE, FitOptions, fit_target, fit_targets, training_data
 from rbgp_cli.kernels.base import Kernel
 
-__all__ = ["GaussianProcess", "fit_gp"]
+__all__ = ["GaussianProcess", "ExactSpec", "fit_gp"]
 
 
 # ----------------------------------------------------------------------------- posterior
@@ -57,6 +58,25 @@ def _prediction_workers(work: int) -> int:
     0.44 s (0.55 s CPU) on two threads and 0.33 s on one (chordal kernel; 0.66 s / 0.63 s with the
     arc kernel, measured)."""
     return thread_workers(work, PARALLEL_PREDICT_MIN)
+
+
+@dataclass(frozen=True)
+class ExactSpec:
+    """A fitted exact GP before its factorisation: the kernel, the fits (hyperparameters), shared or per
+    output, the output scale. What the sparse GP keeps of the exact fit that chose its hyperparameters
+    (the automatic choice of GP compares with it, :func:`rbgp_cli.gp.selection.held_out_comparison`,
+    and falls back on it): its Cholesky factors, one n² matrix per output, are made by :meth:`build`
+    only if it becomes the model, instead of being held through the sparse posterior (a 10⁶-row
+    file's peak memory)."""
+
+    kernel: Kernel
+    fits: list
+    shared: bool
+    y_scale: object
+
+    def build(self, X, Y) -> "GaussianProcess":
+        """The GaussianProcess on inputs X (n, d) and outputs Y (n, L) at these hyperparameters."""
+        return GaussianProcess(self.kernel, X, Y, self.fits, shared=self.shared, y_scale=self.y_scale)
 
 
 class GaussianProcess:

@@ -755,13 +755,14 @@ def _race_starts(objective, st, free, log_bounds, cap, count, points):
 def _exact_hyperparameters(X, Y, kernel, idx, targets, specs, state, **fit_options) -> None:
     """``fit_sparse_gp(hyper="exact")``: the exact GP's fit on the rows ``idx`` (a random subset)
     sets each target's log-hyperparameters in ``state`` (and its record of the stage)."""
-    from rbgp_cli.gp.exact import fit_gp
+    from rbgp_cli.gp.exact import ExactSpec, fit_gp
 
     idx = np.sort(np.asarray(idx))
     t0 = time.perf_counter()
     exact = fit_gp(X[idx], Y[idx], kernel, **fit_options)
     seconds = (time.perf_counter() - t0) / max(len(state), 1)
-    state[0]["exact_gp"] = (exact, idx)  # kept on the result: the automatic choice of GP compares with it
+    # kept on the result, unfactorised: the automatic choice of GP compares with it
+    state[0]["exact_gp"] = (ExactSpec(exact.kernel, exact.fits, exact.shared, exact.y_scale), idx)
     for fit, (spec, free), st in zip(exact.fits, specs, state):
         st["theta"] = [np.array([math.log(fit.values[nm]) for nm in free])]
         st["kinds"] = ["the exact GP's optimum"]

@@ -28,7 +28,7 @@ from pathlib import Path
 
 from rbgp_cli.errors import InputError, RbgpRuntimeError
 
-__all__ = ["atomic_path", "atomic_open", "new_file_mode", "write_error"]
+__all__ = ["atomic_path", "atomic_open", "atomic_dir", "new_file_mode", "write_error"]
 
 #: Write failures of the chosen path: another path fixes them (exit code 2).
 _PATH_ERRNOS = frozenset({errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOENT, errno.ENOTDIR, errno.EISDIR})
@@ -236,3 +236,45 @@ def atomic_open(path, mode: str = "w", **kwargs):
     with atomic_path(path) as tmp:
         with open(tmp, mode, **kwargs) as fh:
             yield fh
+
+
+@contextlib.contextmanager
+def atomic_dir(path):
+    """Yield a temporary folder beside ``path`` to fill; on success fsync its files and rename it onto
+    ``path`` (which must not exist, or be an empty folder: a non-empty one is never replaced). For
+    outputs that are a folder (a rosbag2 bag). On any exception the temporary folder is removed."""
+    import shutil
+
+    dest = Path(path)
+    directory = dest.parent if str(dest.parent) else Path(".")
+    if dest.is_dir() and any(dest.iterdir()):
+        raise InputError("the output folder exists and is not empty", path=str(dest),
+                         hint="give a new folder name (or remove the old one)")
+    if dest.exists() and not dest.is_dir():
+        raise InputError("exists and is not a folder", path=str(dest), hint="give a new folder name")
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{dest.name}.{os.getpid()}-", suffix=".tmp", dir=directory))
+    except OSError as exc:
+        raise write_error(dest, exc) from None
+    try:
+        try:
+            yield tmp
+        except OSError as exc:
+            if exc.errno in _PATH_ERRNOS or exc.errno in _LIMIT_ERRNOS:
+                raise write_error(dest, exc) from None
+            raise
+        try:
+            for entry in tmp.iterdir():
+                fd = os.open(entry, os.O_RDONLY)
+                try:
+                    os.fsync(fd)
+                finally:
+                    os.close(fd)
+                os.chmod(entry, new_file_mode(dest / entry.name))
+            os.chmod(tmp, 0o777 & ~_umask())
+            os.replace(tmp, dest)  # an empty folder at dest is replaced; POSIX rename
+        except OSError as exc:
+            raise write_error(dest, exc) from None
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise

@@ -687,7 +687,8 @@ def _read_matching(stream, source: str, options: ReadOptions) -> list[Trajectory
 
 
 def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
-    """Read the pose topic of an MCAP file (``options.topic``; automatic when there is one).
+    """Read the pose topic of an MCAP file (``options.topic``; automatic when there is one; a file
+    written by ``rbgp rollout``: every generated trajectory, without the bands).
 
     ``options.topic`` may also be ``all`` or a glob pattern (``'/shoe/*'``): then every matching pose
     topic becomes one demonstration (e.g. one topic per trial). Returns raw trajectories (seconds,
@@ -697,7 +698,45 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
     with _open(path) as fh:
         if _is_pattern(options.topic):
             return _read_matching(fh, str(path), options)
+        if options.topic is None and _has_rollout_topics(fh):
+            return _read_rollouts(fh, str(path), options)
         return _read(fh, str(path), options, select_all=False)
+
+
+def _has_rollout_topics(fh) -> bool:
+    """True when the summary of a seekable MCAP lists topics rbgp rollout writes
+    (:data:`rbgp_cli.io.mcap_out.ROLLOUT_TOPIC_RE`); the stream is left where it was."""
+    from mcap.reader import SeekingReader
+
+    from rbgp_cli.io.mcap_out import ROLLOUT_TOPIC_RE
+
+    try:
+        if not fh.seekable():
+            return False
+        start = fh.tell()
+    except (AttributeError, ValueError, OSError):
+        return False
+    try:
+        summary = SeekingReader(fh).get_summary()
+    except _corrupt_errors():
+        summary = None
+    finally:
+        fh.seek(start)
+    return summary is not None and any(ROLLOUT_TOPIC_RE.match(ch.topic) for ch in summary.channels.values())
+
+
+def _read_rollouts(fh, source: str, options: ReadOptions) -> list[Trajectory]:
+    """Every generated trajectory of a file rbgp rollout wrote (its mean rollouts, then their samples,
+    the order of rollout's CSV), not the bands: one trajectory each."""
+    from rbgp_cli.io.mcap_out import ROLLOUT_TOPIC_RE
+
+    trajs = _read(fh, source, replace(options, topic=None), select_all=True)
+    keyed = []
+    for tr in trajs:
+        m = ROLLOUT_TOPIC_RE.match(tr.info.get("topic", ""))
+        if m:
+            keyed.append(((m.group(2) is not None, int(m.group(1)), int(m.group(2) or 0)), tr))
+    return [tr for _, tr in sorted(keyed, key=lambda kv: kv[0])]
 
 
 def read_stream(stream, options: ReadOptions | None = None, source: str = "-") -> list[Trajectory]:

@@ -152,6 +152,18 @@ def _named(skipped, where: str | None) -> str:
     return text + (f" and {more} more" if more > 0 else "")
 
 
+def _rosbag2_index(path: Path) -> bool:
+    """True for a rosbag2 bag's ``metadata.yaml`` (its index, beside the MCAP files that hold the data:
+    a bag folder, e.g. from ``rbgp rollout -o DIR/``, reads without a note about it)."""
+    if path.name != "metadata.yaml":
+        return False
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(64).lstrip().startswith(b"rosbag2_bagfile_information")
+    except OSError:
+        return False
+
+
 def list_sources(paths, options: ReadOptions | None = None) -> SourceList:
     """Expand directories (their files, sorted, not recursive) and glob patterns; keep files and ``-``
     as given. Files found that way whose first 8 KiB show they hold no pose data
@@ -163,7 +175,7 @@ def list_sources(paths, options: ReadOptions | None = None) -> SourceList:
         p = str(p)
         if p != "-" and os.path.isdir(p):
             entries = sorted(Path(p).iterdir(), key=lambda c: c.name)
-            found = [str(c) for c in entries if c.is_file()]
+            found = [str(c) for c in entries if c.is_file() and not _rosbag2_index(c)]
             out.subdirectories[p] = sum(1 for c in entries if c.is_dir())
         elif p != "-" and _is_pattern(p):
             found = sorted(f for f in glob.glob(p) if os.path.isfile(f))

@@ -185,3 +185,37 @@ def test_describe_counts_the_rows_of_a_big_file_without_decoding_it(tmp_path):
         expected = len(csv_table.parse_table(csv_table.decode(path.read_bytes(), str(path)), str(path)).lines)
         d = rcsv.describe(path)
         assert d["data_rows"] == expected, path.name
+
+
+def test_a_numeric_big_file_is_parsed_without_importing_pandas(tmp_path):
+    """Plain numbers go through numpy's parser: pandas (~65 MB of memory once imported, as much as the
+    poses of a 10⁶-row file) is not imported to read them."""
+    path = write(tmp_path, "plain.csv", table())
+    code = ("import sys\nfrom rbgp_cli.io.read import read_file\n"
+            f"tr = read_file({str(path)!r})\nprint(len(tr[0]), 'pandas' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=REPO)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == [str(ROWS), "False"]
+
+
+def test_empty_cells_deep_in_a_big_file_read_as_the_text_path_reads_them(tmp_path):
+    """An empty cell (a lost frame) is not a number for numpy's parser: the pandas parse reads the file,
+    with the same result as the text path."""
+    lines = table()
+    for k in (12_000, 12_001, 20_000):
+        lines[k] = lines[k].split(",")[0] + ",,,,,,,"
+    path = write(tmp_path, "lost.csv", lines)
+    got = rcsv.read(path)
+    assert_same(got, via_text(path))
+    assert np.isnan(got[0].position).any()
+
+
+@pytest.mark.slow
+def test_the_memory_benchmark_prints_the_ratio_of_peak_rss_to_the_file_size():
+    res = subprocess.run([sys.executable, str(REPO / "benchmarks" / "bench_memory.py"), "--rows", "3000"],
+                         capture_output=True, text=True, timeout=600, cwd=REPO)
+    assert res.returncode == 0, res.stderr
+    last = res.stdout.strip().splitlines()[-1]
+    assert last.startswith("ratio peak RSS / file size of rbgp train: ")
+    assert float(last.split(": ")[1].split()[0]) > 0
+    assert "rbgp --version (imports)" in res.stdout and "pandas.read_csv" in res.stdout
