@@ -33,7 +33,7 @@ HEAD_BYTES = 8192
 
 #: The built-in format modules (``rbgp_cli.io.<name>``, each defining ``FORMAT``), in the order the
 #: ``--format`` help lists them and detection tries them (the fallback, CSV, last).
-_BUILTIN = ("csv", "qtm", "motive", "vicon", "mcap", "c3d")
+_BUILTIN = ("csv", "qtm", "motive", "vicon", "mcap", "c3d", "bvh")
 
 
 @dataclass(frozen=True)
