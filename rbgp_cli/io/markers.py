@@ -21,9 +21,10 @@ import numpy as np
 __all__ = ["CLUSTER_STD_TOL_M", "FIT_RMS_TOL_M", "MIN_SEEN_TOGETHER", "Cluster", "pair_distance_std",
            "find_clusters", "reference_shape", "fit_poses", "kabsch"]
 
-#: Markers belong to one rigid cluster when every pair's distance varies by at most this standard
-#: deviation (metres) over the frames in which both are seen. The box of ../shared/realdata/c3d_vicon
-#: keeps its 8 markers within 0.41 mm; markers on skin over one bone vary by 1-5 mm.
+#: Markers belong to one rigid cluster when every pair's distance varies by at most this robust standard
+#: deviation (metres; :func:`pair_distance_std`) over the frames in which both are seen. The box of
+#: ../shared/realdata/c3d_vicon keeps its 8 markers within 0.41 mm (std); markers on skin over one bone
+#: vary by 1-5 mm.
 CLUSTER_STD_TOL_M = 1e-3
 #: A frame whose fitted markers are off the reference shape by more than this RMS distance (metres) is
 #: a lost frame (a swapped, ghost or wobbling marker): the pose is not trusted there.
@@ -46,21 +47,25 @@ class Cluster:
 
 
 def pair_distance_std(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For markers ``points`` (F, n, 3) (NaN rows lost): ``(std, together)``, both (n, n): the standard
-    deviation of each pair's distance over the frames where both are seen (NaN where fewer than two),
-    and the share of frames in which both are seen."""
+    """For markers ``points`` (F, n, 3) (NaN rows lost): ``(spread, together)``, both (n, n): how much
+    each pair's distance varies over the frames where both are seen, as a robust standard deviation
+    (1.4826 × the median absolute deviation from the median, so that a few frames with a swapped or
+    ghost marker do not hide a rigid pair; NaN where fewer than two frames), and the share of frames
+    in which both are seen."""
     seen = np.all(np.isfinite(points), axis=-1)  # (F, n)
     n = points.shape[1]
     std = np.full((n, n), np.nan)
     together = (seen.T.astype(float) @ seen.astype(float)) / max(len(points), 1)
-    p = np.where(seen[..., None], points, 0.0)
-    for i in range(n):
-        d = np.linalg.norm(p[:, i : i + 1] - p[:, i + 1 :], axis=-1)  # (F, n - i - 1)
+    for i in range(n - 1):
         both = seen[:, i : i + 1] & seen[:, i + 1 :]
-        cnt = both.sum(axis=0)
-        mean = np.where(both, d, 0.0).sum(axis=0) / np.maximum(cnt, 1)
-        var = np.where(both, (d - mean) ** 2, 0.0).sum(axis=0) / np.maximum(cnt, 1)
-        s = np.where(cnt >= 2, np.sqrt(var), np.nan)
+        d = np.linalg.norm(points[:, i : i + 1] - points[:, i + 1 :], axis=-1)  # (F, n - i - 1)
+        d = np.where(both, d, np.nan)
+        ok = both.sum(axis=0) >= 2
+        if not ok.any():
+            continue
+        med = np.nanmedian(d[:, ok], axis=0)
+        s = np.full(n - i - 1, np.nan)
+        s[ok] = 1.4826 * np.nanmedian(np.abs(d[:, ok] - med), axis=0)
         std[i, i + 1 :] = s
         std[i + 1 :, i] = s
     return std, together
