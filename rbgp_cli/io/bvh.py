@@ -335,8 +335,8 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
             "format": "bvh", "body": sk.joints[k].name, "chain": [sk.joints[c].name for c in sk.chain(k)],
             "length_unit": unit, "length_unit_source": unit_source, "up_axis": "the file's own (BVH's convention: Y)",
             "rate_hz": 1.0 / sk.frame_time, "frame_time_s": sk.frame_time, "time_source": "frame × Frame Time",
-            "rotation_source": "forward kinematics, Euler channels in each joint's declared order ("
-                               + ", ".join(orders) + ")",
+            "rotation_source": "forward kinematics (each joint's rotation matrix from its Euler channels in "
+                               "declared order: " + ", ".join(orders) + ")",
             "lost_frames": int((~good).sum()),
         }))
     return out

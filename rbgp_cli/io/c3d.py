@@ -351,7 +351,7 @@ def _read_stored(take: Take, ch: _Choice) -> Trajectory:
     rate = take.rotation_rate_hz or take.rate_hz
     ratio = rate / take.rate_hz
     t = (take.first_frame - 1) / take.rate_hz + np.arange(len(mats)) / rate
-    info = _info(take, ch, lost, rate) | {"rotation_source": "ROTATION group (stored 6-DOF body)",
+    info = _info(take, ch, lost, rate) | {"rotation_source": "ROTATION group (stored 6-DOF body, 4x4 matrix)",
                                           "rotation_ratio": ratio}
     return Trajectory(t=t, quat=quat, position=pos, name=ch.name, source=take.path, info=info)
 
@@ -384,7 +384,7 @@ def _read_cluster(take: Take, ch: _Choice) -> Trajectory:
     over = ~few & lost
     good = rms[~lost]
     info = _info(take, ch, lost, take.rate_hz) | {
-        "rotation_source": f"rigid fit of {len(idx)} markers (Kabsch)",
+        "rotation_source": f"rigid fit of {len(idx)} markers (Kabsch rotation matrix)",
         "markers": names,
         "body_frame": f"origin at the markers' centroid, axes of the lab at frame {take.first_frame + ref_frame}",
         "reference_frames": n_ref,
