@@ -34,7 +34,7 @@ from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError, closest, warn
 from rbgp_cli.io.formats import Format
 from rbgp_cli.io.options import ReadOptions
-from rbgp_cli.io.vendor import metres_per, quat_from_valid, read_text
+from rbgp_cli.io.vendor import metres_per, quat_from_valid, read_text, reader_guard
 
 __all__ = ["Joint", "Skeleton", "parse", "detect", "read", "describe", "describe_rows", "world_poses", "FORMAT"]
 
@@ -310,6 +310,7 @@ def _rest_extent(sk: Skeleton) -> float:
     return float(np.max(np.linalg.norm(pos[:, None] - pos[None], axis=-1))) if len(pos) > 1 else 0.0
 
 
+@reader_guard("a BVH file", _HINT)
 def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
     """The world pose of the joint ``options.body`` (``"all"``: every joint) per frame.
 
@@ -348,6 +349,7 @@ def _read_all(path, options: ReadOptions | None = None) -> list[Trajectory]:
     return read(path, options) if options.body is not None else []
 
 
+@reader_guard("a BVH file", _HINT)
 def describe(path, options: ReadOptions | None = None) -> dict:
     """Plain data for ``rbgp inspect``: the joints (name, parent, channels, rotation order), frames,
     frame time, the rotation orders used, units and axes."""

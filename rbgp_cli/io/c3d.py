@@ -35,7 +35,7 @@ from rbgp_cli.errors import InputError, NotPoseData, closest, warn
 from rbgp_cli.io import markers as mk
 from rbgp_cli.io.formats import Format
 from rbgp_cli.io.options import ReadOptions
-from rbgp_cli.io.vendor import metres_per
+from rbgp_cli.io.vendor import metres_per, reader_guard
 
 __all__ = ["detect", "read", "describe", "describe_rows", "FORMAT", "load"]
 
@@ -164,23 +164,100 @@ def _announced_frames(fh, head: bytes) -> int | None:
     return last - first + 1
 
 
-def _load(path: str, options: ReadOptions, size: int) -> Take:
+#: The parameter groups taken from the file (everything else, e.g. FORCE_PLATFORM, is left).
+_GROUPS = ("POINT", "EVENT", "ROTATION", "TRIAL")
+#: The reading process may use this many bytes of memory beyond its start, or this many times the file's
+#: size if more: a damaged header that announces a huge array ends the reading, not the machine.
+_MEMORY_FLOOR, _MEMORY_PER_BYTE = 2 << 30, 40
+
+
+def _ezc3d_contents(path: str) -> dict:
+    """What rbgp takes from ``ezc3d.c3d(path)``, as plain data: the parameter groups of
+    :data:`_GROUPS` (``{group: {name: {"value": v}}}``), the header's first frame (0-based) and rate,
+    the points (4, n, F), residuals (1, n, F), the number of analog channels and the rotations
+    (4, 4, m, F_r)."""
     import ezc3d  # heavy (a compiled extension): only when a C3D file is read
 
+    c = ezc3d.c3d(path)
+    params = {g: {k: {"value": v["value"]} for k, v in c["parameters"][g].items() if isinstance(v, dict) and "value" in v}
+              for g in _GROUPS if g in c["parameters"]}
+    analogs = np.asarray(c["data"]["analogs"])
+    rot = c["data"]["rotations"] if "rotations" in c["data"] else None
+    return {"parameters": params, "header": dict(c["header"]["points"]),
+            "points": np.asarray(c["data"]["points"], float),
+            "residuals": np.asarray(c["data"]["meta_points"]["residuals"], float),
+            "analog_channels": int(analogs.shape[1]) if analogs.ndim == 3 else 0,
+            "rotations": None if rot is None else np.asarray(rot, float)}
+
+
+def _child(path: str, size: int, conn) -> None:
+    """In the reading process: limit its memory, read, send ``("ok", contents)`` or ``("error", text)``."""
+    from rbgp_cli.compute import die_with_parent
+
+    die_with_parent()
+    try:
+        import resource
+
+        with open("/proc/self/statm") as fh:
+            now = int(fh.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+        budget = now + max(_MEMORY_FLOOR, _MEMORY_PER_BYTE * size)
+        resource.setrlimit(resource.RLIMIT_AS, (budget, resource.getrlimit(resource.RLIMIT_AS)[1]))
+    except (ImportError, OSError, ValueError):  # not Linux: no limit
+        pass
+    try:
+        out = ("ok", _ezc3d_contents(path))
+    except MemoryError:
+        out = ("error", "MemoryError: the file announces more data than it can hold")
+    except Exception as exc:  # ezc3d raises RuntimeError, OSError, IndexError ... for a broken file
+        out = ("error", f"{type(exc).__name__}: {' '.join(str(exc).split())[:160]}")
+    conn.send(out)
+    conn.close()
+
+
+def _read_isolated(path: str, size: int) -> dict:
+    """:func:`_ezc3d_contents` in a short-lived process of its own (forked on Linux): ezc3d is C++ and
+    ends the process on some damaged files (a segmentation fault), which must become an InputError
+    here, never a crash of rbgp."""
+    from rbgp_cli.compute import fork_context
+
+    ctx = fork_context()
+    receive, send = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_child, args=(path, size, send), name="rbgp-c3d-reader", daemon=True)
+    proc.start()
+    send.close()
+    try:
+        status, payload = receive.recv()
+    except EOFError:  # the process ended without an answer
+        status, payload = None, None
+    finally:
+        receive.close()
+        proc.join(timeout=30)
+        if proc.is_alive():  # pragma: no cover - it answered, then hung
+            proc.kill()
+            proc.join()
+    if status == "ok":
+        return payload
+    if status is None:
+        import signal
+
+        code = proc.exitcode
+        why = (f"signal {signal.Signals(-code).name}" if code is not None and code < 0 and -code in
+               signal.valid_signals() else f"exit code {code}")
+        payload = f"the C3D library stopped on it ({why}): the file is damaged"
+    raise InputError(f"cannot read this C3D file ({payload})", path=path, hint=_HINT)
+
+
+def _load(path: str, options: ReadOptions, size: int) -> Take:
     with open(path, "rb") as fh:
         head = fh.read(512)
         announced = _announced_frames(fh, head)
     if not detect(head):
         raise InputError("not a C3D file (its header does not start with a parameter pointer and 0x50)", path=path,
                          hint=_HINT)
-    try:
-        c = ezc3d.c3d(path)
-    except Exception as exc:  # ezc3d raises RuntimeError, OSError, IndexError ... for a broken file
-        raise InputError(f"cannot read this C3D file ({type(exc).__name__}: {' '.join(str(exc).split())[:160]})",
-                         path=path, hint=_HINT) from None
+    c = _read_isolated(path, size)
     params = c["parameters"]
-    hdr = c["header"]["points"]
-    pts = np.asarray(c["data"]["points"], float)  # (4, n, F)
+    hdr = c["header"]
+    pts = c["points"]  # (4, n, F)
     labels = [str(s).strip() for s in (_value(params, "POINT", "LABELS", []) or [])]
     n = pts.shape[1] if pts.ndim == 3 else 0
     labels = (labels + [f"point{k + 1}" for k in range(len(labels), n)])[:n]
@@ -203,7 +280,7 @@ def _load(path: str, options: ReadOptions, size: int) -> Take:
         warn("the file states no POINT:UNITS; read as mm", path=path, param="length_unit")
     scale = metres_per(unit, path=path, hint="give the unit with length_unit m|cm|mm")
     xyz = pts[:3].transpose(2, 1, 0) * scale if n else np.zeros((got, 0, 3))  # (F, n, 3)
-    res = np.asarray(c["data"]["meta_points"]["residuals"], float)
+    res = c["residuals"]
     lost = ~np.all(np.isfinite(xyz), axis=-1) | np.all(xyz == 0.0, axis=-1)
     if res.size:
         lost |= res[0].T < 0
@@ -211,14 +288,14 @@ def _load(path: str, options: ReadOptions, size: int) -> Take:
     take = Take(path=path, labels=labels, points=xyz, rate_hz=rate, first_frame=int(hdr["first_frame"]) + 1,
                 unit=unit, unit_source=unit_source, scale=_first(_value(params, "POINT", "SCALE")),
                 events=_events(params))
-    take.analog_channels = int(np.asarray(c["data"]["analogs"]).shape[1]) if np.asarray(c["data"]["analogs"]).ndim == 3 else 0
-    _rotations(take, c, params, scale)
+    take.analog_channels = c["analog_channels"]
+    _rotations(take, c["rotations"], params, scale)
     return take
 
 
-def _rotations(take: Take, c, params, scale: float) -> None:
-    """The stored 6-DOF bodies (ROTATION group) into ``take`` (matrices with metres, NaN where lost)."""
-    rot = c["data"].get("rotations") if hasattr(c["data"], "get") else None
+def _rotations(take: Take, rot, params, scale: float) -> None:
+    """The stored 6-DOF bodies (ROTATION group; ``rot`` (4, 4, m, F_r) or None) into ``take`` (matrices
+    with metres, NaN where lost)."""
     rot = np.asarray(rot, float) if rot is not None else np.zeros((4, 4, 0, 0))
     if rot.ndim != 4 or rot.shape[2] == 0:
         return
@@ -415,6 +492,7 @@ def _info(take: Take, ch: _Choice, lost, rate) -> dict:
     }
 
 
+@reader_guard("a C3D file", _HINT)
 def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
     """Read the chosen rigid bodies of a C3D file (``options.body``: a stored body, a found cluster, a
     label prefix, ``"A,B,C"`` markers, ``"all"``, or None for the only one).
@@ -442,6 +520,7 @@ def _read_all(path, options: ReadOptions | None = None) -> list[Trajectory]:
     return read(path, options)
 
 
+@reader_guard("a C3D file", _HINT)
 def describe(path, options: ReadOptions | None = None) -> dict:
     """Plain data for ``rbgp inspect``: points (label, frames lost), rigid clusters found, stored
     6-DOF bodies, rate, frames, first frame, units, events."""

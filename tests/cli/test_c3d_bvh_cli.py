@@ -17,6 +17,7 @@ from tests.io.test_c3d import tool_take, write_c3d
 pytest.importorskip("ezc3d")
 
 
+@pytest.mark.slow
 def test_inspect_and_train_a_synthetic_c3d(tmp_path):
     labels, xyz, *_ = tool_take(n=120)
     path = write_c3d(tmp_path / "tool.c3d", labels, xyz)

@@ -8,6 +8,8 @@ import re
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from rbgp_cli.errors import InputError
@@ -251,3 +253,28 @@ def test_inspect_lists_the_joints_of_a_wave_take(realdata):
     assert d["description"]["rotation_orders"] == ["ZXY"] and len(d["description"]["bodies"]) == 22
     text = format_inspect(d)
     assert "Hand_R" in text and "ZXY" in text and "still needed" in text
+
+
+@pytest.mark.slow
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(st.lists(st.tuples(st.integers(0, 2), st.integers(0, 10**6), st.integers(1, 40),
+                          st.sampled_from(["", "{", "}", " ", "\n", "nan", "1e308", "JOINT", "End Site", "-", "x", "9"])),
+                min_size=1, max_size=4))
+def test_damaged_bvh_text_reads_or_is_an_input_error(tmp_path_factory, edits):
+    path = mixed_bvh(tmp_path_factory.mktemp("fuzz"), frames=6)
+    text = path.read_text()
+    for op, at, length, token in edits:
+        i = at % (len(text) + 1)
+        if op == 0:
+            text = text[:i] + text[i + length:]
+        elif op == 1:
+            text = text[:i] + token + text[i:]
+        else:
+            text = text[:i] + token + text[i + length:]
+    path.write_text(text)
+    try:
+        trajs = bvh.read(path, ReadOptions(body="hand"))
+    except InputError as exc:
+        assert "\n" not in str(exc) and str(path) in str(exc)
+    else:
+        assert all(len(t.t) == len(t.quat) == len(t.position) for t in trajs)

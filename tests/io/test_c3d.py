@@ -274,6 +274,54 @@ def test_truncated_and_non_c3d_files_are_one_line_errors(tmp_path):
     assert "not a C3D file" in one_line(exc, text)
 
 
+def test_a_crash_of_the_c3d_library_is_an_input_error(tmp_path, monkeypatch):
+    """ezc3d (C++) ends the process on some damaged files; rbgp reads in a process of its own."""
+    import os
+    import signal
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the reading process is forked on Linux only (monkeypatch reaches it there)")
+    labels, xyz, *_ = tool_take(n=20)
+    path = write_c3d(tmp_path / "tool.c3d", labels, xyz)
+    monkeypatch.setattr(c3d, "_ezc3d_contents", lambda p: os.kill(os.getpid(), signal.SIGSEGV))
+    c3d._cache.clear()
+    with pytest.raises(InputError) as exc:
+        c3d.read(path, ReadOptions(body="tool"))
+    assert "SIGSEGV" in one_line(exc, path) and "damaged" in str(exc.value)
+
+
+@pytest.mark.slow
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(st.lists(st.tuples(st.integers(0, 2), st.integers(0, 10**6), st.integers(1, 64), st.integers(0, 255)),
+                min_size=1, max_size=5))
+def test_damaged_c3d_files_read_or_are_input_errors(edits):
+    """Bytes flipped, overwritten or deleted anywhere (a deletion in the parameter section made ezc3d
+    crash in-process): the reader returns trajectories or raises InputError, nothing else."""
+    import tempfile
+    from pathlib import Path
+
+    labels, xyz, *_ = tool_take(n=30)
+    with tempfile.TemporaryDirectory() as d:
+        data = bytearray(write_c3d(Path(d) / "base.c3d", labels, xyz).read_bytes())
+        for op, at, length, value in edits:
+            i = at % len(data)
+            if op == 0:
+                data[i] ^= 1 << (value % 8)
+            elif op == 1:
+                data[i] = value
+            else:
+                del data[i : i + length]
+        bad = Path(d) / "bad.c3d"
+        bad.write_bytes(bytes(data))
+        try:
+            trajs = c3d.read(bad, ReadOptions(body="tool"))
+        except InputError as exc:
+            assert "\n" not in str(exc) and str(bad) in str(exc)
+        else:
+            assert all(len(t.t) == len(t.quat) == len(t.position) for t in trajs)
+
+
 def test_a_c3d_without_any_rigid_body_is_skipped_in_a_folder(tmp_path):
     rng = np.random.default_rng(3)
     skin = np.cumsum(rng.normal(0, 3e-3, (40, 4, 3)), axis=0) + rng.normal(0, 0.2, (1, 4, 3))
@@ -292,6 +340,7 @@ def test_a_c3d_without_any_rigid_body_is_skipped_in_a_folder(tmp_path):
 # ------------------------------------------------------------------------------------------------
 # the real Vicon trial
 
+@pytest.mark.slow
 @pytest.mark.realdata
 def test_the_vicon_box_lift_reads_the_box_cluster(realdata):
     path = realdata / "c3d_vicon" / "box_lift_vicon.c3d"
