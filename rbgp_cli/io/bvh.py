@@ -118,6 +118,27 @@ def parse(text: str, path="") -> Skeleton:
     if motion_line is None:
         raise InputError("no MOTION section (the file ends inside the HIERARCHY: truncated?)", path=path,
                          row=len(lines), hint=_HINT)
+    joints, n_ch = _hierarchy(toks, path, motion_line)
+    names = [j.name for j in joints]
+    dup = next((n for n in names if names.count(n) > 1), None)
+    if dup is not None:
+        raise InputError(f"two joints are named {dup!r}", path=path, hint=_HINT)
+    frames, frame_time, values, first_row = _motion(lines, motion_line, path)
+    need = frames * n_ch
+    if len(values) < need:
+        raise InputError(f"the MOTION section holds {len(values)} numbers but Frames: {frames} × {n_ch} channels "
+                         f"needs {need} (the file is truncated: {len(values) // max(n_ch, 1)} whole frames)",
+                         path=path, row=len(lines), hint="export or copy the take again")
+    if len(values) > need:
+        raise InputError(f"the MOTION section holds {len(values)} numbers, more than Frames: {frames} × {n_ch} channels "
+                         f"({need})", path=path, row=first_row + frames, hint="check the Frames line")
+    motion = np.asarray(values, float).reshape(frames, n_ch) if n_ch else np.zeros((frames, 0))
+    return Skeleton(joints=joints, motion=motion, frame_time=frame_time)
+
+
+def _hierarchy(toks, path: str, motion_line: int) -> tuple[list, int]:
+    """The joints of the HIERARCHY tokens ``toks`` ((word, line) after ``HIERARCHY``) and the number
+    of channels; InputError for what does not fit the grammar."""
     joints: list[Joint] = []
     stack: list[int] = []  # joint indices (-2 for an End Site)
     pending: tuple[str, int] | None = None  # name and parent of a block whose '{' is next
@@ -183,21 +204,7 @@ def parse(text: str, path="") -> Skeleton:
                          hint=_HINT)
     if not joints:
         raise InputError("the HIERARCHY has no ROOT joint", path=path, row=motion_line, hint=_HINT)
-    names = [j.name for j in joints]
-    dup = next((n for n in names if names.count(n) > 1), None)
-    if dup is not None:
-        raise InputError(f"two joints are named {dup!r}", path=path, hint=_HINT)
-    frames, frame_time, values, first_row = _motion(lines, motion_line, path)
-    need = frames * n_ch
-    if len(values) < need:
-        raise InputError(f"the MOTION section holds {len(values)} numbers but Frames: {frames} × {n_ch} channels "
-                         f"needs {need} (the file is truncated: {len(values) // max(n_ch, 1)} whole frames)",
-                         path=path, row=len(lines), hint="export or copy the take again")
-    if len(values) > need:
-        raise InputError(f"the MOTION section holds {len(values)} numbers, more than Frames: {frames} × {n_ch} channels "
-                         f"({need})", path=path, row=first_row + frames, hint="check the Frames line")
-    motion = np.asarray(values, float).reshape(frames, n_ch) if n_ch else np.zeros((frames, 0))
-    return Skeleton(joints=joints, motion=motion, frame_time=frame_time)
+    return joints, n_ch
 
 
 def _motion(lines, motion_line: int, path):

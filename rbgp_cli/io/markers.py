@@ -31,6 +31,8 @@ CLUSTER_STD_TOL_M = 1e-3
 FIT_RMS_TOL_M = 5e-3
 #: Two markers count as a rigid pair only when seen together in at least this share of the frames.
 MIN_SEEN_TOGETHER = 0.5
+#: Clusters are found on at most this many frames, evenly spread over the take (a long take costs no more).
+MAX_FRAMES = 600
 
 
 @dataclass(frozen=True)
@@ -44,6 +46,15 @@ class Cluster:
     labels: tuple
     max_std_m: float
     frames_all_seen: int
+
+
+def _column_median(a: np.ndarray) -> np.ndarray:
+    """The median of each column of ``a`` (F, k) over its finite values (each column has one at
+    least); ``np.nanmedian`` without its slow path (sorting puts NaN last)."""
+    srt = np.sort(a, axis=0)
+    cnt = np.sum(np.isfinite(a), axis=0)
+    cols = np.arange(a.shape[1])
+    return 0.5 * (srt[(cnt - 1) // 2, cols] + srt[cnt // 2, cols])
 
 
 def pair_distance_std(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -63,29 +74,57 @@ def pair_distance_std(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ok = both.sum(axis=0) >= 2
         if not ok.any():
             continue
-        med = np.nanmedian(d[:, ok], axis=0)
+        med = _column_median(d[:, ok])
         s = np.full(n - i - 1, np.nan)
-        s[ok] = 1.4826 * np.nanmedian(np.abs(d[:, ok] - med), axis=0)
+        s[ok] = 1.4826 * _column_median(np.abs(d[:, ok] - med))
         std[i, i + 1 :] = s
         std[i + 1 :, i] = s
     return std, together
 
 
-def _maximal_cliques(adj: list[set]) -> list[set]:
-    """Every maximal clique of an undirected graph (Bron–Kerbosch with a pivot)."""
-    out: list[set] = []
+#: :func:`_maximal_cliques` stops after this many steps (a dense graph of many markers) and
+#: :func:`find_clusters` then grows cliques greedily instead.
+CLIQUE_STEPS = 20_000
 
-    def expand(r: set, p: set, x: set) -> None:
+
+def _maximal_cliques(adj: list[set]) -> list[set] | None:
+    """Every maximal clique of an undirected graph (Bron–Kerbosch with a pivot), or None after
+    :data:`CLIQUE_STEPS` steps."""
+    out: list[set] = []
+    steps = [0]
+
+    def expand(r: set, p: set, x: set) -> bool:
+        steps[0] += 1
+        if steps[0] > CLIQUE_STEPS:
+            return False
         if not p and not x:
             out.append(r)
-            return
+            return True
         pivot = max(p | x, key=lambda u: len(adj[u] & p))
         for v in list(p - adj[pivot]):
-            expand(r | {v}, p & adj[v], x & adj[v])
+            if not expand(r | {v}, p & adj[v], x & adj[v]):
+                return False
             p = p - {v}
             x = x | {v}
+        return True
 
-    expand(set(), set(range(len(adj))), set())
+    return out if expand(set(), set(range(len(adj))), set()) else None
+
+
+def _greedy_cliques(adj: list[set]) -> list[set]:
+    """Cliques grown greedily: from the vertex with the most neighbours left, add the neighbour of
+    every member that has the most neighbours, until none is left; repeat on what remains."""
+    left = set(range(len(adj)))
+    out = []
+    while left:
+        seed = max(left, key=lambda u: (len(adj[u] & left), -u))
+        clique, cand = {seed}, adj[seed] & left
+        while cand:
+            v = max(cand, key=lambda u: (len(adj[u] & cand), -u))
+            clique.add(v)
+            cand &= adj[v]
+        out.append(clique)
+        left -= clique
     return out
 
 
@@ -133,18 +172,23 @@ def find_clusters(points: np.ndarray, labels, *, std_tol: float = CLUSTER_STD_TO
                   min_together: float = MIN_SEEN_TOGETHER) -> list[Cluster]:
     """Rigid clusters among markers ``points`` (F, n, 3) (metres, NaN rows lost).
 
-    Two markers are a rigid pair when the standard deviation of their distance is at most
-    ``std_tol`` over the frames where both are seen, and they are seen together in at least
+    Two markers are a rigid pair when the robust standard deviation of their distance
+    (:func:`pair_distance_std`) is at most ``std_tol`` over the frames where both are seen (at most
+    :data:`MAX_FRAMES` frames, evenly spaced), and they are seen together in at least
     ``min_together`` of the frames. A cluster is a largest set of three or more markers every pair of
     which is rigid (a maximal clique of that graph), taken largest first and without sharing markers.
     Named by :func:`cluster_name`; sorted by size, then name.
     """
     labels = [str(x) for x in labels]
-    std, together = pair_distance_std(points)
+    step = max(1, len(points) // MAX_FRAMES)
+    std, together = pair_distance_std(points[::step])
     rigid = (std <= std_tol) & (together >= min_together)
     np.fill_diagonal(rigid, False)
     adj = [set(np.flatnonzero(rigid[i]).tolist()) for i in range(len(labels))]
-    cliques = sorted((c for c in _maximal_cliques(adj) if len(c) >= 3), key=lambda c: (-len(c), sorted(c)))
+    cliques = _maximal_cliques(adj)
+    if cliques is None:
+        cliques = _greedy_cliques(adj)
+    cliques = sorted((c for c in cliques if len(c) >= 3), key=lambda c: (-len(c), sorted(c)))
     used: set = set()
     taken: set = set()
     seen = np.all(np.isfinite(points), axis=-1)

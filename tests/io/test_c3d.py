@@ -370,3 +370,26 @@ def test_the_vicon_box_lift_reads_the_box_cluster(realdata):
     r_d, t_d, *_ = markers.fit_poses(dropped, shape)
     assert np.nanmax(np.linalg.norm(t_all - t_d, axis=1)) < 3e-3
     assert np.median(np.linalg.norm(t_all - t_d, axis=1)) < 5e-4
+
+
+def test_cliques_fall_back_to_greedy_growth_on_a_dense_graph(monkeypatch):
+    # two rigid groups {0,1,2,3} and {4,5,6} plus a spurious edge 3-4
+    adj = [set() for _ in range(7)]
+    for group in ((0, 1, 2, 3), (4, 5, 6)):
+        for i in group:
+            adj[i] |= set(group) - {i}
+    adj[3].add(4)
+    adj[4].add(3)
+    exact = markers._maximal_cliques(adj)
+    assert sorted(map(sorted, exact)) == [[0, 1, 2, 3], [3, 4], [4, 5, 6]]
+    monkeypatch.setattr(markers, "CLIQUE_STEPS", 2)
+    assert markers._maximal_cliques(adj) is None
+    assert sorted(map(sorted, markers._greedy_cliques(adj))) == [[0, 1, 2, 3], [4, 5, 6]]
+
+
+def test_the_column_median_skips_nan_as_numpy_does():
+    rng = np.random.default_rng(5)
+    a = rng.normal(size=(31, 9))
+    a[rng.random(a.shape) < 0.3] = np.nan
+    a[:2, 0] = 1.0  # at least one finite value per column
+    assert np.allclose(markers._column_median(a), np.nanmedian(a, axis=0))
