@@ -20,7 +20,8 @@ specification:
   least-squares rigid fit of its reference shape to the markers seen (at least three, not on a line);
   frames with fewer, or whose fit leaves more than :data:`~rbgp_cli.io.markers.FIT_RMS_TOL_M` RMS, are
   lost frames (NaN rows). The body frame of a cluster: origin at its markers' centroid, axes those of
-  the lab in the first frame where every marker is seen.
+  the lab in the first frame where every marker is seen and fits its shape
+  (:func:`~rbgp_cli.io.markers.reference_shape`).
 """
 
 from __future__ import annotations
@@ -460,6 +461,11 @@ def _read_cluster(take: Take, ch: _Choice) -> Trajectory:
     few = seen < 3
     over = ~few & lost
     good = rms[~lost]
+    if few.any() or over.any():
+        why = [f"{int(few.sum())} with fewer than 3 markers seen (or 3 on a line)" if few.any() else "",
+               f"{int(over.sum())} whose fit is off by more than {mk.FIT_RMS_TOL_M * 1e3:g} mm RMS" if over.any() else ""]
+        warn(f"body {ch.name!r}: {len(pts)} frames, " + " and ".join(w for w in why if w) + " are lost frames",
+             path=take.path)
     info = _info(take, ch, lost, take.rate_hz) | {
         "rotation_source": f"rigid fit of {len(idx)} markers (Kabsch rotation matrix)",
         "markers": names,

@@ -9,7 +9,7 @@ the reflection guard), giving the pose body -> world and the fit's RMS residual.
 Conventions: markers ``(F, n, 3)`` in metres in the world (lab) frame, a lost marker as a NaN row;
 rotations as matrices ``R_world_body`` with ``p_world = R_world_body @ p_body + t_world_body``.
 The body frame is stated by :func:`reference_shape`: origin at the markers' centroid, axes those of
-the lab in the first frame where every marker of the cluster is seen.
+the lab in the first frame where every marker of the cluster is seen and fits the shape.
 """
 
 from __future__ import annotations
@@ -248,32 +248,41 @@ def kabsch(ref: np.ndarray, obs: np.ndarray, weights: np.ndarray):
     return rot, t, rms
 
 
-def reference_shape(points: np.ndarray) -> tuple[np.ndarray, int, int]:
+def reference_shape(points: np.ndarray, *, rms_tol: float = FIT_RMS_TOL_M) -> tuple[np.ndarray, int, int]:
     """A cluster's shape in its body frame from its markers ``points`` (F, n, 3) (NaN rows lost).
 
-    Uses the frames where every marker is seen: each is fitted rigidly (:func:`kabsch`) onto the first
-    of them and the fitted copies are averaged, so noise averages out and the shape stays rigid. The
-    body frame: origin at the markers' centroid, axes those of the world in the first complete frame
-    (the pose there is the identity rotation at the centroid).
+    Uses the frames where every marker is seen. It starts from the most typical of them (the frame
+    whose pairwise distances are closest to their medians over those frames, so that a frame with a
+    swapped marker is not the start), fits every complete frame onto the shape (:func:`kabsch`) and
+    averages those that fit within ``rms_tol`` and within 3× the median fit (+ 0.1 mm), three times.
+    The body frame: origin at the markers' centroid, axes those of the world in the first complete
+    frame that fits (the pose there is the identity rotation at the centroid).
 
-    Returns ``(shape (n, 3), first complete frame, number of complete frames)``; the frame is -1 and the
-    shape NaN when no frame sees every marker.
+    Returns ``(shape (n, 3), that frame, number of frames averaged)``; the frame is -1 and the shape
+    NaN when no frame sees every marker.
     """
     full = np.all(np.isfinite(points), axis=(1, 2))
     idx = np.flatnonzero(full)
     if len(idx) == 0:
         return np.full(points.shape[1:], np.nan), -1, 0
-    first = points[idx[0]] - points[idx[0]].mean(axis=0)
-    shape = first
-    for _ in range(2):  # fit every complete frame onto the current shape, average them back in its frame
-        rot, t, _ = kabsch(shape, points[idx], np.ones((len(idx), len(shape))))
-        back = np.einsum("fji,fnj->fni", rot, points[idx] - t[:, None])  # Rᵀ (obs - t)
+    cand = idx[:: max(1, len(idx) // 200)]
+    dist = np.linalg.norm(points[cand][:, :, None] - points[cand][:, None, :], axis=-1)  # (k, n, n)
+    start = cand[int(np.argmin(np.max(np.abs(dist - np.median(dist, axis=0)), axis=(1, 2))))]
+    shape = points[start] - points[start].mean(axis=0)
+    ones = np.ones((len(idx), len(shape)))
+    keep = np.ones(len(idx), bool)
+    for _ in range(3):
+        rot, t, rms = kabsch(shape, points[idx], ones)
+        keep = rms <= min(rms_tol, 3.0 * float(np.median(rms)) + 1e-4)
+        if not keep.any():
+            keep = rms <= np.min(rms)
+        back = np.einsum("fji,fnj->fni", rot[keep], points[idx][keep] - t[keep, None])  # Rᵀ (obs - t)
         shape = back.mean(axis=0)
-        # keep the frame of the first complete frame: re-fit the mean onto it
-        r0, t0, _ = kabsch(shape, first[None], np.ones((1, len(shape))))
-        shape = shape @ r0[0].T + t0[0]
         shape = shape - shape.mean(axis=0)
-    return shape, int(idx[0]), int(len(idx))
+    _, _, rms = kabsch(shape, points[idx], ones)
+    ref = int(idx[np.argmax(rms <= rms_tol)]) if (rms <= rms_tol).any() else int(idx[np.argmin(rms)])
+    r0, _, _ = kabsch(shape, points[ref][None], np.ones((1, len(shape))))
+    return shape @ r0[0].T, ref, int(keep.sum())
 
 
 def fit_poses(points: np.ndarray, shape: np.ndarray, *, rms_tol: float = FIT_RMS_TOL_M, min_markers: int = 3):
