@@ -279,7 +279,7 @@ def sample_c3d(target: Path, csv_path=None) -> None:
 
 def sample_bvh(target: Path, csv_path=None) -> None:
     """A BVH skeleton (cm, ZXY channels) whose root moves as a sample demonstration and carries a
-    joint ``Hand_R`` 30 cm along its x axis."""
+    joint ``Hand_R`` 60 cm along its x axis."""
     from scipy.spatial.transform import Rotation
 
     t, rot, pos = _sample_poses(csv_path)
@@ -287,7 +287,7 @@ def sample_bvh(target: Path, csv_path=None) -> None:
     rows = [" ".join(f"{v:.6f}" for v in (*p * 100, *a, 0.0, 0.0, 0.0)) for p, a in zip(pos, zxy)]
     target.write_text(
         "HIERARCHY\nROOT joint_Root\n{\n OFFSET 0 0 0\n CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation "
-        "Yrotation\n JOINT Hand_R\n {\n  OFFSET 30 0 0\n  CHANNELS 3 Zrotation Xrotation Yrotation\n  End Site\n  {\n"
+        "Yrotation\n JOINT Hand_R\n {\n  OFFSET 60 0 0\n  CHANNELS 3 Zrotation Xrotation Yrotation\n  End Site\n  {\n"
         "   OFFSET 10 0 0\n  }\n }\n}\nMOTION\n"
         f"Frames: {len(rows)}\nFrame Time: {float(np.median(np.diff(t))):.7f}\n" + "\n".join(rows) + "\n")
 

@@ -20,8 +20,8 @@ A joint's world pose by forward kinematics, frame by frame:
 
 Units: BVH states none. Lengths are read as centimetres unless ``ReadOptions.length_unit`` says
 otherwise (cm is the common unit; a warning says when the skeleton's size looks unlike a person in
-cm). Axes: the file's own frame is kept (BVH's convention is Y up; rbgp does not rotate it). Time:
-``t = frame index × Frame Time``.
+cm: :data:`REST_EXTENT_M`). Axes: the file's own frame is kept (BVH's convention is Y up; rbgp
+does not rotate it). Time: ``t = frame index × Frame Time``.
 """
 
 from __future__ import annotations
@@ -43,6 +43,9 @@ CHANNELS = ("Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zr
 _CHANNEL = {c.lower(): c for c in CHANNELS}
 #: The unit assumed when ``length_unit`` is not given.
 DEFAULT_UNIT = "cm"
+#: Read in :data:`DEFAULT_UNIT`, a skeleton whose joints span less or more than this at rest (metres)
+#: draws a warning naming ``length_unit`` (a person spans 1.5-2 m; CMU's files, in their own unit, 0.3 m).
+REST_EXTENT_M = (0.5, 5.0)
 
 
 @dataclass
@@ -303,7 +306,7 @@ def _unit(sk: Skeleton, options: ReadOptions, path) -> tuple[str, str, float]:
     scale = metres_per(unit, path=path, hint="use length_unit m|cm|mm")
     if not options.length_unit:
         height = _rest_extent(sk) * scale
-        if height > 0 and not 0.2 <= height <= 10.0:
+        if height > 0 and not REST_EXTENT_M[0] <= height <= REST_EXTENT_M[1]:
             warn(f"read as cm, the skeleton spans {height:.3g} m at rest; if its unit is not cm, give it with "
                  "length_unit", path=path, param="length_unit")
     return unit, source, scale

@@ -278,3 +278,19 @@ def test_damaged_bvh_text_reads_or_is_an_input_error(tmp_path_factory, edits):
         assert "\n" not in str(exc) and str(path) in str(exc)
     else:
         assert all(len(t.t) == len(t.quat) == len(t.position) for t in trajs)
+
+
+def test_a_skeleton_unlike_a_person_in_cm_draws_a_warning_naming_length_unit(tmp_path):
+    from rbgp_cli.errors import RbgpWarning
+
+    text = mixed_bvh(tmp_path).read_text()
+    small = tmp_path / "small.bvh"  # every offset divided by 100: a skeleton in metres
+    small.write_text(re.sub(r"OFFSET ([-\d. ]+)", lambda m: "OFFSET " + " ".join(f"{float(v) / 100:g}" for v in m.group(1).split()), text))
+    with pytest.warns(RbgpWarning, match="length_unit"):
+        bvh.read(small, ReadOptions(body="hand"))
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RbgpWarning)
+        bvh.read(small, ReadOptions(body="hand", length_unit="m"))  # said: no warning
+        bvh.read(tmp_path / "mixed.bvh", ReadOptions(body="hand"))  # spans ~1.4 m as cm
