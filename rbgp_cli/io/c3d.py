@@ -165,6 +165,19 @@ def _announced_frames(fh, head: bytes) -> int | None:
     return last - first + 1
 
 
+def _actual_fields(params) -> tuple[int, int] | None:
+    """``(first, last)`` frame from ``TRIAL:ACTUAL_START_FIELD`` / ``ACTUAL_END_FIELD`` (each two
+    16-bit words, low then high: Vicon's record of frame numbers past the header's 65535), or None."""
+    def field(name):
+        v = _value(params, "TRIAL", name)
+        if v is None or len(v) < 2:
+            return None
+        return (int(v[0]) & 0xFFFF) + ((int(v[1]) & 0xFFFF) << 16)
+
+    first, last = field("ACTUAL_START_FIELD"), field("ACTUAL_END_FIELD")
+    return (first, last) if first is not None and last is not None and last >= first >= 1 else None
+
+
 #: The parameter groups taken from the file (everything else, e.g. FORCE_PLATFORM, is left).
 _GROUPS = ("POINT", "EVENT", "ROTATION", "TRIAL")
 #: The reading process may use this many bytes of memory beyond its start, or this many times the file's
@@ -263,6 +276,10 @@ def _load(path: str, options: ReadOptions, size: int) -> Take:
     n = pts.shape[1] if pts.ndim == 3 else 0
     labels = (labels + [f"point{k + 1}" for k in range(len(labels), n)])[:n]
     got = pts.shape[2] if pts.ndim == 3 else 0
+    first_frame = int(hdr["first_frame"]) + 1
+    actual = _actual_fields(params)
+    if actual is not None and (announced is None or first_frame >= 65535):  # past the header's 16 bits
+        first_frame, announced = actual[0], actual[1] - actual[0] + 1
     if announced is not None and got < announced:
         raise InputError(f"the file is truncated: its header announces {announced} frames but it holds {got}",
                          path=path, hint="export or copy the trial again")
@@ -286,7 +303,7 @@ def _load(path: str, options: ReadOptions, size: int) -> Take:
     if res.size:
         lost |= res[0].T < 0
     xyz[lost] = np.nan
-    take = Take(path=path, labels=labels, points=xyz, rate_hz=rate, first_frame=int(hdr["first_frame"]) + 1,
+    take = Take(path=path, labels=labels, points=xyz, rate_hz=rate, first_frame=first_frame,
                 unit=unit, unit_source=unit_source, scale=_first(_value(params, "POINT", "SCALE")),
                 events=_events(params))
     take.analog_channels = c["analog_channels"]
@@ -464,8 +481,8 @@ def _read_cluster(take: Take, ch: _Choice) -> Trajectory:
     if few.any() or over.any():
         why = [f"{int(few.sum())} with fewer than 3 markers seen (or 3 on a line)" if few.any() else "",
                f"{int(over.sum())} whose fit is off by more than {mk.FIT_RMS_TOL_M * 1e3:g} mm RMS" if over.any() else ""]
-        warn(f"body {ch.name!r}: {len(pts)} frames, " + " and ".join(w for w in why if w) + " are lost frames",
-             path=take.path)
+        warn(f"body {ch.name!r}: {int(few.sum() + over.sum())} of {len(pts)} frames are lost frames: "
+             + ", ".join(w for w in why if w), path=take.path)
     info = _info(take, ch, lost, take.rate_hz) | {
         "rotation_source": f"rigid fit of {len(idx)} markers (Kabsch rotation matrix)",
         "markers": names,

@@ -399,3 +399,10 @@ def test_the_column_median_skips_nan_as_numpy_does():
     a[rng.random(a.shape) < 0.3] = np.nan
     a[:2, 0] = 1.0  # at least one finite value per column
     assert np.allclose(markers._column_median(a), np.nanmedian(a, axis=0))
+
+
+def test_trial_actual_fields_give_frame_numbers_past_the_headers_16_bits():
+    # Vicon keeps frame numbers above 65535 in TRIAL:ACTUAL_START_FIELD / ACTUAL_END_FIELD (low, high words)
+    params = {"TRIAL": {"ACTUAL_START_FIELD": {"value": [4464, 1]}, "ACTUAL_END_FIELD": {"value": [-1, 1]}}}
+    assert c3d._actual_fields(params) == (70000, 131071)
+    assert c3d._actual_fields({"TRIAL": {}}) is None
