@@ -603,6 +603,8 @@ def describe_rows(desc: dict) -> list[str]:
         rows.append(text_row("clusters" if k == 0 else "",
                              f"{c['name']}: {len(c['markers'])} markers ({', '.join(c['markers'])}), distances within "
                              f"{c['max_distance_std_m'] * 1e3:.2g} mm std, all seen in {c['frames_all_seen']} frames"))
+    rows.append(text_row("", f"(a cluster: 3 or more markers whose pairwise distances vary by at most {tol:g} mm, "
+                             f"robust std, seen together in half of the frames or more)"))
     stored = desc.get("stored_bodies") or []
     rows.append(text_row("6-DOF bodies", ", ".join(stored) if stored else "none stored (no ROTATION group)"))
     events = desc.get("events") or []
