@@ -206,8 +206,11 @@ def _ezc3d_contents(path: str) -> dict:
 
 def _child(path: str, size: int, conn) -> None:
     """In the reading process: limit its memory, read, send ``("ok", contents)`` or ``("error", text)``."""
+    import faulthandler
+
     from rbgp_cli.compute import die_with_parent
 
+    faulthandler.disable()  # a crash here is reported by the parent as an InputError, not as a dump
     die_with_parent()
     try:
         import resource
