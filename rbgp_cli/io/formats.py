@@ -150,7 +150,7 @@ def choices() -> tuple:
 
 def help_text() -> str:
     """The ``--format`` help of the command line."""
-    return f"{'|'.join(choices())} (auto sniffs the content)."
+    return f"{' | '.join(choices())} (auto sniffs the content)."  # spaced: a narrow terminal wraps it
 
 
 def get(name: str) -> Format:
