@@ -11,7 +11,9 @@ self-contained; nothing in them knows a particular example:
 1. **Inputs that do not exist are made first**, from the sample data, by what the name looks like:
    ``DIR/`` or ``DIR/*.csv`` → a folder of three sample demonstrations (CSV), ``*.csv`` → a sample
    demonstration (it also serves as poses, starts or generated trajectories), ``*.tsv`` → a QTM
-   export of a sample demonstration, ``*.mcap`` → the sample MCAP, ``*.rbgp`` → a small model. Only
+   export of a sample demonstration, ``*.mcap`` → the sample MCAP, ``*.rbgp`` → a small model,
+   ``*.c3d`` → markers on a sample demonstration (:func:`sample_c3d`), ``*.bvh`` → a two-joint
+   skeleton moving as one (``DIR/*.bvh``: three, :func:`sample_bvh`). Only
    relative names inside the folder are made, never values of output options or redirections.
 2. **Speed options are appended** to every ``rbgp`` command (also after ``nice -n 10`` and the like)
    that accepts them and does not set them (:data:`SPEED`): fewer training points and starts,
@@ -64,7 +66,7 @@ CAPS = {"--repeats": 2}
 #: Values of these options are outputs: never made beforehand.
 OUTPUT_OPTIONS = {"-o", "--output", "--out", "--per-step", "--plot", "--rerun", "--markdown"}
 #: File name endings that make an argument look like a path.
-PATH_SUFFIXES = (".csv", ".tsv", ".mcap", ".rbgp", ".txt")
+PATH_SUFFIXES = (".csv", ".tsv", ".mcap", ".rbgp", ".txt", ".c3d", ".bvh")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -207,6 +209,10 @@ def make_input(name: str, folder: Path, model_path: Path) -> None:
         directory.mkdir(parents=True, exist_ok=True)
         if name.lower().endswith(".mcap"):
             shutil.copy(SAMPLE / "shoe_demos.mcap", directory)
+        elif name.lower().endswith((".c3d", ".bvh")):
+            for k, f in enumerate(sorted((SAMPLE / "csv").glob("*.csv"))[:3]):
+                maker = sample_c3d if name.lower().endswith(".c3d") else sample_bvh
+                maker(directory / f"take_{k + 1}{name[-4:]}", f)
         else:
             for f in sorted((SAMPLE / "csv").glob("*.csv"))[:3]:
                 shutil.copy(f, directory)
@@ -224,8 +230,66 @@ def make_input(name: str, folder: Path, model_path: Path) -> None:
 
         demos, _, _ = load_demonstrations([str(SAMPLE / "csv" / "shoe_01.csv")])
         write_qtm_tsv(demos, target)
+    elif low.endswith(".c3d"):
+        sample_c3d(target)
+    elif low.endswith(".bvh"):
+        sample_bvh(target)
     else:
         shutil.copy(SAMPLE / "csv" / "shoe_01.csv", target)
+
+
+def _sample_poses(csv_path=None):
+    """``(t, R_world_body (N, 3, 3), p (N, 3) metres)`` of a sample demonstration, read as train reads it."""
+    from scipy.spatial.transform import Rotation
+
+    from rbgp_cli.workflows import load_demonstrations
+
+    (demo,), _, _ = load_demonstrations([str(csv_path or SAMPLE / "csv" / "shoe_01.csv")])
+    return demo.t, Rotation.from_quat(demo.quat).as_matrix(), demo.position
+
+
+def sample_c3d(target: Path, csv_path=None) -> None:
+    """A C3D file on a sample demonstration's motion: four markers ``boite:m1..m4`` on the body, four
+    ``RTH1..RTH4`` on a second body that also turns about its own z, and the body's pose as the stored
+    6-DOF segment ``pelvis``; 0.2 mm noise; the demonstration's median rate."""
+    from scipy.spatial.transform import Rotation
+
+    from tests.io.test_c3d import write_c3d
+
+    t, rot, pos = _sample_poses(csv_path)
+    rng = np.random.default_rng(0)
+    box = np.array([[0.0, 0, 0], [0.2, 0, 0], [0, 0.15, 0], [0.05, 0.05, 0.1]])
+    spin = Rotation.from_rotvec(np.outer(np.linspace(0, 1.5, len(t)), [0.0, 0.0, 1.0])).as_matrix()
+    markers = np.concatenate([np.einsum("fij,nj->fni", rot, box) + pos[:, None],
+                              np.einsum("fij,nj->fni", rot @ spin, box * 0.8) + pos[:, None] + [0.3, 0, 0]], axis=1)
+    markers += rng.normal(0, 2e-4, markers.shape)
+    mats = np.zeros((4, 4, 1, len(t)))
+    mats[:3, :3, 0] = rot.transpose(1, 2, 0)
+    mats[:3, 3, 0] = pos.T * 1e3
+    mats[3, 3, 0] = 1.0
+    labels = [f"boite:m{k + 1}" for k in range(4)] + [f"RTH{k + 1}" for k in range(4)]
+    import tests.io.test_c3d as c3d_tests
+
+    rate, c3d_tests.RATE = c3d_tests.RATE, float(round(1.0 / np.median(np.diff(t))))
+    try:
+        write_c3d(target, labels, markers, rotations=mats, rotation_labels=["pelvis"])
+    finally:
+        c3d_tests.RATE = rate
+
+
+def sample_bvh(target: Path, csv_path=None) -> None:
+    """A BVH skeleton (cm, ZXY channels) whose root moves as a sample demonstration and carries a
+    joint ``Hand_R`` 60 cm along its x axis."""
+    from scipy.spatial.transform import Rotation
+
+    t, rot, pos = _sample_poses(csv_path)
+    zxy = Rotation.from_matrix(rot).as_euler("ZXY", degrees=True)
+    rows = [" ".join(f"{v:.6f}" for v in (*p * 100, *a, 0.0, 0.0, 0.0)) for p, a in zip(pos, zxy)]
+    target.write_text(
+        "HIERARCHY\nROOT joint_Root\n{\n OFFSET 0 0 0\n CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation "
+        "Yrotation\n JOINT Hand_R\n {\n  OFFSET 60 0 0\n  CHANNELS 3 Zrotation Xrotation Yrotation\n  End Site\n  {\n"
+        "   OFFSET 10 0 0\n  }\n }\n}\nMOTION\n"
+        f"Frames: {len(rows)}\nFrame Time: {float(np.median(np.diff(t))):.7f}\n" + "\n".join(rows) + "\n")
 
 
 def runnable(line: str, folder: Path, model_path: Path) -> str:

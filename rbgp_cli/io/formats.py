@@ -33,7 +33,7 @@ HEAD_BYTES = 8192
 
 #: The built-in format modules (``rbgp_cli.io.<name>``, each defining ``FORMAT``), in the order the
 #: ``--format`` help lists them and detection tries them (the fallback, CSV, last).
-_BUILTIN = ("csv", "qtm", "motive", "vicon", "mcap")
+_BUILTIN = ("csv", "qtm", "motive", "vicon", "mcap", "c3d", "bvh")
 
 
 @dataclass(frozen=True)
@@ -150,7 +150,7 @@ def choices() -> tuple:
 
 def help_text() -> str:
     """The ``--format`` help of the command line."""
-    return f"{'|'.join(choices())} (auto sniffs the content)."
+    return f"{' | '.join(choices())} (auto sniffs the content)."  # spaced: a narrow terminal wraps it
 
 
 def get(name: str) -> Format:

@@ -60,7 +60,9 @@ def trajectory_summary(traj) -> dict:
         "position_max_m": [float(v) for v in p.max(axis=0)] if len(p) else None,
     }
     for key in ("length_unit", "length_unit_source", "time_unit", "time_unit_source", "rotation", "rotation_source", "topic",
-                "frame_id", "child_frame_id", "time_source", "body", "demo", "columns"):  # fmt: skip
+                "frame_id", "child_frame_id", "time_source", "body", "demo", "columns",
+                "markers", "fit_rms_median_m", "fit_rms_max_m", "fit_rms_tol_m", "frames_over_tol",
+                "frames_too_few_markers"):  # fmt: skip
         if key in info:
             out[key] = info[key]
     return out
@@ -370,6 +372,15 @@ def _trajectory_rows(tr: dict) -> list[str]:
         conv.append(f"{ts} time" if ts in ("header", "log") else f"time from {ts}")
     if conv:
         lines.append("    " + _plain(", ".join(conv)))
+    if tr.get("markers"):  # a rigid fit of markers (C3D): its residuals and the frames it could not fit
+        fit = (f"    rigid fit of {len(tr['markers'])} markers: RMS residual median "
+               f"{_fmt_num(1e3 * tr['fit_rms_median_m'], ' mm', 3) if tr.get('fit_rms_median_m') is not None else '-'}, "
+               f"largest {_fmt_num(1e3 * tr['fit_rms_max_m'], ' mm', 3) if tr.get('fit_rms_max_m') is not None else '-'}")
+        lost_fit = [f"{tr['frames_too_few_markers']} with fewer than 3 markers seen" if tr.get("frames_too_few_markers")
+                    else "", f"{tr['frames_over_tol']} over {_fmt_num(1e3 * tr['fit_rms_tol_m'], ' mm')} RMS"
+                    if tr.get("frames_over_tol") else ""]
+        lost_fit = [x for x in lost_fit if x]
+        lines.append(fit + (f"; lost: {', '.join(lost_fit)}" if lost_fit else ""))
     if tr.get("position_min_m") is not None:
         rng = ", ".join(f"{a} {lo:.4g} .. {hi:.4g}" for a, lo, hi in zip("xyz", tr["position_min_m"], tr["position_max_m"]))
         lines.append(f"    position {rng} m")

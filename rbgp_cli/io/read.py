@@ -7,7 +7,8 @@ frames as NaN rows), to be cleaned by :func:`rbgp_cli.dynamics.prepare.prepare_a
 The format is detected from the **content**, not the file name (``ReadOptions.format`` overrides):
 each format registered in :mod:`rbgp_cli.io.formats` is asked in turn whether the first 8 KiB look
 like it (MCAP: its magic bytes; QTM: its header keys or a ``Frame<TAB>Time`` column line; Motive: a
-first line ``Format Version,``; Vicon: a section title and a rate line), and a file no format
+first line ``Format Version,``; Vicon: a section title and a rate line; C3D: its header's 0x50 and
+processor type; BVH: ``HIERARCHY``), and a file no format
 recognises is a generic CSV/TSV table (:mod:`rbgp_cli.io.csv`). Reading dispatches to the format's
 ``read`` (``read_stream`` / ``read_bytes`` for stdin).
 
@@ -135,7 +136,7 @@ class SourceList:
                 + (f"; {subdirs} subdirectories are not searched" if subdirs else ""),
                 path=group,
                 hint="`rbgp inspect FILE` says how a file is read; rbgp reads CSV/TSV with pose columns, QTM, "
-                "Motive and Vicon exports and MCAP files with pose topics",
+                "Motive and Vicon exports, MCAP files with pose topics, C3D files with a rigid body and BVH skeletons",
             )
 
 
