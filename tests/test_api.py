@@ -103,7 +103,9 @@ def test_save_load_matches_cli_model(gp, demos, tmp_path):
 def test_crossval_result(demos):
     cv = rbgp.crossval(demos, rbgp.RigidBodyGP(**FAST_KW), folds=3, samples=0, jobs=1)
     f = cv.to_frame()
-    assert sorted(f["representation"]) == ["axis-angle", "replay"] and cv.folds == 3
+    # the estimator, the same fits without the GP, and replay
+    assert sorted(f["representation"]) == ["axis-angle", "axis-angle", "replay"] and cv.folds == 3
+    assert f["without_gp"].fillna(False).astype(bool).sum() == 1
     assert np.all(np.isfinite(f["score"])) and np.all(f["score"] > 0)
     assert cv.to_dict()["folds"] == 3
 
@@ -322,7 +324,7 @@ def test_docs_example_runs(capsys):
     assert np.all(np.abs(r.position) < 5)  # metres: the shoe stays near the table
     assert 0 <= out["score"].mean < 10 and np.isfinite(out["score"].rotation)
     f = out["crossval"].to_frame()
-    assert len(f) == 2 and np.all(np.isfinite(f["score"])) and np.all(f["ratio"] > 0)
+    assert len(f) == 3 and np.all(np.isfinite(f["score"])) and np.all(f["ratio"] > 0)
     assert out["mean"].shape == out["std"].shape == (len(out["demos"][0]), 6)
 
 

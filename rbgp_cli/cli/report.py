@@ -188,7 +188,7 @@ def format_crossval(result: dict, per_fold: bool = False) -> str:
         "same start (m, rad); vel: relative velocity RMSE on held-out pairs (1 = predicting zero); sample: one "
         "sampled rollout per start scored like score, over the floor; cov_pos/cov_rot: how often the held-out "
         "motion lies inside the samples' 90 % prediction region (0.90 = honest bands); left: rollouts "
-        "that left the training demonstrations' envelope; kernel 'no GP': the same fits with the GP's residual "
+        "that left the training demonstrations' envelope; kernel 'no-GP': the same fits with the GP's residual "
         "switched off (the path distribution alone), what the GP adds is the difference"
         + (f" (held-out demonstrations: {result['floor_left_data']} of {result['demonstrations'] * R})"
            if result.get("floor_left_data") is not None else ""),
@@ -210,7 +210,7 @@ def format_crossval(result: dict, per_fold: bool = False) -> str:
                 f" {r['train_s']:8.1f} {_num(r.get('left_data'), 'd'):>5}" + (f"  {opts}" if opts else "") + flag)
 
     for r in result["results"]:
-        kern = "no GP" if r.get("without_gp") else r["kernel"] or "-"
+        kern = "no-GP" if r.get("without_gp") else r["kernel"] or "-"
         lines.append(row(r, r["representation"], kern, options[id(r)].replace(", without the GP", "").strip(", ")))
         if per_fold:
             for f in r["per_fold"]:

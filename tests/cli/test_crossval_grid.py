@@ -31,8 +31,9 @@ def test_two_grids_give_every_combination_labelled_in_the_table_and_the_json(fol
     res = run(folder, *FAST, "--grid", "prior-gain=3,10", "--grid", "inducing=0,20", "--no-peers", "--json")
     assert res.exit_code == 0, res.stderr
     out = json.loads(res.stdout)
-    models = [r for r in out["results"] if r["representation"] != "replay"]
-    assert len(models) == 4 and len(out["results"]) == 5  # 2 × 2 and the replay peer, once
+    models = [r for r in out["results"] if r["representation"] != "replay" and not r.get("without_gp")]
+    # 2 × 2, each with its row without the GP, and the replay peer, once
+    assert len(models) == 4 and len(out["results"]) == 9
     assert sorted((r["options"]["prior-gain"], r["options"]["inducing"]) for r in models) == [
         (3.0, 0), (3.0, 20), (10.0, 0), (10.0, 20)]
     assert {r["label"] for r in models} == {f"axis-angle se-chordal prior-gain={g} inducing={m}"
@@ -46,7 +47,8 @@ def test_two_grids_give_every_combination_labelled_in_the_table_and_the_json(fol
     assert any(line.rstrip().endswith("options") for line in lines)
     for g in (3, 10):
         for m in (0, 20):
-            assert sum(line.startswith("axis-angle") and f"prior-gain={g} inducing={m}" in line for line in lines) == 1
+            assert sum(line.startswith("axis-angle") and f"prior-gain={g} inducing={m}" in line
+                       and "no-GP" not in line for line in lines) == 1
 
 
 @pytest.mark.slow
@@ -57,8 +59,10 @@ def test_a_grid_value_equal_to_the_default_gives_the_numbers_of_the_run_without_
     gain = DEFAULTS["prior_gain"]
     grid = run(folder, *FAST, "--grid", f"prior-gain={gain:g},default", "--json")  # the default gain twice
     assert plain.exit_code == 0 and grid.exit_code == 0, plain.stderr + grid.stderr
-    base = next(r for r in json.loads(plain.stdout)["results"] if r["representation"] == "axis-angle")
-    rows = [r for r in json.loads(grid.stdout)["results"] if r["representation"] == "axis-angle"]
+    base = next(r for r in json.loads(plain.stdout)["results"] if r["representation"] == "axis-angle"
+                and not r.get("without_gp"))
+    rows = [r for r in json.loads(grid.stdout)["results"] if r["representation"] == "axis-angle"
+            and not r.get("without_gp")]
     assert len(rows) == 1  # the default's value and 'default' are one value
     for key in ("score", "floor", "position_rmse", "rotation_rmse", "velocity_rmse"):
         assert rows[0][key] == base[key]
