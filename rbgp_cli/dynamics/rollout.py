@@ -376,3 +376,101 @@ def starts_near(starts: np.ndarray, count: int, spread: float, seed: int = 0, sp
     q = quat_multiply(dq, base[:, :4])
     p = base[:, 4:] + rng.normal(0.0, 1.0, (count, 3)) * spread
     return (q, p, order) if return_index else (q, p)
+
+
+def rollout_conditioned(model, start_quat, start_position, *, goal_quat=None, goal_position=None, via=(),
+                        durations=None, goal_tolerance=None, samples: int = 0, seed: int = 0, dt: float | None = None,
+                        with_std: bool = False, paths=None, **kwargs) -> RolloutResult:
+    """Roll out B starts toward goals and through via-points (docs/method.md §12).
+
+    start_quat (B, 4), start_position (B, 3); goal_quat (B, 4) or (4,), goal_position (B, 3) or (3,), or
+    None for no goal; via: a sequence of (T seconds after the start, quat (4,), position (3,)); durations
+    (B,) seconds, default the path distribution's conditional median duration given the start (and goal);
+    goal_tolerance: (rad, m) one standard deviation, default :data:`~rbgp_cli.dynamics.paths.GOAL_TOLERANCE`
+    (the mean then ends within about 1 mm / 2 mrad); paths: the :class:`~rbgp_cli.dynamics.paths.PathDistribution`
+    (default the model's).
+
+    The mean is the model's rollout from the start for that duration (the GP's dynamics and its
+    start-conditioned path), bent by the pathwise update of the path distribution (Matheron's rule,
+    :meth:`~rbgp_cli.dynamics.paths.PathDistribution.update`) so that it passes the start, the via-points
+    and the goal: the bend in between is what the demonstrations say a motion through those poses
+    looks like. The K samples per start are the mean plus zero-mean draws of the conditioned path
+    distribution (:meth:`~rbgp_cli.dynamics.paths.Conditioned.draw`): their bands pinch at every
+    constraint and widen between them as the demonstrations do.
+    """
+    from rbgp_cli.dynamics.paths import pose_deviation
+
+    paths = getattr(model, "paths", None) if paths is None else paths
+    if paths is None:
+        raise InputError("this model has no path distribution to condition on a goal (fewer than three "
+                         "demonstrations, or a model file from an older rbgp)", hint="retrain it with rbgp train")
+    q0 = quat_normalize(np.asarray(start_quat, dtype=np.float64).reshape(-1, 4))
+    p0 = np.asarray(start_position, dtype=np.float64).reshape(-1, 3)
+    B = len(q0)
+    has_goal = goal_quat is not None
+    if has_goal:
+        gq = quat_normalize(np.broadcast_to(np.asarray(goal_quat, dtype=np.float64), (B, 4)))
+        gp = np.broadcast_to(np.asarray(goal_position, dtype=np.float64), (B, 3))
+    tol = goal_tolerance
+    # the observations shared by every start's durations: start and goal (the via-points' phases depend on D)
+    def constraints(b, D):
+        obs = [paths.observe([0.0], q0[b:b + 1], p0[b:b + 1], exact=True)]
+        if has_goal:
+            obs.append(paths.observe([1.0], gq[b:b + 1], gp[b:b + 1], tolerance=tol, exact=tol is None))
+        for (tv, qv, pv) in via:
+            obs.append(paths.observe([float(tv) / D], np.asarray(qv, float)[None], np.asarray(pv, float)[None],
+                                     tolerance=tol, exact=tol is None))
+        return paths.stack(*obs)
+
+    if durations is None:  # the conditional median duration given the start and goal
+        durations = np.empty(B)
+        for b in range(B):
+            ob = [paths.observe([0.0], q0[b:b + 1], p0[b:b + 1], exact=True)]
+            if has_goal:
+                ob.append(paths.observe([1.0], gq[b:b + 1], gp[b:b + 1], exact=True))
+            durations[b] = paths.condition(*paths.stack(*ob)).duration
+    durations = np.asarray(durations, dtype=np.float64).reshape(B)
+    for (tv, _, _) in via:
+        if not np.all((float(tv) > 0) & (float(tv) < durations)):
+            raise InputError(f"a via-point at {float(tv):g} s lies outside the motion (0 to {durations.min():.3g} s)",
+                             hint="give T in seconds after the start, within the motion's duration", param="via")
+    res = rollout_for(model, q0, p0, durations, dt=dt, with_std=with_std, **kwargs)
+    T = len(res.t)
+    phase = np.clip(res.t[None, :] / durations[:, None], 0.0, 1.0)  # (B, T)
+    ref_q, ref_p = paths.pose_at(np.zeros((B, paths.S, 6)), phase)  # the mean path at each sample's phase
+    dev_t = pose_deviation(ref_q, ref_p, res.quat, res.position)  # (B, T, 6)
+    grid = np.stack([paths.deviation_of(res.t[: res.length(b)], res.quat[b, : res.length(b)],
+                                        res.position[b, : res.length(b)], duration=durations[b]) for b in range(B)])
+    bent = np.empty_like(grid)
+    covs = []
+    for b in range(B):  # per start: its own constraint values (and via phases); small solves
+        A, y, r2 = constraints(b, durations[b])
+        bent[b] = paths.update(grid[b:b + 1], A, y[None], r2, log_duration=np.log(durations[b]))[0]
+        if samples:
+            covs.append(paths.condition(A, y, r2))
+    from rbgp_cli.dynamics.paths import _interpolation
+    W = _interpolation(paths.s, phase.reshape(-1)).reshape(B, T, paths.S)
+    new = dev_t + np.einsum("bts,bsj->btj", W, bent - grid)
+    res.quat, res.position = _from_deviation(paths, ref_q, ref_p, new)
+    res.goal_distance = None
+    if samples:
+        K = int(samples)
+        rng = np.random.default_rng(np.random.SeedSequence([int(seed), 38]))
+        sq = np.empty((B, K, T, 4))
+        sp = np.empty((B, K, T, 3))
+        for b in range(B):
+            eta, _ = covs[b].draw(K, rng)
+            eta = eta - covs[b].deviation[None]  # zero-mean draws of the conditioned process
+            d = new[b][None] + np.einsum("ts,ksj->ktj", W[b], eta)
+            sq[b], sp[b] = _from_deviation(paths, ref_q[b][None], ref_p[b][None], d)
+        res.sample_quat, res.sample_position = sq, sp
+    return res
+
+
+def _from_deviation(paths, ref_q, ref_p, dev):
+    """Poses (quat (..., T, 4), position (..., T, 3)) of deviations ``dev`` (..., T, 6) from the mean
+    path's poses (ref_q, ref_p) at the same samples: R = exp(δ_rot) R̄, p = p̄ + δ_pos."""
+    from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
+
+    q = quat_multiply(exp_quat(dev[..., :3]), np.broadcast_to(ref_q, dev.shape[:-1] + (4,)))
+    return quat_make_continuous(q), ref_p + dev[..., 3:]

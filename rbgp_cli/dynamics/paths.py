@@ -1,0 +1,444 @@
+"""The demonstrations as a distribution over paths and durations, and its conditioning on what is
+known of a new motion: its start, a goal, via-points, the part already seen (MATH.md §12,
+docs/method.md §12).
+
+**The distribution.** On the phase grid s_j = j/(S−1) of the mean path (R̄(s), p̄(s)),
+(:func:`rbgp_cli.dynamics.variation.demonstration_deviations`), demonstration d is its deviation
+δ_d(s) = (log(R_d(s) R̄(s)ᵀ), p_d(s) − p̄(s)) ∈ ℝ⁶ (world-frame tangent, rotation first) and its log
+duration ℓ_d = ln D_d. Scaled per coordinate by its RMS deviation σ_j (and ℓ by its standard
+deviation), demonstration d is one vector x_d ∈ ℝ^P, P = 6S + 1 (phase-major, then coordinate, then ℓ).
+A new motion is x ~ N(m, Σ) with
+
+    m = mean_d x_d,    Σ = (1 + 1/D) CᵀC / (D − 1) + τ² (K_ℓ ⊗ I_6 ⊕ 1),    K_ℓ(s, s') = exp(−(s − s')² / 2ℓ²),
+
+C (D, P) the centred demonstrations. The first term is the demonstrations' sample covariance
+(inflated for the estimated mean), of rank D − 1 at most: alone it says a new motion is a weighted sum
+of the demonstrations, and conditioned on many points it over-fits (the plain ProMP's failure, MATH.md
+§12). The second is a smooth process of variance τ² per coordinate (in units of that coordinate's
+spread) that shrinks Σ toward a full-rank structured covariance: what D demonstrations cannot span
+(τ², ℓ chosen by leaving demonstrations out, :func:`fit_paths`).
+
+**Conditioning.** What is known is a set of linear observations of x: a pose T_j at phase s_j gives
+y_j = (log(R_j R̄(s_j)ᵀ), p_j − p̄(s_j)) / σ = A_j x + ε_j (A_j interpolates the grid linearly),
+ε_j ~ N(0, diag(r_j²)) with r_j the observation's tolerance (a goal: 0.5 mm / 1 mrad; a seen pose:
+its tracker noise plus a regularising tolerance chosen by leaving demonstrations out); a known duration
+observes ℓ. With A, y, R stacked,
+
+    G = A Σ Aᵀ + R,   x̂ = m + Σ Aᵀ G⁻¹ (y − A m),   Σ̂ = Σ − Σ Aᵀ G⁻¹ A Σ,
+
+(:meth:`PathDistribution.condition`), the mean and covariance of the motions that agree with what is
+known. Σ̂ does not depend on y: the constraints' phases fix it, so one factorisation serves a batch.
+
+**Pathwise update** (Matheron's rule, Wilson et al. 2020). A path f drawn from N(m, Σ) becomes a draw of
+the conditioned distribution as f + Σ Aᵀ G⁻¹ (y − A f − ε), ε ~ N(0, R). rbgp applies it to a rollout of
+the GP dynamics (:meth:`PathDistribution.update`): the rollout from the start is the model's answer to
+"how do people move from here", the update bends it, exactly as the path distribution says a motion
+between those constraints differs from one without them, so that it passes every constrained pose.
+
+**A motion under way.** The seen samples (t_j, T_j) of a motion that started at t_0 lie at phases
+s_j = (t_j − t_0)/D for its unknown duration D. For each D on a grid the joint density of the seen
+deviations and ℓ = ln D under N(m, Σ) (with the seen tolerance) is the likelihood of D
+(:meth:`PathDistribution.duration_posterior`, after Maeda et al. 2017's phase estimation); the
+posterior over the grid weighs the continuations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["PathDistribution", "Conditioned", "fit_paths", "SMOOTH_GRID", "LENGTH_GRID", "GOAL_TOLERANCE",
+           "pose_deviation", "MIN_PATH_DEMOS"]
+
+#: Fewer demonstrations than this give no path distribution (a covariance needs two, its Student-t three).
+MIN_PATH_DEMOS = 3
+#: τ² tried by :func:`fit_paths` (variance of the smooth shrinkage process, in units of each coordinate's
+#: spread squared).
+SMOOTH_GRID = (1e-3, 3e-3, 0.01, 0.03, 0.1, 0.3, 1.0)
+#: ℓ tried by :func:`fit_paths` (length-scale of the smooth process, in phase).
+LENGTH_GRID = (0.05, 0.1, 0.2, 0.4)
+#: A goal or via-point's default tolerance: (rotation rad, position m), one standard deviation.
+GOAL_TOLERANCE = (1e-3, 5e-4)
+#: Every ``SELECT_EVERY``-th grid phase scores a left-out demonstration in :func:`fit_paths`.
+SELECT_EVERY = 5
+
+
+def pose_deviation(mean_quat, mean_position, quat, position) -> np.ndarray:
+    """δ = (log(R R̄ᵀ), p − p̄) (..., 6), rotation first, of poses (quat (..., 4) x, y, z, w; position
+    (..., 3)) from reference poses of the same shape (or broadcastable)."""
+    from rbgp_cli.geometry.so3 import log_quat, quat_conjugate, quat_multiply
+
+    rot = log_quat(quat_multiply(np.asarray(quat, dtype=np.float64), quat_conjugate(np.asarray(mean_quat, dtype=np.float64))))
+    return np.concatenate([rot, np.asarray(position, dtype=np.float64) - np.asarray(mean_position, dtype=np.float64)], axis=-1)
+
+
+def _interpolation(s_grid: np.ndarray, phases: np.ndarray) -> np.ndarray:
+    """(n, S) weights that interpolate a function on the grid ``s_grid`` linearly at ``phases`` (n,)
+    (clipped to the grid)."""
+    x = np.clip(np.asarray(phases, dtype=np.float64).reshape(-1), s_grid[0], s_grid[-1])
+    S = len(s_grid)
+    k = np.clip(np.searchsorted(s_grid, x, side="right") - 1, 0, S - 2)
+    f = (x - s_grid[k]) / (s_grid[k + 1] - s_grid[k])
+    W = np.zeros((len(x), S))
+    rows = np.arange(len(x))
+    W[rows, k] = 1.0 - f
+    W[rows, k + 1] += f
+    return W
+
+
+@dataclass
+class Conditioned:
+    """The path distribution given what is known (module docstring): mean x̂ (P,) and covariance Σ̂
+    (P, P) in scaled units, with the distribution that made them (``paths``)."""
+
+    paths: "PathDistribution"
+    mean: np.ndarray
+    cov: np.ndarray
+
+    @property
+    def deviation(self) -> np.ndarray:
+        """The conditioned mean deviation (S, 6), rad and m."""
+        return self.paths.unscale(self.mean)[0]
+
+    @property
+    def duration(self) -> float:
+        """The conditioned median duration, seconds: exp of ℓ's conditioned mean."""
+        return float(np.exp(self.paths.unscale(self.mean)[1]))
+
+    def duration_spread(self) -> float:
+        """ℓ's conditioned standard deviation (a factor exp(±1·this) on the duration)."""
+        return float(np.sqrt(max(self.cov[-1, -1], 0.0)) * self.paths.duration_scale)
+
+    def draw(self, count: int, rng: np.random.Generator, *, widen: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """``count`` draws (deviations (count, S, 6) rad, m; durations (count,) s) of the conditioned
+        distribution, Student-t with ν = D − 2 degrees of freedom (the covariance is estimated from D
+        demonstrations: each draw's deviation from the mean scaled by √(ν/χ²_ν)) and, with ``widen``,
+        the bands' factors (c_rot, c_pos) on its rotation and position parts."""
+        P = len(self.mean)
+        w, V = np.linalg.eigh(0.5 * (self.cov + self.cov.T))
+        root = V * np.sqrt(np.clip(w, 0.0, None))[None, :]
+        z = rng.standard_normal((int(count), P)) @ root.T  # (count, P)
+        nu = max(self.paths.demos - 2, 1)
+        z *= np.sqrt(nu / rng.chisquare(nu, int(count)))[:, None]
+        if widen:
+            c_rot, c_pos = self.paths.band_scale
+            coords = np.tile(np.array([c_rot] * 3 + [c_pos] * 3), self.paths.S)
+            z[:, :-1] *= coords
+        dev, ell = self.paths.unscale(self.mean[None] + z)
+        return dev, np.exp(ell)
+
+    def marginal_std(self) -> np.ndarray:
+        """The conditioned standard deviation per phase and coordinate (S, 6), rad and m."""
+        sd = np.sqrt(np.clip(np.diag(self.cov)[:-1], 0.0, None)).reshape(self.paths.S, 6)
+        return sd * self.paths.scale[None]
+
+
+@dataclass
+class PathDistribution:
+    """The demonstrations as a Gaussian over scaled deviation paths and log durations (module docstring).
+
+    s (S,) phase grid; quat (S, 4), position (S, 3) the mean path; deviations (D, S, 6) δ_d, rad and m;
+    log_durations (D,) ln D_d; smooth τ², length ℓ (phase) of the shrinkage process; seen_tolerance:
+    the regularising tolerance of a seen pose, in units of the coordinates' spread; band_scale
+    (c_rot, c_pos) ≥ 1 on draws (:meth:`Conditioned.draw`).
+    """
+
+    s: np.ndarray
+    quat: np.ndarray
+    position: np.ndarray
+    deviations: np.ndarray
+    log_durations: np.ndarray
+    smooth: float = 0.03
+    length: float = 0.1
+    seen_tolerance: float = 0.1
+    band_scale: tuple = (1.0, 1.0)
+    info: dict = field(default_factory=dict)
+
+    # ------------------------------------------------------------------ the Gaussian
+    @property
+    def demos(self) -> int:
+        return int(self.deviations.shape[0])
+
+    @property
+    def S(self) -> int:
+        return int(len(self.s))
+
+    @property
+    def scale(self) -> np.ndarray:
+        """Each coordinate's RMS deviation (6,), rad and m (1 where it does not vary)."""
+        sc = np.sqrt(np.mean(self.deviations ** 2, axis=(0, 1)))
+        return np.where(sc > 1e-12, sc, 1.0)
+
+    @property
+    def duration_scale(self) -> float:
+        """ℓ's unit: the demonstrations' standard deviation of ln D (at least 0.01)."""
+        return float(max(np.std(self.log_durations), 0.01))
+
+    def vectors(self) -> np.ndarray:
+        """The demonstrations as scaled vectors x_d (D, P)."""
+        D = self.demos
+        dev = (self.deviations / self.scale).reshape(D, -1)
+        return np.concatenate([dev, (self.log_durations / self.duration_scale)[:, None]], axis=1)
+
+    def unscale(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Scaled vectors x (..., P) → deviations (..., S, 6) in rad and m, and ln D (...,)."""
+        x = np.asarray(x, dtype=np.float64)
+        dev = x[..., :-1].reshape(x.shape[:-1] + (self.S, 6)) * self.scale
+        return dev, x[..., -1] * self.duration_scale
+
+    def smooth_covariance(self, smooth: float | None = None, length: float | None = None) -> np.ndarray:
+        """τ² (K_ℓ ⊗ I_6 ⊕ 1) (P, P), module docstring."""
+        tau2 = self.smooth if smooth is None else float(smooth)
+        ell = self.length if length is None else float(length)
+        Ks = np.exp(-0.5 * ((self.s[:, None] - self.s[None, :]) / ell) ** 2)
+        P = 6 * self.S + 1
+        K = np.zeros((P, P))
+        K[:-1, :-1] = np.kron(Ks, np.eye(6))
+        K[-1, -1] = 1.0
+        return tau2 * K
+
+    def prior(self, vectors: np.ndarray | None = None, smooth: float | None = None, length: float | None = None):
+        """(m (P,), Σ (P, P)) of a new motion, from ``vectors`` (default :meth:`vectors`)."""
+        X = self.vectors() if vectors is None else vectors
+        D = len(X)
+        m = X.mean(axis=0)
+        C = X - m
+        Sigma = (1.0 + 1.0 / D) * (C.T @ C) / max(D - 1, 1) + self.smooth_covariance(smooth, length)
+        return m, Sigma
+
+    # ------------------------------------------------------------------ observations
+    def observe(self, phases, quat, position, tolerance=None, *, exact: bool = False):
+        """The observation operator of poses at phases: A (6n, P), y (6n,), r² (6n,) (module docstring).
+
+        phases (n,); quat (n, 4); position (n, 3). ``tolerance``: (rotation rad, position m) one standard
+        deviation per coordinate, or None for the seen tolerance (:attr:`seen_tolerance` in units of the
+        spread); ``exact``: :data:`GOAL_TOLERANCE`."""
+        from rbgp_cli.dynamics.trajectory import interpolate_poses
+
+        phases = np.asarray(phases, dtype=np.float64).reshape(-1)
+        n = len(phases)
+        W = _interpolation(self.s, phases)  # (n, S)
+        ref_q, ref_p = interpolate_poses(self.s, self.quat, self.position, np.clip(phases, 0.0, 1.0))
+        y = pose_deviation(ref_q, ref_p, np.asarray(quat, float).reshape(n, 4), np.asarray(position, float).reshape(n, 3))
+        sc = self.scale
+        A = np.zeros((n, 6, 6 * self.S + 1))
+        for j in range(6):  # six coordinates: a loop of six, each vectorised over the observations
+            A[:, j, j:-1:6] = W
+        if exact:
+            tolerance = GOAL_TOLERANCE
+        if tolerance is None:
+            r = np.full((n, 6), float(self.seen_tolerance))
+        else:
+            r = np.broadcast_to(np.repeat(np.asarray(tolerance, dtype=np.float64).reshape(-1, 2), 3, axis=1), (n, 6)) / sc
+        return A.reshape(6 * n, -1), (y / sc).reshape(-1), (r ** 2).reshape(-1)
+
+    def observe_duration(self, duration: float, tolerance: float = 1e-3):
+        """A (1, P), y (1,), r² (1,): the motion lasts ``duration`` seconds (± ``tolerance`` in ln D)."""
+        A = np.zeros((1, 6 * self.S + 1))
+        A[0, -1] = 1.0
+        return A, np.array([np.log(float(duration)) / self.duration_scale]), np.array([(tolerance / self.duration_scale) ** 2])
+
+    @staticmethod
+    def stack(*observations):
+        """Stack (A, y, r²) triples into one."""
+        A = np.concatenate([o[0] for o in observations], axis=0)
+        return A, np.concatenate([o[1] for o in observations]), np.concatenate([o[2] for o in observations])
+
+    # ------------------------------------------------------------------ conditioning
+    def condition(self, A, y, r2, prior=None) -> Conditioned:
+        """The Gaussian given y = A x + ε, ε ~ N(0, diag r²) (module docstring); ``prior`` (m, Σ) default
+        :meth:`prior`. y may be (k,) or (B, k): a batch of observation values with one A (the means
+        then have shape (B, P) and share Σ̂)."""
+        m, Sigma = self.prior() if prior is None else prior
+        SA = Sigma @ A.T  # (P, k)
+        G = A @ SA + np.diag(r2)
+        L = np.linalg.cholesky(0.5 * (G + G.T))
+        from scipy.linalg import cho_solve
+
+        gain = cho_solve((L, True), SA.T).T  # Σ Aᵀ G⁻¹ (P, k)
+        innov = np.asarray(y, dtype=np.float64) - (A @ m)
+        mean = m + innov @ gain.T
+        cov = Sigma - gain @ SA.T
+        return Conditioned(self, mean, 0.5 * (cov + cov.T))
+
+    def update(self, deviation: np.ndarray, A, y, r2, log_duration=None) -> np.ndarray:
+        """Matheron's pathwise update of paths (module docstring): deviations (B, S, 6) rad, m (with ln D
+        (B,) if known; else the prior mean's) that should satisfy y (B, k) = A x: returns them plus
+        Σ Aᵀ G⁻¹ (y − A x), (B, S, 6). With exact observations the result passes them within the tolerance."""
+        deviation = np.asarray(deviation, dtype=np.float64)
+        B = len(deviation)
+        m, Sigma = self.prior()
+        x = np.empty((B, len(m)))
+        x[:, :-1] = (deviation / self.scale).reshape(B, -1)
+        x[:, -1] = m[-1] if log_duration is None else np.asarray(log_duration, float) / self.duration_scale
+        SA = Sigma @ A.T
+        G = A @ SA + np.diag(r2)
+        from scipy.linalg import cho_solve
+
+        L = np.linalg.cholesky(0.5 * (G + G.T))
+        innov = np.atleast_2d(y) - x @ A.T  # (B, k)
+        x = x + cho_solve((L, True), innov.T).T @ SA.T
+        return self.unscale(x)[0]
+
+    def goal_distance(self, start_quat, start_position, goal_quat, goal_position) -> np.ndarray:
+        """How far goals lie from where the demonstrations end, given each start: the Mahalanobis
+        distance of the goal's deviation under the start-conditioned predictive N(A x̂, A Σ̂ Aᵀ) at phase 1,
+        per motion (B,), in units of the demonstrations' spread (a χ with 6 degrees of freedom; 1 is
+        typical, above 3.5 a goal fewer than 1 in 200 demonstrations would reach)."""
+        B = len(np.atleast_2d(start_quat))
+        ob0 = [self.observe([0.0], q[None], p[None], exact=True) for q, p in zip(np.atleast_2d(start_quat), np.atleast_2d(start_position))]
+        A0, _, r0 = ob0[0]
+        cond = self.condition(A0, np.stack([o[1] for o in ob0]), r0)
+        A1, y1, _ = self.observe(np.ones(B), goal_quat, goal_position, exact=True)
+        A1 = A1[:6]
+        y1 = y1.reshape(B, 6)
+        pred = cond.mean @ A1.T  # (B, 6)
+        S1 = A1 @ cond.cov @ A1.T
+        e = y1 - pred
+        return np.sqrt(np.einsum("bi,bi->b", e, np.linalg.solve(S1, e.T).T))
+
+    def duration_posterior(self, t, quat, position, grid: np.ndarray | None = None, *, points: int = 12):
+        """The posterior over the duration D of a motion seen from its start t[0] to t[-1] (module
+        docstring): returns (grid (G,) seconds, weights (G,) summing to 1). ``grid`` default: 48 values
+        log-spaced over [max(seen span, 0.5 min D_d), 2 max D_d]. At most ``points`` seen samples (evenly
+        spread, the first and last always) enter the likelihood."""
+        t = np.asarray(t, dtype=np.float64).reshape(-1)
+        quat = np.asarray(quat, dtype=np.float64).reshape(-1, 4)
+        position = np.asarray(position, dtype=np.float64).reshape(-1, 3)
+        span = float(t[-1] - t[0])
+        dmin, dmax = float(np.exp(self.log_durations.min())), float(np.exp(self.log_durations.max()))
+        if grid is None:
+            lo = max(span, 0.5 * dmin, 1e-3)
+            grid = np.exp(np.linspace(np.log(lo), np.log(max(2.0 * dmax, lo * 1.01)), 48))
+        grid = np.asarray(grid, dtype=np.float64)
+        idx = np.unique(np.round(np.linspace(0, len(t) - 1, min(points, len(t)))).astype(int))
+        m, Sigma = self.prior()
+        logp = np.full(len(grid), -np.inf)
+        for g, D in enumerate(grid):  # a loop over the grid's durations (≤ 48), each one Gaussian density
+            if D < span:
+                continue
+            A, y, r2 = self.stack(self.observe((t[idx] - t[0]) / D, quat[idx], position[idx]),
+                                  self.observe_duration(D, tolerance=1e-6))
+            G = A @ Sigma @ A.T + np.diag(r2)
+            e = y - A @ m
+            L = np.linalg.cholesky(0.5 * (G + G.T))
+            a = np.linalg.solve(L, e)
+            logp[g] = -0.5 * a @ a - np.sum(np.log(np.diag(L))) + np.log(D)  # + ln D: density in D, grid in ln D
+        w = np.exp(logp - np.max(logp))
+        return grid, w / w.sum()
+
+    def pose_at(self, deviation: np.ndarray, phases: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The poses (quat (..., T, 4), position (..., T, 3)) of deviation paths (..., S, 6) at phases
+        (T,) or (..., T): R = exp(δ_rot) R̄(s), p = p̄(s) + δ_pos, δ interpolated linearly."""
+        from rbgp_cli.dynamics.trajectory import interpolate_poses
+        from rbgp_cli.geometry.so3 import exp_quat, quat_make_continuous, quat_multiply
+
+        dev = np.asarray(deviation, dtype=np.float64)
+        ph = np.clip(np.asarray(phases, dtype=np.float64), 0.0, 1.0)
+        W = _interpolation(self.s, ph.reshape(-1)).reshape(ph.shape + (self.S,))
+        d = np.einsum("...ts,...sj->...tj", W, dev) if ph.ndim > 1 else np.einsum("ts,...sj->...tj", W, dev)
+        ref_q, ref_p = interpolate_poses(self.s, self.quat, self.position, ph.reshape(-1))
+        ref_q = ref_q.reshape(ph.shape + (4,))
+        ref_p = ref_p.reshape(ph.shape + (3,))
+        q = quat_make_continuous(quat_multiply(exp_quat(d[..., :3]), ref_q))
+        return q, ref_p + d[..., 3:]
+
+    def deviation_of(self, t, quat, position, duration=None) -> np.ndarray:
+        """A trajectory's (t (T,), quat (T, 4), position (T, 3)) deviation on the grid (S, 6) (its phase
+        (t − t_0)/duration, default its own span)."""
+        from rbgp_cli.dynamics.trajectory import interpolate_poses
+        from rbgp_cli.geometry.so3 import quat_make_continuous
+
+        t = np.asarray(t, dtype=np.float64)
+        dur = float(t[-1] - t[0]) if duration is None else float(duration)
+        q, p = interpolate_poses((t - t[0]) / max(dur, 1e-12), quat_make_continuous(np.asarray(quat, float)), np.asarray(position, float), self.s)
+        return pose_deviation(self.quat, self.position, q, p)
+
+    # ------------------------------------------------------------------ model files
+    def to_arrays(self) -> dict:
+        return {"paths_deviations": np.ascontiguousarray(self.deviations, dtype=np.float64),
+                "paths_log_durations": np.ascontiguousarray(self.log_durations, dtype=np.float64)}
+
+    def header(self) -> dict:
+        return {"demos": self.demos, "steps": self.S, "smooth": float(self.smooth), "length": float(self.length),
+                "seen_tolerance": float(self.seen_tolerance),
+                "band_scale": {"rotation": float(self.band_scale[0]), "position": float(self.band_scale[1])}}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict, header: dict, s, quat, position) -> "PathDistribution":
+        bs = header.get("band_scale") or {"rotation": 1.0, "position": 1.0}
+        return cls(np.asarray(s, float), np.asarray(quat, float), np.asarray(position, float),
+                   np.asarray(arrays["paths_deviations"], float), np.asarray(arrays["paths_log_durations"], float),
+                   float(header["smooth"]), float(header["length"]), float(header["seen_tolerance"]),
+                   (float(bs["rotation"]), float(bs["position"])))
+
+
+# ---------------------------------------------------------------------- fitting
+def _loo_scores(paths: PathDistribution, smooth: float, length: float, stats: bool = False):
+    """Leave each demonstration out: condition the others' distribution on its start and end, and score
+    the held-out path at every SELECT_EVERY-th phase in between. Only the coordinates involved enter
+    (a Gaussian's marginal is its sub-block). Returns the mean log density per demonstration and, with
+    ``stats``, the rotation Mahalanobis² (D·k,) and position z-scores (D·k, 3) for the bands' factors."""
+    X = paths.vectors()
+    D, S = len(X), paths.S
+    sel = np.arange(SELECT_EVERY, S - 1, SELECT_EVERY)
+    phases = np.concatenate([[0, S - 1], sel])
+    idx = (6 * phases[:, None] + np.arange(6)[None]).ravel()  # known first (12), then the scored ones
+    Xs = X[:, idx]
+    Ks = paths.smooth_covariance(smooth, length)[np.ix_(idx, idx)]
+    r2 = np.concatenate([(np.array(GOAL_TOLERANCE).repeat(3) / paths.scale) ** 2] * 2)
+    logd, m2, z = 0.0, [], []
+    for d in range(D):  # a loop over demonstrations, each one small Gaussian conditioning
+        rest = np.delete(Xs, d, axis=0)
+        m = rest.mean(axis=0)
+        C = rest - m
+        Sigma = (1.0 + 1.0 / len(rest)) * (C.T @ C) / max(len(rest) - 1, 1) + Ks
+        S11, S21, S22 = Sigma[:12, :12] + np.diag(r2), Sigma[12:, :12], Sigma[12:, 12:]
+        gain = np.linalg.solve(S11, S21.T).T
+        mean = m[12:] + gain @ (Xs[d, :12] - m[:12])
+        cov = S22 - gain @ S21.T
+        e = Xs[d, 12:] - mean
+        L = np.linalg.cholesky(cov + 1e-9 * np.trace(cov) / len(e) * np.eye(len(e)))
+        a = np.linalg.solve(L, e)
+        logd += -0.5 * a @ a - np.sum(np.log(np.diag(L)))
+        if stats:
+            k = len(sel)
+            ek = e.reshape(k, 6)
+            Ck = np.array([cov[6 * i:6 * i + 6, 6 * i:6 * i + 6] for i in range(k)])
+            m2.append(np.einsum("ki,ki->k", ek[:, :3], np.linalg.solve(Ck[:, :3, :3] + 1e-12 * np.eye(3), ek[:, :3, None])[..., 0]))
+            z.append(np.abs(ek[:, 3:]) / np.sqrt(np.maximum(np.einsum("kii->ki", Ck[:, 3:, 3:]), 1e-24)))
+    if stats:
+        return logd / D, np.concatenate(m2), np.concatenate(z)
+    return logd / D
+
+
+def fit_paths(trajs, steps: int = 51, *, level: float = 0.90) -> PathDistribution | None:
+    """The path distribution of clean demonstrations (module docstring), None for fewer than
+    MIN_PATH_DEMOS. τ² and ℓ maximise the left-out demonstrations' log density given their start and
+    end (:func:`_loo_scores`); the bands' factors (c_rot, c_pos) ≥ 1 make the left-out paths' 90 %
+    regions hold at ``level`` (as :func:`rbgp_cli.dynamics.variation.band_scale` does for the start-only
+    draws) against the draws' own Student-t quantiles (3 F_level(3, ν) for a rotation's m², t_ν for a
+    position coordinate)."""
+    from scipy.special import fdtri, stdtrit
+
+    from rbgp_cli.dynamics.variation import demonstration_deviations
+
+    trajs = list(trajs)
+    D = len(trajs)
+    if D < MIN_PATH_DEMOS:
+        return None
+    path, delta = demonstration_deviations(trajs, steps)
+    durations = np.array([max(tr.duration, 1e-6) for tr in trajs])
+    paths = PathDistribution(np.asarray(path["s"], float), np.asarray(path["quat"], float),
+                             np.asarray(path["position"], float), delta, np.log(durations))
+    scores = {(tau2, ell): _loo_scores(paths, tau2, ell) for tau2 in SMOOTH_GRID for ell in LENGTH_GRID}
+    paths.smooth, paths.length = max(scores, key=scores.get)
+    score, m2, z = _loo_scores(paths, paths.smooth, paths.length, stats=True)
+    # the draws are Student-t with ν = D − 2: a rotation's m²/3 is F(3, ν), a position coordinate t_ν
+    nu = max(D - 2, 1)
+    c_rot = np.sqrt(np.quantile(m2, level) / (3.0 * fdtri(3, nu, level)))
+    c_pos = np.quantile(z.ravel(), level) / stdtrit(nu, 0.5 + level / 2.0)
+    paths.band_scale = (max(1.0, float(c_rot)), max(1.0, float(c_pos)))
+    paths.info = {"loo_log_density": float(score), "smooth": paths.smooth, "length": paths.length}
+    return paths
