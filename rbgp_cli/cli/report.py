@@ -177,6 +177,8 @@ def _options_label(row: dict) -> str:
 
 def format_crossval(result: dict, per_fold: bool = False) -> str:
     """The cross-validation table (stdout): one row per configuration, best score / floor first."""
+    from rbgp_cli.evaluation.crossval import splits_text
+
     sizes = ", ".join(str(n) for n in result["fold_sizes"])
     R = int(result.get("repeats", 1))
     seeds = f"seed {result['seed']}" if R == 1 else f"{R} repeats (fold seeds {result['seed']}–{result['seed'] + R - 1})"
@@ -192,6 +194,7 @@ def format_crossval(result: dict, per_fold: bool = False) -> str:
         "switched off (the path distribution alone), what the GP adds is the difference"
         + (f" (held-out demonstrations: {result['floor_left_data']} of {result['demonstrations'] * R})"
            if result.get("floor_left_data") is not None else ""),
+        splits_text(result),
         "",
         f"{'representation':<14} {'kernel':<10} {'score':>8} {'floor':>7} {'ratio':>7} {'rotation':>9} {'translation':>11}"
         f" {'pos_m':>7} {'rot_rad':>7} {'vel':>6} {'sample':>7} {'cov_pos':>7} {'cov_rot':>7} {'train_s':>8} {'left':>5}",
