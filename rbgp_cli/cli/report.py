@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 __all__ = ["format_train_summary", "format_model_info", "write_per_step", "format_crossval"]
 
 
@@ -101,12 +103,33 @@ def _value(v) -> str:
 
 
 def _variation_text(v: dict) -> str:
-    """One line on the deviation process that --samples draws (docs/method.md §11)."""
+    """The lines on the deviation process that --samples draws (docs/method.md §11): its factors, how
+    they were found, and the demonstrations' drift over the recording order."""
     line = f"samples: the {v['demos']} demonstrations' deviations from the mean path (Student-t, ν = {v['demos'] - 2})"
+    if v.get("shrinkage"):
+        line += f", their covariance between coordinates shrunk by {v['shrinkage']:.2f}"
     scale = v.get("band_scale")
+    cal = v.get("calibration") or {}
     if scale:
+        how = ("the demonstrations left out at random and in blocks in recording order" if cal.get("recorded")
+               else "the demonstrations left out" if cal.get("random") or "calibration" not in v
+               else None)
         line += (f"; widened ×{scale['rotation']:.3g} in rotation, ×{scale['position']:.3g} in position so that "
-                 "the demonstrations left out fall inside the 90 % bands")
+                 f"{how} fall inside the 90 % bands" if how else
+                 f"; too few demonstrations ({v['demos']}) to calibrate the bands by leaving them out: "
+                 "their width rests on the Student-t alone")
+        if cal.get("recorded") and cal.get("random"):
+            line += (f" (at random ×{cal['random'][0]:.3g}, ×{cal['random'][1]:.3g}; in recording order "
+                     f"×{cal['recorded'][0]:.3g}, ×{cal['recorded'][1]:.3g})")
+    drift = v.get("drift")
+    if drift and drift.get("drift"):
+        d0, d1 = drift["duration_s"]
+        line += ("\nthe demonstrations drift over the recording order (the order they were read): from the first "
+                 f"to the last the mean path moves up to {100 * drift['position_m']:.1f} cm (at phase "
+                 f"{drift.get('position_phase', 0):.2f}) and {math.degrees(drift['rotation_rad']):.1f}°, the start "
+                 f"{100 * drift['start_m']:.1f} cm, the duration {d0:.2f} → {d1:.2f} s (p = {drift['p_value']:.3g}, "
+                 "a permutation test); a later session may differ as much: the bands cover demonstrations "
+                 "left out in blocks in recording order")
     return line
 
 
@@ -127,7 +150,7 @@ def format_model_info(path: str, h: dict) -> str:
         f"training points: {h.get('training_points', '?')}   time step: {h['dt']:.6g} s   shared hyperparameters: {_value(h['shared'])}",
     ] + ([f"sparse GP: {h['gp']['inducing']} inducing poses (NLML: the negative variational bound)"]
          if (h.get("gp") or {}).get("type") == "sparse" else []) + (
-        [_variation_text(h["variation"])] if h.get("variation") else [])
+        [_variation_text({**(s.get("variation") or {}), **h["variation"]})] if h.get("variation") else [])
     names = ["all"] if h["shared"] else h.get("output_names", [])
     for nm, f in zip(names, h["fits"]):
         cal = f.get("calibration")

@@ -28,11 +28,16 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
   (``variation.band_scale``: ``rotation`` and ``position`` factors ≥ 1,
   :func:`rbgp_cli.dynamics.variation.band_scale`); files without it sample with factors 1, as they were
   trained. An rbgp that reads only version 5 refuses these files instead of sampling narrower bands.
-* Version 7 (what this rbgp writes): a start-conditioned path prior whose pull follows the
+* Version 7: a start-conditioned path prior whose pull follows the
   demonstrations' convergence says ``"gain_profile": true`` and holds ``prior_gain_profile`` (S, 6), the
   gain per phase and coordinate (:func:`rbgp_cli.dynamics.variation.pull_profile`); without it the
   pull is ``gain`` throughout, as such a model was trained. An rbgp that reads only version 6
   refuses these files instead of rolling them out with the constant pull.
+* Version 8 (what this rbgp writes): the deviation process says how much its covariance between
+  coordinates is shrunk (``variation.shrinkage``: α in [0, 1],
+  :func:`rbgp_cli.dynamics.variation.shrinkage`), which its draws follow; files without it draw with
+  α = 0, as they were trained. An rbgp that reads only version 7 refuses these files instead of
+  drawing bands of the wrong shape.
 
 Loading reads the zip itself (never unpickling: .npy members of plain numbers only) with limits
 checked before anything large is decompressed: a member may decompress to at most
@@ -70,7 +75,7 @@ __all__ = ["FORMAT", "FORMAT_VERSION", "save_model", "load_model", "read_header"
 
 FORMAT = "rbgp-model"
 #: The version this rbgp writes (4: the header checksummed, ``gp`` always present); it reads 1–4.
-FORMAT_VERSION = 7
+FORMAT_VERSION = 8
 #: Limits checked before anything large is read (a model of 10⁶ training points is ~100 MB).
 MAX_HEADER_BYTES = 16 << 20
 MAX_HEADER_DEPTH = 32
@@ -190,7 +195,8 @@ def save_model(model, path) -> dict:
     if variation is not None:
         header["variation"] = {"demos": int(variation.demos), "steps": int(len(variation.s)),
                                "band_scale": {"rotation": float(variation.band_scale[0]),
-                                              "position": float(variation.band_scale[1])}}
+                                              "position": float(variation.band_scale[1])},
+                               "shrinkage": float(variation.shrinkage)}
     if getattr(model, "envelope", None) is not None:  # optional: files without it load (computed then)
         header["envelope"] = model.envelope.to_dict()
     header = json.loads(canonical_json(header))  # as a reader will parse it (keys as strings, tuples as lists)
@@ -496,7 +502,8 @@ def load_model(path):
     if header.get("variation"):
         from rbgp_cli.dynamics.variation import Variation
 
-        variation = Variation.from_arrays(arrays, header["variation"].get("band_scale"))
+        variation = Variation.from_arrays(arrays, header["variation"].get("band_scale"),
+                                          header["variation"].get("shrinkage", 0.0))
     return MotionModel(rep, gp, dt, arrays["starts"], arrays["durations"],
                        summary=header.get("summary", {}), provenance=header.get("provenance", {}),
                        velocity=velocity, time_input=time_input, mean=mean, variation=variation, envelope=envelope), header
