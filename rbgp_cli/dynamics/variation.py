@@ -329,14 +329,14 @@ def _held_out_errors(delta: np.ndarray, s: np.ndarray, train: np.ndarray, test: 
     """The errors of the demonstrations ``test`` predicted from those in ``train`` as a rollout predicts
     them (:func:`band_scale`): (m2 (T, S − 1) the squared Mahalanobis rotation errors, z (T, S − 1, 3)
     the position errors per axis over their standard deviations) against the covariance the draws of
-    the training demonstrations' own deviation process would have, C = (1 + 1/m)/max(ν − 2, 1) Σ_α,
-    Σ_α the shrunk Σ r rᵀ of their start-regression residuals (:func:`shrinkage`; α from them unless
-    given), m of them and ν = m − 2."""
+    the training demonstrations' own deviation process would have, C = (1 + 1/m)/ν Σ_α (the Student-t
+    draws' scale matrix; :func:`band_scale`), Σ_α the shrunk Σ r rᵀ of their start-regression residuals
+    (:func:`shrinkage`; α from them unless given), m of them and ν = m − 2."""
     rest = delta[train]
     m = len(rest)
     _, _, r = start_regression(rest)
     a = shrinkage(r) if alpha is None else float(alpha)
-    C = _shrunk(np.einsum("dsi,dsj->sij", r[:, 1:], r[:, 1:]), a) * (1.0 + 1.0 / m) / max(m - 4, 1)
+    C = _shrunk(np.einsum("dsi,dsj->sij", r[:, 1:], r[:, 1:]), a) * (1.0 + 1.0 / m) / (m - 2)
     mu, B = _ridge_map(rest, scale, ridge)
     held = delta[test]
     e = held - mu[None] - np.einsum("sij,dj->dsi", B, held[:, 0] - mu[0])  # (T, S, 6)
@@ -411,10 +411,14 @@ def band_scale(delta: np.ndarray, residuals: np.ndarray, s: np.ndarray, *, ridge
     no conditioning); gain : the prior's pull a per unit phase, which closes a start's gap to that
     map's prediction as exp(−a·s) (0: the gap stays). The left-out demonstration's error is
     e_d(s) = δ_d(s) − m_−d(s) − exp(−a·s) (δ_d(0) − m_−d(0)), m_−d the map fitted without it; the
-    draws' covariance without it is C_−d(s) = (1 + 1/D)/max(ν − 2, 1) · D/(D − 1) · Σ_α,−d, Σ_α,−d the
-    shrunk (:func:`shrinkage`, α of all D) Σ_{d'≠d} r_d' r_d'ᵀ (the draws' own, Student-t included, with
-    ν − 2 held at 1 or more where the Student-t has no variance: 5 demonstrations or fewer). Returns
-    (1, 1) for fewer than MIN_BAND_DEMOS demonstrations (one left out must leave three).
+    draws' scale without it is C_−d(s) = (1 + 1/D)/(ν − 1) · D/(D − 1) · Σ_α,−d (ν − 1 = D − 3 the
+    Student-t's degrees of freedom with D − 1 demonstrations), Σ_α,−d the shrunk (:func:`shrinkage`, α
+    of all D) Σ_{d'≠d} r_d' r_d'ᵀ. It is the Student-t draws' scale matrix, not their covariance (ν/(ν − 2)
+    times larger): 20 samples' bands follow the typical draw, and with 5 demonstrations or fewer the
+    Student-t has no variance (ν ≤ 2; with the covariance's factor the bands of five demonstrations of a
+    known process held 0.85 of fresh ones in rotation, with the scale's 0.875:
+    tests/dynamics/test_bands_order.py). Returns (1, 1) for fewer than MIN_BAND_DEMOS demonstrations
+    (one left out must leave three).
     """
     delta = np.asarray(delta, dtype=np.float64)
     r = np.asarray(residuals, dtype=np.float64)
@@ -427,7 +431,7 @@ def band_scale(delta: np.ndarray, residuals: np.ndarray, s: np.ndarray, *, ridge
     decay = np.exp(-float(gain) * np.asarray(s, dtype=np.float64))[1:, None]
     outer = np.einsum("dsi,dsj->dsij", r[:, 1:], r[:, 1:])  # (D, S−1, 6, 6), phase 0 left out (r = 0 there)
     total = outer.sum(axis=0)
-    factor = (1.0 + 1.0 / D) / max(nu - 2, 1) * D / (D - 1)
+    factor = (1.0 + 1.0 / D) / (nu - 1) * D / (D - 1)
     m2, z = [], []
     for d in range(D):  # a loop over demonstrations, each a batch of 6 × 6 solves over phase
         mu, B = _ridge_map(np.delete(delta, d, axis=0), scale, ridge)
@@ -455,15 +459,15 @@ MIN_DRIFT_DEMOS = 6
 def order_drift(delta: np.ndarray, durations, *, seed: int = 0, permutations: int = DRIFT_PERMUTATIONS) -> dict | None:
     """Do the demonstrations drift over the recording order (the rows of ``delta``, (D, S, 6))?
 
-    Each demonstration is summarised by its scores on the first min(3, D − 1) principal components of
-    its deviation function δ_d (every phase and coordinate, each coordinate over its RMS deviation) and
-    by its log duration, each feature standardised. The statistic is von Neumann's ratio of successive
-    differences to the spread, pooled over the features,
+    Each demonstration is summarised by 13 features f_dj: its start-conditioned deviation r_d
+    (:func:`start_regression`) averaged over phase (6), its start deviation δ_d(0) (6) and its log
+    duration. The statistic is the smallest over the features of von Neumann's ratio of successive
+    differences to the spread,
 
-        T = Σ_j Σ_d (f_{d+1, j} − f_{d, j})² / Σ_j Σ_d (f_{d, j} − f̄_j)²,
+        T = min_j Σ_d (f_{d+1, j} − f_{d, j})² / Σ_d (f_{d, j} − f̄_j)²,
 
-    about 2 for demonstrations in no particular order and small when neighbours in time resemble each
-    other (a trend, or sessions). Its p-value is from ``permutations`` seeded random reorderings
+    each ratio about 2 for demonstrations in no particular order and small when neighbours in time
+    resemble each other (a trend, or sessions), in any one of the features. Its p-value is from ``permutations`` seeded random reorderings
     (p = (1 + #{T_π ≤ T}) / (1 + P)): exact for exchangeable demonstrations whatever their distribution.
 
     The figures say how large the drift is: the least-squares line of each deviation δ_dj(s) and of the
@@ -478,22 +482,18 @@ def order_drift(delta: np.ndarray, durations, *, seed: int = 0, permutations: in
     D = len(delta)
     if D < MIN_DRIFT_DEMOS or len(dur) != D:
         return None
-    X = (delta / _coordinate_scale(delta)).reshape(D, -1)
-    X = X - X.mean(axis=0)
-    u, sv, _ = np.linalg.svd(X, full_matrices=False)
-    k = min(3, D - 1)
-    feats = [u[:, :k] * sv[:k]]
+    scale = _coordinate_scale(delta)
+    _, _, r = start_regression(delta)
     logd = np.log(np.maximum(dur, 1e-9))
-    feats.append(logd[:, None])
-    F = np.concatenate(feats, axis=1)
+    F = np.concatenate([r.mean(axis=1) / scale, delta[:, 0] / scale, logd[:, None]], axis=1)
     F = F - F.mean(axis=0)
     sd = F.std(axis=0)
     F = F[:, sd > 1e-12] / sd[sd > 1e-12]
     if F.shape[1] == 0:
         return None
 
-    def ratio(G):
-        return float(np.sum(np.diff(G, axis=0) ** 2) / np.sum(G**2))
+    def ratio(G):  # the smallest of the features' ratios: a drift of any one of them
+        return float(np.min(np.sum(np.diff(G, axis=0) ** 2, axis=0) / np.sum(G**2, axis=0)))
 
     T = ratio(F)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 36]))

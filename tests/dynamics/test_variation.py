@@ -49,7 +49,7 @@ def test_draws_reproduce_the_known_deviation_variance_given_the_start():
 def _loo_rotation_m2(demos, alpha=0.0):
     """The oracle of :func:`band_scale` for a model that keeps the start's offset (ridge ∞, gain 0),
     written out demonstration by demonstration: each one's rotation deviation from the others' mean
-    deviation, less its offset at the start, against the draws' covariance without it (D, S − 1), its
+    deviation, less its offset at the start, against the draws' scale matrix without it (D, S − 1), its
     correlations between coordinates shrunk by ``alpha``."""
     from rbgp_cli.dynamics.variation import demonstration_deviations, start_regression
 
@@ -63,7 +63,7 @@ def _loo_rotation_m2(demos, alpha=0.0):
         e = e - e[0]
         m2 = []
         for j in range(1, delta.shape[1]):
-            C = sum(np.outer(r[k, j, :3], r[k, j, :3]) for k in others) * (1 + 1 / D) / (D - 4) * D / (D - 1)
+            C = sum(np.outer(r[k, j, :3], r[k, j, :3]) for k in others) * (1 + 1 / D) / (D - 3) * D / (D - 1)
             C = (1 - alpha) * C + alpha * np.diag(np.diag(C))
             m2.append(e[j, :3] @ np.linalg.solve(C, e[j, :3]))
         out.append(m2)
