@@ -39,9 +39,14 @@ the level over all (d, s), s > 0:
 
 and a draw's rotation is multiplied by c_rot, its position by c_pos. Both are at least 1 (the quantiles
 of a few demonstrations are uncertain; the Student-t already widens the draws for that, and a band is
-not narrowed below it) and 1 with fewer than MIN_BAND_DEMOS demonstrations. Measured on the real sets
-(docs/defaults.md): handovers c_rot 1.19–1.26, slower handovers 1.12–1.22, hand raises 1.02–1.06,
-c_pos 0.93–1.09 (so 1 mostly).
+not narrowed below it) and 1 with fewer than MIN_BAND_DEMOS demonstrations. C is the Student-t draws'
+scale matrix (ν − 1 where the covariance has ν − 2; :func:`band_scale`).
+
+Issue 36 (docs/method.md §11). The covariance between coordinates is shrunk toward its diagonal by
+Schäfer–Strimmer's weight α (:func:`shrinkage`), so that 3–6 demonstrations do not give a rotation
+covariance of too low a rank; the factors are also measured on contiguous blocks left out in recording
+order (the rows' order: the order the demonstrations were read), and the bands take the larger
+(:func:`band_calibration`); :func:`order_drift` tests whether the demonstrations drift over that order.
 """
 
 from __future__ import annotations
