@@ -122,6 +122,9 @@ def _variation_text(v: dict) -> str:
             line += (f" (at random ×{cal['random'][0]:.3g}, ×{cal['random'][1]:.3g}; in recording order "
                      f"×{cal['recorded'][0]:.3g}, ×{cal['recorded'][1]:.3g})")
     drift = v.get("drift")
+    if "drift" in v and drift is None:
+        line += (f"\nwith {v['demos']} demonstrations a drift over the recording order cannot be tested (6 or more "
+                 "are needed): the bands are for demonstrations like these, not for a session that differs")
     if drift and drift.get("drift"):
         d0, d1 = drift["duration_s"]
         line += ("\nthe demonstrations drift over the recording order (the order they were read): from the first "

@@ -45,3 +45,16 @@ def test_train_and_info_say_the_drift_over_the_recording_order_with_its_figure(t
     assert res.exit_code == 0, res.stderr
     assert "drift over the recording order" not in res.stderr
     assert "in blocks in recording order" in res.stderr  # the bands' factors were still measured both ways
+
+
+def test_the_summary_says_when_the_bands_cannot_be_calibrated_or_the_drift_not_tested():
+    from rbgp_cli.cli.report import _variation_text
+
+    five = _variation_text({"demos": 5, "band_scale": {"rotation": 1.2, "position": 1.0}, "shrinkage": 0.5,
+                            "calibration": {"random": [1.2, 1.0], "recorded": None}, "drift": None})
+    assert "shrunk by 0.50" in five and "widened ×1.2 in rotation" in five and "cannot be tested" in five
+    three = _variation_text({"demos": 3, "band_scale": {"rotation": 1.0, "position": 1.0}, "shrinkage": 0.9,
+                             "calibration": {"random": None, "recorded": None}, "drift": None})
+    assert "too few demonstrations (3) to calibrate" in three
+    old = _variation_text({"demos": 30, "band_scale": {"rotation": 1.2, "position": 1.0}})  # a model file before issue 36
+    assert "left out fall inside" in old and "drift" not in old and "shrunk" not in old
