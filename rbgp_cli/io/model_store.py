@@ -33,10 +33,11 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
   gain per phase and coordinate (:func:`rbgp_cli.dynamics.variation.pull_profile`); without it the
   pull is ``gain`` throughout, as such a model was trained. An rbgp that reads only version 6
   refuses these files instead of rolling them out with the constant pull.
-* Version 8 (what this rbgp writes): the deviation process says how much its covariance between
+* Version 9 (what this rbgp writes; version 8 is the path distribution of dynamics/paths.py, merged
+  separately): the deviation process says how much its covariance between
   coordinates is shrunk (``variation.shrinkage``: α in [0, 1],
   :func:`rbgp_cli.dynamics.variation.shrinkage`), which its draws follow; files without it draw with
-  α = 0, as they were trained. An rbgp that reads only version 7 refuses these files instead of
+  α = 0, as they were trained. An rbgp that reads only version 8 refuses these files instead of
   drawing bands of the wrong shape.
 
 Loading reads the zip itself (never unpickling: .npy members of plain numbers only) with limits
@@ -75,7 +76,7 @@ __all__ = ["FORMAT", "FORMAT_VERSION", "save_model", "load_model", "read_header"
 
 FORMAT = "rbgp-model"
 #: The version this rbgp writes (4: the header checksummed, ``gp`` always present); it reads 1–4.
-FORMAT_VERSION = 8
+FORMAT_VERSION = 9
 #: Limits checked before anything large is read (a model of 10⁶ training points is ~100 MB).
 MAX_HEADER_BYTES = 16 << 20
 MAX_HEADER_DEPTH = 32
