@@ -641,7 +641,8 @@ def evaluate(generated, demos, *, length: int | None = None, covariance: str = "
 
 def crossval(demos, estimators=None, *, folds: int = 5, seed: int = 0, replay: bool = True, peers: bool = False,
              samples: int | None = None, length: int | None = None, covariance: str = "diag",
-             jobs: int | None = None, repeats: int = 1, without_gp: bool = True) -> Crossval:
+             jobs: int | None = None, repeats: int = 1, without_gp: bool = True, order: str = "random",
+             train_size: int | None = None) -> Crossval:
     """Cross-validate by demonstration (``rbgp crossval``): each configuration is trained on the other
     folds and rolled out from each held-out demonstration's start, on the same folds.
 
@@ -657,6 +658,10 @@ def crossval(demos, estimators=None, *, folds: int = 5, seed: int = 0, replay: b
     length, covariance : as :func:`evaluate`;  jobs : worker processes (None: one per core)
     without_gp : beside every estimator with a prior mean, a row of the same fits with the GP's residual
         switched off (``"without_gp": True``): the path distribution alone (``rbgp crossval --without-gp``)
+    order : ``"random"`` folds, or ``"recorded"``: contiguous blocks in the demonstrations' order (the
+        recording order: files as read), the next session's case (``rbgp crossval --order``)
+    train_size : N: train on N demonstrations and hold out the rest, ``folds`` times (random subsets, or
+        windows of N consecutive ones with the later ones held out; ``rbgp crossval --train-size``)
 
     Returns
     -------
@@ -687,5 +692,6 @@ def crossval(demos, estimators=None, *, folds: int = 5, seed: int = 0, replay: b
     extra, _ = crossval_configs([DEFAULTS["representation"]], None, {}, replay=replay, peers=peers)
     configs.extend(extra[1:])  # the peers only
     result = _crossval(trajs, configs, folds=folds, seed=seed, jobs=jobs, length=length, covariance=covariance,
-                       samples=SAMPLES if samples is None else samples, repeats=repeats, without_gp=without_gp)
-    return Crossval(rows=list(result.get("results", [])), folds=int(folds), result=result)
+                       samples=SAMPLES if samples is None else samples, repeats=repeats, without_gp=without_gp,
+                       order=order, train_size=train_size)
+    return Crossval(rows=list(result.get("results", [])), folds=int(result.get("folds", folds)), result=result)

@@ -474,7 +474,7 @@ def crossval_configs(representations, kernels, train_kwargs: dict, replay: bool 
 def crossval_files(sources, configs, *, options: ReadOptions | None = None, max_gap=None, folds: int = 5,
                    seed: int = 0, jobs: int | None = None, length=None, covariance="diag", progress=None,
                    scheduler: str | None = None, samples: int | None = None, repeats: int = 1,
-                   without_gp: bool = True) -> dict:
+                   without_gp: bool = True, order: str = "random", train_size: int | None = None) -> dict:
     """``rbgp crossval``: read and clean the demonstrations, cross-validate every configuration on the
     same folds (:func:`rbgp_cli.evaluation.crossval.crossval`); returns its result plus the inputs."""
     from rbgp_cli.evaluation.crossval import crossval
@@ -484,6 +484,6 @@ def crossval_files(sources, configs, *, options: ReadOptions | None = None, max_
 
     result = crossval(demos, configs, folds=folds, seed=seed, jobs=jobs, length=length, covariance=covariance,
                       progress=progress, scheduler=scheduler, samples=SAMPLES if samples is None else samples,
-                      repeats=repeats, without_gp=without_gp)
+                      repeats=repeats, without_gp=without_gp, order=order, train_size=train_size)
     result["inputs"] = [i["name"] for i in inputs]
     return result

@@ -478,6 +478,8 @@ def crossval(
     representation: Annotated[Optional[List[str]], typer.Option("--representation", help="axis-angle, euler, quaternion, or all; repeatable (default: axis-angle).", rich_help_panel=_TRAIN)] = None,
     kernel: Annotated[Optional[List[str]], typer.Option("--kernel", help="Repeatable; every representation runs with every kernel (default: each representation's own). " + kernel_help(), rich_help_panel=_TRAIN)] = None,
     grid: Annotated[Optional[List[str]], typer.Option("--grid", metavar="OPTION=V1,V2,...", help="Repeatable: cross-validate every value of a training option, named as its option without the dashes (e.g. --grid prior-gain=3,5,10 --grid inducing=0,512; 'default' is the option's default). Every combination of the grids × representations × kernels is one row, on the same folds; the values are checked as the option checks them; --seed stays the seed of the folds (--grid seed=0,1 varies the training seed only).", rich_help_panel=_TRAIN)] = None,
+    order: Annotated[str, typer.Option("--order", help="How the folds hold demonstrations out: 'random' (a seeded permutation) or 'recorded' (contiguous blocks in recording order, the order the files are read: names in natural order within a folder, files in the order given; a block's neighbours in time are then not trained on, as for the next session). The table's 'splits' line lists them.")] = "random",
+    train_size: Annotated[Optional[int], typer.Option("--train-size", min=2, help="Train on this many demonstrations and hold out all the others, --folds times: random subsets, or with --order recorded windows of this many consecutive ones with the later ones held out (a small study: --train-size 5).")] = None,
     replay: Annotated[bool, typer.Option("--replay/--no-replay", help="Include the replay peer: the training demonstration with the nearest start, moved rigidly to the new start.")] = True,
     peers: Annotated[bool, typer.Option("--peers/--no-peers", help="Include the ProMP (conditioned on the start) and Cartesian DMP (of the nearest-start demonstration) peers of the movement-primitives package; left out with a note when it is not installed (pip install \"rbgp-cli\\[peers]\").")] = True,
     jobs: Annotated[Optional[int], typer.Option(min=1, help="Worker processes for the fits (default: one per core); 1 runs them in this process.")] = None,
@@ -535,7 +537,8 @@ def crossval(
         warn(f"left out {note}")
     result = workflows.crossval_files(demos, configs, options=opts, max_gap=max_gap, folds=folds, seed=seed, jobs=jobs,
                                       length=length, covariance=covariance, progress=progress, scheduler=scheduler,
-                                      samples=samples, repeats=repeats, without_gp=without_gp)
+                                      samples=samples, repeats=repeats, without_gp=without_gp, order=order,
+                                      train_size=train_size)
     result["skipped"] = list(skipped)
     if json_out:
         emit_json(result)

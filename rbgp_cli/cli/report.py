@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 __all__ = ["format_train_summary", "format_model_info", "write_per_step", "format_crossval"]
 
 
@@ -103,12 +105,36 @@ def _value(v) -> str:
 
 
 def _variation_text(v: dict) -> str:
-    """One line on the deviation process that --samples draws (docs/method.md §11)."""
+    """The lines on the deviation process that --samples draws (docs/method.md §11): its factors, how
+    they were found, and the demonstrations' drift over the recording order."""
     line = f"samples: the {v['demos']} demonstrations' deviations from the mean path (Student-t, ν = {v['demos'] - 2})"
+    if v.get("shrinkage"):
+        line += f", their covariance between coordinates shrunk by {v['shrinkage']:.2f}"
     scale = v.get("band_scale")
+    cal = v.get("calibration") or {}
     if scale:
+        how = ("the demonstrations left out at random and in blocks in recording order" if cal.get("recorded")
+               else "the demonstrations left out" if cal.get("random") or "calibration" not in v
+               else None)
         line += (f"; widened ×{scale['rotation']:.3g} in rotation, ×{scale['position']:.3g} in position so that "
-                 "the demonstrations left out fall inside the 90 % bands")
+                 f"{how} fall inside the 90 % bands" if how else
+                 f"; too few demonstrations ({v['demos']}) to calibrate the bands by leaving them out: "
+                 "their width rests on the Student-t alone")
+        if cal.get("recorded") and cal.get("random"):
+            line += (f" (at random ×{cal['random'][0]:.3g}, ×{cal['random'][1]:.3g}; in recording order "
+                     f"×{cal['recorded'][0]:.3g}, ×{cal['recorded'][1]:.3g})")
+    drift = v.get("drift")
+    if "drift" in v and drift is None:
+        line += (f"\nwith {v['demos']} demonstrations a drift over the recording order cannot be tested (6 or more "
+                 "are needed): the bands are for demonstrations like these, not for a session that differs")
+    if drift and drift.get("drift"):
+        d0, d1 = drift["duration_s"]
+        line += ("\nthe demonstrations drift over the recording order (the order they were read): from the first "
+                 f"to the last the mean path moves up to {100 * drift['position_m']:.1f} cm (at phase "
+                 f"{drift.get('position_phase', 0):.2f}) and {math.degrees(drift['rotation_rad']):.1f}°, the start "
+                 f"{100 * drift['start_m']:.1f} cm, the duration {d0:.2f} → {d1:.2f} s (p = {drift['p_value']:.3g}, "
+                 "a permutation test); a later session may differ as much: the bands cover demonstrations "
+                 "left out in blocks in recording order")
     return line
 
 
@@ -140,7 +166,7 @@ def format_model_info(path: str, h: dict) -> str:
         f"training points: {h.get('training_points', '?')}   time step: {h['dt']:.6g} s   shared hyperparameters: {_value(h['shared'])}",
     ] + ([f"sparse GP: {h['gp']['inducing']} inducing poses (NLML: the negative variational bound)"]
          if (h.get("gp") or {}).get("type") == "sparse" else []) + (
-        [_variation_text(h["variation"])] if h.get("variation") else []) + (
+        [_variation_text({**(s.get("variation") or {}), **h["variation"]})] if h.get("variation") else []) + (
         [_paths_text(h["paths"])] if h.get("paths") else [])
     names = ["all"] if h["shared"] else h.get("output_names", [])
     for nm, f in zip(names, h["fits"]):
@@ -191,6 +217,8 @@ def _options_label(row: dict) -> str:
 
 def format_crossval(result: dict, per_fold: bool = False) -> str:
     """The cross-validation table (stdout): one row per configuration, best score / floor first."""
+    from rbgp_cli.evaluation.crossval import splits_text
+
     sizes = ", ".join(str(n) for n in result["fold_sizes"])
     R = int(result.get("repeats", 1))
     seeds = f"seed {result['seed']}" if R == 1 else f"{R} repeats (fold seeds {result['seed']}–{result['seed'] + R - 1})"
@@ -206,6 +234,7 @@ def format_crossval(result: dict, per_fold: bool = False) -> str:
         "switched off (the path distribution alone), what the GP adds is the difference"
         + (f" (held-out demonstrations: {result['floor_left_data']} of {result['demonstrations'] * R})"
            if result.get("floor_left_data") is not None else ""),
+        splits_text(result),
         "",
         f"{'representation':<14} {'kernel':<10} {'score':>8} {'floor':>7} {'ratio':>7} {'rotation':>9} {'translation':>11}"
         f" {'pos_m':>7} {'rot_rad':>7} {'vel':>6} {'sample':>7} {'cov_pos':>7} {'cov_rot':>7} {'train_s':>8} {'left':>5}",

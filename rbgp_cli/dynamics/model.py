@@ -957,8 +957,15 @@ def _train_summary(rep, kernel, kern, trajs, info, shared, velocity, gp, gp_choi
         summary["prior"]["start_ridge"] = lam if np.isfinite(lam) else None
     summary["variation"] = None if variation is None else {
         "demos": variation.demos, "dof": variation.dof,
-        "band_scale": {"rotation": float(variation.band_scale[0]), "position": float(variation.band_scale[1])}}
+        "band_scale": {"rotation": float(variation.band_scale[0]), "position": float(variation.band_scale[1])},
+        "shrinkage": float(variation.shrinkage),
+        # the factors from the demonstrations left out at random and in contiguous blocks in recording
+        # order (dynamics/variation.band_calibration), and the drift over that order (order_drift)
+        "calibration": variation.calibration,
+        "drift": variation.drift}
     summary["paths"] = None if paths is None else {
         "demos": paths.demos, "smooth": float(paths.smooth), "length": float(paths.length),
         "band_scale": {"rotation": float(paths.band_scale[0]), "position": float(paths.band_scale[1])}}
+    # the recording order is the order the demonstrations were read (docs/data.md, "Recording order")
+    summary["recording_order"] = [tr.name or tr.source or f"demonstration {k + 1}" for k, tr in enumerate(trajs)][:1000]
     return summary

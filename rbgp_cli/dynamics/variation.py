@@ -39,9 +39,14 @@ the level over all (d, s), s > 0:
 
 and a draw's rotation is multiplied by c_rot, its position by c_pos. Both are at least 1 (the quantiles
 of a few demonstrations are uncertain; the Student-t already widens the draws for that, and a band is
-not narrowed below it) and 1 with fewer than MIN_BAND_DEMOS demonstrations. Measured on the real sets
-(docs/defaults.md): handovers c_rot 1.19–1.26, slower handovers 1.12–1.22, hand raises 1.02–1.06,
-c_pos 0.93–1.09 (so 1 mostly).
+not narrowed below it) and 1 with fewer than MIN_BAND_DEMOS demonstrations. C is the Student-t draws'
+scale matrix (ν − 1 where the covariance has ν − 2; :func:`band_scale`).
+
+Issue 36 (docs/method.md §11). The covariance between coordinates is shrunk toward its diagonal by
+Schäfer–Strimmer's weight α (:func:`shrinkage`), so that 3–6 demonstrations do not give a rotation
+covariance of too low a rank; the factors are also measured on contiguous blocks left out in recording
+order (the rows' order: the order the demonstrations were read), and the bands take the larger
+(:func:`band_calibration`); :func:`order_drift` tests whether the demonstrations drift over that order.
 """
 
 from __future__ import annotations
@@ -53,7 +58,7 @@ import numpy as np
 from rbgp_cli.dynamics.trajectory import Trajectory
 
 __all__ = ["Variation", "demonstration_variation", "demonstration_deviations", "start_regression", "start_map",
-           "band_scale", "pull_profile", "STEPS", "MIN_DEMOS", "MIN_BAND_DEMOS", "RIDGE_GRID", "BAND_LEVEL",
+           "band_scale", "band_calibration", "shrinkage", "order_drift", "pull_profile", "DRIFT_P", "STEPS", "MIN_DEMOS", "MIN_BAND_DEMOS", "RIDGE_GRID", "BAND_LEVEL",
            "PULL_CAP", "PULL_WINDOW"]
 
 #: Phase grid of the deviations (as the mean path's).
@@ -61,8 +66,8 @@ STEPS = 51
 #: Fewer demonstrations than this give no variation model (ν = D − 2 must be positive).
 MIN_DEMOS = 3
 #: Fewer demonstrations than this keep the bands' scale at 1 (:func:`band_scale`): leaving one out
-#: must leave at least four residual functions, so that the rotation covariance has rank 3.
-MIN_BAND_DEMOS = 6
+#: must leave three (ν = 1), whose covariance :func:`shrinkage` keeps at rank 3 in rotation.
+MIN_BAND_DEMOS = 4
 #: The level at which :func:`band_scale` makes the bands hold (the level crossval's coverage checks).
 BAND_LEVEL = 0.90
 #: The largest pull gain per unit phase :func:`pull_profile` gives (the demonstrations' spread shrinking
@@ -85,6 +90,13 @@ class Variation:
     residuals: np.ndarray
     dof: int
     band_scale: tuple = (1.0, 1.0)
+    #: α in [0, 1], the weight of the draws' part whose coordinates are independent (:func:`shrinkage`;
+    #: 0 for model files written before it)
+    shrinkage: float = 0.0
+    #: how the bands' factors were found (:func:`band_calibration`, plain data; None for a model file)
+    calibration: dict | None = None
+    #: the demonstrations' drift over the recording order (:func:`order_drift`, plain data, or None)
+    drift: dict | None = None
 
     @property
     def demos(self) -> int:
@@ -101,7 +113,14 @@ class Variation:
         scale = np.sqrt((1.0 + 1.0 / D) / self.dof) * chi
         c_rot, c_pos = (float(c) for c in self.band_scale)
         coords = np.array([c_rot] * 3 + [c_pos] * 3)
-        return scale[:, None, None] * np.einsum("kd,dsj->ksj", z, self.residuals * coords)
+        r = self.residuals * coords
+        eta = np.einsum("kd,dsj->ksj", z, r)
+        a = float(self.shrinkage)
+        if a > 0.0:  # the shrunk covariance (1 − α) Σ + α diag(Σ): a part with its own weights per coordinate
+            # (drawn after z and χ², so that α = 0 gives a model file's earlier draws bit for bit)
+            zj = rng.standard_normal((int(count), D, 6))
+            eta = np.sqrt(1.0 - a) * eta + np.sqrt(a) * np.einsum("kdj,dsj->ksj", zj, r)
+        return scale[:, None, None] * eta
 
     def at(self, eta: np.ndarray, phase: np.ndarray) -> np.ndarray:
         """Draws ``eta`` (..., S, 6) at phases ``phase`` (..., T) (clipped to [0, 1]) by linear
@@ -119,12 +138,13 @@ class Variation:
                 "variation_residuals": np.ascontiguousarray(self.residuals, dtype=np.float64)}
 
     @classmethod
-    def from_arrays(cls, arrays: dict, band_scale=None) -> "Variation":
-        """From :meth:`to_arrays`' arrays and the header's ``band_scale`` ({"rotation", "position"}, or
-        None for (1, 1))."""
+    def from_arrays(cls, arrays: dict, band_scale=None, shrinkage: float = 0.0) -> "Variation":
+        """From :meth:`to_arrays`' arrays, the header's ``band_scale`` ({"rotation", "position"}, or
+        None for (1, 1)) and ``shrinkage`` α (0 for files without it)."""
         r = np.asarray(arrays["variation_residuals"], dtype=np.float64)
         scale = (1.0, 1.0) if not band_scale else (float(band_scale["rotation"]), float(band_scale["position"]))
-        return cls(np.asarray(arrays["variation_s"], dtype=np.float64), r, int(r.shape[0]) - 2, scale)
+        return cls(np.asarray(arrays["variation_s"], dtype=np.float64), r, int(r.shape[0]) - 2, scale,
+                   float(shrinkage or 0.0))
 
 
 def demonstration_deviations(trajs: list[Trajectory], steps: int = STEPS) -> tuple[dict, np.ndarray]:
@@ -270,6 +290,121 @@ def pull_profile(delta: np.ndarray, start_mean: np.ndarray, start_map_: np.ndarr
     return np.clip(rate, float(floor), max(float(cap), float(floor)))
 
 
+def shrinkage(residuals: np.ndarray) -> float:
+    """The weight α ∈ [0, 1] that shrinks the residuals' covariance between coordinates toward none,
+    Σ_α = (1 − α) Σ + α diag(Σ) per phase (Schäfer & Strimmer 2005, target "D": the correlations
+    shrunk toward 0, the variances kept), pooled over the phases s > 0:
+
+        α = Σ_s Σ_{i≠j} Var̂(ρ̂_ij(s)) / Σ_s Σ_{i≠j} ρ̂_ij(s)²,
+
+    ρ̂_ij the residuals' correlations at a phase (D/(D − 1) mean_d x_di x_dj, x the residuals over their
+    RMS per coordinate) and Var̂ their estimated variance, D/(D − 1)³ Σ_d (x_di x_dj − mean)². With many
+    demonstrations α is small; with few (3–6) the sample covariance of the 3 rotation coordinates has
+    rank D − 2 at most and α keeps it from collapsing (:meth:`Variation.draw` draws the diagonal part
+    with weights of its own per coordinate, so a draw stays one coherent function of phase).
+    residuals : (D, S, 6) → α."""
+    r = np.asarray(residuals, dtype=np.float64)[:, 1:]  # phase 0: r = 0
+    D = len(r)
+    if D < 2:
+        return 1.0
+    sd = np.sqrt(np.mean(r**2, axis=0))  # (S − 1, 6)
+    ok = sd > 1e-12
+    x = np.where(ok[None], r / np.where(ok, sd, 1.0)[None], 0.0)
+    w = np.einsum("dsi,dsj->dsij", x, x)  # (D, S − 1, 6, 6)
+    wbar = w.mean(axis=0)
+    rho = wbar * D / (D - 1)
+    var = np.sum((w - wbar[None]) ** 2, axis=0) * D / (D - 1) ** 3
+    off = ~np.eye(6, dtype=bool)
+    num, den = float(np.sum(var[:, off])), float(np.sum(rho[:, off] ** 2))
+    if den <= 1e-300:
+        return 1.0 if num > 0 else 0.0
+    return float(np.clip(num / den, 0.0, 1.0))
+
+
+def _shrunk(cov: np.ndarray, alpha: float) -> np.ndarray:
+    """(1 − α) C + α diag(C) over the last two axes of covariances C (..., 6, 6)."""
+    if alpha <= 0.0:
+        return cov
+    diag = np.einsum("...ii->...i", cov)
+    return (1.0 - alpha) * cov + alpha * (diag[..., :, None] * np.eye(cov.shape[-1]))
+
+
+def _held_out_errors(delta: np.ndarray, s: np.ndarray, train: np.ndarray, test: np.ndarray, *, ridge: float,
+                     gain: float, scale: np.ndarray, alpha: float | None = None):
+    """The errors of the demonstrations ``test`` predicted from those in ``train`` as a rollout predicts
+    them (:func:`band_scale`): (m2 (T, S − 1) the squared Mahalanobis rotation errors, z (T, S − 1, 3)
+    the position errors per axis over their standard deviations) against the covariance the draws of
+    the training demonstrations' own deviation process would have, C = (1 + 1/m)/ν Σ_α (the Student-t
+    draws' scale matrix; :func:`band_scale`), Σ_α the shrunk Σ r rᵀ of their start-regression residuals
+    (:func:`shrinkage`; α from them unless given), m of them and ν = m − 2."""
+    rest = delta[train]
+    m = len(rest)
+    _, _, r = start_regression(rest)
+    a = shrinkage(r) if alpha is None else float(alpha)
+    C = _shrunk(np.einsum("dsi,dsj->sij", r[:, 1:], r[:, 1:]), a) * (1.0 + 1.0 / m) / (m - 2)
+    mu, B = _ridge_map(rest, scale, ridge)
+    held = delta[test]
+    e = held - mu[None] - np.einsum("sij,dj->dsi", B, held[:, 0] - mu[0])  # (T, S, 6)
+    decay = np.exp(-float(gain) * np.asarray(s, dtype=np.float64))[1:, None]
+    e = e[:, 1:] - decay[None] * e[:, :1]
+    Cr = C[:, :3, :3]
+    tr = np.trace(Cr, axis1=1, axis2=2)[:, None, None] / 3.0
+    Cr = Cr + (1e-9 * tr + 1e-24) * np.eye(3)
+    m2 = np.einsum("dsi,dsi->ds", e[..., :3], np.linalg.solve(Cr[None], e[..., :3, None])[..., 0])
+    sd = np.sqrt(np.maximum(np.einsum("sii->si", C[:, 3:, 3:]), 1e-24))
+    return m2, np.abs(e[..., 3:]) / sd[None]
+
+
+def _factors(m2: np.ndarray, z: np.ndarray, level: float) -> tuple[float, float]:
+    """(c_rot, c_pos) ≥ 1 that put the ``level`` quantile of the errors on the regions' edge."""
+    from scipy.special import chdtri, ndtri  # the quantiles alone, without scipy.stats' import (1.6 s here)
+
+    c_rot = np.sqrt(np.quantile(np.ravel(m2), level) / chdtri(3, 1.0 - level))  # χ²_3's level quantile
+    c_pos = np.quantile(np.ravel(z), level) / ndtri(0.5 + level / 2.0)
+    return max(1.0, float(c_rot)), max(1.0, float(c_pos))
+
+
+#: Contiguous blocks in recording order that :func:`band_calibration` leaves out in turn (with at least
+#: BLOCK_MIN demonstrations in each; fewer demonstrations are left out one at a time only).
+ORDER_BLOCKS = 5
+BLOCK_MIN = 2
+
+
+def band_calibration(delta: np.ndarray, s: np.ndarray, *, ridge: float = float("inf"), gain: float = 0.0,
+                     level: float = BAND_LEVEL, blocks: int = ORDER_BLOCKS) -> dict:
+    """The bands' factors from the demonstrations left out, at random and in recording order
+    (docs/method.md §11, "The bands' scale"; the rows of ``delta`` are in recording order).
+
+    ``random``: each demonstration left out in turn (:func:`band_scale`); ``recorded``: ``blocks``
+    contiguous blocks in recording order left out in turn (each at least BLOCK_MIN long), each predicted
+    from the others: what the next session meets when the demonstrations drift over the session (its
+    neighbours in time are not in the training set). The bands cover both: c = max of the two per
+    rotation and position. Returns ``{"band_scale": (c_rot, c_pos), "random": (…), "recorded": (…) or
+    None, "shrinkage": α}``; (1, 1) with fewer than MIN_BAND_DEMOS demonstrations."""
+    delta = np.asarray(delta, dtype=np.float64)
+    D = len(delta)
+    _, _, r = start_regression(delta)
+    alpha = shrinkage(r)
+    out = {"band_scale": (1.0, 1.0), "random": None, "recorded": None, "shrinkage": alpha}
+    if D < MIN_BAND_DEMOS:
+        return out
+    loo = band_scale(delta, r, s, ridge=ridge, gain=gain, level=level)
+    out["random"] = loo
+    scale = _coordinate_scale(delta)
+    k = min(int(blocks), D // BLOCK_MIN)
+    if k >= 2 and D - int(np.ceil(D / k)) >= MIN_BAND_DEMOS - 1:
+        m2, z = [], []
+        for test in np.array_split(np.arange(D), k):
+            train = np.setdiff1d(np.arange(D), test)
+            a, b = _held_out_errors(delta, s, train, test, ridge=ridge, gain=gain, scale=scale)
+            m2.append(a.ravel())
+            z.append(b.ravel())
+        out["recorded"] = _factors(np.concatenate(m2), np.concatenate(z), level)
+    rec = out["recorded"] or (1.0, 1.0)
+    out["band_scale"] = (max(loo[0], rec[0]), max(loo[1], rec[1]))
+    return out
+
+
 def band_scale(delta: np.ndarray, residuals: np.ndarray, s: np.ndarray, *, ridge: float = float("inf"),
                gain: float = 0.0, level: float = BAND_LEVEL) -> tuple[float, float]:
     """The factors (c_rot, c_pos) ≥ 1 on the draws' rotation and position that make their ``level``
@@ -281,46 +416,114 @@ def band_scale(delta: np.ndarray, residuals: np.ndarray, s: np.ndarray, *, ridge
     no conditioning); gain : the prior's pull a per unit phase, which closes a start's gap to that
     map's prediction as exp(−a·s) (0: the gap stays). The left-out demonstration's error is
     e_d(s) = δ_d(s) − m_−d(s) − exp(−a·s) (δ_d(0) − m_−d(0)), m_−d the map fitted without it; the
-    draws' covariance without it is C_−d(s) = (1 + 1/D)/(ν − 2) · D/(D − 1) · Σ_{d'≠d} r_d' r_d'ᵀ
-    (the draws' own, Student-t included). Returns (1, 1) for fewer than MIN_BAND_DEMOS demonstrations.
+    draws' scale without it is C_−d(s) = (1 + 1/D)/(ν − 1) · D/(D − 1) · Σ_α,−d (ν − 1 = D − 3 the
+    Student-t's degrees of freedom with D − 1 demonstrations), Σ_α,−d the shrunk (:func:`shrinkage`, α
+    of all D) Σ_{d'≠d} r_d' r_d'ᵀ. It is the Student-t draws' scale matrix, not their covariance (ν/(ν − 2)
+    times larger): 20 samples' bands follow the typical draw, and with 5 demonstrations or fewer the
+    Student-t has no variance (ν ≤ 2; with the covariance's factor the bands of five demonstrations of a
+    known process held 0.85 of fresh ones in rotation, with the scale's 0.875:
+    tests/dynamics/test_bands_order.py). Returns (1, 1) for fewer than MIN_BAND_DEMOS demonstrations
+    (one left out must leave three).
     """
-    # scipy.special, not scipy.stats: the quantiles alone, without stats' import (1.6 s here, measured)
-    from scipy.special import chdtri, ndtri
-
     delta = np.asarray(delta, dtype=np.float64)
     r = np.asarray(residuals, dtype=np.float64)
     D = len(delta)
     if D < MIN_BAND_DEMOS:
         return 1.0, 1.0
     nu = D - 2
+    alpha = shrinkage(r)
     scale = _coordinate_scale(delta)
     decay = np.exp(-float(gain) * np.asarray(s, dtype=np.float64))[1:, None]
     outer = np.einsum("dsi,dsj->dsij", r[:, 1:], r[:, 1:])  # (D, S−1, 6, 6), phase 0 left out (r = 0 there)
     total = outer.sum(axis=0)
-    factor = (1.0 + 1.0 / D) / (nu - 2) * D / (D - 1)  # ν − 2 ≥ 2: D ≥ MIN_BAND_DEMOS
+    factor = (1.0 + 1.0 / D) / (nu - 1) * D / (D - 1)
     m2, z = [], []
     for d in range(D):  # a loop over demonstrations, each a batch of 6 × 6 solves over phase
         mu, B = _ridge_map(np.delete(delta, d, axis=0), scale, ridge)
         e = delta[d] - mu - np.einsum("sij,j->si", B, delta[d, 0] - mu[0])
         e = e[1:] - decay * e[0]
-        C = factor * (total - outer[d])
+        C = factor * _shrunk(total - outer[d], alpha)
         Cr = C[:, :3, :3]
         tr = np.trace(Cr, axis1=1, axis2=2)[:, None, None] / 3.0
         Cr = Cr + (1e-9 * tr + 1e-24) * np.eye(3)
         m2.append(np.einsum("si,si->s", e[:, :3], np.linalg.solve(Cr, e[:, :3, None])[..., 0]))
         sd = np.sqrt(np.maximum(np.einsum("sii->si", C[:, 3:, 3:]), 1e-24))
         z.append(np.abs(e[:, 3:]) / sd)
-    m2, z = np.concatenate(m2), np.concatenate(z).ravel()
-    c_rot = np.sqrt(np.quantile(m2, level) / chdtri(3, 1.0 - level))  # χ²_3's level quantile
-    c_pos = np.quantile(z, level) / ndtri(0.5 + level / 2.0)
-    return max(1.0, float(c_rot)), max(1.0, float(c_pos))
+    return _factors(np.concatenate(m2), np.concatenate(z).ravel(), level)
+
+
+#: Reorderings of the demonstrations that :func:`order_drift`'s permutation test draws.
+DRIFT_PERMUTATIONS = 999
+#: :func:`order_drift` calls a drift significant below this p-value (a permutation test: on
+#: exchangeable demonstrations it fires at most this often, tests/dynamics/test_order_drift.py).
+DRIFT_P = 0.01
+#: Fewer demonstrations than this are not tested for drift.
+MIN_DRIFT_DEMOS = 6
+
+
+def order_drift(delta: np.ndarray, durations, *, seed: int = 0, permutations: int = DRIFT_PERMUTATIONS) -> dict | None:
+    """Do the demonstrations drift over the recording order (the rows of ``delta``, (D, S, 6))?
+
+    Each demonstration is summarised by 13 features f_dj: its start-conditioned deviation r_d
+    (:func:`start_regression`) averaged over phase (6), its start deviation δ_d(0) (6) and its log
+    duration. The statistic is the smallest over the features of von Neumann's ratio of successive
+    differences to the spread,
+
+        T = min_j Σ_d (f_{d+1, j} − f_{d, j})² / Σ_d (f_{d, j} − f̄_j)²,
+
+    each ratio about 2 for demonstrations in no particular order and small when neighbours in time
+    resemble each other (a trend, or sessions), in any one of the features. Its p-value is from ``permutations`` seeded random reorderings
+    (p = (1 + #{T_π ≤ T}) / (1 + P)): exact for exchangeable demonstrations whatever their distribution.
+
+    The figures say how large the drift is: the least-squares line of each deviation δ_dj(s) and of the
+    duration over the order index, from the first demonstration to the last: ``position_m`` and
+    ``rotation_rad``, the path's largest change over phase (norm over x, y, z; at phase
+    ``position_phase``, ``rotation_phase``), ``start_m`` the start position's, and ``duration_s``
+    (first, last) the fitted durations. Returns
+    ``{"statistic", "p_value", "drift": p < DRIFT_P, …}``, or None for fewer than MIN_DRIFT_DEMOS.
+    """
+    delta = np.asarray(delta, dtype=np.float64)
+    dur = np.asarray(durations, dtype=np.float64)
+    D = len(delta)
+    if D < MIN_DRIFT_DEMOS or len(dur) != D:
+        return None
+    scale = _coordinate_scale(delta)
+    _, _, r = start_regression(delta)
+    logd = np.log(np.maximum(dur, 1e-9))
+    F = np.concatenate([r.mean(axis=1) / scale, delta[:, 0] / scale, logd[:, None]], axis=1)
+    F = F - F.mean(axis=0)
+    sd = F.std(axis=0)
+    F = F[:, sd > 1e-12] / sd[sd > 1e-12]
+    if F.shape[1] == 0:
+        return None
+
+    def ratio(G):  # the smallest of the features' ratios: a drift of any one of them
+        return float(np.min(np.sum(np.diff(G, axis=0) ** 2, axis=0) / np.sum(G**2, axis=0)))
+
+    T = ratio(F)
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 36]))
+    perm = np.array([ratio(F[rng.permutation(D)]) for _ in range(int(permutations))])
+    p = float((1 + np.sum(perm <= T)) / (1 + len(perm)))
+    o = np.arange(D, dtype=np.float64) - (D - 1) / 2.0
+    slope = np.einsum("d,dsj->sj", o, delta - delta.mean(axis=0)) / np.sum(o**2)  # per order step
+    change = slope * (D - 1)  # first → last
+    pos, rot = np.linalg.norm(change[:, 3:], axis=1), np.linalg.norm(change[:, :3], axis=1)  # (S,)
+    dslope = float(np.sum(o * (dur - dur.mean())) / np.sum(o**2))
+    return {
+        "statistic": T, "p_value": p, "drift": bool(p < DRIFT_P), "demos": int(D),
+        "position_m": float(np.max(pos)), "position_phase": float(np.argmax(pos) / max(len(pos) - 1, 1)),
+        "rotation_rad": float(np.max(rot)), "rotation_phase": float(np.argmax(rot) / max(len(rot) - 1, 1)),
+        "start_m": float(np.linalg.norm(change[0, 3:])),
+        "duration_s": [float(dur.mean() - dslope * (D - 1) / 2.0), float(dur.mean() + dslope * (D - 1) / 2.0)],
+    }
 
 
 def demonstration_variation(trajs: list[Trajectory], steps: int = STEPS, *, ridge: float = float("inf"),
                             gain: float = 0.0) -> Variation | None:
-    """The deviation process of clean demonstrations (module docstring), or None for fewer than
-    MIN_DEMOS of them; ``ridge`` and ``gain`` describe the mean rollout for the bands' scale
-    (:func:`band_scale`)."""
+    """The deviation process of clean demonstrations in recording order (module docstring), or None for
+    fewer than MIN_DEMOS of them; ``ridge`` and ``gain`` describe the mean rollout for the bands'
+    scale (:func:`band_calibration`: the demonstrations left out at random and in recording order), and
+    :func:`order_drift` says whether they drift over the recording order."""
     trajs = list(trajs)
     D = len(trajs)
     if D < MIN_DEMOS:
@@ -328,4 +531,9 @@ def demonstration_variation(trajs: list[Trajectory], steps: int = STEPS, *, ridg
     path, delta = demonstration_deviations(trajs, steps)
     _, _, r = start_regression(delta)
     s = np.asarray(path["s"], dtype=np.float64)
-    return Variation(s=s, residuals=r, dof=D - 2, band_scale=band_scale(delta, r, s, ridge=ridge, gain=gain))
+    cal = band_calibration(delta, s, ridge=ridge, gain=gain)
+    drift = order_drift(delta, [tr.duration for tr in trajs])
+    plain = {"random": None if cal["random"] is None else list(cal["random"]),
+             "recorded": None if cal["recorded"] is None else list(cal["recorded"])}
+    return Variation(s=s, residuals=r, dof=D - 2, band_scale=cal["band_scale"], shrinkage=cal["shrinkage"],
+                     calibration=plain, drift=drift)

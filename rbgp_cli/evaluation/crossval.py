@@ -65,6 +65,9 @@ from rbgp_cli.geometry.so3 import quat_conjugate, quat_multiply, rotate
 __all__ = [
     "Config",
     "make_folds",
+    "make_splits",
+    "splits_text",
+    "ORDERS",
     "replay_nearest",
     "nearest_index",
     "trajectory_errors",
@@ -99,17 +102,90 @@ class Config:
         return self.representation if self.kernel is None else f"{self.representation} {self.kernel}"
 
 
-def make_folds(n: int, k: int, seed: int = 0) -> list[np.ndarray]:
-    """Held-out demonstration indices of ``k`` folds of ``n`` demonstrations (seeded permutation,
-    split into k parts whose sizes differ by at most one; each part sorted). Every index is held out
-    exactly once."""
+#: How crossval holds demonstrations out: a seeded random permutation, or contiguous blocks in
+#: recording order (the order the demonstrations were read: docs/data.md, "Recording order").
+ORDERS = ("random", "recorded")
+
+
+def make_folds(n: int, k: int, seed: int = 0, order: str = "random") -> list[np.ndarray]:
+    """Held-out demonstration indices of ``k`` folds of ``n`` demonstrations, split into k parts whose
+    sizes differ by at most one (each part sorted); every index is held out exactly once.
+    ``order="random"``: the parts of a seeded permutation; ``"recorded"``: contiguous blocks in
+    recording order (0 … n/k − 1, …; the seed is not used), so that a block's neighbours in time are
+    not in its training set, as for the next session's demonstrations."""
+    if order not in ORDERS:
+        raise InputError(f"unknown order {order!r}; expected one of {', '.join(ORDERS)}", param="order")
     if k < 2:
         raise InputError(f"folds must be at least 2, got {k}", param="folds")
     if n < k:
         raise InputError(f"{n} demonstrations cannot make {k} folds", hint=f"use folds {max(2, n)} or fewer"
                          if n >= 2 else "cross-validation needs at least 2 demonstrations", param="folds")
+    if order == "recorded":
+        return [part.copy() for part in np.array_split(np.arange(n), k)]
     perm = np.random.default_rng(np.random.SeedSequence([int(seed), 2024])).permutation(n)
     return [np.sort(part) for part in np.array_split(perm, k)]
+
+
+def make_splits(n: int, k: int, seed: int = 0, order: str = "random", train_size: int | None = None
+                ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(training, held-out) demonstration indices of ``k`` splits of ``n`` demonstrations, each sorted.
+
+    Without ``train_size``: the folds of :func:`make_folds` held out, the rest trained on. With
+    ``train_size`` N ("train on N, test on the rest", a small study): ``order="random"`` trains on k
+    seeded random subsets of N and holds out all the others; ``"recorded"`` trains on k windows of N
+    consecutive demonstrations (starts spread evenly from the first to the last that leaves two after
+    it, where there are two) and holds out every demonstration recorded after the window (later predicted from earlier)."""
+    if train_size is None:
+        folds = make_folds(n, k, seed, order)
+        return [(np.setdiff1d(np.arange(n), f), f) for f in folds]
+    if order not in ORDERS:
+        raise InputError(f"unknown order {order!r}; expected one of {', '.join(ORDERS)}", param="order")
+    N = int(train_size)
+    if k < 1:
+        raise InputError(f"folds must be at least 1, got {k}", param="folds")
+    if N < 2 or N > n - 1:
+        raise InputError(f"train_size {N} does not leave demonstrations to hold out of {n}"
+                         if N >= 2 else f"train_size must be at least 2, got {N}",
+                         hint=f"use train_size between 2 and {max(2, n - 1)}", param="train_size")
+    if order == "recorded":
+        starts = np.unique(np.round(np.linspace(0, max(0, n - N - 2), k)).astype(int))  # ≥ 2 held out where possible
+        return [(np.arange(j, j + N), np.arange(j + N, n)) for j in starts]
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 2025]))
+    out = []
+    for _ in range(int(k)):
+        train = np.sort(rng.choice(n, size=N, replace=False))
+        out.append((train, np.setdiff1d(np.arange(n), train)))
+    return out
+
+
+def _ranges(idx) -> str:
+    """Indices (0-based, sorted) as 1-based runs: [0, 1, 2, 5] → "1–3, 6"."""
+    idx = [int(i) + 1 for i in idx]
+    runs, start = [], None
+    for j, i in enumerate(idx):
+        if start is None:
+            start = i
+        if j + 1 == len(idx) or idx[j + 1] != i + 1:
+            runs.append(f"{start}" if start == i else f"{start}–{i}")
+            start = None
+    return ", ".join(runs)
+
+
+def splits_text(result: dict, limit: int = 6) -> str:
+    """One line saying which demonstrations (1-based, in recording order) each split trained on and held
+    out, from :func:`crossval`'s result (its ``order``, ``train_size`` and ``splits``)."""
+    splits = result.get("splits") or []
+    order, size = result.get("order", "random"), result.get("train_size")
+    if size is None:
+        head = ("held out in contiguous blocks in recording order" if order == "recorded"
+                else f"held out at random (fold seed {result.get('seed', 0)})")
+        parts = [_ranges(sp["test"]) for sp in splits[:limit]]
+    else:
+        head = (f"trained on {size} consecutive, the later ones held out" if order == "recorded"
+                else f"trained on {size} at random, the rest held out")
+        parts = [f"{_ranges(sp['train'])} → {len(sp['test'])}" for sp in splits[:limit]]
+    more = f"; and {len(splits) - limit} more" if len(splits) > limit else ""
+    return f"splits: {head}: " + "; ".join(f"[{p}]" for p in parts) + more
 
 
 # --------------------------------------------------------------------------------------------- peers
@@ -448,7 +524,7 @@ def _sampled_summary(results: list[dict], floors: list[float]) -> dict:
 def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, seed: int = 0,
              jobs: int | None = None, length: int | None = None, covariance: str = "diag",
              progress=None, scheduler: str | None = None, samples: int = SAMPLES, repeats: int = 1,
-             without_gp: bool = True) -> dict:
+             without_gp: bool = True, order: str = "random", train_size: int | None = None) -> dict:
     """Cross-validate every configuration on the same folds (see the module docstring).
 
     Parameters
@@ -473,23 +549,32 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
         with the GP's residual switched off (:meth:`MotionModel.without_residual`): the path
         distribution alone, rolled out from the same starts with the same draws (``"without_gp": True``
         in the row); its velocity RMSE is the prior mean's
+    order : ``"random"`` (the default) or ``"recorded"``: hold out contiguous blocks in recording order
+        (the demonstrations' order in ``demos``), so that a block's neighbours in time are not trained
+        on, as for the next session (:func:`make_splits`; the seed does not move the folds)
+    train_size : None, or N: train on N demonstrations and hold out the rest, ``folds`` times (random
+        subsets, or windows of N consecutive ones with the later ones held out; :func:`make_splits`)
 
-    Returns ``{"folds": K, "repeats": R, "seed", "demonstrations", "fold_sizes", "results": [row, ...]}``
+    Returns ``{"folds": K, "repeats": R, "seed", "demonstrations", "fold_sizes", "order", "train_size",
+    "splits": [{"train": [...], "test": [...]}, ...] (demonstration indices, 0-based, in recording
+    order), "results": [row, ...]}``
     with the rows sorted by score / floor (best first); each row as in the module docstring (with
     ``by_repeat`` when R > 1; its ``per_fold`` entries then say their ``repeat``).
     """
     demos = list(demos)
     if isinstance(repeats, bool) or not isinstance(repeats, (int, np.integer)) or repeats < 1:
         raise InputError(f"repeats must be a whole number of at least 1, got {repeats!r}", param="repeats")
+    if order not in ORDERS:
+        raise InputError(f"unknown order {order!r}; expected one of {', '.join(ORDERS)}", param="order")
+    if order == "recorded" and repeats > 1:
+        raise InputError("folds in recording order are the same on every repeat",
+                         hint="use repeats 1 with order recorded (or order random)", param="repeats")
     seeds = [int(seed) + r for r in range(int(repeats))]
-    fold_idx = [f for s in seeds for f in make_folds(len(demos), folds, s)]  # repetition by repetition
-    k = int(folds)
-    splits = []
-    for test_idx in fold_idx:
-        held = set(test_idx.tolist())
-        train = [d for i, d in enumerate(demos) if i not in held]
-        test = [demos[i] for i in test_idx]
-        splits.append((train, test))
+    # repetition by repetition; the training demonstrations keep their recording order
+    index_splits = [sp for s in seeds for sp in make_splits(len(demos), folds, s, order, train_size)]
+    fold_idx = [test_idx for _, test_idx in index_splits]
+    k = len(index_splits) // len(seeds)
+    splits = [([demos[i] for i in train_idx], [demos[i] for i in test_idx]) for train_idx, test_idx in index_splits]
     smallest = min(len(f) for f in fold_idx)
     if smallest < 2:
         warn(f"with {k} folds of {len(demos)} demonstrations some folds hold out only one: a score "
@@ -553,6 +638,9 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
         "seed": int(seed),
         "demonstrations": len(demos),
         "fold_sizes": [int(len(f)) for f in fold_idx[:k]],
+        "order": order,
+        "train_size": None if train_size is None else int(train_size),
+        "splits": [{"train": tr.tolist(), "test": te.tolist()} for tr, te in index_splits],
         "floor": float(np.mean([f.mean for f in floors])),
         "floor_left_data": int(floor_left),
         "results": rows,

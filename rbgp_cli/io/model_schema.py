@@ -254,6 +254,8 @@ TOP: dict = {
         # version 6: the factors on the draws' rotation and position (dynamics/variation.band_scale)
         "band_scale": obj({"rotation": num(1.0, 1e6, what="a factor of at least 1"),
                            "position": num(1.0, 1e6, what="a factor of at least 1")}, ("rotation", "position")),
+        # version 9: the shrinkage of the covariance between coordinates (dynamics/variation.shrinkage)
+        "shrinkage": num(0.0, 1.0, what="a weight in [0, 1]"),
     }, ("demos", "steps")))),
     # version 8 (optional): the path distribution (dynamics/paths.py)
     "paths": (10**6, nullable(obj({

@@ -33,11 +33,16 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
   gain per phase and coordinate (:func:`rbgp_cli.dynamics.variation.pull_profile`); without it the
   pull is ``gain`` throughout, as such a model was trained. An rbgp that reads only version 6
   refuses these files instead of rolling them out with the constant pull.
-* Version 8 (what this rbgp writes): the path distribution that goals, via-points and a motion's seen
+* Version 8: the path distribution that goals, via-points and a motion's seen
   beginning condition (:class:`rbgp_cli.dynamics.paths.PathDistribution`): header ``paths`` (demos,
   steps, smooth, length, seen_tolerance, band_scale) and arrays ``paths_s`` (S,), ``paths_quat`` (S, 4),
   ``paths_position`` (S, 3), ``paths_deviations`` (D, S, 6), ``paths_log_durations`` (D,). Optional:
   files without it load, and refuse a goal or a seen beginning with a message to retrain.
+* Version 9 (what this rbgp writes): the deviation process says how much its covariance between
+  coordinates is shrunk (``variation.shrinkage``: α in [0, 1],
+  :func:`rbgp_cli.dynamics.variation.shrinkage`), which its draws follow; files without it draw with
+  α = 0, as they were trained. An rbgp that reads only version 8 refuses these files instead of
+  drawing bands of the wrong shape.
 
 Loading reads the zip itself (never unpickling: .npy members of plain numbers only) with limits
 checked before anything large is decompressed: a member may decompress to at most
@@ -75,7 +80,7 @@ __all__ = ["FORMAT", "FORMAT_VERSION", "save_model", "load_model", "read_header"
 
 FORMAT = "rbgp-model"
 #: The version this rbgp writes (4: the header checksummed, ``gp`` always present); it reads 1–4.
-FORMAT_VERSION = 8
+FORMAT_VERSION = 9
 #: Limits checked before anything large is read (a model of 10⁶ training points is ~100 MB).
 MAX_HEADER_BYTES = 16 << 20
 MAX_HEADER_DEPTH = 32
@@ -199,7 +204,8 @@ def save_model(model, path) -> dict:
     if variation is not None:
         header["variation"] = {"demos": int(variation.demos), "steps": int(len(variation.s)),
                                "band_scale": {"rotation": float(variation.band_scale[0]),
-                                              "position": float(variation.band_scale[1])}}
+                                              "position": float(variation.band_scale[1])},
+                               "shrinkage": float(variation.shrinkage)}
     if paths is not None:
         header["paths"] = paths.header()
     if getattr(model, "envelope", None) is not None:  # optional: files without it load (computed then)
@@ -508,7 +514,8 @@ def load_model(path):
     if header.get("variation"):
         from rbgp_cli.dynamics.variation import Variation
 
-        variation = Variation.from_arrays(arrays, header["variation"].get("band_scale"))
+        variation = Variation.from_arrays(arrays, header["variation"].get("band_scale"),
+                                          header["variation"].get("shrinkage", 0.0))
     paths = None
     if header.get("paths"):
         from rbgp_cli.dynamics.paths import PathDistribution

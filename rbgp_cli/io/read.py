@@ -27,6 +27,7 @@ from __future__ import annotations
 import glob
 import io
 import os
+import re
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -165,9 +166,16 @@ def _rosbag2_index(path: Path) -> bool:
         return False
 
 
+def natural_key(name: str) -> tuple:
+    """Sort key of a file name in natural order: runs of digits compare as numbers, so that
+    ``take_2`` comes before ``take_10`` (the recording order of numbered takes; docs/data.md)."""
+    return tuple((0, int(part), part) if part.isdigit() else (1, 0, part) for part in re.split(r"(\d+)", str(name)))
+
+
 def list_sources(paths, options: ReadOptions | None = None) -> SourceList:
-    """Expand directories (their files, sorted, not recursive) and glob patterns; keep files and ``-``
-    as given. Files found that way whose first 8 KiB show they hold no pose data
+    """Expand directories (their files in natural name order, not recursive: :func:`natural_key`) and
+    glob patterns (the same order); keep files and ``-`` as given, in the order given. This order is
+    the demonstrations' recording order (docs/data.md). Files found that way whose first 8 KiB show they hold no pose data
     (:func:`skip_reason`) are skipped (``SourceList.skipped``). Raises InputError for a pattern that
     matches nothing."""
     options = options or ReadOptions()
@@ -175,11 +183,11 @@ def list_sources(paths, options: ReadOptions | None = None) -> SourceList:
     for p in paths:
         p = str(p)
         if p != "-" and os.path.isdir(p):
-            entries = sorted(Path(p).iterdir(), key=lambda c: c.name)
+            entries = sorted(Path(p).iterdir(), key=lambda c: natural_key(c.name))
             found = [str(c) for c in entries if c.is_file() and not _rosbag2_index(c)]
             out.subdirectories[p] = sum(1 for c in entries if c.is_dir())
         elif p != "-" and _is_pattern(p):
-            found = sorted(f for f in glob.glob(p) if os.path.isfile(f))
+            found = sorted((f for f in glob.glob(p) if os.path.isfile(f)), key=natural_key)
             if not found:
                 raise InputError("no file matches this pattern", path=p)
         else:

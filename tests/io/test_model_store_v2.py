@@ -28,7 +28,7 @@ def test_round_trip_keeps_what_prediction_needs(tmp_path, options):
     model = train_model(demos, **SMALL, **options)
     path = tmp_path / "m.rbgp"
     header = save_model(model, path)
-    assert header["version"] == FORMAT_VERSION == 8  # version 8: the path distribution
+    assert header["version"] == FORMAT_VERSION == 9  # version 9: the shrinkage of the bands
     loaded, h = load_model(path)
     assert loaded.time_input == model.time_input and loaded.velocity == model.velocity
     assert (loaded.mean is None) == (model.mean is None)
