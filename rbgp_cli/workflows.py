@@ -26,6 +26,11 @@ __all__ = [
     "parse_pose",
     "parse_pose_quat",
     "read_start_poses",
+    "parse_goal",
+    "parse_via",
+    "parse_tolerance",
+    "goal_options",
+    "warn_far_goals",
     "rollout_starts",
     "rollout_model",
     "evaluate_files",
@@ -135,14 +140,14 @@ def check_writable(path) -> None:
 _WORDS = {6: "six", 7: "seven"}
 
 
-def _pose_numbers(text: str, n: int, flag: str, hint: str) -> np.ndarray:
+def _pose_numbers(text: str, n: int, flag: str, hint: str, what: str = "start pose") -> np.ndarray:
     """The ``n`` finite numbers of a pose typed after ``flag`` (spaces or commas between them)."""
     try:
         vals = np.array([float(v) for v in text.replace(",", " ").split()])
     except ValueError:
-        raise InputError(f"start pose {text!r} ({flag}) is not {_WORDS[n]} numbers", hint=hint, param=flag) from None
+        raise InputError(f"{what} {text!r} ({flag}) is not {_WORDS[n]} numbers", hint=hint, param=flag) from None
     if vals.shape != (n,) or not np.all(np.isfinite(vals)):
-        raise InputError(f"start pose {text!r} ({flag}) must be {_WORDS[n]} finite numbers", hint=hint, param=flag)
+        raise InputError(f"{what} {text!r} ({flag}) must be {_WORDS[n]} finite numbers", hint=hint, param=flag)
     return vals
 
 
@@ -168,6 +173,85 @@ def parse_pose_quat(text: str) -> tuple[np.ndarray, np.ndarray]:
         raise InputError(f"start pose {text!r} (start_quat) has a zero quaternion, which is no rotation", param="start_quat",
                          hint='give a unit quaternion x y z w first, e.g. "0 0 0 1 x y z" for no rotation')
     return vals[:4] / norm, vals[4:]
+
+
+_GOAL_HINT = 'write it as "qx qy qz qw x y z" (quaternion x, y, z, w; m)'
+
+
+def parse_goal(text: str, flag: str = "goal", what: str = "goal pose") -> tuple[np.ndarray, np.ndarray]:
+    """Parse a goal pose "qx qy qz qw x y z" (quaternion x, y, z, w, normalised here; position in m;
+    commas allowed), as :func:`parse_pose_quat` reads a start."""
+    from rbgp_cli.dynamics.prepare import ZERO_QUAT_NORM
+
+    vals = _pose_numbers(text, 7, flag, _GOAL_HINT, what=what)
+    norm = float(np.linalg.norm(vals[:4]))
+    if norm < ZERO_QUAT_NORM:
+        raise InputError(f"{what} {text!r} ({flag}) has a zero quaternion, which is no rotation", param=flag,
+                         hint='give a unit quaternion x y z w first, e.g. "0 0 0 1 x y z" for no rotation')
+    return vals[:4] / norm, vals[4:]
+
+
+def parse_via(text: str) -> tuple[float, np.ndarray, np.ndarray]:
+    """Parse a via-point "T: qx qy qz qw x y z" (T seconds after the start, then a pose as
+    :func:`parse_goal`). Returns (T, quat (4,) x, y, z, w, position (3,) m)."""
+    hint = 'write it as "T: qx qy qz qw x y z" (T seconds after the start; quaternion x, y, z, w; m)'
+    head, sep, pose = str(text).partition(":")
+    if not sep:
+        raise InputError(f"via-point {text!r} (via) has no time before a colon", hint=hint, param="via")
+    try:
+        t = float(head)
+    except ValueError:
+        raise InputError(f"via-point {text!r} (via): the time {head.strip()!r} is not a number of seconds", hint=hint,
+                         param="via") from None
+    if not (np.isfinite(t) and t > 0):
+        raise InputError(f"via-point {text!r} (via): the time must be a positive number of seconds", hint=hint, param="via")
+    q, p = parse_goal(pose, flag="via", what="via-point")
+    return t, q, p
+
+
+def parse_tolerance(text: str) -> tuple[float, float]:
+    """Parse a goal tolerance "ROT_RAD POS_M" (one standard deviation of the goal's rotation, rad, and
+    position, m; both positive)."""
+    hint = 'write it as "ROT_RAD POS_M", e.g. "0.05 0.02" for 0.05 rad and 2 cm'
+    try:
+        vals = [float(v) for v in str(text).replace(",", " ").split()]
+    except ValueError:
+        raise InputError(f"goal tolerance {text!r} (goal_tolerance) is not two numbers", hint=hint,
+                         param="goal_tolerance") from None
+    if len(vals) != 2 or not all(np.isfinite(v) and v > 0 for v in vals):
+        raise InputError(f"goal tolerance {text!r} (goal_tolerance) must be two positive numbers", hint=hint,
+                         param="goal_tolerance")
+    return vals[0], vals[1]
+
+
+def goal_options(count: int, *, goal=None, goals=None, via=(), goal_tolerance=None,
+                 options: ReadOptions | None = None) -> dict:
+    """The goal, via-points and tolerance of ``rbgp rollout`` for ``count`` starts, as keywords of
+    :func:`rollout_model`: ``goal`` text (:func:`parse_goal`, one goal for every start) or the poses of
+    the file ``goals`` (:func:`read_start_poses`, one per start in the order of the starts), each
+    ``via`` text (:func:`parse_via`) and ``goal_tolerance`` text (:func:`parse_tolerance`). Nothing
+    given: {} (a rollout from the start alone)."""
+    if goal and goals:
+        raise InputError("give goal (one goal for every start) or goals FILE (one per start), not both",
+                         param=("goal", "goals"))
+    out: dict = {}
+    if goal:
+        q, p = parse_goal(goal)
+        out["goal_quat"], out["goal_position"] = np.tile(q, (count, 1)), np.tile(p, (count, 1))
+    elif goals:
+        q, p = read_start_poses(goals, options)
+        if len(q) != count:
+            raise InputError(f"the goals file has {len(q)} poses for {count} starts", path=str(goals),
+                             hint="give one goal per start, in the order of the starts", param="goals")
+        out["goal_quat"], out["goal_position"] = q, p
+    if via:
+        out["via"] = [parse_via(v) for v in via]
+    if goal_tolerance:
+        if not out:
+            raise InputError("goal_tolerance softens a goal or via-point, and none is given", param="goal_tolerance",
+                             hint="add goal POSE, goals FILE or via \"T: POSE\"")
+        out["goal_tolerance"] = parse_tolerance(goal_tolerance)
+    return out
 
 
 def read_start_poses(path, options: ReadOptions | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -303,7 +387,8 @@ def rollout_starts(model, *, start=(), start_quat=(), starts=None, from_demos=No
 
 
 def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, samples=0, seed=0, with_std=True,
-                  progress=None, durations=None, rate=None, off_data: str = "keep"):
+                  progress=None, durations=None, rate=None, off_data: str = "keep", goal_quat=None,
+                  goal_position=None, via=(), goal_tolerance=None):
     """``rbgp rollout``: steps from ``steps``, or ``duration`` / dt, or the demonstrations' median duration.
 
     ``durations`` (B,) seconds: each trajectory its own duration instead (``steps``/``duration`` are
@@ -320,6 +405,13 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
     ``off_data`` (keep, stop, prior): what a rollout does outside the demonstrations' envelope
     (:mod:`rbgp_cli.dynamics.rollout`); rollouts that left it are named in one warning (the result's
     ``left`` lists them).
+
+    ``goal_quat`` (B, 4) / ``goal_position`` (B, 3), ``via`` [(T s, quat (4,), position (3,)), ...],
+    ``goal_tolerance`` (rad, m) or None (reach them): the motions end at the goals and pass the
+    via-points (:func:`~rbgp_cli.dynamics.rollout.rollout_conditioned`, docs/method.md §12); their
+    duration is ``durations``, else ``duration``, else the path distribution's conditional duration
+    given start and goal (``steps`` is refused: a goal fixes where the motion ends, not a step count).
+    Goals far from where the demonstrations end are warned about (:func:`warn_far_goals`).
     """
     from rbgp_cli.dynamics.envelope import describe
     from rbgp_cli.dynamics.rollout import rollout, rollout_for
@@ -329,7 +421,11 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
         dt = model.dt if steps is not None and durations is None else model.rollout_dt
     step = float(dt)
     kwargs = {"samples": samples, "seed": seed, "with_std": with_std, "progress": progress, "off_data": off_data}
-    if durations is not None:
+    if goal_quat is not None or via:
+        res = _rollout_to_goal(model, quat, pos, steps=steps, duration=duration, durations=durations, dt=step,
+                               goal_quat=goal_quat, goal_position=goal_position, via=via,
+                               goal_tolerance=goal_tolerance, **kwargs)
+    elif durations is not None:
         res = rollout_for(model, quat, pos, durations, step, **kwargs)
     else:
         if steps is None:
@@ -344,8 +440,67 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
                 "prior": "they followed the prior mean while outside (off_data prior)"}[off_data]
         warn(describe(res.left) + f"; {then}"
              + ("; envelope from the model's training points (an older model file)" if res.left["envelope"] != "demonstrations" else ""))
-    if rate is not None and abs(float(rate) * step - 1.0) > 1e-9:  # at 1/dt the grid is the integration grid
+    # at 1/dt the grid is the integration grid; a conditioned motion keeps it up to the stored step's
+    # rounding (1e-4), so that its last sample, at the goal, is written
+    same = 1e-4 if (goal_quat is not None or via) else 1e-9
+    if rate is not None and abs(float(rate) * step - 1.0) > same:
         res = res.resampled(rate)
+    return res
+
+
+#: A goal further than this many of the demonstrations' spreads from where they end (given the start)
+#: is warned about (:func:`warn_far_goals`; the distance is a χ with 6 degrees of freedom, docs/method.md §12).
+FAR_GOAL = 4.0
+
+
+def warn_far_goals(distance) -> None:
+    """One warning naming the goals further than :data:`FAR_GOAL` spreads from where the
+    demonstrations end (``distance`` (B,), :meth:`~rbgp_cli.dynamics.paths.PathDistribution.goal_distance`)."""
+    from rbgp_cli.errors import warn
+
+    d = np.asarray(distance, dtype=np.float64).reshape(-1)
+    far = np.flatnonzero(d > FAR_GOAL)
+    if len(far) == 0:
+        return
+    worst = float(d[far].max())
+    if len(d) == 1:
+        what = f"the goal is {worst:.1f} standard deviations from where the demonstrations end: this motion is an extrapolation"
+    elif len(far) == 1:
+        what = (f"the goal of trajectory {int(far[0])} is {worst:.1f} standard deviations from where the demonstrations "
+                "end: that motion is an extrapolation")
+    else:
+        listed = ", ".join(map(str, far[:8])) + (", ..." if len(far) > 8 else "")
+        what = (f"{len(far)} of {len(d)} goals are up to {worst:.1f} standard deviations from where the demonstrations "
+                f"end (trajectories {listed}): those motions are extrapolations")
+    warn(what, hint="check the goal's frame and units, or record demonstrations that end there", param=("goal", "goals"))
+
+
+def _rollout_to_goal(model, quat, pos, *, steps, duration, durations, dt, goal_quat, goal_position, via,
+                     goal_tolerance, samples, seed, with_std, progress, off_data):
+    """:func:`rollout_model` with a goal or via-points: checks, durations, the conditioned rollout, the
+    far-goal warning."""
+    from rbgp_cli.dynamics.rollout import rollout_conditioned
+
+    if steps is not None:
+        raise InputError("a goal or via-point fixes where the motion goes, and steps counts integration steps",
+                         hint="give duration SECONDS, or neither (the duration the demonstrations suggest for "
+                              "this start and goal)", param="steps")
+    paths = getattr(model, "paths", None)
+    if paths is None:
+        raise InputError("this model has no path distribution to condition on a goal or via-points (it was trained "
+                         "on fewer than three demonstrations, or by an older rbgp)",
+                         hint="retrain it with rbgp train on three demonstrations or more", param=("goal", "via"))
+    B = len(np.atleast_2d(quat))
+    if durations is None and duration is not None:
+        dur = float(duration)
+        if not np.isfinite(dur) or dur <= 0:
+            raise InputError(f"duration must be a positive number of seconds, got {dur}", param="duration")
+        durations = np.full(B, dur)
+    res = rollout_conditioned(model, quat, pos, goal_quat=goal_quat, goal_position=goal_position, via=list(via),
+                              durations=durations, goal_tolerance=goal_tolerance, samples=samples, seed=seed,
+                              dt=dt, with_std=with_std, progress=progress, off_data=off_data)
+    if res.goal_distance is not None:
+        warn_far_goals(res.goal_distance)
     return res
 
 

@@ -64,6 +64,13 @@ class RolloutResult:
     outside: np.ndarray | None = None
     left: dict | None = None
     ends: np.ndarray | None = None
+    #: the goals (quat (B, 4), position (B, 3)) and via-points [(T s, quat (4,), position (3,))] the mean
+    #: trajectories were conditioned on (:func:`rollout_conditioned`), else None / empty
+    goal_quat: np.ndarray | None = None
+    goal_position: np.ndarray | None = None
+    via: tuple = ()
+    #: (B,) each goal's distance from where the demonstrations end, in their spreads, or None
+    goal_distance: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -124,6 +131,8 @@ class RolloutResult:
             on = np.abs(t[k] - x_new) <= tol
             res.outside = self.outside[:, k] | (self.outside[:, k1] & ~on[None, :])
             res.left = self.left
+        res.goal_quat, res.goal_position, res.via, res.goal_distance = (self.goal_quat, self.goal_position, self.via,
+                                                                       self.goal_distance)
         return res
 
 
@@ -435,7 +444,11 @@ def rollout_conditioned(model, start_quat, start_position, *, goal_quat=None, go
             raise InputError(f"a via-point at {float(tv):g} s lies outside the motion (0 to {durations.min():.3g} s)",
                              hint="give T in seconds after the start, within the motion's duration", param="via")
     res = rollout_for(model, q0, p0, durations, dt=dt, with_std=with_std, **kwargs)
+    res.ends = None  # the whole rollout is bent; where the bent one leaves the data is checked below
     T = len(res.t)
+    # each trajectory's phase on its own integration grid: its last sample (round(D/dt) steps) is phase 1
+    n_b = np.asarray(res.lengths) if res.lengths is not None else np.full(B, T)
+    durations = np.maximum(res.t[n_b - 1], 1e-9)
     phase = np.clip(res.t[None, :] / durations[:, None], 0.0, 1.0)  # (B, T)
     ref_q, ref_p = paths.pose_at(np.zeros((B, paths.S, 6)), phase)  # the mean path at each sample's phase
     dev_t = pose_deviation(ref_q, ref_p, res.quat, res.position)  # (B, T, 6)
@@ -452,7 +465,11 @@ def rollout_conditioned(model, start_quat, start_position, *, goal_quat=None, go
     W = _interpolation(paths.s, phase.reshape(-1)).reshape(B, T, paths.S)
     new = dev_t + np.einsum("bts,bsj->btj", W, bent - grid)
     res.quat, res.position = _from_deviation(paths, ref_q, ref_p, new)
-    res.goal_distance = None
+    _recheck_envelope(model, res, durations, kwargs.get("off_data", "keep"))
+    res.goal_distance = paths.goal_distance(q0, p0, gq, gp) if has_goal else None
+    if has_goal:
+        res.goal_quat, res.goal_position = np.array(gq), np.array(gp)
+    res.via = tuple((float(tv), np.asarray(qv, float), np.asarray(pv, float)) for tv, qv, pv in via)
     if samples:
         K = int(samples)
         rng = np.random.default_rng(np.random.SeedSequence([int(seed), 38]))
@@ -465,6 +482,26 @@ def rollout_conditioned(model, start_quat, start_position, *, goal_quat=None, go
             sq[b], sp[b] = _from_deviation(paths, ref_q[b][None], ref_p[b][None], d)
         res.sample_quat, res.sample_position = sq, sp
     return res
+
+
+def _recheck_envelope(model, res: RolloutResult, durations, off_data: str) -> None:
+    """``outside`` and ``left`` of the bent mean trajectories (their poses changed), each against the
+    envelope at its own phase t/D (a model without the phase input: the box of all the demonstrations'
+    positions); with ``off_data="stop"`` each ends at its first sample outside."""
+    from rbgp_cli.dynamics.envelope import exits_report
+
+    envelope = model.data_envelope()
+    if model.time_input != "phase":
+        envelope = envelope.overall()
+    B, T = res.quat.shape[:2]
+    phase = res.t[None, :] / np.asarray(durations, dtype=np.float64).reshape(B, 1)
+    outside = envelope.outside(res.position, phase)
+    n = np.asarray(res.lengths) if res.lengths is not None else np.full(B, T)
+    outside &= np.arange(T)[None, :] < n[:, None]
+    res.outside = outside
+    res.left = exits_report(outside, res.t, res.position, model.data_envelope())
+    if off_data == "stop":
+        res.ends = np.maximum(np.where(outside.any(axis=1), outside.argmax(axis=1), n - 1), 1)
 
 
 def _from_deviation(paths, ref_q, ref_p, dev):
