@@ -140,14 +140,14 @@ def check_writable(path) -> None:
 _WORDS = {6: "six", 7: "seven"}
 
 
-def _pose_numbers(text: str, n: int, flag: str, hint: str, what: str = "start pose") -> np.ndarray:
+def _pose_numbers(text: str, n: int, flag: str, hint: str) -> np.ndarray:
     """The ``n`` finite numbers of a pose typed after ``flag`` (spaces or commas between them)."""
     try:
         vals = np.array([float(v) for v in text.replace(",", " ").split()])
     except ValueError:
-        raise InputError(f"{what} {text!r} ({flag}) is not {_WORDS[n]} numbers", hint=hint, param=flag) from None
+        raise InputError(f"start pose {text!r} ({flag}) is not {_WORDS[n]} numbers", hint=hint, param=flag) from None
     if vals.shape != (n,) or not np.all(np.isfinite(vals)):
-        raise InputError(f"{what} {text!r} ({flag}) must be {_WORDS[n]} finite numbers", hint=hint, param=flag)
+        raise InputError(f"start pose {text!r} ({flag}) must be {_WORDS[n]} finite numbers", hint=hint, param=flag)
     return vals
 
 
@@ -183,10 +183,15 @@ def parse_goal(text: str, flag: str = "goal", what: str = "goal pose") -> tuple[
     commas allowed), as :func:`parse_pose_quat` reads a start."""
     from rbgp_cli.dynamics.prepare import ZERO_QUAT_NORM
 
-    vals = _pose_numbers(text, 7, flag, _GOAL_HINT, what=what)
+    try:
+        vals = np.array([float(v) for v in str(text).replace(",", " ").split()])
+    except ValueError:
+        raise InputError(f"the {what} {text!r} is not seven numbers", hint=_GOAL_HINT, param=flag) from None
+    if vals.shape != (7,) or not np.all(np.isfinite(vals)):
+        raise InputError(f"the {what} {text!r} must be seven finite numbers", hint=_GOAL_HINT, param=flag)
     norm = float(np.linalg.norm(vals[:4]))
     if norm < ZERO_QUAT_NORM:
-        raise InputError(f"{what} {text!r} ({flag}) has a zero quaternion, which is no rotation", param=flag,
+        raise InputError(f"the {what} {text!r} has a zero quaternion, which is no rotation", param=flag,
                          hint='give a unit quaternion x y z w first, e.g. "0 0 0 1 x y z" for no rotation')
     return vals[:4] / norm, vals[4:]
 
@@ -197,14 +202,14 @@ def parse_via(text: str) -> tuple[float, np.ndarray, np.ndarray]:
     hint = 'write it as "T: qx qy qz qw x y z" (T seconds after the start; quaternion x, y, z, w; m)'
     head, sep, pose = str(text).partition(":")
     if not sep:
-        raise InputError(f"via-point {text!r} (via) has no time before a colon", hint=hint, param="via")
+        raise InputError(f"the via-point {text!r} has no time before a colon", hint=hint, param="via")
     try:
         t = float(head)
     except ValueError:
-        raise InputError(f"via-point {text!r} (via): the time {head.strip()!r} is not a number of seconds", hint=hint,
+        raise InputError(f"the via-point {text!r}: its time {head.strip()!r} is not a number of seconds", hint=hint,
                          param="via") from None
     if not (np.isfinite(t) and t > 0):
-        raise InputError(f"via-point {text!r} (via): the time must be a positive number of seconds", hint=hint, param="via")
+        raise InputError(f"the via-point {text!r}: its time must be a positive number of seconds", hint=hint, param="via")
     q, p = parse_goal(pose, flag="via", what="via-point")
     return t, q, p
 
@@ -216,10 +221,10 @@ def parse_tolerance(text: str) -> tuple[float, float]:
     try:
         vals = [float(v) for v in str(text).replace(",", " ").split()]
     except ValueError:
-        raise InputError(f"goal tolerance {text!r} (goal_tolerance) is not two numbers", hint=hint,
+        raise InputError(f"the goal tolerance {text!r} is not two numbers", hint=hint,
                          param="goal_tolerance") from None
     if len(vals) != 2 or not all(np.isfinite(v) and v > 0 for v in vals):
-        raise InputError(f"goal tolerance {text!r} (goal_tolerance) must be two positive numbers", hint=hint,
+        raise InputError(f"the goal tolerance {text!r} must be two positive numbers", hint=hint,
                          param="goal_tolerance")
     return vals[0], vals[1]
 
@@ -248,8 +253,8 @@ def goal_options(count: int, *, goal=None, goals=None, via=(), goal_tolerance=No
         out["via"] = [parse_via(v) for v in via]
     if goal_tolerance:
         if not out:
-            raise InputError("goal_tolerance softens a goal or via-point, and none is given", param="goal_tolerance",
-                             hint="add goal POSE, goals FILE or via \"T: POSE\"")
+            raise InputError("goal_tolerance softens a goal or via-point, and none is given",
+                             param=("goal_tolerance", "goal", "goals", "via"), hint="add goal POSE, goals FILE or via \"T: POSE\"")
         out["goal_tolerance"] = parse_tolerance(goal_tolerance)
     return out
 
@@ -424,7 +429,8 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
     if goal_quat is not None or via:
         res = _rollout_to_goal(model, quat, pos, steps=steps, duration=duration, durations=durations, dt=step,
                                goal_quat=goal_quat, goal_position=goal_position, via=via,
-                               goal_tolerance=goal_tolerance, **kwargs)
+                               goal_tolerance=goal_tolerance, rate=None if rate is None or abs(float(rate) * step - 1.0) <= 1e-9 else rate,
+                               **kwargs)
     elif durations is not None:
         res = rollout_for(model, quat, pos, durations, step, **kwargs)
     else:
@@ -440,11 +446,8 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
                 "prior": "they followed the prior mean while outside (off_data prior)"}[off_data]
         warn(describe(res.left) + f"; {then}"
              + ("; envelope from the model's training points (an older model file)" if res.left["envelope"] != "demonstrations" else ""))
-    # at 1/dt the grid is the integration grid; a conditioned motion keeps it up to the stored step's
-    # rounding (1e-4), so that its last sample, at the goal, is written
-    same = 1e-4 if (goal_quat is not None or via) else 1e-9
-    if rate is not None and abs(float(rate) * step - 1.0) > same:
-        res = res.resampled(rate)
+    if rate is not None and abs(float(rate) * step - 1.0) > 1e-9 and res.goal_distance is None and not res.via:
+        res = res.resampled(rate)  # at 1/dt the grid is the integration grid (a conditioned one is resampled before it is bent)
     return res
 
 
@@ -476,7 +479,7 @@ def warn_far_goals(distance) -> None:
 
 
 def _rollout_to_goal(model, quat, pos, *, steps, duration, durations, dt, goal_quat, goal_position, via,
-                     goal_tolerance, samples, seed, with_std, progress, off_data):
+                     goal_tolerance, samples, seed, with_std, progress, off_data, rate=None):
     """:func:`rollout_model` with a goal or via-points: checks, durations, the conditioned rollout, the
     far-goal warning."""
     from rbgp_cli.dynamics.rollout import rollout_conditioned
@@ -498,7 +501,7 @@ def _rollout_to_goal(model, quat, pos, *, steps, duration, durations, dt, goal_q
         durations = np.full(B, dur)
     res = rollout_conditioned(model, quat, pos, goal_quat=goal_quat, goal_position=goal_position, via=list(via),
                               durations=durations, goal_tolerance=goal_tolerance, samples=samples, seed=seed,
-                              dt=dt, with_std=with_std, progress=progress, off_data=off_data)
+                              dt=dt, with_std=with_std, progress=progress, off_data=off_data, rate=rate)
     if res.goal_distance is not None:
         warn_far_goals(res.goal_distance)
     return res

@@ -389,7 +389,7 @@ def starts_near(starts: np.ndarray, count: int, spread: float, seed: int = 0, sp
 
 def rollout_conditioned(model, start_quat, start_position, *, goal_quat=None, goal_position=None, via=(),
                         durations=None, goal_tolerance=None, samples: int = 0, seed: int = 0, dt: float | None = None,
-                        with_std: bool = False, paths=None, **kwargs) -> RolloutResult:
+                        with_std: bool = False, paths=None, rate: float | None = None, **kwargs) -> RolloutResult:
     """Roll out B starts toward goals and through via-points (docs/method.md §12).
 
     start_quat (B, 4), start_position (B, 3); goal_quat (B, 4) or (4,), goal_position (B, 3) or (3,), or
@@ -397,7 +397,8 @@ def rollout_conditioned(model, start_quat, start_position, *, goal_quat=None, go
     (B,) seconds, default the path distribution's conditional median duration given the start (and goal);
     goal_tolerance: (rad, m) one standard deviation, default :data:`~rbgp_cli.dynamics.paths.GOAL_TOLERANCE`
     (the mean then ends within about 1 mm / 2 mrad); paths: the :class:`~rbgp_cli.dynamics.paths.PathDistribution`
-    (default the model's).
+    (default the model's); rate: resample the rollout to this rate (Hz) before it is bent, so that each
+    trajectory's last written sample is its goal (None: the integration grid).
 
     The mean is the model's rollout from the start for that duration (the GP's dynamics and its
     start-conditioned path), bent by the pathwise update of the path distribution (Matheron's rule,
@@ -445,6 +446,8 @@ def rollout_conditioned(model, start_quat, start_position, *, goal_quat=None, go
                              hint="give T in seconds after the start, within the motion's duration", param="via")
     res = rollout_for(model, q0, p0, durations, dt=dt, with_std=with_std, **kwargs)
     res.ends = None  # the whole rollout is bent; where the bent one leaves the data is checked below
+    if rate is not None:
+        res = res.resampled(rate)
     T = len(res.t)
     # each trajectory's phase on its own integration grid: its last sample (round(D/dt) steps) is phase 1
     n_b = np.asarray(res.lengths) if res.lengths is not None else np.full(B, T)
