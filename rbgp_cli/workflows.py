@@ -38,6 +38,7 @@ __all__ = [
     "predict_file",
     "crossval_configs",
     "crossval_files",
+    "given_option",
     "left_data",
     "SAMPLE_DATA",
 ]
@@ -629,10 +630,21 @@ def crossval_configs(representations, kernels, train_kwargs: dict, replay: bool 
     return configs, skipped
 
 
+def given_option(text) -> dict:
+    """``rbgp crossval --given``: ``goal`` → {"given": "goal"} (each held-out demonstration's final pose
+    and duration given, :mod:`rbgp_cli.evaluation.given_goal`); None → {}."""
+    if text is None:
+        return {}
+    if str(text).strip().lower() == "goal":
+        return {"given": "goal"}
+    raise InputError(f"given must be goal, got {text!r}", param="given",
+                     hint="goal gives each held-out demonstration's final pose and duration")
+
+
 def crossval_files(sources, configs, *, options: ReadOptions | None = None, max_gap=None, folds: int = 5,
                    seed: int = 0, jobs: int | None = None, length=None, covariance="diag", progress=None,
                    scheduler: str | None = None, samples: int | None = None, repeats: int = 1,
-                   without_gp: bool = True) -> dict:
+                   without_gp: bool = True, given: str | None = None) -> dict:
     """``rbgp crossval``: read and clean the demonstrations, cross-validate every configuration on the
     same folds (:func:`rbgp_cli.evaluation.crossval.crossval`); returns its result plus the inputs."""
     from rbgp_cli.evaluation.crossval import crossval
@@ -642,6 +654,6 @@ def crossval_files(sources, configs, *, options: ReadOptions | None = None, max_
 
     result = crossval(demos, configs, folds=folds, seed=seed, jobs=jobs, length=length, covariance=covariance,
                       progress=progress, scheduler=scheduler, samples=SAMPLES if samples is None else samples,
-                      repeats=repeats, without_gp=without_gp)
+                      repeats=repeats, without_gp=without_gp, given=given)
     result["inputs"] = [i["name"] for i in inputs]
     return result

@@ -496,6 +496,7 @@ def crossval(
     covariance: Annotated[str, typer.Option(help="Per-step Gaussians with diag or full covariance (as rbgp evaluate).")] = "diag",
     samples: Annotated[int, typer.Option("--samples", min=0, help="Sampled rollouts per held-out start (as rbgp rollout --samples) for the columns sample (one sample per start scored like score, over the floor) and cov_pos / cov_rot (how often the held-out motion lies inside the samples' 90 % prediction region: 0.90 for honest bands) with the bands' half-widths in --json; 0: none; at least 4 for the coverage.")] = 20,
     without_gp: Annotated[bool, typer.Option("--without-gp/--no-without-gp", help="Beside every model row with a prior mean, a row of the same fits with the GP's residual switched off (kernel column 'no-GP'): the path distribution alone, rolled out from the same starts with the same draws, so the difference is what the GP adds on your data.")] = True,
+    given: Annotated[Optional[str], typer.Option("--given", help="What each row is given of a held-out demonstration besides its start: goal (its final pose and duration: rbgp's motion conditioned on both ends, beside the goal-conditioned peers: nearest, the demonstration nearest by start and goal with its end offsets blended in; promp conditioned on start and goal; dmp of the nearest demonstration with the new goal). The table then has end_mm / end_mrad, the mean motions' end errors.")] = None,
     per_fold: Annotated[bool, typer.Option("--per-fold", help="Also print one line per fold and configuration.", rich_help_panel=_OUT)] = False,
     json_out: Annotated[bool, typer.Option("--json", help="Print the results as JSON on stdout.", rich_help_panel=_OUT)] = False,
     rho_rot: RhoOpt = _D["rho_rot"], restarts: RestartsOpt = _D["restarts"], explore_size: ExploreOpt = _D["explore_size"],
@@ -521,6 +522,8 @@ def crossval(
     Example: rbgp crossval sample_data/csv --representation all --folds 3
 
     Example: rbgp crossval sample_data/csv --grid prior-gain=3,10 --grid inducing=0,48
+
+    Example: rbgp crossval sample_data/csv --given goal --folds 3
     """
     from rbgp_cli import workflows
     from rbgp_cli.cli.train_options import grid_variants
@@ -535,8 +538,8 @@ def crossval(
                           start_conditioning=start_conditioning, noise_scale=noise_scale,
                           pull_profile=pull_profile)
     variants, lists = grid_variants(ctx, grid)
-    for name, given in (("representation", representation), ("kernel", kernel)):
-        if name in lists and given:
+    for name, listed in (("representation", representation), ("kernel", kernel)):
+        if name in lists and listed:
             raise InputError(f"give --{name} or --grid {name}=..., not both")
     configs, skipped = workflows.crossval_configs(lists.get("representation", representation), lists.get("kernel", kernel),
                                                   kwargs, replay=replay, peers=peers,
@@ -545,7 +548,8 @@ def crossval(
         warn(f"left out {note}")
     result = workflows.crossval_files(demos, configs, options=opts, max_gap=max_gap, folds=folds, seed=seed, jobs=jobs,
                                       length=length, covariance=covariance, progress=progress, scheduler=scheduler,
-                                      samples=samples, repeats=repeats, without_gp=without_gp)
+                                      samples=samples, repeats=repeats, without_gp=without_gp,
+                                      **workflows.given_option(given))
     result["skipped"] = list(skipped)
     if json_out:
         emit_json(result)
