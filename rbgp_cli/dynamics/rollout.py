@@ -409,7 +409,9 @@ def rollout_conditioned(model, start_quat, start_position, *, goal_quat=None, go
     conditioned mean's position RMSE fell from 0.136 to 0.113 m with it); the rollout's own ln D is
     the start-conditioned mean's, the value it assumed. The K samples per start are the mean plus zero-mean draws of the conditioned path
     distribution (:meth:`~rbgp_cli.dynamics.paths.Conditioned.draw`): their bands pinch at every
-    constraint and widen between them as the demonstrations do.
+    constraint and widen between them as the demonstrations do; their factors are
+    :meth:`~rbgp_cli.dynamics.paths.PathDistribution.goal_band_scale` (calibrated on left-out
+    demonstrations given their start and end).
     """
     from rbgp_cli.dynamics.paths import pose_deviation
 
@@ -488,7 +490,7 @@ def rollout_conditioned(model, start_quat, start_position, *, goal_quat=None, go
         sq = np.empty((B, K, T, 4))
         sp = np.empty((B, K, T, 3))
         for b in range(B):
-            eta, _ = covs[b].draw(K, rng)
+            eta, _ = covs[b].draw(K, rng, scale=paths.goal_band_scale())
             eta = eta - covs[b].deviation[None]  # zero-mean draws of the conditioned process
             d = new[b][None] + np.einsum("ts,ksj->ktj", W[b], eta)
             sq[b], sp[b] = _from_deviation(paths, ref_q[b][None], ref_p[b][None], d)

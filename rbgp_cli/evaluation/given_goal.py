@@ -102,21 +102,23 @@ def _goal_conditioned(peer, q0, p0, qg, pg):
     return first.condition_position(yg, y_cov=cov, t=1.0, t_max=1.0)
 
 
-def promp_goal_rollouts(train, quat0, pos0, goal_quat, goal_pos, durations) -> list[Trajectory]:
-    """The goal ProMP row: per start, the mean of the ProMP conditioned on start and goal."""
+def promp_goal_rollouts(train, quat0, pos0, goal_quat, goal_pos, durations, peer=None) -> list[Trajectory]:
+    """The goal ProMP row: per start, the mean of the ProMP conditioned on start and goal (``peer``: the
+    fitted :class:`~rbgp_cli.evaluation.peers.ProMPPeer`, default fitted on ``train`` here)."""
     from rbgp_cli.evaluation.peers import fit_promp
 
-    peer = fit_promp(train)
+    peer = fit_promp(train) if peer is None else peer
     s = np.linspace(0.0, 1.0, peer.steps)
     return [peer._trajectory(_goal_conditioned(peer, q0, p0, qg, pg).mean_trajectory(s), d, "promp to the goal")
             for q0, p0, qg, pg, d in zip(quat0, pos0, goal_quat, goal_pos, durations)]
 
 
-def promp_goal_samples(train, quat0, pos0, goal_quat, goal_pos, durations, k: int, seed: int = 0) -> list[list[Trajectory]]:
+def promp_goal_samples(train, quat0, pos0, goal_quat, goal_pos, durations, k: int, seed: int = 0,
+                       peer=None) -> list[list[Trajectory]]:
     """``k`` seeded draws per start of the ProMP conditioned on start and goal (start i: seed + i)."""
     from rbgp_cli.evaluation.peers import fit_promp
 
-    peer = fit_promp(train)
+    peer = fit_promp(train) if peer is None else peer
     s = np.linspace(0.0, 1.0, peer.steps)
     out = []
     for i, (q0, p0, qg, pg, d) in enumerate(zip(quat0, pos0, goal_quat, goal_pos, durations)):
@@ -189,8 +191,11 @@ def generate_given_goal(config, train: list[Trajectory], test: list[Trajectory],
     if config.representation == NEAREST:
         return [nearest_blended(train, a, b, c, d, e) for a, b, c, d, e in zip(q0, p0, qg, pg, dur)], 0.0, None, None
     if config.representation == PROMP:
-        gen = promp_goal_rollouts(train, q0, p0, qg, pg, dur)
-        drawn = promp_goal_samples(train, q0, p0, qg, pg, dur, samples, seed=seed) if samples > 0 else None
+        from rbgp_cli.evaluation.peers import fit_promp
+
+        peer = fit_promp(train)
+        gen = promp_goal_rollouts(train, q0, p0, qg, pg, dur, peer=peer)
+        drawn = promp_goal_samples(train, q0, p0, qg, pg, dur, samples, seed=seed, peer=peer) if samples > 0 else None
         return gen, time.perf_counter() - t0, None, drawn
     if config.representation == DMP:
         return dmp_goal_rollouts(train, q0, p0, qg, pg, dur), time.perf_counter() - t0, None, None
