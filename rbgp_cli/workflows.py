@@ -248,7 +248,7 @@ def goal_options(count: int, *, goal=None, goals=None, via=(), goal_tolerance=No
         q, p = read_start_poses(goals, options)
         if len(q) != count:
             raise InputError(f"the goals file has {len(q)} poses for {count} starts", path=str(goals),
-                             hint="give one goal per start, in the order of the starts", param="goals")
+                             hint="give goals one pose per start, in the order of the starts", param="goals")
         out["goal_quat"], out["goal_position"] = q, p
     if via:
         out["via"] = [parse_via(v) for v in via]
@@ -488,7 +488,7 @@ def _rollout_to_goal(model, quat, pos, *, steps, duration, durations, dt, goal_q
     if steps is not None:
         raise InputError("a goal or via-point fixes where the motion goes, and steps counts integration steps",
                          hint="give duration SECONDS, or neither (the duration the demonstrations suggest for "
-                              "this start and goal)", param="steps")
+                              "this start and goal)", param=("steps", "duration"))
     paths = getattr(model, "paths", None)
     if paths is None:
         raise InputError("this model has no path distribution to condition on a goal or via-points (it was trained "
