@@ -44,7 +44,7 @@ def test_the_mean_ends_at_the_goal_and_passes_the_via_point(model, tmp_path):
               "--duration", f"{tr.duration:.6f}", "--samples", "5", "--no-std", "-o", out, "--json")
     assert res.exit_code == 0, res.stderr
     summary = json.loads(res.stdout)
-    assert summary["goal_distance"][0] < 4.0  # the demonstration's own goal is not an extrapolation
+    assert summary["goal_distance"][0] < 4.5  # the demonstration's own goal is not an extrapolation
     assert "standard deviations" not in res.stderr
     trajs = read_rollout(out)
     mean = trajs["0"]
