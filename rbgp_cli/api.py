@@ -698,7 +698,7 @@ def evaluate(generated, demos, *, length: int | None = None, covariance: str = "
 
 def crossval(demos, estimators=None, *, folds: int = 5, seed: int = 0, replay: bool = True, peers: bool = False,
              samples: int | None = None, length: int | None = None, covariance: str = "diag",
-             jobs: int | None = None, repeats: int = 1, without_gp: bool = True) -> Crossval:
+             jobs: int | None = None, repeats: int = 1, without_gp: bool = True, given: str | None = None) -> Crossval:
     """Cross-validate by demonstration (``rbgp crossval``): each configuration is trained on the other
     folds and rolled out from each held-out demonstration's start, on the same folds.
 
@@ -714,6 +714,8 @@ def crossval(demos, estimators=None, *, folds: int = 5, seed: int = 0, replay: b
     length, covariance : as :func:`evaluate`;  jobs : worker processes (None: one per core)
     without_gp : beside every estimator with a prior mean, a row of the same fits with the GP's residual
         switched off (``"without_gp": True``): the path distribution alone (``rbgp crossval --without-gp``)
+    given : None, or ``"goal"``: each held-out demonstration's final pose and duration are given too, the
+        rows roll out to that goal beside the goal-conditioned peers (``rbgp crossval --given goal``)
 
     Returns
     -------
@@ -744,5 +746,6 @@ def crossval(demos, estimators=None, *, folds: int = 5, seed: int = 0, replay: b
     extra, _ = crossval_configs([DEFAULTS["representation"]], None, {}, replay=replay, peers=peers)
     configs.extend(extra[1:])  # the peers only
     result = _crossval(trajs, configs, folds=folds, seed=seed, jobs=jobs, length=length, covariance=covariance,
-                       samples=SAMPLES if samples is None else samples, repeats=repeats, without_gp=without_gp)
+                       samples=SAMPLES if samples is None else samples, repeats=repeats, without_gp=without_gp,
+                       given=given)
     return Crossval(rows=list(result.get("results", [])), folds=int(folds), result=result)
