@@ -440,18 +440,7 @@ def rollout_conditioned(model, start_quat, start_position, *, goal_quat=None, go
         return paths.stack(*obs)
 
     asked = None if durations is None else np.asarray(durations, dtype=np.float64).reshape(B)
-    if durations is None:  # the conditional median duration given the start and goal
-        durations = np.empty(B)
-        for b in range(B):
-            ob = [paths.observe([0.0], q0[b:b + 1], p0[b:b + 1], exact=True)]
-            if has_goal:
-                ob.append(paths.observe([1.0], gq[b:b + 1], gp[b:b + 1], exact=True))
-            durations[b] = paths.condition(*paths.stack(*ob)).duration
-    durations = np.asarray(durations, dtype=np.float64).reshape(B)
-    for (tv, _, _) in via:
-        if not np.all((float(tv) > 0) & (float(tv) < durations)):
-            raise InputError(f"a via-point at {float(tv):g} s lies outside the motion (0 to {durations.min():.3g} s)",
-                             hint="give T in seconds after the start, within the motion's duration", param="via")
+    durations = _goal_durations(paths, q0, p0, gq if has_goal else None, gp if has_goal else None, asked, via)
     res = rollout_for(model, q0, p0, durations, dt=dt, with_std=with_std, **kwargs)
     res.ends = None  # the whole rollout is bent; where the bent one leaves the data is checked below
     if rate is not None:
@@ -485,17 +474,42 @@ def rollout_conditioned(model, start_quat, start_position, *, goal_quat=None, go
         res.goal_quat, res.goal_position = np.array(gq), np.array(gp)
     res.via = tuple((float(tv), np.asarray(qv, float), np.asarray(pv, float)) for tv, qv, pv in via)
     if samples:
-        K = int(samples)
-        rng = np.random.default_rng(np.random.SeedSequence([int(seed), 38]))
-        sq = np.empty((B, K, T, 4))
-        sp = np.empty((B, K, T, 3))
-        for b in range(B):
-            eta, _ = covs[b].draw(K, rng, scale=paths.goal_band_scale())
-            eta = eta - covs[b].deviation[None]  # zero-mean draws of the conditioned process
-            d = new[b][None] + np.einsum("ts,ksj->ktj", W[b], eta)
-            sq[b], sp[b] = _from_deviation(paths, ref_q[b][None], ref_p[b][None], d)
-        res.sample_quat, res.sample_position = sq, sp
+        res.sample_quat, res.sample_position = _conditioned_samples(paths, covs, new, W, ref_q, ref_p, int(samples), seed)
     return res
+
+
+def _goal_durations(paths, q0, p0, gq, gp, asked, via) -> np.ndarray:
+    """:func:`rollout_conditioned`'s durations (B,) s: ``asked``, else the conditional median given the
+    start and goal (``gq`` None: the start alone); every via-point must lie inside them."""
+    durations = asked
+    if durations is None:
+        durations = np.empty(len(q0))
+        for b in range(len(q0)):
+            ob = [paths.observe([0.0], q0[b:b + 1], p0[b:b + 1], exact=True)]
+            if gq is not None:
+                ob.append(paths.observe([1.0], gq[b:b + 1], gp[b:b + 1], exact=True))
+            durations[b] = paths.condition(*paths.stack(*ob)).duration
+    for (tv, _, _) in via:
+        if not np.all((float(tv) > 0) & (float(tv) < durations)):
+            raise InputError(f"a via-point at {float(tv):g} s lies outside the motion (0 to {durations.min():.3g} s)",
+                             hint="give T in seconds after the start, within the motion's duration", param="via")
+    return np.asarray(durations, dtype=np.float64)
+
+
+def _conditioned_samples(paths, covs, new, W, ref_q, ref_p, K: int, seed: int):
+    """K samples per start (quat (B, K, T, 4), position (B, K, T, 3)): the bent mean deviations ``new``
+    (B, T, 6) plus zero-mean draws of each start's conditioned distribution ``covs[b]``, interpolated
+    to the samples by ``W`` (B, T, S), around the mean path's poses (ref_q, ref_p) (B, T, ·)."""
+    B, T = new.shape[:2]
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 38]))
+    sq = np.empty((B, K, T, 4))
+    sp = np.empty((B, K, T, 3))
+    for b in range(B):
+        eta, _ = covs[b].draw(K, rng, scale=paths.goal_band_scale())
+        eta = eta - covs[b].deviation[None]  # zero-mean draws of the conditioned process
+        d = new[b][None] + np.einsum("ts,ksj->ktj", W[b], eta)
+        sq[b], sp[b] = _from_deviation(paths, ref_q[b][None], ref_p[b][None], d)
+    return sq, sp
 
 
 def _recheck_envelope(model, res: RolloutResult, durations, off_data: str) -> None:

@@ -468,12 +468,16 @@ def _sampled_summary(results: list[dict], floors: list[float]) -> dict:
             **parts, **cov}
 
 
-def _goal_configs(configs: list[Config]) -> list[Config]:
+def _goal_configs(configs: list[Config], given: str | None = "goal") -> list[Config]:
     """The rows of ``given="goal"``: the model configurations and the ProMP / DMP peers as they are
     (their goal-conditioned forms, :mod:`rbgp_cli.evaluation.given_goal`), the replay peer replaced by
-    the nearest demonstration with its end offsets blended in."""
+    the nearest demonstration with its end offsets blended in; ``given`` None: ``configs`` as they are."""
     from rbgp_cli.evaluation.given_goal import NEAREST
 
+    if given is None:
+        return list(configs)
+    if given != "goal":
+        raise InputError(f"given must be goal, got {given!r}", param="given")
     return [Config(NEAREST) if c.representation == REPLAY else c for c in configs]
 
 
@@ -515,10 +519,7 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
     ``by_repeat`` when R > 1; its ``per_fold`` entries then say their ``repeat``).
     """
     demos = list(demos)
-    if given is not None and given != "goal":
-        raise InputError(f"given must be goal, got {given!r}", param="given")
-    if given == "goal":
-        configs = _goal_configs(configs)
+    configs = _goal_configs(configs, given)
     if isinstance(repeats, bool) or not isinstance(repeats, (int, np.integer)) or repeats < 1:
         raise InputError(f"repeats must be a whole number of at least 1, got {repeats!r}", param="repeats")
     seeds = [int(seed) + r for r in range(int(repeats))]
