@@ -42,6 +42,43 @@ __all__ = [
 
 
 # --------------------------------------------------------------------------------------------- poses
+def _goal_keywords(count: int, goals, via, goal_tolerance) -> dict:
+    """:meth:`RigidBodyGP.rollout`'s goals, via-points and tolerance as keywords of
+    :func:`~rbgp_cli.workflows.rollout_model` (goals broadcast to ``count`` starts)."""
+    from rbgp_cli.dynamics.trajectory import Trajectory
+
+    out: dict = {}
+    if goals is not None:
+        if isinstance(goals, Trajectory):
+            goals = [goals]
+        if isinstance(goals, (list, tuple)) and goals and all(isinstance(t, Trajectory) for t in goals):
+            goals = (np.array([t.quat[-1] for t in goals]), np.array([t.position[-1] for t in goals]))
+        gq, gp = start_poses(goals)
+        if len(gq) not in (1, count):
+            raise InputError(f"{len(gq)} goals for {count} starts", param="goals", hint="give one goal, or one per start")
+        out["goal_quat"], out["goal_position"] = np.broadcast_to(gq, (count, 4)).copy(), np.broadcast_to(gp, (count, 3)).copy()
+    if via:
+        points = []
+        for item in via:
+            try:
+                tv, pose = item
+                tv = float(tv)
+            except (TypeError, ValueError):
+                raise InputError(f"a via-point must be a pair (T seconds, pose), got {item!r}", param="via") from None
+            if not (np.isfinite(tv) and tv > 0):
+                raise InputError(f"a via-point's time must be a positive number of seconds, got {tv}", param="via")
+            qv, pv = start_poses(pose)
+            points.append((tv, qv[0], pv[0]))
+        out["via"] = points
+    if goal_tolerance is not None:
+        tol = np.asarray(goal_tolerance, dtype=np.float64).reshape(-1)
+        if tol.shape != (2,) or not np.all(np.isfinite(tol) & (tol > 0)):
+            raise InputError(f"goal_tolerance must be two positive numbers (rad, m), got {goal_tolerance!r}",
+                             param="goal_tolerance")
+        out["goal_tolerance"] = (float(tol[0]), float(tol[1]))
+    return out
+
+
 def start_poses(poses) -> tuple[np.ndarray, np.ndarray]:
     """Poses in the API's layout as ``(quat (n, 4) x, y, z, w unit, position (n, 3) m)``.
 
@@ -275,6 +312,12 @@ class Rollout:
     def count(self) -> int:
         """B, the number of mean trajectories."""
         return int(self.quat.shape[0])
+
+    @property
+    def goal_distance(self) -> np.ndarray | None:
+        """(B,) how far each goal lies from where the demonstrations end given its start, in their
+        spreads (docs/method.md §12; above 4 rbgp warns), or None without goals."""
+        return getattr(self.result, "goal_distance", None)
 
     def trajectories(self, include_samples: bool = False) -> list:
         """The mean trajectories (names ``0``, ``1``, …) and optionally the samples (``0.s0``, …) as
@@ -524,7 +567,7 @@ class RigidBodyGP:
 
     def rollout(self, start, *, duration: float | None = None, steps: int | None = None, dt: float | None = None,
                 samples: int = 0, seed: int = 0, return_std: bool = True, off_data: str = "keep",
-                rate: float | None = None) -> Rollout:
+                rate: float | None = None, goals=None, via=(), durations=None, goal_tolerance=None) -> Rollout:
         """Generate motions from start poses by single-step mean prediction (``rbgp rollout``).
 
         Parameters
@@ -539,6 +582,15 @@ class RigidBodyGP:
         return_std : record the predictive std along the mean trajectories
         off_data : keep, stop or prior: what a rollout does outside the demonstrations' envelope
         rate : resample the result to this rate (Hz); None: the integration grid
+        goals : where the motions end (docs/method.md §12): poses as ``start`` takes them, one for every
+            start or one per start (Trajectory objects: their *last* pose); the mean ends there and the
+            samples' bands pinch there
+        via : via-points ``[(T, pose), ...]``: T seconds after the start, pose (7,) ``(qx, qy, qz, qw, x, y, z)``
+            or a pair (quat, position)
+        durations : (n,) seconds, each start its own duration (default with a goal: what the
+            demonstrations suggest for that start and goal; without one: ``duration``)
+        goal_tolerance : (rad, m), one standard deviation of how far from the goal and via-points the
+            motion may end or pass (default: reach them)
 
         Returns
         -------
@@ -561,8 +613,13 @@ class RigidBodyGP:
         if off_data not in ("keep", "stop", "prior"):
             raise InputError(f"off_data must be keep, stop or prior, got {off_data!r}", param="off_data")
         q, p = start_poses(start)
+        aims = _goal_keywords(len(q), goals, via, goal_tolerance)
+        if durations is not None:
+            durations = np.asarray(durations, dtype=np.float64).reshape(-1)
+            if durations.shape != (len(q),) or not np.all(np.isfinite(durations) & (durations > 0)):
+                raise InputError(f"durations must be {len(q)} positive numbers of seconds, one per start", param="durations")
         res = rollout_model(m, q, p, steps=steps, duration=duration, dt=dt, samples=samples, seed=seed,
-                            with_std=return_std, rate=rate, off_data=off_data)
+                            with_std=return_std, rate=rate, off_data=off_data, durations=durations, **aims)
         return Rollout._of(res)
 
     def save(self, path) -> dict:
@@ -642,7 +699,7 @@ def evaluate(generated, demos, *, length: int | None = None, covariance: str = "
 def crossval(demos, estimators=None, *, folds: int = 5, seed: int = 0, replay: bool = True, peers: bool = False,
              samples: int | None = None, length: int | None = None, covariance: str = "diag",
              jobs: int | None = None, repeats: int = 1, without_gp: bool = True, order: str = "random",
-             train_size: int | None = None) -> Crossval:
+             train_size: int | None = None, given: str | None = None) -> Crossval:
     """Cross-validate by demonstration (``rbgp crossval``): each configuration is trained on the other
     folds and rolled out from each held-out demonstration's start, on the same folds.
 
@@ -662,6 +719,8 @@ def crossval(demos, estimators=None, *, folds: int = 5, seed: int = 0, replay: b
         recording order: files as read), the next session's case (``rbgp crossval --order``)
     train_size : N: train on N demonstrations and hold out the rest, ``folds`` times (random subsets, or
         windows of N consecutive ones with the later ones held out; ``rbgp crossval --train-size``)
+    given : None, or ``"goal"``: each held-out demonstration's final pose and duration are given too, the
+        rows roll out to that goal beside the goal-conditioned peers (``rbgp crossval --given goal``)
 
     Returns
     -------
@@ -693,5 +752,5 @@ def crossval(demos, estimators=None, *, folds: int = 5, seed: int = 0, replay: b
     configs.extend(extra[1:])  # the peers only
     result = _crossval(trajs, configs, folds=folds, seed=seed, jobs=jobs, length=length, covariance=covariance,
                        samples=SAMPLES if samples is None else samples, repeats=repeats, without_gp=without_gp,
-                       order=order, train_size=train_size)
+                       order=order, train_size=train_size, given=given)
     return Crossval(rows=list(result.get("results", [])), folds=int(result.get("folds", folds)), result=result)

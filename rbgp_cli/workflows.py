@@ -26,6 +26,11 @@ __all__ = [
     "parse_pose",
     "parse_pose_quat",
     "read_start_poses",
+    "parse_goal",
+    "parse_via",
+    "parse_tolerance",
+    "goal_options",
+    "warn_far_goals",
     "rollout_starts",
     "rollout_model",
     "evaluate_files",
@@ -33,6 +38,7 @@ __all__ = [
     "predict_file",
     "crossval_configs",
     "crossval_files",
+    "given_option",
     "left_data",
     "SAMPLE_DATA",
 ]
@@ -170,6 +176,90 @@ def parse_pose_quat(text: str) -> tuple[np.ndarray, np.ndarray]:
     return vals[:4] / norm, vals[4:]
 
 
+_GOAL_HINT = 'write it as "qx qy qz qw x y z" (quaternion x, y, z, w; m)'
+
+
+def parse_goal(text: str, flag: str = "goal", what: str = "goal pose") -> tuple[np.ndarray, np.ndarray]:
+    """Parse a goal pose "qx qy qz qw x y z" (quaternion x, y, z, w, normalised here; position in m;
+    commas allowed), as :func:`parse_pose_quat` reads a start."""
+    from rbgp_cli.dynamics.prepare import ZERO_QUAT_NORM
+
+    try:
+        vals = np.array([float(v) for v in str(text).replace(",", " ").split()])
+    except ValueError:
+        raise InputError(f"the {what} {text!r} is not seven numbers", hint=_GOAL_HINT, param=flag) from None
+    if vals.shape != (7,) or not np.all(np.isfinite(vals)):
+        raise InputError(f"the {what} {text!r} must be seven finite numbers", hint=_GOAL_HINT, param=flag)
+    norm = float(np.linalg.norm(vals[:4]))
+    if norm < ZERO_QUAT_NORM:
+        raise InputError(f"the {what} {text!r} has a zero quaternion, which is no rotation", param=flag,
+                         hint='give a unit quaternion x y z w first, e.g. "0 0 0 1 x y z" for no rotation')
+    return vals[:4] / norm, vals[4:]
+
+
+def parse_via(text: str) -> tuple[float, np.ndarray, np.ndarray]:
+    """Parse a via-point "T: qx qy qz qw x y z" (T seconds after the start, then a pose as
+    :func:`parse_goal`). Returns (T, quat (4,) x, y, z, w, position (3,) m)."""
+    hint = 'write it as "T: qx qy qz qw x y z" (T seconds after the start; quaternion x, y, z, w; m)'
+    head, sep, pose = str(text).partition(":")
+    if not sep:
+        raise InputError(f"the via-point {text!r} has no time before a colon", hint=hint, param="via")
+    try:
+        t = float(head)
+    except ValueError:
+        raise InputError(f"the via-point {text!r}: its time {head.strip()!r} is not a number of seconds", hint=hint,
+                         param="via") from None
+    if not (np.isfinite(t) and t > 0):
+        raise InputError(f"the via-point {text!r}: its time must be a positive number of seconds", hint=hint, param="via")
+    q, p = parse_goal(pose, flag="via", what="via-point")
+    return t, q, p
+
+
+def parse_tolerance(text: str) -> tuple[float, float]:
+    """Parse a goal tolerance "ROT_RAD POS_M" (one standard deviation of the goal's rotation, rad, and
+    position, m; both positive)."""
+    hint = 'write it as "ROT_RAD POS_M", e.g. "0.05 0.02" for 0.05 rad and 2 cm'
+    try:
+        vals = [float(v) for v in str(text).replace(",", " ").split()]
+    except ValueError:
+        raise InputError(f"the goal tolerance {text!r} is not two numbers", hint=hint,
+                         param="goal_tolerance") from None
+    if len(vals) != 2 or not all(np.isfinite(v) and v > 0 for v in vals):
+        raise InputError(f"the goal tolerance {text!r} must be two positive numbers", hint=hint,
+                         param="goal_tolerance")
+    return vals[0], vals[1]
+
+
+def goal_options(count: int, *, goal=None, goals=None, via=(), goal_tolerance=None,
+                 options: ReadOptions | None = None) -> dict:
+    """The goal, via-points and tolerance of ``rbgp rollout`` for ``count`` starts, as keywords of
+    :func:`rollout_model`: ``goal`` text (:func:`parse_goal`, one goal for every start) or the poses of
+    the file ``goals`` (:func:`read_start_poses`, one per start in the order of the starts), each
+    ``via`` text (:func:`parse_via`) and ``goal_tolerance`` text (:func:`parse_tolerance`). Nothing
+    given: {} (a rollout from the start alone)."""
+    if goal and goals:
+        raise InputError("give goal (one goal for every start) or goals FILE (one per start), not both",
+                         param=("goal", "goals"))
+    out: dict = {}
+    if goal:
+        q, p = parse_goal(goal)
+        out["goal_quat"], out["goal_position"] = np.tile(q, (count, 1)), np.tile(p, (count, 1))
+    elif goals:
+        q, p = read_start_poses(goals, options)
+        if len(q) != count:
+            raise InputError(f"the goals file has {len(q)} poses for {count} starts", path=str(goals),
+                             hint="give goals one pose per start, in the order of the starts", param="goals")
+        out["goal_quat"], out["goal_position"] = q, p
+    if via:
+        out["via"] = [parse_via(v) for v in via]
+    if goal_tolerance:
+        if not out:
+            raise InputError("goal_tolerance softens a goal or via-point, and none is given",
+                             param=("goal_tolerance", "goal", "goals", "via"), hint="add goal POSE, goals FILE or via \"T: POSE\"")
+        out["goal_tolerance"] = parse_tolerance(goal_tolerance)
+    return out
+
+
 def read_start_poses(path, options: ReadOptions | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Poses from a file, one per row (any pose columns the CSV reader knows): rollout starts, or the
     poses ``rbgp predict`` evaluates. Returns unit quaternions (m, 4) x, y, z, w and positions (m, 3).
@@ -303,7 +393,8 @@ def rollout_starts(model, *, start=(), start_quat=(), starts=None, from_demos=No
 
 
 def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, samples=0, seed=0, with_std=True,
-                  progress=None, durations=None, rate=None, off_data: str = "keep"):
+                  progress=None, durations=None, rate=None, off_data: str = "keep", goal_quat=None,
+                  goal_position=None, via=(), goal_tolerance=None):
     """``rbgp rollout``: steps from ``steps``, or ``duration`` / dt, or the demonstrations' median duration.
 
     ``durations`` (B,) seconds: each trajectory its own duration instead (``steps``/``duration`` are
@@ -320,6 +411,13 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
     ``off_data`` (keep, stop, prior): what a rollout does outside the demonstrations' envelope
     (:mod:`rbgp_cli.dynamics.rollout`); rollouts that left it are named in one warning (the result's
     ``left`` lists them).
+
+    ``goal_quat`` (B, 4) / ``goal_position`` (B, 3), ``via`` [(T s, quat (4,), position (3,)), ...],
+    ``goal_tolerance`` (rad, m) or None (reach them): the motions end at the goals and pass the
+    via-points (:func:`~rbgp_cli.dynamics.rollout.rollout_conditioned`, docs/method.md §12); their
+    duration is ``durations``, else ``duration``, else the path distribution's conditional duration
+    given start and goal (``steps`` is refused: a goal fixes where the motion ends, not a step count).
+    Goals far from where the demonstrations end are warned about (:func:`warn_far_goals`).
     """
     from rbgp_cli.dynamics.envelope import describe
     from rbgp_cli.dynamics.rollout import rollout, rollout_for
@@ -329,7 +427,12 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
         dt = model.dt if steps is not None and durations is None else model.rollout_dt
     step = float(dt)
     kwargs = {"samples": samples, "seed": seed, "with_std": with_std, "progress": progress, "off_data": off_data}
-    if durations is not None:
+    if goal_quat is not None or via:
+        res = _rollout_to_goal(model, quat, pos, steps=steps, duration=duration, durations=durations, dt=step,
+                               goal_quat=goal_quat, goal_position=goal_position, via=via,
+                               goal_tolerance=goal_tolerance, rate=None if rate is None or abs(float(rate) * step - 1.0) <= 1e-9 else rate,
+                               **kwargs)
+    elif durations is not None:
         res = rollout_for(model, quat, pos, durations, step, **kwargs)
     else:
         if steps is None:
@@ -344,8 +447,66 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
                 "prior": "they followed the prior mean while outside (off_data prior)"}[off_data]
         warn(describe(res.left) + f"; {then}"
              + ("; envelope from the model's training points (an older model file)" if res.left["envelope"] != "demonstrations" else ""))
-    if rate is not None and abs(float(rate) * step - 1.0) > 1e-9:  # at 1/dt the grid is the integration grid
-        res = res.resampled(rate)
+    if rate is not None and abs(float(rate) * step - 1.0) > 1e-9 and res.goal_distance is None and not res.via:
+        res = res.resampled(rate)  # at 1/dt the grid is the integration grid (a conditioned one is resampled before it is bent)
+    return res
+
+
+#: A goal further than this many of the demonstrations' spreads from where they end (given the start)
+#: is warned about (:func:`warn_far_goals`; the distance is a χ with 6 degrees of freedom, which exceeds
+#: 4.5 with probability 0.0025; held out of 5 folds, 2 of the 30 handovers' own goals and 2 of the 40
+#: slower handovers' lie beyond it, none of the 40 hand raises'; docs/method.md §12).
+FAR_GOAL = 4.5
+
+
+def warn_far_goals(distance) -> None:
+    """One warning naming the goals further than :data:`FAR_GOAL` spreads from where the
+    demonstrations end (``distance`` (B,), :meth:`~rbgp_cli.dynamics.paths.PathDistribution.goal_distance`)."""
+    from rbgp_cli.errors import warn
+
+    d = np.asarray(distance, dtype=np.float64).reshape(-1)
+    far = np.flatnonzero(d > FAR_GOAL)
+    if len(far) == 0:
+        return
+    worst = float(d[far].max())
+    if len(d) == 1:
+        what = f"the goal is {worst:.1f} standard deviations from where the demonstrations end: this motion is an extrapolation"
+    elif len(far) == 1:
+        what = (f"the goal of trajectory {int(far[0])} is {worst:.1f} standard deviations from where the demonstrations "
+                "end: that motion is an extrapolation")
+    else:
+        listed = ", ".join(map(str, far[:8])) + (", ..." if len(far) > 8 else "")
+        what = (f"{len(far)} of {len(d)} goals are up to {worst:.1f} standard deviations from where the demonstrations "
+                f"end (trajectories {listed}): those motions are extrapolations")
+    warn(what, hint="check the goal's frame and units, or record demonstrations that end there", param=("goal", "goals"))
+
+
+def _rollout_to_goal(model, quat, pos, *, steps, duration, durations, dt, goal_quat, goal_position, via,
+                     goal_tolerance, samples, seed, with_std, progress, off_data, rate=None):
+    """:func:`rollout_model` with a goal or via-points: checks, durations, the conditioned rollout, the
+    far-goal warning."""
+    from rbgp_cli.dynamics.rollout import rollout_conditioned
+
+    if steps is not None:
+        raise InputError("a goal or via-point fixes where the motion goes, and steps counts integration steps",
+                         hint="give duration SECONDS, or neither (the duration the demonstrations suggest for "
+                              "this start and goal)", param=("steps", "duration"))
+    paths = getattr(model, "paths", None)
+    if paths is None:
+        raise InputError("this model has no path distribution to condition on a goal or via-points (it was trained "
+                         "on fewer than three demonstrations, or by an older rbgp)",
+                         hint="retrain it with rbgp train on three demonstrations or more", param=("goal", "via"))
+    B = len(np.atleast_2d(quat))
+    if durations is None and duration is not None:
+        dur = float(duration)
+        if not np.isfinite(dur) or dur <= 0:
+            raise InputError(f"duration must be a positive number of seconds, got {dur}", param="duration")
+        durations = np.full(B, dur)
+    res = rollout_conditioned(model, quat, pos, goal_quat=goal_quat, goal_position=goal_position, via=list(via),
+                              durations=durations, goal_tolerance=goal_tolerance, samples=samples, seed=seed,
+                              dt=dt, with_std=with_std, progress=progress, off_data=off_data, rate=rate)
+    if res.goal_distance is not None:
+        warn_far_goals(res.goal_distance)
     return res
 
 
@@ -471,10 +632,22 @@ def crossval_configs(representations, kernels, train_kwargs: dict, replay: bool 
     return configs, skipped
 
 
+def given_option(text) -> dict:
+    """``rbgp crossval --given``: ``goal`` → {"given": "goal"} (each held-out demonstration's final pose
+    and duration given, :mod:`rbgp_cli.evaluation.given_goal`); None → {}."""
+    if text is None:
+        return {}
+    if str(text).strip().lower() == "goal":
+        return {"given": "goal"}
+    raise InputError(f"given must be goal, got {text!r}", param="given",
+                     hint="goal gives each held-out demonstration's final pose and duration")
+
+
 def crossval_files(sources, configs, *, options: ReadOptions | None = None, max_gap=None, folds: int = 5,
                    seed: int = 0, jobs: int | None = None, length=None, covariance="diag", progress=None,
                    scheduler: str | None = None, samples: int | None = None, repeats: int = 1,
-                   without_gp: bool = True, order: str = "random", train_size: int | None = None) -> dict:
+                   without_gp: bool = True, order: str = "random", train_size: int | None = None,
+                   given: str | None = None) -> dict:
     """``rbgp crossval``: read and clean the demonstrations, cross-validate every configuration on the
     same folds (:func:`rbgp_cli.evaluation.crossval.crossval`); returns its result plus the inputs."""
     from rbgp_cli.evaluation.crossval import crossval
@@ -484,6 +657,6 @@ def crossval_files(sources, configs, *, options: ReadOptions | None = None, max_
 
     result = crossval(demos, configs, folds=folds, seed=seed, jobs=jobs, length=length, covariance=covariance,
                       progress=progress, scheduler=scheduler, samples=SAMPLES if samples is None else samples,
-                      repeats=repeats, without_gp=without_gp, order=order, train_size=train_size)
+                      repeats=repeats, without_gp=without_gp, order=order, train_size=train_size, given=given)
     result["inputs"] = [i["name"] for i in inputs]
     return result

@@ -185,6 +185,10 @@ def rollout(
     start_spread: Annotated[float, typer.Option("--start-spread", min=0.0, help="Std of the start perturbation in metres (rotation: 0.1 rad per 0.3 m).")] = 0.02,
     steps: Annotated[Optional[int], typer.Option(min=1, help="Integration steps (default: the demonstrations' median duration / dt).")] = None,
     duration: Annotated[Optional[float], typer.Option(help="Duration in seconds instead of --steps.")] = None,
+    goal: Annotated[Optional[str], typer.Option("--goal", help='Goal pose "qx qy qz qw x y z" (quaternion x, y, z, w; m) where every motion ends: the mean ends there (within about 1 mm / 2 mrad), and in between is what the demonstrations say a motion between start and goal looks like (docs/method.md §12). Default duration: what the demonstrations suggest for this start and goal. A goal far from where the demonstrations end is warned about.')] = None,
+    goals: Annotated[Optional[str], typer.Option("--goals", help="File of goal poses, one per start in the order of the starts (for --from-demos the order the demonstrations are read, as the trajectory names 0, 1, ... say), read like --starts.")] = None,
+    via: Annotated[Optional[List[str]], typer.Option("--via", help='Via-point "T: qx qy qz qw x y z": the motion passes this pose T seconds after its start; repeatable.')] = None,
+    goal_tolerance: Annotated[Optional[str], typer.Option("--goal-tolerance", help='A softer goal and via-points: "ROT_RAD POS_M", one standard deviation of how far from them the motion may end or pass (default: reach them).')] = None,
     each_duration: Annotated[bool, typer.Option("--each-duration", help="With --from-demos: each start lasts as long as the demonstration it was drawn near (other starts: --duration, or the median).")] = False,
     dt: Annotated[Optional[float], typer.Option(help="Integration step in seconds. Default: the demonstrations' recorded sample interval (at most 10 steps per training step; model files without the recorded rate: the training step), so that a curved motion written at the recorded rate is integrated at every sample instead of interpolated between training steps; with --steps, the training step. A different step changes the motion, while --output-rate only writes more points of the same one.")] = None,
     output_rate: Annotated[Optional[float], typer.Option("--output-rate", min=0.0, help="Rate (Hz) of the written trajectories. Default: the demonstrations' recorded rate (their median sample rate, stored in the model; model files from before rbgp stored it: the integration grid). The motion is integrated on --dt either way and resampled, slerp for the rotation and linear for the position and the stds, so the poses at the integration steps do not depend on the rate. 0 writes the integration grid. (--rate is the sample rate of input files without a time column, as in every command.)")] = None,
@@ -206,8 +210,12 @@ def rollout(
 
     Each step takes the model's mean velocity at the current pose and integrates it over one time
     step (with the exponential map for axis-angle; by addition for the euler and quaternion baselines).
+    With --goal (or --goals) and --via the motions end at the goal and pass the via-points, bent as
+    the demonstrations say a motion between those poses differs (docs/method.md §12).
 
     Example: rbgp rollout shoe.rbgp --count 100 --samples 5 -o rollouts.csv
+
+    Example: rbgp rollout shoe.rbgp --start-quat "0 0 0 1 0.4 0 0.2" --goal "0 0 0 1 0.6 0.1 0.3" --samples 20 -o to_goal.csv
     """
     from rbgp_cli import workflows
     from rbgp_cli.errors import InputError
@@ -222,7 +230,7 @@ def rollout(
     if each_duration and steps is not None:
         raise InputError("give --each-duration or --steps, not both", hint="--duration sets the starts not drawn near a demonstration")
     opts = read.options
-    if opts.rate is not None and not (starts or from_demos):
+    if opts.rate is not None and not (starts or from_demos or goals):
         raise InputError("--rate is the sample rate of input files without a time column, and rollout reads none here",
                          hint="set the rate of the written trajectories with --output-rate HZ")
     fmt, folder = _rollout_format(output, output_format, mcap_encoding)
@@ -232,10 +240,11 @@ def rollout(
         m, start=start, start_quat=start_quat, starts=starts, from_demos=from_demos, count=count,
         start_spread=start_spread, seed=seed, options=opts, max_gap=read.max_gap, each_duration=each_duration,
         duration=duration, progress=progress)
+    aims = workflows.goal_options(len(q0), goal=goal, goals=goals, via=via, goal_tolerance=goal_tolerance, options=opts)
     rate = m.recorded_rate if output_rate is None else (output_rate or None)
     res = workflows.rollout_model(m, q0, p0, steps=steps, duration=duration, dt=dt, samples=samples, seed=seed,
                                   with_std=not no_std, progress=progress, durations=durations, rate=rate,
-                                  off_data=off_data)
+                                  off_data=off_data, **aims)
     trajs = res.trajectories(include_samples=samples > 0)
     if fmt == "csv":
         _write_rollout_csv(res, trajs, output)
@@ -252,7 +261,8 @@ def rollout(
         emit_json({"trajectories": res.count, "samples_per_start": samples, "steps": n_steps, "dt": step,
                    "output_rate_hz": float(rate) if res.integration else 1.0 / step,
                    "durations_s": [float(tr.t[-1]) for tr in trajs[:res.count]],
-                   "output": output, "std": res.std is not None, "off_data": off_data, "left_data": res.left})
+                   "output": output, "std": res.std is not None, "off_data": off_data, "left_data": res.left,
+                   "goal_distance": None if res.goal_distance is None else [float(d) for d in res.goal_distance]})
 
 
 def _write_rollout_csv(res, trajs, output) -> None:
@@ -488,6 +498,7 @@ def crossval(
     covariance: Annotated[str, typer.Option(help="Per-step Gaussians with diag or full covariance (as rbgp evaluate).")] = "diag",
     samples: Annotated[int, typer.Option("--samples", min=0, help="Sampled rollouts per held-out start (as rbgp rollout --samples) for the columns sample (one sample per start scored like score, over the floor) and cov_pos / cov_rot (how often the held-out motion lies inside the samples' 90 % prediction region: 0.90 for honest bands) with the bands' half-widths in --json; 0: none; at least 4 for the coverage.")] = 20,
     without_gp: Annotated[bool, typer.Option("--without-gp/--no-without-gp", help="Beside every model row with a prior mean, a row of the same fits with the GP's residual switched off (kernel column 'no-GP'): the path distribution alone, rolled out from the same starts with the same draws, so the difference is what the GP adds on your data.")] = True,
+    given: Annotated[Optional[str], typer.Option("--given", help="What each row is given of a held-out demonstration besides its start: goal (its final pose and duration: rbgp's motion conditioned on both ends, beside the goal-conditioned peers: nearest, the demonstration nearest by start and goal with its end offsets blended in; promp conditioned on start and goal; dmp of the nearest demonstration with the new goal). The table then has end_mm / end_mrad, the mean motions' end errors.")] = None,
     per_fold: Annotated[bool, typer.Option("--per-fold", help="Also print one line per fold and configuration.", rich_help_panel=_OUT)] = False,
     json_out: Annotated[bool, typer.Option("--json", help="Print the results as JSON on stdout.", rich_help_panel=_OUT)] = False,
     rho_rot: RhoOpt = _D["rho_rot"], restarts: RestartsOpt = _D["restarts"], explore_size: ExploreOpt = _D["explore_size"],
@@ -513,6 +524,8 @@ def crossval(
     Example: rbgp crossval sample_data/csv --representation all --folds 3
 
     Example: rbgp crossval sample_data/csv --grid prior-gain=3,10 --grid inducing=0,48
+
+    Example: rbgp crossval sample_data/csv --given goal --folds 3
     """
     from rbgp_cli import workflows
     from rbgp_cli.cli.train_options import grid_variants
@@ -527,8 +540,8 @@ def crossval(
                           start_conditioning=start_conditioning, noise_scale=noise_scale,
                           pull_profile=pull_profile)
     variants, lists = grid_variants(ctx, grid)
-    for name, given in (("representation", representation), ("kernel", kernel)):
-        if name in lists and given:
+    for name, listed in (("representation", representation), ("kernel", kernel)):
+        if name in lists and listed:
             raise InputError(f"give --{name} or --grid {name}=..., not both")
     configs, skipped = workflows.crossval_configs(lists.get("representation", representation), lists.get("kernel", kernel),
                                                   kwargs, replay=replay, peers=peers,
@@ -538,7 +551,7 @@ def crossval(
     result = workflows.crossval_files(demos, configs, options=opts, max_gap=max_gap, folds=folds, seed=seed, jobs=jobs,
                                       length=length, covariance=covariance, progress=progress, scheduler=scheduler,
                                       samples=samples, repeats=repeats, without_gp=without_gp, order=order,
-                                      train_size=train_size)
+                                      train_size=train_size, **workflows.given_option(given))
     result["skipped"] = list(skipped)
     if json_out:
         emit_json(result)

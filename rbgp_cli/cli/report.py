@@ -239,6 +239,13 @@ def format_crossval(result: dict, per_fold: bool = False) -> str:
         f"{'representation':<14} {'kernel':<10} {'score':>8} {'floor':>7} {'ratio':>7} {'rotation':>9} {'translation':>11}"
         f" {'pos_m':>7} {'rot_rad':>7} {'vel':>6} {'sample':>7} {'cov_pos':>7} {'cov_rot':>7} {'train_s':>8} {'left':>5}",
     ]
+    goal = result.get("given") == "goal"
+    if goal:  # the end errors of the mean motions, after the other columns
+        lines[1] = ("given goal: each held-out demonstration's start, final pose and duration are given; "
+                    "end_mm / end_mrad: how far the mean motions end from that final pose; nearest: the "
+                    "demonstration nearest by start and goal with its end offsets blended in; promp: conditioned "
+                    "on start and goal; dmp: of the nearest demonstration, with the new goal. " + lines[1])
+        lines[-1] += f" {'end_mm':>7} {'end_mrad':>8}"
     # rows of a --grid: the options that make each row, after its numbers
     options = {id(r): _options_label(r) for r in result["results"]}
     if any(options.values()):
@@ -246,11 +253,16 @@ def format_crossval(result: dict, per_fold: bool = False) -> str:
 
     def row(r, label_rep, label_kern, opts=""):
         flag = "" if r.get("reliable", True) else "  *"
+        end = ""
+        if goal:
+            mm = None if r.get("end_position") is None else 1000.0 * r["end_position"]
+            mrad = None if r.get("end_rotation") is None else 1000.0 * r["end_rotation"]
+            end = f" {_num(mm, '7.1f'):>7} {_num(mrad, '8.1f'):>8}"
         return (f"{label_rep:<14} {label_kern:<10} {r['score']:8.3f} {r['floor']:7.3f} {r['ratio']:7.2f} {r['rotation']:9.3f}"
                 f" {r['translation']:11.3f} {r['position_rmse']:7.3f} {r['rotation_rmse']:7.3f} {_num(r['velocity_rmse'], '6.3f'):>6}"
                 f" {_num(r.get('sample_ratio'), '7.2f'):>7} {_num(r.get('coverage_position'), '7.2f'):>7}"
                 f" {_num(r.get('coverage_rotation'), '7.2f'):>7}"
-                f" {r['train_s']:8.1f} {_num(r.get('left_data'), 'd'):>5}" + (f"  {opts}" if opts else "") + flag)
+                f" {r['train_s']:8.1f} {_num(r.get('left_data'), 'd'):>5}" + end + (f"  {opts}" if opts else "") + flag)
 
     for r in result["results"]:
         kern = "no-GP" if r.get("without_gp") else r["kernel"] or "-"

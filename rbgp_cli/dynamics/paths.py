@@ -60,6 +60,10 @@ SMOOTH_GRID = (1e-3, 3e-3, 0.01, 0.03, 0.1, 0.3, 1.0)
 LENGTH_GRID = (0.05, 0.1, 0.2, 0.4)
 #: A goal or via-point's default tolerance: (rotation rad, position m), one standard deviation.
 GOAL_TOLERANCE = (1e-3, 5e-4)
+#: :meth:`PathDistribution.goal_band_scale` narrows the bands only for this many demonstrations or more
+#: (a 90 % quantile of fewer left-out paths is too uncertain to narrow by), and at most to this factor.
+NARROW_FROM = 10
+NARROWEST = 0.5
 #: Every ``SELECT_EVERY``-th grid phase scores a left-out demonstration in :func:`fit_paths`.
 SELECT_EVERY = 5
 
@@ -110,11 +114,13 @@ class Conditioned:
         """ℓ's conditioned standard deviation (a factor exp(±1·this) on the duration)."""
         return float(np.sqrt(max(self.cov[-1, -1], 0.0)) * self.paths.duration_scale)
 
-    def draw(self, count: int, rng: np.random.Generator, *, widen: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    def draw(self, count: int, rng: np.random.Generator, *, widen: bool = True,
+             scale: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``count`` draws (deviations (count, S, 6) rad, m; durations (count,) s) of the conditioned
         distribution, Student-t with ν = D − 2 degrees of freedom (the covariance is estimated from D
         demonstrations: each draw's deviation from the mean scaled by √(ν/χ²_ν)) and, with ``widen``,
-        the bands' factors (c_rot, c_pos) on its rotation and position parts."""
+        the bands' factors (c_rot, c_pos) on its rotation and position parts: ``scale`` if given (e.g.
+        :meth:`PathDistribution.goal_band_scale`), else the distribution's ``band_scale``."""
         P = len(self.mean)
         w, V = np.linalg.eigh(0.5 * (self.cov + self.cov.T))
         root = V * np.sqrt(np.clip(w, 0.0, None))[None, :]
@@ -122,7 +128,7 @@ class Conditioned:
         nu = max(self.paths.demos - 2, 1)
         z *= np.sqrt(nu / rng.chisquare(nu, int(count)))[:, None]
         if widen:
-            c_rot, c_pos = self.paths.band_scale
+            c_rot, c_pos = self.paths.band_scale if scale is None else scale
             coords = np.tile(np.array([c_rot] * 3 + [c_pos] * 3), self.paths.S)
             z[:, :-1] *= coords
         dev, ell = self.paths.unscale(self.mean[None] + z)
@@ -154,6 +160,8 @@ class PathDistribution:
     seen_tolerance: float = 0.1
     band_scale: tuple = (1.0, 1.0)
     info: dict = field(default_factory=dict)
+    #: :meth:`goal_band_scale`, computed once
+    _goal_scale: tuple | None = field(default=None, repr=False, compare=False)
 
     # ------------------------------------------------------------------ the Gaussian
     @property
@@ -280,6 +288,24 @@ class PathDistribution:
         innov = np.atleast_2d(y) - x @ A.T  # (B, k)
         x = x + cho_solve((L, True), innov.T).T @ SA.T
         return self.unscale(x)[0]
+
+    def goal_band_scale(self, level: float = 0.90) -> tuple[float, float]:
+        """The bands' factors (c_rot, c_pos) for draws given start and goal (:func:`rollout_conditioned
+        <rbgp_cli.dynamics.rollout.rollout_conditioned>`): those of :attr:`band_scale`, from the same
+        left-out demonstrations (:func:`_band_factors`), but allowed below 1 (down to
+        :data:`NARROWEST`) when the distribution holds at least :data:`NARROW_FROM` demonstrations.
+
+        Why: τ² and ℓ maximise the left-out demonstrations' *joint* density (:func:`fit_paths`), and a
+        covariance estimated from D demonstrations in the scored dimensions (tens) is overconfident
+        there, so the density favours a generous τ²; the bands are per-step marginals, which that τ²
+        widens. On a synthetic Gaussian family of 120 motions (tests/dynamics/test_paths.py) the bands
+        held 0.97 / 0.99 (position / rotation) of fresh motions with the factors kept at 1 or more."""
+        if self._goal_scale is None:
+            _, m2, z = _loo_scores(self, self.smooth, self.length, stats=True)
+            c_rot, c_pos = _band_factors(m2, z, self.demos, level)
+            low = NARROWEST if self.demos >= NARROW_FROM else 1.0
+            self._goal_scale = (max(low, c_rot), max(low, c_pos))
+        return self._goal_scale
 
     def goal_distance(self, start_quat, start_position, goal_quat, goal_position) -> np.ndarray:
         """How far goals lie from where the demonstrations end, given each start: the Mahalanobis
@@ -420,6 +446,18 @@ def _loo_scores(paths: PathDistribution, smooth: float, length: float, stats: bo
     return logd / D
 
 
+def _band_factors(m2: np.ndarray, z: np.ndarray, demos: int, level: float = 0.90) -> tuple[float, float]:
+    """The factors (c_rot, c_pos) that make the left-out paths' 90 % regions hold at ``level`` against
+    the draws' Student-t quantiles (ν = D − 2: a rotation's m²/3 is F(3, ν), a position coordinate
+    t_ν), from :func:`_loo_scores`' rotation Mahalanobis² ``m2`` and position z-scores ``z``; unclamped."""
+    from scipy.special import fdtri, stdtrit
+
+    nu = max(int(demos) - 2, 1)
+    c_rot = np.sqrt(np.quantile(m2, level) / (3.0 * fdtri(3, nu, level)))
+    c_pos = np.quantile(np.ravel(z), level) / stdtrit(nu, 0.5 + level / 2.0)
+    return float(c_rot), float(c_pos)
+
+
 def fit_paths(trajs, steps: int = 51, *, level: float = 0.90) -> PathDistribution | None:
     """The path distribution of clean demonstrations (module docstring), None for fewer than
     MIN_PATH_DEMOS. τ² and ℓ maximise the left-out demonstrations' log density given their start and
@@ -427,8 +465,6 @@ def fit_paths(trajs, steps: int = 51, *, level: float = 0.90) -> PathDistributio
     regions hold at ``level`` (as :func:`rbgp_cli.dynamics.variation.band_scale` does for the start-only
     draws) against the draws' own Student-t quantiles (3 F_level(3, ν) for a rotation's m², t_ν for a
     position coordinate)."""
-    from scipy.special import fdtri, stdtrit
-
     from rbgp_cli.dynamics.variation import demonstration_deviations
 
     trajs = list(trajs)
@@ -442,10 +478,7 @@ def fit_paths(trajs, steps: int = 51, *, level: float = 0.90) -> PathDistributio
     scores = {(tau2, ell): _loo_scores(paths, tau2, ell) for tau2 in SMOOTH_GRID for ell in LENGTH_GRID}
     paths.smooth, paths.length = max(scores, key=scores.get)
     score, m2, z = _loo_scores(paths, paths.smooth, paths.length, stats=True)
-    # the draws are Student-t with ν = D − 2: a rotation's m²/3 is F(3, ν), a position coordinate t_ν
-    nu = max(D - 2, 1)
-    c_rot = np.sqrt(np.quantile(m2, level) / (3.0 * fdtri(3, nu, level)))
-    c_pos = np.quantile(z.ravel(), level) / stdtrit(nu, 0.5 + level / 2.0)
+    c_rot, c_pos = _band_factors(m2, z, D, level)
     paths.band_scale = (max(1.0, float(c_rot)), max(1.0, float(c_pos)))
     paths.info = {"loo_log_density": float(score), "smooth": paths.smooth, "length": paths.length}
     return paths

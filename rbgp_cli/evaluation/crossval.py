@@ -350,25 +350,38 @@ def _sample_columns(drawn, train: list[Trajectory], test: list[Trajectory], T: i
 
 
 def run_fold(config: Config, train: list[Trajectory], test: list[Trajectory], *, length: int | None = None,
-             covariance: str = "diag", samples: int = SAMPLES, fold: int = 0, repeat: int = 0) -> dict:
+             covariance: str = "diag", samples: int = SAMPLES, fold: int = 0, repeat: int = 0,
+             given: str | None = None) -> dict:
     """Train (unless replay), generate from the held-out starts, and score one fold (plain data);
     ``samples`` sampled rollouts per held-out start give the sample columns (0: none); ``fold`` and
-    ``repeat`` its number and repetition (the samples' seed, :func:`sample_seed`)."""
+    ``repeat`` its number and repetition (the samples' seed, :func:`sample_seed`); ``given="goal"``:
+    each held-out demonstration's final pose and duration are given too
+    (:mod:`rbgp_cli.evaluation.given_goal`), and the row has end errors."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         t0 = time.perf_counter()
-        gen, train_s, model, drawn = _generate(config, train, test, samples=samples, fold=fold, repeat=repeat)
+        seed = sample_seed(config.train.get("seed", 0), fold, repeat)
+        if given == "goal":
+            from rbgp_cli.evaluation.given_goal import end_errors, generate_given_goal, model_goal_rollouts
+
+            gen, train_s, model, drawn = generate_given_goal(config, train, test, samples, seed)
+        else:
+            gen, train_s, model, drawn = _generate(config, train, test, samples=samples, fold=fold, repeat=repeat)
         gen_s = time.perf_counter() - t0 - train_s
         out = _fold_scores(gen, drawn, model, train, test, length, covariance)
         out.update(train_s=train_s, rollout_s=gen_s)
+        if given == "goal":
+            out["end"] = end_errors(gen, test)
         if model is not None and model.mean:
             # the same fit with the GP's residual switched off: the path distribution alone, from the
             # same starts with the same draws (what the GP adds, issue 35)
             t0 = time.perf_counter()
             prior = model.without_residual()
-            gen0, drawn0 = _model_rollouts(prior, test, samples, sample_seed(config.train.get("seed", 0), fold, repeat))
+            gen0, drawn0 = (model_goal_rollouts if given == "goal" else _model_rollouts)(prior, test, samples, seed)
             out["without_gp"] = {**_fold_scores(gen0, drawn0, prior, train, test, length, covariance),
                                  "train_s": train_s, "rollout_s": time.perf_counter() - t0}
+            if given == "goal":
+                out["without_gp"]["end"] = end_errors(gen0, test)
     warned = {str(w.message) for w in caught}
     out["warnings"] = sorted(warned | set(out["warnings"]))
     if "without_gp" in out:
@@ -401,9 +414,9 @@ def _fold_scores(gen, drawn, model, train: list[Trajectory], test: list[Trajecto
 
 
 def _task(args):
-    config, train, test, length, covariance, samples, fold, repeat = args
+    config, train, test, length, covariance, samples, fold, repeat, given = args
     return run_fold(config, train, test, length=length, covariance=covariance, samples=samples, fold=fold,
-                    repeat=repeat)
+                    repeat=repeat, given=given)
 
 
 def _run_in_processes(args: list, n_jobs: int, label=None):
@@ -492,11 +505,21 @@ def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[di
         **_velocity_summary([r["velocity"] for r in results]),
         "train_s": float(np.mean([r["train_s"] for r in results])),
         **_sampled_summary(results, [f.mean for f in floors]),
+        **_end_summary(results),
         "left_data": sum(int(r.get("left_data") or 0) for r in results),
         "reliable": all(e["reliable"] for e in per_fold),
         **extra,
         "per_fold": per_fold,
     }
+
+
+def _end_summary(results: list[dict]) -> dict:
+    """With a goal given (``given="goal"``): the mean end errors over all held-out motions,
+    ``end_position`` (m) and ``end_rotation`` (rad); otherwise nothing."""
+    if not results or any("end" not in r for r in results):
+        return {}
+    n = sum(r["end"][2] for r in results)
+    return {"end_position": sum(r["end"][0] for r in results) / n, "end_rotation": sum(r["end"][1] for r in results) / n}
 
 
 def _sampled_summary(results: list[dict], floors: list[float]) -> dict:
@@ -521,10 +544,24 @@ def _sampled_summary(results: list[dict], floors: list[float]) -> dict:
             **parts, **cov}
 
 
+def _goal_configs(configs: list[Config], given: str | None = "goal") -> list[Config]:
+    """The rows of ``given="goal"``: the model configurations and the ProMP / DMP peers as they are
+    (their goal-conditioned forms, :mod:`rbgp_cli.evaluation.given_goal`), the replay peer replaced by
+    the nearest demonstration with its end offsets blended in; ``given`` None: ``configs`` as they are."""
+    from rbgp_cli.evaluation.given_goal import NEAREST
+
+    if given is None:
+        return list(configs)
+    if given != "goal":
+        raise InputError(f"given must be goal, got {given!r}", param="given")
+    return [Config(NEAREST) if c.representation == REPLAY else c for c in configs]
+
+
 def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, seed: int = 0,
              jobs: int | None = None, length: int | None = None, covariance: str = "diag",
              progress=None, scheduler: str | None = None, samples: int = SAMPLES, repeats: int = 1,
-             without_gp: bool = True, order: str = "random", train_size: int | None = None) -> dict:
+             without_gp: bool = True, order: str = "random", train_size: int | None = None,
+             given: str | None = None) -> dict:
     """Cross-validate every configuration on the same folds (see the module docstring).
 
     Parameters
@@ -554,6 +591,10 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
         on, as for the next session (:func:`make_splits`; the seed does not move the folds)
     train_size : None, or N: train on N demonstrations and hold out the rest, ``folds`` times (random
         subsets, or windows of N consecutive ones with the later ones held out; :func:`make_splits`)
+    given : None (each row generates from the held-out start alone) or ``"goal"``: the held-out
+        demonstrations' final poses and durations are given too, the peers are the goal-conditioned ones
+        (:mod:`rbgp_cli.evaluation.given_goal`: nearest, promp, dmp; a ``replay`` configuration is left
+        out) and every row has ``end_position`` (m) / ``end_rotation`` (rad), its mean motions' end errors
 
     Returns ``{"folds": K, "repeats": R, "seed", "demonstrations", "fold_sizes", "order", "train_size",
     "splits": [{"train": [...], "test": [...]}, ...] (demonstration indices, 0-based, in recording
@@ -562,6 +603,7 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
     ``by_repeat`` when R > 1; its ``per_fold`` entries then say their ``repeat``).
     """
     demos = list(demos)
+    configs = _goal_configs(configs, given)
     if isinstance(repeats, bool) or not isinstance(repeats, (int, np.integer)) or repeats < 1:
         raise InputError(f"repeats must be a whole number of at least 1, got {repeats!r}", param="repeats")
     if order not in ORDERS:
@@ -584,7 +626,7 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
     # the held-out demonstrations themselves against the training envelope: what real new motions do
     floor_left = sum(left_envelope(test, envelope_from_demos(train))["count"] for train, test in splits)
     tasks = [(c, f) for c in configs for f in range(len(splits))]
-    args = [(c, splits[f][0], splits[f][1], length, covariance, samples, f % k, f // k) for c, f in tasks]
+    args = [(c, splits[f][0], splits[f][1], length, covariance, samples, f % k, f // k, given) for c, f in tasks]
     n_jobs = jobs if jobs is not None else min(len(tasks), usable_cores())
     n_jobs = max(1, min(int(n_jobs), len(tasks)))
     results: list = [None] * len(tasks)
@@ -643,6 +685,7 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
         "splits": [{"train": tr.tolist(), "test": te.tolist()} for tr, te in index_splits],
         "floor": float(np.mean([f.mean for f in floors])),
         "floor_left_data": int(floor_left),
+        **({"given": given} if given else {}),
         "results": rows,
         "warnings": sorted(caught | {w for f in floors for w in f.warnings}),
     }

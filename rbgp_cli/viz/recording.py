@@ -271,7 +271,9 @@ def record_rollout(path, res, up: str = "z") -> None:
     Contents: ``/world/rollouts/<b>/path`` (static strip), ``/world/rollouts/<b>/body`` (pose over
     ``time``), ``/world/rollouts/<b>/samples`` (K grey translucent strips, static, when sampled),
     ``/metrics/std/<output>`` (one series per rollout, when ``res.std`` is not None) and
-    ``/metrics/position/<axis>`` (one series per rollout), all over ``time`` = ``res.t`` seconds.
+    ``/metrics/position/<axis>`` (one series per rollout), all over ``time`` = ``res.t`` seconds; a
+    conditioned rollout's goals at ``/world/rollouts/<b>/goal`` and via-points at ``/world/via/<i>``
+    (static axes and a labelled point at the pose; ``res.goal_quat``, ``res.goal_position``, ``res.via``).
     Blueprint: the 3D view beside tabs of std and position time series.
     """
     _check_up(up)
@@ -316,6 +318,7 @@ def record_rollout(path, res, up: str = "z") -> None:
                 rec.log(f"{base}/samples",
                         rr.LineStrips3D(np.asarray(res.sample_position[b][:, :n], dtype=np.float64),
                                         colors=[_SAMPLE_RGBA], radii=_THIN), static=True)
+        _log_aims(rec, res, colors, 0.04 * size)
         pos = np.where(after[..., None], np.nan, pos)  # the series end where their trajectory ends
         if has_std:
             std = np.where(after[..., None], np.nan, np.asarray(res.std, dtype=np.float64))  # (B, S+1, L)
@@ -323,6 +326,28 @@ def record_rollout(path, res, up: str = "z") -> None:
                 _log_series(rec, f"/metrics/std/{_part(out)}", index, std[:, :, j].T, names, colors)
         for j, axis in enumerate(_AXES):
             _log_series(rec, f"/metrics/position/{axis}", index, pos[:, :, j].T, names, colors)
+
+
+def _log_aims(rec, res, colors, axis_length: float) -> None:
+    """A conditioned rollout's goals (``/world/rollouts/<b>/goal``: the pose's axes and a labelled
+    point, in its trajectory's colour) and via-points (``/world/via/<i>``, labelled "via T s"), static."""
+    import rerun as rr
+
+    gq, gp = getattr(res, "goal_quat", None), getattr(res, "goal_position", None)
+    if gq is not None and gp is not None:
+        for b in range(len(gp)):
+            entity = f"/world/rollouts/{b}/goal"
+            rec.log(entity, rr.Transform3D(translation=np.asarray(gp[b], np.float64),
+                                           quaternion=rr.Quaternion(xyzw=np.asarray(gq[b], np.float64))), static=True)
+            rec.log(entity, rr.TransformAxes3D(axis_length), static=True)
+            rec.log(entity, rr.Points3D([[0.0, 0.0, 0.0]], colors=[colors[b]], radii=-6.0, labels=["goal"]), static=True)
+    for i, (tv, qv, pv) in enumerate(getattr(res, "via", ()) or ()):
+        entity = f"/world/via/{i}"
+        rec.log(entity, rr.Transform3D(translation=np.asarray(pv, np.float64),
+                                       quaternion=rr.Quaternion(xyzw=np.asarray(qv, np.float64))), static=True)
+        rec.log(entity, rr.TransformAxes3D(axis_length), static=True)
+        rec.log(entity, rr.Points3D([[0.0, 0.0, 0.0]], colors=[[255, 255, 255]], radii=-6.0, labels=[f"via {tv:g} s"]),
+                static=True)
 
 
 # ------------------------------------------------------------------------------------------ evaluation

@@ -432,3 +432,22 @@ def test_cli_flags_write_readable_files(tmp_path):
     assert "/world/rollouts/0/samples" in rollout.entities()
     assert Rrd(tmp_path / "eval.rrd").num_rows("/metrics/bhattacharyya") == 40
     assert (tmp_path / "eval.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_rollout_goals_and_via_points_are_drawn_at_their_poses(tmp_path):
+    res = synth_rollout(B=2, steps=10, K=0, with_std=False)
+    res.goal_quat = res.quat[:, -1].copy()
+    res.goal_position = res.position[:, -1].copy()
+    res.via = ((0.5, res.quat[0, 5].copy(), res.position[0, 5].copy()),)
+    path = tmp_path / "goal.rrd"
+    record_rollout(path, res)
+    rrd = Rrd(path)
+    for b in range(2):
+        entity = f"/world/rollouts/{b}/goal"
+        assert_f32_equal(np.array(rrd.static(entity, "Transform3D:translation")).reshape(3), res.goal_position[b])
+        assert rrd.static(entity, "Points3D:labels") == ["goal"]
+    assert_f32_equal(np.array(rrd.static("/world/via/0", "Transform3D:translation")).reshape(3), res.position[0, 5])
+    assert rrd.static("/world/via/0", "Points3D:labels") == ["via 0.5 s"]
+    plain = tmp_path / "plain.rrd"
+    record_rollout(plain, synth_rollout(B=1, steps=4, K=0, with_std=False))
+    assert not any(e.endswith("/goal") or e.startswith("/world/via") for e in Rrd(plain).entities())

@@ -1,0 +1,204 @@
+"""The path distribution and its conditioning (rbgp_cli/dynamics/paths.py, docs/method.md §12): the
+algebra of Gaussian conditioning, and a synthetic family of motions whose path depends linearly on its
+start and goal with a known deviation covariance, where the best possible prediction is known."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from rbgp_cli.dynamics.paths import PathDistribution, fit_paths
+from rbgp_cli.dynamics.trajectory import Trajectory
+from rbgp_cli.evaluation.coverage import Coverage, prediction_coverage
+from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
+
+S = 51
+PHASE = np.linspace(0.0, 1.0, S)
+#: the family's spreads: the start and goal offsets (rad, m), and the smooth bridge left in between
+START_SD = np.array([0.05, 0.05, 0.05, 0.03, 0.03, 0.03])
+MIDDLE_SD = np.array([0.02, 0.02, 0.02, 0.01, 0.01, 0.01])
+MIDDLE_LENGTH = 0.15
+
+
+def mean_path(s):
+    """A curved mean path: turning about z by 0.8 s rad, moving 0.5 m along x with an arc in y."""
+    quat = exp_quat(np.stack([np.zeros_like(s), np.zeros_like(s), 0.8 * s], axis=-1))
+    pos = np.stack([0.5 * s, 0.2 * np.sin(np.pi * s), np.full_like(s, 0.1)], axis=-1)
+    return quat, pos
+
+
+def family_covariance(middle_sd=MIDDLE_SD):
+    """The family's covariance over the grid, per coordinate j (S, S): the start offset u and the goal
+    offset v enter linearly, δ_j(s) = (1 − s) u_j + s v_j + η_j(s), with u_j, v_j ~ N(0, START_SD_j²)
+    and η_j a smooth process of variance middle_sd_j² (squared-exponential over phase)."""
+    lin = np.outer(1 - PHASE, 1 - PHASE) + np.outer(PHASE, PHASE)
+    K = np.exp(-0.5 * ((PHASE[:, None] - PHASE[None, :]) / MIDDLE_LENGTH) ** 2)
+    return [START_SD[j] ** 2 * lin + middle_sd[j] ** 2 * K for j in range(6)]
+
+
+def draw_family(n, rng, middle_sd=MIDDLE_SD):
+    """n deviations (n, S, 6) of the family, their durations (n,) s, and the motions as Trajectory
+    objects sampled on the grid (R = exp(δ_rot) R̄(s), p = p̄(s) + δ_pos, t = s·D)."""
+    covs = family_covariance(middle_sd)
+    dev = np.stack([rng.multivariate_normal(np.zeros(S), C + 1e-12 * np.eye(S), size=n) for C in covs], axis=-1)
+    durations = np.exp(rng.normal(np.log(2.0), 0.1, size=n))
+    mq, mp = mean_path(PHASE)
+    trajs = [Trajectory(PHASE * d, quat_multiply(exp_quat(x[:, :3]), mq), mp + x[:, 3:], name=str(i))
+             for i, (x, d) in enumerate(zip(dev, durations))]
+    return dev, durations, trajs
+
+
+def oracle_mean(dev, middle_sd=MIDDLE_SD):
+    """The true conditional mean of the family given δ(0) and δ(1) (zero-mean Gaussian, coordinates
+    independent): C[:, ends] C[ends, ends]⁻¹ δ(ends), per coordinate; (n, S, 6)."""
+    ends = [0, S - 1]
+    out = np.empty_like(dev)
+    for j, C in enumerate(family_covariance(middle_sd)):
+        gain = np.linalg.solve(C[np.ix_(ends, ends)], C[ends, :]).T  # (S, 2)
+        out[..., j] = dev[:, ends, j] @ gain.T
+    return out
+
+
+def pose_rmse(q, p, trajs):
+    """Position RMSE (m) of poses (n, S, ·) against trajectories sampled on the same grid."""
+    return float(np.sqrt(np.mean([(p[i] - t.position) ** 2 for i, t in enumerate(trajs)]) * 3))
+
+
+def condition_on_ends(paths, tr, duration=True):
+    obs = [paths.observe([0.0], tr.quat[:1], tr.position[:1], exact=True),
+           paths.observe([1.0], tr.quat[-1:], tr.position[-1:], exact=True)]
+    if duration:
+        obs.append(paths.observe_duration(tr.duration))
+    return paths.condition(*paths.stack(*obs))
+
+
+@pytest.fixture(scope="module")
+def family():
+    rng = np.random.default_rng(38)
+    _, _, train = draw_family(120, rng)
+    fresh_dev, _, fresh = draw_family(60, rng)
+    return fit_paths(train), train, fresh_dev, fresh
+
+
+# --------------------------------------------------------------------------------------------- algebra
+@pytest.fixture(scope="module")
+def small():
+    rng = np.random.default_rng(1)
+    _, _, trajs = draw_family(12, rng)
+    return fit_paths(trajs), trajs
+
+
+def test_fewer_than_three_demonstrations_give_no_distribution(small):
+    assert fit_paths(small[1][:2]) is None
+    assert isinstance(fit_paths(small[1][:3]), PathDistribution)
+
+
+def test_conditioning_on_an_exact_observation_reproduces_it(small):
+    paths, trajs = small
+    rng = np.random.default_rng(2)
+    phases = np.sort(rng.uniform(0, 1, 4))
+    q, p = paths.pose_at(paths.deviations[3], phases)  # poses a demonstration passes
+    A, y, r2 = paths.observe(phases, q, p, exact=True)
+    cond = paths.condition(A, y, r2)
+    # in scaled units the tolerance is 0.5 mm / 1 mrad over each coordinate's spread: well below 1e-2
+    np.testing.assert_allclose(A @ cond.mean, y, atol=1e-2)
+    q2, p2 = paths.pose_at(cond.deviation, phases)
+    np.testing.assert_allclose(p2, p, atol=2e-3)  # within a few tolerances (0.5 mm)
+
+
+def test_the_conditioned_covariance_is_symmetric_positive_semidefinite_and_pinched(small):
+    paths, trajs = small
+    _, Sigma = paths.prior()
+    cond = condition_on_ends(paths, trajs[0])
+    for C in (Sigma, cond.cov):
+        np.testing.assert_allclose(C, C.T, atol=1e-12)
+        w = np.linalg.eigvalsh(C)
+        assert w.min() > -1e-9 * w.max()
+    sd = cond.marginal_std()
+    assert np.all(sd[0] < 0.05 * sd[S // 2]) and np.all(sd[-1] < 0.05 * sd[S // 2])  # the band pinches at both ends
+    assert np.all(np.diag(cond.cov) <= np.diag(Sigma) + 1e-12)  # knowing more never widens it
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.integers(0, 11), st.floats(0.05, 0.95))
+def test_matheron_update_of_the_prior_mean_is_the_conditioned_mean(small, d, via):
+    paths, trajs = small
+    tr = trajs[d]
+    k = int(round(via * (S - 1)))
+    A, y, r2 = paths.stack(paths.observe([0.0], tr.quat[:1], tr.position[:1], exact=True),
+                           paths.observe([PHASE[k]], tr.quat[k:k + 1], tr.position[k:k + 1], tolerance=(0.01, 0.005)))
+    m, _ = paths.prior()
+    prior_dev, prior_ell = paths.unscale(m)
+    moved = paths.update(prior_dev[None], A, y[None], r2, log_duration=np.atleast_1d(prior_ell))[0]
+    np.testing.assert_allclose(moved, paths.condition(A, y, r2).deviation, atol=1e-9)
+
+
+def test_a_batch_of_observation_values_shares_one_factorisation(small):
+    paths, trajs = small
+    obs = [paths.observe([0.0, 1.0], np.stack([t.quat[0], t.quat[-1]]), np.stack([t.position[0], t.position[-1]]),
+                         exact=True) for t in trajs[:3]]
+    batch = paths.condition(obs[0][0], np.stack([o[1] for o in obs]), obs[0][2])
+    for i, o in enumerate(obs):
+        np.testing.assert_allclose(batch.mean[i], paths.condition(*o).mean, atol=1e-10)
+
+
+# --------------------------------------------------------------------------------------------- the family
+@pytest.mark.slow
+def test_the_conditioned_mean_recovers_the_true_path_within_ten_percent_of_the_noise_floor(family):
+    paths, _, fresh_dev, fresh = family
+    means = [paths.pose_at(condition_on_ends(paths, tr).deviation, PHASE) for tr in fresh]
+    ours = pose_rmse(np.array([m[0] for m in means]), np.array([m[1] for m in means]), fresh)
+    truth = oracle_mean(fresh_dev)  # the best any predictor can do given start and goal
+    mq, mp = mean_path(PHASE)
+    floor = pose_rmse(None, mp[None] + truth[..., 3:], fresh)
+    assert floor > 0.004  # the family leaves a real spread between its ends (MIDDLE_SD 1 cm)
+    assert ours <= 1.10 * floor, (ours, floor)
+    # and the start alone is far worse: the goal is worth something here
+    start_only = [paths.pose_at(paths.condition(*paths.observe([0.0], t.quat[:1], t.position[:1], exact=True)).deviation,
+                                PHASE)[1] for t in fresh]
+    assert pose_rmse(None, np.array(start_only), fresh) > 1.5 * floor
+
+
+@pytest.mark.slow
+def test_the_bands_hold_fresh_motions_ninety_percent_of_the_time(family):
+    paths, _, _, fresh = family
+    rng = np.random.default_rng(5)
+    total = Coverage()
+    for tr in fresh:
+        cond = condition_on_ends(paths, tr)
+        dev, _ = cond.draw(20, rng, scale=paths.goal_band_scale())
+        q, p = paths.pose_at(dev, PHASE)
+        drawn = [Trajectory(tr.t, q[k], p[k]) for k in range(20)]
+        total = total + prediction_coverage(drawn, tr, S)
+    cov = total.to_dict()
+    assert abs(cov["coverage_position"] - 0.90) <= 0.04, cov
+    assert abs(cov["coverage_rotation"] - 0.90) <= 0.04, cov
+
+
+@pytest.mark.slow
+def test_a_goal_equal_to_a_demonstrations_end_reproduces_that_demonstration():
+    # a family almost fully explained by its two ends (the bridge in between 1 mm / 2 mrad)
+    rng = np.random.default_rng(7)
+    middle = MIDDLE_SD / 10
+    _, _, train = draw_family(40, rng, middle_sd=middle)
+    paths = fit_paths(train)
+    mq, mp = mean_path(PHASE)
+    for tr in train[:5]:
+        q, p = paths.pose_at(condition_on_ends(paths, tr).deviation, PHASE)
+        err = float(np.sqrt(np.mean(np.sum((p - tr.position) ** 2, axis=1))))
+        spread = float(np.sqrt(np.mean(np.sum((mp - tr.position) ** 2, axis=1))))
+        assert err < 0.004 and err < 0.1 * spread, (err, spread)
+
+
+def test_the_goal_distance_is_small_for_the_familys_own_goals_and_large_for_a_far_one(small):
+    paths, trajs = small
+    q0 = np.array([t.quat[0] for t in trajs])
+    p0 = np.array([t.position[0] for t in trajs])
+    qg = np.array([t.quat[-1] for t in trajs])
+    pg = np.array([t.position[-1] for t in trajs])
+    own = paths.goal_distance(q0, p0, qg, pg)
+    assert np.median(own) < 3.5  # a χ with 6 degrees of freedom has its median at 2.2
+    far = paths.goal_distance(q0[:1], p0[:1], qg[:1], pg[:1] + np.array([0.5, 0.0, 0.0]))
+    assert far[0] > 10.0
