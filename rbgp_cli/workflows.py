@@ -349,6 +349,60 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
     return res
 
 
+def continue_files(model, sources, *, options: ReadOptions | None = None, max_gap=None, samples: int = 0, seed: int = 0,
+                   paths=None, progress=None) -> list:
+    """``rbgp rollout --given``: each motion read from ``sources`` (files, folders, patterns; cleaned as
+    demonstrations are) is the seen beginning of a new motion; returns one
+    :class:`~rbgp_cli.dynamics.anticipation.Continuation` per motion, in the order read, named 0, 1, …
+    (its samples ``0.s0``, …), on the seen file's own clock (docs/method.md §12). ``paths``: the path
+    distribution (default the model's)."""
+    from rbgp_cli.dynamics.anticipation import Anticipator
+
+    seen, _, _ = load_demonstrations(sources, options, max_gap=max_gap)
+    ant = Anticipator(getattr(model, "paths", None) if paths is None else paths, model)
+    out = []
+    for i, tr in enumerate(seen):
+        c = ant.continuation(tr.t, tr.quat, tr.position, samples=samples, seed=seed + i, name=str(i))
+        c.info["source"] = tr.source or tr.name
+        if c.estimate.off:
+            from rbgp_cli.errors import warn
+
+            warn(f"the seen motion has left what the demonstrations cover (distance {c.estimate.distance:.2f} "
+                 "per observation); its continuation is an extrapolation", path=tr.source or tr.name)
+        out.append(c)
+    return out
+
+
+def follow_stream(model, lines, *, options: ReadOptions | None = None, every: int = 1, detect: bool = True,
+                  paths=None, source: str = "stdin"):
+    """``rbgp follow``: poses arriving as CSV rows (``lines``: an iterator of text lines, the header first)
+    followed live (:class:`~rbgp_cli.dynamics.anticipation.Follower`). Yields one dict per ``every`` poses
+    of a motion under way: ``t``, ``start`` (the motion's detected start), ``motion`` (0, 1, … across
+    repetitions), ``phase``, ``end_time`` and its 90 % band, the end pose with its 90 % bands, ``off``."""
+    from rbgp_cli.dynamics.anticipation import Follower
+    from rbgp_cli.io.stream import RowStream
+
+    follower = Follower(getattr(model, "paths", None) if paths is None else paths, detect=detect)
+    header = next(iter(lines), None)
+    if header is None or not header.strip():
+        raise InputError("no header line on the stream", path=source, hint="send the CSV's header line first")
+    rows = RowStream(header, options, source)
+    count, motion, last_start = 0, -1, None
+    for line in lines:
+        row = rows.parse(line)
+        if row is None:
+            continue
+        est = follower.push(*row)
+        if est is None:
+            continue
+        if follower.start != last_start:
+            motion, last_start, count = motion + 1, follower.start, 0
+        count += 1
+        if (count - 1) % max(int(every), 1):
+            continue
+        yield dict(motion=motion, start=float(follower.start if follower.start is not None else last_start), **est.to_dict())
+
+
 def generate_like_paper(model, demos, count=100, spread=0.02, seed=0, progress=None):
     """The paper's protocol (sec. 4.3): ``count`` rollouts from unseen starts near the demonstrations'
     start poses, each as long as the demonstrations' median duration, at the model's rollout step

@@ -181,6 +181,7 @@ def rollout(
     start_quat: Annotated[Optional[List[str]], typer.Option("--start-quat", help='Start pose "qx qy qz qw x y z" (quaternion x, y, z, w, normalised here; m); repeatable.')] = None,
     starts: Annotated[Optional[str], typer.Option("--starts", help="File of start poses, one per row (read with the read options below).")] = None,
     from_demos: Annotated[Optional[List[str]], paths_option("--from-demos", help="Draw starts near these demonstrations' start poses: files or folders, several after one flag (e.g. --from-demos data/*.csv), read with the read options below (--topic for an MCAP with several pose topics).")] = None,
+    given: Annotated[Optional[List[str]], paths_option("--given", help="The seen beginnings of motions under way: files, folders or globs (as --from-demos), read with the read options below. Each is continued from its last seen sample to its predicted end (docs/method.md §12): trajectory i (samples i.s0, ...) starts at the last seen time on the file's own clock; --samples draws the duration and the path together; --json reports per file the phase, the predicted end time and end pose with 90 % bands.")] = None,
     count: Annotated[int, typer.Option(min=1, help="Number of starts drawn near the demonstrations' (or the model's stored) start poses.")] = 1,
     start_spread: Annotated[float, typer.Option("--start-spread", min=0.0, help="Std of the start perturbation in metres (rotation: 0.1 rad per 0.3 m).")] = 0.02,
     steps: Annotated[Optional[int], typer.Option(min=1, help="Integration steps (default: the demonstrations' median duration / dt).")] = None,
@@ -228,6 +229,13 @@ def rollout(
     fmt, folder = _rollout_format(output, output_format, mcap_encoding)
     check_outputs(None if folder else (output or "-"), rerun)
     m, _ = load_model(model)
+    if given:
+        if start or start_quat or starts or from_demos or steps is not None or duration is not None or each_duration:
+            raise InputError("--given continues motions under way from what was seen: it takes no start poses, "
+                             "--steps or --duration", hint="drop them, or drop --given")
+        if fmt != "csv" or rerun:
+            raise InputError("--given writes CSV", hint="write -o FILE.csv (or stdout)")
+        return _rollout_given(m, given, read, samples=samples, seed=seed, output=output, json_out=json_out)
     q0, p0, durations = workflows.rollout_starts(
         m, start=start, start_quat=start_quat, starts=starts, from_demos=from_demos, count=count,
         start_spread=start_spread, seed=seed, options=opts, max_gap=read.max_gap, each_duration=each_duration,
@@ -253,6 +261,52 @@ def rollout(
                    "output_rate_hz": float(rate) if res.integration else 1.0 / step,
                    "durations_s": [float(tr.t[-1]) for tr in trajs[:res.count]],
                    "output": output, "std": res.std is not None, "off_data": off_data, "left_data": res.left})
+
+
+@app.command()
+@command
+@with_read_options
+def follow(
+    model: Annotated[str, typer.Argument(help="Model file.")],
+    every: Annotated[int, typer.Option("--every", min=1, help="Print a prediction every N poses of a motion under way (1: after every pose).")] = 1,
+    no_detect: Annotated[bool, typer.Option("--no-detect", help="The stream's first pose is the motion's start (phase 0); by default a motion starts when the pose leaves rest, so follow runs across repetitions.")] = False,
+    read: ReadArgs = None,
+):
+    """Follow a motion live: read poses as CSV rows on stdin, print one JSON line per prediction.
+
+    The stream is a CSV table (header first, then rows as they arrive: `tail -f` of a logger, or any
+    reader's output), read with the read options below. After each pose of a motion under way (or every
+    --every poses) one line: t, the motion's start, its estimated phase, the predicted end time and end
+    pose with 90 % bands, and whether the motion has left what the demonstrations cover
+    (docs/method.md §12). Nothing is printed at rest.
+
+    Example: tail -f take.csv | rbgp follow handover.rbgp
+    """
+    import json
+    import sys
+
+    from rbgp_cli import workflows
+    from rbgp_cli.io.model_store import load_model
+
+    m, _ = load_model(model)
+    lines = iter(sys.stdin.readline, "")
+    for out in workflows.follow_stream(m, lines, options=read.options, every=every, detect=not no_detect):
+        sys.stdout.write(json.dumps(out) + "\n")
+        sys.stdout.flush()
+
+
+def _rollout_given(m, given, read, *, samples, seed, output, json_out) -> None:
+    """rollout --given: one continuation per seen motion (CSV), and per motion its estimate in --json."""
+    from rbgp_cli import workflows
+    from rbgp_cli.io.csv import write_trajectories_csv
+
+    conts = workflows.continue_files(m, given, options=read.options, max_gap=read.max_gap, samples=samples, seed=seed,
+                                     progress=progress)
+    trajs = [tr for c in conts for tr in c.trajectories(include_samples=samples > 0)]
+    write_text_output(output, lambda fh: write_trajectories_csv(trajs, fh))
+    if json_out:
+        emit_json({"output": output, "samples_per_motion": samples,
+                   "motions": [dict(trajectory=c.name, source=c.info.get("source"), **c.estimate.to_dict()) for c in conts]})
 
 
 def _write_rollout_csv(res, trajs, output) -> None:
