@@ -48,6 +48,8 @@ def format_train_summary(s: dict) -> str:
                         + ")" if prior else "zero"))
     if s.get("variation"):
         lines.append(_variation_text(s["variation"]))
+    if s.get("paths"):
+        lines.append(_paths_text(s["paths"]))
     gp = s.get("gp") or {}
     if gp.get("type") == "sparse":
         lines.append(f"sparse GP, {gp['inducing']} inducing poses (NLML column: the negative variational bound): {gp['reason']}")
@@ -110,6 +112,17 @@ def _variation_text(v: dict) -> str:
     return line
 
 
+def _paths_text(p: dict) -> str:
+    """One line on the path distribution that goals, via-points and a seen beginning condition
+    (docs/method.md §12)."""
+    line = (f"goals and seen motions: the {p['demos']} demonstrations' paths and durations as one Gaussian, "
+            f"shrunk toward a smooth process (τ² {p['smooth']:.3g}, length {p['length']:.3g} in phase)")
+    scale = p.get("band_scale")
+    if scale and (scale["rotation"] > 1.0 or scale["position"] > 1.0):
+        line += f"; bands widened ×{scale['rotation']:.3g} in rotation, ×{scale['position']:.3g} in position"
+    return line
+
+
 def _kernel_text(k) -> str:
     if not isinstance(k, dict):
         return _value(k)
@@ -127,7 +140,8 @@ def format_model_info(path: str, h: dict) -> str:
         f"training points: {h.get('training_points', '?')}   time step: {h['dt']:.6g} s   shared hyperparameters: {_value(h['shared'])}",
     ] + ([f"sparse GP: {h['gp']['inducing']} inducing poses (NLML: the negative variational bound)"]
          if (h.get("gp") or {}).get("type") == "sparse" else []) + (
-        [_variation_text(h["variation"])] if h.get("variation") else [])
+        [_variation_text(h["variation"])] if h.get("variation") else []) + (
+        [_paths_text(h["paths"])] if h.get("paths") else [])
     names = ["all"] if h["shared"] else h.get("output_names", [])
     for nm, f in zip(names, h["fits"]):
         cal = f.get("calibration")

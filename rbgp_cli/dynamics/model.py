@@ -99,6 +99,10 @@ class MotionModel:
     variation: object | None = None
     #: the demonstrations' position envelope over phase (:mod:`rbgp_cli.dynamics.envelope`), or None
     envelope: object = None
+    #: the demonstrations as a distribution over paths and durations, conditioned on goals, via-points
+    #: and a motion's seen beginning (:class:`rbgp_cli.dynamics.paths.PathDistribution`); None for fewer
+    #: than three demonstrations or a model file from before format 8
+    paths: object | None = None
 
     @property
     def recorded_rate(self) -> float | None:
@@ -734,10 +738,14 @@ def train_model(
     ridge = float(mean["start_ridge"]) if mean is not None and "start_ridge" in mean else float("inf")
     gain = float(mean["gain"]) if mean is not None and mean["kind"] == "path" else 0.0
     variation = demonstration_variation(trajs, ridge=ridge, gain=gain)
+    from rbgp_cli.dynamics.paths import fit_paths
+
+    paths = fit_paths(trajs)
     summary = _train_summary(rep, kernel, kern, trajs, info, shared, velocity, gp, gp_choice, mean, variation,
-                             time_input, recorded_dt, t0)
+                             time_input, recorded_dt, t0, paths=paths)
     return MotionModel(rep, gp, float(dt), starts, durations, summary=summary, velocity=velocity,
-                       time_input=time_input, mean=mean, variation=variation, envelope=envelope_from_demos(trajs))
+                       time_input=time_input, mean=mean, variation=variation, envelope=envelope_from_demos(trajs),
+                       paths=paths)
 
 
 def _checked_model_options(representation, kernel, rho_rot, time_input, prior, prior_gain, euler_order):
@@ -910,7 +918,7 @@ def _scaled_posterior_noise(gp, gp_choice, info, calibrate, noise_scale, seed, p
 
 
 def _train_summary(rep, kernel, kern, trajs, info, shared, velocity, gp, gp_choice, mean, variation, time_input,
-                   recorded_dt, t0) -> dict:
+                   recorded_dt, t0, paths=None) -> dict:
     """The model's ``summary`` (:func:`train_model`): demonstrations, pairs, points, per output the
     hyperparameters and NLML, the safeguards used, the GP chosen, the prior, the variation, the time taken.
     Moves the start map's ridge from ``mean`` into it."""
@@ -950,4 +958,7 @@ def _train_summary(rep, kernel, kern, trajs, info, shared, velocity, gp, gp_choi
     summary["variation"] = None if variation is None else {
         "demos": variation.demos, "dof": variation.dof,
         "band_scale": {"rotation": float(variation.band_scale[0]), "position": float(variation.band_scale[1])}}
+    summary["paths"] = None if paths is None else {
+        "demos": paths.demos, "smooth": float(paths.smooth), "length": float(paths.length),
+        "band_scale": {"rotation": float(paths.band_scale[0]), "position": float(paths.band_scale[1])}}
     return summary

@@ -357,19 +357,26 @@ class PathDistribution:
 
     # ------------------------------------------------------------------ model files
     def to_arrays(self) -> dict:
-        return {"paths_deviations": np.ascontiguousarray(self.deviations, dtype=np.float64),
-                "paths_log_durations": np.ascontiguousarray(self.log_durations, dtype=np.float64)}
+        """The arrays a model file keeps (``paths_*``; :mod:`rbgp_cli.io.model_store`, version 8)."""
+        c = np.ascontiguousarray
+        return {"paths_s": c(self.s, dtype=np.float64), "paths_quat": c(self.quat, dtype=np.float64),
+                "paths_position": c(self.position, dtype=np.float64),
+                "paths_deviations": c(self.deviations, dtype=np.float64),
+                "paths_log_durations": c(self.log_durations, dtype=np.float64)}
 
     def header(self) -> dict:
+        """The header fields a model file keeps (``paths``)."""
         return {"demos": self.demos, "steps": self.S, "smooth": float(self.smooth), "length": float(self.length),
                 "seen_tolerance": float(self.seen_tolerance),
                 "band_scale": {"rotation": float(self.band_scale[0]), "position": float(self.band_scale[1])}}
 
     @classmethod
-    def from_arrays(cls, arrays: dict, header: dict, s, quat, position) -> "PathDistribution":
+    def from_arrays(cls, arrays: dict, header: dict) -> "PathDistribution":
+        """From :meth:`to_arrays`' arrays and :meth:`header`'s fields."""
         bs = header.get("band_scale") or {"rotation": 1.0, "position": 1.0}
-        return cls(np.asarray(s, float), np.asarray(quat, float), np.asarray(position, float),
-                   np.asarray(arrays["paths_deviations"], float), np.asarray(arrays["paths_log_durations"], float),
+        f = np.asarray
+        return cls(f(arrays["paths_s"], float), f(arrays["paths_quat"], float), f(arrays["paths_position"], float),
+                   f(arrays["paths_deviations"], float), f(arrays["paths_log_durations"], float),
                    float(header["smooth"]), float(header["length"]), float(header["seen_tolerance"]),
                    (float(bs["rotation"]), float(bs["position"])))
 

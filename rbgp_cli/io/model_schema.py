@@ -255,6 +255,14 @@ TOP: dict = {
         "band_scale": obj({"rotation": num(1.0, 1e6, what="a factor of at least 1"),
                            "position": num(1.0, 1e6, what="a factor of at least 1")}, ("rotation", "position")),
     }, ("demos", "steps")))),
+    # version 8 (optional): the path distribution (dynamics/paths.py)
+    "paths": (10**6, nullable(obj({
+        "demos": integer(3, 10**7), "steps": integer(2, 10**5),
+        "smooth": num(0.0, 1e6, what="a non-negative variance"), "length": num(1e-6, 1e6, what="a positive phase length"),
+        "seen_tolerance": num(0.0, 1e6, what="a non-negative tolerance"),
+        "band_scale": obj({"rotation": num(1.0, 1e6, what="a factor of at least 1"),
+                           "position": num(1.0, 1e6, what="a factor of at least 1")}, ("rotation", "position")),
+    }, ("demos", "steps", "smooth", "length", "seen_tolerance", "band_scale")))),
 }
 
 
@@ -351,6 +359,8 @@ def expected_arrays(h: dict) -> set:
             req |= {"prior_gain_profile"}
     if h.get("variation"):
         req |= {"variation_s", "variation_residuals"}
+    if h.get("paths"):
+        req |= {"paths_s", "paths_quat", "paths_position", "paths_deviations", "paths_log_durations"}
     return req
 
 
@@ -435,6 +445,15 @@ def validate_arrays(h: dict, arrays: dict) -> None:
         s = arrays["variation_s"]
         if not (np.all(np.diff(s) > 0) and s[0] == 0.0 and s[-1] == 1.0):
             raise SchemaError("array 'variation_s' is not an increasing grid from 0 to 1")
+    if "paths_s" in req:
+        D, S = h["paths"]["demos"], h["paths"]["steps"]
+        for name, shape in (("paths_s", (S,)), ("paths_quat", (S, 4)), ("paths_position", (S, 3)),
+                            ("paths_deviations", (D, S, 6)), ("paths_log_durations", (D,))):
+            _shape(arrays, name, shape, f"{shape} (paths.demos, paths.steps)")
+            _finite(arrays, name)
+        s = arrays["paths_s"]
+        if not (np.all(np.diff(s) > 0) and s[0] == 0.0 and s[-1] == 1.0):
+            raise SchemaError("array 'paths_s' is not an increasing grid from 0 to 1")
     if "Z" in req:
         G = len(h["fits"])
         Z = arrays["Z"]

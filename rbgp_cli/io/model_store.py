@@ -28,11 +28,16 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
   (``variation.band_scale``: ``rotation`` and ``position`` factors ≥ 1,
   :func:`rbgp_cli.dynamics.variation.band_scale`); files without it sample with factors 1, as they were
   trained. An rbgp that reads only version 5 refuses these files instead of sampling narrower bands.
-* Version 7 (what this rbgp writes): a start-conditioned path prior whose pull follows the
+* Version 7: a start-conditioned path prior whose pull follows the
   demonstrations' convergence says ``"gain_profile": true`` and holds ``prior_gain_profile`` (S, 6), the
   gain per phase and coordinate (:func:`rbgp_cli.dynamics.variation.pull_profile`); without it the
   pull is ``gain`` throughout, as such a model was trained. An rbgp that reads only version 6
   refuses these files instead of rolling them out with the constant pull.
+* Version 8 (what this rbgp writes): the path distribution that goals, via-points and a motion's seen
+  beginning condition (:class:`rbgp_cli.dynamics.paths.PathDistribution`): header ``paths`` (demos,
+  steps, smooth, length, seen_tolerance, band_scale) and arrays ``paths_s`` (S,), ``paths_quat`` (S, 4),
+  ``paths_position`` (S, 3), ``paths_deviations`` (D, S, 6), ``paths_log_durations`` (D,). Optional:
+  files without it load, and refuse a goal or a seen beginning with a message to retrain.
 
 Loading reads the zip itself (never unpickling: .npy members of plain numbers only) with limits
 checked before anything large is decompressed: a member may decompress to at most
@@ -70,7 +75,7 @@ __all__ = ["FORMAT", "FORMAT_VERSION", "save_model", "load_model", "read_header"
 
 FORMAT = "rbgp-model"
 #: The version this rbgp writes (4: the header checksummed, ``gp`` always present); it reads 1–4.
-FORMAT_VERSION = 7
+FORMAT_VERSION = 8
 #: Limits checked before anything large is read (a model of 10⁶ training points is ~100 MB).
 MAX_HEADER_BYTES = 16 << 20
 MAX_HEADER_DEPTH = 32
@@ -87,6 +92,7 @@ _ARRAYS = ("X", "Y", "y_scale", "starts", "durations")
 _SPARSE_ARRAYS = ("Z", "Lm", "LB", "c")
 #: Arrays of the demonstrations' deviation process (present only when the model has one).
 _VARIATION_ARRAYS = ("variation_s", "variation_residuals")
+_PATHS_ARRAYS = ("paths_s", "paths_quat", "paths_position", "paths_deviations", "paths_log_durations")
 #: Arrays of the mean-path prior (present only when the model has one).
 _PRIOR_ARRAYS = {"prior_s": "s", "prior_quat": "quat", "prior_position": "position", "prior_velocity": "velocity"}
 #: Arrays of a start-conditioned mean-path prior (header ``prior.start == "conditioned"``).
@@ -161,6 +167,9 @@ def save_model(model, path) -> dict:
     variation = getattr(model, "variation", None)
     if variation is not None:
         arrays.update(variation.to_arrays())
+    paths = getattr(model, "paths", None)
+    if paths is not None:
+        arrays.update(paths.to_arrays())
     sparse = bool(getattr(gp, "sparse", False))
     if sparse:
         arrays["Z"] = np.ascontiguousarray(gp.Z, dtype=np.float64)
@@ -191,6 +200,8 @@ def save_model(model, path) -> dict:
         header["variation"] = {"demos": int(variation.demos), "steps": int(len(variation.s)),
                                "band_scale": {"rotation": float(variation.band_scale[0]),
                                               "position": float(variation.band_scale[1])}}
+    if paths is not None:
+        header["paths"] = paths.header()
     if getattr(model, "envelope", None) is not None:  # optional: files without it load (computed then)
         header["envelope"] = model.envelope.to_dict()
     header = json.loads(canonical_json(header))  # as a reader will parse it (keys as strings, tuples as lists)
@@ -390,7 +401,8 @@ def read_header(path) -> tuple[dict, dict]:
             if raw.dtype != np.uint8 or raw.ndim != 1:
                 raise _bad(path, "the model header is damaged (not a byte string)")
             header, version = _check_header(path, _parse_header(path, raw.tobytes()))
-            known = (*_ARRAYS, *_PRIOR_ARRAYS, *_START_ARRAYS, _PROFILE_ARRAY[0], *_SPARSE_ARRAYS, *_VARIATION_ARRAYS)
+            known = (*_ARRAYS, *_PRIOR_ARRAYS, *_START_ARRAYS, _PROFILE_ARRAY[0], *_SPARSE_ARRAYS, *_VARIATION_ARRAYS,
+                     *_PATHS_ARRAYS)
             infos = {k: _member_info(zf, path, k, disk) for k in known if k in names}
             total = sum(i.file_size for i in infos.values())
             if total > MAX_RATIO * disk + RATIO_SLACK:
@@ -497,9 +509,15 @@ def load_model(path):
         from rbgp_cli.dynamics.variation import Variation
 
         variation = Variation.from_arrays(arrays, header["variation"].get("band_scale"))
+    paths = None
+    if header.get("paths"):
+        from rbgp_cli.dynamics.paths import PathDistribution
+
+        paths = PathDistribution.from_arrays(arrays, header["paths"])
     return MotionModel(rep, gp, dt, arrays["starts"], arrays["durations"],
                        summary=header.get("summary", {}), provenance=header.get("provenance", {}),
-                       velocity=velocity, time_input=time_input, mean=mean, variation=variation, envelope=envelope), header
+                       velocity=velocity, time_input=time_input, mean=mean, variation=variation, envelope=envelope,
+                       paths=paths), header
 
 
 #: Training inputs at which a loaded model must predict finite velocities (spread over the data).

@@ -50,7 +50,7 @@ def test_info_shows_provenance(model):
     res = run("info", model, "--json")
     assert res.exit_code == 0
     h = json.loads(res.stdout)
-    assert h["format"] == "rbgp-model" and h["version"] == FORMAT_VERSION == 7  # exact and sparse models (7: the pull's profile)
+    assert h["format"] == "rbgp-model" and h["version"] == FORMAT_VERSION == 8  # exact and sparse models (8: the path distribution)
     names = [i["name"] for i in h["provenance"]["inputs"]]
     assert len(names) == 9 and all(len(i["sha256"]) == 64 for i in h["provenance"]["inputs"])
     assert h["provenance"]["train_options"]["max_points"] == 150

@@ -31,7 +31,7 @@ def test_train_inducing_writes_a_sparse_model_that_says_so(sparse_model):
     assert summary["gp"]["type"] == "sparse" and summary["gp"]["inducing"] == 40 and summary["gp"]["forced"]
     assert summary["points"] == round(0.3 * summary["pairs"])  # --max-points (2000) dropped nothing
     header, arrays = read_header(path)
-    assert header["version"] == 7 and header["gp"] == {"type": "sparse", "inducing": 40}
+    assert header["version"] == 8 and header["gp"] == {"type": "sparse", "inducing": 40}
     assert arrays["Z"].shape == (40, 7) and arrays["Lm"].shape  # inducing inputs: pose and phase == (1, 40, 40) and arrays["c"].shape == (40, 6)
     assert arrays["X"].shape[0] == summary["points"]  # every training point is kept
     # the inducing poses are training poses
@@ -68,7 +68,7 @@ def test_loaded_sparse_model_predicts_as_when_trained_and_rolls_out(sparse_model
     rows = [r for r in out.read_text().splitlines() if not r.startswith("#")]
     assert len(rows) > 3 and "std_wx" in rows[0]
     res = run("info", path)
-    assert res.exit_code == 0 and "version 7" in res.stdout and "sparse GP: 40 inducing poses" in res.stdout
+    assert res.exit_code == 0 and "version 8" in res.stdout and "sparse GP: 40 inducing poses" in res.stdout
 
 
 def test_damaged_sparse_factors_are_refused(sparse_model, tmp_path):
@@ -96,7 +96,7 @@ def test_exact_models_are_written_as_exact(tmp_path):
     summary = json.loads(res.stdout)
     assert summary["gp"]["type"] == "exact" and "random 120 of" in summary["gp"]["reason"]
     header, arrays = read_header(path)
-    assert header["version"] == 7 and header["gp"] == {"type": "exact"} and "Z" not in arrays
+    assert header["version"] == 8 and header["gp"] == {"type": "exact"} and "Z" not in arrays
     model, _ = load_model(path)
     assert not getattr(model.gp, "sparse", False)
 

@@ -81,7 +81,7 @@ EDITS = {
 
 def test_a_saved_model_checksums_its_header(prior_model_path):
     header, _ = B.read_model_npz(prior_model_path)
-    assert header["version"] == FORMAT_VERSION == 7
+    assert header["version"] == FORMAT_VERSION == 8
     assert header["checksums"]["header"] == header_sha256(header)
     # the checksum covers every field but itself, in canonical form (key order, spacing do not matter)
     assert header_sha256(dict(reversed(list(header.items())))) == header["checksums"]["header"]
@@ -427,7 +427,7 @@ def test_an_old_sparse_file_version_3_loads_and_gives_the_same_outputs(tmp_path)
     res = run_cli("train", folder, "-o", path, *B.FAST, "--inducing", "12")
     assert res.exit_code == 0, res.stderr
     header, arrays = B.read_model_npz(path)
-    assert header["version"] == 7 and header["gp"]["type"] == "sparse" and "Z" in arrays  # (at most 12 inducing poses)
+    assert header["version"] == 8 and header["gp"]["type"] == "sparse" and "Z" in arrays  # (at most 12 inducing poses)
     old = B.write_model_npz(tmp_path / "v3.rbgp", B.as_old_version(header, 3), arrays, header_checksum=False)
     assert rollout_csv(old) == rollout_csv(path)
     h = B.as_old_version(header, 3)

@@ -28,7 +28,7 @@ def test_round_trip_keeps_what_prediction_needs(tmp_path, options):
     model = train_model(demos, **SMALL, **options)
     path = tmp_path / "m.rbgp"
     header = save_model(model, path)
-    assert header["version"] == FORMAT_VERSION == 7  # version 7: the pull's profile
+    assert header["version"] == FORMAT_VERSION == 8  # version 8: the path distribution
     loaded, h = load_model(path)
     assert loaded.time_input == model.time_input and loaded.velocity == model.velocity
     assert (loaded.mean is None) == (model.mean is None)
@@ -41,6 +41,10 @@ def test_round_trip_keeps_what_prediction_needs(tmp_path, options):
     b = rollout(loaded, q0, p0, 12, with_std=True, durations=[1.2, 1.0, 0.8])
     np.testing.assert_allclose(b.position, a.position, atol=1e-9)
     np.testing.assert_allclose(b.std, a.std, atol=1e-9)
+    # the path distribution (version 8) comes back whole: the same goal-conditioned mean
+    assert loaded.paths is not None and loaded.paths.header() == model.paths.header()
+    A, y, r2 = model.paths.observe([0.0, 1.0], [d.quat[0] for d in demos[:2]], [d.position[-1] for d in demos[:2]], exact=True)
+    np.testing.assert_allclose(loaded.paths.condition(A, y, r2).mean, model.paths.condition(A, y, r2).mean, atol=1e-12)
 
 
 def _rewrite(path, out, change_header=None, drop=()):
