@@ -368,7 +368,7 @@ def continue_files(model, sources, *, options: ReadOptions | None = None, max_ga
             from rbgp_cli.errors import warn
 
             warn(f"the seen motion has left what the demonstrations cover (distance {c.estimate.distance:.2f} "
-                 "per observation); its continuation is an extrapolation", path=tr.source or tr.name)
+                 "in units of the demonstrations' spread); its continuation is an extrapolation", path=tr.source or tr.name)
         out.append(c)
     return out
 

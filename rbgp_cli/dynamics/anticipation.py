@@ -33,9 +33,10 @@ log density (over :data:`SEEN_TOLERANCE_GRID`), and the factors (c_rot, c_pos) �
 90 % regions hold (as :func:`~rbgp_cli.dynamics.paths.fit_paths` does for the start-only draws). Plain
 conditioning (r → 0) over-fits the seen part and its bands collapse (the plain ProMP's failure).
 
-**Leaving the demonstrations.** The seen part is "off" when the seen poses' Mahalanobis distance under
-the prior predictive at D̂ exceeds the 99.9 % point of its χ² (per the observations' number), or when the
-motion has already lasted longer than any duration on the grid.
+**Leaving the demonstrations.** The seen part is "off" when the last seen pose's Mahalanobis distance under
+the prior's marginal at its estimated phase exceeds :data:`OFF_DISTANCE` (3.5: a χ with 6 degrees of
+freedom, beyond which fewer than 1 in 200 demonstrations lie), or when the motion has already lasted longer
+than any duration on the grid.
 
 Only samples up to the last seen one enter: nothing here reads past ``t[-1]``.
 """
@@ -59,6 +60,9 @@ SEEN_FRACTIONS = (0.2, 0.4, 0.6, 0.8)
 SEEN_POINTS = 12
 #: Durations on the grid of the phase estimate.
 DURATION_GRID = 32
+#: Above this Mahalanobis distance (a χ with 6 degrees of freedom: fewer than 1 in 200 demonstrations lie
+#: beyond 3.5) the last seen pose has left what the demonstrations cover.
+OFF_DISTANCE = 3.5
 #: Tolerance of the exactly observed ln D (in units of ln D's spread) and of the last seen pose.
 _ELL_TOL = 1e-4
 
@@ -70,7 +74,7 @@ class Anticipation:
     ``end_time`` (median) with ``end_time_band`` (5 %, 95 %) on the seen clock, ``end_quat`` (4,) x, y, z, w
     and ``end_position`` (3,) m with their 90 % half-widths ``end_rotation_band`` (rad, the angle) and
     ``end_position_band`` (3,) m, ``off`` (the seen part has left what the demonstrations cover) and
-    ``distance`` (the seen poses' Mahalanobis distance under the prior, per observation)."""
+    ``distance`` (the last seen pose's Mahalanobis distance under the prior at its phase)."""
 
     t: float
     phase: float
@@ -265,8 +269,12 @@ class Anticipator:
 
         t = terms["seen"][0]
         t0, span = float(t[0]), terms["span"]
-        cw = np.cumsum(w)
-        q = [float(grid[min(np.searchsorted(cw, a), len(grid) - 1)]) for a in (0.05, 0.5, 0.95)]
+        # quantiles of ln D: each grid value's weight spread evenly over its cell (half a step each side)
+        lg = np.log(grid)
+        edges = np.concatenate([[lg[0] - self._half_step], lg + self._half_step])
+        cw = np.concatenate([[0.0], np.cumsum(w)])
+        q = [float(np.exp(np.interp(a, cw, edges))) for a in (0.05, 0.5, 0.95)]
+        q = [max(x, span) for x in q]
         D = q[1]
         # the end pose: moments of the mixture over the grid (scaled units), then unscaled
         mu = np.einsum("g,gj->j", w, terms["end_mean"])
@@ -283,16 +291,24 @@ class Anticipator:
         # 90 %: a rotation's m² is 3 F(3, ν) for the Student-t draws; a position coordinate t_ν
         rot_band = c_rot * np.sqrt(3.0 * fdtri(3, nu, 0.9) * max(np.linalg.eigvalsh(cov_u[:3, :3]).max(), 0.0))
         pos_band = c_pos * stdtrit(nu, 0.95) * np.sqrt(np.clip(np.diag(cov_u)[3:], 0.0, None))
-        # off: the seen poses at the estimated duration, against the χ² of their count
-        from scipy.stats import chi2
-
-        g = int(np.argmin(np.abs(grid - D)))
-        quad, k = float(terms["quad"][g]), int(terms["k"])
-        off = bool(terms["beyond"] or quad > chi2.ppf(0.999, k))
+        # off: the last seen pose against the prior's marginal at its phase (a χ with 6 degrees of freedom)
+        dist = self._distance(terms["seen"][1][-1], terms["seen"][2][-1], min(span / D, 1.0))
+        off = bool(terms["beyond"] or dist > OFF_DISTANCE)
         return Anticipation(t=float(t[-1]), phase=float(min(span / D, 1.0)) if D > 0 else 1.0,
                             end_time=t0 + D, end_time_band=(t0 + q[0], t0 + q[2]), end_quat=end_q, end_position=end_p,
                             end_rotation_band=float(rot_band), end_position_band=pos_band, off=off,
-                            distance=float(np.sqrt(quad / k)))
+                            distance=float(dist))
+
+    def _distance(self, quat, position, phase) -> float:
+        """The Mahalanobis distance of a pose's deviation at ``phase`` under the prior's marginal there (the
+        grid phase nearest; with the seen tolerance r² added), in units of the demonstrations' spread."""
+        from rbgp_cli.dynamics.paths import pose_deviation
+
+        j = int(round(phase * (self.paths.S - 1)))
+        rq, rp = self._reference(np.array([phase]))
+        e = pose_deviation(rq[0], rp[0], quat, position) / self.scale - self.m[6 * j:6 * j + 6]
+        C = self.Sigma[6 * j:6 * j + 6, 6 * j:6 * j + 6] + self.tolerance ** 2 * np.eye(6)
+        return float(np.sqrt(e @ np.linalg.solve(C, e)))
 
     # -------------------------------------------------------------- the rest of the motion
     def _observations(self, tau, q, p, last_q, last_p, D):
