@@ -387,7 +387,7 @@ def follow_stream(model, lines, *, options: ReadOptions | None = None, every: in
     if header is None or not header.strip():
         raise InputError("no header line on the stream", path=source, hint="send the CSV's header line first")
     rows = RowStream(header, options, source)
-    count, motion, last_start = 0, -1, None
+    count, motion = 0, None
     for line in lines:
         row = rows.parse(line)
         if row is None:
@@ -395,12 +395,59 @@ def follow_stream(model, lines, *, options: ReadOptions | None = None, every: in
         est = follower.push(*row)
         if est is None:
             continue
-        if follower.start != last_start:
-            motion, last_start, count = motion + 1, follower.start, 0
+        if follower.motion != motion:
+            motion, count = follower.motion, 0
         count += 1
         if (count - 1) % max(int(every), 1):
             continue
-        yield dict(motion=motion, start=float(follower.start if follower.start is not None else last_start), **est.to_dict())
+        yield dict(motion=int(motion), start=float(follower.start), **est.to_dict())
+
+
+def crossval_under_way(sources, fractions, train_kwargs: dict, *, options: ReadOptions | None = None, max_gap=None,
+                       folds: int = 5, seed: int = 0, samples: int = 20, progress=None, peers: bool = True) -> dict:
+    """``rbgp crossval --given F``: per fold, train on the others (``train_kwargs``, the default
+    representation and kernel), see each held-out demonstration's first fraction F and predict the rest
+    (:mod:`rbgp_cli.evaluation.under_way`). Returns ``{"rows": [{method, given, end_pos, ...}], "folds",
+    "inputs"}``, rows in the order F, then method."""
+    from rbgp_cli.dynamics.defaults import DEFAULTS
+    from rbgp_cli.dynamics.model import train_model
+    from rbgp_cli.dynamics.paths import fit_paths
+    from rbgp_cli.evaluation.crossval import make_folds
+    from rbgp_cli.evaluation.peers import missing
+    from rbgp_cli.evaluation.under_way import METHODS, under_way_fold
+    from rbgp_cli.progress import as_progress
+
+    fractions = [float(f) for f in fractions]
+    for f in fractions:
+        if not 0.0 < f < 1.0:
+            raise InputError(f"a seen fraction must lie between 0 and 1, got {f:g}", param="given",
+                             hint="give F such as 0.2, 0.4, 0.6, 0.8")
+    demos, _, inputs = load_demonstrations(sources, options, max_gap=max_gap)
+    if len(demos) < 4:
+        raise InputError(f"crossval with a seen fraction needs at least 4 demonstrations, got {len(demos)}",
+                         hint="the path distribution needs 3 in every training fold")
+    methods = [m for m in METHODS if peers or m in ("rbgp", "no-GP")]
+    if peers and missing() is not None:
+        from rbgp_cli.errors import warn
+
+        warn("left out " + missing())
+    folds = min(int(folds), len(demos))
+    tot: dict = {}
+    prog = as_progress(progress)
+    with prog.task("crossval under way", total=folds, unit="folds") as task:
+        for i, fold in enumerate(make_folds(len(demos), folds, seed)):
+            held = set(fold)
+            train = [d for j, d in enumerate(demos) if j not in held]
+            test = [demos[j] for j in fold]
+            model = train_model(train, representation=DEFAULTS["representation"], kernel=DEFAULTS["kernel"],
+                                **train_kwargs)
+            paths = getattr(model, "paths", None) or fit_paths(train)
+            out = under_way_fold(model, paths, train, test, fractions, samples=samples, seed=seed + i, methods=methods)
+            for k, v in out.items():
+                tot[k] = v if k not in tot else tot[k].add(v)
+            task.advance()
+    rows = [dict(method=m, given=F, **tot[(m, F)].to_dict()) for F in fractions for m in methods if (m, F) in tot]
+    return {"rows": rows, "folds": folds, "samples": samples, "inputs": [i["name"] for i in inputs]}
 
 
 def generate_like_paper(model, demos, count=100, spread=0.02, seed=0, progress=None):

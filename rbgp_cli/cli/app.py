@@ -539,6 +539,7 @@ def crossval(
     length: Annotated[Optional[int], typer.Option(min=2, help="Resample every trajectory to this many steps for the scores (default: the training demonstrations' median).")] = None,
     covariance: Annotated[str, typer.Option(help="Per-step Gaussians with diag or full covariance (as rbgp evaluate).")] = "diag",
     samples: Annotated[int, typer.Option("--samples", min=0, help="Sampled rollouts per held-out start (as rbgp rollout --samples) for the columns sample (one sample per start scored like score, over the floor) and cov_pos / cov_rot (how often the held-out motion lies inside the samples' 90 % prediction region: 0.90 for honest bands) with the bands' half-widths in --json; 0: none; at least 4 for the coverage.")] = 20,
+    given: Annotated[Optional[List[str]], typer.Option("--given", metavar="F", help="A motion under way: see each held-out demonstration's first fraction F (0 < F < 1; repeatable: --given 0.2 --given 0.6) and predict the rest without its duration (docs/method.md §12). Rows per F: rbgp, its path distribution alone (no-GP), the nearest demonstration time-scaled and matched on the seen part, and a ProMP with phase estimation conditioned on the seen part, plain and ridge-regularised; columns final-pose error, end-time error, the remainder's RMSE and the 90 % bands' coverage of it.")] = None,
     without_gp: Annotated[bool, typer.Option("--without-gp/--no-without-gp", help="Beside every model row with a prior mean, a row of the same fits with the GP's residual switched off (kernel column 'no-GP'): the path distribution alone, rolled out from the same starts with the same draws, so the difference is what the GP adds on your data.")] = True,
     per_fold: Annotated[bool, typer.Option("--per-fold", help="Also print one line per fold and configuration.", rich_help_panel=_OUT)] = False,
     json_out: Annotated[bool, typer.Option("--json", help="Print the results as JSON on stdout.", rich_help_panel=_OUT)] = False,
@@ -578,9 +579,12 @@ def crossval(
                           hyper_points=hyper_points, calibrate_noise=calibrate_noise,
                           start_conditioning=start_conditioning, noise_scale=noise_scale,
                           pull_profile=pull_profile)
+    if given:
+        return _crossval_given(demos, given, kwargs, read, folds=folds, seed=seed, samples=samples, peers=peers,
+                               json_out=json_out, grid=grid, representation=representation, kernel=kernel)
     variants, lists = grid_variants(ctx, grid)
-    for name, given in (("representation", representation), ("kernel", kernel)):
-        if name in lists and given:
+    for name, chosen in (("representation", representation), ("kernel", kernel)):
+        if name in lists and chosen:
             raise InputError(f"give --{name} or --grid {name}=..., not both")
     configs, skipped = workflows.crossval_configs(lists.get("representation", representation), lists.get("kernel", kernel),
                                                   kwargs, replay=replay, peers=peers,
@@ -597,6 +601,29 @@ def crossval(
         from rbgp_cli.cli.report import format_crossval
 
         print(format_crossval(result, per_fold=per_fold))
+
+
+def _crossval_given(demos, given, kwargs, read, *, folds, seed, samples, peers, json_out, grid, representation, kernel):
+    """crossval --given F: a motion under way (rbgp_cli.evaluation.under_way)."""
+    from rbgp_cli import workflows
+    from rbgp_cli.errors import InputError
+
+    fractions = []
+    for v in given:
+        try:
+            fractions.append(float(v))
+        except ValueError:
+            raise InputError(f"--given takes a seen fraction F between 0 and 1, got {v!r}", hint="e.g. --given 0.2 --given 0.6") from None
+    if grid or representation or kernel:
+        raise InputError("--given runs the default representation and kernel", hint="drop --grid, --representation and --kernel")
+    result = workflows.crossval_under_way(demos, fractions, kwargs, options=read.options, max_gap=read.max_gap, folds=folds,
+                                          seed=seed, samples=samples, progress=progress, peers=peers)
+    if json_out:
+        emit_json(result)
+    else:
+        from rbgp_cli.cli.report import format_under_way
+
+        print(format_under_way(result))
 
 
 # ---------------------------------------------------------------------------------------------- demo

@@ -58,8 +58,10 @@ SEEN_TOLERANCE_GRID = (0.05, 0.1, 0.2, 0.4, 0.8, 1.6, 3.2)
 SEEN_FRACTIONS = (0.2, 0.4, 0.6, 0.8)
 #: Seen poses (evenly spaced in time) that enter the phase estimate and the conditioning.
 SEEN_POINTS = 12
-#: Durations on the grid of the phase estimate.
+#: Durations on the grid of the phase estimate, log-spaced over GRID_RANGE times the demonstrations'
+#: shortest and longest.
 DURATION_GRID = 32
+GRID_RANGE = (2.0 / 3.0, 1.5)
 #: Above this Mahalanobis distance (a χ with 6 degrees of freedom: fewer than 1 in 200 demonstrations lie
 #: beyond 3.5) the last seen pose has left what the demonstrations cover.
 OFF_DISTANCE = 3.5
@@ -174,7 +176,7 @@ class Anticipator:
         self.scale = paths.scale
         self.lscale = paths.duration_scale
         d = np.exp(paths.log_durations)
-        self.grid = np.exp(np.linspace(np.log(0.5 * d.min()), np.log(2.0 * d.max()), int(grid_size)))
+        self.grid = np.exp(np.linspace(np.log(GRID_RANGE[0] * d.min()), np.log(GRID_RANGE[1] * d.max()), int(grid_size)))
         self._half_step = 0.5 * (np.log(self.grid[1]) - np.log(self.grid[0])) if len(self.grid) > 1 else 0.0
         S = paths.S
         self._end = 6 * (S - 1) + np.arange(6)
@@ -190,57 +192,73 @@ class Anticipator:
         q, p, _ = self._ref.at(np.asarray(phases, dtype=np.float64).reshape(-1))
         return q.reshape(np.shape(phases) + (4,)), p.reshape(np.shape(phases) + (3,))
 
+    def _low_rank(self):
+        """Σ = U Uᵀ + τ² (K_ℓ ⊗ I_6 ⊕ 1) (:meth:`PathDistribution.prior`): U (P, D), K_ℓ (S, S) on the grid,
+        τ², computed once; the batched grid terms use these instead of gathering Σ."""
+        lr = self.__dict__.get("_lr")
+        if lr is None:
+            paths = self.paths
+            X = paths.vectors()
+            D = len(X)
+            U = (X - X.mean(axis=0)).T * np.sqrt((1.0 + 1.0 / D) / max(D - 1, 1))
+            s = paths.s
+            Ks = np.exp(-0.5 * ((s[:, None] - s[None, :]) / paths.length) ** 2)
+            lr = self._lr = (U, Ks, float(paths.smooth))
+        return lr
+
     def _grid_terms(self, tau, q, p, grid):
-        """For each duration D_g: log weight, the conditioned end pose mean (6,) and covariance (6, 6) in
-        scaled units and the seen poses' Mahalanobis² and count (module docstring). Batched over the grid."""
+        """For each duration D_g: log weight, the conditioned end pose's mean (6,) and covariance (6, 6) in
+        scaled units (module docstring). Batched over the grid, with Σ's low-rank-plus-smooth form."""
         from rbgp_cli.dynamics.paths import pose_deviation
 
+        U, Ks, tau2 = self._low_rank()
         S, P = self.paths.S, len(self.m)
-        G_ = len(grid)
-        n = len(tau)
-        ph = np.clip(tau[None, :] / grid[:, None], 0.0, 1.0)  # (G, n)
+        G_, n = len(grid), len(tau)
+        ph = np.minimum(tau[None, :] / grid[:, None], 1.0)  # (G, n)
         x = ph * (S - 1)
-        k = np.clip(np.floor(x).astype(int), 0, S - 2)
+        k = np.minimum(x.astype(int), S - 2)
         f = x - k  # (G, n)
         I0 = (6 * k[:, :, None] + np.arange(6)).reshape(G_, 6 * n)
-        I1 = I0 + 6
-        w0 = np.repeat(1.0 - f, 6, axis=1)
         w1 = np.repeat(f, 6, axis=1)
-        Sg = self.Sigma
-        Soo = (w0[:, :, None] * w0[:, None, :] * Sg[I0[:, :, None], I0[:, None, :]]
-               + w0[:, :, None] * w1[:, None, :] * Sg[I0[:, :, None], I1[:, None, :]]
-               + w1[:, :, None] * w0[:, None, :] * Sg[I1[:, :, None], I0[:, None, :]]
-               + w1[:, :, None] * w1[:, None, :] * Sg[I1[:, :, None], I1[:, None, :]])
-        Sol = w0 * Sg[I0, P - 1] + w1 * Sg[I1, P - 1]  # (G, 6n)
+        w0 = 1.0 - w1
+        AU = w0[:, :, None] * U[I0] + w1[:, :, None] * U[I0 + 6]  # (G, 6n, D)
+        # the smooth part: K_ℓ interpolated at the seen phases (G, n, n), and to the end phase (G, n)
+        g0, g1 = 1.0 - f, f
+        Kint = (g0[:, :, None] * g0[:, None, :] * Ks[k[:, :, None], k[:, None, :]]
+                + g0[:, :, None] * g1[:, None, :] * Ks[k[:, :, None], k[:, None, :] + 1]
+                + g1[:, :, None] * g0[:, None, :] * Ks[k[:, :, None] + 1, k[:, None, :]]
+                + g1[:, :, None] * g1[:, None, :] * Ks[k[:, :, None] + 1, k[:, None, :] + 1])
+        Kend = g0 * Ks[k, S - 1] + g1 * Ks[k + 1, S - 1]
+        eye6 = np.eye(6)
         k6 = 6 * n + 1
         G = np.empty((G_, k6, k6))
-        G[:, :-1, :-1] = Soo
-        G[:, :-1, -1] = Sol
-        G[:, -1, :-1] = Sol
-        G[:, -1, -1] = Sg[P - 1, P - 1]
-        diag = np.arange(k6)
-        G[:, diag[:-1], diag[:-1]] += self.tolerance ** 2
-        G[:, -1, -1] += _ELL_TOL ** 2
-        # the targets: the end pose (6 coordinates at the last grid phase)
+        G[:, :-1, :-1] = AU @ AU.transpose(0, 2, 1) + tau2 * (Kint[:, :, None, :, None] * eye6[None, None, :, None, :]).reshape(G_, 6 * n, 6 * n)
+        uL = U[P - 1]
+        G[:, :-1, -1] = AU @ uL
+        G[:, -1, :-1] = G[:, :-1, -1]
+        G[:, -1, -1] = uL @ uL + tau2 + _ELL_TOL ** 2
+        d = np.arange(6 * n)
+        G[:, d, d] += self.tolerance ** 2
         E = self._end
+        UE = U[E]  # (6, D)
         SoE = np.empty((G_, k6, 6))
-        SoE[:, :-1] = w0[:, :, None] * Sg[I0[:, :, None], E[None, None, :]] + w1[:, :, None] * Sg[I1[:, :, None], E[None, None, :]]
-        SoE[:, -1] = Sg[P - 1, E]
+        SoE[:, :-1] = AU @ UE.T + tau2 * (Kend[:, :, None, None] * eye6[None, None]).reshape(G_, 6 * n, 6)
+        SoE[:, -1] = UE @ uL
+        SEE = UE @ UE.T + tau2 * eye6
         # observations and their prior means
         ref_q, ref_p = self._reference(ph)
         y = pose_deviation(ref_q, ref_p, np.broadcast_to(q, (G_, n, 4)), np.broadcast_to(p, (G_, n, 3))) / self.scale
-        yo = np.concatenate([y.reshape(G_, 6 * n), (np.log(grid) / self.lscale)[:, None]], axis=1)
-        mo = np.concatenate([w0 * self.m[I0] + w1 * self.m[I1], np.full((G_, 1), self.m[-1])], axis=1)
-        e = yo - mo
+        e = np.empty((G_, k6))
+        e[:, :-1] = y.reshape(G_, 6 * n) - (w0 * self.m[I0] + w1 * self.m[I0 + 6])
+        e[:, -1] = np.log(grid) / self.lscale - self.m[-1]
         L = np.linalg.cholesky(G)
         sol = np.linalg.solve(G, np.concatenate([e[:, :, None], SoE], axis=2))  # (G, k6, 7)
         quad = np.einsum("gk,gk->g", e, sol[:, :, 0])
-        logdet = 2.0 * np.sum(np.log(np.einsum("gii->gi", L)), axis=1)
+        logdet = 2.0 * np.sum(np.log(np.diagonal(L, axis1=1, axis2=2)), axis=1)
         logw = -0.5 * quad - 0.5 * logdet
         end_mean = self.m[E][None] + np.einsum("gkj,gk->gj", SoE, sol[:, :, 0])
-        end_cov = Sg[np.ix_(E, E)][None] - np.einsum("gki,gkj->gij", SoE, sol[:, :, 1:])
-        # the seen poses alone (without ℓ): their Mahalanobis² under the prior, for "off"
-        return logw, end_mean, end_cov, quad, 6 * n + 1
+        end_cov = SEE[None] - np.einsum("gki,gkj->gij", SoE, sol[:, :, 1:])
+        return logw, end_mean, end_cov, quad, k6
 
     def weights(self, t, quat, position):
         """The duration posterior of a motion seen from t[0] to t[-1]: (grid (G,) s, weights (G,)), and the
@@ -566,8 +584,8 @@ class Follower:
     seen buffer keeps at most ``keep`` poses (older ones are thinned, every other one, the first kept):
     the update's cost stays bounded however long the motion runs."""
 
-    def __init__(self, paths, *, points: int = 8, grid_size: int = 24, window: float = 0.05,
-                 start_speed: float | None = None, keep: int = 512, detect: bool = True):
+    def __init__(self, paths, *, points: int = 6, grid_size: int = 16, window: float = 0.05,
+                 start_speed: float | None = None, keep: int = 512, detect: bool = True, rest: float = 0.25):
         self.anticipator = Anticipator(paths, None, points=points, grid_size=grid_size)
         P = paths.position
         length = float(np.sum(np.linalg.norm(np.diff(P, axis=0), axis=1)))
@@ -579,7 +597,11 @@ class Follower:
         self._t, self._q, self._p = [], [], []
         self._moving = not detect
         self._last = None
+        #: the current (or last) motion's index: 0, 1, … across repetitions (−1 before the first)
+        self.motion = -1 if detect else 0
         self._recent = []  # (t, quat, position) of the last window, for the speed
+        self._quiet_since = None  # since when the pose has been at rest (after a motion)
+        self.rest = float(rest)
 
     def _speed(self):
         (ta, _, pa), (tb, _, pb) = self._recent[0], self._recent[-1]
@@ -599,9 +621,16 @@ class Follower:
         while len(self._recent) > 2 and self._recent[1][0] <= t - self.window:
             self._recent.pop(0)
         if not self._moving:
-            if len(self._recent) >= 2 and self._recent[-1][0] - self._recent[0][0] >= 0.5 * self.window \
-                    and self._speed() > self.start_speed:
+            fast = len(self._recent) >= 2 and self._recent[-1][0] - self._recent[0][0] >= 0.5 * self.window \
+                and self._speed() > self.start_speed
+            if not fast and self._quiet_since is None:
+                self._quiet_since = t
+            armed = self.motion < 0 or (self._quiet_since is not None and t - self._quiet_since >= self.rest)
+            if fast and not armed:
+                self._quiet_since = None  # still settling after the last motion: not a new one yet
+            if fast and armed:
                 self._moving = True  # it left rest within the window: its start is the window's first pose
+                self.motion += 1
                 self._t, self._q, self._p = [x[0] for x in self._recent], [x[1] for x in self._recent], [x[2] for x in self._recent]
             else:
                 return None
@@ -617,12 +646,13 @@ class Follower:
             self._p = [self._p[i] for i in sel]
         est = self.anticipator.estimate(np.array(self._t), np.array(self._q), np.array(self._p))
         if self.detect and est.phase >= 0.8 and len(self._recent) >= 2 and self._speed() < self.start_speed:
-            self._moving = False  # the motion is over: wait for the next departure from rest
+            self._moving = False  # the motion is over: wait for rest, then the next departure from it
             self._recent = self._recent[-1:]
+            self._quiet_since = t
         self._last = est
         return est
 
     @property
     def start(self) -> float | None:
-        """The current motion's start time (None at rest)."""
-        return self._t[0] if self._moving and self._t else None
+        """The current (or last) motion's start time (None before the first)."""
+        return self._t[0] if self._t else None

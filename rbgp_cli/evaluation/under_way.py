@@ -14,8 +14,9 @@ duration. The columns per method and F:
 Methods: ``rbgp`` (:class:`~rbgp_cli.dynamics.anticipation.Anticipator` with the model's GP dynamics),
 ``no-GP`` (the same, its mean the conditioned path alone), ``nearest`` (the training demonstration and
 duration whose poses at phases τ/D best match the seen poses, time-scaled to that duration: no bands),
-``promp`` and ``promp-ridge`` (a ProMP from ``movement-primitives`` over (log(R̄_0ᵀR), p), with phase
-estimation: the duration maximising the seen poses' likelihood under the ProMP times a log-normal prior of
+``promp`` and ``promp-ridge`` (a ProMP of ``movement-primitives`` over the ProMP peer's curves
+(log(R̄_0ᵀR), p), its weight distribution the mean and covariance of each demonstration's regression
+weights, with phase estimation: the duration maximising the seen poses' likelihood under the ProMP times a log-normal prior of
 the training durations, then conditioned on the seen poses via the package's ``condition_position``: with
 the tracker's noise, 1 mm / 1 mrad (plain), or a ridge σ chosen by leaving training demonstrations out).
 """
@@ -139,9 +140,25 @@ class PhaseProMP:
     on a seen beginning (module docstring); ``std``: the conditioning noise (curve units, rad and m)."""
 
     def __init__(self, train: list, std: float = PROMP_PLAIN_STD):
-        from rbgp_cli.evaluation.peers import fit_promp
+        from movement_primitives.promp import ProMP
 
-        self.peer = fit_promp(train)
+        from rbgp_cli.evaluation.peers import PROMP_BASIS, PROMP_STEPS, ProMPPeer, _continuous_log
+        from rbgp_cli.evaluation.resample import mean_rotation, resample_all
+        from rbgp_cli.geometry.so3 import quat_conjugate, quat_multiply
+
+        # the ProMP peer's curves (peers.fit_promp), its weights by the package's per-demonstration
+        # regression (ProMP.weights) and their sample mean and covariance (Paraschos et al. 2013), not the
+        # package's EM (imitate: minutes per fit, and leaving demonstrations out fits it many times)
+        q, p = resample_all(train, PROMP_STEPS)
+        ref = mean_rotation(q[:, :1])[0]
+        rel = quat_multiply(np.broadcast_to(quat_conjugate(ref), q.shape), q)
+        Y = np.concatenate([_continuous_log(rel), p], axis=-1)  # (M, T, 6)
+        T = np.linspace(0.0, 1.0, PROMP_STEPS)
+        promp = ProMP(n_dims=6, n_weights_per_dim=PROMP_BASIS)
+        W = np.array([promp.weights(T, y, lmbda=1e-6) for y in Y])
+        cov = np.cov(W, rowvar=False) + 1e-8 * np.eye(W.shape[1])
+        promp.from_weight_distribution(W.mean(axis=0), cov)
+        self.peer = ProMPPeer(promp, ref, PROMP_STEPS)
         ld = np.log([tr.duration for tr in train])
         self.ell_mean, self.ell_std = float(np.mean(ld)), float(max(np.std(ld), 0.01))
         self.durations = np.exp(ld)
