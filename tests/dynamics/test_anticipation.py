@@ -159,3 +159,21 @@ def test_bad_seen_input_is_one_clear_error(trained):
         ant.estimate([0.0, 0.1], np.tile([0, 0, 0, 1.0], (2, 1)), np.array([[0, 0, 0], [np.nan, 0, 0]]))
     with pytest.raises(InputError, match="path distribution"):
         Anticipator(None)
+
+
+@pytest.mark.slow
+def test_the_api_predicts_the_rest_and_follows_a_stream():
+    import rbgp_cli as rbgp
+
+    demos, _ = family(8, 3)
+    gp = rbgp.RigidBodyGP(restarts=1, max_points=150).fit(demos)
+    assert gp.model_.paths is not None
+    seen, _ = _seen(demos[0], 0.4)
+    c = gp.predict_rest(seen, samples=4, seed=0)
+    assert c.t[0] == pytest.approx(seen.t[-1]) and len(c.samples) == 4
+    assert np.linalg.norm(c.position[0] - seen.position[-1]) < 5e-3  # the GP's rollout starts at the last seen pose
+    both = gp.predict_rest([seen, seen])
+    assert [x.name for x in both] == ["0", "1"] and np.array_equal(both[0].position, both[1].position)
+    f = gp.follower(detect=False)
+    est = [f.push(t, q, p) for t, q, p in zip(seen.t, seen.quat, seen.position)][-1]
+    assert est.t == pytest.approx(seen.t[-1]) and 0.2 < est.phase < 0.6
