@@ -125,12 +125,21 @@ class Continuation:
 
 
 # ----------------------------------------------------------------------------------------- helpers
-def _seen(t, quat, position, points: int):
+def _seen(t, quat, position, points: int, checked: bool = False):
     """The seen motion checked, and n ≤ points poses at evenly spaced times τ (n,) from its start (the first
-    and last seen among them): (t (N,), quat (N, 4), position (N, 3), τ (n,), q (n, 4), p (n, 3))."""
+    and last seen among them): (t (N,), quat (N, 4), position (N, 3), τ (n,), q (n, 4), p (n, 3)).
+    ``checked``: the arrays are already float, finite, increasing in time, unit and sign-continuous (a
+    :class:`Follower`'s buffer), so the O(N) checks are skipped."""
     from rbgp_cli.dynamics.trajectory import interpolate_poses
     from rbgp_cli.geometry.so3 import quat_make_continuous, quat_normalize
 
+    if checked:
+        span = float(t[-1] - t[0])
+        if len(t) == 1 or span <= 0:
+            return t, quat, position, np.zeros(1), quat[:1], position[:1]
+        tau = np.linspace(0.0, span, max(int(min(points, len(t))), 2))
+        q, p = interpolate_poses(t - t[0], quat, position, tau)
+        return t, quat, position, tau, q, p
     t = np.asarray(t, dtype=np.float64).reshape(-1)
     quat = np.asarray(quat, dtype=np.float64).reshape(-1, 4)
     position = np.asarray(position, dtype=np.float64).reshape(-1, 3)
@@ -260,10 +269,10 @@ class Anticipator:
         end_cov = SEE[None] - np.einsum("gki,gkj->gij", SoE, sol[:, :, 1:])
         return logw, end_mean, end_cov, quad, k6
 
-    def weights(self, t, quat, position):
+    def weights(self, t, quat, position, checked: bool = False):
         """The duration posterior of a motion seen from t[0] to t[-1]: (grid (G,) s, weights (G,)), and the
         per-grid terms (:meth:`_grid_terms`) of the durations kept."""
-        t, quat, position, tau, q, p = _seen(t, quat, position, self.points)
+        t, quat, position, tau, q, p = _seen(t, quat, position, self.points, checked)
         span = float(tau[-1])
         keep = self.grid >= span
         if not np.any(keep):  # longer already than any plausible duration: it ends now
@@ -275,9 +284,9 @@ class Anticipator:
         return grid, w / w.sum(), dict(end_mean=end_mean, end_cov=end_cov, quad=quad, k=k, span=span,
                                        beyond=not np.any(keep), seen=(t, quat, position, tau, q, p))
 
-    def estimate(self, t, quat, position) -> Anticipation:
+    def estimate(self, t, quat, position, checked: bool = False) -> Anticipation:
         """The fast summary (:class:`Anticipation`) of a seen beginning: no path, one batched solve."""
-        grid, w, terms = self.weights(t, quat, position)
+        grid, w, terms = self.weights(t, quat, position, checked)
         return self._summary(grid, w, terms)
 
     def _summary(self, grid, w, terms) -> Anticipation:
@@ -601,6 +610,7 @@ class Follower:
         self.motion = -1 if detect else 0
         self._recent = []  # (t, quat, position) of the last window, for the speed
         self._quiet_since = None  # since when the pose has been at rest (after a motion)
+        self._arrays = None  # the buffer as arrays (Follower._buffer)
         self.rest = float(rest)
 
     def _speed(self):
@@ -632,25 +642,46 @@ class Follower:
                 self._moving = True  # it left rest within the window: its start is the window's first pose
                 self.motion += 1
                 self._t, self._q, self._p = [x[0] for x in self._recent], [x[1] for x in self._recent], [x[2] for x in self._recent]
+                self._arrays = None
             else:
                 return None
         else:
             self._t.append(t)
             self._q.append(q)
             self._p.append(p)
-        if len(self._t) > self.keep:  # thin the older half (the first kept)
-            half = len(self._t) // 2
-            sel = list(range(0, half, 2)) + list(range(half, len(self._t)))
+        n = len(self._t)
+        if n > self.keep:  # thin the older half (the first kept)
+            half = n // 2
+            sel = list(range(0, half, 2)) + list(range(half, n))
             self._t = [self._t[i] for i in sel]
             self._q = [self._q[i] for i in sel]
             self._p = [self._p[i] for i in sel]
-        est = self.anticipator.estimate(np.array(self._t), np.array(self._q), np.array(self._p))
+            self._arrays = None
+        T, Q, Pp = self._buffer()
+        est = self.anticipator.estimate(T, Q, Pp, checked=True)
         if self.detect and est.phase >= 0.8 and len(self._recent) >= 2 and self._speed() < self.start_speed:
             self._moving = False  # the motion is over: wait for rest, then the next departure from it
             self._recent = self._recent[-1:]
             self._quiet_since = t
         self._last = est
         return est
+
+    def _buffer(self):
+        """The seen poses as arrays (t (N,), quat (N, 4), position (N, 3)), kept in step with the lists:
+        only the new rows are written (the quaternions unit and sign-continuous along the buffer)."""
+        n = len(self._t)
+        arr = self._arrays
+        if arr is None or arr[3] > n or len(arr[0]) < n:
+            cap = max(2 * n, 64)
+            arr = (np.empty(cap), np.empty((cap, 4)), np.empty((cap, 3)), 0)
+        T, Q, P, m = arr
+        for i in range(m, n):
+            q = self._q[i] / np.linalg.norm(self._q[i])
+            if i > 0 and np.dot(q, Q[i - 1]) < 0:
+                q = -q
+            T[i], Q[i], P[i] = self._t[i], q, self._p[i]
+        self._arrays = (T, Q, P, n)
+        return T[:n], Q[:n], P[:n]
 
     @property
     def start(self) -> float | None:
