@@ -176,18 +176,30 @@ class PhaseProMP:
         rel = quat_multiply(np.broadcast_to(quat_conjugate(self.peer.ref), q.shape), q)
         return tau, np.concatenate([_continuous_log(rel), p], axis=-1)  # (n,), (n, 6)
 
+    def _full(self):
+        """The ProMP's mean (N, 6) and covariance (6N, 6N, dimension-major) on N = 201 phases of [0, 1]: the
+        package normalises the times it is given by their last, so partial ranges are read off this grid."""
+        full = self.__dict__.get("_grid")
+        if full is None:
+            s = np.linspace(0.0, 1.0, 201)
+            full = self._grid = (s, self.peer.promp.mean_trajectory(s), self.peer.promp.cov_trajectory(s))
+        return full
+
     def duration(self, tau, Y, grid_size: int = 48) -> float:
-        """The duration maximising N(Y | mean(τ/D), cov(τ/D) + σ² I) · N(ln D | prior) on a log grid."""
-        promp = self.peer.promp
+        """The duration maximising N(Y | mean(τ/D), cov(τ/D) + σ² I) · N(ln D | prior) on a log grid (the
+        ProMP's mean and covariance at the grid phase nearest τ/D)."""
+        s, mean, cov = self._full()
+        N = len(s)
         span = float(tau[-1])
         grid = np.exp(np.linspace(np.log(0.5 * self.durations.min()), np.log(2 * self.durations.max()), grid_size))
         grid = grid[grid >= span] if np.any(grid >= span) else np.array([max(span, 1e-6)])
         best, arg = -np.inf, grid[0]
-        y = Y.ravel()
+        y = Y.T.ravel()  # dimension-major, as the package's covariance
         for D in grid:  # a loop over the grid's durations, each one Gaussian density
-            ph = np.clip(tau / D, 0, 1)
-            m = promp.mean_trajectory(ph).ravel()
-            C = promp.cov_trajectory(ph) + (self.std ** 2 + 1e-10) * np.eye(len(y))
+            idx = np.round(np.clip(tau / D, 0, 1) * (N - 1)).astype(int)
+            I = (np.arange(6)[:, None] * N + idx[None, :]).ravel()
+            m = mean[idx].T.ravel()
+            C = cov[np.ix_(I, I)] + (self.std ** 2 + 1e-10) * np.eye(len(y))
             try:
                 L = np.linalg.cholesky(C)
             except np.linalg.LinAlgError:
