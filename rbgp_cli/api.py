@@ -622,6 +622,46 @@ class RigidBodyGP:
                             with_std=return_std, rate=rate, off_data=off_data, durations=durations, **aims)
         return Rollout._of(res)
 
+    def predict_rest(self, seen, *, samples: int = 0, seed: int = 0, dt: float | None = None, paths=None):
+        """The rest of a motion under way from its seen beginning (``rbgp rollout --given``, docs/method.md §13).
+
+        Parameters
+        ----------
+        seen : a Trajectory (its t, quat, position from the motion's start to the last seen sample), a list
+            of them, or anything :func:`read_demonstrations` reads (each motion read is one seen beginning)
+        samples : continuations drawn per motion, the duration and the path together;  seed : seeds them
+        dt : the continuation's step in seconds (default the seen samples' median interval)
+        paths : the path distribution (default the model's, ``model_.paths``)
+
+        Returns
+        -------
+        A :class:`~rbgp_cli.dynamics.anticipation.Continuation` (a list for a list or a source): ``t``, ``quat``,
+        ``position`` from the last seen time to the predicted end on the seen clock, ``samples``, and
+        ``estimate`` (phase, end time and end pose with 90 % bands, ``off``). Nothing after the last seen
+        sample is used.
+        """
+        from rbgp_cli.dynamics.anticipation import Anticipator
+        from rbgp_cli.dynamics.trajectory import Trajectory
+
+        m = self._check()
+        ant = Anticipator(getattr(m, "paths", None) if paths is None else paths, m)
+        single = isinstance(seen, Trajectory)
+        items = [seen] if single else (list(seen) if isinstance(seen, (list, tuple)) and all(isinstance(x, Trajectory) for x in seen)
+                                       else _demos(seen))
+        out = [ant.continuation(tr.t, tr.quat, tr.position, samples=samples, seed=seed + i, dt=dt, name=str(i))
+               for i, tr in enumerate(items)]
+        return out[0] if single else out
+
+    def follower(self, *, paths=None, **options):
+        """An incremental :class:`~rbgp_cli.dynamics.anticipation.Follower` for a stream of poses (``rbgp follow``):
+        ``push(t, quat, position)`` returns the current estimate (phase, end time and end pose with 90 %
+        bands, ``off``) or None at rest. ``options``: the Follower's (``points``, ``grid_size``, ``window``,
+        ``start_speed``, ``keep``, ``detect``)."""
+        from rbgp_cli.dynamics.anticipation import Follower
+
+        m = self._check()
+        return Follower(getattr(m, "paths", None) if paths is None else paths, **options)
+
     def save(self, path) -> dict:
         """Write the model file (atomically; the format ``rbgp train -o`` writes). Returns its header."""
         from rbgp_cli.io.model_store import save_model

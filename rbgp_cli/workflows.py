@@ -510,6 +510,107 @@ def _rollout_to_goal(model, quat, pos, *, steps, duration, durations, dt, goal_q
     return res
 
 
+def continue_files(model, sources, *, options: ReadOptions | None = None, max_gap=None, samples: int = 0, seed: int = 0,
+                   paths=None, progress=None) -> list:
+    """``rbgp rollout --given``: each motion read from ``sources`` (files, folders, patterns; cleaned as
+    demonstrations are) is the seen beginning of a new motion; returns one
+    :class:`~rbgp_cli.dynamics.anticipation.Continuation` per motion, in the order read, named 0, 1, …
+    (its samples ``0.s0``, …), on the seen file's own clock (docs/method.md §13). ``paths``: the path
+    distribution (default the model's)."""
+    from rbgp_cli.dynamics.anticipation import Anticipator
+
+    seen, _, _ = load_demonstrations(sources, options, max_gap=max_gap)
+    ant = Anticipator(getattr(model, "paths", None) if paths is None else paths, model)
+    out = []
+    for i, tr in enumerate(seen):
+        c = ant.continuation(tr.t, tr.quat, tr.position, samples=samples, seed=seed + i, name=str(i))
+        c.info["source"] = tr.source or tr.name
+        if c.estimate.off:
+            from rbgp_cli.errors import warn
+
+            warn(f"the seen motion has left what the demonstrations cover (distance {c.estimate.distance:.2f} "
+                 "in units of the demonstrations' spread); its continuation is an extrapolation", path=tr.source or tr.name)
+        out.append(c)
+    return out
+
+
+def follow_stream(model, lines, *, options: ReadOptions | None = None, every: int = 1, detect: bool = True,
+                  paths=None, source: str = "stdin"):
+    """``rbgp follow``: poses arriving as CSV rows (``lines``: an iterator of text lines, the header first)
+    followed live (:class:`~rbgp_cli.dynamics.anticipation.Follower`). Yields one dict per ``every`` poses
+    of a motion under way: ``t``, ``start`` (the motion's detected start), ``motion`` (0, 1, … across
+    repetitions), ``phase``, ``end_time`` and its 90 % band, the end pose with its 90 % bands, ``off``."""
+    from rbgp_cli.dynamics.anticipation import Follower
+    from rbgp_cli.io.stream import RowStream
+
+    follower = Follower(getattr(model, "paths", None) if paths is None else paths, detect=detect)
+    header = next(iter(lines), None)
+    if header is None or not header.strip():
+        raise InputError("no header line on the stream", path=source, hint="send the CSV's header line first")
+    rows = RowStream(header, options, source)
+    count, motion = 0, None
+    for line in lines:
+        row = rows.parse(line)
+        if row is None:
+            continue
+        est = follower.push(*row)
+        if est is None:
+            continue
+        if follower.motion != motion:
+            motion, count = follower.motion, 0
+        count += 1
+        if (count - 1) % max(int(every), 1):
+            continue
+        yield dict(motion=int(motion), start=float(follower.start), **est.to_dict())
+
+
+def crossval_under_way(sources, fractions, train_kwargs: dict, *, options: ReadOptions | None = None, max_gap=None,
+                       folds: int = 5, seed: int = 0, samples: int = 20, progress=None, peers: bool = True) -> dict:
+    """``rbgp crossval --given F``: per fold, train on the others (``train_kwargs``, the default
+    representation and kernel), see each held-out demonstration's first fraction F and predict the rest
+    (:mod:`rbgp_cli.evaluation.under_way`). Returns ``{"rows": [{method, given, end_pos, ...}], "folds",
+    "inputs"}``, rows in the order F, then method."""
+    from rbgp_cli.dynamics.defaults import DEFAULTS
+    from rbgp_cli.dynamics.model import train_model
+    from rbgp_cli.dynamics.paths import fit_paths
+    from rbgp_cli.evaluation.crossval import make_folds
+    from rbgp_cli.evaluation.peers import missing
+    from rbgp_cli.evaluation.under_way import METHODS, under_way_fold
+    from rbgp_cli.progress import as_progress
+
+    fractions = [float(f) for f in fractions]
+    for f in fractions:
+        if not 0.0 < f < 1.0:
+            raise InputError(f"a seen fraction must lie between 0 and 1, got {f:g}", param="given",
+                             hint="give F such as 0.2, 0.4, 0.6, 0.8")
+    demos, _, inputs = load_demonstrations(sources, options, max_gap=max_gap)
+    if len(demos) < 4:
+        raise InputError(f"crossval with a seen fraction needs at least 4 demonstrations, got {len(demos)}",
+                         hint="the path distribution needs 3 in every training fold")
+    methods = [m for m in METHODS if peers or m in ("rbgp", "no-GP")]
+    if peers and missing() is not None:
+        from rbgp_cli.errors import warn
+
+        warn("left out " + missing())
+    folds = min(int(folds), len(demos))
+    tot: dict = {}
+    prog = as_progress(progress)
+    with prog.task("crossval under way", total=folds, unit="folds") as task:
+        for i, fold in enumerate(make_folds(len(demos), folds, seed)):
+            held = set(fold)
+            train = [d for j, d in enumerate(demos) if j not in held]
+            test = [demos[j] for j in fold]
+            model = train_model(train, representation=DEFAULTS["representation"], kernel=DEFAULTS["kernel"],
+                                **train_kwargs)
+            paths = getattr(model, "paths", None) or fit_paths(train)
+            out = under_way_fold(model, paths, train, test, fractions, samples=samples, seed=seed + i, methods=methods)
+            for k, v in out.items():
+                tot[k] = v if k not in tot else tot[k].add(v)
+            task.advance()
+    rows = [dict(method=m, given=F, **tot[(m, F)].to_dict()) for F in fractions for m in methods if (m, F) in tot]
+    return {"rows": rows, "folds": folds, "samples": samples, "inputs": [i["name"] for i in inputs]}
+
+
 def generate_like_paper(model, demos, count=100, spread=0.02, seed=0, progress=None):
     """The paper's protocol (sec. 4.3): ``count`` rollouts from unseen starts near the demonstrations'
     start poses, each as long as the demonstrations' median duration, at the model's rollout step

@@ -181,6 +181,7 @@ def rollout(
     start_quat: Annotated[Optional[List[str]], typer.Option("--start-quat", help='Start pose "qx qy qz qw x y z" (quaternion x, y, z, w, normalised here; m); repeatable.')] = None,
     starts: Annotated[Optional[str], typer.Option("--starts", help="File of start poses, one per row (read with the read options below).")] = None,
     from_demos: Annotated[Optional[List[str]], paths_option("--from-demos", help="Draw starts near these demonstrations' start poses: files or folders, several after one flag (e.g. --from-demos data/*.csv), read with the read options below (--topic for an MCAP with several pose topics).")] = None,
+    given: Annotated[Optional[List[str]], paths_option("--given", help="The seen beginnings of motions under way: files, folders or globs (as --from-demos), read with the read options below. Each is continued from its last seen sample to its predicted end (docs/method.md §13): trajectory i (samples i.s0, ...) starts at the last seen time on the file's own clock; --samples draws the duration and the path together; --json reports per file the phase, the predicted end time and end pose with 90 % bands.")] = None,
     count: Annotated[int, typer.Option(min=1, help="Number of starts drawn near the demonstrations' (or the model's stored) start poses.")] = 1,
     start_spread: Annotated[float, typer.Option("--start-spread", min=0.0, help="Std of the start perturbation in metres (rotation: 0.1 rad per 0.3 m).")] = 0.02,
     steps: Annotated[Optional[int], typer.Option(min=1, help="Integration steps (default: the demonstrations' median duration / dt).")] = None,
@@ -236,6 +237,13 @@ def rollout(
     fmt, folder = _rollout_format(output, output_format, mcap_encoding)
     check_outputs(None if folder else (output or "-"), rerun)
     m, _ = load_model(model)
+    if given:
+        if start or start_quat or starts or from_demos or steps is not None or duration is not None or each_duration:
+            raise InputError("--given continues motions under way from what was seen: it takes no start poses, "
+                             "--steps or --duration", hint="drop them, or drop --given")
+        if fmt != "csv" or rerun:
+            raise InputError("--given writes CSV", hint="write -o FILE.csv (or stdout)")
+        return _rollout_given(m, given, read, samples=samples, seed=seed, output=output, json_out=json_out)
     q0, p0, durations = workflows.rollout_starts(
         m, start=start, start_quat=start_quat, starts=starts, from_demos=from_demos, count=count,
         start_spread=start_spread, seed=seed, options=opts, max_gap=read.max_gap, each_duration=each_duration,
@@ -263,6 +271,52 @@ def rollout(
                    "durations_s": [float(tr.t[-1]) for tr in trajs[:res.count]],
                    "output": output, "std": res.std is not None, "off_data": off_data, "left_data": res.left,
                    "goal_distance": None if res.goal_distance is None else [float(d) for d in res.goal_distance]})
+
+
+@app.command()
+@command
+@with_read_options
+def follow(
+    model: Annotated[str, typer.Argument(help="Model file.")],
+    every: Annotated[int, typer.Option("--every", min=1, help="Print a prediction every N poses of a motion under way (1: after every pose).")] = 1,
+    no_detect: Annotated[bool, typer.Option("--no-detect", help="The stream's first pose is the motion's start (phase 0); by default a motion starts when the pose leaves rest, so follow runs across repetitions.")] = False,
+    read: ReadArgs = None,
+):
+    """Follow a motion live: read poses as CSV rows on stdin, print one JSON line per prediction.
+
+    The stream is a CSV table (header first, then rows as they arrive: `tail -f` of a logger, or any
+    reader's output), read with the read options below. After each pose of a motion under way (or every
+    --every poses) one line: t, the motion's start, its estimated phase, the predicted end time and end
+    pose with 90 % bands, and whether the motion has left what the demonstrations cover
+    (docs/method.md §13). Nothing is printed at rest.
+
+    Example: tail -f take.csv | rbgp follow handover.rbgp
+    """
+    import json
+    import sys
+
+    from rbgp_cli import workflows
+    from rbgp_cli.io.model_store import load_model
+
+    m, _ = load_model(model)
+    lines = iter(sys.stdin.readline, "")
+    for out in workflows.follow_stream(m, lines, options=read.options, every=every, detect=not no_detect):
+        sys.stdout.write(json.dumps(out) + "\n")
+        sys.stdout.flush()
+
+
+def _rollout_given(m, given, read, *, samples, seed, output, json_out) -> None:
+    """rollout --given: one continuation per seen motion (CSV), and per motion its estimate in --json."""
+    from rbgp_cli import workflows
+    from rbgp_cli.io.csv import write_trajectories_csv
+
+    conts = workflows.continue_files(m, given, options=read.options, max_gap=read.max_gap, samples=samples, seed=seed,
+                                     progress=progress)
+    trajs = [tr for c in conts for tr in c.trajectories(include_samples=samples > 0)]
+    write_text_output(output, lambda fh: write_trajectories_csv(trajs, fh))
+    if json_out:
+        emit_json({"output": output, "samples_per_motion": samples,
+                   "motions": [dict(trajectory=c.name, source=c.info.get("source"), **c.estimate.to_dict()) for c in conts]})
 
 
 def _write_rollout_csv(res, trajs, output) -> None:
@@ -497,8 +551,8 @@ def crossval(
     length: Annotated[Optional[int], typer.Option(min=2, help="Resample every trajectory to this many steps for the scores (default: the training demonstrations' median).")] = None,
     covariance: Annotated[str, typer.Option(help="Per-step Gaussians with diag or full covariance (as rbgp evaluate).")] = "diag",
     samples: Annotated[int, typer.Option("--samples", min=0, help="Sampled rollouts per held-out start (as rbgp rollout --samples) for the columns sample (one sample per start scored like score, over the floor) and cov_pos / cov_rot (how often the held-out motion lies inside the samples' 90 % prediction region: 0.90 for honest bands) with the bands' half-widths in --json; 0: none; at least 4 for the coverage.")] = 20,
+    given: Annotated[Optional[List[str]], typer.Option("--given", metavar="F|goal", help="What each row is given of a held-out demonstration besides its start. goal: its final pose and duration (rbgp's motion conditioned on both ends, beside the goal-conditioned peers: nearest, the demonstration nearest by start and goal with its end offsets blended in; promp conditioned on start and goal; dmp of the nearest demonstration with the new goal; the table then has end_mm / end_mrad, the mean motions' end errors). F: a motion under way: see each held-out demonstration's first fraction F (0 < F < 1; repeatable: --given 0.2 --given 0.6) and predict the rest without its duration (docs/method.md §13). Rows per F: rbgp, its path distribution alone (no-GP), the nearest demonstration time-scaled and matched on the seen part, and a ProMP with phase estimation conditioned on the seen part, plain and ridge-regularised; columns final-pose error, end-time error, the remainder's RMSE and the 90 % bands' coverage of it.")] = None,
     without_gp: Annotated[bool, typer.Option("--without-gp/--no-without-gp", help="Beside every model row with a prior mean, a row of the same fits with the GP's residual switched off (kernel column 'no-GP'): the path distribution alone, rolled out from the same starts with the same draws, so the difference is what the GP adds on your data.")] = True,
-    given: Annotated[Optional[str], typer.Option("--given", help="What each row is given of a held-out demonstration besides its start: goal (its final pose and duration: rbgp's motion conditioned on both ends, beside the goal-conditioned peers: nearest, the demonstration nearest by start and goal with its end offsets blended in; promp conditioned on start and goal; dmp of the nearest demonstration with the new goal). The table then has end_mm / end_mrad, the mean motions' end errors.")] = None,
     per_fold: Annotated[bool, typer.Option("--per-fold", help="Also print one line per fold and configuration.", rich_help_panel=_OUT)] = False,
     json_out: Annotated[bool, typer.Option("--json", help="Print the results as JSON on stdout.", rich_help_panel=_OUT)] = False,
     rho_rot: RhoOpt = _D["rho_rot"], restarts: RestartsOpt = _D["restarts"], explore_size: ExploreOpt = _D["explore_size"],
@@ -539,6 +593,14 @@ def crossval(
                           hyper_points=hyper_points, calibrate_noise=calibrate_noise,
                           start_conditioning=start_conditioning, noise_scale=noise_scale,
                           pull_profile=pull_profile)
+    goal = None
+    if given and any(str(v).strip().lower() == "goal" for v in given):
+        if len(given) > 1:
+            raise InputError("--given goal cannot be combined with other --given values", hint="run crossval once per kind")
+        goal = given[0]
+    elif given:
+        return _crossval_given(demos, given, kwargs, read, folds=folds, seed=seed, samples=samples, peers=peers,
+                               json_out=json_out, grid=grid, representation=representation, kernel=kernel)
     variants, lists = grid_variants(ctx, grid)
     for name, listed in (("representation", representation), ("kernel", kernel)):
         if name in lists and listed:
@@ -551,7 +613,7 @@ def crossval(
     result = workflows.crossval_files(demos, configs, options=opts, max_gap=max_gap, folds=folds, seed=seed, jobs=jobs,
                                       length=length, covariance=covariance, progress=progress, scheduler=scheduler,
                                       samples=samples, repeats=repeats, without_gp=without_gp, order=order,
-                                      train_size=train_size, **workflows.given_option(given))
+                                      train_size=train_size, **workflows.given_option(goal))
     result["skipped"] = list(skipped)
     if json_out:
         emit_json(result)
@@ -559,6 +621,29 @@ def crossval(
         from rbgp_cli.cli.report import format_crossval
 
         print(format_crossval(result, per_fold=per_fold))
+
+
+def _crossval_given(demos, given, kwargs, read, *, folds, seed, samples, peers, json_out, grid, representation, kernel):
+    """crossval --given F: a motion under way (rbgp_cli.evaluation.under_way)."""
+    from rbgp_cli import workflows
+    from rbgp_cli.errors import InputError
+
+    fractions = []
+    for v in given:
+        try:
+            fractions.append(float(v))
+        except ValueError:
+            raise InputError(f"--given takes goal or a seen fraction F between 0 and 1, got {v!r}", hint="e.g. --given goal, or --given 0.2 --given 0.6") from None
+    if grid or representation or kernel:
+        raise InputError("--given runs the default representation and kernel", hint="drop --grid, --representation and --kernel")
+    result = workflows.crossval_under_way(demos, fractions, kwargs, options=read.options, max_gap=read.max_gap, folds=folds,
+                                          seed=seed, samples=samples, progress=progress, peers=peers)
+    if json_out:
+        emit_json(result)
+    else:
+        from rbgp_cli.cli.report import format_under_way
+
+        print(format_under_way(result))
 
 
 # ---------------------------------------------------------------------------------------------- demo

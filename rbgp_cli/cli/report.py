@@ -280,3 +280,20 @@ def format_crossval(result: dict, per_fold: bool = False) -> str:
     if any(not r.get("reliable", True) for r in result["results"]):
         lines.append("* some folds have too few trajectories for their per-step variances (see the warnings)")
     return "\n".join(lines)
+
+
+def format_under_way(result: dict) -> str:
+    """crossval --given's table: one row per seen fraction and method (rbgp_cli.evaluation.under_way)."""
+    head = (f"{'given':>5} {'method':<12} {'end_pos':>8} {'end_rot':>8} {'end_time':>8} {'rest_pos':>8} "
+            f"{'rest_rot':>8} {'cov_pos':>7} {'cov_rot':>7}")
+    lines = [f"a motion under way: {result['folds']} folds, {result['samples']} samples per motion; "
+             "end and rest errors in m / rad / s, coverage of the remainder by the 90 % bands", head]
+
+    def f(x, w, d):
+        return f"{x:>{w}.{d}f}" if x == x else f"{'-':>{w}}"
+
+    for r in result["rows"]:
+        lines.append(f"{r['given']:>5g} {r['method']:<12} {f(r['end_pos'], 8, 3)} {f(r['end_rot'], 8, 3)} "
+                     f"{f(r['end_time'], 8, 3)} {f(r['rest_pos'], 8, 3)} {f(r['rest_rot'], 8, 3)} "
+                     f"{f(r['cov_pos'], 7, 2)} {f(r['cov_rot'], 7, 2)}")
+    return "\n".join(lines)

@@ -160,6 +160,8 @@ class PathDistribution:
     seen_tolerance: float = 0.1
     band_scale: tuple = (1.0, 1.0)
     info: dict = field(default_factory=dict)
+    #: (c_rot, c_pos) ≥ 1 on the draws of a motion under way (:func:`rbgp_cli.dynamics.anticipation.fit_seen`)
+    seen_band_scale: tuple = (1.0, 1.0)
     #: :meth:`goal_band_scale`, computed once
     _goal_scale: tuple | None = field(default=None, repr=False, compare=False)
 
@@ -394,17 +396,20 @@ class PathDistribution:
         """The header fields a model file keeps (``paths``)."""
         return {"demos": self.demos, "steps": self.S, "smooth": float(self.smooth), "length": float(self.length),
                 "seen_tolerance": float(self.seen_tolerance),
-                "band_scale": {"rotation": float(self.band_scale[0]), "position": float(self.band_scale[1])}}
+                "band_scale": {"rotation": float(self.band_scale[0]), "position": float(self.band_scale[1])},
+                "seen_band_scale": {"rotation": float(self.seen_band_scale[0]), "position": float(self.seen_band_scale[1])}}
 
     @classmethod
     def from_arrays(cls, arrays: dict, header: dict) -> "PathDistribution":
         """From :meth:`to_arrays`' arrays and :meth:`header`'s fields."""
         bs = header.get("band_scale") or {"rotation": 1.0, "position": 1.0}
+        ss = header.get("seen_band_scale") or {"rotation": 1.0, "position": 1.0}
         f = np.asarray
         return cls(f(arrays["paths_s"], float), f(arrays["paths_quat"], float), f(arrays["paths_position"], float),
                    f(arrays["paths_deviations"], float), f(arrays["paths_log_durations"], float),
                    float(header["smooth"]), float(header["length"]), float(header["seen_tolerance"]),
-                   (float(bs["rotation"]), float(bs["position"])))
+                   (float(bs["rotation"]), float(bs["position"])),
+                   seen_band_scale=(float(ss["rotation"]), float(ss["position"])))
 
 
 # ---------------------------------------------------------------------- fitting
@@ -481,4 +486,7 @@ def fit_paths(trajs, steps: int = 51, *, level: float = 0.90) -> PathDistributio
     c_rot, c_pos = _band_factors(m2, z, D, level)
     paths.band_scale = (max(1.0, float(c_rot)), max(1.0, float(c_pos)))
     paths.info = {"loo_log_density": float(score), "smooth": paths.smooth, "length": paths.length}
+    from rbgp_cli.dynamics.anticipation import fit_seen
+
+    fit_seen(paths)  # the seen poses' tolerance and the bands of a motion under way (issue 37)
     return paths

@@ -264,6 +264,9 @@ TOP: dict = {
         "seen_tolerance": num(0.0, 1e6, what="a non-negative tolerance"),
         "band_scale": obj({"rotation": num(1.0, 1e6, what="a factor of at least 1"),
                            "position": num(1.0, 1e6, what="a factor of at least 1")}, ("rotation", "position")),
+        # optional: the bands of a motion under way (issue 37)
+        "seen_band_scale": obj({"rotation": num(1.0, 1e6, what="a factor of at least 1"),
+                                "position": num(1.0, 1e6, what="a factor of at least 1")}, ("rotation", "position")),
     }, ("demos", "steps", "smooth", "length", "seen_tolerance", "band_scale")))),
 }
 

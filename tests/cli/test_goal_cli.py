@@ -124,7 +124,7 @@ def test_bad_goal_and_via_text_is_a_one_line_error(model, tmp_path, args, fragme
 
 
 def test_crossval_given_must_be_goal():
-    assert_one_line_error(run("crossval", CSV_DIR, "--given", "middle"), 2, "--given must be goal")
+    assert_one_line_error(run("crossval", CSV_DIR, "--given", "middle"), 2, "--given takes goal or a seen fraction F")
 
 
 @pytest.mark.slow

@@ -1,0 +1,689 @@
+"""A motion under way: the rest of it from its seen beginning (docs/method.md §13, MATH.md §12).
+
+The seen samples (t_j, T_j) of a motion that started at t_0 = t[0] lie at phases s_j = (t_j − t_0)/D of
+its unknown duration D. rbgp answers three questions with the path distribution N(m, Σ) of
+:mod:`rbgp_cli.dynamics.paths` (scaled deviations from the mean path on 51 phases, and ℓ = ln D).
+
+**How long, and where in the motion.** n ≤ ``points`` seen poses at evenly spaced times τ_k ∈ [0, span]
+(interpolated: slerp, linear; the first and last seen always among them) are observations of the path at
+phases τ_k/D, with the regularising tolerance r (:attr:`PathDistribution.seen_tolerance`, in units of each
+coordinate's spread), and ℓ = ln D is observed exactly. On a log-spaced grid of durations D_g (from half
+the shortest demonstration to twice the longest, those shorter than the seen span left out)
+
+    w_g ∝ N( (y(D_g), ln D_g) | A_g m, A_g Σ A_gᵀ + R ),     y_k(D) = (log(R_k R̄(τ_k/D)ᵀ), p_k − p̄(τ_k/D)) / σ,
+
+(after Maeda et al. 2017's phase estimation; a log-spaced grid makes the weight the density of ln D).
+The predicted end time is t_0 + D with D's weighted median and 5 %/95 % quantiles; the phase of the last
+seen sample is span / D̂ (D̂ the weighted median). One batched solve over the grid gives the weights and,
+per D_g, the conditioned end pose: the end pose's mean and band are the mixture's.
+
+**The rest.** At D̂ the path distribution is conditioned on the seen poses (tolerance r) and on the last
+seen pose exactly (:data:`~rbgp_cli.dynamics.paths.GOAL_TOLERANCE`, so the continuation starts where the
+motion is); the continuation runs from the last seen time to t_0 + D̂. Its mean is either that
+conditioned path (``model=None``, the path distribution alone) or the model's GP dynamics rolled from the
+last seen pose at its phase with the conditioned path as the prior mean's reference (feed-forward along
+it and the pull toward it; the GP's residual field says how to move from an off-path pose). K samples draw
+D from the weights (jittered within its grid cell) and a path from the distribution conditioned at that D
+(Student-t, widened by the seen bands' factors), and displace the mean by the draw's difference from the
+conditioned mean at D̂, so duration and path vary together and every sample starts at the last seen pose.
+
+**The tolerance and the bands** (:func:`fit_seen`): each demonstration left out in turn, its first
+F ∈ {0.2, 0.4, 0.6, 0.8} seen at its true phases, the rest predicted; r maximises the left-out remainders'
+log density (over :data:`SEEN_TOLERANCE_GRID`), and the factors (c_rot, c_pos) ≥ 1 make the remainders'
+90 % regions hold (as :func:`~rbgp_cli.dynamics.paths.fit_paths` does for the start-only draws). Plain
+conditioning (r → 0) over-fits the seen part and its bands collapse (the plain ProMP's failure).
+
+**Leaving the demonstrations.** The seen part is "off" when the last seen pose's Mahalanobis distance under
+the prior's marginal at its estimated phase exceeds :data:`OFF_DISTANCE` (3.5: a χ with 6 degrees of
+freedom, beyond which fewer than 1 in 200 demonstrations lie), or when the motion has already lasted longer
+than any duration on the grid.
+
+Only samples up to the last seen one enter: nothing here reads past ``t[-1]``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rbgp_cli.errors import InputError
+
+__all__ = ["Anticipator", "Anticipation", "Continuation", "anticipate", "fit_seen", "Follower",
+           "SEEN_TOLERANCE_GRID", "SEEN_FRACTIONS", "SEEN_POINTS", "DURATION_GRID"]
+
+#: Regularising tolerances r tried by :func:`fit_seen` (units of each coordinate's spread).
+SEEN_TOLERANCE_GRID = (0.05, 0.1, 0.2, 0.4, 0.8, 1.6, 3.2)
+#: Fractions of a left-out demonstration seen in :func:`fit_seen`.
+SEEN_FRACTIONS = (0.2, 0.4, 0.6, 0.8)
+#: Seen poses (evenly spaced in time) that enter the phase estimate and the conditioning.
+SEEN_POINTS = 12
+#: Durations on the grid of the phase estimate, log-spaced over GRID_RANGE times the demonstrations'
+#: shortest and longest.
+DURATION_GRID = 32
+GRID_RANGE = (2.0 / 3.0, 1.5)
+#: Above this Mahalanobis distance (a χ with 6 degrees of freedom: fewer than 1 in 200 demonstrations lie
+#: beyond 3.5) the last seen pose has left what the demonstrations cover.
+OFF_DISTANCE = 3.5
+#: Tolerance of the exactly observed ln D (in units of ln D's spread) and of the last seen pose.
+_ELL_TOL = 1e-4
+
+
+# ----------------------------------------------------------------------------------------- results
+@dataclass
+class Anticipation:
+    """What is known after the seen part: the last seen time ``t`` and the estimated ``phase`` there,
+    ``end_time`` (median) with ``end_time_band`` (5 %, 95 %) on the seen clock, ``end_quat`` (4,) x, y, z, w
+    and ``end_position`` (3,) m with their 90 % half-widths ``end_rotation_band`` (rad, the angle) and
+    ``end_position_band`` (3,) m, ``off`` (the seen part has left what the demonstrations cover) and
+    ``distance`` (the last seen pose's Mahalanobis distance under the prior at its phase)."""
+
+    t: float
+    phase: float
+    end_time: float
+    end_time_band: tuple
+    end_quat: np.ndarray
+    end_position: np.ndarray
+    end_rotation_band: float
+    end_position_band: np.ndarray
+    off: bool
+    distance: float
+
+    def to_dict(self) -> dict:
+        return {"t": float(self.t), "phase": float(self.phase), "end_time": float(self.end_time),
+                "end_time_band": [float(x) for x in self.end_time_band],
+                "end_quat": [float(x) for x in self.end_quat], "end_position": [float(x) for x in self.end_position],
+                "end_rotation_band": float(self.end_rotation_band),
+                "end_position_band": [float(x) for x in self.end_position_band],
+                "off": bool(self.off), "distance": float(self.distance)}
+
+
+@dataclass
+class Continuation:
+    """The predicted rest of a motion: ``t`` (T,) on the seen clock from the last seen time to the predicted
+    end; ``quat`` (T, 4) x, y, z, w, ``position`` (T, 3) m the mean; ``samples``: K (t, quat, position)
+    triples, each to its own end; ``estimate``: the :class:`Anticipation`; ``duration`` D̂ s."""
+
+    t: np.ndarray
+    quat: np.ndarray
+    position: np.ndarray
+    samples: list
+    estimate: Anticipation
+    duration: float
+    name: str = "0"
+    info: dict = field(default_factory=dict)
+
+    def trajectories(self, include_samples: bool = False) -> list:
+        """The mean as a :class:`~rbgp_cli.dynamics.trajectory.Trajectory` named ``name`` and, optionally,
+        the samples (``name.s0``, …)."""
+        from rbgp_cli.dynamics.trajectory import Trajectory
+
+        out = [Trajectory(self.t, self.quat, self.position, name=self.name)]
+        if include_samples:
+            out += [Trajectory(t, q, p, name=f"{self.name}.s{k}") for k, (t, q, p) in enumerate(self.samples)]
+        return out
+
+
+# ----------------------------------------------------------------------------------------- helpers
+def _seen(t, quat, position, points: int, checked: bool = False):
+    """The seen motion checked, and n ≤ points poses at evenly spaced times τ (n,) from its start (the first
+    and last seen among them): (t (N,), quat (N, 4), position (N, 3), τ (n,), q (n, 4), p (n, 3)).
+    ``checked``: the arrays are already float, finite, increasing in time, unit and sign-continuous (a
+    :class:`Follower`'s buffer), so the O(N) checks are skipped."""
+    from rbgp_cli.dynamics.trajectory import interpolate_poses
+    from rbgp_cli.geometry.so3 import quat_make_continuous, quat_normalize
+
+    if checked:
+        span = float(t[-1] - t[0])
+        if len(t) == 1 or span <= 0:
+            return t, quat, position, np.zeros(1), quat[:1], position[:1]
+        tau = np.linspace(0.0, span, max(int(min(points, len(t))), 2))
+        q, p = interpolate_poses(t - t[0], quat, position, tau)
+        return t, quat, position, tau, q, p
+    t = np.asarray(t, dtype=np.float64).reshape(-1)
+    quat = np.asarray(quat, dtype=np.float64).reshape(-1, 4)
+    position = np.asarray(position, dtype=np.float64).reshape(-1, 3)
+    if len(t) < 1 or len(quat) != len(t) or len(position) != len(t):
+        raise InputError("a seen motion needs times, quaternions and positions of the same length, at least one",
+                         param="seen")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(quat)) and np.all(np.isfinite(position))):
+        raise InputError("the seen motion has missing (NaN) values", hint="read it with rbgp's readers, which repair them",
+                         param="seen")
+    if len(t) > 1 and not np.all(np.diff(t) > 0):
+        raise InputError("the seen motion's times must increase", param="seen")
+    quat = quat_make_continuous(quat_normalize(quat))
+    span = float(t[-1] - t[0])
+    if len(t) == 1 or span <= 0:
+        return t, quat, position, np.zeros(1), quat[:1], position[:1]
+    n = int(min(points, len(t)))
+    tau = np.linspace(0.0, span, max(n, 2))
+    q, p = interpolate_poses(t - t[0], quat, position, tau)
+    return t, quat, position, tau, q, p
+
+
+def _student_factor(rng, nu, count):
+    return np.sqrt(nu / rng.chisquare(nu, count))
+
+
+# ----------------------------------------------------------------------------------------- the estimator
+class Anticipator:
+    """The phase estimate and conditioning of a :class:`~rbgp_cli.dynamics.paths.PathDistribution` on a seen
+    beginning (module docstring), with its prior (m, Σ) computed once; ``model``: a
+    :class:`~rbgp_cli.dynamics.model.MotionModel` whose GP dynamics give the continuation's mean (None: the
+    conditioned path)."""
+
+    def __init__(self, paths, model=None, *, points: int = SEEN_POINTS, grid_size: int = DURATION_GRID,
+                 tolerance: float | None = None):
+        if paths is None:
+            raise InputError("this model has no path distribution to predict a motion under way (fewer than three "
+                             "demonstrations, or a model file from an older rbgp)", hint="retrain it with rbgp train")
+        self.paths = paths
+        self.model = model
+        self.points = int(points)
+        self.tolerance = float(paths.seen_tolerance if tolerance is None else tolerance)
+        self.m, self.Sigma = paths.prior()
+        self.scale = paths.scale
+        self.lscale = paths.duration_scale
+        d = np.exp(paths.log_durations)
+        self.grid = np.exp(np.linspace(np.log(GRID_RANGE[0] * d.min()), np.log(GRID_RANGE[1] * d.max()), int(grid_size)))
+        self._half_step = 0.5 * (np.log(self.grid[1]) - np.log(self.grid[0])) if len(self.grid) > 1 else 0.0
+        S = paths.S
+        self._end = 6 * (S - 1) + np.arange(6)
+        self._band = getattr(paths, "seen_band_scale", None) or paths.band_scale
+        from rbgp_cli.dynamics.model import PathReference
+
+        self._ref = PathReference({"s": paths.s, "quat": paths.quat, "position": paths.position,
+                                   "velocity": np.zeros((S - 1, 6))})
+
+    # -------------------------------------------------------------- the duration's weights (batched)
+    def _reference(self, phases):
+        """The mean path's poses at phases (any shape): quat (..., 4), position (..., 3)."""
+        q, p, _ = self._ref.at(np.asarray(phases, dtype=np.float64).reshape(-1))
+        return q.reshape(np.shape(phases) + (4,)), p.reshape(np.shape(phases) + (3,))
+
+    def _low_rank(self):
+        """Σ = U Uᵀ + τ² (K_ℓ ⊗ I_6 ⊕ 1) (:meth:`PathDistribution.prior`): U (P, D), K_ℓ (S, S) on the grid,
+        τ², computed once; the batched grid terms use these instead of gathering Σ."""
+        lr = self.__dict__.get("_lr")
+        if lr is None:
+            paths = self.paths
+            X = paths.vectors()
+            D = len(X)
+            U = (X - X.mean(axis=0)).T * np.sqrt((1.0 + 1.0 / D) / max(D - 1, 1))
+            s = paths.s
+            Ks = np.exp(-0.5 * ((s[:, None] - s[None, :]) / paths.length) ** 2)
+            lr = self._lr = (U, Ks, float(paths.smooth))
+        return lr
+
+    def _grid_terms(self, tau, q, p, grid):
+        """For each duration D_g: log weight, the conditioned end pose's mean (6,) and covariance (6, 6) in
+        scaled units (module docstring). Batched over the grid, with Σ's low-rank-plus-smooth form."""
+        from rbgp_cli.dynamics.paths import pose_deviation
+
+        U, Ks, tau2 = self._low_rank()
+        S, P = self.paths.S, len(self.m)
+        G_, n = len(grid), len(tau)
+        ph = np.minimum(tau[None, :] / grid[:, None], 1.0)  # (G, n)
+        x = ph * (S - 1)
+        k = np.minimum(x.astype(int), S - 2)
+        f = x - k  # (G, n)
+        I0 = (6 * k[:, :, None] + np.arange(6)).reshape(G_, 6 * n)
+        w1 = np.repeat(f, 6, axis=1)
+        w0 = 1.0 - w1
+        AU = w0[:, :, None] * U[I0] + w1[:, :, None] * U[I0 + 6]  # (G, 6n, D)
+        # the smooth part: K_ℓ interpolated at the seen phases (G, n, n), and to the end phase (G, n)
+        g0, g1 = 1.0 - f, f
+        Kint = (g0[:, :, None] * g0[:, None, :] * Ks[k[:, :, None], k[:, None, :]]
+                + g0[:, :, None] * g1[:, None, :] * Ks[k[:, :, None], k[:, None, :] + 1]
+                + g1[:, :, None] * g0[:, None, :] * Ks[k[:, :, None] + 1, k[:, None, :]]
+                + g1[:, :, None] * g1[:, None, :] * Ks[k[:, :, None] + 1, k[:, None, :] + 1])
+        Kend = g0 * Ks[k, S - 1] + g1 * Ks[k + 1, S - 1]
+        eye6 = np.eye(6)
+        k6 = 6 * n + 1
+        G = np.empty((G_, k6, k6))
+        G[:, :-1, :-1] = AU @ AU.transpose(0, 2, 1) + tau2 * (Kint[:, :, None, :, None] * eye6[None, None, :, None, :]).reshape(G_, 6 * n, 6 * n)
+        uL = U[P - 1]
+        G[:, :-1, -1] = AU @ uL
+        G[:, -1, :-1] = G[:, :-1, -1]
+        G[:, -1, -1] = uL @ uL + tau2 + _ELL_TOL ** 2
+        d = np.arange(6 * n)
+        G[:, d, d] += self.tolerance ** 2
+        E = self._end
+        UE = U[E]  # (6, D)
+        SoE = np.empty((G_, k6, 6))
+        SoE[:, :-1] = AU @ UE.T + tau2 * (Kend[:, :, None, None] * eye6[None, None]).reshape(G_, 6 * n, 6)
+        SoE[:, -1] = UE @ uL
+        SEE = UE @ UE.T + tau2 * eye6
+        # observations and their prior means
+        ref_q, ref_p = self._reference(ph)
+        y = pose_deviation(ref_q, ref_p, np.broadcast_to(q, (G_, n, 4)), np.broadcast_to(p, (G_, n, 3))) / self.scale
+        e = np.empty((G_, k6))
+        e[:, :-1] = y.reshape(G_, 6 * n) - (w0 * self.m[I0] + w1 * self.m[I0 + 6])
+        e[:, -1] = np.log(grid) / self.lscale - self.m[-1]
+        L = np.linalg.cholesky(G)
+        sol = np.linalg.solve(G, np.concatenate([e[:, :, None], SoE], axis=2))  # (G, k6, 7)
+        quad = np.einsum("gk,gk->g", e, sol[:, :, 0])
+        logdet = 2.0 * np.sum(np.log(np.diagonal(L, axis1=1, axis2=2)), axis=1)
+        logw = -0.5 * quad - 0.5 * logdet
+        end_mean = self.m[E][None] + np.einsum("gkj,gk->gj", SoE, sol[:, :, 0])
+        end_cov = SEE[None] - np.einsum("gki,gkj->gij", SoE, sol[:, :, 1:])
+        return logw, end_mean, end_cov, quad, k6
+
+    def weights(self, t, quat, position, checked: bool = False):
+        """The duration posterior of a motion seen from t[0] to t[-1]: (grid (G,) s, weights (G,)), and the
+        per-grid terms (:meth:`_grid_terms`) of the durations kept."""
+        t, quat, position, tau, q, p = _seen(t, quat, position, self.points, checked)
+        span = float(tau[-1])
+        keep = self.grid >= span
+        if not np.any(keep):  # longer already than any plausible duration: it ends now
+            grid = np.array([max(span, 1e-6)])
+        else:
+            grid = self.grid[keep]
+        logw, end_mean, end_cov, quad, k = self._grid_terms(tau, q, p, grid)
+        w = np.exp(logw - logw.max())
+        return grid, w / w.sum(), dict(end_mean=end_mean, end_cov=end_cov, quad=quad, k=k, span=span,
+                                       beyond=not np.any(keep), seen=(t, quat, position, tau, q, p))
+
+    def estimate(self, t, quat, position, checked: bool = False) -> Anticipation:
+        """The fast summary (:class:`Anticipation`) of a seen beginning: no path, one batched solve."""
+        grid, w, terms = self.weights(t, quat, position, checked)
+        return self._summary(grid, w, terms)
+
+    def _summary(self, grid, w, terms) -> Anticipation:
+        from scipy.special import fdtri, stdtrit
+
+        from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
+
+        t = terms["seen"][0]
+        t0, span = float(t[0]), terms["span"]
+        # quantiles of ln D: each grid value's weight spread evenly over its cell (half a step each side)
+        lg = np.log(grid)
+        edges = np.concatenate([[lg[0] - self._half_step], lg + self._half_step])
+        cw = np.concatenate([[0.0], np.cumsum(w)])
+        q = [float(np.exp(np.interp(a, cw, edges))) for a in (0.05, 0.5, 0.95)]
+        q = [max(x, span) for x in q]
+        D = q[1]
+        # the end pose: moments of the mixture over the grid (scaled units), then unscaled
+        mu = np.einsum("g,gj->j", w, terms["end_mean"])
+        d = terms["end_mean"] - mu
+        cov = np.einsum("g,gij->ij", w, terms["end_cov"]) + np.einsum("g,gi,gj->ij", w, d, d)
+        sc = self.scale
+        mu_u = mu * sc
+        cov_u = cov * np.outer(sc, sc)
+        nu = max(self.paths.demos - 2, 1)
+        c_rot, c_pos = self._band
+        ref_q, ref_p = self.paths.quat[-1], self.paths.position[-1]
+        end_q = quat_multiply(exp_quat(mu_u[:3]), ref_q)
+        end_p = ref_p + mu_u[3:]
+        # 90 %: a rotation's m² is 3 F(3, ν) for the Student-t draws; a position coordinate t_ν
+        rot_band = c_rot * np.sqrt(3.0 * fdtri(3, nu, 0.9) * max(np.linalg.eigvalsh(cov_u[:3, :3]).max(), 0.0))
+        pos_band = c_pos * stdtrit(nu, 0.95) * np.sqrt(np.clip(np.diag(cov_u)[3:], 0.0, None))
+        # off: the last seen pose against the prior's marginal at its phase (a χ with 6 degrees of freedom)
+        dist = self._distance(terms["seen"][1][-1], terms["seen"][2][-1], min(span / D, 1.0))
+        off = bool(terms["beyond"] or dist > OFF_DISTANCE)
+        return Anticipation(t=float(t[-1]), phase=float(min(span / D, 1.0)) if D > 0 else 1.0,
+                            end_time=t0 + D, end_time_band=(t0 + q[0], t0 + q[2]), end_quat=end_q, end_position=end_p,
+                            end_rotation_band=float(rot_band), end_position_band=pos_band, off=off,
+                            distance=float(dist))
+
+    def _distance(self, quat, position, phase) -> float:
+        """The Mahalanobis distance of a pose's deviation at ``phase`` under the prior's marginal there (the
+        grid phase nearest; with the seen tolerance r² added), in units of the demonstrations' spread."""
+        from rbgp_cli.dynamics.paths import pose_deviation
+
+        j = int(round(phase * (self.paths.S - 1)))
+        rq, rp = self._reference(np.array([phase]))
+        e = pose_deviation(rq[0], rp[0], quat, position) / self.scale - self.m[6 * j:6 * j + 6]
+        C = self.Sigma[6 * j:6 * j + 6, 6 * j:6 * j + 6] + self.tolerance ** 2 * np.eye(6)
+        return float(np.sqrt(e @ np.linalg.solve(C, e)))
+
+    # -------------------------------------------------------------- the rest of the motion
+    def _observations(self, tau, q, p, last_q, last_p, D):
+        """(A, y, r²) at duration D: the seen poses (tolerance r), the last one exactly, and ℓ = ln D."""
+        paths = self.paths
+        obs = [paths.observe(np.clip(tau / D, 0, 1), q, p, tolerance=None),
+               paths.observe([min(tau[-1] / D, 1.0)], last_q[None], last_p[None], exact=True),
+               paths.observe_duration(D, tolerance=_ELL_TOL * self.lscale)]
+        A, y, r2 = paths.stack(*obs)
+        r2[: 6 * len(tau)] = self.tolerance ** 2
+        return A, y, r2
+
+    def _gain(self, A, r2):
+        """Σ Aᵀ G⁻¹ (P, k) with G = A Σ Aᵀ + diag r²."""
+        from scipy.linalg import cho_factor, cho_solve
+
+        SA = self.Sigma @ A.T
+        G = A @ SA + np.diag(r2)
+        return cho_solve(cho_factor(0.5 * (G + G.T), lower=True), SA.T).T
+
+    def _conditioned_mean(self, tau, q, p, last_q, last_p, D):
+        """The conditioned mean x̂ (P,) at duration D and its (A, r², gain) for pathwise draws."""
+        A, y, r2 = self._observations(tau, q, p, last_q, last_p, D)
+        gain = self._gain(A, r2)
+        return self.m + gain @ (y - A @ self.m), (A, r2, gain)
+
+    def _prior_root(self):
+        root = self.__dict__.get("_root")
+        if root is None:
+            S = 0.5 * (self.Sigma + self.Sigma.T)
+            root = np.linalg.cholesky(S + 1e-10 * np.trace(S) / len(S) * np.eye(len(S)))
+            self._root = root
+        return root
+
+    def _draws(self, count, rng, A, r2, gain):
+        """``count`` zero-mean draws (count, P) of the conditioned distribution by Matheron's rule,
+        η = c ⊙ u · ((f − m) − gain (A (f − m) + ε)), f ~ N(m, Σ), ε ~ N(0, diag r²), u = √(ν/χ²_ν) the
+        Student-t factor and c the seen bands' factors."""
+        P = len(self.m)
+        z = rng.standard_normal((count, P)) @ self._prior_root().T
+        eps = rng.standard_normal((count, len(r2))) * np.sqrt(r2)
+        eta = z - (z @ A.T + eps) @ gain.T
+        nu = max(self.paths.demos - 2, 1)
+        eta *= _student_factor(rng, nu, count)[:, None]
+        c_rot, c_pos = self._band
+        eta[:, :-1] *= np.tile(np.array([c_rot] * 3 + [c_pos] * 3), self.paths.S)
+        return eta
+
+    def continuation(self, t, quat, position, *, samples: int = 0, seed: int = 0, dt: float | None = None,
+                     use_model: bool = True, name: str = "0") -> Continuation:
+        """The predicted rest of a motion seen as (t (N,), quat (N, 4), position (N, 3)) (module docstring):
+        the mean from t[-1] to the predicted end on the seen clock at step ``dt`` (default the seen
+        samples' median interval, else the model's), and ``samples`` continuations drawing the duration
+        and the path together (seeded by ``seed``)."""
+        grid, w, terms = self.weights(t, quat, position)
+        est = self._summary(grid, w, terms)
+        t, quat, position, tau, q, p = terms["seen"]
+        t0, span = float(t[0]), terms["span"]
+        D = max(est.end_time - t0, span + 1e-9)
+        if dt is None:
+            dt = float(np.median(np.diff(t))) if len(t) > 1 else float(getattr(self.model, "rollout_dt", 0.01) or 0.01)
+        mean_x, _ = self._conditioned_mean(tau, q, p, quat[-1], position[-1], D)
+        dev = self.paths.unscale(mean_x)[0]
+        t_out = self._times(t0, span, D, dt)
+        if self.model is not None and use_model and _rollable(self.model):
+            mq, mp = self._rollout(dev, quat[-1], position[-1], span / D, D, t_out - t0)
+        else:
+            mq, mp = self.paths.pose_at(dev, (t_out - t0) / D)
+        out = []
+        if samples:
+            out = self._samples(int(samples), seed, grid, w, tau, q, p, quat[-1], position[-1], dev, (t_out, mq, mp),
+                                t0, span, D, dt)
+        return Continuation(t_out, mq, mp, out, est, D, name=name)
+
+    @staticmethod
+    def _times(t0, span, D, dt):
+        rest = D - span
+        n = max(int(np.floor(rest / dt + 1e-9)), 0)
+        t_out = t0 + span + np.arange(n + 1) * dt
+        if rest - n * dt > 1e-6 * max(dt, 1e-9):
+            t_out = np.append(t_out, t0 + D)
+        return t_out
+
+    def _rollout(self, dev, last_q, last_p, s_last, D, tau_out):
+        """The model's GP dynamics from the last seen pose at phase s_last, with the conditioned path as the
+        prior mean's reference (module docstring), sampled at τ_out (T,) seconds from the start."""
+        from rbgp_cli.compute import blas_threads
+        from rbgp_cli.dynamics.model import PathReference, prior_mean_outputs
+        from rbgp_cli.dynamics.trajectory import interpolate_poses
+        from rbgp_cli.geometry.so3 import log_quat, quat_conjugate, quat_make_continuous, quat_multiply
+
+        model, paths = self.model, self.paths
+        s = paths.s
+        cq, cp = paths.pose_at(dev, s)
+        vel = np.concatenate([log_quat(quat_multiply(cq[1:], quat_conjugate(cq[:-1]))), np.diff(cp, axis=0)], axis=1) / np.diff(s)[:, None]
+        ref = {"kind": "path", "s": s, "quat": cq, "position": cp, "velocity": vel, "gain": model.mean["gain"]}
+        for key in ("gain_profile", "feedforward"):
+            if model.mean.get(key) is not None:
+                ref[key] = model.mean[key]
+        if "gain_profile" in ref and len(np.asarray(ref["gain_profile"])) != len(s):
+            ref.pop("gain_profile")
+        reference = PathReference(ref)
+        dt = float(model.rollout_dt)
+        rest = (1.0 - s_last) * D
+        steps = max(int(np.ceil(rest / dt - 1e-9)), 1)
+        dt = rest / steps
+        h = dt / D if ref.get("feedforward") == "secant" else None
+        X = model.initial_state(last_q[None], last_p[None])
+        X[:, -1] = s_last
+        pd = model.pose_dims
+        states = [X]
+        with blas_threads(0):
+            for _ in range(steps):
+                mu = model.gp.predict(X, manage_threads=False)
+                mu = mu + prior_mean_outputs(model.representation, X[:, :pd], ref, X[:, -1], path=reference, step=h)
+                X = model.advance(X, mu, dt, D)
+                states.append(X)
+        St = np.concatenate(states, axis=0)
+        rq, rp = model.representation.pose_from_state(St[:, :pd])
+        tt = s_last * D + np.arange(steps + 1) * dt
+        return interpolate_poses(tt, quat_make_continuous(rq), rp, np.clip(tau_out, tt[0], tt[-1]))
+
+    def _samples(self, K, seed, grid, w, tau, q, p, last_q, last_p, dev0, mean, t0, span, D0, dt):
+        """K continuations (t, quat, position): at a duration D_k drawn from the weights (its grid cell, then
+        uniformly within it), the mean's deviation at the same phase plus the difference between a draw of
+        the distribution conditioned at D_k and the conditioned mean at D̂ (module docstring). One
+        conditioning per distinct grid cell drawn."""
+        from rbgp_cli.dynamics.paths import _interpolation, pose_deviation
+        from rbgp_cli.dynamics.rollout import _from_deviation
+
+        paths = self.paths
+        rng = np.random.default_rng(np.random.SeedSequence([int(seed), 37]))
+        idx = rng.choice(len(grid), size=K, p=w)
+        jitter = rng.uniform(-self._half_step, self._half_step, K) * (len(grid) > 1)
+        t_m, mq, mp = mean
+        ph_m = (t_m - t0) / D0
+        zero = np.zeros((paths.S, 6))
+        rq, rp = paths.pose_at(zero, ph_m)
+        dev_m = pose_deviation(rq, rp, mq, mp)  # the mean's deviation (T, 6) on its own phases
+        out = [None] * K
+        for g in np.unique(idx):  # one conditioning per grid cell drawn
+            ks = np.flatnonzero(idx == g)
+            Dg = float(max(grid[g], span + 1e-6))
+            xg, (A, r2, gain) = self._conditioned_mean(tau, q, p, last_q, last_p, Dg)
+            eta = self._draws(len(ks), rng, A, r2, gain)
+            draws = paths.unscale(xg[None] + eta)[0]  # (n, S, 6)
+            for k, draw in zip(ks, draws):
+                Dk = float(max(np.exp(np.log(Dg) + jitter[k]), span + 1e-6))
+                tk = self._times(t0, span, Dk, dt)
+                phk = (tk - t0) / Dk
+                Wk = _interpolation(paths.s, phk)
+                dm = np.stack([np.interp(phk, ph_m, dev_m[:, j]) for j in range(6)], axis=1)
+                dk = dm + Wk @ (draw - dev0)
+                rqk, rpk = paths.pose_at(zero, phk)
+                sq, sp = _from_deviation(paths, rqk, rpk, dk)
+                out[k] = (tk, sq, sp)
+        return out
+
+
+def _rollable(model) -> bool:
+    """A model whose GP dynamics can continue a motion mid-way: phase input and a mean-path prior."""
+    return getattr(model, "time_input", None) == "phase" and bool(model.mean) and model.mean.get("kind") == "path"
+
+
+def anticipate(paths, t, quat, position, *, model=None, samples: int = 0, seed: int = 0, dt: float | None = None,
+               name: str = "0", points: int = SEEN_POINTS) -> Continuation:
+    """The rest of a motion seen as (t (N,) s, quat (N, 4) x, y, z, w, position (N, 3) m) from its start
+    (module docstring): :meth:`Anticipator.continuation`."""
+    return Anticipator(paths, model, points=points).continuation(t, quat, position, samples=samples, seed=seed,
+                                                                 dt=dt, name=name)
+
+
+# ----------------------------------------------------------------------------------------- fitting r
+def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS):
+    """Leave each demonstration out; see its first F (each of SEEN_FRACTIONS) at its true phases on the grid
+    (≤ points grid phases, the last exactly) and its ln D; score the rest (every 5th grid phase after F,
+    and the end) by its log density under the others' distribution so conditioned, for each tolerance of
+    ``tolerances``. Only the coordinates involved enter (a Gaussian's marginal is its sub-block). Returns
+    the mean log density per tolerance and, with ``stats`` (one tolerance), the rotation Mahalanobis² and
+    position z-scores of the scored phases (for the bands' factors)."""
+    from rbgp_cli.dynamics.paths import GOAL_TOLERANCE, SELECT_EVERY
+
+    X = paths.vectors()
+    D, S, P = len(X), paths.S, X.shape[1]
+    Ks = paths.smooth_covariance()
+    r_last = (np.array(GOAL_TOLERANCE).repeat(3) / paths.scale) ** 2
+    total = np.zeros(len(tolerances))
+    count, m2, z = 0, [], []
+    for F in SEEN_FRACTIONS:
+        J = int(round(F * (S - 1)))
+        seen = np.unique(np.round(np.linspace(0, J, min(points, J + 1))).astype(int))
+        scored = np.unique(np.concatenate([np.arange(J + SELECT_EVERY, S - 1, SELECT_EVERY), [S - 1]]))
+        io = np.concatenate([(6 * seen[:, None] + np.arange(6)).ravel(), [P - 1]])
+        it = (6 * scored[:, None] + np.arange(6)).ravel()
+        idx = np.concatenate([io, it])
+        no = len(io)
+        Xs = X[:, idx]
+        Kss = Ks[np.ix_(idx, idx)]
+        for d in range(D):  # a loop over demonstrations, each a few small Gaussian conditionings
+            rest = np.delete(Xs, d, axis=0)
+            m = rest.mean(axis=0)
+            C = rest - m
+            Sigma = (1.0 + 1.0 / len(rest)) * (C.T @ C) / max(len(rest) - 1, 1) + Kss
+            Soo, Sot, Stt = Sigma[:no, :no], Sigma[:no, no:], Sigma[no:, no:]
+            for i, tol in enumerate(tolerances):
+                r2 = np.full(no, float(tol) ** 2)
+                r2[-7:-1] = r_last
+                r2[-1] = _ELL_TOL ** 2
+                gain = np.linalg.solve(Soo + np.diag(r2), Sot).T
+                mean = m[no:] + gain @ (Xs[d, :no] - m[:no])
+                cov = Stt - gain @ Sot
+                e = Xs[d, no:] - mean
+                Lc = np.linalg.cholesky(cov + 1e-9 * np.trace(cov) / len(e) * np.eye(len(e)))
+                a = np.linalg.solve(Lc, e)
+                total[i] += -0.5 * a @ a - np.sum(np.log(np.diag(Lc)))
+                if stats:
+                    k = len(scored)
+                    ek = e.reshape(k, 6)
+                    Ck = np.array([cov[6 * j:6 * j + 6, 6 * j:6 * j + 6] for j in range(k)])
+                    m2.append(np.einsum("ki,ki->k", ek[:, :3], np.linalg.solve(Ck[:, :3, :3] + 1e-12 * np.eye(3), ek[:, :3, None])[..., 0]))
+                    z.append(np.abs(ek[:, 3:]) / np.sqrt(np.maximum(np.einsum("kii->ki", Ck[:, 3:, 3:]), 1e-24)))
+            count += 1
+    if stats:
+        return total / count, np.concatenate(m2), np.concatenate(z)
+    return total / count
+
+
+def fit_seen(paths, *, level: float = 0.90):
+    """Choose the seen poses' regularising tolerance r and the bands' factors of a motion under way by
+    leaving demonstrations out (module docstring); sets ``paths.seen_tolerance`` and
+    ``paths.seen_band_scale`` and returns ``paths``."""
+    from scipy.special import fdtri, stdtrit
+
+    scores = dict(zip(SEEN_TOLERANCE_GRID, _seen_loo(paths, SEEN_TOLERANCE_GRID)))
+    r = max(scores, key=scores.get)
+    _, m2, z = _seen_loo(paths, [r], stats=True)
+    nu = max(paths.demos - 2, 1)
+    c_rot = np.sqrt(np.quantile(m2, level) / (3.0 * fdtri(3, nu, level)))
+    c_pos = np.quantile(z.ravel(), level) / stdtrit(nu, 0.5 + level / 2.0)
+    paths.seen_tolerance = float(r)
+    paths.seen_band_scale = (max(1.0, float(c_rot)), max(1.0, float(c_pos)))
+    paths.info = dict(paths.info or {}, seen_tolerance=float(r), seen_loo_log_density=float(scores[r]))
+    return paths
+
+
+# ----------------------------------------------------------------------------------------- streams
+class Follower:
+    """A motion under way, followed live (``rbgp follow``): :meth:`push` one pose at a time; it returns the
+    current :class:`Anticipation` (or None while at rest before a motion starts).
+
+    A motion starts when the pose leaves rest: its speed over the last ``window`` seconds exceeds
+    ``start_speed`` (default a tenth of the demonstrations' mean speed along the mean path); its start
+    (phase 0) is the last sample before that window's speed rose. It ends when the estimated phase has
+    reached 1 and the pose is at rest again; the next departure from rest starts the next motion. The
+    seen buffer keeps at most ``keep`` poses (older ones are thinned, every other one, the first kept):
+    the update's cost stays bounded however long the motion runs."""
+
+    def __init__(self, paths, *, points: int = 6, grid_size: int = 16, window: float = 0.05,
+                 start_speed: float | None = None, keep: int = 512, detect: bool = True, rest: float = 0.25):
+        self.anticipator = Anticipator(paths, None, points=points, grid_size=grid_size)
+        P = paths.position
+        length = float(np.sum(np.linalg.norm(np.diff(P, axis=0), axis=1)))
+        mean_D = float(np.exp(np.mean(paths.log_durations)))
+        self.start_speed = float(0.1 * length / mean_D if start_speed is None else start_speed)
+        self.window = float(window)
+        self.keep = int(keep)
+        self.detect = bool(detect)
+        self._t, self._q, self._p = [], [], []
+        self._moving = not detect
+        self._last = None
+        #: the current (or last) motion's index: 0, 1, … across repetitions (−1 before the first)
+        self.motion = -1 if detect else 0
+        self._recent = []  # (t, quat, position) of the last window, for the speed
+        self._quiet_since = None  # since when the pose has been at rest (after a motion)
+        self._arrays = None  # the buffer as arrays (Follower._buffer)
+        self.rest = float(rest)
+
+    def _speed(self):
+        (ta, _, pa), (tb, _, pb) = self._recent[0], self._recent[-1]
+        return float(np.linalg.norm(pb - pa) / (tb - ta)) if tb > ta else 0.0
+
+    def push(self, t: float, quat, position):
+        """Add the pose seen at time ``t`` (quat (4,) x, y, z, w; position (3,) m); returns the
+        :class:`Anticipation` of the motion under way, or None at rest."""
+        t = float(t)
+        q = np.asarray(quat, dtype=np.float64).reshape(4)
+        p = np.asarray(position, dtype=np.float64).reshape(3)
+        if not (np.isfinite(t) and np.all(np.isfinite(q)) and np.all(np.isfinite(p))):
+            raise InputError(f"the pose at t = {t:g} has missing values", param="seen")
+        if self._recent and t <= self._recent[-1][0]:
+            raise InputError(f"the stream's times must increase ({t:g} after {self._recent[-1][0]:g})", param="seen")
+        self._recent.append((t, q, p))
+        while len(self._recent) > 2 and self._recent[1][0] <= t - self.window:
+            self._recent.pop(0)
+        if not self._moving:
+            fast = len(self._recent) >= 2 and self._recent[-1][0] - self._recent[0][0] >= 0.5 * self.window \
+                and self._speed() > self.start_speed
+            if not fast and self._quiet_since is None:
+                self._quiet_since = t
+            armed = self.motion < 0 or (self._quiet_since is not None and t - self._quiet_since >= self.rest)
+            if fast and not armed:
+                self._quiet_since = None  # still settling after the last motion: not a new one yet
+            if fast and armed:
+                self._moving = True  # it left rest within the window: its start is the window's first pose
+                self.motion += 1
+                self._t, self._q, self._p = [x[0] for x in self._recent], [x[1] for x in self._recent], [x[2] for x in self._recent]
+                self._arrays = None
+            else:
+                return None
+        else:
+            self._t.append(t)
+            self._q.append(q)
+            self._p.append(p)
+        n = len(self._t)
+        if n > self.keep:  # thin the older half (the first kept)
+            half = n // 2
+            sel = list(range(0, half, 2)) + list(range(half, n))
+            self._t = [self._t[i] for i in sel]
+            self._q = [self._q[i] for i in sel]
+            self._p = [self._p[i] for i in sel]
+            self._arrays = None
+        T, Q, Pp = self._buffer()
+        est = self.anticipator.estimate(T, Q, Pp, checked=True)
+        if self.detect and est.phase >= 0.8 and len(self._recent) >= 2 and self._speed() < self.start_speed:
+            self._moving = False  # the motion is over: wait for rest, then the next departure from it
+            self._recent = self._recent[-1:]
+            self._quiet_since = t
+        self._last = est
+        return est
+
+    def _buffer(self):
+        """The seen poses as arrays (t (N,), quat (N, 4), position (N, 3)), kept in step with the lists:
+        only the new rows are written (the quaternions unit and sign-continuous along the buffer)."""
+        n = len(self._t)
+        arr = self._arrays
+        if arr is None or arr[3] > n or len(arr[0]) < n:
+            cap = max(2 * n, 64)
+            arr = (np.empty(cap), np.empty((cap, 4)), np.empty((cap, 3)), 0)
+        T, Q, P, m = arr
+        for i in range(m, n):
+            q = self._q[i] / np.linalg.norm(self._q[i])
+            if i > 0 and np.dot(q, Q[i - 1]) < 0:
+                q = -q
+            T[i], Q[i], P[i] = self._t[i], q, self._p[i]
+        self._arrays = (T, Q, P, n)
+        return T[:n], Q[:n], P[:n]
+
+    @property
+    def start(self) -> float | None:
+        """The current (or last) motion's start time (None before the first)."""
+        return self._t[0] if self._t else None

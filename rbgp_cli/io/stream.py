@@ -1,0 +1,89 @@
+"""Poses arriving as CSV rows (``rbgp follow``): a header line, then one row at a time.
+
+The header and the first row are read by the CSV reader itself (:func:`rbgp_cli.io.csv.read_text`),
+which finds the time, position and rotation columns and their units as it does for a file. When the
+rotation is a quaternion in named columns, each later row is split and converted directly (the same
+columns and unit factors); any other layout (Euler angles, a rotation matrix, ...) reads each row
+through the CSV reader with the header. Rows: SI units and quaternions x, y, z, w out.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rbgp_cli.errors import InputError
+
+__all__ = ["RowStream"]
+
+_LENGTH = {"m": 1.0, "mm": 1e-3, "cm": 1e-2, "dm": 0.1, "km": 1e3, "in": 0.0254, "ft": 0.3048}
+_TIME = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9, "min": 60.0}
+
+
+class RowStream:
+    """Parse rows of one CSV table that arrive one at a time (module docstring). ``header``: the header
+    line; ``options``: the :class:`~rbgp_cli.io.options.ReadOptions`; ``source``: the name in errors."""
+
+    def __init__(self, header: str, options=None, source: str = "stdin"):
+        from rbgp_cli.io.options import ReadOptions
+
+        self.header = header.rstrip("\r\n")
+        self.options = options or ReadOptions()
+        self.source = source
+        self._fast = None
+        self._row = 1
+
+    def _first(self, line: str):
+        from rbgp_cli.io.csv import read_text
+        from rbgp_cli.io.csv_table import parse_table
+
+        trajs = read_text(self.header + "\n" + line + "\n", self.source, self.options)
+        if len(trajs) != 1 or len(trajs[0].t) != 1:
+            raise InputError("a streamed row must hold one pose of one rigid body", path=self.source, row=self._row + 1,
+                             hint="stream one body's rows (time, position, quaternion)")
+        info = trajs[0].info
+        cols = info.get("columns") or {}
+        kind = str(info.get("rotation", ""))
+        if kind.startswith("quaternion") and all(k in cols for k in ("t", "x", "y", "z", "qx", "qy", "qz", "qw")):
+            table = parse_table(self.header + "\n" + line + "\n", self.source)
+            names = list(table.header)
+            try:
+                idx = [names.index(cols[k]) for k in ("t", "x", "y", "z", "qx", "qy", "qz", "qw")]
+            except ValueError:
+                idx = None
+            lu, tu = info.get("length_unit", "m"), info.get("time_unit", "s")
+            if idx is not None and lu in _LENGTH and tu in _TIME:
+                self._fast = (idx, table.delimiter, _LENGTH[lu], _TIME[tu])
+        return trajs[0]
+
+    def parse(self, line: str):
+        """(t s, quat (4,) x, y, z, w, position (3,) m) of one data row, or None for a blank line."""
+        line = line.rstrip("\r\n")
+        self._row += 1
+        if not line.strip():
+            return None
+        if self._row == 2 or self._fast is None:
+            tr = self._first(line) if self._row == 2 else self._slow(line)
+            q = tr.quat[0] / np.linalg.norm(tr.quat[0])
+            return float(tr.t[0]), q, tr.position[0].astype(float)
+        idx, delim, lf, tf = self._fast
+        parts = line.split(delim) if delim not in ("whitespace", None) else line.split()
+        try:
+            v = [float(parts[i]) for i in idx]
+        except (IndexError, ValueError):
+            raise InputError(f"row {self._row} is not a pose row like the first ({line[:60]!r})", path=self.source,
+                             row=self._row, hint="stream rows with the header's columns, numbers only") from None
+        q = np.array(v[4:8])
+        nq = np.linalg.norm(q)
+        if not np.all(np.isfinite(v)) or nq < 1e-9:
+            raise InputError(f"row {self._row} has a missing or zero pose", path=self.source, row=self._row,
+                             hint="drop lost frames before streaming them")
+        return v[0] * tf, q / nq, np.array(v[1:4]) * lf
+
+    def _slow(self, line: str):
+        from rbgp_cli.io.csv import read_text
+
+        trajs = read_text(self.header + "\n" + line + "\n", self.source, self.options)
+        if len(trajs) != 1 or len(trajs[0].t) != 1 or not np.all(np.isfinite(trajs[0].quat)):
+            raise InputError(f"row {self._row} does not hold one pose", path=self.source, row=self._row,
+                             hint="stream one body's rows")
+        return trajs[0]

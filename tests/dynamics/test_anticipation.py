@@ -1,0 +1,179 @@
+"""A motion under way (issue 37): phase and end time from a seen beginning, the continuation, causality."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from rbgp_cli.dynamics.anticipation import Anticipator, Follower, anticipate
+from rbgp_cli.dynamics.paths import fit_paths
+from rbgp_cli.dynamics.trajectory import Trajectory
+from rbgp_cli.errors import InputError
+
+RATE = 50.0
+
+
+def _minjerk(s):
+    return 10 * s**3 - 15 * s**4 + 6 * s**5
+
+
+def family(n, seed, *, t0=0.0):
+    """``n`` motions with a known phase-dependent path and random durations: along x a minimum-jerk
+    reach of 0.6 ± 0.03 m, an arc in y whose height varies (0.15 ± 0.03 m), a rotation about z of 1 rad along the
+    same profile plus a motion-specific wobble; durations log-normal around 2 s (±20 %), sampled at 50 Hz.
+    Returns the trajectories and their durations."""
+    rng = np.random.default_rng(seed)
+    out, durs = [], []
+    for d in range(n):
+        D = float(np.exp(np.log(2.0) + 0.2 * rng.standard_normal()))
+        t = np.arange(0.0, D + 1e-9, 1.0 / RATE)
+        t[-1] = min(t[-1], D)
+        s = t / D
+        h = 0.15 + 0.03 * rng.standard_normal()
+        w = 0.05 * rng.standard_normal()
+        reach = 0.6 + 0.03 * rng.standard_normal()
+        pos = np.stack([reach * _minjerk(s), h * np.sin(np.pi * s), 0.01 * rng.standard_normal() * s], axis=1)
+        ang = 1.0 * _minjerk(s) + w * np.sin(np.pi * s)
+        quat = Rotation.from_rotvec(np.stack([np.zeros_like(ang), np.zeros_like(ang), ang], axis=1)).as_quat()
+        out.append(Trajectory(t + t0, quat, pos, name=f"d{d}"))
+        durs.append(D)
+    return out, np.array(durs)
+
+
+@pytest.fixture(scope="module")
+def trained():
+    demos, _ = family(24, 0)
+    return demos, fit_paths(demos)
+
+
+def _seen(tr, F):
+    k = int(np.argmin(np.abs(tr.t - (tr.t[0] + F * tr.duration))))
+    return Trajectory(tr.t[: k + 1], tr.quat[: k + 1], tr.position[: k + 1], name=tr.name), k
+
+
+@pytest.mark.slow
+def test_phase_and_end_time_after_a_quarter(trained):
+    _, paths = trained
+    new, durs = family(12, 1, t0=5.0)
+    ant = Anticipator(paths)
+    for tr, D in zip(new, durs):
+        seen, k = _seen(tr, 0.25)
+        est = ant.estimate(seen.t, seen.quat, seen.position)
+        true_phase = (seen.t[-1] - tr.t[0]) / D
+        assert abs(est.phase - true_phase) <= 0.05, (est.phase, true_phase)
+        assert abs(est.end_time - tr.t[-1]) <= 0.05 * D, (est.end_time, tr.t[-1])
+        assert est.end_time_band[0] <= est.end_time <= est.end_time_band[1]
+        assert not est.off
+
+
+@pytest.mark.slow
+def test_the_continuation_of_a_training_demonstrations_beginning_follows_it(trained):
+    demos, paths = trained
+    ant = Anticipator(paths)
+    for tr in demos[:4]:
+        seen, k = _seen(tr, 0.4)
+        c = ant.continuation(seen.t, seen.quat, seen.position, dt=1.0 / RATE)
+        assert c.t[0] == pytest.approx(seen.t[-1])
+        assert np.allclose(c.position[0], seen.position[-1], atol=2e-3)  # it starts where the motion is
+        # its end lies nearer the demonstration's own end than the ends typically lie from their mean
+        ends = np.array([d.position[-1] for d in demos])
+        spread = np.sqrt(np.mean(np.sum((ends - ends.mean(axis=0)) ** 2, axis=1)))
+        assert np.linalg.norm(c.position[-1] - tr.position[-1]) < spread
+        # and its path follows the demonstration's rest better than the other demonstrations' rests do
+        s = np.linspace(0, 1, 30)
+
+        def rest_of(d, a):  # d's positions from phase a to 1 at 30 even steps
+            return np.array([np.interp(a + (1 - a) * s, (d.t - d.t[0]) / d.duration, d.position[:, j]) for j in range(3)]).T
+
+        a = (seen.t[-1] - tr.t[0]) / tr.duration
+        own = rest_of(tr, a)
+        got = np.array([np.interp(s, (c.t - c.t[0]) / (c.t[-1] - c.t[0]), c.position[:, j]) for j in range(3)]).T
+        rmse = np.sqrt(np.mean(np.sum((got - own) ** 2, axis=1)))
+        others = [np.sqrt(np.mean(np.sum((rest_of(d, a) - own) ** 2, axis=1))) for d in demos if d is not tr]
+        assert rmse < np.median(others), (rmse, np.median(others))
+
+
+@pytest.mark.slow
+def test_the_prediction_never_uses_samples_after_the_last_seen_one(trained):
+    from rbgp_cli.evaluation.under_way import split_seen
+
+    _, paths = trained
+    tr = family(1, 7)[0][0]
+    seen, rest = split_seen(tr, 0.3)
+    other = Trajectory(tr.t, tr.quat.copy(), tr.position.copy(), name="x")
+    other.position[len(seen.t):] += 0.5  # a different future
+    other.quat[len(seen.t):] = [0.0, 0.0, 0.0, 1.0]
+    seen2, _ = split_seen(other, 0.3)
+    a = anticipate(paths, seen.t, seen.quat, seen.position, samples=5, seed=3)
+    b = anticipate(paths, seen2.t, seen2.quat, seen2.position, samples=5, seed=3)
+    assert np.array_equal(a.position, b.position) and np.array_equal(a.quat, b.quat)
+    assert all(np.array_equal(x[2], y[2]) for x, y in zip(a.samples, b.samples))
+    # the stream: the estimate after pose k is the same whatever comes after it
+    f1, f2 = Follower(paths, detect=False), Follower(paths, detect=False)
+    for j in range(len(seen.t)):
+        e1 = f1.push(tr.t[j], tr.quat[j], tr.position[j])
+        e2 = f2.push(other.t[j], other.quat[j], other.position[j])
+    assert e1.to_dict() == e2.to_dict()
+
+
+@pytest.mark.slow
+def test_samples_draw_duration_and_path_and_start_at_the_last_seen_pose(trained):
+    _, paths = trained
+    tr = family(1, 11)[0][0]
+    seen, _ = _seen(tr, 0.3)
+    c = anticipate(paths, seen.t, seen.quat, seen.position, samples=12, seed=1)
+    ends = np.array([t[-1] for t, _, _ in c.samples])
+    assert len(c.samples) == 12 and np.std(ends) > 0  # durations differ
+    for t, q, p in c.samples:
+        assert t[0] == pytest.approx(seen.t[-1])
+        assert np.linalg.norm(p[0] - seen.position[-1]) < 0.02
+        assert np.allclose(np.linalg.norm(q, axis=1), 1.0)
+    names = [x.name for x in c.trajectories(include_samples=True)]
+    assert names[:3] == ["0", "0.s0", "0.s1"]
+
+
+def test_a_stream_starts_at_the_departure_from_rest(trained):
+    _, paths = trained
+    tr = family(1, 5)[0][0]
+    rest_t = np.arange(0.0, 1.0, 1.0 / RATE)
+    f = Follower(paths)
+    outs = [f.push(t, tr.quat[0], tr.position[0]) for t in rest_t]
+    assert all(o is None for o in outs)  # nothing at rest
+    t_move = tr.t + 1.0
+    first = None
+    for j in range(len(tr.t)):
+        o = f.push(t_move[j], tr.quat[j], tr.position[j])
+        if o is not None and first is None:
+            first = t_move[j]
+    assert first is not None and first - t_move[0] <= 0.1  # the first prediction within 0.1 s of the start
+    assert abs(f.start - t_move[0]) <= 0.1
+
+
+def test_bad_seen_input_is_one_clear_error(trained):
+    _, paths = trained
+    ant = Anticipator(paths)
+    with pytest.raises(InputError, match="increase"):
+        ant.estimate([0.0, 0.0, 0.1], np.tile([0, 0, 0, 1.0], (3, 1)), np.zeros((3, 3)))
+    with pytest.raises(InputError, match="NaN"):
+        ant.estimate([0.0, 0.1], np.tile([0, 0, 0, 1.0], (2, 1)), np.array([[0, 0, 0], [np.nan, 0, 0]]))
+    with pytest.raises(InputError, match="path distribution"):
+        Anticipator(None)
+
+
+@pytest.mark.slow
+def test_the_api_predicts_the_rest_and_follows_a_stream():
+    import rbgp_cli as rbgp
+
+    demos, _ = family(8, 3)
+    gp = rbgp.RigidBodyGP(restarts=1, max_points=150).fit(demos)
+    assert gp.model_.paths is not None
+    seen, _ = _seen(demos[0], 0.4)
+    c = gp.predict_rest(seen, samples=4, seed=0)
+    assert c.t[0] == pytest.approx(seen.t[-1]) and len(c.samples) == 4
+    assert np.linalg.norm(c.position[0] - seen.position[-1]) < 5e-3  # the GP's rollout starts at the last seen pose
+    both = gp.predict_rest([seen, seen])
+    assert [x.name for x in both] == ["0", "1"] and np.array_equal(both[0].position, both[1].position)
+    f = gp.follower(detect=False)
+    est = [f.push(t, q, p) for t, q, p in zip(seen.t, seen.quat, seen.position)][-1]
+    assert est.t == pytest.approx(seen.t[-1]) and 0.2 < est.phase < 0.6
