@@ -352,7 +352,7 @@ class PathDistribution:
             e = y - A @ m
             L = np.linalg.cholesky(0.5 * (G + G.T))
             a = np.linalg.solve(L, e)
-            logp[g] = -0.5 * a @ a - np.sum(np.log(np.diag(L))) + np.log(D)  # + ln D: density in D, grid in ln D
+            logp[g] = -0.5 * a @ a - np.sum(np.log(np.diag(L)))  # the joint density of (y, ℓ): the grid is uniform in ℓ = ln D, so no Jacobian
         w = np.exp(logp - np.max(logp))
         return grid, w / w.sum()
 
