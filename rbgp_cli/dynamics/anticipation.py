@@ -65,6 +65,10 @@ GRID_RANGE = (2.0 / 3.0, 1.5)
 #: Above this Mahalanobis distance (a χ with 6 degrees of freedom: fewer than 1 in 200 demonstrations lie
 #: beyond 3.5) the last seen pose has left what the demonstrations cover.
 OFF_DISTANCE = 3.5
+#: :class:`Follower`: a duration cell whose weight is below this fraction of the largest is not evaluated
+#: at the next update (unless it neighbours one that is); every cell is, for the first ACTIVE_AFTER poses
+ACTIVE_WEIGHT = 1e-6
+ACTIVE_AFTER = 8
 #: Tolerance of the exactly observed ln D (in units of ln D's spread) and of the last seen pose.
 _ELL_TOL = 1e-4
 
@@ -269,12 +273,16 @@ class Anticipator:
         end_cov = SEE[None] - np.einsum("gki,gkj->gij", SoE, sol[:, :, 1:])
         return logw, end_mean, end_cov, quad, k6
 
-    def weights(self, t, quat, position, checked: bool = False):
+    def weights(self, t, quat, position, checked: bool = False, active=None):
         """The duration posterior of a motion seen from t[0] to t[-1]: (grid (G,) s, weights (G,)), and the
-        per-grid terms (:meth:`_grid_terms`) of the durations kept."""
+        per-grid terms (:meth:`_grid_terms`) of the durations kept. ``active`` (G_full,) bool: only these
+        grid durations are evaluated (the others' weights taken as 0; :class:`Follower` passes the cells
+        whose weight was not negligible at the last update and their neighbours); None: all."""
         t, quat, position, tau, q, p = _seen(t, quat, position, self.points, checked)
         span = float(tau[-1])
         keep = self.grid >= span
+        if active is not None and np.any(keep & active):
+            keep = keep & active
         if not np.any(keep):  # longer already than any plausible duration: it ends now
             grid = np.array([max(span, 1e-6)])
         else:
@@ -611,6 +619,7 @@ class Follower:
         self._recent = []  # (t, quat, position) of the last window, for the speed
         self._quiet_since = None  # since when the pose has been at rest (after a motion)
         self._arrays = None  # the buffer as arrays (Follower._buffer)
+        self._active = None  # the duration cells evaluated at the next update (Follower._estimate)
         self.rest = float(rest)
 
     def _speed(self):
@@ -641,6 +650,7 @@ class Follower:
             if fast and armed:
                 self._moving = True  # it left rest within the window: its start is the window's first pose
                 self.motion += 1
+                self._active = None
                 self._t, self._q, self._p = [x[0] for x in self._recent], [x[1] for x in self._recent], [x[2] for x in self._recent]
                 self._arrays = None
             else:
@@ -658,13 +668,33 @@ class Follower:
             self._p = [self._p[i] for i in sel]
             self._arrays = None
         T, Q, Pp = self._buffer()
-        est = self.anticipator.estimate(T, Q, Pp, checked=True)
+        est = self._estimate(T, Q, Pp)
         if self.detect and est.phase >= 0.8 and len(self._recent) >= 2 and self._speed() < self.start_speed:
             self._moving = False  # the motion is over: wait for rest, then the next departure from it
             self._recent = self._recent[-1:]
             self._quiet_since = t
         self._last = est
         return est
+
+    def _estimate(self, T, Q, P):
+        """The anticipator's estimate, with the duration grid restricted to the cells that carried weight at
+        the last update (relative weight above :data:`ACTIVE_WEIGHT`) and their neighbours: the posterior
+        moves by at most one cell per update at the stream's rate, and the cells left out hold a weight the
+        summary cannot see. A new motion, or a cell at the active set's edge that gains the most weight,
+        widens it again on the next update."""
+        a = self.anticipator
+        active = None if len(self._t) < ACTIVE_AFTER else self._active
+        grid, w, terms = a.weights(T, Q, P, checked=True, active=active)
+        full = np.zeros(len(a.grid), dtype=bool)
+        if not terms["beyond"]:
+            idx = np.searchsorted(a.grid, grid)
+            heavy = np.zeros(len(a.grid), dtype=bool)
+            heavy[idx[w > ACTIVE_WEIGHT * w.max()]] = True
+            full = heavy.copy()
+            full[1:] |= heavy[:-1]
+            full[:-1] |= heavy[1:]
+        self._active = full if full.any() else None
+        return a._summary(grid, w, terms)
 
     def _buffer(self):
         """The seen poses as arrays (t (N,), quat (N, 4), position (N, 3)), kept in step with the lists:

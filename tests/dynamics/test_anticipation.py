@@ -177,3 +177,25 @@ def test_the_api_predicts_the_rest_and_follows_a_stream():
     f = gp.follower(detect=False)
     est = [f.push(t, q, p) for t, q, p in zip(seen.t, seen.quat, seen.position)][-1]
     assert est.t == pytest.approx(seen.t[-1]) and 0.2 < est.phase < 0.6
+
+
+def test_the_stream_evaluates_only_the_live_duration_cells_and_loses_nothing(trained):
+    """Follower restricts the duration grid to the cells that carried weight at the last update and their
+    neighbours (the live update's cost); every estimate must equal the full grid's (an independent
+    Anticipator on the same buffer) to within the weight left out."""
+    _, paths = trained
+    tr = family(1, 13)[0][0]
+    f = Follower(paths, detect=False)
+    full = Anticipator(paths, None, points=f.anticipator.points, grid_size=len(f.anticipator.grid))
+    evaluated = []
+    for j in range(len(tr.t)):
+        e = f.push(tr.t[j], tr.quat[j], tr.position[j])
+        ref = full.estimate(tr.t[: j + 1], tr.quat[: j + 1], tr.position[: j + 1])
+        assert e.end_time == pytest.approx(ref.end_time, rel=1e-6)
+        assert e.phase == pytest.approx(ref.phase, rel=1e-6)
+        np.testing.assert_allclose(e.end_position, ref.end_position, atol=1e-7)
+        np.testing.assert_allclose(e.end_position_band, ref.end_position_band, rtol=1e-5, atol=1e-9)
+        if f._active is not None:
+            evaluated.append(int(f._active.sum()))
+    # the restriction does bite once the duration is known (else it would be no saving)
+    assert evaluated and min(evaluated) < len(f.anticipator.grid) // 2
