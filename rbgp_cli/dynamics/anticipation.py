@@ -323,9 +323,12 @@ class Anticipator:
         ref_q, ref_p = self.paths.quat[-1], self.paths.position[-1]
         end_q = quat_multiply(exp_quat(mu_u[:3]), ref_q)
         end_p = ref_p + mu_u[3:]
-        # 90 %: a rotation's m² is 3 F(3, ν) for the Student-t draws; a position coordinate t_ν
-        rot_band = c_rot * np.sqrt(3.0 * fdtri(3, nu, 0.9) * max(np.linalg.eigvalsh(cov_u[:3, :3]).max(), 0.0))
-        pos_band = c_pos * stdtrit(nu, 0.95) * np.sqrt(np.clip(np.diag(cov_u)[3:], 0.0, None))
+        # 90 %: a rotation's m² is 3 F(3, ν) for the Student-t draws; a position coordinate t_ν (once)
+        quantiles = self.__dict__.get("_quantiles")
+        if quantiles is None:
+            quantiles = self._quantiles = (float(3.0 * fdtri(3, nu, 0.9)), float(stdtrit(nu, 0.95)))
+        rot_band = c_rot * np.sqrt(quantiles[0] * max(np.linalg.eigvalsh(cov_u[:3, :3]).max(), 0.0))
+        pos_band = c_pos * quantiles[1] * np.sqrt(np.clip(np.diag(cov_u)[3:], 0.0, None))
         # off: the last seen pose against the prior's marginal at its phase (a χ with 6 degrees of freedom)
         dist = self._distance(terms["seen"][1][-1], terms["seen"][2][-1], min(span / D, 1.0))
         off = bool(terms["beyond"] or dist > OFF_DISTANCE)
@@ -342,8 +345,12 @@ class Anticipator:
         j = int(round(phase * (self.paths.S - 1)))
         rq, rp = self._reference(np.array([phase]))
         e = pose_deviation(rq[0], rp[0], quat, position) / self.scale - self.m[6 * j:6 * j + 6]
-        C = self.Sigma[6 * j:6 * j + 6, 6 * j:6 * j + 6] + self.tolerance ** 2 * np.eye(6)
-        return float(np.sqrt(e @ np.linalg.solve(C, e)))
+        Cinv = self.__dict__.get("_marginal_inv")
+        if Cinv is None:  # per grid phase, (Σ_jj + r² I)⁻¹ (S, 6, 6), computed once
+            S = self.paths.S
+            blocks = np.array([self.Sigma[6 * i:6 * i + 6, 6 * i:6 * i + 6] for i in range(S)])
+            Cinv = self._marginal_inv = np.linalg.inv(blocks + self.tolerance ** 2 * np.eye(6))
+        return float(np.sqrt(max(e @ Cinv[j] @ e, 0.0)))
 
     # -------------------------------------------------------------- the rest of the motion
     def _observations(self, tau, q, p, last_q, last_p, D):
