@@ -531,7 +531,7 @@ def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS)
     ``tolerances``. Only the coordinates involved enter (a Gaussian's marginal is its sub-block). Returns
     the mean log density per tolerance and, with ``stats`` (one tolerance), the rotation Mahalanobis² and
     position z-scores of the scored phases (for the bands' factors)."""
-    from rbgp_cli.dynamics.paths import GOAL_TOLERANCE, SELECT_EVERY
+    from rbgp_cli.dynamics.paths import GOAL_TOLERANCE, SELECT_EVERY, held_out_score
 
     X = paths.vectors()
     D, S, P = len(X), paths.S, X.shape[1]
@@ -562,16 +562,11 @@ def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS)
                 gain = np.linalg.solve(Soo + np.diag(r2), Sot).T
                 mean = m[no:] + gain @ (Xs[d, :no] - m[:no])
                 cov = Stt - gain @ Sot
-                e = Xs[d, no:] - mean
-                Lc = np.linalg.cholesky(cov + 1e-9 * np.trace(cov) / len(e) * np.eye(len(e)))
-                a = np.linalg.solve(Lc, e)
-                total[i] += -0.5 * a @ a - np.sum(np.log(np.diag(Lc)))
+                ld, m2_d, z_d = held_out_score(Xs[d, no:] - mean, cov, stats)
+                total[i] += ld
                 if stats:
-                    k = len(scored)
-                    ek = e.reshape(k, 6)
-                    Ck = np.array([cov[6 * j:6 * j + 6, 6 * j:6 * j + 6] for j in range(k)])
-                    m2.append(np.einsum("ki,ki->k", ek[:, :3], np.linalg.solve(Ck[:, :3, :3] + 1e-12 * np.eye(3), ek[:, :3, None])[..., 0]))
-                    z.append(np.abs(ek[:, 3:]) / np.sqrt(np.maximum(np.einsum("kii->ki", Ck[:, 3:, 3:]), 1e-24)))
+                    m2.append(m2_d)
+                    z.append(z_d)
             count += 1
     if stats:
         return total / count, np.concatenate(m2), np.concatenate(z)
