@@ -481,6 +481,27 @@ def warn_far_goals(distance) -> None:
     warn(what, hint="check the goal's frame and units, or record demonstrations that end there", param=("goal", "goals"))
 
 
+def warn_far_via(distance, via) -> None:
+    """One warning naming the via-points further than :data:`FAR_GOAL` spreads from where the
+    demonstrations pass at their phase, given the start (``distance`` (B, V),
+    :meth:`~rbgp_cli.dynamics.paths.PathDistribution.pose_distance`; ``via`` [(T s, quat, position)])."""
+    from rbgp_cli.errors import warn
+
+    d = np.asarray(distance, dtype=np.float64).reshape(-1, len(via))
+    worst = d.max(axis=0)  # (V,) the furthest over the starts
+    far = np.flatnonzero(worst > FAR_GOAL)
+    if len(far) == 0:
+        return
+    if len(via) == 1:
+        what = (f"the via-point at {float(via[0][0]):g} s is {worst[0]:.1f} standard deviations from where the "
+                "demonstrations pass at that time: this motion is an extrapolation")
+    else:
+        listed = ", ".join(f"{float(via[i][0]):g} s ({worst[i]:.1f})" for i in far)
+        what = (f"{len(far)} of {len(via)} via-points lie far from where the demonstrations pass at their time "
+                f"(standard deviations: {listed}): this motion is an extrapolation")
+    warn(what, hint="check the time, frame and units of via, or record demonstrations that pass there", param="via")
+
+
 def _rollout_to_goal(model, quat, pos, *, steps, duration, durations, dt, goal_quat, goal_position, via,
                      goal_tolerance, samples, seed, with_std, progress, off_data, rate=None):
     """:func:`rollout_model` with a goal or via-points: checks, durations, the conditioned rollout, the
@@ -507,6 +528,8 @@ def _rollout_to_goal(model, quat, pos, *, steps, duration, durations, dt, goal_q
                               dt=dt, with_std=with_std, progress=progress, off_data=off_data, rate=rate)
     if res.goal_distance is not None:
         warn_far_goals(res.goal_distance)
+    if getattr(res, "via_distance", None) is not None:
+        warn_far_via(res.via_distance, res.via)
     return res
 
 

@@ -204,6 +204,7 @@ def rollout(
     start_time: Annotated[float, typer.Option("--start-time", help="Time of the MCAP's first message in seconds since the epoch (e.g. a recording's start, to play both side by side): every message's log time and stamp is this plus t.")] = 0.0,
     json_out: Annotated[bool, typer.Option("--json", help="Print a JSON summary on stdout (requires -o FILE).")] = False,
     rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd).")] = None,
+    plot: Annotated[Optional[str], typer.Option("--plot", help="Also write a figure (PNG): each dimension over time, the mean rollouts as lines, with --samples 2 or more their samples' 90 % bands, goals as crosses at the end, via-points as diamonds, samples outside the demonstrations circled (rotation relative to the first rollout's start).")] = None,
     up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.")] = "z",
     read: ReadArgs = None,
 ):
@@ -235,14 +236,18 @@ def rollout(
         raise InputError("--rate is the sample rate of input files without a time column, and rollout reads none here",
                          hint="set the rate of the written trajectories with --output-rate HZ")
     fmt, folder = _rollout_format(output, output_format, mcap_encoding)
-    check_outputs(None if folder else (output or "-"), rerun)
+    check_outputs(None if folder else (output or "-"), rerun, plot)
+    if plot:
+        from rbgp_cli.viz.plots import _matplotlib
+
+        _matplotlib()  # not installed: say so now, not after the rollout
     m, _ = load_model(model)
     if given:
         if start or start_quat or starts or from_demos or steps is not None or duration is not None or each_duration:
             raise InputError("--given continues motions under way from what was seen: it takes no start poses, "
                              "--steps or --duration", hint="drop them, or drop --given")
-        if fmt != "csv" or rerun:
-            raise InputError("--given writes CSV", hint="write -o FILE.csv (or stdout)")
+        if fmt != "csv" or rerun or plot:
+            raise InputError("--given writes CSV (no --rerun or --plot)", hint="write -o FILE.csv (or stdout)")
         return _rollout_given(m, given, read, samples=samples, seed=seed, output=output, json_out=json_out)
     q0, p0, durations = workflows.rollout_starts(
         m, start=start, start_quat=start_quat, starts=starts, from_demos=from_demos, count=count,
@@ -264,6 +269,11 @@ def rollout(
 
         record_rollout(rerun, res, up=up)
         progress(f"wrote {rerun}")
+    if plot:
+        from rbgp_cli.viz.plots import plot_rollout
+
+        plot_rollout(plot, res)
+        progress(f"wrote {plot}")
     if json_out:
         n_steps, step = res.integration or (len(res.t) - 1, float(res.t[1] - res.t[0]))
         emit_json({"trajectories": res.count, "samples_per_start": samples, "steps": n_steps, "dt": step,

@@ -315,16 +315,27 @@ class PathDistribution:
         per motion (B,), in units of the demonstrations' spread (a χ with 6 degrees of freedom; 1 is
         typical, above 3.5 a goal fewer than 1 in 200 demonstrations would reach)."""
         B = len(np.atleast_2d(start_quat))
-        ob0 = [self.observe([0.0], q[None], p[None], exact=True) for q, p in zip(np.atleast_2d(start_quat), np.atleast_2d(start_position))]
+        return self.pose_distance(start_quat, start_position, np.ones(B), goal_quat, goal_position)
+
+    def pose_distance(self, start_quat, start_position, phases, quat, position) -> np.ndarray:
+        """How far poses lie from where the demonstrations pass at given phases, given each start: the
+        Mahalanobis distance of pose b's deviation at phase s_b under the start-conditioned predictive
+        N(A_b x̂, A_b Σ̂ A_bᵀ), (B,), in units of the demonstrations' spread (a χ with 6 degrees of
+        freedom). start_quat (B, 4), start_position (B, 3), phases (B,) in [0, 1], quat (B, 4),
+        position (B, 3); :meth:`goal_distance` is this at phase 1."""
+        q0, p0 = np.atleast_2d(start_quat), np.atleast_2d(start_position)
+        B = len(q0)
+        phases = np.broadcast_to(np.asarray(phases, dtype=np.float64).reshape(-1), (B,))
+        quat = np.broadcast_to(np.asarray(quat, dtype=np.float64).reshape(-1, 4), (B, 4))
+        position = np.broadcast_to(np.asarray(position, dtype=np.float64).reshape(-1, 3), (B, 3))
+        ob0 = [self.observe([0.0], q[None], p[None], exact=True) for q, p in zip(q0, p0)]
         A0, _, r0 = ob0[0]
-        cond = self.condition(A0, np.stack([o[1] for o in ob0]), r0)
-        A1, y1, _ = self.observe(np.ones(B), goal_quat, goal_position, exact=True)
-        A1 = A1[:6]
-        y1 = y1.reshape(B, 6)
-        pred = cond.mean @ A1.T  # (B, 6)
-        S1 = A1 @ cond.cov @ A1.T
-        e = y1 - pred
-        return np.sqrt(np.einsum("bi,bi->b", e, np.linalg.solve(S1, e.T).T))
+        cond = self.condition(A0, np.stack([o[1] for o in ob0]), r0)  # one operator, B start values
+        A1, y1, _ = self.observe(phases, quat, position, exact=True)
+        A1 = A1.reshape(B, 6, -1)
+        e = y1.reshape(B, 6) - np.einsum("bip,bp->bi", A1, cond.mean)  # (B, 6)
+        S1 = np.einsum("bip,pq,bjq->bij", A1, cond.cov, A1)  # (B, 6, 6)
+        return np.sqrt(np.einsum("bi,bi->b", e, np.linalg.solve(S1, e[..., None])[..., 0]))
 
     def duration_posterior(self, t, quat, position, grid: np.ndarray | None = None, *, points: int = 12):
         """The posterior over the duration D of a motion seen from its start t[0] to t[-1] (module

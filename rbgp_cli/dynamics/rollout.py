@@ -71,6 +71,8 @@ class RolloutResult:
     via: tuple = ()
     #: (B,) each goal's distance from where the demonstrations end, in their spreads, or None
     goal_distance: np.ndarray | None = None
+    #: (B, V) each via-point's distance from where the demonstrations pass at its phase, or None
+    via_distance: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -133,6 +135,7 @@ class RolloutResult:
             res.left = self.left
         res.goal_quat, res.goal_position, res.via, res.goal_distance = (self.goal_quat, self.goal_position, self.via,
                                                                        self.goal_distance)
+        res.via_distance = self.via_distance
         return res
 
 
@@ -470,6 +473,8 @@ def rollout_conditioned(model, start_quat, start_position, *, goal_quat=None, go
     res.quat, res.position = _from_deviation(paths, ref_q, ref_p, new)
     _recheck_envelope(model, res, durations, kwargs.get("off_data", "keep"))
     res.goal_distance = paths.goal_distance(q0, p0, gq, gp) if has_goal else None
+    res.via_distance = np.stack([paths.pose_distance(q0, p0, np.clip(float(tv) / durations, 0.0, 1.0), qv, pv)
+                                 for tv, qv, pv in via], axis=1) if via else None  # (B, V)
     if has_goal:
         res.goal_quat, res.goal_position = np.array(gq), np.array(gp)
     res.via = tuple((float(tv), np.asarray(qv, float), np.asarray(pv, float)) for tv, qv, pv in via)

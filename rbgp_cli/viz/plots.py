@@ -31,7 +31,7 @@ from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError
 from rbgp_cli.io.atomic import atomic_path
 
-__all__ = ["plot_evaluation", "distance_axis_top", "feature_axis_limits", "is_monte_carlo_sample", "FIGSIZE_IN",
+__all__ = ["plot_evaluation", "plot_rollout", "rollout_features", "distance_axis_top", "feature_axis_limits", "is_monte_carlo_sample", "FIGSIZE_IN",
            "DPI", "MAX_LINES", "CLIP_FACTOR", "NEAR_ZERO", "AXIS_MARGIN", "BULK_WIDTH", "TIME_LABEL"]
 
 #: Figure size in inches and resolution: 12 × 10 in at 100 dpi = 1200 × 1000 pixels.
@@ -398,3 +398,111 @@ def _distance_panel(ax, s, curves) -> None:
     ax.set_xlim(0.0, 1.0)
     ax.grid(True, lw=0.3, alpha=0.5)
     ax.legend(fontsize=7.5, loc="upper left")
+
+
+# ------------------------------------------------------------------------------------------ rollouts
+
+#: The quantiles of a rollout's Monte Carlo samples drawn as its band: the 90 % region.
+ROLLOUT_BAND = (0.05, 0.95)
+
+_ROLLOUT_DIMS = (
+    ("rotation $r_x$ (relative to the first rollout's start)", "$r_x$ [rad]"),
+    ("rotation $r_y$ (relative to the first rollout's start)", "$r_y$ [rad]"),
+    ("rotation $r_z$ (relative to the first rollout's start)", "$r_z$ [rad]"),
+    ("translation $x$", "$x$ [m]"),
+    ("translation $y$", "$y$ [m]"),
+    ("translation $z$", "$z$ [m]"),
+)
+
+
+def rollout_features(quat, position, quat_ref) -> np.ndarray:
+    """Poses as the six drawn features: ``(log(R_refᵀ R), p)``, shape (..., 6).
+
+    ``quat`` (..., 4) x, y, z, w and ``position`` (..., 3) m; ``quat_ref`` (4,) the reference rotation
+    R_ref (the first rollout's start). The rotation part is the rotation vector of R_refᵀ R in the
+    reference's frame (rad), continuous as long as the motion stays within π of the reference.
+    """
+    from rbgp_cli.geometry.so3 import log_quat, quat_conjugate, quat_multiply
+
+    rel = quat_multiply(quat_conjugate(np.asarray(quat_ref, np.float64)), np.asarray(quat, np.float64))
+    return np.concatenate([log_quat(rel), np.asarray(position, np.float64)], axis=-1)
+
+
+def plot_rollout(path, res, title: str | None = None):
+    """Draw rolled-out motions over time, their samples' 90 % bands, goals and via-points; save a PNG.
+
+    Six panels over time t (s) from the start: rotation r_x, r_y, r_z (rad, :func:`rollout_features`:
+    ``log(R_refᵀ R)`` with R_ref the first mean rollout's start rotation) in the left column,
+    translation x, y, z (m) in the right one. Each mean rollout b (at most :data:`MAX_LINES`, evenly
+    chosen) is a line up to its own length (``res.length(b)``); with Monte Carlo samples
+    (``res.sample_quat`` (B, K, S+1, 4), K ≥ 2) the per-time quantiles :data:`ROLLOUT_BAND` of its
+    samples are filled in its colour (the region the bands of ``rbgp crossval`` score). A conditioned
+    rollout's goal (``res.goal_quat`` (B, 4), ``res.goal_position`` (B, 3)) is a cross at the
+    rollout's end time; via-points (``res.via``: [(T s, quat (4,), position (3,))]) are diamonds at T.
+    Samples past the demonstrations' envelope (``res.outside``) are marked with small circles.
+
+    Returns the :class:`matplotlib.figure.Figure` (6 axes). Gids: ``mean:<b>``, ``band:<b>``,
+    ``goal:<b>``, ``via:<i>``, ``outside:<b>``.
+    """
+    Figure, FigureCanvasAgg = _matplotlib()
+    t = np.asarray(res.t, np.float64)
+    quat, pos = np.asarray(res.quat, np.float64), np.asarray(res.position, np.float64)
+    B = quat.shape[0]
+    shown = _subset(B)
+    lengths = [res.length(b) for b in range(B)]
+    ref = quat[0, 0]
+    feats = rollout_features(quat, pos, ref)  # (B, S+1, 6)
+    has_samples = res.sample_quat is not None and res.sample_quat.shape[1] >= 2
+    if has_samples:
+        sfeat = rollout_features(res.sample_quat, res.sample_position, ref)  # (B, K, S+1, 6)
+        lo, hi = np.quantile(sfeat, ROLLOUT_BAND, axis=1)  # (B, S+1, 6) each
+    gq, gp = getattr(res, "goal_quat", None), getattr(res, "goal_position", None)
+    goal = rollout_features(gq, gp, ref) if gq is not None and gp is not None else None  # (B, 6)
+    via = list(getattr(res, "via", ()) or ())
+    via_feat = [rollout_features(q, p, ref) for _, q, p in via]
+    outside = getattr(res, "outside", None)
+
+    from matplotlib import colormaps
+
+    cmap = colormaps["tab10"]
+    fig = Figure(figsize=(12.0, 8.0), dpi=DPI, layout="constrained")
+    FigureCanvasAgg(fig)
+    grid = fig.add_gridspec(3, 2)
+    for j, (name, ylabel) in enumerate(_ROLLOUT_DIMS):
+        ax = fig.add_subplot(grid[j % 3, j // 3])
+        for i, b in enumerate(shown):
+            n, color = lengths[b], cmap(i % 10)
+            if has_samples:
+                ax.fill_between(t[:n], lo[b, :n, j], hi[b, :n, j], color=color, alpha=0.15, lw=0, gid=f"band:{b}")
+            ax.plot(t[:n], feats[b, :n, j], color=color, lw=1.4, gid=f"mean:{b}",
+                    label=f"rollout {b}" if j == 0 and i < 10 else None)
+            if outside is not None and np.any(outside[b, :n]):
+                k = np.flatnonzero(outside[b, :n])
+                ax.plot(t[k], feats[b, k, j], "o", ms=2.5, mfc="none", color=color, gid=f"outside:{b}")
+            if goal is not None:
+                ax.plot([t[n - 1]], [goal[b, j]], "X", ms=8, color=color, mec="black", mew=0.6, gid=f"goal:{b}")
+        for i, ((tv, _, _), f) in enumerate(zip(via, via_feat)):
+            ax.plot([tv], [f[j]], "D", ms=6, color="white", mec="black", mew=1.0, gid=f"via:{i}")
+        ax.set_title(name, fontsize=10)
+        ax.set_ylabel(ylabel)
+        ax.set_xlim(0.0, float(t[max(lengths) - 1]) if len(t) > 1 else 1.0)
+        ax.grid(True, lw=0.3, alpha=0.5)
+        if j % 3 == 2:
+            ax.set_xlabel("time from the start [s]")
+        else:
+            ax.tick_params(labelbottom=False)
+    parts = [f"{B} rollout{'s' if B != 1 else ''}" + (f" ({len(shown)} drawn)" if len(shown) < B else "")]
+    if has_samples:
+        parts.append(f"bands: 90 % of {res.sample_quat.shape[1]} samples each")
+    if goal is not None:
+        parts.append("goals: crosses")
+    if via:
+        parts.append(f"{len(via)} via-point{'s' if len(via) != 1 else ''}: diamonds")
+    if outside is not None and np.any(outside):
+        parts.append("circles: outside the demonstrations")
+    fig.suptitle(title or "; ".join(parts), fontsize=12)
+    if B > 1:
+        fig.axes[0].legend(fontsize=7.5, loc="best")
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=DPI)
+    return fig

@@ -146,3 +146,33 @@ def test_crossval_given_goal_rows_and_end_errors(tmp_path):
     assert table.exit_code == 0, table.stderr
     header = next(line for line in table.stdout.splitlines() if line.startswith("representation"))
     assert header.split()[-2:] == ["end_mm", "end_mrad"]
+
+
+@pytest.mark.slow
+def test_a_via_point_far_from_where_the_demonstrations_pass_is_warned_about_and_plotted(model, tmp_path):
+    pytest.importorskip("matplotlib")
+    start, _, goal, tr = demo_ends()
+    t_via = round(0.5 * tr.duration, 3)
+    k = int(np.argmin(np.abs(tr.t - tr.t[0] - t_via)))
+    near = np.concatenate([tr.quat[k], tr.position[k]])
+    far = near + np.array([0, 0, 0, 0, 0.0, 0.0, 1.0])  # a metre above the demonstration's own pose
+    text = lambda v: " ".join(f"{x:.9g}" for x in v)  # noqa: E731
+    res = run("rollout", model, "--start-quat", start, "--goal", goal, "--via", f"{t_via}: {text(near)}",
+              "--duration", f"{tr.duration:.6f}", "-o", tmp_path / "near.csv")
+    assert res.exit_code == 0, res.stderr
+    assert "standard deviations" not in res.stderr  # the demonstration's own pose is not an extrapolation
+    png = tmp_path / "far.png"
+    res = run("rollout", model, "--start-quat", start, "--goal", goal, "--via", f"{t_via}: {text(far)}",
+              "--duration", f"{tr.duration:.6f}", "--samples", "4", "-o", tmp_path / "far.csv", "--plot", png)
+    assert res.exit_code == 0, res.stderr
+    assert f"the via-point at {t_via:g} s is" in res.stderr
+    assert "standard deviations from where the demonstrations pass at that time: this motion is an extrapolation" in res.stderr
+    assert "--via" in res.stderr  # the hint names the flag
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+
+
+def test_plot_is_refused_with_given(model, tmp_path):
+    out = tmp_path / "r.png"
+    res = run("rollout", model, "--given", CSV_DIR / "shoe_01.csv", "--plot", out)
+    assert_one_line_error(res, 2, "--given writes CSV", "--plot")
+    assert not out.exists()

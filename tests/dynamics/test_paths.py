@@ -202,3 +202,29 @@ def test_the_goal_distance_is_small_for_the_familys_own_goals_and_large_for_a_fa
     assert np.median(own) < 3.5  # a χ with 6 degrees of freedom has its median at 2.2
     far = paths.goal_distance(q0[:1], p0[:1], qg[:1], pg[:1] + np.array([0.5, 0.0, 0.0]))
     assert far[0] > 10.0
+
+
+def test_the_pose_distance_is_zero_at_the_conditioned_mean_linear_in_an_offset_and_small_for_own_poses(small):
+    paths, trajs = small
+    q0 = np.array([t.quat[0] for t in trajs])
+    p0 = np.array([t.position[0] for t in trajs])
+    k = len(trajs[0]) // 2
+    s = np.array([(t.t[k] - t.t[0]) / t.duration for t in trajs])
+    qm = np.array([t.quat[k] for t in trajs])
+    pm = np.array([t.position[k] for t in trajs])
+    own = paths.pose_distance(q0, p0, s, qm, pm)
+    assert own.shape == (len(trajs),)
+    assert np.median(own) < 3.5  # the family's own poses: a χ with 6 degrees of freedom, median 2.2
+    # the start-conditioned mean pose at that phase is at distance 0; an offset in position scales linearly
+    A0, y0, r0 = paths.observe([0.0], q0[:1], p0[:1], exact=True)
+    mq, mp = paths.pose_at(paths.condition(A0, y0, r0).deviation, s[:1])
+    assert paths.pose_distance(q0[:1], p0[:1], s[:1], mq, mp)[0] < 1e-6
+    step = np.array([0.0, 0.01, 0.0])
+    d1 = paths.pose_distance(q0[:1], p0[:1], s[:1], mq, mp + step)[0]
+    d3 = paths.pose_distance(q0[:1], p0[:1], s[:1], mq, mp + 3 * step)[0]
+    assert d1 > 0.1 and d3 == pytest.approx(3 * d1, rel=1e-6)
+    # at phase 1 it is the goal distance
+    qg = np.array([t.quat[-1] for t in trajs])
+    pg = np.array([t.position[-1] for t in trajs])
+    np.testing.assert_allclose(paths.pose_distance(q0, p0, np.ones(len(trajs)), qg, pg),
+                               paths.goal_distance(q0, p0, qg, pg), rtol=1e-12)
