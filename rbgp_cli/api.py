@@ -316,8 +316,14 @@ class Rollout:
     @property
     def goal_distance(self) -> np.ndarray | None:
         """(B,) how far each goal lies from where the demonstrations end given its start, in their
-        spreads (docs/method.md §12; above 4 rbgp warns), or None without goals."""
+        spreads (docs/method.md §12; above 4.5 rbgp warns), or None without goals."""
         return getattr(self.result, "goal_distance", None)
+
+    @property
+    def via_distance(self) -> np.ndarray | None:
+        """(B, V) how far each via-point lies from where the demonstrations pass at its phase given each
+        start, in their spreads (docs/method.md §12; above 4.5 rbgp warns), or None without via-points."""
+        return getattr(self.result, "via_distance", None)
 
     def trajectories(self, include_samples: bool = False) -> list:
         """The mean trajectories (names ``0``, ``1``, …) and optionally the samples (``0.s0``, …) as

@@ -70,6 +70,23 @@ def test_fit_predict_rollout_shapes(gp, demos):
     np.testing.assert_allclose(one.position[0, 0], demos[0].position[0])
 
 
+@pytest.mark.slow
+def test_rollout_to_goals_through_a_via_point(gp, demos):
+    d = demos[1]
+    k = len(d) // 2
+    t_via = float(d.t[k] - d.t[0])
+    r = gp.rollout(demos[1:3], goals=demos[1:3], via=[(t_via, (d.quat[k], d.position[k]))],
+                   durations=[d.duration, demos[2].duration], samples=2, return_std=False)
+    for b, g in enumerate(demos[1:3]):  # each mean ends at its goal (the demonstration's last pose)
+        n = r.lengths[b]
+        assert np.linalg.norm(r.position[b, n - 1] - g.position[-1]) < 0.005
+    j = int(np.argmin(np.abs(r.t - t_via)))
+    assert np.linalg.norm(r.position[0, j] - d.position[k]) < 0.005
+    assert r.goal_distance.shape == (2,) and np.all(r.goal_distance < 4.5)
+    assert r.via_distance.shape == (2, 1) and r.via_distance[0, 0] < 4.5
+    assert gp.rollout(demos[1:2]).via_distance is None
+
+
 def test_evaluate_result(gp, demos):
     r = gp.rollout(demos, return_std=False)
     e = rbgp.evaluate(r, demos)
