@@ -69,6 +69,28 @@ def write_error(dest, exc: OSError):
 
 
 @contextlib.contextmanager
+def _temporary_file(dest: Path, prefix: str, suffix: str, directory=None):
+    """Create an empty temporary file (``tempfile.mkstemp(prefix, suffix, dir=directory)``; None: the
+    system's temporary folder), yield its path, and remove it however the block ends (a file the block
+    renamed onto ``dest`` is no longer there to remove). A file-system failure creating it, or one the
+    writer raises with a path or limit errno, is ``cannot write DEST: <reason>`` (:func:`write_error`)."""
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=directory)
+    except OSError as exc:
+        raise write_error(dest, exc) from None
+    os.close(fd)
+    try:
+        yield Path(tmp)
+    except OSError as exc:
+        if exc.errno in _PATH_ERRNOS or exc.errno in _LIMIT_ERRNOS:
+            raise write_error(dest, exc) from None
+        raise
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+
+
+@contextlib.contextmanager
 def atomic_path(path, suffix: str | None = None):
     """Yield a temporary path beside ``path``; on success fsync it, give it the mode of a plain
     ``open(path, "w")`` (:func:`new_file_mode`) and rename it onto ``path``.
@@ -85,19 +107,9 @@ def atomic_path(path, suffix: str | None = None):
     directory = dest.parent if str(dest.parent) else Path(".")
     suffix = (dest.suffix if suffix is None else suffix) + ".tmp"
     remove_stale(directory, dest.name, suffix)
-    try:
-        # the writer's pid in the name: a later write can tell a killed writer's leftover from a live one
-        fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.{os.getpid()}-", suffix=suffix, dir=directory)
-    except OSError as exc:
-        raise write_error(dest, exc) from None
-    os.close(fd)
-    try:
-        try:
-            yield Path(tmp)
-        except OSError as exc:
-            if exc.errno in _PATH_ERRNOS or exc.errno in _LIMIT_ERRNOS:
-                raise write_error(dest, exc) from None
-            raise
+    # the writer's pid in the name: a later write can tell a killed writer's leftover from a live one
+    with _temporary_file(dest, f".{dest.name}.{os.getpid()}-", suffix, directory) as tmp:
+        yield tmp
         try:
             fd = os.open(tmp, os.O_RDONLY)  # the writer may be a library that closed the file itself
             try:
@@ -108,10 +120,6 @@ def atomic_path(path, suffix: str | None = None):
             os.replace(tmp, dest)
         except OSError as exc:
             raise write_error(dest, exc) from None
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
 
 
 def _not_a_regular_file(dest: Path) -> bool:
@@ -161,18 +169,8 @@ def _into_special(dest: Path, suffix: str | None):
     import shutil
 
     suffix = (dest.suffix if suffix is None else suffix) + ".tmp"
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".rbgp-{os.getpid()}-", suffix=suffix)
-    except OSError as exc:
-        raise write_error(dest, exc) from None
-    os.close(fd)
-    try:
-        try:
-            yield Path(tmp)
-        except OSError as exc:
-            if exc.errno in _PATH_ERRNOS or exc.errno in _LIMIT_ERRNOS:
-                raise write_error(dest, exc) from None
-            raise
+    with _temporary_file(dest, f".rbgp-{os.getpid()}-", suffix) as tmp:
+        yield tmp
         try:
             out = _open_special(dest)
             with open(tmp, "rb") as src, os.fdopen(out, "wb") as dst:
@@ -181,9 +179,6 @@ def _into_special(dest: Path, suffix: str | None):
             raise InputError(f"cannot write {dest}: the program reading the FIFO went away") from None
         except OSError as exc:
             raise write_error(dest, exc) from None
-    finally:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
 
 
 #: A leftover temporary file without a pid in its name (older rbgp) is stale after this many seconds.

@@ -37,6 +37,7 @@ from rbgp_cli.errors import InputError, NotPoseData, warn
 from rbgp_cli.io import formats
 from rbgp_cli.io.mcap import MAGIC as MCAP_MAGIC
 from rbgp_cli.io.options import ReadOptions
+from rbgp_cli.io.special import PrefixedRaw
 
 __all__ = ["read_demonstrations", "read_sources", "list_sources", "SourceList", "read_file", "read_stream",
            "detect_format", "expand_sources", "skip_reason", "MCAP_MAGIC", "check_line_lengths", "MAX_LINE_BYTES"]  # fmt: skip
@@ -351,32 +352,6 @@ def check_line_lengths(path, source: str | None = None) -> None:
         raise InputError(f"cannot read the file ({exc.strerror or exc})", path=checker.source) from None
 
 
-class _PrefixedRaw(io.RawIOBase):
-    """Bytes already read from a non-seekable stream, then the rest of the stream."""
-
-    def __init__(self, head: bytes, stream):
-        self._head = head
-        self._stream = stream
-
-    def readable(self) -> bool:
-        return True
-
-    def seekable(self) -> bool:
-        return False
-
-    def readinto(self, b) -> int:
-        if self._head:
-            k = min(len(b), len(self._head))
-            b[:k] = self._head[:k]
-            self._head = self._head[k:]
-            return k
-        data = self._stream.read(len(b))
-        if not data:
-            return 0
-        b[: len(data)] = data
-        return len(data)
-
-
 def _seekable(stream) -> bool:
     try:
         return bool(stream.seekable())
@@ -434,7 +409,7 @@ def read_stream(stream, options: ReadOptions | None = None, source: str = "-") -
     streamed = formats.get(fmt) if fmt != "auto" else next(
         (f for f in formats.all_formats() if f.read_stream and f.detect and f.detect(head)), None)
     if streamed is not None and streamed.read_stream is not None:
-        s = stream if _seekable(stream) else io.BufferedReader(_PrefixedRaw(head, stream))
+        s = stream if _seekable(stream) else io.BufferedReader(PrefixedRaw(head, stream))
         return streamed.read_stream(s, options, source=source)
     data = _read_text_checked(stream, b"" if _seekable(stream) else head, source)
     entry = formats.get(detect_format(data[:_HEAD]) if fmt == "auto" else fmt)

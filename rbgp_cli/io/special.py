@@ -18,7 +18,7 @@ import time
 
 from rbgp_cli.errors import InputError
 
-__all__ = ["FIFO_WAIT_S", "is_stream_path", "open_stream_path", "stdin_stream"]
+__all__ = ["FIFO_WAIT_S", "PrefixedRaw", "is_stream_path", "open_stream_path", "stdin_stream"]
 
 #: Seconds a FIFO with no writer is waited for before it is refused.
 FIFO_WAIT_S = 1.0
@@ -34,15 +34,20 @@ def is_stream_path(path) -> bool:
     return not (stat.S_ISREG(mode) or stat.S_ISDIR(mode))
 
 
-class _Prefixed(io.RawIOBase):
-    """The bytes already read, then the rest of the file descriptor's stream (blocking)."""
+class PrefixedRaw(io.RawIOBase):
+    """The bytes already read (``head``), then the rest of ``source``: a file descriptor (an int, read
+    with ``os.read`` (blocking) and closed with this stream) or a binary stream (its ``read``; left
+    open). Not seekable: what a format sniffer read from a FIFO or stdin is given back this way."""
 
-    def __init__(self, head: bytes, fd: int):
+    def __init__(self, head: bytes, source):
         self._head = head
-        self._fd = fd
+        self._source = source
 
     def readable(self) -> bool:
         return True
+
+    def seekable(self) -> bool:
+        return False
 
     def readinto(self, b) -> int:
         if self._head:
@@ -50,17 +55,22 @@ class _Prefixed(io.RawIOBase):
             b[:k] = self._head[:k]
             self._head = self._head[k:]
             return k
-        data = os.read(self._fd, len(b))
+        fd = self._source if isinstance(self._source, int) else None
+        data = os.read(fd, len(b)) if fd is not None else self._source.read(len(b))
+        if not data:
+            return 0
         b[: len(data)] = data
         return len(data)
 
     def fileno(self) -> int:
-        return self._fd
+        if isinstance(self._source, int):
+            return self._source
+        return super().fileno()  # io.UnsupportedOperation: a stream's descriptor is not ours to hand out
 
     def close(self) -> None:
-        if not self.closed:
+        if not self.closed and isinstance(self._source, int):
             try:
-                os.close(self._fd)
+                os.close(self._source)
             except OSError:
                 pass
         super().close()
@@ -109,7 +119,7 @@ def open_stream_path(path, what: str = "file"):
     except BaseException:
         os.close(fd)
         raise
-    return io.BufferedReader(_Prefixed(head, fd), buffer_size=1 << 16)
+    return io.BufferedReader(PrefixedRaw(head, fd), buffer_size=1 << 16)
 
 
 def stdin_stream(stdin=None):

@@ -44,21 +44,7 @@ def _coverage(train, fresh, rng, samples=20):
     """Coverage of the ``fresh`` demonstrations by ``samples`` draws each of the variation of ``train``
     around the conditional mean given each one's start (the mean path moved by its start deviation,
     as the bands' calibration at ridge ∞ and gain 0 predicts it)."""
-    from rbgp_cli.dynamics.model import mean_path
-    from rbgp_cli.evaluation.coverage import Coverage, prediction_coverage
-    from rbgp_cli.geometry.so3 import log_quat, quat_conjugate
-
-    v = demonstration_variation(train)
-    path = mean_path(train, 51)
-    total = Coverage()
-    for real in fresh:
-        cond = path["position"] + (real.position[0] - path["position"][0])
-        start_rot = log_quat(quat_multiply(real.quat[0], quat_conjugate(path["quat"][0])))
-        mean_q = quat_multiply(exp_quat(np.broadcast_to(start_rot, (51, 3))), path["quat"])
-        draws = [Trajectory(v.s * real.duration, quat_multiply(exp_quat(e[:, :3]), mean_q), cond + e[:, 3:])
-                 for e in v.draw(samples, rng)]
-        total = total + prediction_coverage(draws, real, T=51)
-    return total, v
+    return _coverage_of(demonstration_variation(train), train, fresh, rng, samples)
 
 
 @pytest.mark.slow
