@@ -518,6 +518,7 @@ FrameOpt = Annotated[Optional[str], typer.Option("--frame", help="Child frame of
 TimeSourceOpt = Annotated[str, typer.Option("--time", help="MCAP time: header (message stamps) or log.", rich_help_panel=_READ)]
 BodyOpt = Annotated[Optional[str], typer.Option("--body", help="Rigid body / segment name in vendor exports, C3D cluster or segment ('A,B,C': its markers), BVH joint ('all' for every body).", rich_help_panel=_READ)]
 RotationOpt = Annotated[Optional[str], typer.Option("--rotation", help="Vicon RX,RY,RZ: helical (axis-angle, default) or euler.", rich_help_panel=_READ)]
+FileOrderOpt = Annotated[str, typer.Option("--file-order", help="The order the files are read in, which is the demonstrations' recording order (band calibration in recording order, the drift test, crossval --order recorded, trajectory names): given (a folder's or a pattern's files in natural name order, take_2 before take_10; files named one by one as given), name (every file in natural name order, also those a shell glob expanded, which sorts take_10 before take_2) or mtime (by modification time, oldest first).", rich_help_panel=_READ)]
 MaxGapOpt = Annotated[Optional[float], typer.Option("--max-gap", help="Fill runs of lost frames up to this many seconds by slerp (default: drop them).", rich_help_panel=_READ)]
 SplitGapOpt = Annotated[Optional[float], typer.Option("--split-gap", metavar="SECONDS", help="Split a demonstration where no sample arrives for longer than this: a break between takes or a tracker outage (default: 20 × its median sampling interval and at least 2 s; inf keeps it whole).", rich_help_panel=_READ)]
 CropFromOpt = Annotated[Optional[float], typer.Option("--crop-from", metavar="SECONDS", help="Keep only the samples from this many seconds after each take's first sample.", rich_help_panel=_READ)]
@@ -545,7 +546,7 @@ def parse_columns(text: Optional[str]) -> Optional[dict]:
 
 def read_options(fmt="auto", columns=None, quat_order=None, euler_order=None, degrees=None, length_unit=None,
                  time_unit=None, rate=None, topic=None, frame=None, time_source="header", body=None, rotation=None,
-                 *, split_gap=None, crop_from=None, crop_to=None, split_at_rest=False, rest_speed=None, rest_time=None):
+                 file_order="given", *, split_gap=None, crop_from=None, crop_to=None, split_at_rest=False, rest_speed=None, rest_time=None):
     """Validate the flags and build :class:`rbgp_cli.io.options.ReadOptions`."""
     from rbgp_cli.errors import InputError
     from rbgp_cli.io.formats import choices
@@ -565,6 +566,8 @@ def read_options(fmt="auto", columns=None, quat_order=None, euler_order=None, de
         raise InputError(f"--time must be header or log, got {time_source!r}")
     if rotation is not None and rotation not in ("helical", "euler"):
         raise InputError(f"--rotation must be helical or euler, got {rotation!r}")
+    if file_order not in ("given", "name", "mtime"):
+        raise InputError(f"--file-order must be given, name or mtime, got {file_order!r}")
     for name, v in (("--split-gap", split_gap), ("--rest-speed", rest_speed), ("--rest-time", rest_time)):
         if v is not None and not v > 0:
             raise InputError(f"{name} must be a positive number, got {v}")
@@ -578,7 +581,7 @@ def read_options(fmt="auto", columns=None, quat_order=None, euler_order=None, de
     return ReadOptions(
         format=fmt, columns=parse_columns(columns), quat_order=None if quat_order is None else quat_order.lower(),
         euler_order=euler_order, degrees=degrees, length_unit=length_unit, time_unit=time_unit, rate=rate,
-        topic=topic, frame=frame, time_source=time_source, body=body, rotation=rotation,
+        topic=topic, frame=frame, time_source=time_source, body=body, rotation=rotation, file_order=file_order,
         split_gap=split_gap, crop_from=crop_from, crop_to=crop_to, split_at_rest=bool(split_at_rest),
         rest_speed=rest_speed, rest_time=rest_time,
     )
@@ -592,7 +595,7 @@ _READ_PARAMS = (
     ("euler_order", EulerOrderOpt, None), ("degrees", DegreesOpt, None), ("length_unit", LengthUnitOpt, None),
     ("time_unit", TimeUnitOpt, None), ("rate", RateOpt, None), ("topic", TopicOpt, None), ("frame", FrameOpt, None),
     ("time_source", TimeSourceOpt, "header"), ("body", BodyOpt, None), ("rotation", RotationOpt, None),
-    ("max_gap", MaxGapOpt, None), ("split_gap", SplitGapOpt, None), ("crop_from", CropFromOpt, None),
+    ("file_order", FileOrderOpt, "given"), ("max_gap", MaxGapOpt, None), ("split_gap", SplitGapOpt, None), ("crop_from", CropFromOpt, None),
     ("crop_to", CropToOpt, None), ("split_at_rest", SplitAtRestOpt, False), ("rest_speed", RestSpeedOpt, None),
     ("rest_time", RestTimeOpt, None),
 )

@@ -40,6 +40,11 @@ class ReadOptions:
     topic : MCAP topic; frame : child frame (TF); time_source : ``header`` or ``log``.
     body : rigid body / segment name in vendor exports with several bodies.
     rotation : Vicon RX,RY,RZ meaning: ``helical`` (axis-angle, default) or ``euler``.
+    file_order : the order the files are read in, which is the demonstrations' recording order
+        (:func:`rbgp_cli.io.read.list_sources`; docs/data.md): ``given`` (a folder's or a pattern's files
+        in natural name order, files named one by one as given), ``name`` (every file in natural name
+        order, whatever order they were given in, e.g. by a shell glob, which sorts take_10 before
+        take_2) or ``mtime`` (every file by its modification time, oldest first; ties by name).
 
     How the samples read are cut into demonstrations (:func:`rbgp_cli.dynamics.prepare.prepare_all`):
 
@@ -63,6 +68,7 @@ class ReadOptions:
     time_source: str = "header"
     body: str | None = None
     rotation: str | None = None
+    file_order: str = "given"
     split_gap: float | None = None
     crop_from: float | None = None
     crop_to: float | None = None

@@ -173,10 +173,42 @@ def natural_key(name: str) -> tuple:
     return tuple((0, int(part), part) if part.isdigit() else (1, 0, part) for part in re.split(r"(\d+)", str(name)))
 
 
+#: The values of ``ReadOptions.file_order`` (``--file-order``).
+FILE_ORDERS = ("given", "name", "mtime")
+
+
+def ordered_files(files: list, order: str = "given") -> list:
+    """``files`` in the recording order ``order`` says (:class:`~rbgp_cli.io.options.ReadOptions`
+    ``file_order``): ``given`` as they are; ``name`` in natural name order of their paths
+    (:func:`natural_key`); ``mtime`` by modification time, oldest first, ties in natural name order.
+    Stdin (``-``) keeps its place; the others are sorted among themselves (a stable sort)."""
+    if order == "given":
+        return list(files)
+    if order not in FILE_ORDERS:
+        raise InputError(f"file_order must be one of {', '.join(FILE_ORDERS)}, got {order!r}", param="file_order")
+    where = [k for k, f in enumerate(files) if f != "-"]
+
+    def mtime(f):
+        try:
+            return os.stat(f).st_mtime_ns
+        except OSError:  # unreadable or gone: reading it says so; here it sorts last
+            return float("inf")
+
+    if order == "name":
+        keyed = sorted((files[k] for k in where), key=natural_key)
+    else:
+        keyed = sorted((files[k] for k in where), key=lambda f: (mtime(f), natural_key(f)))
+    out = list(files)
+    for k, f in zip(where, keyed):
+        out[k] = f
+    return out
+
+
 def list_sources(paths, options: ReadOptions | None = None) -> SourceList:
     """Expand directories (their files in natural name order, not recursive: :func:`natural_key`) and
     glob patterns (the same order); keep files and ``-`` as given, in the order given. This order is
-    the demonstrations' recording order (docs/data.md). Files found that way whose first 8 KiB show they hold no pose data
+    the demonstrations' recording order (docs/data.md), unless ``options.file_order`` sorts every file
+    by name or by modification time (:func:`ordered_files`). Files found that way whose first 8 KiB show they hold no pose data
     (:func:`skip_reason`) are skipped (``SourceList.skipped``). Raises InputError for a pattern that
     matches nothing."""
     options = options or ReadOptions()
@@ -199,6 +231,7 @@ def list_sources(paths, options: ReadOptions | None = None) -> SourceList:
         for f in found:
             out.found_in.setdefault(f, p)
             out.files.append(f)
+    out.files = ordered_files(out.files, options.file_order)
     out.order = {f: k for k, f in reversed(list(enumerate(out.files)))}
     for f in [f for f in out.files if out.may_skip(f)]:
         reason = skip_reason(f, options)

@@ -58,3 +58,18 @@ def test_the_summary_says_when_the_bands_cannot_be_calibrated_or_the_drift_not_t
     assert "too few demonstrations (3) to calibrate" in three
     old = _variation_text({"demos": 30, "band_scale": {"rotation": 1.2, "position": 1.0}})  # a model file before issue 36
     assert "left out fall inside" in old and "drift" not in old and "shrunk" not in old
+
+
+@pytest.mark.slow
+def test_file_order_mtime_recovers_the_recording_order_of_takes_named_out_of_order(tmp_path):
+    import os
+
+    demos = session(24, 5, drift_pos=0.12)
+    order = np.random.default_rng(1).permutation(24)
+    folder = _write([demos[i] for i in order], tmp_path / "renamed", [f"take_{k + 1}" for k in range(24)])
+    for k, i in enumerate(order):  # each file's modification time is when its take was recorded
+        os.utime(folder / f"take_{k + 1}.csv", ns=(1_700_000_000_000_000_000 + int(i) * 10**9,) * 2)
+    res = runner.invoke(app, ["train", str(folder), "-o", str(tmp_path / "m.rbgp"), "--file-order", "mtime", *FAST])
+    assert res.exit_code == 0, res.stderr
+    line = next(x for x in res.stderr.splitlines() if "drift over the recording order" in x)
+    assert float(re.search(r"p = ([0-9.e-]+)", line).group(1)) < 0.01
