@@ -215,10 +215,6 @@ class Anticipator:
         self._ref = PathReference({"s": paths.s, "quat": paths.quat, "position": paths.position,
                                    "velocity": np.zeros((S - 1, 6))})
 
-    def _tol2(self, seen_phase):
-        """r² of the seen poses when the last seen one lies at ``seen_phase`` (any shape)."""
-        return np.full(np.shape(seen_phase), self.tolerance ** 2)
-
     # -------------------------------------------------------------- the duration's weights (batched)
     def _reference(self, phases):
         """The mean path's poses at phases (any shape): quat (..., 4), position (..., 3)."""
@@ -391,7 +387,7 @@ class Anticipator:
                paths.observe([min(tau[-1] / D, 1.0)], last_q[None], last_p[None], exact=True),
                paths.observe_duration(D, tolerance=_ELL_TOL * self.lscale)]
         A, y, r2 = paths.stack(*obs)
-        r2[: 6 * len(tau)] = self._tol2(min(tau[-1] / D, 1.0))
+        r2[: 6 * len(tau)] = self.tolerance ** 2
         return A, y, r2
 
     def _gain(self, A, r2):
