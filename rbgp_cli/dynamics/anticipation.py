@@ -12,7 +12,10 @@ the shortest demonstration to twice the longest, those shorter than the seen spa
 
     w_g ∝ N( (y(D_g), ln D_g) | A_g m, A_g Σ A_gᵀ + R ),     y_k(D) = (log(R_k R̄(τ_k/D)ᵀ), p_k − p̄(τ_k/D)) / σ,
 
-(after Maeda et al. 2017's phase estimation; a log-spaced grid makes the weight the density of ln D).
+(after Maeda et al. 2017's phase estimation; a log-spaced grid makes the weight the density of ln D). The
+weights (and the estimate's end pose) use their own τ² and r (``paths.duration_smooth``,
+``paths.duration_tolerance``: :func:`fit_seen` keeps (0.01, 0.8) or the distribution's own, whichever estimated
+the left-out demonstrations' durations better); the conditioning of the rest uses the distribution's.
 The predicted end time is t_0 + D with D's weighted median and 5 %/95 % quantiles; the phase of the last
 seen sample is span / D̂ (D̂ the weighted median). One batched solve over the grid gives the weights and,
 per D_g, the conditioned end pose: the end pose's mean and band are the mixture's.
