@@ -220,9 +220,22 @@ class Anticipator:
 
     # -------------------------------------------------------------- the duration's weights (batched)
     def _reference(self, phases):
-        """The mean path's poses at phases (any shape): quat (..., 4), position (..., 3)."""
-        q, p, _ = self._ref.at(np.asarray(phases, dtype=np.float64).reshape(-1))
-        return q.reshape(np.shape(phases) + (4,)), p.reshape(np.shape(phases) + (3,))
+        """The mean path's poses at phases (any shape, clamped to [0, 1]): quat (..., 4), position (..., 3).
+        The slerp of :meth:`PathReference.at <rbgp_cli.dynamics.model.PathReference.at>` without its sign
+        continuity along the phases (every caller takes a canonical log of these quaternions, which does not
+        see the sign) and without the velocity: the live update calls it twice per pose."""
+        from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
+
+        ref = self._ref
+        shape = np.shape(phases)
+        x = ref.s
+        s = np.clip(np.asarray(phases, dtype=np.float64).reshape(-1), x[0], x[-1])
+        k = np.clip(np.searchsorted(x, s, side="right") - 1, 0, len(x) - 2)
+        f = np.clip((s - x[k]) / (x[k + 1] - x[k]), 0.0, 1.0)
+        q = quat_multiply(ref._q0[k], exp_quat(f[:, None] * ref._phi[k]))
+        q = np.where((f == 0.0)[:, None], ref.quat[k], np.where((f == 1.0)[:, None], ref.quat[k + 1], q))
+        p = (1.0 - f)[:, None] * ref.position[k] + f[:, None] * ref.position[k + 1]
+        return q.reshape(shape + (4,)), p.reshape(shape + (3,))
 
     def _low_rank(self):
         """Σ = U Uᵀ + τ² (K_ℓ ⊗ I_6 ⊕ 1) (:meth:`PathDistribution.prior`): U (P, D), K_ℓ (S, S) on the grid,
