@@ -12,7 +12,10 @@ the shortest demonstration to twice the longest, those shorter than the seen spa
 
     w_g ∝ N( (y(D_g), ln D_g) | A_g m, A_g Σ A_gᵀ + R ),     y_k(D) = (log(R_k R̄(τ_k/D)ᵀ), p_k − p̄(τ_k/D)) / σ,
 
-(after Maeda et al. 2017's phase estimation; a log-spaced grid makes the weight the density of ln D).
+(after Maeda et al. 2017's phase estimation; a log-spaced grid makes the weight the density of ln D). The
+weights (and the estimate's end pose) use their own τ² and r (``paths.duration_smooth``,
+``paths.duration_tolerance``: :func:`fit_seen` keeps (0.01, 0.8) or the distribution's own, whichever estimated
+the left-out demonstrations' durations better); the conditioning of the rest uses the distribution's.
 The predicted end time is t_0 + D with D's weighted median and 5 %/95 % quantiles; the phase of the last
 seen sample is span / D̂ (D̂ the weighted median). One batched solve over the grid gives the weights and,
 per D_g, the conditioned end pose: the end pose's mean and band are the mixture's.
@@ -50,7 +53,8 @@ import numpy as np
 from rbgp_cli.errors import InputError
 
 __all__ = ["Anticipator", "Anticipation", "Continuation", "anticipate", "fit_seen", "Follower",
-           "SEEN_TOLERANCE_GRID", "SEEN_FRACTIONS", "SEEN_POINTS", "DURATION_GRID"]
+           "SEEN_TOLERANCE_GRID", "SEEN_FRACTIONS", "SEEN_POINTS", "DURATION_GRID", "DURATION_SMOOTH_GRID",
+           "DURATION_TOLERANCE_GRID"]
 
 #: Regularising tolerances r tried by :func:`fit_seen` (units of each coordinate's spread).
 SEEN_TOLERANCE_GRID = (0.05, 0.1, 0.2, 0.4, 0.8, 1.6, 3.2)
@@ -69,6 +73,12 @@ OFF_DISTANCE = 3.5
 #: at the next update (unless it neighbours one that is); every cell is, for the first ACTIVE_AFTER poses
 ACTIVE_WEIGHT = 1e-6
 ACTIVE_AFTER = 8
+#: The duration's weights have their own τ² (smooth shrinkage) and seen tolerance r (units of each coordinate's
+#: spread), chosen by :func:`fit_seen` from these and the path distribution's own τ² and r (docs/defaults.md)
+DURATION_SMOOTH_GRID = (0.01,)
+DURATION_TOLERANCE_GRID = (0.8,)
+#: Groups the demonstrations are left out in when :func:`fit_seen` chooses the duration's τ² and r
+DURATION_FOLDS = 5
 #: Tolerance of the exactly observed ln D (in units of ln D's spread) and of the last seen pose.
 _ELL_TOL = 1e-4
 
@@ -177,7 +187,8 @@ class Anticipator:
     conditioned path)."""
 
     def __init__(self, paths, model=None, *, points: int = SEEN_POINTS, grid_size: int = DURATION_GRID,
-                 tolerance: float | None = None):
+                 tolerance: float | None = None, duration_smooth: float | None = None,
+                 duration_tolerance: float | None = None):
         if paths is None:
             raise InputError("this model has no path distribution to predict a motion under way (fewer than three "
                              "demonstrations, or a model file from an older rbgp)", hint="retrain it with rbgp train")
@@ -185,6 +196,14 @@ class Anticipator:
         self.model = model
         self.points = int(points)
         self.tolerance = float(paths.seen_tolerance if tolerance is None else tolerance)
+        # the duration's weights (and the estimate's end pose) with their own τ² and r (module docstring):
+        # given, else fit_seen's choice, else the path distribution's τ² and seen tolerance
+        if duration_smooth is None:
+            duration_smooth = getattr(paths, "duration_smooth", None)
+        if duration_tolerance is None:
+            duration_tolerance = getattr(paths, "duration_tolerance", None)
+        self.duration_smooth = float(paths.smooth if duration_smooth is None else duration_smooth)
+        self.duration_tolerance = float(self.tolerance if duration_tolerance is None else duration_tolerance)
         self.m, self.Sigma = paths.prior()
         self.scale = paths.scale
         self.lscale = paths.duration_scale
@@ -201,9 +220,22 @@ class Anticipator:
 
     # -------------------------------------------------------------- the duration's weights (batched)
     def _reference(self, phases):
-        """The mean path's poses at phases (any shape): quat (..., 4), position (..., 3)."""
-        q, p, _ = self._ref.at(np.asarray(phases, dtype=np.float64).reshape(-1))
-        return q.reshape(np.shape(phases) + (4,)), p.reshape(np.shape(phases) + (3,))
+        """The mean path's poses at phases (any shape, clamped to [0, 1]): quat (..., 4), position (..., 3).
+        The slerp of :meth:`PathReference.at <rbgp_cli.dynamics.model.PathReference.at>` without its sign
+        continuity along the phases (every caller takes a canonical log of these quaternions, which does not
+        see the sign) and without the velocity: the live update calls it twice per pose."""
+        from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
+
+        ref = self._ref
+        shape = np.shape(phases)
+        x = ref.s
+        s = np.clip(np.asarray(phases, dtype=np.float64).reshape(-1), x[0], x[-1])
+        k = np.clip(np.searchsorted(x, s, side="right") - 1, 0, len(x) - 2)
+        f = np.clip((s - x[k]) / (x[k + 1] - x[k]), 0.0, 1.0)
+        q = quat_multiply(ref._q0[k], exp_quat(f[:, None] * ref._phi[k]))
+        q = np.where((f == 0.0)[:, None], ref.quat[k], np.where((f == 1.0)[:, None], ref.quat[k + 1], q))
+        p = (1.0 - f)[:, None] * ref.position[k] + f[:, None] * ref.position[k + 1]
+        return q.reshape(shape + (4,)), p.reshape(shape + (3,))
 
     def _low_rank(self):
         """Σ = U Uᵀ + τ² (K_ℓ ⊗ I_6 ⊕ 1) (:meth:`PathDistribution.prior`): U (P, D), K_ℓ (S, S) on the grid,
@@ -216,7 +248,7 @@ class Anticipator:
             U = (X - X.mean(axis=0)).T * np.sqrt((1.0 + 1.0 / D) / max(D - 1, 1))
             s = paths.s
             Ks = np.exp(-0.5 * ((s[:, None] - s[None, :]) / paths.length) ** 2)
-            lr = self._lr = (U, Ks, float(paths.smooth))
+            lr = self._lr = (U, Ks, self.duration_smooth)
         return lr
 
     def _grid_terms(self, tau, q, p, grid):
@@ -244,33 +276,41 @@ class Anticipator:
         Kend = g0 * Ks[k, S - 1] + g1 * Ks[k + 1, S - 1]
         eye6 = np.eye(6)
         k6 = 6 * n + 1
-        G = np.empty((G_, k6, k6))
+        # one Cholesky factor of the bordered matrix M = [[G, B], [Bᵀ, c I]], B = (e, Σ_oE) (k6, 7): its
+        # first k6 rows are G's factor L, the next 7 hold (L⁻¹ B)ᵀ (they do not depend on c; c only keeps M
+        # positive definite), so eᵀG⁻¹e, Σ_Eo G⁻¹ e and Σ_Eo G⁻¹ Σ_oE come without a second solve
+        M = np.zeros((G_, k6 + 7, k6 + 7))
+        G = M[:, :k6, :k6]
         G[:, :-1, :-1] = AU @ AU.transpose(0, 2, 1) + tau2 * (Kint[:, :, None, :, None] * eye6[None, None, :, None, :]).reshape(G_, 6 * n, 6 * n)
         uL = U[P - 1]
         G[:, :-1, -1] = AU @ uL
         G[:, -1, :-1] = G[:, :-1, -1]
         G[:, -1, -1] = uL @ uL + tau2 + _ELL_TOL ** 2
         d = np.arange(6 * n)
-        G[:, d, d] += self.tolerance ** 2
+        G[:, d, d] += self.duration_tolerance ** 2
         E = self._end
         UE = U[E]  # (6, D)
-        SoE = np.empty((G_, k6, 6))
+        SoE = M[:, :k6, k6 + 1:]
         SoE[:, :-1] = AU @ UE.T + tau2 * (Kend[:, :, None, None] * eye6[None, None]).reshape(G_, 6 * n, 6)
         SoE[:, -1] = UE @ uL
         SEE = UE @ UE.T + tau2 * eye6
         # observations and their prior means
         ref_q, ref_p = self._reference(ph)
         y = pose_deviation(ref_q, ref_p, np.broadcast_to(q, (G_, n, 4)), np.broadcast_to(p, (G_, n, 3))) / self.scale
-        e = np.empty((G_, k6))
+        e = M[:, :k6, k6]
         e[:, :-1] = y.reshape(G_, 6 * n) - (w0 * self.m[I0] + w1 * self.m[I0 + 6])
         e[:, -1] = np.log(grid) / self.lscale - self.m[-1]
-        L = np.linalg.cholesky(G)
-        sol = np.linalg.solve(G, np.concatenate([e[:, :, None], SoE], axis=2))  # (G, k6, 7)
-        quad = np.einsum("gk,gk->g", e, sol[:, :, 0])
-        logdet = 2.0 * np.sum(np.log(np.diagonal(L, axis1=1, axis2=2)), axis=1)
+        M[:, k6:, :k6] = M[:, :k6, k6:].transpose(0, 2, 1)
+        big = 1e100  # ≫ any Bᵀ G⁻¹ B here (G ≥ the tolerances' r² > 1e-9 on its diagonal)
+        M[:, np.arange(k6, k6 + 7), np.arange(k6, k6 + 7)] = big
+        L = np.linalg.cholesky(M)
+        Le = L[:, k6, :k6]  # (G, k6) L⁻¹ e
+        LS = L[:, k6 + 1:, :k6]  # (G, 6, k6) (L⁻¹ Σ_oE)ᵀ
+        quad = np.einsum("gk,gk->g", Le, Le)
+        logdet = 2.0 * np.sum(np.log(np.diagonal(L[:, :k6, :k6], axis1=1, axis2=2)), axis=1)
         logw = -0.5 * quad - 0.5 * logdet
-        end_mean = self.m[E][None] + np.einsum("gkj,gk->gj", SoE, sol[:, :, 0])
-        end_cov = SEE[None] - np.einsum("gki,gkj->gij", SoE, sol[:, :, 1:])
+        end_mean = self.m[E][None] + np.einsum("gjk,gk->gj", LS, Le)
+        end_cov = SEE[None] - np.einsum("gik,gjk->gij", LS, LS)
         return logw, end_mean, end_cov, quad, k6
 
     def weights(self, t, quat, position, checked: bool = False, active=None):
@@ -304,12 +344,7 @@ class Anticipator:
 
         t = terms["seen"][0]
         t0, span = float(t[0]), terms["span"]
-        # quantiles of ln D: each grid value's weight spread evenly over its cell (half a step each side)
-        lg = np.log(grid)
-        edges = np.concatenate([[lg[0] - self._half_step], lg + self._half_step])
-        cw = np.concatenate([[0.0], np.cumsum(w)])
-        q = [float(np.exp(np.interp(a, cw, edges))) for a in (0.05, 0.5, 0.95)]
-        q = [max(x, span) for x in q]
+        q = self._duration_quantiles(grid, w, span)
         D = q[1]
         # the end pose: moments of the mixture over the grid (scaled units), then unscaled
         mu = np.einsum("g,gj->j", w, terms["end_mean"])
@@ -336,6 +371,14 @@ class Anticipator:
                             end_time=t0 + D, end_time_band=(t0 + q[0], t0 + q[2]), end_quat=end_q, end_position=end_p,
                             end_rotation_band=float(rot_band), end_position_band=pos_band, off=off,
                             distance=float(dist))
+
+    def _duration_quantiles(self, grid, w, span) -> list:
+        """The 5 %, 50 % and 95 % quantiles of D (s, at least the seen span) from the weights over the grid, each
+        grid value's weight spread evenly over its cell in ln D (half a step each side)."""
+        lg = np.log(grid)
+        edges = np.concatenate([[lg[0] - self._half_step], lg + self._half_step])
+        cw = np.concatenate([[0.0], np.cumsum(w)])
+        return [max(float(np.exp(x)), span) for x in np.interp((0.05, 0.5, 0.95), cw, edges)]
 
     def _distance(self, quat, position, phase) -> float:
         """The Mahalanobis distance of a pose's deviation at ``phase`` under the prior's marginal there (the
@@ -573,10 +616,12 @@ def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS)
     return total / count
 
 
-def fit_seen(paths, *, level: float = 0.90):
+def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True):
     """Choose the seen poses' regularising tolerance r and the bands' factors of a motion under way by
     leaving demonstrations out (module docstring); sets ``paths.seen_tolerance`` and
-    ``paths.seen_band_scale`` and returns ``paths``."""
+    ``paths.seen_band_scale`` and returns ``paths``. With the demonstrations ``trajs`` (in the path
+    distribution's order) and ``duration``, also the duration weights' own τ² and r
+    (:func:`_duration_loo`; ``paths.duration_smooth``, ``paths.duration_tolerance``)."""
     from scipy.special import fdtri, stdtrit
 
     scores = dict(zip(SEEN_TOLERANCE_GRID, _seen_loo(paths, SEEN_TOLERANCE_GRID)))
@@ -588,7 +633,54 @@ def fit_seen(paths, *, level: float = 0.90):
     paths.seen_tolerance = float(r)
     paths.seen_band_scale = (max(1.0, float(c_rot)), max(1.0, float(c_pos)))
     paths.info = dict(paths.info or {}, seen_tolerance=float(r), seen_loo_log_density=float(scores[r]))
+    if duration:
+        errors = _duration_loo(paths, trajs)
+        if errors:
+            (paths.duration_smooth, paths.duration_tolerance) = min(errors, key=errors.get)
+            paths.info.update(duration_smooth=paths.duration_smooth, duration_tolerance=paths.duration_tolerance,
+                              duration_loo_error=float(errors[(paths.duration_smooth, paths.duration_tolerance)]))
     return paths
+
+
+def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6, grid_size: int = 16) -> dict:
+    """The duration's τ² and r by leaving demonstrations out on the task itself: the demonstrations in
+    ``folds`` groups; each group's first F (each of SEEN_FRACTIONS) seen on its own clock, its duration
+    estimated (the weights' median; with ``points`` seen poses and ``grid_size`` durations, as the live
+    :class:`Follower`'s, for speed) by the others' path distribution with each
+    candidate (τ², r): those of :data:`DURATION_SMOOTH_GRID` × :data:`DURATION_TOLERANCE_GRID`, and the path
+    distribution's own τ² and seen tolerance. Returns {(τ², r): mean |ln D̂ − ln D|} ({} without the trajectories or with
+    fewer than MIN_PATH_DEMOS + 1 demonstrations)."""
+    import copy
+
+    from rbgp_cli.dynamics.paths import MIN_PATH_DEMOS
+
+    if trajs is None or len(trajs) != paths.demos or paths.demos < MIN_PATH_DEMOS + 1:
+        return {}
+    D = paths.demos
+    candidates = sorted({(float(a), float(b)) for a in DURATION_SMOOTH_GRID for b in DURATION_TOLERANCE_GRID}
+                        | {(float(paths.smooth), float(paths.seen_tolerance))})
+    err = {c: 0.0 for c in candidates}
+    count = 0
+    order = np.random.default_rng(np.random.SeedSequence([37, D])).permutation(D)
+    for group in np.array_split(order, min(int(folds), D)):
+        keep = np.setdiff1d(np.arange(D), group)
+        if len(keep) < MIN_PATH_DEMOS:
+            continue
+        rest = copy.copy(paths)
+        rest.deviations, rest.log_durations = paths.deviations[keep], paths.log_durations[keep]
+        rest.duration_smooth = rest.duration_tolerance = None
+        ants = {c: Anticipator(rest, None, points=points, grid_size=grid_size, duration_smooth=c[0],
+                               duration_tolerance=c[1]) for c in candidates}
+        for d in group:  # a loop over the left-out demonstrations and fractions, each one batched estimate
+            tr = trajs[d]
+            for F in SEEN_FRACTIONS:
+                k = int(np.clip(np.argmin(np.abs(tr.t - (tr.t[0] + F * tr.duration))), 1, len(tr.t) - 1))
+                for c, ant in ants.items():
+                    grid, w, terms = ant.weights(tr.t[: k + 1], tr.quat[: k + 1], tr.position[: k + 1])
+                    D_hat = ant._duration_quantiles(grid, w, terms["span"])[1]
+                    err[c] += abs(np.log(max(D_hat, 1e-9)) - paths.log_durations[d])
+                count += 1
+    return {c: e / count for c, e in err.items()} if count else {}
 
 
 # ----------------------------------------------------------------------------------------- streams

@@ -162,6 +162,10 @@ class PathDistribution:
     info: dict = field(default_factory=dict)
     #: (c_rot, c_pos) ≥ 1 on the draws of a motion under way (:func:`rbgp_cli.dynamics.anticipation.fit_seen`)
     seen_band_scale: tuple = (1.0, 1.0)
+    #: τ² and r of a motion under way's duration weights (:func:`rbgp_cli.dynamics.anticipation.fit_seen`; None:
+    #: ``smooth`` and ``seen_tolerance``)
+    duration_smooth: float | None = None
+    duration_tolerance: float | None = None
     #: :meth:`goal_band_scale`, computed once
     _goal_scale: tuple | None = field(default=None, repr=False, compare=False)
 
@@ -408,7 +412,9 @@ class PathDistribution:
         return {"demos": self.demos, "steps": self.S, "smooth": float(self.smooth), "length": float(self.length),
                 "seen_tolerance": float(self.seen_tolerance),
                 "band_scale": {"rotation": float(self.band_scale[0]), "position": float(self.band_scale[1])},
-                "seen_band_scale": {"rotation": float(self.seen_band_scale[0]), "position": float(self.seen_band_scale[1])}}
+                "seen_band_scale": {"rotation": float(self.seen_band_scale[0]), "position": float(self.seen_band_scale[1])},
+                **({"duration_smooth": float(self.duration_smooth)} if self.duration_smooth is not None else {}),
+                **({"duration_tolerance": float(self.duration_tolerance)} if self.duration_tolerance is not None else {})}
 
     @classmethod
     def from_arrays(cls, arrays: dict, header: dict) -> "PathDistribution":
@@ -420,7 +426,9 @@ class PathDistribution:
                    f(arrays["paths_deviations"], float), f(arrays["paths_log_durations"], float),
                    float(header["smooth"]), float(header["length"]), float(header["seen_tolerance"]),
                    (float(bs["rotation"]), float(bs["position"])),
-                   seen_band_scale=(float(ss["rotation"]), float(ss["position"])))
+                   seen_band_scale=(float(ss["rotation"]), float(ss["position"])),
+                   duration_smooth=None if header.get("duration_smooth") is None else float(header["duration_smooth"]),
+                   duration_tolerance=None if header.get("duration_tolerance") is None else float(header["duration_tolerance"]))
 
 
 # ---------------------------------------------------------------------- fitting
@@ -512,5 +520,5 @@ def fit_paths(trajs, steps: int = 51, *, level: float = 0.90) -> PathDistributio
     paths.info = {"loo_log_density": float(score), "smooth": paths.smooth, "length": paths.length}
     from rbgp_cli.dynamics.anticipation import fit_seen
 
-    fit_seen(paths)  # the seen poses' tolerance and the bands of a motion under way (issue 37)
+    fit_seen(paths, trajs)  # the seen poses' tolerance, the duration's τ² and r, the bands of a motion under way (issue 37)
     return paths

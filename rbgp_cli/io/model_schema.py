@@ -267,6 +267,9 @@ TOP: dict = {
         # optional: the bands of a motion under way (issue 37)
         "seen_band_scale": obj({"rotation": num(1.0, 1e6, what="a factor of at least 1"),
                                 "position": num(1.0, 1e6, what="a factor of at least 1")}, ("rotation", "position")),
+        # optional: a motion under way's duration weights, their own τ² and tolerance (issue 37)
+        "duration_smooth": num(0.0, 1e6, what="a non-negative variance"),
+        "duration_tolerance": num(0.0, 1e6, what="a non-negative tolerance"),
     }, ("demos", "steps", "smooth", "length", "seen_tolerance", "band_scale")))),
 }
 

@@ -37,7 +37,9 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
   beginning condition (:class:`rbgp_cli.dynamics.paths.PathDistribution`): header ``paths`` (demos,
   steps, smooth, length, seen_tolerance, band_scale) and arrays ``paths_s`` (S,), ``paths_quat`` (S, 4),
   ``paths_position`` (S, 3), ``paths_deviations`` (D, S, 6), ``paths_log_durations`` (D,). Optional:
-  files without it load, and refuse a goal or a seen beginning with a message to retrain.
+  files without it load, and refuse a goal or a seen beginning with a message to retrain. Optional in
+  ``paths`` (issue 37): ``seen_band_scale``, and ``duration_smooth`` / ``duration_tolerance`` (a motion under
+  way's duration weights; files without them weigh durations with ``smooth`` and ``seen_tolerance``).
 * Version 9 (what this rbgp writes): the deviation process says how much its covariance between
   coordinates is shrunk (``variation.shrinkage``: α in [0, 1],
   :func:`rbgp_cli.dynamics.variation.shrinkage`), which its draws follow; files without it draw with

@@ -1,0 +1,87 @@
+"""The duration's weights of a motion under way with their own smooth shrinkage and seen tolerance
+(issue 37): the batched grid terms against an independent computation with the whole covariance."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from rbgp_cli.dynamics.anticipation import Anticipator
+from rbgp_cli.dynamics.paths import fit_paths
+from rbgp_cli.dynamics.trajectory import Trajectory
+
+from .test_anticipation import family
+
+
+@pytest.fixture(scope="module")
+def paths():
+    demos, _ = family(12, 3)
+    return fit_paths(demos)
+
+
+def _even(tr, F, n):
+    """The first F of a motion, resampled to n evenly spaced samples (so that the anticipator's seen poses are
+    the samples themselves, as the full computation takes them)."""
+    from rbgp_cli.dynamics.trajectory import interpolate_poses
+
+    span = F * tr.duration
+    t = tr.t[0] + np.linspace(0.0, span, n)
+    q, p = interpolate_poses(tr.t, tr.quat, tr.position, t)
+    return Trajectory(t, q, p)
+
+
+@pytest.mark.parametrize("smooth,tolerance", [(0.01, 0.8), (0.3, 3.2), (0.003, 0.2)])
+def test_the_duration_weights_and_end_pose_equal_the_full_covariance_computation(paths, smooth, tolerance):
+    """Anticipator's weights over the duration grid with its own τ² and r equal those of
+    PathDistribution.duration_posterior (a loop over the grid with Σ's 307 × 307 entries) on a distribution
+    whose τ² and seen tolerance are those values; the end pose's mean and covariance per duration equal the
+    Gaussian conditional of PathDistribution.condition."""
+    ant = Anticipator(paths, None, points=8, grid_size=12, duration_smooth=smooth, duration_tolerance=tolerance)
+    ref = copy.copy(paths)
+    ref.smooth, ref.seen_tolerance = smooth, tolerance
+    tr = family(1, 11)[0][0]
+    for F in (0.25, 0.6):
+        seen = _even(tr, F, 8)
+        grid, w, terms = ant.weights(seen.t, seen.quat, seen.position)
+        g2, w2 = ref.duration_posterior(seen.t, seen.quat, seen.position, grid=grid, points=8)
+        np.testing.assert_allclose(w, w2, rtol=1e-4, atol=1e-10)
+        live = (w > 1e-250) & (w2 > 1e-250)  # the log weights compare where both are representable
+        assert live.sum() >= 4  # several durations: the comparison means something
+        np.testing.assert_allclose(np.log(w[live]), np.log(w2[live]), rtol=1e-5, atol=1e-3)
+        for g in (0, int(np.argmax(w)), len(grid) - 1):
+            A, y, r2 = ref.stack(ref.observe((seen.t - seen.t[0]) / grid[g], seen.quat, seen.position),
+                                 ref.observe_duration(grid[g], tolerance=1e-4 * ref.duration_scale))
+            c = ref.condition(A, y, r2)
+            E = slice(6 * (ref.S - 1), 6 * ref.S)
+            np.testing.assert_allclose(terms["end_mean"][g], c.mean[E], rtol=1e-6, atol=1e-8)
+            np.testing.assert_allclose(terms["end_cov"][g], c.cov[E, E], rtol=1e-6, atol=1e-8)
+
+
+def test_the_duration_has_its_own_tau_and_tolerance_chosen_on_the_task(paths):
+    """fit_paths chooses the duration weights' τ² and r as the candidate whose left-out duration error is
+    smallest (so never worse there than the path distribution's own τ² and r); the anticipator uses them by
+    default, arguments override them, None on the distribution falls back on its τ² and seen tolerance; a
+    model file's header keeps them."""
+    from rbgp_cli.dynamics.anticipation import _duration_loo
+    from rbgp_cli.dynamics.paths import PathDistribution
+
+    demos, _ = family(12, 3)
+    errors = _duration_loo(paths, demos)
+    chosen = (paths.duration_smooth, paths.duration_tolerance)
+    assert chosen == min(errors, key=errors.get)
+    assert errors[chosen] <= errors[(paths.smooth, paths.seen_tolerance)]
+    assert 0.0 < errors[chosen] < 0.1  # |ln D̂ − ln D| of a family whose durations vary by 20 %
+    ant = Anticipator(paths, None)
+    assert (ant.duration_smooth, ant.duration_tolerance) == chosen
+    assert Anticipator(paths, None, duration_smooth=0.5, duration_tolerance=2.0).duration_tolerance == 2.0
+    plain = copy.copy(paths)
+    plain.duration_smooth = plain.duration_tolerance = None
+    same = Anticipator(plain, None)
+    assert (same.duration_smooth, same.duration_tolerance) == (paths.smooth, paths.seen_tolerance)
+    np.testing.assert_array_equal(ant.Sigma, same.Sigma)  # the conditioning's prior is the same
+    back = PathDistribution.from_arrays(paths.to_arrays(), paths.header())
+    assert (back.duration_smooth, back.duration_tolerance) == chosen
+    old = {k: v for k, v in paths.header().items() if not k.startswith("duration_")}
+    assert PathDistribution.from_arrays(paths.to_arrays(), old).duration_smooth is None  # older model files
