@@ -123,11 +123,12 @@ class GaussianProcess:
         return [(f, [l]) for l, f in enumerate(self.fits)]
 
     def _factorise(self) -> None:
-        """Cholesky factors and α for every group, with each fit's recorded jitter; verified."""
+        """Cholesky factors and α for every group, with each fit's recorded jitter; verified. The
+        groups run on threads where cores are free (:func:`_over_groups`: the same numbers)."""
         pre = self.kernel.precompute(self.X)
-        self._L = []
-        self._alpha = []
-        for fit, outs in self.group_outputs():
+
+        def one(group):
+            fit, outs = group
             K, _ = self.kernel.gram(pre, fit.values)
             s2 = fit.values[NOISE] ** 2
             c = cholesky(K, s2, fit.jitter)
@@ -137,10 +138,14 @@ class GaussianProcess:
                     "the stored hyperparameters do not give a well-conditioned positive definite covariance",
                     hint="refit the model (rbgp train)",
                 )
+            del K
             y = self.Y[:, outs] / self.y_scale[outs]
             alpha, _ = lapack.dpotrs(c, np.asfortranarray(y), lower=1)
-            self._L.append(np.tril(c))
-            self._alpha.append(np.asarray(alpha))
+            return np.tril(c), np.asarray(alpha)
+
+        done = _over_groups(self.group_outputs(), one)
+        self._L = [L for L, _a in done]
+        self._alpha = [a for _L, a in done]
 
     def predict(self, Xs, return_std: bool = False, noisy: bool = False, chunk_elements: int = 2_000_000,
                 manage_threads: bool = True):
@@ -415,12 +420,33 @@ def fit_gp(
         return _fit_gp(X, Y, kernel, o, seed, shared, progress, explore, jobs, task)
 
 
+def _over_groups(groups, one) -> list:
+    """``[one(g) for g in groups]``, the groups (hyperparameter sets) shared between threads where cores
+    are free (:func:`rbgp_cli.compute.thread_workers`), at most one set per thread at a time (each holds
+    a few n × n matrices). Each set's numbers are those of the loop: LAPACK releases the GIL, and the
+    callers run BLAS single-threaded (a 2000-point Cholesky per set, six sets: the posterior of the
+    default exact GP after its fit, and every model file loaded)."""
+    groups = list(groups)
+    threads = min(len(groups), thread_workers(len(groups), 2))
+    if threads <= 1:
+        return [one(g) for g in groups]
+
+    def share(k):
+        return [one(g) for g in groups[k::threads]]
+
+    done = [None] * len(groups)
+    for k, part in enumerate(thread_pool("posterior").map(share, range(threads))):
+        done[k::threads] = part
+    return done
+
+
 def _posterior_on_all_rows(gp: GaussianProcess, X, Y) -> GaussianProcess | None:
     """The exact posterior on all rows X (n, d), Y (n, L) at the hyperparameters ``gp`` fitted on a
     subset of them: per hyperparameter set C = K + (σn² + jitter) I with the jitter of
     :func:`rbgp_cli.gp.likelihood.accept` on all rows (its rcond and positive definiteness recorded
     in the fit), L its Cholesky factor and α = C⁻¹ y; None where a set fails those checks or (an
-    indefinite kernel) the noise margin."""
+    indefinite kernel) the noise margin. The sets run on threads where cores are free (LAPACK releases
+    the GIL, BLAS is single-threaded here: the same numbers as one after the other)."""
     from dataclasses import replace
 
     from rbgp_cli.gp.likelihood import accept, meets_margin
@@ -428,8 +454,9 @@ def _posterior_on_all_rows(gp: GaussianProcess, X, Y) -> GaussianProcess | None:
     kernel = gp.kernel
     pre = kernel.precompute(X)
     Y2 = np.asarray(Y, dtype=np.float64).reshape(len(X), -1)
-    fits, factors = [], []
-    for fit, outs in gp.group_outputs():
+
+    def one(group):
+        fit, outs = group
         K, _ = kernel.gram(pre, fit.values)
         if not meets_margin(kernel, pre, fit.values, K):
             return None
@@ -437,10 +464,15 @@ def _posterior_on_all_rows(gp: GaussianProcess, X, Y) -> GaussianProcess | None:
         jitter, rc, pd, c = accept(kernel, pre, y, fit.values, K)
         if jitter is None:
             return None
+        del K
         alpha, _info = lapack.dpotrs(c, np.asfortranarray(y), lower=1)
-        fits.append(replace(fit, jitter=float(jitter), rcond=rc, positive_definite=pd))
-        factors.append((np.tril(c), np.asarray(alpha)))
-    return GaussianProcess(kernel, X, Y2, fits, shared=gp.shared, y_scale=gp.y_scale, factors=factors)
+        return replace(fit, jitter=float(jitter), rcond=rc, positive_definite=pd), (np.tril(c), np.asarray(alpha))
+
+    done = _over_groups(gp.group_outputs(), one)
+    if any(r is None for r in done):
+        return None
+    return GaussianProcess(kernel, X, Y2, [r[0] for r in done], shared=gp.shared, y_scale=gp.y_scale,
+                           factors=[r[1] for r in done])
 
 
 def _fit_gp(X, Y, kernel, o, seed, shared, progress, explore, jobs, task):
