@@ -184,7 +184,11 @@ def _with_fits(gp: Posterior, fits: list) -> Posterior:
     else:
         from rbgp_cli.gp.exact import GaussianProcess
 
-        new = GaussianProcess(gp.kernel, gp.X, gp.Y, fits, shared=gp.shared, y_scale=gp.y_scale)
+        # σn² only grew from the fit's (factors ≥ 1): K + σn²I stays positive definite (and an indefinite
+        # kernel's noise margin holds), so the factorisation waits for the first prediction (rbgp train
+        # writes the model without one: six n × n Cholesky factorisations saved); else checked here
+        grew = all(float(f.values[NOISE]) >= float(g.values[NOISE]) for f, g in zip(fits, gp.fits))
+        new = GaussianProcess(gp.kernel, gp.X, gp.Y, fits, shared=gp.shared, y_scale=gp.y_scale, lazy=grew)
     if hasattr(gp, "fit_seconds"):
         new.fit_seconds = gp.fit_seconds
     return new

@@ -86,12 +86,13 @@ class GaussianProcess:
     (``shared``), each with its Cholesky factor and its α = C⁻¹ y (on the RMS-scaled outputs
     y / scale in shared mode; predictions are scaled back). ``factors``: per group (L, α) as
     :func:`fit_gp` has just computed and checked them; without it they are computed and checked here
-    (a loaded model). Predictions build the kernel block against X from matrix products
+    (a loaded model), or with ``lazy`` at the first prediction (a posterior whose σn² only grew from
+    checked ones: :func:`rbgp_cli.gp.calibration.scale_noise`). Predictions build the kernel block against X from matrix products
     (:meth:`Kernel.cross_plan`, :meth:`Kernel.cross_gram`).
     """
 
     def __init__(self, kernel: Kernel, X: np.ndarray, Y: np.ndarray, fits: list, shared: bool, y_scale=None, *,
-                 factors=None):
+                 factors=None, lazy: bool = False):
         self.kernel = kernel
         self.X = np.ascontiguousarray(X, dtype=np.float64)
         self.Y = np.ascontiguousarray(np.asarray(Y, dtype=np.float64).reshape(len(X), -1))
@@ -99,12 +100,9 @@ class GaussianProcess:
         self.shared = bool(shared)
         self.y_scale = np.ones(self.Y.shape[1]) if y_scale is None else np.asarray(y_scale, dtype=np.float64)
         if factors is None:
-            # single-threaded, as the fit that made them: a lone `rbgp rollout --count 60` at n = 1208
-            # spent up to 4.7x the CPU of one thread here (two Cholesky factorisations per group on
-            # the BLAS pool, whose threads then spin-wait), and was slower in wall time too (issue 24;
-            # benchmarks/bench_rollout.py --threads)
-            with blas_threads(0):
-                self._factorise()
+            self._L = self._alpha = None
+            if not lazy:  # else factorised at the first prediction (rbgp train writes the calibrated
+                self._ensure_factors()  # posterior without ever predicting with it)
         else:
             # from fit_gp, which has just computed and checked them: per group (L, α)
             self._L = [np.asarray(Lc) for Lc, _a in factors]
@@ -121,6 +119,15 @@ class GaussianProcess:
         if self.shared:
             return [(self.fits[0], list(range(self.n_outputs)))]
         return [(f, [l]) for l, f in enumerate(self.fits)]
+
+    def _ensure_factors(self) -> None:
+        """Factorise (:meth:`_factorise`) unless done. Single-threaded BLAS, as the fit that made the
+        hyperparameters: a lone `rbgp rollout --count 60` at n = 1208 spent up to 4.7x the CPU of one
+        thread here (two Cholesky factorisations per group on the BLAS pool, whose threads then
+        spin-wait), and was slower in wall time too (issue 24; benchmarks/bench_rollout.py --threads)."""
+        if self._L is None:
+            with blas_threads(0):
+                self._factorise()
 
     def _factorise(self) -> None:
         """Cholesky factors and α for every group, with each fit's recorded jitter; verified. The
@@ -194,7 +201,8 @@ class GaussianProcess:
             # at least one chunk per worker, so that large predictions use every core
             step = min(step, -(-m // workers))
         starts = range(0, m, step)
-        self._cross_plan()  # before any threads
+        self._ensure_factors()  # before any threads (a lazily built posterior)
+        self._cross_plan()
         if workers > 1 and len(starts) > 1:
             clipped = sum(thread_pool("predict").map(
                 lambda a: self._predict_rows(Xs, a, a + step, mean, std, noisy), starts))

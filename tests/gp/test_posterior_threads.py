@@ -61,3 +61,22 @@ def test_threaded_factorisation_of_a_model_equals_the_serial_one(monkeypatch):
         np.testing.assert_array_equal(a1, a2)
     Xq = poses(30, 8)
     np.testing.assert_array_equal(threaded.predict(Xq), serial.predict(Xq))
+
+
+def test_a_calibrated_posterior_factorises_at_its_first_prediction(monkeypatch):
+    """scale_noise (σn² grown) builds the posterior without factorising it; the first prediction does,
+    and predicts exactly as a posterior factorised at once. A factor below 1 is factorised (checked) at once."""
+    from rbgp_cli.gp.calibration import scale_noise
+
+    sub, X, Y = fitted_on_subset(L=3, n=150, seed=9)
+    gp = GaussianProcess(sub.kernel, X, Y, sub.fits, shared=False, y_scale=np.ones(3))
+    grown = scale_noise(gp, 4.0)
+    assert grown._L is None
+    eager = GaussianProcess(sub.kernel, X, Y, grown.fits, shared=False, y_scale=np.ones(3))
+    Xq = poses(20, 10)
+    m1, s1 = grown.predict(Xq, return_std=True)
+    m2, s2 = eager.predict(Xq, return_std=True)
+    np.testing.assert_array_equal(m1, m2)
+    np.testing.assert_array_equal(s1, s2)
+    assert grown._L is not None
+    assert scale_noise(gp, 0.5)._L is not None
