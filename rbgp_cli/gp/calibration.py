@@ -122,7 +122,9 @@ def _held_out_errors(K, y, s2: float, jitter: float, blocks, c_grid) -> np.ndarr
     sse = np.zeros(len(c_grid))
     for h in blocks:
         Qh = Q[h]  # (n_h, n_s)
-        Bhh = (Qh[None] * d[:, None, :]) @ Qh.T  # (C, n_h, n_h): the held-out block of C⁻¹
+        # (C, n_h, n_h): the held-out block of C⁻¹; Qhᵀ contiguous for numpy's stacked product (the
+        # same numbers, 1.6× faster than through the transposed view, measured in issue 35)
+        Bhh = (Qh[None] * d[:, None, :]) @ np.ascontiguousarray(Qh.T)
         r = np.linalg.solve(Bhh, alpha[:, h, :])  # (C, n_h, L): y_h minus its held-out prediction
         sse += np.einsum("cil,cil->c", r, r)
     return sse
