@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/bench_train_promp.py                  # every set in ../shared/realdata, quiet and busy
     .venv/bin/python benchmarks/bench_train_promp.py --sets hand_raise_csv --rounds 3 --no-busy
     .venv/bin/python benchmarks/bench_train_promp.py --demos sample_data/csv
+    .venv/bin/python benchmarks/bench_train_promp.py --fold-rounds 0      # the whole processes only
 
 For each set of demonstrations, in one run, alternated ``--rounds`` times (the best of the rounds is
 kept on each side, and the ratio of the bests printed; target at most 3):
@@ -18,6 +19,14 @@ kept on each side, and the ratio of the bests printed; target at most 3):
 Wall time and CPU time (the child's user + system, its workers included) are printed for each. With
 ``--busy`` (the default runs both) a second CPU-bound process (a Python busy loop, in a session of its
 own like another user's program) runs beside both for the whole measurement.
+
+**Crossval's time per fold** (``--fold-rounds``, default 1; 0: not measured): on the same set and its
+first fold of ``rbgp crossval``'s five (seed 0), :func:`rbgp_cli.evaluation.crossval.run_fold` in a
+forked worker process (as crossval runs its folds: BLAS on one thread, no nested pool) for rbgp at the
+defaults (the fit on the other four fifths, the mean and 20 sampled rollouts
+from each held-out start, the same without the GP's residual, the scores) against the ProMP peer's
+row on the same fold (its fit, conditioned rollouts and samples, the scores): wall and CPU seconds
+(the fold's worker process), the best of the rounds, and their ratio.
 
 The machine may be shared: the load average is printed with every run.
 """
@@ -90,6 +99,45 @@ def measure(demos: str, rounds: int, tmp: str) -> dict:
             "cpu_ratio": best["rbgp"][1] / best["promp"][1], "runs": runs, "load": load_line()}
 
 
+def cpu_now() -> float:
+    """CPU seconds of this process and of its children that have ended (the fit's workers)."""
+    ch = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + ch.ru_utime + ch.ru_stime
+
+
+def measure_fold(demos: str, rounds: int, folds: int = 5, fold: int = 0) -> dict:
+    """Best wall / CPU of crossval's fold ``fold`` of ``folds`` (seed 0) for rbgp at the defaults and for
+    the ProMP peer, alternated ``rounds`` times (:func:`rbgp_cli.evaluation.crossval.run_fold`)."""
+    import warnings
+
+    from rbgp_cli.compute import fork_context, process_pool, worker_init
+    from rbgp_cli.evaluation.crossval import Config, make_folds, run_fold
+    from rbgp_cli.evaluation.peers import PROMP
+    from rbgp_cli.workflows import load_demonstrations
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        trajs, _, _ = load_demonstrations([demos])
+    held = set(make_folds(len(trajs), folds, 0)[fold].tolist())
+    train = [t for i, t in enumerate(trajs) if i not in held]
+    test = [t for i, t in enumerate(trajs) if i in held]
+    configs = {"rbgp": Config("axis-angle"), "promp": Config(PROMP)}
+    runs = {"rbgp": [], "promp": []}
+    for _ in range(rounds):
+        for name, config in configs.items():
+            # as crossval runs a fold: in a worker process of its own (forked), BLAS on one thread,
+            # rbgp's per-output fits in that process (no nested pool)
+            c0, w0 = cpu_now(), time.perf_counter()
+            with process_pool(1, context=fork_context(), init=worker_init) as pool:
+                pool.submit(run_fold, config, train, test, fold=fold).result()
+            runs[name].append((time.perf_counter() - w0, cpu_now() - c0))
+    best = {k: (min(w for w, _ in v), min(c for _, c in v)) for k, v in runs.items()}
+    return {"rbgp_wall": best["rbgp"][0], "rbgp_cpu": best["rbgp"][1], "promp_wall": best["promp"][0],
+            "promp_cpu": best["promp"][1], "ratio": best["rbgp"][0] / best["promp"][0],
+            "cpu_ratio": best["rbgp"][1] / best["promp"][1], "train": len(train), "held_out": len(test),
+            "load": load_line()}
+
+
 def busy_process() -> subprocess.Popen:
     """A CPU-bound Python loop in a session of its own (another program on the machine)."""
     return subprocess.Popen([sys.executable, "-c", "while True: pass"], start_new_session=True)
@@ -104,12 +152,14 @@ def main(argv=None) -> int:
                     help="also measure beside a second CPU-bound process")
     ap.add_argument("--quiet-runs", action=argparse.BooleanOptionalAction, default=True,
                     help="measure on the machine as it is")
+    ap.add_argument("--fold-rounds", type=int, default=1,
+                    help="rounds of crossval's first fold, rbgp against the ProMP peer (0: not measured)")
     ap.add_argument("--json", help="also write the numbers to this file")
     args = ap.parse_args(argv)
     folders = [str(REALDATA / s) for s in args.sets if (REALDATA / s).is_dir()] + list(args.demos)
     print(machine_line())
-    print(f"{'set':<26} {'condition':<9} {'rbgp s':>8} {'ProMP s':>8} {'ratio':>6} {'rbgp CPU':>9} {'ProMP CPU':>10}"
-          f" {'CPU ratio':>9}  load")
+    print(f"{'set':<26} {'measured':<14} {'condition':<9} {'rbgp s':>8} {'ProMP s':>8} {'ratio':>6} {'rbgp CPU':>9}"
+          f" {'ProMP CPU':>10} {'CPU ratio':>9}  load")
     out = []
     conditions = (["as it is"] if args.quiet_runs else []) + (["busy"] if args.busy else [])
     with tempfile.TemporaryDirectory() as tmp:
@@ -117,15 +167,18 @@ def main(argv=None) -> int:
             for cond in conditions:
                 loop = busy_process() if cond == "busy" else None
                 try:
-                    r = measure(folder, args.rounds, tmp)
+                    parts = [("whole process", measure(folder, args.rounds, tmp))]
+                    if args.fold_rounds > 0:
+                        parts.append(("crossval fold", measure_fold(folder, args.fold_rounds)))
                 finally:
                     if loop is not None:
                         loop.kill()
                         loop.wait()
                 name = Path(folder).name
-                print(f"{name:<26} {cond:<9} {r['rbgp_wall']:8.2f} {r['promp_wall']:8.2f} {r['ratio']:6.2f}"
-                      f" {r['rbgp_cpu']:9.2f} {r['promp_cpu']:10.2f} {r['cpu_ratio']:9.2f}  {r['load']}", flush=True)
-                out.append({"set": name, "condition": cond, **r})
+                for what, r in parts:
+                    print(f"{name:<26} {what:<14} {cond:<9} {r['rbgp_wall']:8.2f} {r['promp_wall']:8.2f} {r['ratio']:6.2f}"
+                          f" {r['rbgp_cpu']:9.2f} {r['promp_cpu']:10.2f} {r['cpu_ratio']:9.2f}  {r['load']}", flush=True)
+                    out.append({"set": name, "measured": what, "condition": cond, **r})
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))
     return 0

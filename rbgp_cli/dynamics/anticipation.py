@@ -573,11 +573,12 @@ def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS)
     and the end) by its log density under the others' distribution so conditioned, for each tolerance of
     ``tolerances``. Only the coordinates involved enter (a Gaussian's marginal is its sub-block). Returns
     the mean log density per tolerance and, with ``stats`` (one tolerance), the rotation Mahalanobis² and
-    position z-scores of the scored phases (for the bands' factors)."""
-    from rbgp_cli.dynamics.paths import GOAL_TOLERANCE, SELECT_EVERY, held_out_score
+    position z-scores of the scored phases (for the bands' factors). All demonstrations at once
+    (:func:`~rbgp_cli.dynamics.paths.left_out_moments`, :func:`~rbgp_cli.dynamics.paths.held_out_scores`)."""
+    from rbgp_cli.dynamics.paths import GOAL_TOLERANCE, SELECT_EVERY, held_out_scores, left_out_moments
 
     X = paths.vectors()
-    D, S, P = len(X), paths.S, X.shape[1]
+    S, P = paths.S, X.shape[1]
     Ks = paths.smooth_covariance()
     r_last = (np.array(GOAL_TOLERANCE).repeat(3) / paths.scale) ** 2
     total = np.zeros(len(tolerances))
@@ -592,25 +593,23 @@ def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS)
         no = len(io)
         Xs = X[:, idx]
         Kss = Ks[np.ix_(idx, idx)]
-        for d in range(D):  # a loop over demonstrations, each a few small Gaussian conditionings
-            rest = np.delete(Xs, d, axis=0)
-            m = rest.mean(axis=0)
-            C = rest - m
-            Sigma = (1.0 + 1.0 / len(rest)) * (C.T @ C) / max(len(rest) - 1, 1) + Kss
-            Soo, Sot, Stt = Sigma[:no, :no], Sigma[:no, no:], Sigma[no:, no:]
+        for block, m, Sigma in left_out_moments(Xs):  # the others' Gaussian per left-out d, (B, ...)
+            Sigma += Kss
+            Soo, Sot, Stt = Sigma[:, :no, :no], Sigma[:, :no, no:], Sigma[:, no:, no:]
+            innovation = Xs[block, :no] - m[:, :no]
             for i, tol in enumerate(tolerances):
                 r2 = np.full(no, float(tol) ** 2)
                 r2[-7:-1] = r_last
                 r2[-1] = _ELL_TOL ** 2
-                gain = np.linalg.solve(Soo + np.diag(r2), Sot).T
-                mean = m[no:] + gain @ (Xs[d, :no] - m[:no])
+                gain = np.swapaxes(np.linalg.solve(Soo + np.diag(r2), Sot), 1, 2)  # (B, nt, no)
+                mean = m[:, no:] + np.einsum("bij,bj->bi", gain, innovation)
                 cov = Stt - gain @ Sot
-                ld, m2_d, z_d = held_out_score(Xs[d, no:] - mean, cov, stats)
-                total[i] += ld
+                ld, m2_b, z_b = held_out_scores(Xs[block, no:] - mean, cov, stats)
+                total[i] += float(np.sum(ld))
                 if stats:
-                    m2.append(m2_d)
-                    z.append(z_d)
-            count += 1
+                    m2.append(m2_b.reshape(-1))
+                    z.append(z_b.reshape(-1, 3))
+            count += len(block)
     if stats:
         return total / count, np.concatenate(m2), np.concatenate(z)
     return total / count

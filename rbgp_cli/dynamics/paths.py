@@ -432,54 +432,111 @@ class PathDistribution:
 
 
 # ---------------------------------------------------------------------- fitting
-def _loo_scores(paths: PathDistribution, smooth: float, length: float, stats: bool = False):
+def _loo_scores(paths: PathDistribution, smooth: float, length: float, stats: bool = False, setup=None):
     """Leave each demonstration out: condition the others' distribution on its start and end, and score
     the held-out path at every SELECT_EVERY-th phase in between. Only the coordinates involved enter
     (a Gaussian's marginal is its sub-block). Returns the mean log density per demonstration and, with
-    ``stats``, the rotation Mahalanobis² (D·k,) and position z-scores (D·k, 3) for the bands' factors."""
+    ``stats``, the rotation Mahalanobis² (D·k,) and position z-scores (D·k, 3) for the bands' factors.
+    All demonstrations at once (:func:`left_out_moments`, :func:`held_out_scores`); ``setup``
+    (:func:`_loo_setup`) shares the left-out moments between calls (they do not depend on τ², ℓ)."""
+    idx, Xs, r2, moments = _loo_setup(paths) if setup is None else setup
+    Ks = paths.smooth_covariance(smooth, length)[np.ix_(idx, idx)]
+    logd, m2, z = 0.0, [], []
+    for block, m, sample in moments:
+        Sigma = sample + Ks  # (B, P, P)
+        S11, S21, S22 = Sigma[:, :12, :12] + np.diag(r2), Sigma[:, 12:, :12], Sigma[:, 12:, 12:]
+        S12 = np.swapaxes(S21, 1, 2)
+        gain = np.swapaxes(np.linalg.solve(S11, S12), 1, 2)  # (B, P − 12, 12)
+        mean = m[:, 12:] + (gain @ (Xs[block, :12] - m[:, :12])[..., None])[..., 0]
+        cov = S22 - gain @ S12
+        ld, m2_b, z_b = held_out_scores(Xs[block, 12:] - mean, cov, stats)
+        logd += float(np.sum(ld))
+        if stats:
+            m2.append(m2_b.reshape(-1))
+            z.append(z_b.reshape(-1, 3))
+    D = len(Xs)
+    if stats:
+        return logd / D, np.concatenate(m2), np.concatenate(z)
+    return logd / D
+
+
+def _loo_setup(paths: PathDistribution):
+    """What :func:`_loo_scores` needs whatever τ² and ℓ: the coordinates involved (start and end first,
+    then every SELECT_EVERY-th phase), the demonstrations' vectors there (D, P), the ends' tolerances
+    r² (12,) and the left-out moments (:func:`left_out_moments`, as a list)."""
     X = paths.vectors()
-    D, S = len(X), paths.S
+    S = paths.S
     sel = np.arange(SELECT_EVERY, S - 1, SELECT_EVERY)
     phases = np.concatenate([[0, S - 1], sel])
     idx = (6 * phases[:, None] + np.arange(6)[None]).ravel()  # known first (12), then the scored ones
     Xs = X[:, idx]
-    Ks = paths.smooth_covariance(smooth, length)[np.ix_(idx, idx)]
     r2 = np.concatenate([(np.array(GOAL_TOLERANCE).repeat(3) / paths.scale) ** 2] * 2)
-    logd, m2, z = 0.0, [], []
-    for d in range(D):  # a loop over demonstrations, each one small Gaussian conditioning
-        rest = np.delete(Xs, d, axis=0)
-        m = rest.mean(axis=0)
-        C = rest - m
-        Sigma = (1.0 + 1.0 / len(rest)) * (C.T @ C) / max(len(rest) - 1, 1) + Ks
-        S11, S21, S22 = Sigma[:12, :12] + np.diag(r2), Sigma[12:, :12], Sigma[12:, 12:]
-        gain = np.linalg.solve(S11, S21.T).T
-        mean = m[12:] + gain @ (Xs[d, :12] - m[:12])
-        cov = S22 - gain @ S21.T
-        ld, m2_d, z_d = held_out_score(Xs[d, 12:] - mean, cov, stats)
-        logd += ld
-        if stats:
-            m2.append(m2_d)
-            z.append(z_d)
-    if stats:
-        return logd / D, np.concatenate(m2), np.concatenate(z)
-    return logd / D
+    return idx, Xs, r2, list(left_out_moments(Xs))
+
+
+#: :func:`left_out_moments` yields this many left-out demonstrations at a time (memory: that many P × P),
+#: and holds at most LOO_ELEMENTS numbers of their other demonstrations' rows at once (32 MB).
+LOO_BLOCK = 64
+LOO_ELEMENTS = 4_000_000
+
+
+def left_out_moments(Xs: np.ndarray, block: int = LOO_BLOCK):
+    """Each demonstration d (a row of Xs (D, P)) left out in turn: the others' mean m_d and the sample
+    part of their distribution's covariance, (1 + 1/N) Ĉ_d with N = D − 1 others and Ĉ_d their sample
+    covariance (divisor max(N − 1, 1)), as :meth:`PathDistribution.prior` builds it for them (without the
+    smooth term τ² K). Yields (indices (B,), m (B, P), (1 + 1/N) Ĉ (B, P, P)) for consecutive blocks of
+    at most ``block`` demonstrations (and at most LOO_ELEMENTS numbers of the others' rows at once).
+
+    The same arithmetic as a loop over d (the others' rows, their mean, centred, CᵀC), batched: a
+    left-out path's density is a Schur complement of this covariance, and where that is nearly
+    singular (few demonstrations, a small τ²: condition numbers of 1e10) it amplifies any rounding;
+    a rank-one downdate of the whole set's scatter instead moved such scores by 7e-5 relative."""
+    Xs = np.asarray(Xs, dtype=np.float64)
+    D, P = Xs.shape
+    N = D - 1
+    step = max(1, min(int(block), LOO_ELEMENTS // max(N * P, 1)))
+    others = np.array([np.delete(np.arange(D), d) for d in range(D)]) if D > 1 else np.zeros((D, 0), int)
+    for a in range(0, D, step):
+        b = np.arange(a, min(D, a + step))
+        rest = Xs[others[b]]  # (B, N, P)
+        m = rest.mean(axis=1)
+        C = rest - m[:, None]
+        cov = np.ascontiguousarray(np.swapaxes(C, 1, 2)) @ C  # contiguous: numpy's batched BLAS product
+        cov *= 1.0 + 1.0 / N  # the loop's order of operations, to the last bit
+        cov /= max(N - 1, 1)
+        yield b, m, cov
 
 
 def held_out_score(e: np.ndarray, cov: np.ndarray, stats: bool = False):
     """A left-out path's error e (6k,) (k phases × 6 coordinates, scaled) under its predictive covariance
     cov (6k, 6k): its Gaussian log density (without the 2π term; a relative 1e-9 jitter) and, with
     ``stats``, per phase the rotation Mahalanobis² (k,) and the position z-scores (k, 3) of the
-    marginals, for the bands' factors (:func:`_band_factors`); else (log density, None, None)."""
-    L = np.linalg.cholesky(cov + 1e-9 * np.trace(cov) / len(e) * np.eye(len(e)))
-    a = np.linalg.solve(L, e)
-    logd = -0.5 * a @ a - np.sum(np.log(np.diag(L)))
+    marginals, for the bands' factors (:func:`_band_factors`); else (log density, None, None).
+    :func:`held_out_scores` for one path."""
+    logd, m2, z = held_out_scores(np.asarray(e)[None], np.asarray(cov)[None], stats)
+    return float(logd[0]), (None if m2 is None else m2[0]), (None if z is None else z[0])
+
+
+def held_out_scores(e: np.ndarray, cov: np.ndarray, stats: bool = False):
+    """:func:`held_out_score` of B left-out paths at once: errors e (B, 6k), covariances cov (B, 6k, 6k).
+    Returns log densities (B,) and, with ``stats``, m² (B, k) and z (B, k, 3) (else None, None):
+
+        log p = −½ aᵀa − Σ log L_ii,   L Lᵀ = cov + 1e-9 tr(cov)/(6k) I,   L a = e."""
+    e = np.asarray(e, dtype=np.float64)
+    cov = np.asarray(cov, dtype=np.float64)
+    B, n = e.shape
+    jitter = 1e-9 * np.trace(cov, axis1=1, axis2=2) / n
+    L = np.linalg.cholesky(cov + jitter[:, None, None] * np.eye(n))
+    a = np.linalg.solve(L, e[..., None])[..., 0]
+    logd = -0.5 * np.einsum("bi,bi->b", a, a) - np.sum(np.log(np.diagonal(L, axis1=1, axis2=2)), axis=1)
     if not stats:
         return logd, None, None
-    k = len(e) // 6
-    ek = e.reshape(k, 6)
-    Ck = np.array([cov[6 * i:6 * i + 6, 6 * i:6 * i + 6] for i in range(k)])
-    m2 = np.einsum("ki,ki->k", ek[:, :3], np.linalg.solve(Ck[:, :3, :3] + 1e-12 * np.eye(3), ek[:, :3, None])[..., 0])
-    z = np.abs(ek[:, 3:]) / np.sqrt(np.maximum(np.einsum("kii->ki", Ck[:, 3:, 3:]), 1e-24))
+    k = n // 6
+    ek = e.reshape(B, k, 6)
+    Ck = np.stack([cov[:, 6 * i:6 * i + 6, 6 * i:6 * i + 6] for i in range(k)], axis=1)  # (B, k, 6, 6)
+    m2 = np.einsum("bki,bki->bk", ek[..., :3],
+                   np.linalg.solve(Ck[..., :3, :3] + 1e-12 * np.eye(3), ek[..., :3, None])[..., 0])
+    z = np.abs(ek[..., 3:]) / np.sqrt(np.maximum(np.einsum("bkii->bki", Ck[..., 3:, 3:]), 1e-24))
     return logd, m2, z
 
 
@@ -512,9 +569,10 @@ def fit_paths(trajs, steps: int = 51, *, level: float = 0.90) -> PathDistributio
     durations = np.array([max(tr.duration, 1e-6) for tr in trajs])
     paths = PathDistribution(np.asarray(path["s"], float), np.asarray(path["quat"], float),
                              np.asarray(path["position"], float), delta, np.log(durations))
-    scores = {(tau2, ell): _loo_scores(paths, tau2, ell) for tau2 in SMOOTH_GRID for ell in LENGTH_GRID}
+    setup = _loo_setup(paths)  # the left-out moments once for the whole grid
+    scores = {(tau2, ell): _loo_scores(paths, tau2, ell, setup=setup) for tau2 in SMOOTH_GRID for ell in LENGTH_GRID}
     paths.smooth, paths.length = max(scores, key=scores.get)
-    score, m2, z = _loo_scores(paths, paths.smooth, paths.length, stats=True)
+    score, m2, z = _loo_scores(paths, paths.smooth, paths.length, stats=True, setup=setup)
     c_rot, c_pos = _band_factors(m2, z, D, level)
     paths.band_scale = (max(1.0, float(c_rot)), max(1.0, float(c_pos)))
     paths.info = {"loo_log_density": float(score), "smooth": paths.smooth, "length": paths.length}

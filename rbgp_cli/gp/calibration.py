@@ -122,7 +122,9 @@ def _held_out_errors(K, y, s2: float, jitter: float, blocks, c_grid) -> np.ndarr
     sse = np.zeros(len(c_grid))
     for h in blocks:
         Qh = Q[h]  # (n_h, n_s)
-        Bhh = (Qh[None] * d[:, None, :]) @ Qh.T  # (C, n_h, n_h): the held-out block of C⁻¹
+        # (C, n_h, n_h): the held-out block of C⁻¹; Qhᵀ contiguous for numpy's stacked product (the
+        # same numbers, 1.6× faster than through the transposed view, measured in issue 35)
+        Bhh = (Qh[None] * d[:, None, :]) @ np.ascontiguousarray(Qh.T)
         r = np.linalg.solve(Bhh, alpha[:, h, :])  # (C, n_h, L): y_h minus its held-out prediction
         sse += np.einsum("cil,cil->c", r, r)
     return sse
@@ -184,7 +186,11 @@ def _with_fits(gp: Posterior, fits: list) -> Posterior:
     else:
         from rbgp_cli.gp.exact import GaussianProcess
 
-        new = GaussianProcess(gp.kernel, gp.X, gp.Y, fits, shared=gp.shared, y_scale=gp.y_scale)
+        # σn² only grew from the fit's (factors ≥ 1): K + σn²I stays positive definite (and an indefinite
+        # kernel's noise margin holds), so the factorisation waits for the first prediction (rbgp train
+        # writes the model without one: six n × n Cholesky factorisations saved); else checked here
+        grew = all(float(f.values[NOISE]) >= float(g.values[NOISE]) for f, g in zip(fits, gp.fits))
+        new = GaussianProcess(gp.kernel, gp.X, gp.Y, fits, shared=gp.shared, y_scale=gp.y_scale, lazy=grew)
     if hasattr(gp, "fit_seconds"):
         new.fit_seconds = gp.fit_seconds
     return new

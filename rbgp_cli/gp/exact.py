@@ -86,12 +86,13 @@ class GaussianProcess:
     (``shared``), each with its Cholesky factor and its α = C⁻¹ y (on the RMS-scaled outputs
     y / scale in shared mode; predictions are scaled back). ``factors``: per group (L, α) as
     :func:`fit_gp` has just computed and checked them; without it they are computed and checked here
-    (a loaded model). Predictions build the kernel block against X from matrix products
+    (a loaded model), or with ``lazy`` at the first prediction (a posterior whose σn² only grew from
+    checked ones: :func:`rbgp_cli.gp.calibration.scale_noise`). Predictions build the kernel block against X from matrix products
     (:meth:`Kernel.cross_plan`, :meth:`Kernel.cross_gram`).
     """
 
     def __init__(self, kernel: Kernel, X: np.ndarray, Y: np.ndarray, fits: list, shared: bool, y_scale=None, *,
-                 factors=None):
+                 factors=None, lazy: bool = False):
         self.kernel = kernel
         self.X = np.ascontiguousarray(X, dtype=np.float64)
         self.Y = np.ascontiguousarray(np.asarray(Y, dtype=np.float64).reshape(len(X), -1))
@@ -99,12 +100,9 @@ class GaussianProcess:
         self.shared = bool(shared)
         self.y_scale = np.ones(self.Y.shape[1]) if y_scale is None else np.asarray(y_scale, dtype=np.float64)
         if factors is None:
-            # single-threaded, as the fit that made them: a lone `rbgp rollout --count 60` at n = 1208
-            # spent up to 4.7x the CPU of one thread here (two Cholesky factorisations per group on
-            # the BLAS pool, whose threads then spin-wait), and was slower in wall time too (issue 24;
-            # benchmarks/bench_rollout.py --threads)
-            with blas_threads(0):
-                self._factorise()
+            self._L = self._alpha = None
+            if not lazy:  # else factorised at the first prediction (rbgp train writes the calibrated
+                self._ensure_factors()  # posterior without ever predicting with it)
         else:
             # from fit_gp, which has just computed and checked them: per group (L, α)
             self._L = [np.asarray(Lc) for Lc, _a in factors]
@@ -122,12 +120,22 @@ class GaussianProcess:
             return [(self.fits[0], list(range(self.n_outputs)))]
         return [(f, [l]) for l, f in enumerate(self.fits)]
 
+    def _ensure_factors(self) -> None:
+        """Factorise (:meth:`_factorise`) unless done. Single-threaded BLAS, as the fit that made the
+        hyperparameters: a lone `rbgp rollout --count 60` at n = 1208 spent up to 4.7x the CPU of one
+        thread here (two Cholesky factorisations per group on the BLAS pool, whose threads then
+        spin-wait), and was slower in wall time too (issue 24; benchmarks/bench_rollout.py --threads)."""
+        if self._L is None:
+            with blas_threads(0):
+                self._factorise()
+
     def _factorise(self) -> None:
-        """Cholesky factors and α for every group, with each fit's recorded jitter; verified."""
+        """Cholesky factors and α for every group, with each fit's recorded jitter; verified. The
+        groups run on threads where cores are free (:func:`_over_groups`: the same numbers)."""
         pre = self.kernel.precompute(self.X)
-        self._L = []
-        self._alpha = []
-        for fit, outs in self.group_outputs():
+
+        def one(group):
+            fit, outs = group
             K, _ = self.kernel.gram(pre, fit.values)
             s2 = fit.values[NOISE] ** 2
             c = cholesky(K, s2, fit.jitter)
@@ -137,10 +145,14 @@ class GaussianProcess:
                     "the stored hyperparameters do not give a well-conditioned positive definite covariance",
                     hint="refit the model (rbgp train)",
                 )
+            del K
             y = self.Y[:, outs] / self.y_scale[outs]
             alpha, _ = lapack.dpotrs(c, np.asfortranarray(y), lower=1)
-            self._L.append(np.tril(c))
-            self._alpha.append(np.asarray(alpha))
+            return np.tril(c), np.asarray(alpha)
+
+        done = _over_groups(self.group_outputs(), one)
+        self._L = [L for L, _a in done]
+        self._alpha = [a for _L, a in done]
 
     def predict(self, Xs, return_std: bool = False, noisy: bool = False, chunk_elements: int = 2_000_000,
                 manage_threads: bool = True):
@@ -189,7 +201,8 @@ class GaussianProcess:
             # at least one chunk per worker, so that large predictions use every core
             step = min(step, -(-m // workers))
         starts = range(0, m, step)
-        self._cross_plan()  # before any threads
+        self._ensure_factors()  # before any threads (a lazily built posterior)
+        self._cross_plan()
         if workers > 1 and len(starts) > 1:
             clipped = sum(thread_pool("predict").map(
                 lambda a: self._predict_rows(Xs, a, a + step, mean, std, noisy), starts))
@@ -415,12 +428,33 @@ def fit_gp(
         return _fit_gp(X, Y, kernel, o, seed, shared, progress, explore, jobs, task)
 
 
+def _over_groups(groups, one) -> list:
+    """``[one(g) for g in groups]``, the groups (hyperparameter sets) shared between threads where cores
+    are free (:func:`rbgp_cli.compute.thread_workers`), at most one set per thread at a time (each holds
+    a few n × n matrices). Each set's numbers are those of the loop: LAPACK releases the GIL, and the
+    callers run BLAS single-threaded (a 2000-point Cholesky per set, six sets: the posterior of the
+    default exact GP after its fit, and every model file loaded)."""
+    groups = list(groups)
+    threads = min(len(groups), thread_workers(len(groups), 2))
+    if threads <= 1:
+        return [one(g) for g in groups]
+
+    def share(k):
+        return [one(g) for g in groups[k::threads]]
+
+    done = [None] * len(groups)
+    for k, part in enumerate(thread_pool("posterior").map(share, range(threads))):
+        done[k::threads] = part
+    return done
+
+
 def _posterior_on_all_rows(gp: GaussianProcess, X, Y) -> GaussianProcess | None:
     """The exact posterior on all rows X (n, d), Y (n, L) at the hyperparameters ``gp`` fitted on a
     subset of them: per hyperparameter set C = K + (σn² + jitter) I with the jitter of
     :func:`rbgp_cli.gp.likelihood.accept` on all rows (its rcond and positive definiteness recorded
     in the fit), L its Cholesky factor and α = C⁻¹ y; None where a set fails those checks or (an
-    indefinite kernel) the noise margin."""
+    indefinite kernel) the noise margin. The sets run on threads where cores are free (LAPACK releases
+    the GIL, BLAS is single-threaded here: the same numbers as one after the other)."""
     from dataclasses import replace
 
     from rbgp_cli.gp.likelihood import accept, meets_margin
@@ -428,8 +462,9 @@ def _posterior_on_all_rows(gp: GaussianProcess, X, Y) -> GaussianProcess | None:
     kernel = gp.kernel
     pre = kernel.precompute(X)
     Y2 = np.asarray(Y, dtype=np.float64).reshape(len(X), -1)
-    fits, factors = [], []
-    for fit, outs in gp.group_outputs():
+
+    def one(group):
+        fit, outs = group
         K, _ = kernel.gram(pre, fit.values)
         if not meets_margin(kernel, pre, fit.values, K):
             return None
@@ -437,10 +472,15 @@ def _posterior_on_all_rows(gp: GaussianProcess, X, Y) -> GaussianProcess | None:
         jitter, rc, pd, c = accept(kernel, pre, y, fit.values, K)
         if jitter is None:
             return None
+        del K
         alpha, _info = lapack.dpotrs(c, np.asfortranarray(y), lower=1)
-        fits.append(replace(fit, jitter=float(jitter), rcond=rc, positive_definite=pd))
-        factors.append((np.tril(c), np.asarray(alpha)))
-    return GaussianProcess(kernel, X, Y2, fits, shared=gp.shared, y_scale=gp.y_scale, factors=factors)
+        return replace(fit, jitter=float(jitter), rcond=rc, positive_definite=pd), (np.tril(c), np.asarray(alpha))
+
+    done = _over_groups(gp.group_outputs(), one)
+    if any(r is None for r in done):
+        return None
+    return GaussianProcess(kernel, X, Y2, [r[0] for r in done], shared=gp.shared, y_scale=gp.y_scale,
+                           factors=[r[1] for r in done])
 
 
 def _fit_gp(X, Y, kernel, o, seed, shared, progress, explore, jobs, task):

@@ -40,8 +40,12 @@ from rbgp_cli.kernels.base import Hyperparameter, Kernel, fdot, output_scale
 __all__ = ["SquaredExponential", "ROTATION_METRICS"]
 
 ROTATION_METRICS = ("arc", "chordal", "euclidean", "s3")
-#: Smallest exponent −d²/(2λ²) used in K (see :meth:`SquaredExponential.gram`).
+#: Smallest exponent −d²/(2λ²) used in a prediction's K(X*, X) (see :meth:`SquaredExponential.cross_gram`).
 MIN_EXPONENT = -345.0
+#: In the training Gram matrix K(X, X), entries whose exponent −d²/(2λ²) lies below this are exactly
+#: zero (see :meth:`SquaredExponential.gram`): e^ZERO_EXPONENT ≈ 1e-75, whose products of two stay
+#: normal double-precision numbers.
+ZERO_EXPONENT = 0.5 * MIN_EXPONENT
 #: Largest squared rotation distance of each metric on unit quaternions (arc: π², chordal: 4, s3: (π/2)²).
 _MAX_SQ_ROTATION = {"arc": math.pi**2, "chordal": 4.0, "s3": (math.pi / 2) ** 2}
 
@@ -326,19 +330,28 @@ class SquaredExponential(Kernel):
     def gram(self, pre: dict, values: dict):
         """K = σf² exp(−d²/(2λ²)), shape (n, m). The returned state is d² (reused by the gradient).
 
-        Exponents below MIN_EXPONENT are raised to it: exp(−d²/2λ²) >= e⁻³⁴⁵ ≈ 1e-150 (relative to
-        σf²), which changes nothing that double precision resolves in C = K + σn²I, but keeps the
-        exp and everything downstream (Cholesky, the gradient, predictions) free of subnormal
-        numbers: with short length-scales on recorded motions ~1 % of the pairs underflowed into
-        them, and an evaluation at n = 1752 took 180 ms instead of ~150 ms (measured)."""
+        Entries whose exponent lies below ZERO_EXPONENT are exactly 0: exp(−d²/2λ²) < e⁻¹⁷²·⁵ ≈ 1e-75
+        (relative to σf²) changes nothing that double precision resolves in C = K + σn²I (its
+        eigenvalues move by at most n·1e-75·σf², against the round-off of ~1e-16·σf² and the
+        smallest eigenvalue ≥ 1e-12·‖C‖ that an accepted fit keeps), and it keeps the exp and
+        everything downstream (Cholesky, C⁻¹, the gradient) free of subnormal numbers, whose
+        arithmetic costs ~100 times a normal number's on x86. Raising the exponent to a floor instead
+        (as :meth:`cross_gram` does for predictions) does not: the Cholesky factor's products of two
+        floored entries underflow (at λ near its lower bound and σf = 1e-4 an evaluation at n = 400
+        took 140–200 ms instead of 7 ms, measured in issue 35)."""
         d2 = self._d2(pre, values)
         lam = values["length_scale"]
         K = np.multiply(d2, -0.5 / (lam * lam))
         if "tau2" in pre:
             lt = values["time_scale"]
             K -= (0.5 / (lt * lt)) * pre["tau2"]
-        np.maximum(K, MIN_EXPONENT, out=K)
-        np.exp(K, out=K)
+        if K.size and float(K.min()) < ZERO_EXPONENT:
+            keep = K >= ZERO_EXPONENT
+            np.maximum(K, ZERO_EXPONENT, out=K)
+            np.exp(K, out=K)
+            K *= keep
+        else:
+            np.exp(K, out=K)
         K *= values["signal_std"] ** 2
         return K, d2
 
