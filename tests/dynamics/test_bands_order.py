@@ -64,10 +64,9 @@ def test_blocked_folds_of_a_drifting_session_hold_fresh_later_draws_at_the_level
                             first=int(block[0]), total=40)
             cov, v = _coverage(train, fresh)
             total = cov if total is None else total + cov
-            # the factors are the quantile of both kinds of left-out errors together: between each kind's own
-            for j in range(2):
-                lo, hi = sorted((v.calibration["random"][j], v.calibration["recorded"][j]))
-                assert lo - 1e-9 <= v.band_scale[j] <= hi + 1e-9, (v.band_scale, v.calibration)
+            # the bands cover both kinds of left-out demonstrations: the larger of the two factors
+            assert v.band_scale == (max(v.calibration["random"][0], v.calibration["recorded"][0]),
+                                    max(v.calibration["random"][1], v.calibration["recorded"][1]))
             from dataclasses import replace
 
             # the same band with the factors of the random leave-one-out alone: narrower
@@ -76,8 +75,6 @@ def test_blocked_folds_of_a_drifting_session_hold_fresh_later_draws_at_the_level
     c, b = total.to_dict(), before.to_dict()
     assert abs(c["coverage_position"] - 0.90) <= 0.04, c
     assert abs(c["coverage_rotation"] - 0.90) <= 0.04, c
-    # the random leave-one-out alone: 0.868 against 0.881 when written (the larger of the two factors,
-    # before the pooling, held 0.898 / 0.892 here but over-covered random folds of real sets)
     assert b["coverage_rotation"] < c["coverage_rotation"], (b, c)
 
 
