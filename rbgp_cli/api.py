@@ -325,6 +325,19 @@ class Rollout:
         start, in their spreads (docs/method.md §12; above 4.5 rbgp warns), or None without via-points."""
         return getattr(self.result, "via_distance", None)
 
+    @property
+    def band_position(self) -> np.ndarray | None:
+        """(B, S, 3) m: per axis the half-width of the 90 % band of the next real motion around each mean
+        trajectory (with samples from a model with a variation model or a goal; docs/method.md §11), or None.
+        The samples are typical motions; the band is wider (it carries the estimates' uncertainty)."""
+        return getattr(self.result, "band_position", None)
+
+    @property
+    def band_rotation(self) -> np.ndarray | None:
+        """(B, S, 3, 3) rad²: the band's rotation region {e : eᵀ M⁻¹ e ≤ 1} of e = log(R R_meanᵀ) (world
+        frame), or None (see :attr:`band_position`)."""
+        return getattr(self.result, "band_rotation", None)
+
     def trajectories(self, include_samples: bool = False) -> list:
         """The mean trajectories (names ``0``, ``1``, …) and optionally the samples (``0.s0``, …) as
         :class:`~rbgp_cli.dynamics.trajectory.Trajectory` objects, each cut to its length (what

@@ -60,6 +60,9 @@ def test_fit_predict_rollout_shapes(gp, demos):
     assert r.sample_quat.shape == (2, 3, 11, 4) and r.sample_position.shape == (2, 3, 11, 3)
     np.testing.assert_allclose(np.linalg.norm(r.quat, axis=-1), 1.0, atol=1e-9)
     assert r.lengths.tolist() == [11, 11]
+    # the next motion's 90 % band comes with the samples: zero at the start, positive after it
+    assert r.band_position.shape == (2, 11, 3) and r.band_rotation.shape == (2, 11, 3, 3)
+    assert np.all(r.band_position[:, 0] == 0.0) and np.all(r.band_position[:, 5:] > 0.0)
     f = r.to_frame()
     assert len(f) == 2 * 11 * (1 + 3) and {"trajectory", "sample", "t", "qw", "x", "std_vx", "left_data"} <= set(f.columns)
     d = r.to_dict()

@@ -378,7 +378,7 @@ def _write_rollout_mcap(res, trajs, output, *, folder: bool, encoding: str, fram
     import math
 
     from rbgp_cli.errors import InputError
-    from rbgp_cli.io.mcap_out import band_covariance, write_rollouts_mcap
+    from rbgp_cli.io.mcap_out import band_covariance, region_covariance, write_rollouts_mcap
 
     if not math.isfinite(start_time):
         raise InputError(f"--start-time must be a number of seconds, got {start_time!r}")
@@ -387,7 +387,11 @@ def _write_rollout_mcap(res, trajs, output, *, folder: bool, encoding: str, fram
         for b in range(res.count):
             n = res.length(b)
             q, p = res.quat[b, :n], res.position[b, :n]
-            bands[b] = (res.t[:n], q, p, band_covariance(q, p, res.sample_quat[b, :, :n], res.sample_position[b, :, :n]))
+            if res.band_position is not None:  # the next motion's 90 % band, as rbgp computes it
+                cov = region_covariance(res.band_position[b, :n], res.band_rotation[b, :n])
+            else:  # a model without one (per-step Monte Carlo samples): the samples' spread
+                cov = band_covariance(q, p, res.sample_quat[b, :, :n], res.sample_position[b, :, :n])
+            bands[b] = (res.t[:n], q, p, cov)
     kwargs = dict(frame_id=frame_id, start_ns=round(start_time * 1e9), encoding=encoding, bands=bands or None)
     if output not in (None, "-"):
         write_rollouts_mcap(trajs, output, folder=folder, **kwargs)

@@ -107,7 +107,8 @@ def _value(v) -> str:
 def _variation_text(v: dict) -> str:
     """The lines on the deviation process that --samples draws (docs/method.md §11): its factors, how
     they were found, and the demonstrations' drift over the recording order."""
-    line = f"samples: the {v['demos']} demonstrations' deviations from the mean path (Student-t, ν = {v['demos'] - 2})"
+    line = (f"samples: typical draws of the {v['demos']} demonstrations' deviations from the mean path; bands: the "
+            f"next motion's 90 % region (Student-t, ν = {v['demos'] - 2})")
     if v.get("shrinkage"):
         line += f", their covariance between coordinates shrunk by {v['shrinkage']:.2f}"
     scale = v.get("band_scale")
@@ -117,7 +118,7 @@ def _variation_text(v: dict) -> str:
                else "the demonstrations left out" if cal.get("random") or "calibration" not in v
                else None)
         line += (f"; widened ×{scale['rotation']:.3g} in rotation, ×{scale['position']:.3g} in position so that "
-                 f"{how} fall inside the 90 % bands" if how else
+                 f"{how} fall inside them" if how else
                  f"; too few demonstrations ({v['demos']}) to calibrate the bands by leaving them out: "
                  "their width rests on the Student-t alone")
         if cal.get("recorded") and cal.get("random"):

@@ -60,8 +60,9 @@ SMOOTH_GRID = (1e-3, 3e-3, 0.01, 0.03, 0.1, 0.3, 1.0)
 LENGTH_GRID = (0.05, 0.1, 0.2, 0.4)
 #: A goal or via-point's default tolerance: (rotation rad, position m), one standard deviation.
 GOAL_TOLERANCE = (1e-3, 5e-4)
-#: :meth:`PathDistribution.goal_band_scale` narrows the bands only for this many demonstrations or more
-#: (a 90 % quantile of fewer left-out paths is too uncertain to narrow by), and at most to this factor.
+#: :meth:`PathDistribution.goal_band_scale` narrows the bands as far as the left-out paths say from this
+#: many demonstrations on (below, in proportion D / NARROW_FROM on the log scale: a 90 % quantile of fewer
+#: left-out paths is less certain), and at most to this factor.
 NARROW_FROM = 10
 NARROWEST = 0.5
 #: Every ``SELECT_EVERY``-th grid phase scores a left-out demonstration in :func:`fit_paths`.
@@ -115,24 +116,48 @@ class Conditioned:
         return float(np.sqrt(max(self.cov[-1, -1], 0.0)) * self.paths.duration_scale)
 
     def draw(self, count: int, rng: np.random.Generator, *, widen: bool = True,
-             scale: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
+             scale: tuple | None = None, student: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """``count`` draws (deviations (count, S, 6) rad, m; durations (count,) s) of the conditioned
         distribution, Student-t with ν = D − 2 degrees of freedom (the covariance is estimated from D
         demonstrations: each draw's deviation from the mean scaled by √(ν/χ²_ν)) and, with ``widen``,
         the bands' factors (c_rot, c_pos) on its rotation and position parts: ``scale`` if given (e.g.
-        :meth:`PathDistribution.goal_band_scale`), else the distribution's ``band_scale``."""
+        :meth:`PathDistribution.goal_band_scale`), else the distribution's ``band_scale``. With
+        ``student=False`` and ``widen=False``: typical motions, the Gaussian N(x̂, Σ̂) (sampled rollouts;
+        their band is :meth:`region`)."""
         P = len(self.mean)
         w, V = np.linalg.eigh(0.5 * (self.cov + self.cov.T))
         root = V * np.sqrt(np.clip(w, 0.0, None))[None, :]
         z = rng.standard_normal((int(count), P)) @ root.T  # (count, P)
         nu = max(self.paths.demos - 2, 1)
-        z *= np.sqrt(nu / rng.chisquare(nu, int(count)))[:, None]
+        if student:
+            z *= np.sqrt(nu / rng.chisquare(nu, int(count)))[:, None]
         if widen:
             c_rot, c_pos = self.paths.band_scale if scale is None else scale
             coords = np.tile(np.array([c_rot] * 3 + [c_pos] * 3), self.paths.S)
             z[:, :-1] *= coords
         dev, ell = self.paths.unscale(self.mean[None] + z)
         return dev, np.exp(ell)
+
+    def region(self, phases: np.ndarray, level: float = 0.90, scale: tuple | None = None):
+        """The band at ``phases`` (n,): the ``level`` region of :meth:`draw`'s Student-t (ν = D − 2) with
+        the factors ``scale`` (default the distribution's ``band_scale``) (issue 36/38): position
+        half-widths (n, 3) m, c_pos t_ν √Σ_jj, and the rotation region's matrix M (n, 3, 3) rad²,
+        {e : eᵀ M⁻¹ e ≤ 1}, M = c_rot² 3 F_level(3, ν) Σ_rot; Σ the conditioned covariance of the
+        deviation at each phase, interpolated as a draw is ((1 − f) x_k + f x_(k+1): its exact covariance)."""
+        from rbgp_cli.dynamics.variation import band_quantiles
+
+        S, sc = self.paths.S, self.paths.scale
+        cov = self.cov[:-1, :-1].reshape(S, 6, S, 6)
+        x = np.clip(np.asarray(phases, dtype=np.float64).reshape(-1), 0.0, 1.0)
+        k = np.clip(np.searchsorted(self.paths.s, x, side="right") - 1, 0, S - 2)
+        f = ((x - self.paths.s[k]) / (self.paths.s[k + 1] - self.paths.s[k]))[:, None, None]
+        cross = cov[k, :, k + 1, :]
+        C = (1.0 - f) ** 2 * cov[k, :, k, :] + f ** 2 * cov[k + 1, :, k + 1, :] + f * (1.0 - f) * (cross + cross.transpose(0, 2, 1))
+        C = C * sc[None, :, None] * sc[None, None, :]  # rad, m
+        q_rot, q_pos = band_quantiles(max(self.paths.demos - 2, 1), level)
+        c_rot, c_pos = self.paths.band_scale if scale is None else scale
+        half = c_pos * q_pos * np.sqrt(np.maximum(np.einsum("nii->ni", C[:, 3:, 3:]), 0.0))
+        return half, (c_rot ** 2 * q_rot) * C[:, :3, :3]
 
     def marginal_std(self) -> np.ndarray:
         """The conditioned standard deviation per phase and coordinate (S, 6), rad and m."""
@@ -298,8 +323,12 @@ class PathDistribution:
     def goal_band_scale(self, level: float = 0.90) -> tuple[float, float]:
         """The bands' factors (c_rot, c_pos) for draws given start and goal (:func:`rollout_conditioned
         <rbgp_cli.dynamics.rollout.rollout_conditioned>`): those of :attr:`band_scale`, from the same
-        left-out demonstrations (:func:`_band_factors`), but allowed below 1 (down to
-        :data:`NARROWEST`) when the distribution holds at least :data:`NARROW_FROM` demonstrations.
+        left-out demonstrations (:func:`_band_factors`), but allowed below 1 (down to :data:`NARROWEST`):
+        a factor c < 1 is taken as c^w, w = min(1, D / NARROW_FROM) (issue 38): fully from
+        :data:`NARROW_FROM` demonstrations on, and with fewer pulled toward 1 (the Student-t predictive)
+        in proportion, since the 90 % quantile of fewer left-out paths is less certain. With 5–7
+        demonstrations the left-out factors were 0.3–0.9 (τ² at the grid's largest, 1), and with factors
+        kept at 1 the bands held 0.95–1.00 of the held-out motions (docs/defaults.md, issue 38).
 
         Why: τ² and ℓ maximise the left-out demonstrations' *joint* density (:func:`fit_paths`), and a
         covariance estimated from D demonstrations in the scored dimensions (tens) is overconfident
@@ -308,9 +337,9 @@ class PathDistribution:
         held 0.97 / 0.99 (position / rotation) of fresh motions with the factors kept at 1 or more."""
         if self._goal_scale is None:
             _, m2, z = _loo_scores(self, self.smooth, self.length, stats=True)
-            c_rot, c_pos = _band_factors(m2, z, self.demos, level)
-            low = NARROWEST if self.demos >= NARROW_FROM else 1.0
-            self._goal_scale = (max(low, c_rot), max(low, c_pos))
+            w = min(1.0, self.demos / NARROW_FROM)
+            self._goal_scale = tuple(max(NARROWEST, c if c >= 1.0 else c ** w)
+                                     for c in _band_factors(m2, z, self.demos, level))
         return self._goal_scale
 
     def goal_distance(self, start_quat, start_position, goal_quat, goal_position) -> np.ndarray:

@@ -49,6 +49,10 @@ class RolloutResult:
     outside : (B, S+1) True where a mean trajectory's sample lies outside the demonstrations' envelope
     left : :func:`~rbgp_cli.dynamics.envelope.exits_report` of the mean trajectories, or None
     ends : (B,) index of each mean trajectory's last sample (``off_data="stop"``), or None (all S)
+    band_position : (B, S+1, 3) m and band_rotation : (B, S+1, 3, 3) rad²: the 90 % band of the next
+        real motion around each mean trajectory (with sampled rollouts of a model that has a variation
+        model or a path distribution, else None): |p − p_mean|_j ≤ band_position_j, and eᵀ M⁻¹ e ≤ 1 for
+        e = log(R R_meanᵀ), M = band_rotation (:meth:`~rbgp_cli.dynamics.variation.Variation.region`)
     """
 
     t: np.ndarray
@@ -73,6 +77,8 @@ class RolloutResult:
     goal_distance: np.ndarray | None = None
     #: (B, V) each via-point's distance from where the demonstrations pass at its phase, or None
     via_distance: np.ndarray | None = None
+    band_position: np.ndarray | None = None
+    band_rotation: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -122,6 +128,11 @@ class RolloutResult:
             k = np.clip(np.searchsorted(t, x_new, side="right") - 1, 0, len(t) - 2)
             f = np.clip((x_new - t[k]) / (t[k + 1] - t[k]), 0.0, 1.0)[:, None]
             std = (1.0 - f) * self.std[:, k] + f * self.std[:, k + 1]
+        if self.band_position is not None:  # linear in time, as the std
+            k = np.clip(np.searchsorted(t, x_new, side="right") - 1, 0, len(t) - 2)
+            f = np.clip((x_new - t[k]) / (t[k + 1] - t[k]), 0.0, 1.0)
+            band_p = (1.0 - f[:, None]) * self.band_position[:, k] + f[:, None] * self.band_position[:, k + 1]
+            band_r = (1.0 - f[:, None, None]) * self.band_rotation[:, k] + f[:, None, None] * self.band_rotation[:, k + 1]
         res = RolloutResult(t=t_new, quat=quat, position=pos, std=std, output_names=self.output_names,
                             lengths=None if self.lengths is None else count,
                             integration=self.integration or (len(t) - 1, float(t[1] - t[0])))
@@ -136,6 +147,8 @@ class RolloutResult:
         res.goal_quat, res.goal_position, res.via, res.goal_distance = (self.goal_quat, self.goal_position, self.via,
                                                                        self.goal_distance)
         res.via_distance = self.via_distance
+        if self.band_position is not None:
+            res.band_position, res.band_rotation = band_p, band_r
         return res
 
 
@@ -162,10 +175,12 @@ def rollout(model, start_quat, start_position, steps: int, dt: float | None = No
     dt : step in seconds (default: the model's, i.e. the demonstrations' median time step)
     samples : K sampled rollouts per start, drawn as ``sampling`` says
     sampling : ``"path"`` (default when the model has a :attr:`~MotionModel.variation`): sample k of
-        start b is the mean rollout from b displaced by one draw η of the demonstrations' deviation
-        process at the trajectory's phase t/duration_b, R = exp(η_rot) R̄_b, p = p̄_b + η_pos (zero at
-        the start; :mod:`rbgp_cli.dynamics.variation`); ``"step"`` (the default without one): Monte Carlo
-        rollouts drawing ξ from the latent predictive Gaussian at every step
+        start b is the mean rollout from b displaced by one typical draw η of the demonstrations'
+        deviation process at the trajectory's phase t/duration_b, R = exp(η_rot) R̄_b, p = p̄_b + η_pos
+        (zero at the start; :meth:`~rbgp_cli.dynamics.variation.Variation.draw`), and the result carries
+        the 90 % band of the next real motion (``band_position``, ``band_rotation``:
+        :meth:`~rbgp_cli.dynamics.variation.Variation.region`); ``"step"`` (the default without one):
+        Monte Carlo rollouts drawing ξ from the latent predictive Gaussian at every step
     seed : seeds the draws
     with_std : record the predictive std along the mean trajectories (costs one triangular solve per
         step; switch off for speed)
@@ -197,8 +212,9 @@ def rollout(model, start_quat, start_position, steps: int, dt: float | None = No
 
 
 def _path_samples(variation, res: RolloutResult, K: int, seed: int, durations) -> RolloutResult:
-    """``res`` with K path samples per trajectory: the mean rollout displaced by draws of the deviation
-    process at each trajectory's phase (see :func:`rollout`), batched over trajectories and samples."""
+    """``res`` with K path samples per trajectory: the mean rollout displaced by typical draws of the
+    deviation process at each trajectory's phase (see :func:`rollout`), batched over trajectories and
+    samples, and the 90 % band of the next real motion at the same phases."""
     from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
 
     B = res.count
@@ -209,6 +225,7 @@ def _path_samples(variation, res: RolloutResult, K: int, seed: int, durations) -
     dev = variation.at(eta, np.broadcast_to(phase[:, None, :], (B, K, len(res.t))))  # (B, K, T, 6)
     res.sample_quat = quat_make_continuous(quat_multiply(exp_quat(dev[..., :3]), res.quat[:, None]))
     res.sample_position = res.position[:, None] + dev[..., 3:]
+    res.band_position, res.band_rotation = variation.region(phase)  # (B, T, 3), (B, T, 3, 3)
     return res
 
 
@@ -410,11 +427,12 @@ def rollout_conditioned(model, start_quat, start_position, *, goal_quat=None, go
     looks like. Durations given by the caller are observations too (ln D, ± 0.001): a motion known
     to be slow bends as the demonstrations' slow ones differ (on the 30 handovers, 5 folds, the
     conditioned mean's position RMSE fell from 0.136 to 0.113 m with it); the rollout's own ln D is
-    the start-conditioned mean's, the value it assumed. The K samples per start are the mean plus zero-mean draws of the conditioned path
-    distribution (:meth:`~rbgp_cli.dynamics.paths.Conditioned.draw`): their bands pinch at every
-    constraint and widen between them as the demonstrations do; their factors are
+    the start-conditioned mean's, the value it assumed. The K samples per start are the mean plus zero-mean typical draws of the conditioned path
+    distribution, N(0, Σ̂) (:meth:`~rbgp_cli.dynamics.paths.Conditioned.draw`); the result's band
+    (``band_position``, ``band_rotation``) is the next motion's 90 % region, Student-t with the factors
     :meth:`~rbgp_cli.dynamics.paths.PathDistribution.goal_band_scale` (calibrated on left-out
-    demonstrations given their start and end).
+    demonstrations given their start and end; :meth:`~rbgp_cli.dynamics.paths.Conditioned.region`): both
+    pinch at every constraint and widen between them as the demonstrations do.
     """
     from rbgp_cli.dynamics.paths import pose_deviation
 
@@ -480,6 +498,10 @@ def rollout_conditioned(model, start_quat, start_position, *, goal_quat=None, go
     res.via = tuple((float(tv), np.asarray(qv, float), np.asarray(pv, float)) for tv, qv, pv in via)
     if samples:
         res.sample_quat, res.sample_position = _conditioned_samples(paths, covs, new, W, ref_q, ref_p, int(samples), seed)
+        scale = paths.goal_band_scale()
+        bands = [covs[b].region(phase[b], scale=scale) for b in range(B)]
+        res.band_position = np.stack([h for h, _ in bands])
+        res.band_rotation = np.stack([m for _, m in bands])
     return res
 
 
@@ -510,7 +532,7 @@ def _conditioned_samples(paths, covs, new, W, ref_q, ref_p, K: int, seed: int):
     sq = np.empty((B, K, T, 4))
     sp = np.empty((B, K, T, 3))
     for b in range(B):
-        eta, _ = covs[b].draw(K, rng, scale=paths.goal_band_scale())
+        eta, _ = covs[b].draw(K, rng, widen=False, student=False)  # typical motions (their band: region)
         eta = eta - covs[b].deviation[None]  # zero-mean draws of the conditioned process
         d = new[b][None] + np.einsum("ts,ksj->ktj", W[b], eta)
         sq[b], sp[b] = _from_deviation(paths, ref_q[b][None], ref_p[b][None], d)

@@ -15,15 +15,26 @@ squares regression on the start, per coordinate and phase,
 
     r_dj(s) = c_dj(s) − β_j(s) c_dj(0),   β_j(s) = Σ_d c_dj(s) c_dj(0) / Σ_d c_dj(0)²,
 
-so r_d(0) = 0. The residual functions r_d (D, S, 6) are the model of the variation: a draw is
-η(s) = u · √((1 + 1/D) / ν) Σ_d z_d r_d(s), z ~ N(0, I_D), u = √(ν / χ²_ν), ν = D − 2 degrees of freedom
-(centring and the regression): a function with the residuals' sample covariance over the whole phase
-range (every phase pair, every coordinate pair: coherent), inflated by (1 + 1/D) for the estimated
-mean and made Student-t by u for the estimated covariance — the predictive of a new demonstration.
-(Without u, 20 draws' 90 % rotation regions held 0.85 of fresh demonstrations when 40 demonstrations
-estimated the covariance, 0.90 when 400 did; with it 0.90 either way: tests/dynamics/test_variation.py.) A sampled
-rollout is the mean rollout from the same start displaced by a draw: R_k(s) = exp(η_rot(s)) R(s),
-p_k(s) = p(s) + η_pos(s) — one smooth alternative way of doing the task, zero at the start.
+so r_d(0) = 0. The residual functions r_d (D, S, 6) are the model of the variation, with ν = D − 2
+degrees of freedom (centring and the regression). Two things are made of them (issue 36):
+
+- **A sample** (:meth:`Variation.draw`, what ``rollout --samples`` draws) is one plausible motion: the
+  plug-in Gaussian η(s) = √(1/ν) Σ_d z_d r_d(s), z ~ N(0, I_D), a function with the residuals'
+  covariance over the whole phase range (every phase pair, every coordinate pair: coherent). A sampled
+  rollout is the mean rollout from the same start displaced by a draw: R_k(s) = exp(η_rot(s)) R(s),
+  p_k(s) = p(s) + η_pos(s) — one smooth alternative way of doing the task, zero at the start, that
+  varies as much as the demonstrations do (not more).
+- **A band** (:meth:`Variation.region`) is the 90 % prediction region of the next real motion from
+  that start: the predictive of a new demonstration, Student-t with ν degrees of freedom and scale
+  matrix C(s) = (1 + 1/D)/ν · Σ r_d(s) r_d(s)ᵀ (inflated for the estimated mean, heavy-tailed for the
+  estimated covariance), widened by the factors c below. It is computed, not drawn: per position axis
+  |e_j| ≤ c_pos t_ν,0.95 √C_jj, in rotation eᵀ C_rot⁻¹ e ≤ c_rot² · 3 F_0.90(3, ν) (e = log(R Rᵀ_mean),
+  p − p_mean). ``draw(predictive=True)`` draws that predictive (its exact 90 % regions are the band).
+
+Why two: a draw of the predictive is wider than a demonstration by the parameter uncertainty
+(ν/(ν − 2) in variance: 3 with five demonstrations), so a set of such draws is further from the
+demonstrations than fresh people are (crossval's sample ratio 1.53 on five hand raises), while the
+typical draws' regions are too narrow to hold the next motion (0.73).
 
 The bands' scale (:func:`band_scale`). A Gaussian draw with the residuals' covariance holds a new
 demonstration as often as promised only if the demonstrations' deviations are Gaussian. Real ones are
@@ -31,16 +42,15 @@ not: on the handovers a few demonstrations turn the object another way for much 
 held-out rotations lay inside the samples' 90 % region 0.83 of the time, with the median Mahalanobis
 distance where a Gaussian puts it and the tail far beyond. So each demonstration d is left out in turn
 and predicted from the others as a rollout predicts it (the start map with the model's ridge, and the
-prior's pull closing the gap at the start as exp(−a·s)); its error e_d(s) is measured against the
-draws' covariance C_−d(s) without it. The factors are the ones that make the nominal regions hold at
-the level over all (d, s), s > 0:
+prior's pull closing the gap at the start as exp(−a·s)); its error e_d(s) is measured against the band
+of the model without it (its m = D − 1 demonstrations: scale C_m(s), ν_m = m − 2 degrees of freedom).
+The factors are the ones that make those bands hold at the level over all (d, s), s > 0:
 
-    c_rot² = q_0.90(e_rotᵀ C_rot⁻¹ e_rot) / χ²_3(0.90),    c_pos = q_0.90(|e_pos,j| / √C_jj) / z_0.95,
+    c_rot² = q_0.90(e_rotᵀ C_m,rot⁻¹ e_rot / (3 F_0.90(3, ν_m))),    c_pos = q_0.90(|e_pos,j| / (t_ν_m,0.95 √C_m,jj)),
 
-and a draw's rotation is multiplied by c_rot, its position by c_pos. Both are at least 1 (the quantiles
-of a few demonstrations are uncertain; the Student-t already widens the draws for that, and a band is
-not narrowed below it) and 1 with fewer than MIN_BAND_DEMOS demonstrations. C is the Student-t draws'
-scale matrix (ν − 1 where the covariance has ν − 2; :func:`band_scale`).
+and the band's rotation region is c_rot times wider, its position interval c_pos times. Both are at
+least 1 (a band is never narrower than the Student-t predictive) and 1 with fewer than MIN_BAND_DEMOS
+demonstrations (:func:`band_calibration`).
 
 Issue 36 (docs/method.md §11). The covariance between coordinates is shrunk toward its diagonal by
 Schäfer–Strimmer's weight α (:func:`shrinkage`), so that 3–6 demonstrations do not give a rotation
@@ -58,7 +68,7 @@ import numpy as np
 from rbgp_cli.dynamics.trajectory import Trajectory
 
 __all__ = ["Variation", "demonstration_variation", "demonstration_deviations", "start_regression", "start_map",
-           "band_scale", "band_calibration", "shrinkage", "order_drift", "pull_profile", "DRIFT_P", "STEPS", "MIN_DEMOS", "MIN_BAND_DEMOS", "RIDGE_GRID", "BAND_LEVEL",
+           "band_scale", "band_calibration", "band_quantiles", "shrinkage", "order_drift", "pull_profile", "DRIFT_P", "STEPS", "MIN_DEMOS", "MIN_BAND_DEMOS", "RIDGE_GRID", "BAND_LEVEL",
            "PULL_CAP", "PULL_WINDOW"]
 
 #: Phase grid of the deviations (as the mean path's).
@@ -82,8 +92,8 @@ class Variation:
     """The demonstrations' deviation process (module docstring).
 
     s : (S,) phase grid in [0, 1]; residuals : (D, S, 6) the start-conditioned deviations r_d (rad, m),
-    rotation first; dof : ν = D − 2; band_scale : (c_rot, c_pos) ≥ 1, the factors on a draw's rotation
-    and position (:func:`band_scale`; (1, 1) for model files written before them).
+    rotation first; dof : ν = D − 2; band_scale : (c_rot, c_pos) ≥ 1, the factors on the band's
+    rotation and position (:func:`band_calibration`; (1, 1) for model files written before them).
     """
 
     s: np.ndarray
@@ -102,25 +112,58 @@ class Variation:
     def demos(self) -> int:
         return int(self.residuals.shape[0])
 
-    def draw(self, count: int, rng: np.random.Generator) -> np.ndarray:
-        """``count`` deviation functions on the grid, shape (count, S, 6): η = √((1 + 1/D)/ν) u Σ_d z_d r_d,
-        its rotation part times c_rot and its position part times c_pos (:attr:`band_scale`)."""
+    def draw(self, count: int, rng: np.random.Generator, *, predictive: bool = False) -> np.ndarray:
+        """``count`` deviation functions on the grid, shape (count, S, 6) (module docstring).
+
+        Default: typical motions, the plug-in Gaussian η = √(1/ν) (√(1 − α) Σ_d z_d r_d + √α Σ_d z'_dj r_dj)
+        with the shrunk covariance Σ_α / ν (:func:`shrinkage`): one plausible motion each, what sampled
+        rollouts show. ``predictive``: draws of the predictive of the next demonstration, whose exact
+        90 % regions are :meth:`region`'s: η = √((1 + 1/D)/ν) u (…), u = √(ν/χ²_ν), its rotation part
+        times c_rot and its position part times c_pos (:attr:`band_scale`)."""
         D = self.demos
         z = rng.standard_normal((int(count), D))
-        # each draw's scale: √(ν / χ²_ν), so that a coordinate is Student-t with ν degrees of freedom, the
-        # predictive of a new demonstration when the covariance itself is estimated from D of them
-        chi = np.sqrt(self.dof / rng.chisquare(self.dof, int(count)))
-        scale = np.sqrt((1.0 + 1.0 / D) / self.dof) * chi
-        c_rot, c_pos = (float(c) for c in self.band_scale)
-        coords = np.array([c_rot] * 3 + [c_pos] * 3)
-        r = self.residuals * coords
+        if predictive:
+            # each draw's scale: √(ν / χ²_ν), so that a coordinate is Student-t with ν degrees of freedom, the
+            # predictive of a new demonstration when the covariance itself is estimated from D of them
+            chi = np.sqrt(self.dof / rng.chisquare(self.dof, int(count)))
+            scale = np.sqrt((1.0 + 1.0 / D) / self.dof) * chi
+            c_rot, c_pos = (float(c) for c in self.band_scale)
+            r = self.residuals * np.array([c_rot] * 3 + [c_pos] * 3)
+        else:
+            scale = np.full(int(count), np.sqrt(1.0 / self.dof))
+            r = self.residuals
         eta = np.einsum("kd,dsj->ksj", z, r)
         a = float(self.shrinkage)
         if a > 0.0:  # the shrunk covariance (1 − α) Σ + α diag(Σ): a part with its own weights per coordinate
-            # (drawn after z and χ², so that α = 0 gives a model file's earlier draws bit for bit)
             zj = rng.standard_normal((int(count), D, 6))
             eta = np.sqrt(1.0 - a) * eta + np.sqrt(a) * np.einsum("kdj,dsj->ksj", zj, r)
         return scale[:, None, None] * eta
+
+    def scale_matrix(self, phase: np.ndarray) -> np.ndarray:
+        """The predictive's scale matrix at phases ``phase`` (...,) (clipped to [0, 1]), shape (..., 6, 6):
+        C = (1 + 1/D)/ν · Σ_α of the residuals interpolated linearly on the grid, r(x) = (1 − f) r_k + f r_(k+1)
+        (the covariance of :meth:`at`'s interpolation of a draw), Σ_α = (1 − α) Σ_d r_d rᵀ_d + α diag."""
+        s, r = self.s, self.residuals
+        x = np.clip(np.asarray(phase, dtype=np.float64), 0.0, 1.0)
+        k = np.clip(np.searchsorted(s, x, side="right") - 1, 0, len(s) - 2)
+        f = ((x - s[k]) / (s[k + 1] - s[k]))[..., None, None]
+        Ckk = np.einsum("dsi,dsj->sij", r, r)  # (S, 6, 6) on the grid
+        Ck1 = np.einsum("dsi,dsj->sij", r[:, :-1], r[:, 1:])  # (S − 1, 6, 6) between neighbours
+        Ck1 = Ck1 + Ck1.transpose(0, 2, 1)
+        C = (1.0 - f) ** 2 * Ckk[k] + f ** 2 * Ckk[k + 1] + f * (1.0 - f) * Ck1[k]
+        return _shrunk(C, float(self.shrinkage)) * (1.0 + 1.0 / self.demos) / self.dof
+
+    def region(self, phase: np.ndarray, level: float = BAND_LEVEL) -> tuple[np.ndarray, np.ndarray]:
+        """The band: the ``level`` prediction region of the next real motion at phases ``phase`` (...,)
+        around the mean rollout (module docstring). Returns the position half-widths (..., 3) m, per
+        axis c_pos t_ν,(1+level)/2 √C_jj, and the rotation region's matrix M (..., 3, 3) rad², the
+        region {e : eᵀ M⁻¹ e ≤ 1} of e = log(R Rᵀ_mean) (world frame), M = c_rot² 3 F_level(3, ν) C_rot
+        (C :meth:`scale_matrix`; c calibrated at BAND_LEVEL)."""
+        C = self.scale_matrix(phase)
+        q_rot, q_pos = band_quantiles(self.dof, level)
+        c_rot, c_pos = (float(c) for c in self.band_scale)
+        half = c_pos * q_pos * np.sqrt(np.maximum(np.einsum("...ii->...i", C[..., 3:, 3:]), 0.0))
+        return half, (c_rot ** 2 * q_rot) * C[..., :3, :3]
 
     def at(self, eta: np.ndarray, phase: np.ndarray) -> np.ndarray:
         """Draws ``eta`` (..., S, 6) at phases ``phase`` (..., T) (clipped to [0, 1]) by linear
@@ -355,12 +398,35 @@ def _held_out_errors(delta: np.ndarray, s: np.ndarray, train: np.ndarray, test: 
     return m2, np.abs(e[..., 3:]) / sd[None]
 
 
-def _factors(m2: np.ndarray, z: np.ndarray, level: float) -> tuple[float, float]:
-    """(c_rot, c_pos) ≥ 1 that put the ``level`` quantile of the errors on the regions' edge."""
-    from scipy.special import chdtri, ndtri  # the quantiles alone, without scipy.stats' import (1.6 s here)
+def band_quantiles(dof: int, level: float = BAND_LEVEL) -> tuple[float, float]:
+    """(q_rot, q_pos): the ``level`` quantiles of the Student-t predictive with ``dof`` = ν degrees of
+    freedom: of a rotation's squared Mahalanobis distance against the scale matrix, 3 F_level(3, ν)
+    (m²/3 of a trivariate t is F(3, ν)), and of one position coordinate's |t|, t_ν,(1+level)/2."""
+    from scipy.special import fdtri, stdtrit  # the quantiles alone, without scipy.stats' import (1.6 s here)
 
-    c_rot = np.sqrt(np.quantile(np.ravel(m2), level) / chdtri(3, 1.0 - level))  # χ²_3's level quantile
-    c_pos = np.quantile(np.ravel(z), level) / ndtri(0.5 + level / 2.0)
+    nu = max(int(dof), 1)
+    return 3.0 * float(fdtri(3, nu, level)), float(stdtrit(nu, 0.5 + level / 2.0))
+
+
+def _scores(delta: np.ndarray, s: np.ndarray, splits, *, ridge: float, gain: float, level: float):
+    """The left-out errors of every (train, test) split in ``splits`` against the band of the model of
+    its training demonstrations (:func:`_held_out_errors`), in units of that band's own Student-t
+    quantiles (ν = m − 2 of its m): rotation m² / (3 F(3, ν)) and position |z| / t_ν, pooled."""
+    scale = _coordinate_scale(delta)
+    m2, z = [], []
+    for train, test in splits:
+        a, b = _held_out_errors(delta, s, train, test, ridge=ridge, gain=gain, scale=scale)
+        q_rot, q_pos = band_quantiles(len(train) - 2, level)
+        m2.append(np.ravel(a) / q_rot)
+        z.append(np.ravel(b) / q_pos)
+    return np.concatenate(m2), np.concatenate(z)
+
+
+def _factors(m2: np.ndarray, z: np.ndarray, level: float) -> tuple[float, float]:
+    """(c_rot, c_pos) ≥ 1 that put the ``level`` quantile of the normalised errors (:func:`_scores`) on
+    the bands' edge."""
+    c_rot = np.sqrt(np.quantile(np.ravel(m2), level))
+    c_pos = np.quantile(np.ravel(z), level)
     return max(1.0, float(c_rot)), max(1.0, float(c_pos))
 
 
@@ -370,16 +436,27 @@ ORDER_BLOCKS = 5
 BLOCK_MIN = 2
 
 
+def _order_blocks(D: int, blocks: int):
+    """The (train, test) splits of :func:`band_calibration`'s blocks in recording order, or None."""
+    k = min(int(blocks), D // BLOCK_MIN)
+    if k >= 2 and D - int(np.ceil(D / k)) >= MIN_BAND_DEMOS - 1:
+        return [(np.setdiff1d(np.arange(D), test), test) for test in np.array_split(np.arange(D), k)]
+    return None
+
+
 def band_calibration(delta: np.ndarray, s: np.ndarray, *, ridge: float = float("inf"), gain: float = 0.0,
                      level: float = BAND_LEVEL, blocks: int = ORDER_BLOCKS) -> dict:
     """The bands' factors from the demonstrations left out, at random and in recording order
-    (docs/method.md §11, "The bands' scale"; the rows of ``delta`` are in recording order).
+    (docs/method.md §11, "The bands' scale"; the rows of ``delta`` (D, S, 6) are in recording order).
 
     ``random``: each demonstration left out in turn (:func:`band_scale`); ``recorded``: ``blocks``
     contiguous blocks in recording order left out in turn (each at least BLOCK_MIN long), each predicted
     from the others: what the next session meets when the demonstrations drift over the session (its
-    neighbours in time are not in the training set). The bands cover both: c = max of the two per
-    rotation and position. Returns ``{"band_scale": (c_rot, c_pos), "random": (…), "recorded": (…) or
+    neighbours in time are not in the training set). Each left-out error is measured against the band of
+    the model without it (:func:`_scores`), each kind gives its factors, and the bands cover both: c = the
+    larger of the two per rotation and position. (The quantile of both kinds' errors together was tried:
+    on the 40 hand raises' blocks the bands then held 0.87 / 0.85 against 0.89 / 0.87, at random 0.92 /
+    0.93 against 0.93 / 0.94.) Returns ``{"band_scale": (c_rot, c_pos), "random": (…), "recorded": (…) or
     None, "shrinkage": α}``; (1, 1) with fewer than MIN_BAND_DEMOS demonstrations."""
     delta = np.asarray(delta, dtype=np.float64)
     D = len(delta)
@@ -388,68 +465,38 @@ def band_calibration(delta: np.ndarray, s: np.ndarray, *, ridge: float = float("
     out = {"band_scale": (1.0, 1.0), "random": None, "recorded": None, "shrinkage": alpha}
     if D < MIN_BAND_DEMOS:
         return out
-    loo = band_scale(delta, r, s, ridge=ridge, gain=gain, level=level)
-    out["random"] = loo
-    scale = _coordinate_scale(delta)
-    k = min(int(blocks), D // BLOCK_MIN)
-    if k >= 2 and D - int(np.ceil(D / k)) >= MIN_BAND_DEMOS - 1:
-        m2, z = [], []
-        for test in np.array_split(np.arange(D), k):
-            train = np.setdiff1d(np.arange(D), test)
-            a, b = _held_out_errors(delta, s, train, test, ridge=ridge, gain=gain, scale=scale)
-            m2.append(a.ravel())
-            z.append(b.ravel())
-        out["recorded"] = _factors(np.concatenate(m2), np.concatenate(z), level)
+    loo = [(np.setdiff1d(np.arange(D), [d]), np.array([d])) for d in range(D)]
+    m2, z = _scores(delta, s, loo, ridge=ridge, gain=gain, level=level)
+    out["random"] = _factors(m2, z, level)
+    split = _order_blocks(D, blocks)
+    if split is not None:
+        out["recorded"] = _factors(*_scores(delta, s, split, ridge=ridge, gain=gain, level=level), level)
     rec = out["recorded"] or (1.0, 1.0)
-    out["band_scale"] = (max(loo[0], rec[0]), max(loo[1], rec[1]))
+    out["band_scale"] = (max(out["random"][0], rec[0]), max(out["random"][1], rec[1]))
     return out
 
 
 def band_scale(delta: np.ndarray, residuals: np.ndarray, s: np.ndarray, *, ridge: float = float("inf"),
                gain: float = 0.0, level: float = BAND_LEVEL) -> tuple[float, float]:
-    """The factors (c_rot, c_pos) ≥ 1 on the draws' rotation and position that make their ``level``
-    regions hold the demonstrations, each left out in turn (module docstring, "The bands' scale").
+    """The factors (c_rot, c_pos) ≥ 1 on the band's rotation and position that make the ``level`` bands
+    hold the demonstrations, each left out in turn (module docstring, "The bands' scale").
 
-    delta : (D, S, 6) the deviations (:func:`demonstration_deviations`); residuals : (D, S, 6) their
-    start-regression residuals r_d (:func:`start_regression`), whose draws are scaled; s : (S,) the grid.
-    ridge : λ of the start map the mean rollout follows (:func:`start_map`; ∞: the mean deviation,
-    no conditioning); gain : the prior's pull a per unit phase, which closes a start's gap to that
-    map's prediction as exp(−a·s) (0: the gap stays). The left-out demonstration's error is
-    e_d(s) = δ_d(s) − m_−d(s) − exp(−a·s) (δ_d(0) − m_−d(0)), m_−d the map fitted without it; the
-    draws' scale without it is C_−d(s) = (1 + 1/D)/(ν − 1) · D/(D − 1) · Σ_α,−d (ν − 1 = D − 3 the
-    Student-t's degrees of freedom with D − 1 demonstrations), Σ_α,−d the shrunk (:func:`shrinkage`, α
-    of all D) Σ_{d'≠d} r_d' r_d'ᵀ. It is the Student-t draws' scale matrix, not their covariance (ν/(ν − 2)
-    times larger): 20 samples' bands follow the typical draw, and with 5 demonstrations or fewer the
-    Student-t has no variance (ν ≤ 2; with the covariance's factor the bands of five demonstrations of a
-    known process held 0.85 of fresh ones in rotation, with the scale's 0.875:
-    tests/dynamics/test_bands_order.py). Returns (1, 1) for fewer than MIN_BAND_DEMOS demonstrations
-    (one left out must leave three).
+    delta : (D, S, 6) the deviations (:func:`demonstration_deviations`); residuals : unused (kept for
+    callers; the left-out models refit their own); s : (S,) the grid. ridge : λ of the start map the mean
+    rollout follows (:func:`start_map`; ∞: the mean deviation, no conditioning); gain : the prior's pull
+    a per unit phase, which closes a start's gap to that map's prediction as exp(−a·s) (0: the gap
+    stays). The left-out demonstration's error is e_d(s) = δ_d(s) − m_−d(s) − exp(−a·s) (δ_d(0) − m_−d(0)),
+    m_−d the map fitted without it, against the band of the D − 1 others: scale matrix
+    C_−d = (1 + 1/m)/(m − 2) Σ_α,−d (m = D − 1, Σ_α,−d their start-regression residuals' shrunk Σ r rᵀ,
+    α their own) and the Student-t quantiles with ν = m − 2 (:func:`band_quantiles`). Returns (1, 1) for
+    fewer than MIN_BAND_DEMOS demonstrations (one left out must leave three).
     """
     delta = np.asarray(delta, dtype=np.float64)
-    r = np.asarray(residuals, dtype=np.float64)
     D = len(delta)
     if D < MIN_BAND_DEMOS:
         return 1.0, 1.0
-    nu = D - 2
-    alpha = shrinkage(r)
-    scale = _coordinate_scale(delta)
-    decay = np.exp(-float(gain) * np.asarray(s, dtype=np.float64))[1:, None]
-    outer = np.einsum("dsi,dsj->dsij", r[:, 1:], r[:, 1:])  # (D, S−1, 6, 6), phase 0 left out (r = 0 there)
-    total = outer.sum(axis=0)
-    factor = (1.0 + 1.0 / D) / (nu - 1) * D / (D - 1)
-    m2, z = [], []
-    for d in range(D):  # a loop over demonstrations, each a batch of 6 × 6 solves over phase
-        mu, B = _ridge_map(np.delete(delta, d, axis=0), scale, ridge)
-        e = delta[d] - mu - np.einsum("sij,j->si", B, delta[d, 0] - mu[0])
-        e = e[1:] - decay * e[0]
-        C = factor * _shrunk(total - outer[d], alpha)
-        Cr = C[:, :3, :3]
-        tr = np.trace(Cr, axis1=1, axis2=2)[:, None, None] / 3.0
-        Cr = Cr + (1e-9 * tr + 1e-24) * np.eye(3)
-        m2.append(np.einsum("si,si->s", e[:, :3], np.linalg.solve(Cr, e[:, :3, None])[..., 0]))
-        sd = np.sqrt(np.maximum(np.einsum("sii->si", C[:, 3:, 3:]), 1e-24))
-        z.append(np.abs(e[:, 3:]) / sd)
-    return _factors(np.concatenate(m2), np.concatenate(z).ravel(), level)
+    loo = [(np.setdiff1d(np.arange(D), [d]), np.array([d])) for d in range(D)]
+    return _factors(*_scores(delta, s, loo, ridge=ridge, gain=gain, level=level), level)
 
 
 #: Reorderings of the demonstrations that :func:`order_drift`'s permutation test draws.

@@ -18,7 +18,10 @@ folds of the demonstrations (seeded; a demonstration is never split across folds
    RMSE (rad, the angle of R_genᵀ R_demo);
 6. **sampled rollouts** (``samples`` K per start): ``sample_score``, the score of a set of one sample
    per held-out start, as the floor is scored, averaged over the K such sets (``sample_score_one``:
-   the first set alone); the coverage of each held-out motion by its start's K samples;
+   the first set alone); the coverage of each held-out motion by the 90 % band rbgp gives with its
+   samples (the next motion's predictive region around the mean rollout,
+   :func:`rbgp_cli.evaluation.coverage.band_coverage`), for a peer without one by its samples' 90 %
+   regions;
 7. **velocity RMSE** on the held-out training pairs (estimated exactly as the model's training pairs
    were), with each prediction mapped to a world-frame twist (ω, v): ``velocity_rmse`` is the relative
    error √((Σ‖Δω‖²/Σ‖ω‖² + Σ‖Δv‖²/Σ‖v‖²)/2) (1 = no better than predicting zero), with the raw
@@ -317,6 +320,7 @@ def _model_rollouts(model, test: list[Trajectory], samples: int, seed: int):
                       samples=samples, seed=seed)
     trajs = res.trajectories(include_samples=samples > 0)
     gen = [g.with_(name=f"from {tr.name}") for g, tr in zip(trajs[: len(test)], test)]
+    gen = with_bands(gen, res)
     drawn = None
     if samples > 0:  # trajectories() lists the samples start by start after the means
         rest = trajs[len(test):]
@@ -324,13 +328,24 @@ def _model_rollouts(model, test: list[Trajectory], samples: int, seed: int):
     return gen, drawn
 
 
-def _sample_columns(drawn, train: list[Trajectory], test: list[Trajectory], T: int, covariance: str) -> dict | None:
+def with_bands(gen: list[Trajectory], res) -> list[Trajectory]:
+    """The mean trajectories ``gen`` of a rollout result ``res`` with its 90 % band (if it has one) in
+    their ``info["band"]``: (position half-widths (n, 3), rotation regions (n, 3, 3)) on their own samples."""
+    if getattr(res, "band_position", None) is None:
+        return gen
+    return [g.with_(info={"band": (res.band_position[b, :len(g.t)], res.band_rotation[b, :len(g.t)])})
+            for b, g in enumerate(gen)]
+
+
+def _sample_columns(drawn, train: list[Trajectory], test: list[Trajectory], T: int, covariance: str,
+                    gen: list[Trajectory] | None = None) -> dict | None:
     """The variety and calibration columns of one fold (docs/method.md §11): ``sample_score``, a set of one
     sampled rollout per held-out start scored against the training demonstrations as ``score`` is
-    (the mean over the K such sets, ``sample_scores`` each one's), and the
-    coverage of each held-out motion by its start's samples (:func:`rbgp_cli.evaluation.coverage.prediction_coverage`,
-    sums that pool over folds)."""
-    from rbgp_cli.evaluation.coverage import MIN_SAMPLES, Coverage, prediction_coverage
+    (the mean over the K such sets, ``sample_scores`` each one's), and the coverage of each held-out
+    motion by the band its mean trajectory in ``gen`` carries (``info["band"]``, :func:`with_bands`;
+    :func:`rbgp_cli.evaluation.coverage.band_coverage`), else by its start's samples' 90 % regions
+    (:func:`rbgp_cli.evaluation.coverage.prediction_coverage`); sums that pool over folds."""
+    from rbgp_cli.evaluation.coverage import MIN_SAMPLES, Coverage, band_coverage, prediction_coverage
 
     if not drawn:
         return None
@@ -340,7 +355,10 @@ def _sample_columns(drawn, train: list[Trajectory], test: list[Trajectory], T: i
     sets = [evaluate([d[k] for d in drawn], train, length=T, covariance=covariance, sample_size="record")
             for k in range(min(len(d) for d in drawn))]
     cov = Coverage()
-    if len(drawn[0]) >= MIN_SAMPLES:
+    if gen is not None and all("band" in g.info for g in gen):
+        for g, real in zip(gen, test):
+            cov = cov + band_coverage(g, *g.info["band"], real, T)
+    elif len(drawn[0]) >= MIN_SAMPLES:
         for d, real in zip(drawn, test):
             cov = cov + prediction_coverage(d, real, T)
     scores = [float(e.mean) for e in sets]
@@ -407,7 +425,7 @@ def _fold_scores(gen, drawn, model, train: list[Trajectory], test: list[Trajecto
     }
     if model is not None:
         out["points"] = int(model.summary.get("points", 0))
-    sampled = _sample_columns(drawn, train, test, T, covariance)
+    sampled = _sample_columns(drawn, train, test, T, covariance, gen)
     if sampled is not None:
         out.update(sampled)
     return out
@@ -580,7 +598,8 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
         train options' seed, :func:`sample_seed`) for the columns of docs/method.md §11: ``sample_score`` /
         ``sample_ratio`` (a set of one sample per start, scored as ``score``: the mean over the K sets;
         ``sample_score_one`` the first set's), ``coverage_position`` / ``coverage_rotation`` (the held-out motion
-        inside the samples' 90 % prediction regions; 0.90 for a perfect Gaussian model) and the bands'
+        inside the 90 % band rbgp gives with its samples, a peer's samples' 90 % prediction regions;
+        0.90 for honest bands) and the bands'
         mean half-widths ``band_position`` (m) / ``band_rotation`` (rad); 0: none (those columns None)
     without_gp : beside every model row with a prior mean, a row "…, without the GP" from the same fits
         with the GP's residual switched off (:meth:`MotionModel.without_residual`): the path

@@ -170,6 +170,9 @@ def model_goal_rollouts(model, test: list[Trajectory], samples: int, seed: int):
                               samples=samples, seed=seed)
     trajs = res.trajectories(include_samples=samples > 0)
     gen = [g.with_(name=f"from {tr.name} to its goal") for g, tr in zip(trajs[: len(test)], test)]
+    from rbgp_cli.evaluation.crossval import with_bands
+
+    gen = with_bands(gen, res)  # the coverage is measured with the band rbgp gives
     drawn = None
     if samples > 0:
         rest = trajs[len(test):]

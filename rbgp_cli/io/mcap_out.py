@@ -4,16 +4,19 @@ Topics (ROS 2 names: a name token must not start with a digit, so the index foll
 
     /rbgp/rollout_<b>                  mean rollout b
     /rbgp/rollout_<b>/sample_<k>       its k-th sampled rollout (rollout --samples)
-    /rbgp/rollout_<b>/band             the samples' spread about the mean rollout (ROS 2 only, K >= 2)
+    /rbgp/rollout_<b>/band             the 90 % band about the mean rollout (ROS 2 only, K >= 2)
 
 Messages, per ``encoding``:
 
 ``ros2`` (profile ``ros2``; ROS 2 CDR with the ``ros2msg`` schema text, written by
 ``mcap_ros2.writer``): rollouts and samples are ``geometry_msgs/msg/PoseStamped``, the band is
 ``geometry_msgs/msg/PoseWithCovarianceStamped`` whose pose is the mean rollout's and whose covariance
-(6 x 6, row-major, order x, y, z, rotation about the fixed X, Y, Z axes as REP 103 states) is the
-second moment of the K samples about that pose: position d_p = p_k - p_mean (m), rotation
-d_r = log(R_k R_mean^T) (rad, world axes), Σ = (1/K) Σ_k d d^T.
+(6 x 6, row-major, order x, y, z, rotation about the fixed X, Y, Z axes as REP 103 states) is, for a
+model that gives the next motion's 90 % band (rbgp's sampled rollouts: docs/method.md §11), the
+Gaussian covariance whose 90 % regions are that band (:func:`region_covariance`); otherwise (per-step
+Monte Carlo samples) the second moment of the K samples about that pose: position
+d_p = p_k - p_mean (m), rotation d_r = log(R_k R_mean^T) (rad, world axes), Σ = (1/K) Σ_k d d^T
+(:func:`band_covariance`).
 
 ``foxglove`` (protobuf, written by ``mcap_protobuf.writer`` with ``foxglove_schemas_protobuf``):
 ``foxglove.PoseInFrame`` for rollouts and samples; Foxglove has no pose-with-covariance message, so
@@ -39,7 +42,7 @@ import numpy as np
 from rbgp_cli.errors import InputError
 from rbgp_cli.io.atomic import atomic_dir, atomic_open
 
-__all__ = ["write_rollouts_mcap", "rollout_topic", "ROLLOUT_TOPIC_RE", "band_covariance", "ENCODINGS",
+__all__ = ["write_rollouts_mcap", "rollout_topic", "ROLLOUT_TOPIC_RE", "band_covariance", "region_covariance", "ENCODINGS",
            "POSE_STAMPED_MSGDEF", "POSE_COV_STAMPED_MSGDEF"]
 
 ENCODINGS = ("ros2", "foxglove")
@@ -109,6 +112,22 @@ def band_covariance(quat_mean, pos_mean, quat_samples, pos_samples) -> np.ndarra
     for k in range(K):
         d[k, :, 3:] = (Rotation.from_quat(quat_samples[k]) * R_inv).as_rotvec()
     return np.einsum("kni,knj->nij", d, d) / K
+
+
+def region_covariance(band_position, band_rotation, level: float = 0.90) -> np.ndarray:
+    """The covariance (N, 6, 6), REP 103's order (x, y, z, then rotation about the world's X, Y, Z), of
+    the Gaussian whose ``level`` regions are a band (:attr:`rbgp_cli.dynamics.rollout.RolloutResult.band_position`
+    (N, 3) m half-widths per axis, ``band_rotation`` (N, 3, 3) rad² regions {e : eᵀ M⁻¹ e ≤ 1}): position
+    variances (half / z_(1+level)/2)², rotation M / χ²_3(level), no position–rotation terms. A reader that
+    draws the covariance's 90 % region draws the band."""
+    from scipy.special import chdtri, ndtri
+
+    half = np.asarray(band_position, dtype=np.float64)
+    M = np.asarray(band_rotation, dtype=np.float64)
+    cov = np.zeros(half.shape[:-1] + (6, 6))
+    cov[..., [0, 1, 2], [0, 1, 2]] = (half / ndtri(0.5 + level / 2.0)) ** 2
+    cov[..., 3:, 3:] = M / chdtri(3, 1.0 - level)
+    return cov
 
 
 def _stamp(ns: int) -> dict:

@@ -40,11 +40,12 @@ def session(n, seed, drift_pos=0.0, drift_rot=0.0, samples=60, first=0, total=No
     return timed_demos(n, seed, samples, pose)
 
 
-def _coverage(train, fresh, rng, samples=20):
-    """Coverage of the ``fresh`` demonstrations by ``samples`` draws each of the variation of ``train``
-    around the conditional mean given each one's start (the mean path moved by its start deviation,
-    as the bands' calibration at ridge ∞ and gain 0 predicts it)."""
-    return _coverage_of(demonstration_variation(train), train, fresh, rng, samples)
+def _coverage(train, fresh):
+    """Coverage of the ``fresh`` demonstrations by the 90 % band of the variation of ``train``
+    (:meth:`Variation.region`) around the conditional mean given each one's start (the mean path moved
+    by its start deviation, as the bands' calibration at ridge ∞ and gain 0 predicts it)."""
+    v = demonstration_variation(train)
+    return _coverage_of(v, train, fresh), v
 
 
 @pytest.mark.slow
@@ -54,7 +55,6 @@ def test_blocked_folds_of_a_drifting_session_hold_fresh_later_draws_at_the_level
     contiguous blocks in recording order: the bands of the other 32 hold fresh draws at the held-out
     block's place in the session 0.90 ± 0.04 of the time, position and rotation (pooled over 6
     sessions). Left out at random only, the factors do not see the drift and hold fewer."""
-    rng = np.random.default_rng(7)
     total, before = None, None
     for rep in range(6):
         demos = session(40, 500 + rep, drift_pos=0.12, drift_rot=0.25)
@@ -62,36 +62,38 @@ def test_blocked_folds_of_a_drifting_session_hold_fresh_later_draws_at_the_level
             train = [d for i, d in enumerate(demos) if i not in set(block.tolist())]
             fresh = session(len(block), 900 + 10 * rep + int(block[0]), drift_pos=0.12, drift_rot=0.25,
                             first=int(block[0]), total=40)
-            cov, v = _coverage(train, fresh, rng)
+            cov, v = _coverage(train, fresh)
             total = cov if total is None else total + cov
-            # the same draws with the factors of the random leave-one-out alone: narrower
-            assert v.band_scale[0] >= v.calibration["random"][0] and v.band_scale[1] >= v.calibration["random"][1]
+            # the bands cover both kinds of left-out demonstrations: the larger of the two factors
+            assert v.band_scale == (max(v.calibration["random"][0], v.calibration["recorded"][0]),
+                                    max(v.calibration["random"][1], v.calibration["recorded"][1]))
             from dataclasses import replace
 
-            narrow, _ = _coverage_of(replace(v, band_scale=tuple(v.calibration["random"])), train, fresh, rng)
+            # the same band with the factors of the random leave-one-out alone: narrower
+            narrow = _coverage_of(replace(v, band_scale=tuple(v.calibration["random"])), train, fresh)
             before = narrow if before is None else before + narrow
     c, b = total.to_dict(), before.to_dict()
     assert abs(c["coverage_position"] - 0.90) <= 0.04, c
     assert abs(c["coverage_rotation"] - 0.90) <= 0.04, c
-    assert b["coverage_rotation"] < c["coverage_rotation"] - 0.02, (b, c)  # 0.84 against 0.89 when written
+    assert b["coverage_rotation"] < c["coverage_rotation"], (b, c)
 
 
-def _coverage_of(v, train, fresh, rng, samples=20):
-    """:func:`_coverage` with a given variation ``v`` (of ``train``)."""
+def _coverage_of(v, train, fresh):
+    """:func:`_coverage` with a given variation ``v`` (of ``train``): the band rbgp gives (what crossval
+    measures, :func:`rbgp_cli.evaluation.coverage.band_coverage`)."""
     from rbgp_cli.dynamics.model import mean_path
-    from rbgp_cli.evaluation.coverage import Coverage, prediction_coverage
+    from rbgp_cli.evaluation.coverage import Coverage, band_coverage
     from rbgp_cli.geometry.so3 import log_quat, quat_conjugate
 
     path = mean_path(train, 51)
+    half, M = v.region(v.s)
     total = Coverage()
     for real in fresh:
         cond = path["position"] + (real.position[0] - path["position"][0])
         start_rot = log_quat(quat_multiply(real.quat[0], quat_conjugate(path["quat"][0])))
         mean_q = quat_multiply(exp_quat(np.broadcast_to(start_rot, (51, 3))), path["quat"])
-        draws = [Trajectory(v.s * real.duration, quat_multiply(exp_quat(e[:, :3]), mean_q), cond + e[:, 3:])
-                 for e in v.draw(samples, rng)]
-        total = total + prediction_coverage(draws, real, T=51)
-    return total, v
+        total = total + band_coverage(Trajectory(v.s * real.duration, mean_q, cond), half, M, real, T=51)
+    return total
 
 
 @pytest.mark.slow
@@ -101,14 +103,13 @@ def test_five_demonstrations_of_a_known_process_give_bands_that_hold_fresh_draws
     each). Without the shrinkage and the calibration (rank ≤ 3 covariance, factors 1) rotation held less."""
     from dataclasses import replace
 
-    rng = np.random.default_rng(11)
     total, plain = None, None
     for rep in range(30):
         train = session(5, 700 + rep)
         fresh = session(8, 1700 + rep)
-        cov, v = _coverage(train, fresh, rng)
+        cov, v = _coverage(train, fresh)
         total = cov if total is None else total + cov
-        old, _ = _coverage_of(replace(v, shrinkage=0.0, band_scale=(1.0, 1.0)), train, fresh, rng)
+        old = _coverage_of(replace(v, shrinkage=0.0, band_scale=(1.0, 1.0)), train, fresh)
         plain = old if plain is None else plain + old
     c, p = total.to_dict(), plain.to_dict()
     assert c["coverage_position"] >= 0.85, c
@@ -168,3 +169,36 @@ def test_few_demonstrations_get_a_full_rank_draw_and_factors_from_four_on():
     v3 = demonstration_variation(session(3, 1))
     assert v3.band_scale == (1.0, 1.0) and v3.calibration == {"random": None, "recorded": None}
 
+
+
+@pytest.mark.slow
+def test_typical_samples_score_like_fresh_demonstrations_and_predictive_draws_further():
+    """Variety (issue 36): one typical sample per fresh start, around the conditional mean given that
+    start, scores against five training demonstrations of the known process no further than the fresh
+    demonstrations themselves do (the floor; within 10 %, pooled over 12 studies), while one draw of the
+    predictive per start (Student-t with ν = 3, the mean's inflation, the factors) scores further:
+    the band is not the spread of a typical motion."""
+    from rbgp_cli.dynamics.model import mean_path
+    from rbgp_cli.evaluation.bhattacharyya import evaluate
+    from rbgp_cli.geometry.so3 import log_quat, quat_conjugate
+
+    rng = np.random.default_rng(21)
+    typical, predictive, floor = [], [], []
+    for rep in range(12):
+        train = session(5, 300 + rep)
+        fresh = session(20, 1300 + rep)
+        v = demonstration_variation(train)
+        path = mean_path(train, 51)
+        sets = {"typical": [], "predictive": []}
+        for kind, eta in (("typical", v.draw(len(fresh), rng)), ("predictive", v.draw(len(fresh), rng, predictive=True))):
+            for real, e in zip(fresh, eta):
+                cond = path["position"] + (real.position[0] - path["position"][0])
+                start_rot = log_quat(quat_multiply(real.quat[0], quat_conjugate(path["quat"][0])))
+                mean_q = quat_multiply(exp_quat(np.broadcast_to(start_rot, (51, 3))), path["quat"])
+                sets[kind].append(Trajectory(v.s * real.duration, quat_multiply(exp_quat(e[:, :3]), mean_q), cond + e[:, 3:]))
+        typical.append(evaluate(sets["typical"], train, length=51, sample_size="record").mean)
+        predictive.append(evaluate(sets["predictive"], train, length=51, sample_size="record").mean)
+        floor.append(evaluate(fresh, train, length=51, sample_size="record").mean)
+    ratio_typical, ratio_predictive = np.mean(typical) / np.mean(floor), np.mean(predictive) / np.mean(floor)
+    assert ratio_typical <= 1.1, (ratio_typical, ratio_predictive)  # 0.85 against 1.42 when written
+    assert ratio_predictive > ratio_typical + 0.2, (ratio_typical, ratio_predictive)

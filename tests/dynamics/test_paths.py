@@ -161,20 +161,58 @@ def test_the_conditioned_mean_recovers_the_true_path_within_ten_percent_of_the_n
     assert pose_rmse(None, np.array(start_only), fresh) > 1.5 * floor
 
 
-@pytest.mark.slow
-def test_the_bands_hold_fresh_motions_ninety_percent_of_the_time(family):
-    paths, _, _, fresh = family
-    rng = np.random.default_rng(5)
+def _band_coverage(paths, fresh):
+    """Coverage of ``fresh`` motions by the band given start, goal and duration
+    (:meth:`Conditioned.region` with :meth:`PathDistribution.goal_band_scale`, what rollouts carry and
+    crossval measures) around the conditioned mean."""
+    from rbgp_cli.evaluation.coverage import band_coverage
+
     total = Coverage()
     for tr in fresh:
         cond = condition_on_ends(paths, tr)
-        dev, _ = cond.draw(20, rng, scale=paths.goal_band_scale())
-        q, p = paths.pose_at(dev, PHASE)
-        drawn = [Trajectory(tr.t, q[k], p[k]) for k in range(20)]
-        total = total + prediction_coverage(drawn, tr, S)
-    cov = total.to_dict()
+        q, p = paths.pose_at(cond.deviation, PHASE)
+        half, M = cond.region(PHASE, scale=paths.goal_band_scale())
+        total = total + band_coverage(Trajectory(tr.t, q, p), half, M, tr, S)
+    return total.to_dict()
+
+
+@pytest.mark.slow
+def test_the_bands_hold_fresh_motions_ninety_percent_of_the_time(family):
+    paths, _, _, fresh = family
+    cov = _band_coverage(paths, fresh)
     assert abs(cov["coverage_position"] - 0.90) <= 0.04, cov
     assert abs(cov["coverage_rotation"] - 0.90) <= 0.04, cov
+
+
+@pytest.mark.slow
+def test_five_demonstrations_give_goal_bands_that_hold_fresh_motions():
+    """Studies of 5 demonstrations of the family (issue 38): the bands given start, goal and duration hold
+    the fresh motions 0.85–0.95 of the time (pooled over 12 studies, 20 fresh motions each; 0.89 / 0.94
+    when written). With the factors kept at 1 or more (the rule below 10 demonstrations before) they
+    are wider and hold more (0.90 / 0.95 here, where the left-out factors are near 1; on real sets of 5–7
+    the difference is larger: docs/defaults.md, issue 38)."""
+    from dataclasses import replace
+
+    rng = np.random.default_rng(55)
+    got, kept = Coverage(), Coverage()
+    for _ in range(12):
+        _, _, train = draw_family(5, rng)
+        _, _, fresh = draw_family(20, rng)
+        paths = fit_paths(train)
+        c = _band_coverage(paths, fresh)
+        got = got + _as_coverage(c, len(fresh))
+        wide = replace(paths, _goal_scale=tuple(max(1.0, x) for x in paths.goal_band_scale()))
+        kept = kept + _as_coverage(_band_coverage(wide, fresh), len(fresh))
+    g, k = got.to_dict(), kept.to_dict()
+    assert 0.85 <= g["coverage_position"] <= 0.95, g
+    assert 0.85 <= g["coverage_rotation"] <= 0.95, g
+    assert k["coverage_position"] > g["coverage_position"] and k["coverage_rotation"] > g["coverage_rotation"], (k, g)
+
+
+def _as_coverage(d, n):
+    """A coverage dictionary of n motions of S steps back as counts (to pool studies with equal weight)."""
+    return Coverage(round(d["coverage_position"] * 3 * S * n), 3 * S * n, round(d["coverage_rotation"] * S * n), S * n,
+                    d["band_position"] * 3 * S * n, d["band_rotation"] * S * n)
 
 
 @pytest.mark.slow

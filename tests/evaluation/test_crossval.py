@@ -248,9 +248,17 @@ def test_sample_columns_score_one_sample_per_start_and_pool_the_coverage(monkeyp
     assert np.std(sets) > 0  # the sets differ: averaging them is not a no-op
     # each fold draws its own numbers: fold 1's samples are not fold 0's seed again
     assert sample_seed(0, 1) != sample_seed(0, 0) and sample_seed(1, 0) != sample_seed(0, 0)
-    cov = Coverage()
-    for b, real in enumerate(test):
-        cov = cov + prediction_coverage(trajs[b * 6:(b + 1) * 6], real, T)
+    # the coverage is the band's rbgp gives with its samples (around the mean rollout), not the samples' own
+    from rbgp_cli.evaluation.coverage import band_coverage
+
+    cov, own = Coverage(), Coverage()
+    for b, (real, mean) in enumerate(zip(test, r.trajectories()[:len(test)])):
+        n = len(mean.t)
+        cov = cov + band_coverage(mean, r.band_position[b, :n], r.band_rotation[b, :n], real, T)
+        own = own + prediction_coverage(trajs[b * 6:(b + 1) * 6], real, T)
     assert fold0["coverage_position"] == pytest.approx(cov.to_dict()["coverage_position"])
+    assert fold0["coverage_rotation"] == pytest.approx(cov.to_dict()["coverage_rotation"])
+    assert fold0["band_position"] == pytest.approx(cov.to_dict()["band_position"])
+    assert own.to_dict()["band_position"] != pytest.approx(cov.to_dict()["band_position"])
     off = crossval(demos, configs[:1], folds=4, jobs=1, samples=0)["results"][0]
     assert off["sample_score"] is None and off["score"] == pytest.approx(row["score"])

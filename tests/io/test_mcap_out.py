@@ -219,3 +219,22 @@ def test_the_file_passes_the_mcap_librarys_checks(tmp_path, encoding):
         per_channel = {summary.channels[c].topic: n for c, n in stats.channel_message_counts.items()}
         assert per_channel == {rollout_topic(t.name): len(t) for t in trajs}
         assert len(list(reader.iter_messages())) == len(messages)
+
+
+def test_region_covariance_has_the_band_as_its_90_percent_regions():
+    """The band topic's covariance (rbgp's band, issue 36): a Gaussian with it holds 90 % per position
+    axis inside the band's half-widths and 90 % of its rotations inside the band's region (checked by
+    drawing from it), in REP 103's order with no position–rotation terms."""
+    from rbgp_cli.io.mcap_out import region_covariance
+
+    rng = np.random.default_rng(3)
+    half = np.array([[0.02, 0.05, 0.01], [0.1, 0.03, 0.07]])
+    A = rng.normal(size=(2, 3, 3))
+    M = A @ A.transpose(0, 2, 1) * 0.01 + 1e-4 * np.eye(3)
+    cov = region_covariance(half, M)
+    assert cov.shape == (2, 6, 6) and np.all(cov[:, :3, 3:] == 0.0) and np.all(cov[:, 3:, :3] == 0.0)
+    for n in range(2):
+        x = rng.multivariate_normal(np.zeros(6), cov[n], size=40000)
+        np.testing.assert_allclose(np.mean(np.abs(x[:, :3]) <= half[n], axis=0), 0.90, atol=0.01)
+        m2 = np.einsum("ki,ki->k", x[:, 3:], np.linalg.solve(M[n], x[:, 3:].T).T)
+        assert abs(np.mean(m2 <= 1.0) - 0.90) < 0.01
