@@ -204,7 +204,7 @@ def rollout(
     start_time: Annotated[float, typer.Option("--start-time", help="Time of the MCAP's first message in seconds since the epoch (e.g. a recording's start, to play both side by side): every message's log time and stamp is this plus t.")] = 0.0,
     json_out: Annotated[bool, typer.Option("--json", help="Print a JSON summary on stdout (requires -o FILE).")] = False,
     rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd).")] = None,
-    plot: Annotated[Optional[str], typer.Option("--plot", help="Also write a figure (PNG): each dimension over time, the mean rollouts as lines, with --samples 2 or more their samples' 90 % bands, goals as crosses at the end, via-points as diamonds, samples outside the demonstrations circled (rotation relative to the first rollout's start).")] = None,
+    plot: Annotated[Optional[str], typer.Option("--plot", help="Also write a figure (PNG): each dimension over time, the mean rollouts as lines, with --samples the next motion's 90 % band around each, goals as crosses at the end, via-points as diamonds, samples outside the demonstrations circled (rotation relative to the first rollout's start).")] = None,
     up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.")] = "z",
     read: ReadArgs = None,
 ):

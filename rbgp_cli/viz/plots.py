@@ -434,9 +434,12 @@ def plot_rollout(path, res, title: str | None = None):
     Six panels over time t (s) from the start: rotation r_x, r_y, r_z (rad, :func:`rollout_features`:
     ``log(R_refᵀ R)`` with R_ref the first mean rollout's start rotation) in the left column,
     translation x, y, z (m) in the right one. Each mean rollout b (at most :data:`MAX_LINES`, evenly
-    chosen) is a line up to its own length (``res.length(b)``); with Monte Carlo samples
-    (``res.sample_quat`` (B, K, S+1, 4), K ≥ 2) the per-time quantiles :data:`ROLLOUT_BAND` of its
-    samples are filled in its colour (the region the bands of ``rbgp crossval`` score). A conditioned
+    chosen) is a line up to its own length (``res.length(b)``), its band filled in its colour: the
+    next motion's 90 % region rbgp computed (``res.band_position`` (B, S+1, 3) m, per axis about the
+    mean; ``res.band_rotation`` (B, S+1, 3, 3), the region {e : eᵀ M⁻¹ e ≤ 1} of e = log(R R_meanᵀ),
+    drawn per axis of the reference frame as ± sqrt((R_refᵀ M R_ref)_ii), to first order in e; the band
+    ``rbgp crossval`` scores), or without one, the per-time quantiles :data:`ROLLOUT_BAND` of its
+    Monte Carlo samples (``res.sample_quat`` (B, K, S+1, 4), K ≥ 2). A conditioned
     rollout's goal (``res.goal_quat`` (B, 4), ``res.goal_position`` (B, 3)) is a cross at the
     rollout's end time; via-points (``res.via``: [(T s, quat (4,), position (3,))]) are diamonds at T.
     Samples past the demonstrations' envelope (``res.outside``) are marked with small circles.
@@ -453,7 +456,17 @@ def plot_rollout(path, res, title: str | None = None):
     ref = quat[0, 0]
     feats = rollout_features(quat, pos, ref)  # (B, S+1, 6)
     has_samples = res.sample_quat is not None and res.sample_quat.shape[1] >= 2
-    if has_samples:
+    band_p, band_r = getattr(res, "band_position", None), getattr(res, "band_rotation", None)
+    computed = band_p is not None and band_r is not None
+    if computed:  # the next motion's 90 % region rbgp computed: per axis, about the mean
+        from rbgp_cli.geometry.so3 import matrix_from_quat
+
+        R_ref = matrix_from_quat(ref)
+        M = np.einsum("ji,btjk,kl->btil", R_ref, np.asarray(band_r, np.float64), R_ref)  # R_refᵀ M R_ref
+        half = np.concatenate([np.sqrt(np.clip(np.diagonal(M, axis1=-2, axis2=-1), 0.0, None)),
+                               np.asarray(band_p, np.float64)], axis=-1)  # (B, S+1, 6)
+        lo, hi = feats - half, feats + half
+    elif has_samples:
         sfeat = rollout_features(res.sample_quat, res.sample_position, ref)  # (B, K, S+1, 6)
         lo, hi = np.quantile(sfeat, ROLLOUT_BAND, axis=1)  # (B, S+1, 6) each
     gq, gp = getattr(res, "goal_quat", None), getattr(res, "goal_position", None)
@@ -472,7 +485,7 @@ def plot_rollout(path, res, title: str | None = None):
         ax = fig.add_subplot(grid[j % 3, j // 3])
         for i, b in enumerate(shown):
             n, color = lengths[b], cmap(i % 10)
-            if has_samples:
+            if computed or has_samples:
                 ax.fill_between(t[:n], lo[b, :n, j], hi[b, :n, j], color=color, alpha=0.15, lw=0, gid=f"band:{b}")
             ax.plot(t[:n], feats[b, :n, j], color=color, lw=1.4, gid=f"mean:{b}",
                     label=f"rollout {b}" if j == 0 and i < 10 else None)
@@ -492,7 +505,9 @@ def plot_rollout(path, res, title: str | None = None):
         else:
             ax.tick_params(labelbottom=False)
     parts = [f"{B} rollout{'s' if B != 1 else ''}" + (f" ({len(shown)} drawn)" if len(shown) < B else "")]
-    if has_samples:
+    if computed:
+        parts.append("bands: the next motion's 90 % region")
+    elif has_samples:
         parts.append(f"bands: 90 % of {res.sample_quat.shape[1]} samples each")
     if goal is not None:
         parts.append("goals: crosses")

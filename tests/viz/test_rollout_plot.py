@@ -70,3 +70,22 @@ def test_without_samples_there_is_no_band(tmp_path):
     res.sample_quat = res.sample_position = None
     fig = plot_rollout(tmp_path / "r.png", res)
     assert not [c for a in fig.axes for c in a.collections if str(c.get_gid()).startswith("band:")]
+
+
+@pytest.mark.slow
+def test_a_computed_band_is_drawn_about_the_mean_instead_of_the_samples_quantiles(tmp_path):
+    res = _result()
+    B, T = res.quat.shape[:2]
+    res.band_position = np.full((B, T, 3), 0.05)
+    res.band_rotation = np.broadcast_to(np.diag([0.01, 0.04, 0.09]), (B, T, 3, 3)).copy()
+    fig = plot_rollout(tmp_path / "r.png", res)
+    feats = rollout_features(res.quat, res.position, res.quat[0, 0])
+    y = [c for c in fig.axes[4].collections if c.get_gid() == "band:0"][0].get_paths()[0].vertices[:, 1]
+    assert y.min() == pytest.approx((res.position[0, :, 1] - 0.05).min())
+    assert y.max() == pytest.approx((res.position[0, :, 1] + 0.05).max())
+    # rotation: per axis of the reference frame, sqrt of the diagonal of R_refᵀ M R_ref
+    R_ref = Rotation.from_quat(res.quat[0, 0]).as_matrix()
+    half = np.sqrt(np.diag(R_ref.T @ res.band_rotation[0, 0] @ R_ref))
+    yr = [c for c in fig.axes[2].collections if c.get_gid() == "band:0"][0].get_paths()[0].vertices[:, 1]
+    assert yr.max() == pytest.approx((feats[0, :, 2] + half[2]).max())
+    assert "the next motion's 90 % region" in fig._suptitle.get_text()
