@@ -567,6 +567,21 @@ def anticipate(paths, t, quat, position, *, model=None, samples: int = 0, seed: 
 
 
 # ----------------------------------------------------------------------------------------- fitting r
+def seen_split(F: float, S: int, P: int, points: int) -> tuple[np.ndarray, int]:
+    """The path vector's entries a left-out demonstration is seen at and scored on, when its first
+    fraction F is seen: (idx, no), the first ``no`` of ``idx`` the seen ones (at most ``points`` phases of
+    the S up to F, 6 coordinates each, and ln D, entry P − 1), the rest the scored ones (every
+    SELECT_EVERY-th phase after F and the last, 6 coordinates each)."""
+    from rbgp_cli.dynamics.paths import SELECT_EVERY
+
+    J = int(round(F * (S - 1)))
+    seen = np.unique(np.round(np.linspace(0, J, min(points, J + 1))).astype(int))
+    scored = np.unique(np.concatenate([np.arange(J + SELECT_EVERY, S - 1, SELECT_EVERY), [S - 1]]))
+    io = np.concatenate([(6 * seen[:, None] + np.arange(6)).ravel(), [P - 1]])
+    it = (6 * scored[:, None] + np.arange(6)).ravel()
+    return np.concatenate([io, it]), len(io)
+
+
 def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS):
     """Leave each demonstration out; see its first F (each of SEEN_FRACTIONS) at its true phases on the grid
     (≤ points grid phases, the last exactly) and its ln D; score the rest (every 5th grid phase after F,
@@ -584,13 +599,7 @@ def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS)
     total = np.zeros(len(tolerances))
     count, m2, z = 0, [], []
     for F in SEEN_FRACTIONS:
-        J = int(round(F * (S - 1)))
-        seen = np.unique(np.round(np.linspace(0, J, min(points, J + 1))).astype(int))
-        scored = np.unique(np.concatenate([np.arange(J + SELECT_EVERY, S - 1, SELECT_EVERY), [S - 1]]))
-        io = np.concatenate([(6 * seen[:, None] + np.arange(6)).ravel(), [P - 1]])
-        it = (6 * scored[:, None] + np.arange(6)).ravel()
-        idx = np.concatenate([io, it])
-        no = len(io)
+        idx, no = seen_split(F, S, P, points)
         Xs = X[:, idx]
         Kss = Ks[np.ix_(idx, idx)]
         for block, m, Sigma in left_out_moments(Xs):  # the others' Gaussian per left-out d, (B, ...)

@@ -70,13 +70,7 @@ def loop_seen_loo(paths, tolerances, stats=False, points=anticipation.SEEN_POINT
     total = np.zeros(len(tolerances))
     count, m2, z = 0, [], []
     for F in anticipation.SEEN_FRACTIONS:
-        J = int(round(F * (S - 1)))
-        seen = np.unique(np.round(np.linspace(0, J, min(points, J + 1))).astype(int))
-        scored = np.unique(np.concatenate([np.arange(J + SELECT_EVERY, S - 1, SELECT_EVERY), [S - 1]]))
-        io = np.concatenate([(6 * seen[:, None] + np.arange(6)).ravel(), [P - 1]])
-        it = (6 * scored[:, None] + np.arange(6)).ravel()
-        idx = np.concatenate([io, it])
-        no = len(io)
+        idx, no = anticipation.seen_split(F, S, P, points)  # the entries, shared; the algebra is the oracle
         Xs = X[:, idx]
         Kss = Ks[np.ix_(idx, idx)]
         for d in range(D):
