@@ -51,6 +51,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rbgp_cli.errors import InputError
+from rbgp_cli.geometry.conventions import SMALL_ANGLE
+from rbgp_cli.geometry.so3 import PI_TOLERANCE
 
 __all__ = ["Anticipator", "Anticipation", "Continuation", "anticipate", "fit_seen", "Follower",
            "SEEN_TOLERANCE_GRID", "SEEN_FRACTIONS", "SEEN_POINTS", "DURATION_GRID", "DURATION_SMOOTH_GRID",
@@ -141,38 +143,91 @@ class Continuation:
 # ----------------------------------------------------------------------------------------- helpers
 def _seen(t, quat, position, points: int, checked: bool = False):
     """The seen motion checked, and n ≤ points poses at evenly spaced times τ (n,) from its start (the first
-    and last seen among them): (t (N,), quat (N, 4), position (N, 3), τ (n,), q (n, 4), p (n, 3)).
+    and last seen among them): (t (N,), quat (N, 4), position (N, 3), τ (n,), q (n, 4), p (n, 3)); q's signs
+    are those of the samples they lie between (every caller takes a canonical log, which does not see them).
     ``checked``: the arrays are already float, finite, increasing in time, unit and sign-continuous (a
     :class:`Follower`'s buffer), so the O(N) checks are skipped."""
-    from rbgp_cli.dynamics.trajectory import interpolate_poses
     from rbgp_cli.geometry.so3 import quat_make_continuous, quat_normalize
 
-    if checked:
-        span = float(t[-1] - t[0])
-        if len(t) == 1 or span <= 0:
-            return t, quat, position, np.zeros(1), quat[:1], position[:1]
-        tau = np.linspace(0.0, span, max(int(min(points, len(t))), 2))
-        q, p = interpolate_poses(t - t[0], quat, position, tau)
-        return t, quat, position, tau, q, p
-    t = np.asarray(t, dtype=np.float64).reshape(-1)
-    quat = np.asarray(quat, dtype=np.float64).reshape(-1, 4)
-    position = np.asarray(position, dtype=np.float64).reshape(-1, 3)
-    if len(t) < 1 or len(quat) != len(t) or len(position) != len(t):
-        raise InputError("a seen motion needs times, quaternions and positions of the same length, at least one",
-                         param="seen")
-    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(quat)) and np.all(np.isfinite(position))):
-        raise InputError("the seen motion has missing (NaN) values", hint="read it with rbgp's readers, which repair them",
-                         param="seen")
-    if len(t) > 1 and not np.all(np.diff(t) > 0):
-        raise InputError("the seen motion's times must increase", param="seen")
-    quat = quat_make_continuous(quat_normalize(quat))
+    if not checked:
+        t = np.asarray(t, dtype=np.float64).reshape(-1)
+        quat = np.asarray(quat, dtype=np.float64).reshape(-1, 4)
+        position = np.asarray(position, dtype=np.float64).reshape(-1, 3)
+        if len(t) < 1 or len(quat) != len(t) or len(position) != len(t):
+            raise InputError("a seen motion needs times, quaternions and positions of the same length, at least one",
+                             param="seen")
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(quat)) and np.all(np.isfinite(position))):
+            raise InputError("the seen motion has missing (NaN) values", hint="read it with rbgp's readers, which repair them",
+                             param="seen")
+        if len(t) > 1 and not np.all(np.diff(t) > 0):
+            raise InputError("the seen motion's times must increase", param="seen")
+        quat = quat_make_continuous(quat_normalize(quat))
     span = float(t[-1] - t[0])
     if len(t) == 1 or span <= 0:
         return t, quat, position, np.zeros(1), quat[:1], position[:1]
-    n = int(min(points, len(t)))
-    tau = np.linspace(0.0, span, max(n, 2))
-    q, p = interpolate_poses(t - t[0], quat, position, tau)
+    tau = np.linspace(0.0, span, max(int(min(points, len(t))), 2))
+    q, p = _slerp_samples(t - t[0], quat, position, tau)
     return t, quat, position, tau, q, p
+
+
+def _slerp_samples(x, quat, position, x_new):
+    """Poses at ``x_new`` (n,) inside [x_0, x_(N−1)] of samples at ``x`` (N,) increasing, ``quat`` (N, 4) unit and
+    sign-continuous, ``position`` (N, 3): with x_k ≤ x_new < x_(k+1), f its fraction of the interval and c =
+    ⟨q_k, q_(k+1)⟩ ≥ 0, Ω = atan2(‖q_(k+1) − c q_k‖, c),
+
+        q = cos(fΩ) q_k + sin(fΩ) (q_(k+1) − c q_k) / sin Ω,    p = (1 − f) p_k + f p_(k+1),
+
+    the slerp of :func:`~rbgp_cli.dynamics.trajectory.interpolate_poses` (q_k ⊗ exp(f log(q_k* ⊗ q_(k+1))),
+    the same rotation to rounding) in a dozen array operations: the live update calls it at every pose.
+    sin(fΩ)/sin Ω → f as Ω → 0."""
+    k = np.minimum(np.maximum(np.searchsorted(x, x_new, side="right") - 1, 0), len(x) - 2)
+    x0 = x[k]
+    f = np.minimum(np.maximum((x_new - x0) / (x[k + 1] - x0), 0.0), 1.0)
+    q0, q1 = quat[k], quat[k + 1]
+    c = np.einsum("ni,ni->n", q0, q1)
+    d = q1 - c[:, None] * q0
+    s = np.sqrt(np.einsum("ni,ni->n", d, d))
+    om = np.arctan2(s, c)
+    tiny = s < 1e-12
+    ratio = np.where(tiny, f, np.sin(f * om) / np.where(tiny, 1.0, s))
+    q = np.cos(f * om)[:, None] * q0 + ratio[:, None] * d
+    p0 = position[k]
+    return q, p0 + f[:, None] * (position[k + 1] - p0)
+
+
+def _left_basis() -> np.ndarray:
+    """L(a) with a ⊗ b = L(a) b, as Σ_c a_c L(e_c): (4 components c, 16) (rows of the 4 × 4 matrices), from
+    :func:`~rbgp_cli.geometry.so3.quat_multiply` on the basis quaternions."""
+    from rbgp_cli.geometry.so3 import quat_multiply
+
+    e = np.eye(4)
+    return np.stack([np.stack([quat_multiply(e[c], e[j]) for j in range(4)], axis=1) for c in range(4)]).reshape(4, 16)
+
+
+_LEFT = _left_basis()
+
+
+def _log_unit(d: np.ndarray) -> np.ndarray:
+    """The canonical rotation vector (..., 3) of unit quaternions d (..., 4) (:func:`~rbgp_cli.geometry.so3.log_quat`
+    without its checks and normalisation: θ = 2 atan2(‖v‖, |w|), v θ/‖v‖ signed as w, its series below
+    SMALL_ANGLE); angles at π within PI_TOLERANCE go through log_quat (its tie-break)."""
+    v, w = d[..., :3], d[..., 3]
+    s = np.sqrt(np.einsum("...i,...i->...", v, v))
+    aw = np.abs(w)
+    theta = 2.0 * np.arctan2(s, aw)
+    if theta.size and theta.max() >= np.pi - PI_TOLERANCE:
+        from rbgp_cli.geometry.so3 import log_quat
+
+        return log_quat(d)
+    sign = np.where(w < 0, -1.0, 1.0)
+    small = s < SMALL_ANGLE
+    if small.any():
+        x2 = (s / np.where(small, aw, 1.0)) ** 2
+        scale = np.where(small, 2.0 / np.where(small, aw, 1.0) * (1.0 - x2 / 3.0 + x2 * x2 / 5.0),
+                         theta / np.where(small, 1.0, s))
+    else:
+        scale = theta / s
+    return v * (sign * scale)[..., None]
 
 
 def _student_factor(rng, nu, count):
@@ -219,98 +274,113 @@ class Anticipator:
                                    "velocity": np.zeros((S - 1, 6))})
 
     # -------------------------------------------------------------- the duration's weights (batched)
-    def _reference(self, phases):
-        """The mean path's poses at phases (any shape, clamped to [0, 1]): quat (..., 4), position (..., 3).
-        The slerp of :meth:`PathReference.at <rbgp_cli.dynamics.model.PathReference.at>` without its sign
-        continuity along the phases (every caller takes a canonical log of these quaternions, which does not
-        see the sign) and without the velocity: the live update calls it twice per pose."""
-        from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
+    def _constants(self):
+        """What the batched grid terms need whatever is seen, computed once: Σ = U Uᵀ + τ² (K_ℓ ⊗ I_6 ⊕ 1)
+        (:meth:`PathDistribution.prior`) as U (P, D) and K_ℓ (S, S) with the duration's τ², and per grid phase
+        k its values and differences to phase k + 1 (a linear interpolation between grid phases is then one
+        gather of each): U's rows (S, 6D), K_ℓ (S−1, S−1, 4: K00, K01 − K00, K10 − K00, K11 − K10 − K01 + K00),
+        K_ℓ's last column, the prior mean plus the mean path's scaled position (S, 6); the mean path's rotation
+        as A_k = q̄_k* and B_k = (−u_k, 0) ⊗ q̄_k* with φ_k = θ_k u_k its log to phase k + 1, so that
+        (q̄_k ⊗ exp(f φ_k))* = cos(fθ_k/2) A_k + sin(fθ_k/2) B_k (:meth:`_deviations`)."""
+        c = self.__dict__.get("_fc")
+        if c is None:
+            from rbgp_cli.geometry.so3 import quat_conjugate, quat_multiply
 
-        ref = self._ref
-        shape = np.shape(phases)
-        x = ref.s
-        s = np.clip(np.asarray(phases, dtype=np.float64).reshape(-1), x[0], x[-1])
-        k = np.clip(np.searchsorted(x, s, side="right") - 1, 0, len(x) - 2)
-        f = np.clip((s - x[k]) / (x[k + 1] - x[k]), 0.0, 1.0)
-        q = quat_multiply(ref._q0[k], exp_quat(f[:, None] * ref._phi[k]))
-        q = np.where((f == 0.0)[:, None], ref.quat[k], np.where((f == 1.0)[:, None], ref.quat[k + 1], q))
-        p = (1.0 - f)[:, None] * ref.position[k] + f[:, None] * ref.position[k + 1]
-        return q.reshape(shape + (4,)), p.reshape(shape + (3,))
-
-    def _low_rank(self):
-        """Σ = U Uᵀ + τ² (K_ℓ ⊗ I_6 ⊕ 1) (:meth:`PathDistribution.prior`): U (P, D), K_ℓ (S, S) on the grid,
-        τ², computed once; the batched grid terms use these instead of gathering Σ."""
-        lr = self.__dict__.get("_lr")
-        if lr is None:
             paths = self.paths
             X = paths.vectors()
             D = len(X)
             U = (X - X.mean(axis=0)).T * np.sqrt((1.0 + 1.0 / D) / max(D - 1, 1))
             s = paths.s
+            S = len(s)
             Ks = np.exp(-0.5 * ((s[:, None] - s[None, :]) / paths.length) ** 2)
-            lr = self._lr = (U, Ks, self.duration_smooth)
-        return lr
+            U6 = np.ascontiguousarray(U[:-1].reshape(S, 6 * D))
+            K4 = np.stack([Ks[:-1, :-1], Ks[:-1, 1:] - Ks[:-1, :-1], Ks[1:, :-1] - Ks[:-1, :-1],
+                           Ks[1:, 1:] - Ks[1:, :-1] - Ks[:-1, 1:] + Ks[:-1, :-1]], axis=-1)
+            ref = self._ref
+            C0 = self.m[:-1].reshape(S, 6).copy()
+            C0[:, 3:] += ref.position / self.scale[3:]
+            theta = np.linalg.norm(ref._phi, axis=1)
+            axis = ref._phi / np.where(theta > 0, theta, 1.0)[:, None]
+            A = quat_conjugate(ref._q0)
+            B = quat_multiply(np.concatenate([-axis, np.zeros((S - 1, 1))], axis=1), A)
+            UE, uL = U[self._end], U[-1]
+            c = self._fc = dict(
+                U=U, Ks=Ks, tau2=self.duration_smooth, S=S, D=D, U6=U6[:-1], dU6=np.diff(U6, axis=0), K4=K4,
+                C0=C0[:-1], dC=np.diff(C0, axis=0), inv_scale=1.0 / self.scale, half=0.5 * theta, A=A, B=B,
+                uL=uL, uLuL=float(uL @ uL), SEE=UE @ UE.T + self.duration_smooth * np.eye(6))
+        return c
+
+    def _low_rank(self):
+        """(U (P, D), K_ℓ (S, S), τ²) of Σ's low-rank-plus-smooth form (:meth:`_constants`)."""
+        c = self._constants()
+        return c["U"], c["Ks"], c["tau2"]
+
+    def _deviations(self, k, f, q, p):
+        """The scaled deviations of seen poses from the prior mean at grid interval k, fraction f (any shape
+        (...)): quat q and position p broadcast against (..., 4) and (..., 3); returns (..., 6)
+
+            e = (log(R R̄(s)ᵀ), p − p̄(s)) / σ − m(s),
+
+        R̄(s) the mean path's slerp q̄_k ⊗ exp(f φ_k) (:class:`~rbgp_cli.dynamics.model.PathReference`), p̄ and the
+        prior mean m interpolated linearly. The live update calls it for the whole grid at every pose, so it
+        is the product and logarithm written out (:meth:`_constants`, :func:`_log_unit`)."""
+        c = self._constants()
+        a = f * c["half"][k]
+        cq = np.cos(a)[..., None] * c["A"][k] + np.sin(a)[..., None] * c["B"][k]  # (q̄_k ⊗ exp(f φ_k))*
+        Lq = (q @ _LEFT).reshape(q.shape[:-1] + (4, 4))  # q ⊗ · as a matrix
+        rot = _log_unit((Lq @ cq[..., None])[..., 0])
+        e = np.empty(rot.shape[:-1] + (6,))
+        e[..., :3] = rot
+        e[..., 3:] = p
+        e *= c["inv_scale"]
+        e -= c["C0"][k]
+        e -= f[..., None] * c["dC"][k]
+        return e
 
     def _grid_terms(self, tau, q, p, grid):
         """For each duration D_g: log weight, the conditioned end pose's mean (6,) and covariance (6, 6) in
-        scaled units (module docstring). Batched over the grid, with Σ's low-rank-plus-smooth form."""
-        from rbgp_cli.dynamics.paths import pose_deviation
-
-        U, Ks, tau2 = self._low_rank()
-        S, P = self.paths.S, len(self.m)
+        scaled units (module docstring). Batched over the grid, with Σ's low-rank-plus-smooth form
+        (:meth:`_constants`); every linear interpolation between grid phases is a gather of values and
+        differences, and the end phase is interpolated as one more seen phase (s = 1)."""
+        c = self._constants()
+        tau2, S, D = c["tau2"], c["S"], c["D"]
         G_, n = len(grid), len(tau)
-        ph = np.minimum(tau[None, :] / grid[:, None], 1.0)  # (G, n)
-        x = ph * (S - 1)
-        k = np.minimum(x.astype(int), S - 2)
-        f = x - k  # (G, n)
-        I0 = (6 * k[:, :, None] + np.arange(6)).reshape(G_, 6 * n)
-        w1 = np.repeat(f, 6, axis=1)
-        w0 = 1.0 - w1
-        AU = w0[:, :, None] * U[I0] + w1[:, :, None] * U[I0 + 6]  # (G, 6n, D)
-        # the smooth part: K_ℓ interpolated at the seen phases (G, n, n), and to the end phase (G, n)
-        g0, g1 = 1.0 - f, f
-        Kint = (g0[:, :, None] * g0[:, None, :] * Ks[k[:, :, None], k[:, None, :]]
-                + g0[:, :, None] * g1[:, None, :] * Ks[k[:, :, None], k[:, None, :] + 1]
-                + g1[:, :, None] * g0[:, None, :] * Ks[k[:, :, None] + 1, k[:, None, :]]
-                + g1[:, :, None] * g1[:, None, :] * Ks[k[:, :, None] + 1, k[:, None, :] + 1])
-        Kend = g0 * Ks[k, S - 1] + g1 * Ks[k + 1, S - 1]
-        eye6 = np.eye(6)
+        k = np.empty((G_, n + 1), dtype=np.intp)
+        f = np.empty((G_, n + 1))
+        x = np.minimum(tau[None, :] / grid[:, None], 1.0) * (S - 1)  # the seen phases on the grid (G, n)
+        k[:, :n] = np.minimum(x.astype(np.intp), S - 2)
+        f[:, :n] = x - k[:, :n]
+        k[:, n], f[:, n] = S - 2, 1.0  # the end
+        Z = (c["U6"][k] + f[:, :, None] * c["dU6"][k]).reshape(G_, 6 * (n + 1), D)  # A U at the seen and end phases
+        K4 = c["K4"][k[:, :, None], k[:, None, :]]  # (G, n + 1, n + 1, 4)
+        fi, fj = f[:, :, None], f[:, None, :]
+        K = K4[..., 0] + fj * K4[..., 1] + fi * (K4[..., 2] + fj * K4[..., 3])  # K_ℓ interpolated, (G, n + 1, n + 1)
+        # one Cholesky factor of the bordered matrix M = [[G, B], [Bᵀ, C]] over (ℓ, the seen poses | the end
+        # pose, the innovation e), G the observations' covariance plus their tolerances: its first k6 rows are
+        # G's factor L, the next 7 hold (L⁻¹ B)ᵀ = (L⁻¹ Σ_oE, L⁻¹ e)ᵀ whatever C (C only keeps M positive
+        # definite: Σ_EE plus a large diagonal), so eᵀG⁻¹e, Σ_Eo G⁻¹ e and Σ_Eo G⁻¹ Σ_oE need no second solve
         k6 = 6 * n + 1
-        # one Cholesky factor of the bordered matrix M = [[G, B], [Bᵀ, c I]], B = (e, Σ_oE) (k6, 7): its
-        # first k6 rows are G's factor L, the next 7 hold (L⁻¹ B)ᵀ (they do not depend on c; c only keeps M
-        # positive definite), so eᵀG⁻¹e, Σ_Eo G⁻¹ e and Σ_Eo G⁻¹ Σ_oE come without a second solve
         M = np.zeros((G_, k6 + 7, k6 + 7))
-        G = M[:, :k6, :k6]
-        G[:, :-1, :-1] = AU @ AU.transpose(0, 2, 1) + tau2 * (Kint[:, :, None, :, None] * eye6[None, None, :, None, :]).reshape(G_, 6 * n, 6 * n)
-        uL = U[P - 1]
-        G[:, :-1, -1] = AU @ uL
-        G[:, -1, :-1] = G[:, :-1, -1]
-        G[:, -1, -1] = uL @ uL + tau2 + _ELL_TOL ** 2
-        d = np.arange(6 * n)
-        G[:, d, d] += self.duration_tolerance ** 2
-        E = self._end
-        UE = U[E]  # (6, D)
-        SoE = M[:, :k6, k6 + 1:]
-        SoE[:, :-1] = AU @ UE.T + tau2 * (Kend[:, :, None, None] * eye6[None, None]).reshape(G_, 6 * n, 6)
-        SoE[:, -1] = UE @ uL
-        SEE = UE @ UE.T + tau2 * eye6
-        # observations and their prior means
-        ref_q, ref_p = self._reference(ph)
-        y = pose_deviation(ref_q, ref_p, np.broadcast_to(q, (G_, n, 4)), np.broadcast_to(p, (G_, n, 3))) / self.scale
-        e = M[:, :k6, k6]
-        e[:, :-1] = y.reshape(G_, 6 * n) - (w0 * self.m[I0] + w1 * self.m[I0 + 6])
-        e[:, -1] = np.log(grid) / self.lscale - self.m[-1]
-        M[:, k6:, :k6] = M[:, :k6, k6:].transpose(0, 2, 1)
+        eye6 = np.eye(6)
+        M[:, 1:k6 + 6, 1:k6 + 6] = Z @ Z.transpose(0, 2, 1) + tau2 * (K[:, :, None, :, None] * eye6[None, None, :, None, :]).reshape(G_, 6 * n + 6, 6 * n + 6)
+        M[:, 1:k6 + 6, 0] = Z @ c["uL"]
+        M[:, 0, 1:k6 + 6] = M[:, 1:k6 + 6, 0]
+        M[:, 0, 0] = c["uLuL"] + tau2 + _ELL_TOL ** 2
+        d = np.arange(1, k6)
+        M[:, d, d] += self.duration_tolerance ** 2
+        M[:, -1, 0] = np.log(grid) / self.lscale - self.m[-1]
+        M[:, -1, 1:k6] = self._deviations(k[:, :n], f[:, :n], q[None], p[None]).reshape(G_, 6 * n)  # e = y − A m
+        M[:, :-1, -1] = M[:, -1, :-1]
         big = 1e100  # ≫ any Bᵀ G⁻¹ B here (G ≥ the tolerances' r² > 1e-9 on its diagonal)
-        M[:, np.arange(k6, k6 + 7), np.arange(k6, k6 + 7)] = big
+        M[:, np.arange(k6, k6 + 7), np.arange(k6, k6 + 7)] += big
         L = np.linalg.cholesky(M)
-        Le = L[:, k6, :k6]  # (G, k6) L⁻¹ e
-        LS = L[:, k6 + 1:, :k6]  # (G, 6, k6) (L⁻¹ Σ_oE)ᵀ
+        Le = L[:, -1, :k6]  # (G, k6) L⁻¹ e
+        LS = L[:, k6:k6 + 6, :k6]  # (G, 6, k6) (L⁻¹ Σ_oE)ᵀ
         quad = np.einsum("gk,gk->g", Le, Le)
         logdet = 2.0 * np.sum(np.log(np.diagonal(L[:, :k6, :k6], axis1=1, axis2=2)), axis=1)
         logw = -0.5 * quad - 0.5 * logdet
-        end_mean = self.m[E][None] + np.einsum("gjk,gk->gj", LS, Le)
-        end_cov = SEE[None] - np.einsum("gik,gjk->gij", LS, LS)
+        end_mean = self.m[self._end][None] + (LS @ Le[:, :, None])[..., 0]
+        end_cov = c["SEE"][None] - LS @ LS.transpose(0, 2, 1)
         return logw, end_mean, end_cov, quad, k6
 
     def weights(self, t, quat, position, checked: bool = False, active=None):
@@ -338,29 +408,33 @@ class Anticipator:
         return self._summary(grid, w, terms)
 
     def _summary(self, grid, w, terms) -> Anticipation:
-        from scipy.special import fdtri, stdtrit
-
-        from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
-
         t = terms["seen"][0]
         t0, span = float(t[0]), terms["span"]
         q = self._duration_quantiles(grid, w, span)
         D = q[1]
         # the end pose: moments of the mixture over the grid (scaled units), then unscaled
-        mu = np.einsum("g,gj->j", w, terms["end_mean"])
-        d = terms["end_mean"] - mu
-        cov = np.einsum("g,gij->ij", w, terms["end_cov"]) + np.einsum("g,gi,gj->ij", w, d, d)
+        E = terms["end_mean"]
+        mu = w @ E
+        d = E - mu
+        cov = (w @ terms["end_cov"].reshape(len(w), 36)).reshape(6, 6) + (d.T * w) @ d
         sc = self.scale
         mu_u = mu * sc
-        cov_u = cov * np.outer(sc, sc)
-        nu = max(self.paths.demos - 2, 1)
+        cov_u = cov * sc[:, None] * sc[None, :]
         c_rot, c_pos = self._band
         ref_q, ref_p = self.paths.quat[-1], self.paths.position[-1]
-        end_q = quat_multiply(exp_quat(mu_u[:3]), ref_q)
+        # exp(μ_rot) ⊗ q̄_end, the product as L(exp(μ_rot)) q̄_end (_LEFT)
+        theta = float(np.sqrt(mu_u[:3] @ mu_u[:3]))
+        ex = np.empty(4)
+        ex[:3] = mu_u[:3] * (np.sin(0.5 * theta) / theta if theta >= SMALL_ANGLE else 0.5 - theta * theta / 48.0)
+        ex[3] = np.cos(0.5 * theta)
+        end_q = (ex @ _LEFT).reshape(4, 4) @ ref_q
         end_p = ref_p + mu_u[3:]
         # 90 %: a rotation's m² is 3 F(3, ν) for the Student-t draws; a position coordinate t_ν (once)
         quantiles = self.__dict__.get("_quantiles")
         if quantiles is None:
+            from scipy.special import fdtri, stdtrit
+
+            nu = max(self.paths.demos - 2, 1)
             quantiles = self._quantiles = (float(3.0 * fdtri(3, nu, 0.9)), float(stdtrit(nu, 0.95)))
         rot_band = c_rot * np.sqrt(quantiles[0] * max(np.linalg.eigvalsh(cov_u[:3, :3]).max(), 0.0))
         pos_band = c_pos * quantiles[1] * np.sqrt(np.clip(np.diag(cov_u)[3:], 0.0, None))
@@ -383,14 +457,16 @@ class Anticipator:
     def _distance(self, quat, position, phase) -> float:
         """The Mahalanobis distance of a pose's deviation at ``phase`` under the prior's marginal there (the
         grid phase nearest; with the seen tolerance r² added), in units of the demonstrations' spread."""
-        from rbgp_cli.dynamics.paths import pose_deviation
-
-        j = int(round(phase * (self.paths.S - 1)))
-        rq, rp = self._reference(np.array([phase]))
-        e = pose_deviation(rq[0], rp[0], quat, position) / self.scale - self.m[6 * j:6 * j + 6]
+        S = self.paths.S
+        j = int(round(phase * (S - 1)))
+        x = min(max(float(phase), 0.0), 1.0) * (S - 1)
+        k = min(int(x), S - 2)
+        # the deviation from the prior mean at the phase, plus the prior mean there, less the grid phase's
+        e = self._deviations(np.array([k]), np.array([x - k]), quat, position)[0]
+        m6 = self.m[:-1].reshape(S, 6)
+        e = e + m6[k] + (x - k) * (m6[k + 1] - m6[k]) - m6[j]
         Cinv = self.__dict__.get("_marginal_inv")
         if Cinv is None:  # per grid phase, (Σ_jj + r² I)⁻¹ (S, 6, 6), computed once
-            S = self.paths.S
             blocks = np.array([self.Sigma[6 * i:6 * i + 6, 6 * i:6 * i + 6] for i in range(S)])
             Cinv = self._marginal_inv = np.linalg.inv(blocks + self.tolerance ** 2 * np.eye(6))
         return float(np.sqrt(max(e @ Cinv[j] @ e, 0.0)))
