@@ -737,7 +737,8 @@ def train_model(
     # of it: the start map (its ridge; ∞ without conditioning) and the pull that closes a start's gap
     ridge = float(mean["start_ridge"]) if mean is not None and "start_ridge" in mean else float("inf")
     gain = float(mean["gain"]) if mean is not None and mean["kind"] == "path" else 0.0
-    variation = demonstration_variation(trajs, ridge=ridge, gain=gain)
+    inputs = mean.get("start_inputs", "path") if mean is not None else "path"
+    variation = demonstration_variation(trajs, ridge=ridge, gain=gain, inputs=inputs)
     from rbgp_cli.dynamics.paths import fit_paths
 
     paths = fit_paths(trajs)
@@ -806,6 +807,7 @@ def _prior_of(trajs, info, prior, prior_gain, start_conditioning, seed, pull_pro
         _, delta = demonstration_deviations(trajs, len(mean["s"]))
         cond = start_map(delta, seed=seed)
         mean["start_mean"], mean["start_beta"], mean["start_ridge"] = cond["mean"], cond["map"], cond["ridge"]
+        mean["start_inputs"] = cond["inputs"]  # the map's units (issue 36); moved to the summary with the ridge
         if pull_profile:
             mean["gain_profile"] = profile_of(delta, cond["mean"], cond["map"], np.asarray(mean["s"]), float(prior_gain))
         demo_of_row = np.repeat(np.arange(len(trajs)), info["per_demo"])[np.asarray(info["indices"])]
@@ -921,7 +923,7 @@ def _train_summary(rep, kernel, kern, trajs, info, shared, velocity, gp, gp_choi
                    recorded_dt, t0, paths=None) -> dict:
     """The model's ``summary`` (:func:`train_model`): demonstrations, pairs, points, per output the
     hyperparameters and NLML, the safeguards used, the GP chosen, the prior, the variation, the time taken.
-    Moves the start map's ridge from ``mean`` into it."""
+    Moves the start map's ridge and units from ``mean`` into it."""
     names = ["all"] if shared else list(rep.output_names)
     summary = {
         "representation": rep.name,
@@ -955,6 +957,8 @@ def _train_summary(rep, kernel, kern, trajs, info, shared, velocity, gp, gp_choi
     if mean is not None and "start_ridge" in mean:  # the cross-validated ridge (None: ∞, no conditioning)
         lam = float(mean.pop("start_ridge"))
         summary["prior"]["start_ridge"] = lam if np.isfinite(lam) else None
+        # the units the start map measures the start in (variation.start_map: "path" or "start")
+        summary["prior"]["start_inputs"] = str(mean.pop("start_inputs", "path"))
     summary["variation"] = None if variation is None else {
         "demos": variation.demos, "dof": variation.dof,
         "band_scale": {"rotation": float(variation.band_scale[0]), "position": float(variation.band_scale[1])},

@@ -67,7 +67,7 @@ import numpy as np
 
 from rbgp_cli.dynamics.trajectory import Trajectory
 
-__all__ = ["Variation", "demonstration_variation", "demonstration_deviations", "start_regression", "start_map",
+__all__ = ["Variation", "demonstration_variation", "demonstration_deviations", "start_regression", "start_map", "START_INPUTS",
            "band_scale", "band_calibration", "band_quantiles", "shrinkage", "order_drift", "pull_profile", "DRIFT_P", "STEPS", "MIN_DEMOS", "MIN_BAND_DEMOS", "RIDGE_GRID", "BAND_LEVEL",
            "PULL_CAP", "PULL_WINDOW"]
 
@@ -241,13 +241,42 @@ def _coordinate_scale(delta: np.ndarray) -> np.ndarray:
     return np.where(scale > 1e-12, scale, 1.0)
 
 
-def _ridge_map(delta: np.ndarray, scale: np.ndarray, lam: float):
+def _start_scale(delta: np.ndarray) -> np.ndarray:
+    """Each coordinate's RMS deviation at the start (6,) over the demonstrations δ (D, S, 6), about their
+    mean (1 where the start does not vary): the start map's input units when it is told in the start's own
+    units (:func:`start_map`, ``inputs="start"``)."""
+    c0 = delta[:, 0] - delta[:, 0].mean(axis=0)
+    scale = np.sqrt(np.mean(c0**2, axis=0))
+    return np.where(scale > 1e-12, scale, 1.0)
+
+
+#: The start map's input units (:func:`start_map`): each start coordinate over the deviations' RMS over
+#: the whole path (``"path"``, the ridge's units since the map exists), or over its own spread at the start
+#: (``"start"``).
+START_INPUTS = ("path", "start")
+
+
+def _ridge_map(delta: np.ndarray, scale: np.ndarray, lam: float, inputs: str = "path"):
     """μ (S, 6) and the ridge regression B (S, 6, 6) of the deviations δ (D, S, 6) at every phase on
-    their start value, in coordinates scaled by ``scale`` (6,) (see :func:`start_map`)."""
+    their start value, in coordinates scaled by ``scale`` (6,) (see :func:`start_map`); ``inputs="start"``
+    measures the start's coordinates in their own spread at the start (:func:`_start_scale` of ``delta``)
+    instead: x = c(0) / σ_0, B = C_sx (C_xx + λ I)⁻¹ / σ_0 (the ridge is per output row, so the outputs'
+    units do not change it)."""
     mu = delta.mean(axis=0)
     S = delta.shape[1]
     if not np.isfinite(lam):
         return mu, np.zeros((S, 6, 6))
+    if inputs == "start":
+        sig0 = _start_scale(delta)
+        c = delta - mu  # (D, S, 6), rad and m
+        x0 = c[:, 0, :] / sig0
+        D = len(delta)
+        Cxx = x0.T @ x0 / D + lam * np.eye(6)
+        Csx = np.einsum("dsi,dj->sij", c, x0) / D
+        B = np.linalg.solve(Cxx.T, Csx.transpose(0, 2, 1)).transpose(0, 2, 1)
+        return mu, np.ascontiguousarray(B / sig0[None, None, :])
+    if inputs != "path":
+        raise ValueError(f"unknown start-map inputs {inputs!r}; expected one of {START_INPUTS}")
     c = (delta - mu) / scale  # (D, S, 6)
     c0 = c[:, 0, :]
     D = len(delta)
@@ -266,39 +295,59 @@ def start_map(delta: np.ndarray, *, grid=RIDGE_GRID, folds: int = RIDGE_FOLDS, s
 
         E[δ(s) | δ(0)] = μ(s) + B(s) (δ(0) − μ(0)),   B(s) = C_s0 (C_00 + λ I)⁻¹,
 
-    with μ the mean deviation, C_s0 = mean_d c_d(s) c_d(0)ᵀ and c_d = (δ_d − μ) / σ per coordinate
-    (σ the coordinates' RMS deviation, so one λ suits radians and metres; B is returned in physical
-    units). Every coordinate of the start informs every coordinate of the motion, as a ProMP's
-    conditioning does (there the regulariser is the weight prior). λ is chosen from ``grid`` by
-    cross-validation over ``folds`` folds of whole demonstrations (squared error of the scaled held-out
-    deviations over all phases after the start); λ = ∞ (no conditioning) competes, so a start that tells nothing about
-    the rest of the motion leaves the mean path. Returns ``{"mean": μ (S, 6), "map": B (S, 6, 6),
-    "ridge": λ, "errors": per λ the held-out mean squared error}``; with fewer than MIN_DEMOS + 1
-    demonstrations λ = ∞.
+    with μ the mean deviation, C_s0 = mean_d c_d(s) x_dᵀ, C_00 = mean_d x_d x_dᵀ, c_d = δ_d − μ and
+    x_d = c_d(0) / σ per start coordinate (B is returned in physical units, rad and m). Every coordinate
+    of the start informs every coordinate of the motion, as a ProMP's conditioning does (there the
+    regulariser is the weight prior). The ridge needs units for the start's coordinates: σ is each
+    coordinate's RMS deviation over the whole path (``inputs="path"``), so that one λ suits radians and
+    metres; or its spread at the start alone (``inputs="start"``), which lets a start coordinate that
+    varies little at the start but much later (the hand raises' start rotation: its spread at the start
+    is a fraction of its spread over the motion) inform the motion instead of being regularised away.
+
+    λ is chosen from ``grid`` by cross-validation over ``folds`` folds of whole demonstrations (squared
+    error of the held-out deviations over all phases after the start, each coordinate over its RMS over
+    the path); λ = ∞ (no conditioning) competes, so a start that tells nothing about the rest of the
+    motion leaves the mean path. The units: ``"path"`` with its best λ, unless ``"start"``'s best λ
+    predicts the held-out demonstrations better by more than one standard error of the mean of their
+    paired differences (per demonstration, the same folds): the one-standard-error rule, so the choice
+    changes only where the data say so clearly (measured in docs/defaults.md, issue 36's third pass).
+    Returns ``{"mean": μ (S, 6), "map": B (S, 6, 6), "ridge": λ, "inputs": "path" or "start",
+    "errors": per λ the held-out mean squared error with ``"path"``, "errors_start": the same with
+    ``"start"``}``; with fewer than MIN_DEMOS + 1 demonstrations λ = ∞.
     """
     delta = np.asarray(delta, dtype=np.float64)
     D = len(delta)
     scale = _coordinate_scale(delta)
     grid = tuple(float(g) for g in grid)
-    errors = np.zeros(len(grid))
+    per_demo = {units: np.zeros((len(grid), D)) for units in START_INPUTS}
+    inputs = "path"
     if D > MIN_DEMOS:
         k = min(int(folds), D)
         fold = np.empty(D, dtype=int)
         fold[np.random.default_rng(np.random.SeedSequence([int(seed), 17])).permutation(D)] = np.arange(D) % k
         for j in range(k):
-            held, rest = delta[fold == j], delta[fold != j]
-            for i, lam in enumerate(grid):
-                mu, B = _ridge_map(rest, scale, lam)
-                pred = mu[None] + np.einsum("sij,dj->dsi", B, held[:, 0, :] - mu[0])
-                # phase 0 is the start itself, known to the rollout: not a test of the map
-                errors[i] += float(np.sum(((pred[:, 1:] - held[:, 1:]) / scale) ** 2))
-        errors /= delta[:, 1:].size
-        best = int(np.argmin(errors))
+            test = np.flatnonzero(fold == j)
+            held, rest = delta[test], delta[fold != j]
+            for units in START_INPUTS:
+                for i, lam in enumerate(grid):
+                    mu, B = _ridge_map(rest, scale, lam, units)
+                    pred = mu[None] + np.einsum("sij,dj->dsi", B, held[:, 0, :] - mu[0])
+                    # phase 0 is the start itself, known to the rollout: not a test of the map
+                    per_demo[units][i, test] = np.sum(((pred[:, 1:] - held[:, 1:]) / scale) ** 2, axis=(1, 2))
+        errors = {units: per_demo[units].sum(axis=1) / delta[:, 1:].size for units in START_INPUTS}
+        best = int(np.argmin(errors["path"]))
+        best_start = int(np.argmin(errors["start"]))
+        gain = per_demo["path"][best] - per_demo["start"][best_start]  # > 0: the start's own units predict better
+        se = float(np.std(gain, ddof=1)) / np.sqrt(D)
+        if float(np.mean(gain)) > se:
+            inputs, best = "start", best_start
     else:
+        errors = {units: np.zeros(len(grid)) for units in START_INPUTS}
         best = grid.index(float("inf")) if float("inf") in grid else len(grid) - 1
     lam = grid[best]
-    mu, B = _ridge_map(delta, scale, lam)
-    return {"mean": mu, "map": B, "ridge": lam, "errors": errors.tolist()}
+    mu, B = _ridge_map(delta, scale, lam, inputs)
+    return {"mean": mu, "map": B, "ridge": lam, "inputs": inputs, "errors": errors["path"].tolist(),
+            "errors_start": errors["start"].tolist()}
 
 
 def pull_profile(delta: np.ndarray, start_mean: np.ndarray, start_map_: np.ndarray, s: np.ndarray, floor: float, *,
@@ -373,19 +422,20 @@ def _shrunk(cov: np.ndarray, alpha: float) -> np.ndarray:
 
 
 def _held_out_errors(delta: np.ndarray, s: np.ndarray, train: np.ndarray, test: np.ndarray, *, ridge: float,
-                     gain: float, scale: np.ndarray, alpha: float | None = None):
+                     gain: float, scale: np.ndarray, alpha: float | None = None, inputs: str = "path"):
     """The errors of the demonstrations ``test`` predicted from those in ``train`` as a rollout predicts
     them (:func:`band_scale`): (m2 (T, S − 1) the squared Mahalanobis rotation errors, z (T, S − 1, 3)
     the position errors per axis over their standard deviations) against the covariance the draws of
     the training demonstrations' own deviation process would have, C = (1 + 1/m)/ν Σ_α (the Student-t
     draws' scale matrix; :func:`band_scale`), Σ_α the shrunk Σ r rᵀ of their start-regression residuals
-    (:func:`shrinkage`; α from them unless given), m of them and ν = m − 2."""
+    (:func:`shrinkage`; α from them unless given), m of them and ν = m − 2. ``inputs``: the start map's
+    units (:func:`start_map`), as the model's."""
     rest = delta[train]
     m = len(rest)
     _, _, r = start_regression(rest)
     a = shrinkage(r) if alpha is None else float(alpha)
     C = _shrunk(np.einsum("dsi,dsj->sij", r[:, 1:], r[:, 1:]), a) * (1.0 + 1.0 / m) / (m - 2)
-    mu, B = _ridge_map(rest, scale, ridge)
+    mu, B = _ridge_map(rest, scale, ridge, inputs)
     held = delta[test]
     e = held - mu[None] - np.einsum("sij,dj->dsi", B, held[:, 0] - mu[0])  # (T, S, 6)
     decay = np.exp(-float(gain) * np.asarray(s, dtype=np.float64))[1:, None]
@@ -408,14 +458,15 @@ def band_quantiles(dof: int, level: float = BAND_LEVEL) -> tuple[float, float]:
     return 3.0 * float(fdtri(3, nu, level)), float(stdtrit(nu, 0.5 + level / 2.0))
 
 
-def _scores(delta: np.ndarray, s: np.ndarray, splits, *, ridge: float, gain: float, level: float):
+def _scores(delta: np.ndarray, s: np.ndarray, splits, *, ridge: float, gain: float, level: float,
+            inputs: str = "path"):
     """The left-out errors of every (train, test) split in ``splits`` against the band of the model of
     its training demonstrations (:func:`_held_out_errors`), in units of that band's own Student-t
     quantiles (ν = m − 2 of its m): rotation m² / (3 F(3, ν)) and position |z| / t_ν, pooled."""
     scale = _coordinate_scale(delta)
     m2, z = [], []
     for train, test in splits:
-        a, b = _held_out_errors(delta, s, train, test, ridge=ridge, gain=gain, scale=scale)
+        a, b = _held_out_errors(delta, s, train, test, ridge=ridge, gain=gain, scale=scale, inputs=inputs)
         q_rot, q_pos = band_quantiles(len(train) - 2, level)
         m2.append(np.ravel(a) / q_rot)
         z.append(np.ravel(b) / q_pos)
@@ -445,7 +496,7 @@ def _order_blocks(D: int, blocks: int):
 
 
 def band_calibration(delta: np.ndarray, s: np.ndarray, *, ridge: float = float("inf"), gain: float = 0.0,
-                     level: float = BAND_LEVEL, blocks: int = ORDER_BLOCKS) -> dict:
+                     level: float = BAND_LEVEL, blocks: int = ORDER_BLOCKS, inputs: str = "path") -> dict:
     """The bands' factors from the demonstrations left out, at random and in recording order
     (docs/method.md §11, "The bands' scale"; the rows of ``delta`` (D, S, 6) are in recording order).
 
@@ -457,7 +508,8 @@ def band_calibration(delta: np.ndarray, s: np.ndarray, *, ridge: float = float("
     larger of the two per rotation and position. (The quantile of both kinds' errors together was tried:
     on the 40 hand raises' blocks the bands then held 0.87 / 0.85 against 0.89 / 0.87, at random 0.92 /
     0.93 against 0.93 / 0.94.) Returns ``{"band_scale": (c_rot, c_pos), "random": (…), "recorded": (…) or
-    None, "shrinkage": α}``; (1, 1) with fewer than MIN_BAND_DEMOS demonstrations."""
+    None, "shrinkage": α}``; (1, 1) with fewer than MIN_BAND_DEMOS demonstrations. ``ridge``, ``inputs``:
+    the start map's λ and units (:func:`start_map`); ``gain`` the pull's constant a."""
     delta = np.asarray(delta, dtype=np.float64)
     D = len(delta)
     _, _, r = start_regression(delta)
@@ -466,18 +518,18 @@ def band_calibration(delta: np.ndarray, s: np.ndarray, *, ridge: float = float("
     if D < MIN_BAND_DEMOS:
         return out
     loo = [(np.setdiff1d(np.arange(D), [d]), np.array([d])) for d in range(D)]
-    m2, z = _scores(delta, s, loo, ridge=ridge, gain=gain, level=level)
+    m2, z = _scores(delta, s, loo, ridge=ridge, gain=gain, level=level, inputs=inputs)
     out["random"] = _factors(m2, z, level)
     split = _order_blocks(D, blocks)
     if split is not None:
-        out["recorded"] = _factors(*_scores(delta, s, split, ridge=ridge, gain=gain, level=level), level)
+        out["recorded"] = _factors(*_scores(delta, s, split, ridge=ridge, gain=gain, level=level, inputs=inputs), level)
     rec = out["recorded"] or (1.0, 1.0)
     out["band_scale"] = (max(out["random"][0], rec[0]), max(out["random"][1], rec[1]))
     return out
 
 
 def band_scale(delta: np.ndarray, residuals: np.ndarray, s: np.ndarray, *, ridge: float = float("inf"),
-               gain: float = 0.0, level: float = BAND_LEVEL) -> tuple[float, float]:
+               gain: float = 0.0, level: float = BAND_LEVEL, inputs: str = "path") -> tuple[float, float]:
     """The factors (c_rot, c_pos) ≥ 1 on the band's rotation and position that make the ``level`` bands
     hold the demonstrations, each left out in turn (module docstring, "The bands' scale").
 
@@ -496,7 +548,7 @@ def band_scale(delta: np.ndarray, residuals: np.ndarray, s: np.ndarray, *, ridge
     if D < MIN_BAND_DEMOS:
         return 1.0, 1.0
     loo = [(np.setdiff1d(np.arange(D), [d]), np.array([d])) for d in range(D)]
-    return _factors(*_scores(delta, s, loo, ridge=ridge, gain=gain, level=level), level)
+    return _factors(*_scores(delta, s, loo, ridge=ridge, gain=gain, level=level, inputs=inputs), level)
 
 
 #: Reorderings of the demonstrations that :func:`order_drift`'s permutation test draws.
@@ -566,10 +618,10 @@ def order_drift(delta: np.ndarray, durations, *, seed: int = 0, permutations: in
 
 
 def demonstration_variation(trajs: list[Trajectory], steps: int = STEPS, *, ridge: float = float("inf"),
-                            gain: float = 0.0) -> Variation | None:
+                            gain: float = 0.0, inputs: str = "path") -> Variation | None:
     """The deviation process of clean demonstrations in recording order (module docstring), or None for
-    fewer than MIN_DEMOS of them; ``ridge`` and ``gain`` describe the mean rollout for the bands'
-    scale (:func:`band_calibration`: the demonstrations left out at random and in recording order), and
+    fewer than MIN_DEMOS of them; ``ridge``, ``inputs`` (the start map's, :func:`start_map`) and ``gain``
+    describe the mean rollout for the bands' scale (:func:`band_calibration`: the demonstrations left out at random and in recording order), and
     :func:`order_drift` says whether they drift over the recording order."""
     trajs = list(trajs)
     D = len(trajs)
@@ -578,7 +630,7 @@ def demonstration_variation(trajs: list[Trajectory], steps: int = STEPS, *, ridg
     path, delta = demonstration_deviations(trajs, steps)
     _, _, r = start_regression(delta)
     s = np.asarray(path["s"], dtype=np.float64)
-    cal = band_calibration(delta, s, ridge=ridge, gain=gain)
+    cal = band_calibration(delta, s, ridge=ridge, gain=gain, inputs=inputs)
     drift = order_drift(delta, [tr.duration for tr in trajs])
     plain = {"random": None if cal["random"] is None else list(cal["random"]),
              "recorded": None if cal["recorded"] is None else list(cal["recorded"])}
