@@ -276,7 +276,7 @@ def _worker_fit(task):
     return l, fit_target(kernel, pre, y, label, np.random.default_rng(seeds), o, sub, pre_sub)
 
 
-def _fit_outputs_in_workers(X, Y, kernel, o, seeds, sub, jobs, progress, task):
+def _fit_outputs_in_workers(X, Y, kernel, o, seeds, sub, jobs, progress, task, beside=None):
     """Per-output fits in ``jobs`` worker processes (BLAS single-threaded in each); results in output order."""
     import os
 
@@ -291,12 +291,12 @@ def _fit_outputs_in_workers(X, Y, kernel, o, seeds, sub, jobs, progress, task):
         # instead of computing them once each (measured: 6 workers spent 30 % more CPU than one process)
         _WORKER["pre"] = (token, kernel.precompute(X), kernel.precompute(X[sub]) if sub is not None else None)
     try:
-        return _collect_worker_fits(tasks, jobs, ctx, progress, task, results, failures)
+        return _collect_worker_fits(tasks, jobs, ctx, progress, task, results, failures, beside)
     finally:
         _WORKER.pop("pre", None)
 
 
-def _collect_worker_fits(tasks, jobs, ctx, progress, task, results, failures):
+def _collect_worker_fits(tasks, jobs, ctx, progress, task, results, failures, beside=None):
     from concurrent.futures import as_completed
     from concurrent.futures.process import BrokenProcessPool
 
@@ -307,6 +307,10 @@ def _collect_worker_fits(tasks, jobs, ctx, progress, task, results, failures):
             # them, instead of leaving started workers that the exit handlers wait for forever
             with start_workers():
                 futures = {pool.submit(_worker_fit, t): t[4] for t in tasks}
+            if beside is not None:
+                # every worker has been forked at the first submit (a fork context starts them all at once):
+                # this process's own work runs while they fit, with no thread of ours alive at any fork
+                beside()
             for fut in as_completed(futures):
                 if fut.cancelled():
                     continue
@@ -361,6 +365,7 @@ def fit_gp(
     explore_size: int | None = None,
     jobs: int = 1,
     hyper_points: int | None = None,
+    beside=None,
 ) -> GaussianProcess:
     """Fit one GP per output column of Y (or one shared set of hyperparameters) by minimising the NLML.
 
@@ -398,6 +403,12 @@ def fit_gp(
         the points, so the subset's optimum estimates the full one; each evaluation costs (h/n)³ of
         one on all points. Where the subset's hyperparameters fail the covariance checks on all rows
         (an indefinite kernel's noise margin), that output is fitted on all points instead.
+    beside : None, or a callable (no arguments) that this process runs exactly once before fit_gp returns:
+        while the worker processes fit the outputs (after all of them have started), else after the
+        fit. The caller's own work that does not need the GP (rbgp train: the path distribution, the
+        bands' scale) then costs no wall time where the workers leave a core idle (a quiet machine
+        at the fit's end: fewer outputs left than workers). BLAS is single-threaded while it runs, as
+        for the whole fit; its exceptions end the workers and propagate.
     """
     X, Y = training_data(X, Y)
     restarts = max(1, int(restarts))
@@ -414,18 +425,35 @@ def fit_gp(
     # BLAS single-threaded whatever the machine: the optimiser's path must not depend on how busy the
     # machine is (a 2-thread pool changes the round-off, and on the arc kernel's indefinite edge that
     # changed an optimum), and parallelism comes from the worker processes
+    beside = _once(beside)
     with blas_threads(0), progress.task("training", total=1 if shared else Y.shape[1], unit="outputs") as task:
         if hyper_points and len(X) > int(hyper_points):
             rows = np.sort(np.random.default_rng(np.random.SeedSequence([int(seed), 2])).choice(
                 len(X), int(hyper_points), replace=False))
-            on_subset = _fit_gp(X[rows], Y[rows], kernel, o, seed, shared, progress, explore, jobs, task)
+            on_subset = _fit_gp(X[rows], Y[rows], kernel, o, seed, shared, progress, explore, jobs, task, beside)
             gp = _posterior_on_all_rows(on_subset, X, Y)
             if gp is not None:
                 gp.hyper_subset = rows
-                return gp
-            progress(f"the hyperparameters of a random {int(hyper_points)} points fail the covariance checks "
-                     f"on all {len(X)}; fitting on all points")
-        return _fit_gp(X, Y, kernel, o, seed, shared, progress, explore, jobs, task)
+            else:
+                progress(f"the hyperparameters of a random {int(hyper_points)} points fail the covariance checks "
+                         f"on all {len(X)}; fitting on all points")
+        else:
+            gp = None
+        if gp is None:
+            gp = _fit_gp(X, Y, kernel, o, seed, shared, progress, explore, jobs, task, beside)
+        beside()  # the fit ran in this process (a fit in workers ran it already: then nothing)
+    return gp
+
+
+def _once(fn):
+    """``fn`` (or nothing) as a callable that runs it the first time only."""
+    done = [fn is None]
+
+    def run():
+        if not done[0]:
+            done[0] = True
+            fn()
+    return run
 
 
 def _over_groups(groups, one) -> list:
@@ -483,7 +511,7 @@ def _posterior_on_all_rows(gp: GaussianProcess, X, Y) -> GaussianProcess | None:
                            factors=[r[1] for r in done])
 
 
-def _fit_gp(X, Y, kernel, o, seed, shared, progress, explore, jobs, task):
+def _fit_gp(X, Y, kernel, o, seed, shared, progress, explore, jobs, task, beside=None):
     n = len(X)
     ss = np.random.SeedSequence(int(seed))
     sub = None
@@ -493,7 +521,7 @@ def _fit_gp(X, Y, kernel, o, seed, shared, progress, explore, jobs, task):
     if jobs > 1 and len(targets) > 1:
         jobs = min(jobs, len(targets))
         progress(f"fitting {len(targets)} outputs in {jobs} worker processes")
-        results = _fit_outputs_in_workers(X, Y, kernel, o, seeds, sub, jobs, progress, task)
+        results = _fit_outputs_in_workers(X, Y, kernel, o, seeds, sub, jobs, progress, task, beside)
     else:
         pre = kernel.precompute(X)
         pre_sub = kernel.precompute(X[sub]) if sub is not None else None
