@@ -104,11 +104,25 @@ class GaussianProcess:
             if not lazy:  # else factorised at the first prediction (rbgp train writes the calibrated
                 self._ensure_factors()  # posterior without ever predicting with it)
         else:
-            # from fit_gp, which has just computed and checked them: per group (L, α)
+            # from fit_gp, which has just computed and checked them: per group (L, α), or (c, None) with c
+            # LAPACK's lower Cholesky factor (upper triangle zero), whose L and α are made at first use
+            # (_complete): rbgp train replaces this posterior by the calibrated one without using them
             self._L = [np.asarray(Lc) for Lc, _a in factors]
-            self._alpha = [np.asarray(a) for _Lc, a in factors]
+            self._alpha = [None if a is None else np.asarray(a) for _Lc, a in factors]
         self._cross = None
         self._scaled = {}
+
+    def _complete(self) -> None:
+        """L (C-ordered) and α = C⁻¹ y of the groups given as LAPACK's factor only: the numbers the fit
+        would have made at once (np.tril of the factor, dpotrs), made here at their first use."""
+        if self._alpha is None or all(a is not None for a in self._alpha):
+            return
+        for g, (_fit, outs) in enumerate(self.group_outputs()):
+            if self._alpha[g] is None:
+                c = self._L[g]
+                y = self.Y[:, outs] / self.y_scale[outs]
+                alpha, _info = lapack.dpotrs(c, np.asfortranarray(y), lower=1)
+                self._L[g], self._alpha[g] = np.tril(c), np.asarray(alpha)
 
     @property
     def n_outputs(self) -> int:
@@ -128,6 +142,8 @@ class GaussianProcess:
         if self._L is None:
             with blas_threads(0):
                 self._factorise()
+        else:
+            self._complete()
 
     def _factorise(self) -> None:
         """Cholesky factors and α for every group, with each fit's recorded jitter; verified. The
@@ -501,8 +517,9 @@ def _posterior_on_all_rows(gp: GaussianProcess, X, Y) -> GaussianProcess | None:
         if jitter is None:
             return None
         del K
-        alpha, _info = lapack.dpotrs(c, np.asfortranarray(y), lower=1)
-        return replace(fit, jitter=float(jitter), rcond=rc, positive_definite=pd), (np.tril(c), np.asarray(alpha))
+        # L and α at the posterior's first prediction (GaussianProcess._complete): rbgp train calibrates σn²
+        # and never predicts with this posterior (a 2000-point factor's copy and solve per set saved)
+        return replace(fit, jitter=float(jitter), rcond=rc, positive_definite=pd), (c, None)
 
     done = _over_groups(gp.group_outputs(), one)
     if any(r is None for r in done):
