@@ -745,7 +745,7 @@ class _WithoutGP:
     demonstrations' variation (the bands' scale measures each demonstration left out against the mean
     rollout's own prediction of it: the start map's ridge, ∞ without conditioning, and the pull that
     closes a start's gap), the path distribution and the envelope. :func:`train_model` hands it to the
-    exact GP's fit, which runs it while its worker processes fit the outputs
+    exact GP's fit, which runs it on the core a worker process leaves idle at the fit's end
     (:func:`rbgp_cli.gp.exact.fit_gp`'s ``beside``): the same numbers as after the fit."""
 
     def __init__(self, trajs, mean):

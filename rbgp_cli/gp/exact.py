@@ -323,28 +323,20 @@ def _collect_worker_fits(tasks, jobs, ctx, progress, task, results, failures, be
             # them, instead of leaving started workers that the exit handlers wait for forever
             with start_workers():
                 futures = {pool.submit(_worker_fit, t): t[4] for t in tasks}
-            if beside is not None:
-                # every worker has been forked at the first submit (a fork context starts them all at once):
-                # this process's own work runs while they fit, with no thread of ours alive at any fork
+            # this process's own work (beside) runs once a worker has no output left to fit, on the core it
+            # leaves idle while the others finish; every worker has been forked by then (a fork context starts
+            # them all at the first submit), so no thread of ours is alive at any fork
+            running = len(futures)
+            if beside is not None and running < jobs:
                 beside()
+                beside = None
             for fut in as_completed(futures):
-                if fut.cancelled():
-                    continue
-                exc = fut.exception()
-                if exc is not None:
-                    # the outputs not started yet are not needed; the running ones finish
-                    failures[futures[fut]] = exc
-                    for other in futures:
-                        other.cancel()
-                    continue
-                l, res = fut.result()
-                results[l] = res
-                fit = res[0]
-                # the worker's evaluations, counted as the fit in this process counts them
-                total = fit.n_evaluations + (fit.subsample["evaluations"] if fit.subsample else 0)
-                task.update(status=f"output {l}: {total} evaluations")
-                task.advance()
-                _report(progress, f"output {l}", fit)
+                running -= 1
+                if not fut.cancelled():
+                    _collect_one(fut, futures, results, failures, progress, task)
+                if beside is not None and not failures and running < jobs:
+                    beside()
+                    beside = None
         except BaseException:
             stop_pool(pool)
             raise
@@ -356,6 +348,25 @@ def _collect_worker_fits(tasks, jobs, ctx, progress, task, results, failures, be
                                    hint="train with jobs 1", param="jobs") from failures[first]
         raise failures[first]
     return results
+
+
+def _collect_one(fut, futures, results, failures, progress, task) -> None:
+    """The result of one finished output's future into ``results`` (and the progress), or its error into
+    ``failures`` (the outputs not started yet are then cancelled: not needed; the running ones finish)."""
+    exc = fut.exception()
+    if exc is not None:
+        failures[futures[fut]] = exc
+        for other in futures:
+            other.cancel()
+        return
+    l, res = fut.result()
+    results[l] = res
+    fit = res[0]
+    # the worker's evaluations, counted as the fit in this process counts them
+    total = fit.n_evaluations + (fit.subsample["evaluations"] if fit.subsample else 0)
+    task.update(status=f"output {l}: {total} evaluations")
+    task.advance()
+    _report(progress, f"output {l}", fit)
 
 
 def _report(progress, label, fit) -> None:
@@ -420,11 +431,12 @@ def fit_gp(
         one on all points. Where the subset's hyperparameters fail the covariance checks on all rows
         (an indefinite kernel's noise margin), that output is fitted on all points instead.
     beside : None, or a callable (no arguments) that this process runs exactly once before fit_gp returns:
-        while the worker processes fit the outputs (after all of them have started), else after the
-        fit. The caller's own work that does not need the GP (rbgp train: the path distribution, the
-        bands' scale) then costs no wall time where the workers leave a core idle (a quiet machine
-        at the fit's end: fewer outputs left than workers). BLAS is single-threaded while it runs, as
-        for the whole fit; its exceptions end the workers and propagate.
+        with worker processes, as soon as one of them has no output left to fit (at once with fewer
+        outputs than workers), while the others finish theirs; else after the fit. The caller's own
+        work that does not need the GP (rbgp train: the path distribution, the bands' scale) then runs
+        on the core that a quiet machine leaves idle at the fit's end instead of after it. BLAS is
+        single-threaded while it runs, as for the whole fit; its exceptions end the workers and
+        propagate.
     """
     X, Y = training_data(X, Y)
     restarts = max(1, int(restarts))
