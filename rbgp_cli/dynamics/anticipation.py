@@ -755,16 +755,96 @@ def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6,
         rest.duration_smooth = rest.duration_tolerance = None
         ants = {c: Anticipator(rest, None, points=points, grid_size=grid_size, duration_smooth=c[0],
                                duration_tolerance=c[1]) for c in candidates}
-        for d in group:  # a loop over the left-out demonstrations and fractions, each one batched estimate
+        # the group's seen beginnings (each left-out demonstration at each fraction), checked, normalised and
+        # sign-continuous once per demonstration (what _seen does to each beginning: row by row, and continuity
+        # runs from the start, so the whole motion's first rows are the beginning's own, bit for bit), their
+        # seen poses once for every candidate
+        seen = []
+        for d in group:
             tr = trajs[d]
+            t_all, quat_all, pos_all = _seen(tr.t, tr.quat, tr.position, points)[:3]
             for F in SEEN_FRACTIONS:
                 k = int(np.clip(np.argmin(np.abs(tr.t - (tr.t[0] + F * tr.duration))), 1, len(tr.t) - 1))
-                for c, ant in ants.items():
-                    grid, w, terms = ant.weights(tr.t[: k + 1], tr.quat[: k + 1], tr.position[: k + 1])
-                    D_hat = ant._duration_quantiles(grid, w, terms["span"])[1]
-                    err[c] += abs(np.log(max(D_hat, 1e-9)) - paths.log_durations[d])
-                count += 1
+                seen.append((t_all[: k + 1], quat_all[: k + 1], pos_all[: k + 1]))
+        poses = [_seen(*s, points, checked=True)[3:] for s in seen]  # τ, q, p of each
+        left_out = np.repeat(group, len(SEEN_FRACTIONS))
+        for c, ant in ants.items():
+            for d, D_hat in zip(left_out, _duration_medians(ant, seen, poses)):
+                err[c] += abs(np.log(max(D_hat, 1e-9)) - paths.log_durations[d])
+        count += len(seen)
     return {c: e / count for c, e in err.items()} if count else {}
+
+
+def _duration_medians(ant, seen, poses) -> list:
+    """The median duration (s) that :meth:`Anticipator.weights` and :meth:`Anticipator._duration_quantiles` give for
+    each seen beginning of ``seen`` [(t (N,), quat (N, 4), position (N, 3))], checked, unit and sign-continuous as
+    :func:`_seen` leaves them, and ``poses`` [(τ (n,), q (n, 4), p (n, 3))] its seen poses (:func:`_seen` with the
+    anticipator's ``points``), their log weights
+    computed for all of them at once: :meth:`Anticipator._grid_terms`' log weight, −½ eᵀG⁻¹e − ½ log det G, with
+    the beginnings × the grid's durations as one batch (its end pose's mean and covariance, which
+    :func:`_duration_loo` does not use, left out). The same numbers as the loop over ``weights`` to rounding
+    (tests/dynamics/test_anticipation_modes.py); a beginning longer than every duration of the grid, or with
+    another number of seen poses than the first, goes through ``weights`` itself."""
+    from rbgp_cli.dynamics.paths import pose_deviation
+
+    out = [None] * len(seen)
+    n0 = len(poses[0][0]) if seen else 0
+    full = ant.grid
+    batch = [i for i, (tau, _q, _p) in enumerate(poses) if len(tau) == n0 and n0 > 1 and np.any(full >= tau[-1])]
+    for i in sorted(set(range(len(seen))) - set(batch)):
+        grid, w, terms = ant.weights(*seen[i], checked=True)
+        out[i] = ant._duration_quantiles(grid, w, terms["span"])[1]
+    if not batch:
+        return out
+    U, Ks, tau2 = ant._low_rank()
+    S, P = ant.paths.S, len(ant.m)
+    B, G0, n = len(batch), len(full), n0
+    tau = np.repeat(np.stack([poses[i][0] for i in batch]), G0, axis=0)  # (B·G0, n): row b·G0 + g
+    grid = np.tile(full, B)  # (B·G0,)
+    q = np.repeat(np.stack([poses[i][1] for i in batch]), G0, axis=0)
+    p = np.repeat(np.stack([poses[i][2] for i in batch]), G0, axis=0)
+    G_ = len(grid)
+    ph = np.minimum(tau / grid[:, None], 1.0)  # (G_, n)
+    x = ph * (S - 1)
+    k = np.minimum(x.astype(int), S - 2)
+    f = x - k
+    I0 = (6 * k[:, :, None] + np.arange(6)).reshape(G_, 6 * n)
+    w1 = np.repeat(f, 6, axis=1)
+    w0 = 1.0 - w1
+    AU = w0[:, :, None] * U[I0] + w1[:, :, None] * U[I0 + 6]  # (G_, 6n, D)
+    g0, g1 = 1.0 - f, f
+    Kint = (g0[:, :, None] * g0[:, None, :] * Ks[k[:, :, None], k[:, None, :]]
+            + g0[:, :, None] * g1[:, None, :] * Ks[k[:, :, None], k[:, None, :] + 1]
+            + g1[:, :, None] * g0[:, None, :] * Ks[k[:, :, None] + 1, k[:, None, :]]
+            + g1[:, :, None] * g1[:, None, :] * Ks[k[:, :, None] + 1, k[:, None, :] + 1])
+    eye6 = np.eye(6)
+    k6 = 6 * n + 1
+    # the bordered matrix [[G, e], [eᵀ, big]]: its Cholesky factor's last row holds (L⁻¹ e)ᵀ
+    M = np.zeros((G_, k6 + 1, k6 + 1))
+    Gm = M[:, :k6, :k6]
+    Gm[:, :-1, :-1] = AU @ AU.transpose(0, 2, 1) + tau2 * (Kint[:, :, None, :, None] * eye6[None, None, :, None, :]).reshape(G_, 6 * n, 6 * n)
+    uL = U[P - 1]
+    Gm[:, :-1, -1] = AU @ uL
+    Gm[:, -1, :-1] = Gm[:, :-1, -1]
+    Gm[:, -1, -1] = uL @ uL + tau2 + _ELL_TOL ** 2
+    dg = np.arange(6 * n)
+    Gm[:, dg, dg] += ant.duration_tolerance ** 2
+    e = M[:, :k6, k6]
+    e[:, :-1] = ant._deviations(k, f, q, p).reshape(G_, 6 * n)  # y − A m, as the live update computes it
+    e[:, -1] = np.log(grid) / ant.lscale - ant.m[-1]
+    M[:, k6, :k6] = e
+    M[:, k6, k6] = 1e100
+    L = np.linalg.cholesky(M)
+    Le = L[:, k6, :k6]
+    logw = (-0.5 * np.einsum("gk,gk->g", Le, Le)
+            - np.sum(np.log(np.diagonal(L[:, :k6, :k6], axis1=1, axis2=2)), axis=1)).reshape(B, G0)
+    for row, i in enumerate(batch):
+        span = float(poses[i][0][-1])
+        keep = full >= span
+        lw = logw[row, keep]
+        w = np.exp(lw - lw.max())
+        out[i] = ant._duration_quantiles(full[keep], w / w.sum(), span)[1]
+    return out
 
 
 # ----------------------------------------------------------------------------------------- streams

@@ -721,32 +721,52 @@ def train_model(
         progress(f"{len(trajs)} demonstrations, {info['pairs']} pairs, training on {info['points']} points "
                  f"({rep.name}, kernel {kernel}, {'shared' if shared else 'per-output'} hyperparameters)")
     fit = dict(noise=noise, restarts=restarts, seed=seed, shared=shared, progress=progress, explore_size=explore_size)
+    side = _WithoutGP(trajs, mean)
     if gp_choice["type"] == "sparse":
         gp, gp_choice, info = _fit_sparse(X, Y, kern, gp_choice, info, hyper_points, jobs, max_points=max_points, **fit)
     else:
-        gp, gp_choice = _fit_exact(X, Y, kern, gp_choice, hyper_points, jobs, fit)
+        # the work that needs no GP runs in this process while the worker processes fit it
+        gp, gp_choice = _fit_exact(X, Y, kern, gp_choice, hyper_points, jobs, dict(fit, beside=side))
     gp = _scaled_posterior_noise(gp, gp_choice, info, calibrate, noise_scale, seed, progress)
     recorded_dt = float(np.median(np.concatenate([np.diff(tr.t) for tr in trajs])))
     dt = 1.0 / velocity.rate if velocity.rate is not None else recorded_dt
     starts = np.array([np.concatenate([tr.quat[0], tr.position[0]]) for tr in trajs])
     durations = np.array([tr.duration for tr in trajs])
-    from rbgp_cli.dynamics.envelope import envelope_from_demos
-    from rbgp_cli.dynamics.variation import demonstration_variation
-
-    # the bands' scale measures each demonstration left out against the mean rollout's own prediction
-    # of it: the start map (its ridge; ∞ without conditioning) and the pull that closes a start's gap
-    ridge = float(mean["start_ridge"]) if mean is not None and "start_ridge" in mean else float("inf")
-    gain = float(mean["gain"]) if mean is not None and mean["kind"] == "path" else 0.0
-    inputs = mean.get("start_inputs", "path") if mean is not None else "path"
-    variation = demonstration_variation(trajs, ridge=ridge, gain=gain, inputs=inputs)
-    from rbgp_cli.dynamics.paths import fit_paths
-
-    paths = fit_paths(trajs)
-    summary = _train_summary(rep, kernel, kern, trajs, info, shared, velocity, gp, gp_choice, mean, variation,
-                             time_input, recorded_dt, t0, paths=paths)
+    side()  # done already unless the GP is sparse
+    summary = _train_summary(rep, kernel, kern, trajs, info, shared, velocity, gp, gp_choice, mean, side.variation,
+                             time_input, recorded_dt, t0, paths=side.paths)
     return MotionModel(rep, gp, float(dt), starts, durations, summary=summary, velocity=velocity,
-                       time_input=time_input, mean=mean, variation=variation, envelope=envelope_from_demos(trajs),
-                       paths=paths)
+                       time_input=time_input, mean=mean, variation=side.variation, envelope=side.envelope,
+                       paths=side.paths)
+
+
+class _WithoutGP:
+    """The parts of a trained model that do not depend on the GP, computed by the first call: the
+    demonstrations' variation (the bands' scale measures each demonstration left out against the mean
+    rollout's own prediction of it: the start map's ridge, ∞ without conditioning, and the pull that
+    closes a start's gap), the path distribution and the envelope. :func:`train_model` hands it to the
+    exact GP's fit, which runs it on the core a worker process leaves idle at the fit's end
+    (:func:`rbgp_cli.gp.exact.fit_gp`'s ``beside``): the same numbers as after the fit."""
+
+    def __init__(self, trajs, mean):
+        self.trajs, self.mean = trajs, mean
+        self.done = False
+
+    def __call__(self):
+        if self.done:
+            return
+        from rbgp_cli.dynamics.envelope import envelope_from_demos
+        from rbgp_cli.dynamics.paths import fit_paths
+        from rbgp_cli.dynamics.variation import demonstration_variation
+
+        mean = self.mean
+        ridge = float(mean["start_ridge"]) if mean is not None and "start_ridge" in mean else float("inf")
+        gain = float(mean["gain"]) if mean is not None and mean["kind"] == "path" else 0.0
+        inputs = mean.get("start_inputs", "path") if mean is not None else "path"
+        self.variation = demonstration_variation(self.trajs, ridge=ridge, gain=gain, inputs=inputs)
+        self.paths = fit_paths(self.trajs)
+        self.envelope = envelope_from_demos(self.trajs)
+        self.done = True
 
 
 def _checked_model_options(representation, kernel, rho_rot, time_input, prior, prior_gain, euler_order):

@@ -104,11 +104,25 @@ class GaussianProcess:
             if not lazy:  # else factorised at the first prediction (rbgp train writes the calibrated
                 self._ensure_factors()  # posterior without ever predicting with it)
         else:
-            # from fit_gp, which has just computed and checked them: per group (L, α)
+            # from fit_gp, which has just computed and checked them: per group (L, α), or (c, None) with c
+            # LAPACK's lower Cholesky factor (upper triangle zero), whose L and α are made at first use
+            # (_complete): rbgp train replaces this posterior by the calibrated one without using them
             self._L = [np.asarray(Lc) for Lc, _a in factors]
-            self._alpha = [np.asarray(a) for _Lc, a in factors]
+            self._alpha = [None if a is None else np.asarray(a) for _Lc, a in factors]
         self._cross = None
         self._scaled = {}
+
+    def _complete(self) -> None:
+        """L (C-ordered) and α = C⁻¹ y of the groups given as LAPACK's factor only: the numbers the fit
+        would have made at once (np.tril of the factor, dpotrs), made here at their first use."""
+        if self._alpha is None or all(a is not None for a in self._alpha):
+            return
+        for g, (_fit, outs) in enumerate(self.group_outputs()):
+            if self._alpha[g] is None:
+                c = self._L[g]
+                y = self.Y[:, outs] / self.y_scale[outs]
+                alpha, _info = lapack.dpotrs(c, np.asfortranarray(y), lower=1)
+                self._L[g], self._alpha[g] = np.tril(c), np.asarray(alpha)
 
     @property
     def n_outputs(self) -> int:
@@ -128,6 +142,8 @@ class GaussianProcess:
         if self._L is None:
             with blas_threads(0):
                 self._factorise()
+        else:
+            self._complete()
 
     def _factorise(self) -> None:
         """Cholesky factors and α for every group, with each fit's recorded jitter; verified. The
@@ -276,7 +292,7 @@ def _worker_fit(task):
     return l, fit_target(kernel, pre, y, label, np.random.default_rng(seeds), o, sub, pre_sub)
 
 
-def _fit_outputs_in_workers(X, Y, kernel, o, seeds, sub, jobs, progress, task):
+def _fit_outputs_in_workers(X, Y, kernel, o, seeds, sub, jobs, progress, task, beside=None):
     """Per-output fits in ``jobs`` worker processes (BLAS single-threaded in each); results in output order."""
     import os
 
@@ -291,12 +307,12 @@ def _fit_outputs_in_workers(X, Y, kernel, o, seeds, sub, jobs, progress, task):
         # instead of computing them once each (measured: 6 workers spent 30 % more CPU than one process)
         _WORKER["pre"] = (token, kernel.precompute(X), kernel.precompute(X[sub]) if sub is not None else None)
     try:
-        return _collect_worker_fits(tasks, jobs, ctx, progress, task, results, failures)
+        return _collect_worker_fits(tasks, jobs, ctx, progress, task, results, failures, beside)
     finally:
         _WORKER.pop("pre", None)
 
 
-def _collect_worker_fits(tasks, jobs, ctx, progress, task, results, failures):
+def _collect_worker_fits(tasks, jobs, ctx, progress, task, results, failures, beside=None):
     from concurrent.futures import as_completed
     from concurrent.futures.process import BrokenProcessPool
 
@@ -307,24 +323,20 @@ def _collect_worker_fits(tasks, jobs, ctx, progress, task, results, failures):
             # them, instead of leaving started workers that the exit handlers wait for forever
             with start_workers():
                 futures = {pool.submit(_worker_fit, t): t[4] for t in tasks}
+            # this process's own work (beside) runs once a worker has no output left to fit, on the core it
+            # leaves idle while the others finish; every worker has been forked by then (a fork context starts
+            # them all at the first submit), so no thread of ours is alive at any fork
+            running = len(futures)
+            if beside is not None and running < jobs:
+                beside()
+                beside = None
             for fut in as_completed(futures):
-                if fut.cancelled():
-                    continue
-                exc = fut.exception()
-                if exc is not None:
-                    # the outputs not started yet are not needed; the running ones finish
-                    failures[futures[fut]] = exc
-                    for other in futures:
-                        other.cancel()
-                    continue
-                l, res = fut.result()
-                results[l] = res
-                fit = res[0]
-                # the worker's evaluations, counted as the fit in this process counts them
-                total = fit.n_evaluations + (fit.subsample["evaluations"] if fit.subsample else 0)
-                task.update(status=f"output {l}: {total} evaluations")
-                task.advance()
-                _report(progress, f"output {l}", fit)
+                running -= 1
+                if not fut.cancelled():
+                    _collect_one(fut, futures, results, failures, progress, task)
+                if beside is not None and not failures and running < jobs:
+                    beside()
+                    beside = None
         except BaseException:
             stop_pool(pool)
             raise
@@ -336,6 +348,25 @@ def _collect_worker_fits(tasks, jobs, ctx, progress, task, results, failures):
                                    hint="train with jobs 1", param="jobs") from failures[first]
         raise failures[first]
     return results
+
+
+def _collect_one(fut, futures, results, failures, progress, task) -> None:
+    """The result of one finished output's future into ``results`` (and the progress), or its error into
+    ``failures`` (the outputs not started yet are then cancelled: not needed; the running ones finish)."""
+    exc = fut.exception()
+    if exc is not None:
+        failures[futures[fut]] = exc
+        for other in futures:
+            other.cancel()
+        return
+    l, res = fut.result()
+    results[l] = res
+    fit = res[0]
+    # the worker's evaluations, counted as the fit in this process counts them
+    total = fit.n_evaluations + (fit.subsample["evaluations"] if fit.subsample else 0)
+    task.update(status=f"output {l}: {total} evaluations")
+    task.advance()
+    _report(progress, f"output {l}", fit)
 
 
 def _report(progress, label, fit) -> None:
@@ -361,6 +392,7 @@ def fit_gp(
     explore_size: int | None = None,
     jobs: int = 1,
     hyper_points: int | None = None,
+    beside=None,
 ) -> GaussianProcess:
     """Fit one GP per output column of Y (or one shared set of hyperparameters) by minimising the NLML.
 
@@ -398,6 +430,13 @@ def fit_gp(
         the points, so the subset's optimum estimates the full one; each evaluation costs (h/n)³ of
         one on all points. Where the subset's hyperparameters fail the covariance checks on all rows
         (an indefinite kernel's noise margin), that output is fitted on all points instead.
+    beside : None, or a callable (no arguments) that this process runs exactly once before fit_gp returns:
+        with worker processes, as soon as one of them has no output left to fit (at once with fewer
+        outputs than workers), while the others finish theirs; else after the fit. The caller's own
+        work that does not need the GP (rbgp train: the path distribution, the bands' scale) then runs
+        on the core that a quiet machine leaves idle at the fit's end instead of after it. BLAS is
+        single-threaded while it runs, as for the whole fit; its exceptions end the workers and
+        propagate.
     """
     X, Y = training_data(X, Y)
     restarts = max(1, int(restarts))
@@ -414,18 +453,35 @@ def fit_gp(
     # BLAS single-threaded whatever the machine: the optimiser's path must not depend on how busy the
     # machine is (a 2-thread pool changes the round-off, and on the arc kernel's indefinite edge that
     # changed an optimum), and parallelism comes from the worker processes
+    beside = _once(beside)
     with blas_threads(0), progress.task("training", total=1 if shared else Y.shape[1], unit="outputs") as task:
         if hyper_points and len(X) > int(hyper_points):
             rows = np.sort(np.random.default_rng(np.random.SeedSequence([int(seed), 2])).choice(
                 len(X), int(hyper_points), replace=False))
-            on_subset = _fit_gp(X[rows], Y[rows], kernel, o, seed, shared, progress, explore, jobs, task)
+            on_subset = _fit_gp(X[rows], Y[rows], kernel, o, seed, shared, progress, explore, jobs, task, beside)
             gp = _posterior_on_all_rows(on_subset, X, Y)
             if gp is not None:
                 gp.hyper_subset = rows
-                return gp
-            progress(f"the hyperparameters of a random {int(hyper_points)} points fail the covariance checks "
-                     f"on all {len(X)}; fitting on all points")
-        return _fit_gp(X, Y, kernel, o, seed, shared, progress, explore, jobs, task)
+            else:
+                progress(f"the hyperparameters of a random {int(hyper_points)} points fail the covariance checks "
+                         f"on all {len(X)}; fitting on all points")
+        else:
+            gp = None
+        if gp is None:
+            gp = _fit_gp(X, Y, kernel, o, seed, shared, progress, explore, jobs, task, beside)
+        beside()  # the fit ran in this process (a fit in workers ran it already: then nothing)
+    return gp
+
+
+def _once(fn):
+    """``fn`` (or nothing) as a callable that runs it the first time only."""
+    done = [fn is None]
+
+    def run():
+        if not done[0]:
+            done[0] = True
+            fn()
+    return run
 
 
 def _over_groups(groups, one) -> list:
@@ -473,8 +529,9 @@ def _posterior_on_all_rows(gp: GaussianProcess, X, Y) -> GaussianProcess | None:
         if jitter is None:
             return None
         del K
-        alpha, _info = lapack.dpotrs(c, np.asfortranarray(y), lower=1)
-        return replace(fit, jitter=float(jitter), rcond=rc, positive_definite=pd), (np.tril(c), np.asarray(alpha))
+        # L and α at the posterior's first prediction (GaussianProcess._complete): rbgp train calibrates σn²
+        # and never predicts with this posterior (a 2000-point factor's copy and solve per set saved)
+        return replace(fit, jitter=float(jitter), rcond=rc, positive_definite=pd), (c, None)
 
     done = _over_groups(gp.group_outputs(), one)
     if any(r is None for r in done):
@@ -483,7 +540,7 @@ def _posterior_on_all_rows(gp: GaussianProcess, X, Y) -> GaussianProcess | None:
                            factors=[r[1] for r in done])
 
 
-def _fit_gp(X, Y, kernel, o, seed, shared, progress, explore, jobs, task):
+def _fit_gp(X, Y, kernel, o, seed, shared, progress, explore, jobs, task, beside=None):
     n = len(X)
     ss = np.random.SeedSequence(int(seed))
     sub = None
@@ -493,7 +550,7 @@ def _fit_gp(X, Y, kernel, o, seed, shared, progress, explore, jobs, task):
     if jobs > 1 and len(targets) > 1:
         jobs = min(jobs, len(targets))
         progress(f"fitting {len(targets)} outputs in {jobs} worker processes")
-        results = _fit_outputs_in_workers(X, Y, kernel, o, seeds, sub, jobs, progress, task)
+        results = _fit_outputs_in_workers(X, Y, kernel, o, seeds, sub, jobs, progress, task, beside)
     else:
         pre = kernel.precompute(X)
         pre_sub = kernel.precompute(X[sub]) if sub is not None else None

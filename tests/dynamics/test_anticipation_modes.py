@@ -85,3 +85,56 @@ def test_the_duration_has_its_own_tau_and_tolerance_chosen_on_the_task(paths):
     assert (back.duration_smooth, back.duration_tolerance) == chosen
     old = {k: v for k, v in paths.header().items() if not k.startswith("duration_")}
     assert PathDistribution.from_arrays(paths.to_arrays(), old).duration_smooth is None  # older model files
+
+
+def _duration_loo_by_weights(paths, trajs, folds=5, points=6, grid_size=16):
+    """The oracle: _duration_loo as a loop over the left-out demonstrations, fractions and candidates, each one call
+    of Anticipator.weights on the raw beginning (checks, normalisation and interpolation each time)."""
+    from rbgp_cli.dynamics.anticipation import DURATION_SMOOTH_GRID, DURATION_TOLERANCE_GRID, SEEN_FRACTIONS
+
+    D = paths.demos
+    candidates = sorted({(float(a), float(b)) for a in DURATION_SMOOTH_GRID for b in DURATION_TOLERANCE_GRID}
+                        | {(float(paths.smooth), float(paths.seen_tolerance))})
+    err, count = {c: 0.0 for c in candidates}, 0
+    order = np.random.default_rng(np.random.SeedSequence([37, D])).permutation(D)
+    for group in np.array_split(order, min(folds, D)):
+        keep = np.setdiff1d(np.arange(D), group)
+        rest = copy.copy(paths)
+        rest.deviations, rest.log_durations = paths.deviations[keep], paths.log_durations[keep]
+        rest.duration_smooth = rest.duration_tolerance = None
+        for d in group:
+            tr = trajs[d]
+            for F in SEEN_FRACTIONS:
+                k = int(np.clip(np.argmin(np.abs(tr.t - (tr.t[0] + F * tr.duration))), 1, len(tr.t) - 1))
+                for c in candidates:
+                    ant = Anticipator(rest, None, points=points, grid_size=grid_size, duration_smooth=c[0],
+                                      duration_tolerance=c[1])
+                    grid, w, terms = ant.weights(tr.t[: k + 1], tr.quat[: k + 1], tr.position[: k + 1])
+                    D_hat = ant._duration_quantiles(grid, w, terms["span"])[1]
+                    err[c] += abs(np.log(max(D_hat, 1e-9)) - paths.log_durations[d])
+                count += 1
+    return {c: e / count for c, e in err.items()}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", ["family", "short beginnings"])
+def test_duration_loo_batched_equals_the_loop_over_weights(case):
+    """_duration_loo estimates every left-out beginning of a group in one batch per candidate (issue 35): the
+    same errors as one Anticipator.weights call per beginning and candidate, to 1e-10. "short beginnings": one
+    demonstration sampled so coarsely that its first fifth has fewer seen poses than the rest (not in the
+    batch), and one so slow that its beginnings outlast every duration of the grid (weights' own case)."""
+    from rbgp_cli.dynamics.anticipation import _duration_loo
+
+    demos, _ = family(10, 5)
+    if case == "short beginnings":
+        slow = demos[3]
+        demos[3] = Trajectory(slow.t * 4.0, slow.quat, slow.position, name="slow")
+        coarse = demos[6]
+        demos[6] = Trajectory(coarse.t[::12], coarse.quat[::12], coarse.position[::12], name="coarse")
+    paths = fit_paths(demos)
+    got = _duration_loo(paths, demos)
+    want = _duration_loo_by_weights(paths, demos)
+    assert got.keys() == want.keys() and len(got) >= 1
+    for c in want:
+        assert abs(got[c] - want[c]) <= 1e-10, (c, got[c], want[c])
+    assert all(0.0 < v < 2.0 for v in got.values())

@@ -38,6 +38,15 @@ def test_threaded_posterior_equals_the_serial_one(monkeypatch, threads):
         threaded = _posterior_on_all_rows(sub, X, Y)
     assert serial is not None and threaded is not None
     assert [f.to_dict() for f in threaded.fits] == [f.to_dict() for f in serial.fits]
+    # L and α wait for the first use (rbgp train never predicts with this posterior), then are those of a
+    # posterior that factorises all rows itself, bit for bit
+    assert all(a is None for a in threaded._alpha)
+    threaded._ensure_factors()
+    serial._ensure_factors()
+    eager = GaussianProcess(sub.kernel, X, Y, threaded.fits, shared=False, y_scale=np.ones(Y.shape[1]))
+    for L1, a1, L2, a2 in zip(threaded._L, threaded._alpha, eager._L, eager._alpha):
+        np.testing.assert_array_equal(L1, L2)
+        np.testing.assert_array_equal(a1, a2)
     for L1, a1, L2, a2 in zip(threaded._L, threaded._alpha, serial._L, serial._alpha):
         np.testing.assert_array_equal(L1, L2)
         np.testing.assert_array_equal(a1, a2)
