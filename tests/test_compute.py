@@ -300,6 +300,7 @@ def test_a_niced_busy_process_does_not_count_as_a_busy_core(monkeypatch):
 
         monkeypatch.setattr("builtins.open", fake_open)
         monkeypatch.setattr(compute, "usable_cores", lambda: 4)
+        monkeypatch.setattr(compute, "_own_runnable", lambda: 1)  # the caller alone
         monkeypatch.setattr(compute, "_yielding_runnable", lambda: 1)
         assert compute.free_cores() == 3  # 4 cores − (3 runnable − this one − the niced one)
         monkeypatch.setattr(compute, "_yielding_runnable", lambda: 0)
@@ -307,3 +308,44 @@ def test_a_niced_busy_process_does_not_count_as_a_busy_core(monkeypatch):
     finally:
         loop.kill()
         loop.wait()
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="Linux /proc only")
+def test_this_process_s_own_busy_threads_do_not_count_as_other_programs(monkeypatch):
+    """A thread of this process in a GIL-free numpy product is runnable: _own_runnable sees it beside
+    the caller, and free_cores does not count it as another program's task (BLAS threads spinning after
+    a threaded factorisation made an idle machine look busy to the calibration)."""
+    import io
+    import threading
+
+    import numpy as np
+
+    from rbgp_cli import compute
+
+    A = np.random.default_rng(0).standard_normal((300, 300))
+    stop = threading.Event()
+
+    def busy():
+        while not stop.is_set():
+            A @ A  # releases the GIL
+
+    worker = threading.Thread(target=busy)
+    worker.start()
+    try:
+        seen = max(compute._own_runnable() for _ in range(200))
+    finally:
+        stop.set()
+        worker.join()
+    assert seen >= 2
+    real_open = open
+
+    def fake_open(path, *args, **kwargs):
+        return io.StringIO("0.0 0.0 0.0 3/100 1\n") if path == "/proc/loadavg" else real_open(path, *args, **kwargs)
+
+    monkeypatch.setattr("builtins.open", fake_open)
+    monkeypatch.setattr(compute, "usable_cores", lambda: 2)
+    monkeypatch.setattr(compute, "_yielding_runnable", lambda: 0)
+    monkeypatch.setattr(compute, "_own_runnable", lambda: 3)  # the caller and two spinning BLAS threads
+    assert compute.free_cores() == 2
+    monkeypatch.setattr(compute, "_own_runnable", lambda: 1)  # the two are other programs'
+    assert compute.free_cores() == 1
