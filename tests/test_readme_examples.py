@@ -413,8 +413,10 @@ def check_crossval(res, folder, shown):
     lines = res.stdout.splitlines()
     start = next(i for i, ln in enumerate(lines) if ln.split()[:1] == ["representation"])
     assert lines[start].split() == header
-    rows = {r[0]: dict(zip(header, r)) for r in _rows("\n".join(lines[start + 1:]))}
+    end = next((i for i in range(start + 1, len(lines)) if not lines[i].strip()), len(lines))  # the table ends
+    rows = {r[0]: dict(zip(header, r)) for r in _rows("\n".join(lines[start + 1:end]))}  # at a blank line
     assert {"axis-angle", "euler", "quaternion", "replay"} <= set(rows)
+    assert "paired against " in "\n".join(lines[end:])  # the paired comparisons below it
     floors = {float(r["floor"]) for r in rows.values()}
     assert len(floors) == 1  # one floor for every row: the same folds
     for r in rows.values():

@@ -280,7 +280,37 @@ def format_crossval(result: dict, per_fold: bool = False) -> str:
             lines.append(f"  {r['label']:<24} " + "; ".join(parts) + (f"  {options[id(r)]}" if options[id(r)] else ""))
     if any(not r.get("reliable", True) for r in result["results"]):
         lines.append("* some folds have too few trajectories for their per-step variances (see the warnings)")
+    lines += _paired_lines(result)
     return "\n".join(lines)
+
+
+def _paired_cell(p: dict) -> str:
+    """``+0.0010 ± 0.0024 z +0.40`` (and `` !`` where |z| ≥ 2) of one paired_difference."""
+    if p["difference"] is None:
+        return "-"
+    if p["z"] is None:
+        return f"{p['difference']:+.4f} ± -"
+    return f"{p['difference']:+.4f} ± {p['se']:.4f} z {p['z']:+.2f}" + (" !" if abs(p["z"]) >= 2 else "")
+
+
+def _paired_lines(result: dict) -> list[str]:
+    """The section below crossval's table: each row's per-motion RMSEs paired with the reference row's
+    (rbgp_cli.evaluation.crossval.paired_difference); nothing without a reference or other rows."""
+    rows = [r for r in result["results"] if r.get("paired")]
+    ref = result.get("paired_reference")
+    if not ref or not rows:
+        return []
+    n = max(r["paired"]["position"]["motions"] for r in rows)
+    width = max(len("row"), *(len(r["label"]) for r in rows))
+    lines = ["", f"paired against {ref} on the {n} held-out motions (Δ: the row's RMSE minus the reference's per "
+             "motion, mean ± standard error; z = Δ / se, ! where |z| ≥ 2, a difference beyond the motions' scatter; "
+             "closer: on how many motions the row is closer, position / rotation):",
+             f"  {'row':<{width}}  {'Δpos_m':<26}  {'Δrot_rad':<26}  closer"]
+    for r in rows:
+        p = r["paired"]
+        lines.append(f"  {r['label']:<{width}}  {_paired_cell(p['position']):<26}  {_paired_cell(p['rotation']):<26}"
+                     f"  {p['position']['closer']} / {p['rotation']['closer']}")
+    return lines
 
 
 def format_under_way(result: dict) -> str:

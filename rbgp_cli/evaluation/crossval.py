@@ -36,6 +36,14 @@ Overall numbers: score, floor, rotation and translation parts are means over fol
 score / floor of those means); trajectory and velocity errors are pooled over all held-out
 demonstrations; ``train_s`` is the mean training time per fold.
 
+**Paired comparisons.** Every row also keeps its trajectory errors per held-out demonstration
+(``per_motion``: its index in the input order, its name, and its position and rotation RMSE
+sqrt(sum / count) on the same normalised time grid). Since every row is scored on the same held-out
+motions, two rows differ by more than chance only if their per-motion differences do: each row has a
+``paired`` comparison with the reference row (the best ranked rbgp model row with its GP), the mean
+difference d̄ of per-motion RMSE (row − reference), its standard error s_d/√n, z = d̄ / (s_d/√n) (the
+paired t statistic) and the number of motions on which the row is closer (:func:`paired_difference`).
+
 **Repeats** (``repeats`` R > 1): the K folds are drawn again from R seeds (seed, seed + 1, …) and every
 configuration runs on all R × K splits; the overall numbers are over all of them, and ``by_repeat``
 gives each repetition's own score, floor, ratio and sample ratio. One set of folds can mislead: on the
@@ -74,6 +82,8 @@ __all__ = [
     "replay_nearest",
     "nearest_index",
     "trajectory_errors",
+    "per_motion_errors",
+    "paired_difference",
     "velocity_errors",
     "run_fold",
     "sample_seed",
@@ -217,14 +227,31 @@ def replay_nearest(train: list[Trajectory], quat0: np.ndarray, pos0: np.ndarray,
 
 
 # --------------------------------------------------------------------------------------------- errors
-def trajectory_errors(generated: list[Trajectory], reference: list[Trajectory], T: int) -> tuple[float, float, int]:
-    """Sums of squared position (m²) and rotation (rad²) errors between paired trajectories resampled
-    to ``T`` steps of normalised time, and the number of steps summed. RMSE = sqrt(sum / count)."""
+def _step_errors(generated: list[Trajectory], reference: list[Trajectory], T: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per step of ``T`` of normalised time, paired trajectories' position differences p_gen − p_ref
+    (M, T, 3) in m and rotation angles ∠(R_refᵀ R_gen) (M, T) in rad."""
     qg, pg = resample_all(generated, T)  # (M, T, 4), (M, T, 3)
     qr, pr = resample_all(reference, T)
     dq = quat_multiply(quat_conjugate(qr), qg)
     ang = 2.0 * np.arctan2(np.linalg.norm(dq[..., :3], axis=-1), np.abs(dq[..., 3]))
-    return float(np.sum((pg - pr) ** 2)), float(np.sum(ang**2)), int(qg.shape[0] * T)
+    return pg - pr, ang
+
+
+def trajectory_errors(generated: list[Trajectory], reference: list[Trajectory], T: int) -> tuple[float, float, int]:
+    """Sums of squared position (m²) and rotation (rad²) errors between paired trajectories resampled
+    to ``T`` steps of normalised time, and the number of steps summed. RMSE = sqrt(sum / count)."""
+    dp, ang = _step_errors(generated, reference, T)
+    return float(np.sum(dp**2)), float(np.sum(ang**2)), int(ang.shape[0] * T)
+
+
+def per_motion_errors(generated: list[Trajectory], reference: list[Trajectory], T: int
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`trajectory_errors` per pair: for each of the M paired trajectories, the sums over its
+    ``T`` steps of normalised time of the squared position errors ‖p_gen − p_ref‖² (m², shape (M,)) and
+    rotation errors ∠(R_refᵀ R_gen)² (rad², (M,)), and the steps summed (M,) (each T). Motion m's RMSE
+    is sqrt(sum_m / count_m); the pooled RMSE sqrt(Σ sum / Σ count) is :func:`trajectory_errors`'."""
+    dp, ang = _step_errors(generated, reference, T)
+    return np.sum(dp**2, axis=(1, 2)), np.sum(ang**2, axis=1), np.full(ang.shape[0], int(T))
 
 
 def velocity_errors(model, demos: list[Trajectory]) -> dict:
@@ -414,11 +441,14 @@ def _fold_scores(gen, drawn, model, train: list[Trajectory], test: list[Trajecto
     score = evaluate(gen, train, length=length, covariance=covariance, sample_size="record")
     T = score.steps
     sp, sr, count = trajectory_errors(gen, test, T)
+    mp, mr, mc = per_motion_errors(gen, test, T)
     out = {
         "score": score.mean, "rotation": score.rotation, "translation": score.translation,
         "offset": score.offset, "spread": score.spread,
         "reliable": bool(getattr(score, "reliable", True)),
         "steps": T, "position_sq": sp, "rotation_sq": sr, "count": count,
+        # per held-out demonstration, in the order of ``test`` (the fold's indices): the paired comparisons
+        "motion_position_sq": mp.tolist(), "motion_rotation_sq": mr.tolist(), "motion_count": mc.tolist(),
         "velocity": velocity_errors(model, test) if model is not None else None,
         "left_data": left_envelope(gen, envelope_from_demos(train))["count"],
         "warnings": sorted(set(score.warnings)),
@@ -467,10 +497,76 @@ def _velocity_summary(parts: list[dict]) -> dict:
     }
 
 
+def _per_motion(folds: list[np.ndarray], results: list[dict], names: list[str] | None = None) -> list[dict] | None:
+    """Per held-out demonstration (by its index in the input order, and its ``name``): its position and
+    rotation RMSE, sqrt(Σ sum / Σ count) over every split that held it out (one with a single set of
+    folds; R with ``repeats`` R; those of its subsets with ``train_size``); sorted by index, the
+    demonstrations never held out left out. None when the results carry no per-motion sums."""
+    if not results or any("motion_count" not in r for r in results):
+        return None
+    sums: dict[int, np.ndarray] = {}
+    for test_idx, r in zip(folds, results):
+        for i, a, b, c in zip(test_idx, r["motion_position_sq"], r["motion_rotation_sq"], r["motion_count"]):
+            sums[int(i)] = sums.get(int(i), np.zeros(3)) + (a, b, c)
+    return [{"index": i, **({"name": names[i]} if names is not None else {}),
+             "position_rmse": math.sqrt(v[0] / v[2]), "rotation_rmse": math.sqrt(v[1] / v[2])}
+            for i, v in sorted(sums.items())]
+
+
+def paired_difference(reference, row) -> dict:
+    """The paired comparison of a row's per-motion errors ``row`` with the reference row's ``reference``
+    (two arrays (n,), the same n held-out motions in the same order, e.g. per-motion RMSEs).
+
+    With dᵢ = rowᵢ − referenceᵢ: ``difference`` d̄ = Σdᵢ / n (negative: the row is closer on average),
+    ``se`` = s_d / √n with s_d² = Σ(dᵢ − d̄)² / (n − 1), ``z`` = d̄ / se (the paired t statistic,
+    ``scipy.stats.ttest_rel(row, reference).statistic``; |z| ≥ 2: a difference beyond the motions'
+    own scatter at about 5 %, for n of 30 or more), ``closer`` = #{dᵢ < 0}, the motions on which the
+    row is closer, and ``motions`` = n. ``se`` and ``z`` are None with n < 2 or s_d = 0."""
+    a, b = np.asarray(reference, dtype=float), np.asarray(row, dtype=float)
+    if a.shape != b.shape or a.ndim != 1:
+        raise ValueError(f"paired_difference needs two arrays of the same length, got shapes {a.shape} and {b.shape}")
+    d = b - a
+    n = len(d)
+    mean = float(np.mean(d)) if n else None
+    se = float(np.std(d, ddof=1) / math.sqrt(n)) if n > 1 else None
+    ok = se is not None and se > 0
+    return {"difference": mean, "se": se if ok else None, "z": mean / se if ok else None,
+            "closer": int(np.sum(d < 0)), "motions": int(n)}
+
+
+def _reference_row(rows: list[dict]) -> dict | None:
+    """The row the others are paired against: the first (best ranked) rbgp model row with its GP (not
+    a peer, not a row without the GP), else the first row."""
+    from rbgp_cli.evaluation.given_goal import NEAREST
+
+    peers = {REPLAY, NEAREST, *PEERS}
+    model = [r for r in rows if r["representation"] not in peers and not r.get("without_gp")]
+    return (model or rows or [None])[0]
+
+
+def _add_paired(rows: list[dict]) -> str | None:
+    """Give every row but the reference (:func:`_reference_row`) its ``paired`` comparison with it
+    (:func:`paired_difference` of the per-motion position and rotation RMSEs; the reference's own is
+    None); returns the reference's label (None without per-motion errors)."""
+    ref = _reference_row(rows)
+    if ref is None or not ref.get("per_motion"):
+        return None
+    base = {m["index"]: m for m in ref["per_motion"]}
+    for r in rows:
+        if r is ref or not r.get("per_motion"):
+            r["paired"] = None
+            continue
+        both = [(base[m["index"]], m) for m in r["per_motion"] if m["index"] in base]
+        r["paired"] = {"reference": ref["label"], **{
+            key: paired_difference([a[f"{key}_rmse"] for a, _ in both], [b[f"{key}_rmse"] for _, b in both])
+            for key in ("position", "rotation")}}
+    return ref["label"]
+
+
 def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[dict], k: int | None = None,
-         seeds: list[int] | None = None) -> dict:
+         seeds: list[int] | None = None, names: list[str] | None = None) -> dict:
     """One configuration's row over its splits (``k`` folds per repetition, ``seeds`` the repetitions'
-    fold seeds; by default one repetition)."""
+    fold seeds; by default one repetition; ``names`` the demonstrations', for ``per_motion``)."""
     k = len(folds) if k is None else int(k)
     per_fold = []
     for i, (test_idx, floor, r) in enumerate(zip(folds, floors, results)):
@@ -528,6 +624,7 @@ def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[di
         "reliable": all(e["reliable"] for e in per_fold),
         **extra,
         "per_fold": per_fold,
+        "per_motion": _per_motion(folds, results, names),
     }
 
 
@@ -619,7 +716,11 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
     "splits": [{"train": [...], "test": [...]}, ...] (demonstration indices, 0-based, in recording
     order), "results": [row, ...]}``
     with the rows sorted by score / floor (best first); each row as in the module docstring (with
-    ``by_repeat`` when R > 1; its ``per_fold`` entries then say their ``repeat``).
+    ``by_repeat`` when R > 1; its ``per_fold`` entries then say their ``repeat``), its ``per_motion``
+    ([{"index", "name", "position_rmse", "rotation_rmse"}, ...], one per demonstration held out, pooled
+    over the splits that held it out) and its ``paired`` comparison with the reference row
+    (``{"reference": label, "position": {...}, "rotation": {...}}`` of :func:`paired_difference`;
+    None for the reference row itself), whose label is ``"paired_reference"``.
     """
     demos = list(demos)
     configs = _goal_configs(configs, given)
@@ -684,15 +785,16 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
         else:
             for i, r in _run_in_processes(args, n_jobs, label=label):
                 done(i, r)
-    rows = []
+    rows, names = [], [d.name for d in demos]
     for ci, c in enumerate(configs):
         res = [results[ci * len(splits) + f] for f in range(len(splits))]
-        rows.append(_row(c, fold_idx, floors, res, k=k, seeds=seeds))
+        rows.append(_row(c, fold_idx, floors, res, k=k, seeds=seeds, names=names))
         if without_gp and all("without_gp" in r for r in res):
             off = Config(c.representation, c.kernel, c.train, label=f"{c.name}, without the GP", options=c.options)
-            row = _row(off, fold_idx, floors, [r["without_gp"] for r in res], k=k, seeds=seeds)
+            row = _row(off, fold_idx, floors, [r["without_gp"] for r in res], k=k, seeds=seeds, names=names)
             rows.append({**row, "without_gp": True})
     rows.sort(key=lambda r: (r["ratio"], r["label"]))
+    reference = _add_paired(rows)
     return {
         "folds": k,
         "repeats": len(seeds),
@@ -705,6 +807,7 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
         "floor": float(np.mean([f.mean for f in floors])),
         "floor_left_data": int(floor_left),
         **({"given": given} if given else {}),
+        "paired_reference": reference,
         "results": rows,
         "warnings": sorted(caught | {w for f in floors for w in f.warnings}),
     }
