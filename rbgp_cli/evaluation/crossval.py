@@ -794,7 +794,6 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
             row = _row(off, fold_idx, floors, [r["without_gp"] for r in res], k=k, seeds=seeds, names=names)
             rows.append({**row, "without_gp": True})
     rows.sort(key=lambda r: (r["ratio"], r["label"]))
-    reference = _add_paired(rows)
     return {
         "folds": k,
         "repeats": len(seeds),
@@ -807,7 +806,7 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
         "floor": float(np.mean([f.mean for f in floors])),
         "floor_left_data": int(floor_left),
         **({"given": given} if given else {}),
-        "paired_reference": reference,
+        "paired_reference": _add_paired(rows),  # and each row's "paired"
         "results": rows,
         "warnings": sorted(caught | {w for f in floors for w in f.warnings}),
     }
