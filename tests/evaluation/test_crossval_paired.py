@@ -139,6 +139,16 @@ def test_crossval_rows_carry_per_motion_errors_that_pool_to_their_rmse():
         assert res["paired_reference"] == "replay" and row["paired"] is None
 
 
+def test_given_goal_rows_carry_them_too():
+    """--given goal goes through the same rows: the nearest peer's per-motion errors pool to its RMSE."""
+    demos = reaching_demos(6)
+    res = crossval(demos, [Config(REPLAY)], folds=3, jobs=1, samples=0, given="goal")
+    row = res["results"][0]
+    assert row["representation"] == "nearest" and len(row["per_motion"]) == 6
+    pos = np.array([m["position_rmse"] for m in row["per_motion"]])
+    assert math.sqrt(np.mean(pos**2)) == pytest.approx(row["position_rmse"], rel=1e-12)
+
+
 def test_the_text_shows_the_paired_section_and_marks_large_z():
     demos = reaching_demos(6)
     res = crossval(demos, [Config(REPLAY)], folds=3, jobs=1, samples=0)
