@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = ["PathDistribution", "Conditioned", "fit_paths", "SMOOTH_GRID", "LENGTH_GRID", "GOAL_TOLERANCE",
-           "pose_deviation", "MIN_PATH_DEMOS"]
+           "pose_deviation", "MIN_PATH_DEMOS", "STRENGTH_GRID"]
 
 #: Fewer demonstrations than this give no path distribution (a covariance needs two, its Student-t three).
 MIN_PATH_DEMOS = 3
@@ -65,6 +65,9 @@ GOAL_TOLERANCE = (1e-3, 5e-4)
 #: left-out paths is less certain), and at most to this factor.
 NARROW_FROM = 10
 NARROWEST = 0.5
+#: The scales κ (on the sample covariance) and λ (on the smooth shrinkage) that
+#: :meth:`PathDistribution.goal_strength` weighs for what is known of one motion (issue 38, fourth pass).
+STRENGTH_GRID = (1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0, 128.0)
 #: Every ``SELECT_EVERY``-th grid phase scores a left-out demonstration in :func:`fit_paths`.
 SELECT_EVERY = 5
 
@@ -301,13 +304,14 @@ class PathDistribution:
         cov = Sigma - gain @ SA.T
         return Conditioned(self, mean, 0.5 * (cov + cov.T))
 
-    def update(self, deviation: np.ndarray, A, y, r2, log_duration=None) -> np.ndarray:
+    def update(self, deviation: np.ndarray, A, y, r2, log_duration=None, prior=None) -> np.ndarray:
         """Matheron's pathwise update of paths (module docstring): deviations (B, S, 6) rad, m (with ln D
         (B,) if known; else the prior mean's) that should satisfy y (B, k) = A x: returns them plus
-        Σ Aᵀ G⁻¹ (y − A x), (B, S, 6). With exact observations the result passes them within the tolerance."""
+        Σ Aᵀ G⁻¹ (y − A x), (B, S, 6). With exact observations the result passes them within the tolerance.
+        ``prior`` (m, Σ) default :meth:`prior` (e.g. :meth:`goal_prior`'s)."""
         deviation = np.asarray(deviation, dtype=np.float64)
         B = len(deviation)
-        m, Sigma = self.prior()
+        m, Sigma = self.prior() if prior is None else prior
         x = np.empty((B, len(m)))
         x[:, :-1] = (deviation / self.scale).reshape(B, -1)
         x[:, -1] = m[-1] if log_duration is None else np.asarray(log_duration, float) / self.duration_scale
@@ -319,6 +323,43 @@ class PathDistribution:
         innov = np.atleast_2d(y) - x @ A.T  # (B, k)
         x = x + cho_solve((L, True), innov.T).T @ SA.T
         return self.unscale(x)[0]
+
+    def goal_strength(self, A, y, r2) -> float:
+        """The factor λ ≥ 1 on the smooth shrinkage τ² for one motion's known poses y = A x + ε (a goal,
+        via-points; module docstring), from how far they lie, and in which directions, from the
+        demonstrations (issue 38, fourth pass; docs/method.md §12).
+
+        Each part of Σ gets a scale, Σ(κ, λ) = κ (1 + 1/D) CᵀC / (D − 1) + λ τ² K, and (κ, λ) ∈
+        :data:`STRENGTH_GRID`² maximise the marginal likelihood of y, N(y; A m, A Σ(κ, λ) Aᵀ + R) (a
+        type-II maximum for this one motion). The conditional mean depends on the ratio λ/κ alone, and
+        λ = max(1, λ/κ) is returned: 1 (the distribution as fitted) when the poses lie where the
+        demonstrations vary, or beyond them along those directions (κ grows: the demonstrations'
+        linear relation is extrapolated, as before); above 1 when they lie off the directions the
+        demonstrations span, where their sample covariance's regression on the goal, estimated from a
+        few of them, is a guess that amplifies: with 5 slower handovers, goals 7–23 spreads from where
+        they end were bent 0.8–1.2 m off their path in the middle (docs/defaults.md, issue 38)."""
+        m, S0 = self.prior(smooth=0.0)
+        e = np.asarray(y, dtype=np.float64) - A @ m
+        AS = A @ S0 @ A.T
+        AK = A @ self.smooth_covariance() @ A.T
+        R = np.diag(r2)
+        best, best_ll = (1.0, 1.0), -np.inf
+        for kappa in STRENGTH_GRID:  # 8 × 8 small Cholesky factorisations (k × k, k the known coordinates)
+            for lam in STRENGTH_GRID:
+                G = kappa * AS + lam * AK + R
+                L = np.linalg.cholesky(0.5 * (G + G.T))
+                a = np.linalg.solve(L, e)
+                ll = -0.5 * float(a @ a) - float(np.sum(np.log(np.diag(L))))
+                if ll > best_ll:
+                    best, best_ll = (kappa, lam), ll
+        return max(1.0, best[1] / best[0])
+
+    def goal_prior(self, A, y, r2) -> tuple[np.ndarray, np.ndarray, float]:
+        """(m, Σ, λ): the prior a motion with known poses y = A x + ε is conditioned with, its smooth
+        shrinkage scaled by :meth:`goal_strength`'s λ: Σ = (1 + 1/D) CᵀC / (D − 1) + λ τ² K."""
+        lam = self.goal_strength(A, y, r2)
+        m, Sigma = self.prior(smooth=self.smooth * lam)
+        return m, Sigma, lam
 
     def goal_band_scale(self, level: float = 0.90) -> tuple[float, float]:
         """The bands' factors (c_rot, c_pos) for draws given start and goal (:func:`rollout_conditioned

@@ -77,6 +77,9 @@ class RolloutResult:
     goal_distance: np.ndarray | None = None
     #: (B, V) each via-point's distance from where the demonstrations pass at its phase, or None
     via_distance: np.ndarray | None = None
+    #: (B,) the factor λ ≥ 1 on the smooth shrinkage each conditioned motion took
+    #: (:meth:`~rbgp_cli.dynamics.paths.PathDistribution.goal_strength`), or None
+    goal_strength: np.ndarray | None = None
     band_position: np.ndarray | None = None
     band_rotation: np.ndarray | None = None
 
@@ -147,6 +150,7 @@ class RolloutResult:
         res.goal_quat, res.goal_position, res.via, res.goal_distance = (self.goal_quat, self.goal_position, self.via,
                                                                        self.goal_distance)
         res.via_distance = self.via_distance
+        res.goal_strength = self.goal_strength
         if self.band_position is not None:
             res.band_position, res.band_rotation = band_p, band_r
         return res
@@ -477,12 +481,20 @@ def rollout_conditioned(model, start_quat, start_position, *, goal_quat=None, go
                                         res.position[b, : res.length(b)], duration=durations[b]) for b in range(B)])
     bent = np.empty_like(grid)
     covs = []
+    strength = np.ones(B)  # λ per start (PathDistribution.goal_strength)
     for b in range(B):  # per start: its own constraint values (and via phases); small solves
         A, y, r2 = constraints(b, durations[b])
         # the rollout from the start is the model's answer given the start alone: its ln D is the start-
         # conditioned mean, so that a known duration's innovation bends it as the distribution says
         ell0 = np.log(paths.condition(*paths.observe([0.0], q0[b:b + 1], p0[b:b + 1], exact=True)).duration)
-        bent[b] = paths.update(grid[b:b + 1], A, y[None], r2, log_duration=ell0)[0]
+        # the mean: a goal or via-point off the directions the demonstrations span takes more of the smooth
+        # shrinkage (PathDistribution.goal_strength; λ = 1, the fitted distribution, for poses like theirs);
+        # the samples and the band stay the fitted distribution's, whose factors were calibrated with it
+        prior = None
+        if has_goal or via:
+            m_b, Sigma_b, strength[b] = paths.goal_prior(A, y, r2)
+            prior = (m_b, Sigma_b)
+        bent[b] = paths.update(grid[b:b + 1], A, y[None], r2, log_duration=ell0, prior=prior)[0]
         if samples:
             covs.append(paths.condition(A, y, r2))
     from rbgp_cli.dynamics.paths import _interpolation
@@ -491,6 +503,7 @@ def rollout_conditioned(model, start_quat, start_position, *, goal_quat=None, go
     res.quat, res.position = _from_deviation(paths, ref_q, ref_p, new)
     _recheck_envelope(model, res, durations, kwargs.get("off_data", "keep"))
     res.goal_distance = paths.goal_distance(q0, p0, gq, gp) if has_goal else None
+    res.goal_strength = strength
     res.via_distance = np.stack([paths.pose_distance(q0, p0, np.clip(float(tv) / durations, 0.0, 1.0), qv, pv)
                                  for tv, qv, pv in via], axis=1) if via else None  # (B, V)
     if has_goal:

@@ -266,3 +266,47 @@ def test_the_pose_distance_is_zero_at_the_conditioned_mean_linear_in_an_offset_a
     pg = np.array([t.position[-1] for t in trajs])
     np.testing.assert_allclose(paths.pose_distance(q0, p0, np.ones(len(trajs)), qg, pg),
                                paths.goal_distance(q0, p0, qg, pg), rtol=1e-12)
+
+
+# --------------------------------------------------------------------------------------------- the goal's strength
+def _ends(paths, dev, ell):
+    """(A, y, r²) of the start, the goal and the duration of a deviation path (S, 6) with ln D ``ell``."""
+    q, p = paths.pose_at(dev, np.array([0.0, 1.0]))
+    return paths.stack(paths.observe([0.0, 1.0], q, p, exact=True), paths.observe_duration(float(np.exp(ell))))
+
+
+@pytest.mark.slow
+def test_goal_strength_keeps_the_fitted_distribution_along_the_demonstrations_and_grows_off_them():
+    """Five demonstrations of the family (issue 38, fourth pass): ends six times a demonstration's own
+    offsets (far, but along the directions the five vary in) keep λ = 1, the fitted distribution and its
+    linear extrapolation; a goal 30 cm off the mean's end in z, a direction they do not span, takes λ ≥ 4
+    (8–128 when written), and its conditioned mean still ends at the goal while its middle strays less
+    from the mean path than with λ = 1 (the amplified regression on the goal that 5 slower handovers showed)."""
+    rng = np.random.default_rng(55)
+    for _ in range(6):
+        _, _, train = draw_family(5, rng)
+        paths = fit_paths(train)
+        X = paths.vectors()
+        m = X.mean(axis=0)
+        along_dev, along_ell = paths.unscale(m + 6.0 * (X[0] - m))
+        assert paths.goal_strength(*_ends(paths, along_dev, along_ell)) == 1.0
+        m_dev, m_ell = paths.unscale(m)
+        q, p = paths.pose_at(m_dev, np.array([0.0, 1.0]))
+        p[1, 2] += 0.3
+        A, y, r2 = paths.stack(paths.observe([0.0, 1.0], q, p, exact=True), paths.observe_duration(float(np.exp(m_ell))))
+        mean_, Sigma, lam = paths.goal_prior(A, y, r2)
+        assert lam >= 4.0
+        strong = paths.condition(A, y, r2, prior=(mean_, Sigma)).deviation
+        fitted = paths.condition(A, y, r2).deviation
+        assert abs(strong[-1, 5] - (p[1, 2] - paths.position[-1, 2])) < 0.005  # ends at the goal (5 mm)
+        middle = slice(S // 5, 4 * S // 5)
+        assert np.abs(strong[middle, 3:]).max() < np.abs(fitted[middle, 3:]).max()
+
+
+def test_goal_strength_is_one_for_the_familys_own_goals(small):
+    """Twelve demonstrations: each one's own start, goal and duration take λ = 1 (they lie where the
+    demonstrations vary), so the conditioned mean is the fitted distribution's."""
+    paths, trajs = small
+    X = paths.vectors()
+    lams = [paths.goal_strength(*_ends(paths, *paths.unscale(x))) for x in X]
+    assert lams == [1.0] * len(X)
