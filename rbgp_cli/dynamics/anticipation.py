@@ -50,13 +50,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rbgp_cli.dynamics.paths import NARROW_FROM
 from rbgp_cli.errors import InputError
 from rbgp_cli.geometry.conventions import SMALL_ANGLE
 from rbgp_cli.geometry.so3 import PI_TOLERANCE
 
 __all__ = ["Anticipator", "Anticipation", "Continuation", "anticipate", "fit_seen", "Follower",
            "SEEN_TOLERANCE_GRID", "SEEN_FRACTIONS", "SEEN_POINTS", "DURATION_GRID", "DURATION_SMOOTH_GRID",
-           "DURATION_TOLERANCE_GRID"]
+           "DURATION_TOLERANCE_GRID", "REST_SMOOTH_GRID", "REST_FROM"]
 
 #: Regularising tolerances r tried by :func:`fit_seen` (units of each coordinate's spread).
 SEEN_TOLERANCE_GRID = (0.05, 0.1, 0.2, 0.4, 0.8, 1.6, 3.2)
@@ -81,6 +82,11 @@ DURATION_SMOOTH_GRID = (0.01,)
 DURATION_TOLERANCE_GRID = (0.8,)
 #: Groups the demonstrations are left out in when :func:`fit_seen` chooses the duration's τ² and r
 DURATION_FOLDS = 5
+#: The conditioning of the rest has its own τ² and r, chosen by :func:`fit_seen` on the left-out final pose from
+#: these τ² (and the path distribution's own) × SEEN_TOLERANCE_GRID, from REST_FROM demonstrations on (with fewer
+#: the left-out ends are too few to choose by: docs/defaults.md, issue 37's fourth pass)
+REST_SMOOTH_GRID = (0.01, 0.03, 0.1, 0.3, 1.0)
+REST_FROM = NARROW_FROM
 #: Tolerance of the exactly observed ln D (in units of ln D's spread) and of the last seen pose.
 _ELL_TOL = 1e-4
 
@@ -259,7 +265,12 @@ class Anticipator:
             duration_tolerance = getattr(paths, "duration_tolerance", None)
         self.duration_smooth = float(paths.smooth if duration_smooth is None else duration_smooth)
         self.duration_tolerance = float(self.tolerance if duration_tolerance is None else duration_tolerance)
-        self.m, self.Sigma = paths.prior()
+        # the conditioning of the rest (and its draws) with its own τ² and r (fit_seen), else the path distribution's
+        rest_smooth = getattr(paths, "rest_smooth", None)
+        rest_tolerance = getattr(paths, "rest_tolerance", None)
+        self.rest_smooth = float(paths.smooth if rest_smooth is None else rest_smooth)
+        self.rest_tolerance = float(self.tolerance if (rest_tolerance is None or tolerance is not None) else rest_tolerance)
+        self.m, self.Sigma = paths.prior(smooth=self.rest_smooth)
         self.scale = paths.scale
         self.lscale = paths.duration_scale
         d = np.exp(paths.log_durations)
@@ -466,20 +477,21 @@ class Anticipator:
         m6 = self.m[:-1].reshape(S, 6)
         e = e + m6[k] + (x - k) * (m6[k + 1] - m6[k]) - m6[j]
         Cinv = self.__dict__.get("_marginal_inv")
-        if Cinv is None:  # per grid phase, (Σ_jj + r² I)⁻¹ (S, 6, 6), computed once
-            blocks = np.array([self.Sigma[6 * i:6 * i + 6, 6 * i:6 * i + 6] for i in range(S)])
+        if Cinv is None:  # per grid phase, (Σ_jj + r² I)⁻¹ (S, 6, 6) of the path distribution's own Σ, computed once
+            Sigma = self.Sigma if self.rest_smooth == self.paths.smooth else self.paths.prior()[1]
+            blocks = np.array([Sigma[6 * i:6 * i + 6, 6 * i:6 * i + 6] for i in range(S)])
             Cinv = self._marginal_inv = np.linalg.inv(blocks + self.tolerance ** 2 * np.eye(6))
         return float(np.sqrt(max(e @ Cinv[j] @ e, 0.0)))
 
     # -------------------------------------------------------------- the rest of the motion
     def _observations(self, tau, q, p, last_q, last_p, D):
-        """(A, y, r²) at duration D: the seen poses (tolerance r), the last one exactly, and ℓ = ln D."""
+        """(A, y, r²) at duration D: the seen poses (the rest's tolerance r), the last one exactly, and ℓ = ln D."""
         paths = self.paths
         obs = [paths.observe(np.clip(tau / D, 0, 1), q, p, tolerance=None),
                paths.observe([min(tau[-1] / D, 1.0)], last_q[None], last_p[None], exact=True),
                paths.observe_duration(D, tolerance=_ELL_TOL * self.lscale)]
         A, y, r2 = paths.stack(*obs)
-        r2[: 6 * len(tau)] = self.tolerance ** 2
+        r2[: 6 * len(tau)] = self.rest_tolerance ** 2
         return A, y, r2
 
     def _gain(self, A, r2):
@@ -658,19 +670,20 @@ def seen_split(F: float, S: int, P: int, points: int) -> tuple[np.ndarray, int]:
     return np.concatenate([io, it]), len(io)
 
 
-def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS):
+def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS, smooth: float | None = None):
     """Leave each demonstration out; see its first F (each of SEEN_FRACTIONS) at its true phases on the grid
     (≤ points grid phases, the last exactly) and its ln D; score the rest (every 5th grid phase after F,
     and the end) by its log density under the others' distribution so conditioned, for each tolerance of
     ``tolerances``. Only the coordinates involved enter (a Gaussian's marginal is its sub-block). Returns
     the mean log density per tolerance and, with ``stats`` (one tolerance), the rotation Mahalanobis² and
     position z-scores of the scored phases (for the bands' factors). All demonstrations at once
-    (:func:`~rbgp_cli.dynamics.paths.left_out_moments`, :func:`~rbgp_cli.dynamics.paths.held_out_scores`)."""
+    (:func:`~rbgp_cli.dynamics.paths.left_out_moments`, :func:`~rbgp_cli.dynamics.paths.held_out_scores`).
+    ``smooth``: the τ² of the others' distribution (default the path distribution's)."""
     from rbgp_cli.dynamics.paths import GOAL_TOLERANCE, SELECT_EVERY, held_out_scores, left_out_moments
 
     X = paths.vectors()
     S, P = paths.S, X.shape[1]
-    Ks = paths.smooth_covariance()
+    Ks = paths.smooth_covariance(smooth)
     r_last = (np.array(GOAL_TOLERANCE).repeat(3) / paths.scale) ** 2
     total = np.zeros(len(tolerances))
     count, m2, z = 0, [], []
@@ -700,6 +713,45 @@ def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS)
     return total / count
 
 
+def _end_loo(paths, smooths, tolerances, points: int = SEEN_POINTS) -> np.ndarray:
+    """The left-out final pose given the seen part, for each τ² of ``smooths`` and r of ``tolerances``: each
+    demonstration left out, its first F (each of SEEN_FRACTIONS) seen at its true phases (≤ ``points`` grid
+    phases, the last exactly, as the continuation sees it) and its ln D, and the others' distribution (its
+    smooth term τ² K_ℓ) conditioned on them; the error e (6,) of the conditioned mean at phase 1 against the
+    left-out end, in units of each coordinate's spread. Returns the mean over the left-out demonstrations of
+    eᵀe, summed over the fractions: (len(smooths), len(tolerances)). Batched over the demonstrations
+    (:func:`~rbgp_cli.dynamics.paths.left_out_moments`); only the coordinates involved enter."""
+    from rbgp_cli.dynamics.paths import GOAL_TOLERANCE, left_out_moments
+
+    X = paths.vectors()
+    S, P = paths.S, X.shape[1]
+    K1 = paths.smooth_covariance(1.0)
+    r_last = (np.array(GOAL_TOLERANCE).repeat(3) / paths.scale) ** 2
+    end = 6 * (S - 1) + np.arange(6)
+    out = np.zeros((len(smooths), len(tolerances)))
+    for F in SEEN_FRACTIONS:
+        idx, no = seen_split(F, S, P, points)
+        idx = np.concatenate([idx[:no], end])  # the seen entries (ln D last), then the end's six
+        Xs = X[:, idx]
+        K = K1[np.ix_(idx, idx)]
+        sq, count = np.zeros_like(out), 0
+        for block, m, sample in left_out_moments(Xs):
+            innovation = Xs[block, :no] - m[:, :no]
+            for a, tau2 in enumerate(smooths):
+                Sigma = sample + float(tau2) * K
+                Soo, Sot = Sigma[:, :no, :no], Sigma[:, :no, no:]
+                for b, tol in enumerate(tolerances):
+                    r2 = np.full(no, float(tol) ** 2)
+                    r2[-7:-1] = r_last
+                    r2[-1] = _ELL_TOL ** 2
+                    gain = np.swapaxes(np.linalg.solve(Soo + np.diag(r2), Sot), 1, 2)  # (B, 6, no)
+                    e = Xs[block, no:] - m[:, no:] - np.einsum("bij,bj->bi", gain, innovation)
+                    sq[a, b] += float(np.sum(e * e))
+            count += len(block)
+        out += sq / max(count, 1)
+    return out
+
+
 def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True):
     """Choose the seen poses' regularising tolerance r and the bands' factors of a motion under way by
     leaving demonstrations out (module docstring); sets ``paths.seen_tolerance`` and
@@ -710,13 +762,23 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True):
 
     scores = dict(zip(SEEN_TOLERANCE_GRID, _seen_loo(paths, SEEN_TOLERANCE_GRID)))
     r = max(scores, key=scores.get)
-    _, m2, z = _seen_loo(paths, [r], stats=True)
+    paths.seen_tolerance = float(r)
+    paths.info = dict(paths.info or {}, seen_tolerance=float(r), seen_loo_log_density=float(scores[r]))
+    rest = (float(paths.smooth), float(r))
+    if paths.demos >= REST_FROM:  # the rest's own τ² and r: the left-out final pose given the seen part
+        smooths = sorted(set(REST_SMOOTH_GRID) | {rest[0]})
+        tols = sorted(set(SEEN_TOLERANCE_GRID) | {rest[1]})
+        err = _end_loo(paths, smooths, tols)
+        a, b = np.unravel_index(int(np.argmin(err)), err.shape)
+        if err[a, b] < err[smooths.index(rest[0]), tols.index(rest[1])]:  # ties keep the path distribution's own
+            rest = (float(smooths[a]), float(tols[b]))
+        paths.rest_smooth, paths.rest_tolerance = rest
+        paths.info.update(rest_smooth=rest[0], rest_tolerance=rest[1], rest_end_loo=float(err.min()))
+    _, m2, z = _seen_loo(paths, [rest[1]], stats=True, smooth=rest[0])
     nu = max(paths.demos - 2, 1)
     c_rot = np.sqrt(np.quantile(m2, level) / (3.0 * fdtri(3, nu, level)))
     c_pos = np.quantile(z.ravel(), level) / stdtrit(nu, 0.5 + level / 2.0)
-    paths.seen_tolerance = float(r)
     paths.seen_band_scale = (max(1.0, float(c_rot)), max(1.0, float(c_pos)))
-    paths.info = dict(paths.info or {}, seen_tolerance=float(r), seen_loo_log_density=float(scores[r]))
     if duration:
         errors = _duration_loo(paths, trajs)
         if errors:
