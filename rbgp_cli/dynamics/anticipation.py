@@ -20,8 +20,8 @@ The predicted end time is t_0 + D with D's weighted median and 5 %/95 % quantile
 seen sample is span / D̂ (D̂ the weighted median). One batched solve over the grid gives the weights and,
 per D_g, the conditioned end pose: the end pose's mean and band are the mixture's.
 
-**The rest.** At D̂ the path distribution is conditioned on the seen poses (tolerance r) and on the last
-seen pose exactly (:data:`~rbgp_cli.dynamics.paths.GOAL_TOLERANCE`, so the continuation starts where the
+**The rest.** At D̂ the path distribution, with the rest's own smooth term τ²_rest K_ℓ, is conditioned on the
+seen poses (tolerance r_rest) and on the last seen pose exactly (:data:`~rbgp_cli.dynamics.paths.GOAL_TOLERANCE`, so the continuation starts where the
 motion is); the continuation runs from the last seen time to t_0 + D̂. Its mean is either that
 conditioned path (``model=None``, the path distribution alone) or the model's GP dynamics rolled from the
 last seen pose at its phase with the conditioned path as the prior mean's reference (feed-forward along
@@ -32,9 +32,13 @@ conditioned mean at D̂, so duration and path vary together and every sample sta
 
 **The tolerance and the bands** (:func:`fit_seen`): each demonstration left out in turn, its first
 F ∈ {0.2, 0.4, 0.6, 0.8} seen at its true phases, the rest predicted; r maximises the left-out remainders'
-log density (over :data:`SEEN_TOLERANCE_GRID`), and the factors (c_rot, c_pos) ≥ 1 make the remainders'
-90 % regions hold (as :func:`~rbgp_cli.dynamics.paths.fit_paths` does for the start-only draws). Plain
-conditioning (r → 0) over-fits the seen part and its bands collapse (the plain ProMP's failure).
+log density (over :data:`SEEN_TOLERANCE_GRID`). From :data:`REST_FROM` demonstrations on, the rest's
+(τ²_rest, r_rest) minimise the left-out final pose's squared error given the seen part (:func:`_end_loo`: the
+others' conditioned mean at phase 1, in units of each coordinate's spread, summed over the fractions) over
+:data:`REST_SMOOTH_GRID` × :data:`SEEN_TOLERANCE_GRID` and the path distribution's own (τ², r), which ties keep;
+with fewer, (τ²_rest, r_rest) = (τ², r). The factors (c_rot, c_pos) ≥ 1 make the remainders' 90 % regions
+hold under the rest's conditioning (as :func:`~rbgp_cli.dynamics.paths.fit_paths` does for the start-only
+draws). Plain conditioning (r → 0) over-fits the seen part and its bands collapse (the plain ProMP's failure).
 
 **Leaving the demonstrations.** The seen part is "off" when the last seen pose's Mahalanobis distance under
 the prior's marginal at its estimated phase exceeds :data:`OFF_DISTANCE` (3.5: a χ with 6 degrees of
@@ -753,8 +757,9 @@ def _end_loo(paths, smooths, tolerances, points: int = SEEN_POINTS) -> np.ndarra
 
 
 def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True):
-    """Choose the seen poses' regularising tolerance r and the bands' factors of a motion under way by
-    leaving demonstrations out (module docstring); sets ``paths.seen_tolerance`` and
+    """Choose the seen poses' regularising tolerance r, the rest's own τ² and r and the bands' factors of a motion
+    under way by leaving demonstrations out (module docstring); sets ``paths.seen_tolerance``,
+    ``paths.rest_smooth`` and ``paths.rest_tolerance`` (from REST_FROM demonstrations on; else left None) and
     ``paths.seen_band_scale`` and returns ``paths``. With the demonstrations ``trajs`` (in the path
     distribution's order) and ``duration``, also the duration weights' own τ² and r
     (:func:`_duration_loo`; ``paths.duration_smooth``, ``paths.duration_tolerance``)."""
