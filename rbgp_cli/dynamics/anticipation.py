@@ -36,9 +36,10 @@ log density (over :data:`SEEN_TOLERANCE_GRID`). From :data:`REST_FROM` demonstra
 (τ²_rest, r_rest) minimise the left-out final pose's squared error given the seen part (:func:`_end_loo`: the
 others' conditioned mean at phase 1, in units of each coordinate's spread, summed over the fractions) over
 :data:`REST_SMOOTH_GRID` × :data:`SEEN_TOLERANCE_GRID` and the path distribution's own (τ², r), which ties keep;
-with fewer, (τ²_rest, r_rest) = (τ², r). The factors (c_rot, c_pos) ≥ 1 make the remainders' 90 % regions
-hold under the rest's conditioning (as :func:`~rbgp_cli.dynamics.paths.fit_paths` does for the start-only
-draws). Plain conditioning (r → 0) over-fits the seen part and its bands collapse (the plain ProMP's failure).
+with fewer, (τ²_rest, r_rest) = (τ², r). The mean is the rest's conditioning; the samples' spread about it keeps
+the path distribution's (τ², r), the distribution the left-out remainders' density chose, and the factors
+(c_rot, c_pos) ≥ 1 make those remainders' 90 % regions hold under it (as
+:func:`~rbgp_cli.dynamics.paths.fit_paths` does for the start-only draws). Plain conditioning (r → 0) over-fits the seen part and its bands collapse (the plain ProMP's failure).
 
 **Leaving the demonstrations.** The seen part is "off" when the last seen pose's Mahalanobis distance under
 the prior's marginal at its estimated phase exceeds :data:`OFF_DISTANCE` (3.5: a χ with 6 degrees of
@@ -269,12 +270,14 @@ class Anticipator:
             duration_tolerance = getattr(paths, "duration_tolerance", None)
         self.duration_smooth = float(paths.smooth if duration_smooth is None else duration_smooth)
         self.duration_tolerance = float(self.tolerance if duration_tolerance is None else duration_tolerance)
-        # the conditioning of the rest (and its draws) with its own τ² and r (fit_seen), else the path distribution's
+        # the rest's mean conditioned with its own τ² and r (fit_seen), else the path distribution's; the samples'
+        # spread about it (and the off distance) keep the path distribution's Σ and r
         rest_smooth = getattr(paths, "rest_smooth", None)
         rest_tolerance = getattr(paths, "rest_tolerance", None)
         self.rest_smooth = float(paths.smooth if rest_smooth is None else rest_smooth)
         self.rest_tolerance = float(self.tolerance if (rest_tolerance is None or tolerance is not None) else rest_tolerance)
-        self.m, self.Sigma = paths.prior(smooth=self.rest_smooth)
+        self.m, self.Sigma = paths.prior()
+        self.Sigma_rest = self.Sigma if self.rest_smooth == paths.smooth else paths.prior(smooth=self.rest_smooth)[1]
         self.scale = paths.scale
         self.lscale = paths.duration_scale
         d = np.exp(paths.log_durations)
@@ -482,34 +485,36 @@ class Anticipator:
         e = e + m6[k] + (x - k) * (m6[k + 1] - m6[k]) - m6[j]
         Cinv = self.__dict__.get("_marginal_inv")
         if Cinv is None:  # per grid phase, (Σ_jj + r² I)⁻¹ (S, 6, 6) of the path distribution's own Σ, computed once
-            Sigma = self.Sigma if self.rest_smooth == self.paths.smooth else self.paths.prior()[1]
-            blocks = np.array([Sigma[6 * i:6 * i + 6, 6 * i:6 * i + 6] for i in range(S)])
+            blocks = np.array([self.Sigma[6 * i:6 * i + 6, 6 * i:6 * i + 6] for i in range(S)])
             Cinv = self._marginal_inv = np.linalg.inv(blocks + self.tolerance ** 2 * np.eye(6))
         return float(np.sqrt(max(e @ Cinv[j] @ e, 0.0)))
 
     # -------------------------------------------------------------- the rest of the motion
-    def _observations(self, tau, q, p, last_q, last_p, D):
-        """(A, y, r²) at duration D: the seen poses (the rest's tolerance r), the last one exactly, and ℓ = ln D."""
+    def _observations(self, tau, q, p, last_q, last_p, D, rest: bool = True):
+        """(A, y, r²) at duration D: the seen poses (tolerance: the rest's r_rest, or with ``rest=False`` the path
+        distribution's r), the last one exactly, and ℓ = ln D."""
         paths = self.paths
         obs = [paths.observe(np.clip(tau / D, 0, 1), q, p, tolerance=None),
                paths.observe([min(tau[-1] / D, 1.0)], last_q[None], last_p[None], exact=True),
                paths.observe_duration(D, tolerance=_ELL_TOL * self.lscale)]
         A, y, r2 = paths.stack(*obs)
-        r2[: 6 * len(tau)] = self.rest_tolerance ** 2
+        r2[: 6 * len(tau)] = (self.rest_tolerance if rest else self.tolerance) ** 2
         return A, y, r2
 
-    def _gain(self, A, r2):
-        """Σ Aᵀ G⁻¹ (P, k) with G = A Σ Aᵀ + diag r²."""
+    def _gain(self, A, r2, rest: bool = True):
+        """Σ Aᵀ G⁻¹ (P, k) with G = A Σ Aᵀ + diag r² (Σ with the rest's τ², or with ``rest=False`` the path
+        distribution's)."""
         from scipy.linalg import cho_factor, cho_solve
 
-        SA = self.Sigma @ A.T
+        SA = (self.Sigma_rest if rest else self.Sigma) @ A.T
         G = A @ SA + np.diag(r2)
         return cho_solve(cho_factor(0.5 * (G + G.T), lower=True), SA.T).T
 
-    def _conditioned_mean(self, tau, q, p, last_q, last_p, D):
-        """The conditioned mean x̂ (P,) at duration D and its (A, r², gain) for pathwise draws."""
-        A, y, r2 = self._observations(tau, q, p, last_q, last_p, D)
-        gain = self._gain(A, r2)
+    def _conditioned_mean(self, tau, q, p, last_q, last_p, D, rest: bool = True):
+        """The conditioned mean x̂ (P,) at duration D and its (A, r², gain) for pathwise draws: with the rest's
+        τ² and r (the continuation's mean), or with ``rest=False`` the path distribution's (its samples' spread)."""
+        A, y, r2 = self._observations(tau, q, p, last_q, last_p, D, rest)
+        gain = self._gain(A, r2, rest)
         return self.m + gain @ (y - A @ self.m), (A, r2, gain)
 
     def _prior_root(self):
@@ -556,7 +561,11 @@ class Anticipator:
             mq, mp = self.paths.pose_at(dev, (t_out - t0) / D)
         out = []
         if samples:
-            out = self._samples(int(samples), seed, grid, w, tau, q, p, quat[-1], position[-1], dev, (t_out, mq, mp),
+            # the samples' spread about the mean: the path distribution's own conditioning, whose left-out
+            # remainders fitted the bands' factors (its mean at D̂ is what each draw's difference is taken from)
+            own = dev if self.Sigma_rest is self.Sigma and self.rest_tolerance == self.tolerance else \
+                self.paths.unscale(self._conditioned_mean(tau, q, p, quat[-1], position[-1], D, rest=False)[0])[0]
+            out = self._samples(int(samples), seed, grid, w, tau, q, p, quat[-1], position[-1], own, (t_out, mq, mp),
                                 t0, span, D, dt)
         return Continuation(t_out, mq, mp, out, est, D, name=name)
 
@@ -629,7 +638,7 @@ class Anticipator:
         for g in np.unique(idx):  # one conditioning per grid cell drawn
             ks = np.flatnonzero(idx == g)
             Dg = float(max(grid[g], span + 1e-6))
-            xg, (A, r2, gain) = self._conditioned_mean(tau, q, p, last_q, last_p, Dg)
+            xg, (A, r2, gain) = self._conditioned_mean(tau, q, p, last_q, last_p, Dg, rest=False)
             eta = self._draws(len(ks), rng, A, r2, gain)
             draws = paths.unscale(xg[None] + eta)[0]  # (n, S, 6)
             for k, draw in zip(ks, draws):
@@ -779,7 +788,7 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True):
             rest = (float(smooths[a]), float(tols[b]))
         paths.rest_smooth, paths.rest_tolerance = rest
         paths.info.update(rest_smooth=rest[0], rest_tolerance=rest[1], rest_end_loo=float(err.min()))
-    _, m2, z = _seen_loo(paths, [rest[1]], stats=True, smooth=rest[0])
+    _, m2, z = _seen_loo(paths, [r], stats=True)  # the samples' spread keeps the path distribution's conditioning
     nu = max(paths.demos - 2, 1)
     c_rot = np.sqrt(np.quantile(m2, level) / (3.0 * fdtri(3, nu, level)))
     c_pos = np.quantile(z.ravel(), level) / stdtrit(nu, 0.5 + level / 2.0)

@@ -91,7 +91,8 @@ def test_the_rest_has_the_choice_with_the_smallest_left_out_end_error(paths):
     assert chosen <= own
     ant = Anticipator(paths)
     assert (ant.rest_smooth, ant.rest_tolerance) == (paths.rest_smooth, paths.rest_tolerance)
-    np.testing.assert_allclose(ant.Sigma, paths.prior(smooth=paths.rest_smooth)[1], rtol=0, atol=0)
+    np.testing.assert_allclose(ant.Sigma_rest, paths.prior(smooth=paths.rest_smooth)[1], rtol=0, atol=0)
+    np.testing.assert_allclose(ant.Sigma, paths.prior()[1], rtol=0, atol=0)
     # the duration's weights and the off distance keep the path distribution's own τ² and r
     assert ant.tolerance == paths.seen_tolerance
     assert ant.duration_smooth == paths.duration_smooth
@@ -162,3 +163,32 @@ def test_a_family_whose_end_is_its_seen_offset():
         prior.append(np.linalg.norm(mean_end - tr.position[-1]))
     assert np.mean(prior) > 0.05  # the offsets are there to find
     assert np.mean(err) < 0.2 * 0.05 * np.sqrt(3)
+
+
+@pytest.mark.slow
+def test_the_samples_keep_the_own_spread_about_the_new_mean(paths):
+    """The samples' final positions less the mean's are those of the conditioning before (the path distribution's
+    own τ² and r, the same seed) to rounding: only the mean moves. With the rest's pair equal to its own, the whole
+    continuation is the same as without it, bit for bit."""
+    changed = copy.copy(paths)
+    changed.rest_smooth, changed.rest_tolerance = 1.0, 0.8  # a pair the real sets chose, not the family's own
+    assert (changed.rest_smooth, changed.rest_tolerance) != (paths.smooth, paths.seen_tolerance)
+    before = copy.copy(paths)
+    before.rest_smooth = before.rest_tolerance = None
+    tr = family(1, 12)[0][0]
+    k = int(0.5 * len(tr.t))
+    seen = (tr.t[:k], tr.quat[:k], tr.position[:k])
+    new = Anticipator(changed).continuation(*seen, samples=8, seed=3)
+    old = Anticipator(before).continuation(*seen, samples=8, seed=3)
+    assert np.linalg.norm(new.position[-1] - old.position[-1]) > 1e-4  # the means differ
+    d_new = np.array([p[-1] for _, _, p in new.samples]) - new.position[-1]
+    d_old = np.array([p[-1] for _, _, p in old.samples]) - old.position[-1]
+    assert np.ptp(d_old) > 1e-3  # the samples spread
+    np.testing.assert_allclose(d_new, d_old, atol=1e-9)
+    same = copy.copy(paths)
+    same.rest_smooth, same.rest_tolerance = paths.smooth, paths.seen_tolerance
+    a = Anticipator(same).continuation(*seen, samples=4, seed=5)
+    b = Anticipator(before).continuation(*seen, samples=4, seed=5)
+    np.testing.assert_array_equal(a.position, b.position)
+    for (_, _, pa), (_, _, pb) in zip(a.samples, b.samples):
+        np.testing.assert_array_equal(pa, pb)
