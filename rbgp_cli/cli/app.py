@@ -652,8 +652,9 @@ def _crossval_given(demos, given, kwargs, read, *, folds, seed, samples, peers, 
         raise InputError("--given runs the default representation and kernel", hint="drop --grid, --representation and --kernel")
     result = workflows.crossval_under_way(demos, fractions, kwargs, options=read.options, max_gap=read.max_gap, folds=folds,
                                           seed=seed, samples=samples, progress=progress, peers=peers)
-    if json_out:
-        emit_json(result)
+    if json_out:  # a method without samples (nearest) has no coverage: null, not NaN (which JSON has not)
+        rows = [{k: (None if isinstance(v, float) and v != v else v) for k, v in r.items()} for r in result["rows"]]
+        emit_json({**result, "rows": rows})
     else:
         from rbgp_cli.cli.report import format_under_way
 

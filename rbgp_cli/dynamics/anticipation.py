@@ -20,8 +20,8 @@ The predicted end time is t_0 + D with D's weighted median and 5 %/95 % quantile
 seen sample is span / D̂ (D̂ the weighted median). One batched solve over the grid gives the weights and,
 per D_g, the conditioned end pose: the end pose's mean and band are the mixture's.
 
-**The rest.** At D̂ the path distribution is conditioned on the seen poses (tolerance r) and on the last
-seen pose exactly (:data:`~rbgp_cli.dynamics.paths.GOAL_TOLERANCE`, so the continuation starts where the
+**The rest.** At D̂ the path distribution, with the rest's own smooth term τ²_rest K_ℓ, is conditioned on the
+seen poses (tolerance r_rest) and on the last seen pose exactly (:data:`~rbgp_cli.dynamics.paths.GOAL_TOLERANCE`, so the continuation starts where the
 motion is); the continuation runs from the last seen time to t_0 + D̂. Its mean is either that
 conditioned path (``model=None``, the path distribution alone) or the model's GP dynamics rolled from the
 last seen pose at its phase with the conditioned path as the prior mean's reference (feed-forward along
@@ -32,9 +32,14 @@ conditioned mean at D̂, so duration and path vary together and every sample sta
 
 **The tolerance and the bands** (:func:`fit_seen`): each demonstration left out in turn, its first
 F ∈ {0.2, 0.4, 0.6, 0.8} seen at its true phases, the rest predicted; r maximises the left-out remainders'
-log density (over :data:`SEEN_TOLERANCE_GRID`), and the factors (c_rot, c_pos) ≥ 1 make the remainders'
-90 % regions hold (as :func:`~rbgp_cli.dynamics.paths.fit_paths` does for the start-only draws). Plain
-conditioning (r → 0) over-fits the seen part and its bands collapse (the plain ProMP's failure).
+log density (over :data:`SEEN_TOLERANCE_GRID`). From :data:`REST_FROM` demonstrations on, the rest's
+(τ²_rest, r_rest) minimise the left-out final pose's squared error given the seen part (:func:`_end_loo`: the
+others' conditioned mean at phase 1, in units of each coordinate's spread, summed over the fractions) over
+:data:`REST_SMOOTH_GRID` × :data:`SEEN_TOLERANCE_GRID` and the path distribution's own (τ², r), which ties keep;
+with fewer, (τ²_rest, r_rest) = (τ², r). The mean is the rest's conditioning; the samples' spread about it keeps
+the path distribution's (τ², r), the distribution the left-out remainders' density chose, and the factors
+(c_rot, c_pos) ≥ 1 make those remainders' 90 % regions hold under it (as
+:func:`~rbgp_cli.dynamics.paths.fit_paths` does for the start-only draws). Plain conditioning (r → 0) over-fits the seen part and its bands collapse (the plain ProMP's failure).
 
 **Leaving the demonstrations.** The seen part is "off" when the last seen pose's Mahalanobis distance under
 the prior's marginal at its estimated phase exceeds :data:`OFF_DISTANCE` (3.5: a χ with 6 degrees of
@@ -50,13 +55,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rbgp_cli.dynamics.paths import NARROW_FROM
 from rbgp_cli.errors import InputError
 from rbgp_cli.geometry.conventions import SMALL_ANGLE
 from rbgp_cli.geometry.so3 import PI_TOLERANCE
 
 __all__ = ["Anticipator", "Anticipation", "Continuation", "anticipate", "fit_seen", "Follower",
            "SEEN_TOLERANCE_GRID", "SEEN_FRACTIONS", "SEEN_POINTS", "DURATION_GRID", "DURATION_SMOOTH_GRID",
-           "DURATION_TOLERANCE_GRID"]
+           "DURATION_TOLERANCE_GRID", "REST_SMOOTH_GRID", "REST_FROM"]
 
 #: Regularising tolerances r tried by :func:`fit_seen` (units of each coordinate's spread).
 SEEN_TOLERANCE_GRID = (0.05, 0.1, 0.2, 0.4, 0.8, 1.6, 3.2)
@@ -81,6 +87,11 @@ DURATION_SMOOTH_GRID = (0.01,)
 DURATION_TOLERANCE_GRID = (0.8,)
 #: Groups the demonstrations are left out in when :func:`fit_seen` chooses the duration's τ² and r
 DURATION_FOLDS = 5
+#: The conditioning of the rest has its own τ² and r, chosen by :func:`fit_seen` on the left-out final pose from
+#: these τ² (and the path distribution's own) × SEEN_TOLERANCE_GRID, from REST_FROM demonstrations on (with fewer
+#: the left-out ends are too few to choose by: docs/defaults.md, issue 37's fourth pass)
+REST_SMOOTH_GRID = (0.01, 0.03, 0.1, 0.3, 1.0)
+REST_FROM = NARROW_FROM
 #: Tolerance of the exactly observed ln D (in units of ln D's spread) and of the last seen pose.
 _ELL_TOL = 1e-4
 
@@ -259,7 +270,14 @@ class Anticipator:
             duration_tolerance = getattr(paths, "duration_tolerance", None)
         self.duration_smooth = float(paths.smooth if duration_smooth is None else duration_smooth)
         self.duration_tolerance = float(self.tolerance if duration_tolerance is None else duration_tolerance)
+        # the rest's mean conditioned with its own τ² and r (fit_seen), else the path distribution's; the samples'
+        # spread about it (and the off distance) keep the path distribution's Σ and r
+        rest_smooth = getattr(paths, "rest_smooth", None)
+        rest_tolerance = getattr(paths, "rest_tolerance", None)
+        self.rest_smooth = float(paths.smooth if rest_smooth is None else rest_smooth)
+        self.rest_tolerance = float(self.tolerance if (rest_tolerance is None or tolerance is not None) else rest_tolerance)
         self.m, self.Sigma = paths.prior()
+        self.Sigma_rest = self.Sigma if self.rest_smooth == paths.smooth else paths.prior(smooth=self.rest_smooth)[1]
         self.scale = paths.scale
         self.lscale = paths.duration_scale
         d = np.exp(paths.log_durations)
@@ -466,34 +484,37 @@ class Anticipator:
         m6 = self.m[:-1].reshape(S, 6)
         e = e + m6[k] + (x - k) * (m6[k + 1] - m6[k]) - m6[j]
         Cinv = self.__dict__.get("_marginal_inv")
-        if Cinv is None:  # per grid phase, (Σ_jj + r² I)⁻¹ (S, 6, 6), computed once
+        if Cinv is None:  # per grid phase, (Σ_jj + r² I)⁻¹ (S, 6, 6) of the path distribution's own Σ, computed once
             blocks = np.array([self.Sigma[6 * i:6 * i + 6, 6 * i:6 * i + 6] for i in range(S)])
             Cinv = self._marginal_inv = np.linalg.inv(blocks + self.tolerance ** 2 * np.eye(6))
         return float(np.sqrt(max(e @ Cinv[j] @ e, 0.0)))
 
     # -------------------------------------------------------------- the rest of the motion
-    def _observations(self, tau, q, p, last_q, last_p, D):
-        """(A, y, r²) at duration D: the seen poses (tolerance r), the last one exactly, and ℓ = ln D."""
+    def _observations(self, tau, q, p, last_q, last_p, D, rest: bool = True):
+        """(A, y, r²) at duration D: the seen poses (tolerance: the rest's r_rest, or with ``rest=False`` the path
+        distribution's r), the last one exactly, and ℓ = ln D."""
         paths = self.paths
         obs = [paths.observe(np.clip(tau / D, 0, 1), q, p, tolerance=None),
                paths.observe([min(tau[-1] / D, 1.0)], last_q[None], last_p[None], exact=True),
                paths.observe_duration(D, tolerance=_ELL_TOL * self.lscale)]
         A, y, r2 = paths.stack(*obs)
-        r2[: 6 * len(tau)] = self.tolerance ** 2
+        r2[: 6 * len(tau)] = (self.rest_tolerance if rest else self.tolerance) ** 2
         return A, y, r2
 
-    def _gain(self, A, r2):
-        """Σ Aᵀ G⁻¹ (P, k) with G = A Σ Aᵀ + diag r²."""
+    def _gain(self, A, r2, rest: bool = True):
+        """Σ Aᵀ G⁻¹ (P, k) with G = A Σ Aᵀ + diag r² (Σ with the rest's τ², or with ``rest=False`` the path
+        distribution's)."""
         from scipy.linalg import cho_factor, cho_solve
 
-        SA = self.Sigma @ A.T
+        SA = (self.Sigma_rest if rest else self.Sigma) @ A.T
         G = A @ SA + np.diag(r2)
         return cho_solve(cho_factor(0.5 * (G + G.T), lower=True), SA.T).T
 
-    def _conditioned_mean(self, tau, q, p, last_q, last_p, D):
-        """The conditioned mean x̂ (P,) at duration D and its (A, r², gain) for pathwise draws."""
-        A, y, r2 = self._observations(tau, q, p, last_q, last_p, D)
-        gain = self._gain(A, r2)
+    def _conditioned_mean(self, tau, q, p, last_q, last_p, D, rest: bool = True):
+        """The conditioned mean x̂ (P,) at duration D and its (A, r², gain) for pathwise draws: with the rest's
+        τ² and r (the continuation's mean), or with ``rest=False`` the path distribution's (its samples' spread)."""
+        A, y, r2 = self._observations(tau, q, p, last_q, last_p, D, rest)
+        gain = self._gain(A, r2, rest)
         return self.m + gain @ (y - A @ self.m), (A, r2, gain)
 
     def _prior_root(self):
@@ -540,7 +561,11 @@ class Anticipator:
             mq, mp = self.paths.pose_at(dev, (t_out - t0) / D)
         out = []
         if samples:
-            out = self._samples(int(samples), seed, grid, w, tau, q, p, quat[-1], position[-1], dev, (t_out, mq, mp),
+            # the samples' spread about the mean: the path distribution's own conditioning, whose left-out
+            # remainders fitted the bands' factors (its mean at D̂ is what each draw's difference is taken from)
+            own = dev if self.Sigma_rest is self.Sigma and self.rest_tolerance == self.tolerance else \
+                self.paths.unscale(self._conditioned_mean(tau, q, p, quat[-1], position[-1], D, rest=False)[0])[0]
+            out = self._samples(int(samples), seed, grid, w, tau, q, p, quat[-1], position[-1], own, (t_out, mq, mp),
                                 t0, span, D, dt)
         return Continuation(t_out, mq, mp, out, est, D, name=name)
 
@@ -613,7 +638,7 @@ class Anticipator:
         for g in np.unique(idx):  # one conditioning per grid cell drawn
             ks = np.flatnonzero(idx == g)
             Dg = float(max(grid[g], span + 1e-6))
-            xg, (A, r2, gain) = self._conditioned_mean(tau, q, p, last_q, last_p, Dg)
+            xg, (A, r2, gain) = self._conditioned_mean(tau, q, p, last_q, last_p, Dg, rest=False)
             eta = self._draws(len(ks), rng, A, r2, gain)
             draws = paths.unscale(xg[None] + eta)[0]  # (n, S, 6)
             for k, draw in zip(ks, draws):
@@ -658,19 +683,20 @@ def seen_split(F: float, S: int, P: int, points: int) -> tuple[np.ndarray, int]:
     return np.concatenate([io, it]), len(io)
 
 
-def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS):
+def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS, smooth: float | None = None):
     """Leave each demonstration out; see its first F (each of SEEN_FRACTIONS) at its true phases on the grid
     (≤ points grid phases, the last exactly) and its ln D; score the rest (every 5th grid phase after F,
     and the end) by its log density under the others' distribution so conditioned, for each tolerance of
     ``tolerances``. Only the coordinates involved enter (a Gaussian's marginal is its sub-block). Returns
     the mean log density per tolerance and, with ``stats`` (one tolerance), the rotation Mahalanobis² and
     position z-scores of the scored phases (for the bands' factors). All demonstrations at once
-    (:func:`~rbgp_cli.dynamics.paths.left_out_moments`, :func:`~rbgp_cli.dynamics.paths.held_out_scores`)."""
+    (:func:`~rbgp_cli.dynamics.paths.left_out_moments`, :func:`~rbgp_cli.dynamics.paths.held_out_scores`).
+    ``smooth``: the τ² of the others' distribution (default the path distribution's)."""
     from rbgp_cli.dynamics.paths import GOAL_TOLERANCE, SELECT_EVERY, held_out_scores, left_out_moments
 
     X = paths.vectors()
     S, P = paths.S, X.shape[1]
-    Ks = paths.smooth_covariance()
+    Ks = paths.smooth_covariance(smooth)
     r_last = (np.array(GOAL_TOLERANCE).repeat(3) / paths.scale) ** 2
     total = np.zeros(len(tolerances))
     count, m2, z = 0, [], []
@@ -700,9 +726,49 @@ def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS)
     return total / count
 
 
+def _end_loo(paths, smooths, tolerances, points: int = SEEN_POINTS) -> np.ndarray:
+    """The left-out final pose given the seen part, for each τ² of ``smooths`` and r of ``tolerances``: each
+    demonstration left out, its first F (each of SEEN_FRACTIONS) seen at its true phases (≤ ``points`` grid
+    phases, the last exactly, as the continuation sees it) and its ln D, and the others' distribution (its
+    smooth term τ² K_ℓ) conditioned on them; the error e (6,) of the conditioned mean at phase 1 against the
+    left-out end, in units of each coordinate's spread. Returns the mean over the left-out demonstrations of
+    eᵀe, summed over the fractions: (len(smooths), len(tolerances)). Batched over the demonstrations
+    (:func:`~rbgp_cli.dynamics.paths.left_out_moments`); only the coordinates involved enter."""
+    from rbgp_cli.dynamics.paths import GOAL_TOLERANCE, left_out_moments
+
+    X = paths.vectors()
+    S, P = paths.S, X.shape[1]
+    K1 = paths.smooth_covariance(1.0)
+    r_last = (np.array(GOAL_TOLERANCE).repeat(3) / paths.scale) ** 2
+    end = 6 * (S - 1) + np.arange(6)
+    out = np.zeros((len(smooths), len(tolerances)))
+    for F in SEEN_FRACTIONS:
+        idx, no = seen_split(F, S, P, points)
+        idx = np.concatenate([idx[:no], end])  # the seen entries (ln D last), then the end's six
+        Xs = X[:, idx]
+        K = K1[np.ix_(idx, idx)]
+        sq, count = np.zeros_like(out), 0
+        for block, m, sample in left_out_moments(Xs):
+            innovation = Xs[block, :no] - m[:, :no]
+            for a, tau2 in enumerate(smooths):
+                Sigma = sample + float(tau2) * K
+                Soo, Sot = Sigma[:, :no, :no], Sigma[:, :no, no:]
+                for b, tol in enumerate(tolerances):
+                    r2 = np.full(no, float(tol) ** 2)
+                    r2[-7:-1] = r_last
+                    r2[-1] = _ELL_TOL ** 2
+                    gain = np.swapaxes(np.linalg.solve(Soo + np.diag(r2), Sot), 1, 2)  # (B, 6, no)
+                    e = Xs[block, no:] - m[:, no:] - np.einsum("bij,bj->bi", gain, innovation)
+                    sq[a, b] += float(np.sum(e * e))
+            count += len(block)
+        out += sq / max(count, 1)
+    return out
+
+
 def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True):
-    """Choose the seen poses' regularising tolerance r and the bands' factors of a motion under way by
-    leaving demonstrations out (module docstring); sets ``paths.seen_tolerance`` and
+    """Choose the seen poses' regularising tolerance r, the rest's own τ² and r and the bands' factors of a motion
+    under way by leaving demonstrations out (module docstring); sets ``paths.seen_tolerance``,
+    ``paths.rest_smooth`` and ``paths.rest_tolerance`` (from REST_FROM demonstrations on; else left None) and
     ``paths.seen_band_scale`` and returns ``paths``. With the demonstrations ``trajs`` (in the path
     distribution's order) and ``duration``, also the duration weights' own τ² and r
     (:func:`_duration_loo`; ``paths.duration_smooth``, ``paths.duration_tolerance``)."""
@@ -710,13 +776,23 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True):
 
     scores = dict(zip(SEEN_TOLERANCE_GRID, _seen_loo(paths, SEEN_TOLERANCE_GRID)))
     r = max(scores, key=scores.get)
-    _, m2, z = _seen_loo(paths, [r], stats=True)
+    paths.seen_tolerance = float(r)
+    paths.info = dict(paths.info or {}, seen_tolerance=float(r), seen_loo_log_density=float(scores[r]))
+    rest = (float(paths.smooth), float(r))
+    if paths.demos >= REST_FROM:  # the rest's own τ² and r: the left-out final pose given the seen part
+        smooths = sorted(set(REST_SMOOTH_GRID) | {rest[0]})
+        tols = sorted(set(SEEN_TOLERANCE_GRID) | {rest[1]})
+        err = _end_loo(paths, smooths, tols)
+        a, b = np.unravel_index(int(np.argmin(err)), err.shape)
+        if err[a, b] < err[smooths.index(rest[0]), tols.index(rest[1])]:  # ties keep the path distribution's own
+            rest = (float(smooths[a]), float(tols[b]))
+        paths.rest_smooth, paths.rest_tolerance = rest
+        paths.info.update(rest_smooth=rest[0], rest_tolerance=rest[1], rest_end_loo=float(err.min()))
+    _, m2, z = _seen_loo(paths, [r], stats=True)  # the samples' spread keeps the path distribution's conditioning
     nu = max(paths.demos - 2, 1)
     c_rot = np.sqrt(np.quantile(m2, level) / (3.0 * fdtri(3, nu, level)))
     c_pos = np.quantile(z.ravel(), level) / stdtrit(nu, 0.5 + level / 2.0)
-    paths.seen_tolerance = float(r)
     paths.seen_band_scale = (max(1.0, float(c_rot)), max(1.0, float(c_pos)))
-    paths.info = dict(paths.info or {}, seen_tolerance=float(r), seen_loo_log_density=float(scores[r]))
     if duration:
         errors = _duration_loo(paths, trajs)
         if errors:

@@ -194,6 +194,10 @@ class PathDistribution:
     #: ``smooth`` and ``seen_tolerance``)
     duration_smooth: float | None = None
     duration_tolerance: float | None = None
+    #: τ² and r of a motion under way's conditioning of the rest (:func:`rbgp_cli.dynamics.anticipation.fit_seen`,
+    #: chosen on the left-out final pose; None: ``smooth`` and ``seen_tolerance``)
+    rest_smooth: float | None = None
+    rest_tolerance: float | None = None
     #: :meth:`goal_band_scale`, computed once
     _goal_scale: tuple | None = field(default=None, repr=False, compare=False)
 
@@ -484,7 +488,9 @@ class PathDistribution:
                 "band_scale": {"rotation": float(self.band_scale[0]), "position": float(self.band_scale[1])},
                 "seen_band_scale": {"rotation": float(self.seen_band_scale[0]), "position": float(self.seen_band_scale[1])},
                 **({"duration_smooth": float(self.duration_smooth)} if self.duration_smooth is not None else {}),
-                **({"duration_tolerance": float(self.duration_tolerance)} if self.duration_tolerance is not None else {})}
+                **({"duration_tolerance": float(self.duration_tolerance)} if self.duration_tolerance is not None else {}),
+                **({"rest_smooth": float(self.rest_smooth)} if self.rest_smooth is not None else {}),
+                **({"rest_tolerance": float(self.rest_tolerance)} if self.rest_tolerance is not None else {})}
 
     @classmethod
     def from_arrays(cls, arrays: dict, header: dict) -> "PathDistribution":
@@ -498,7 +504,9 @@ class PathDistribution:
                    (float(bs["rotation"]), float(bs["position"])),
                    seen_band_scale=(float(ss["rotation"]), float(ss["position"])),
                    duration_smooth=None if header.get("duration_smooth") is None else float(header["duration_smooth"]),
-                   duration_tolerance=None if header.get("duration_tolerance") is None else float(header["duration_tolerance"]))
+                   duration_tolerance=None if header.get("duration_tolerance") is None else float(header["duration_tolerance"]),
+                   rest_smooth=None if header.get("rest_smooth") is None else float(header["rest_smooth"]),
+                   rest_tolerance=None if header.get("rest_tolerance") is None else float(header["rest_tolerance"]))
 
 
 # ---------------------------------------------------------------------- fitting

@@ -270,6 +270,9 @@ TOP: dict = {
         # optional: a motion under way's duration weights, their own τ² and tolerance (issue 37)
         "duration_smooth": num(0.0, 1e6, what="a non-negative variance"),
         "duration_tolerance": num(0.0, 1e6, what="a non-negative tolerance"),
+        # optional: a motion under way's conditioning of the rest, its own τ² and tolerance (issue 37)
+        "rest_smooth": num(0.0, 1e6, what="a non-negative variance"),
+        "rest_tolerance": num(0.0, 1e6, what="a non-negative tolerance"),
     }, ("demos", "steps", "smooth", "length", "seen_tolerance", "band_scale")))),
 }
 

@@ -39,7 +39,10 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
   ``paths_position`` (S, 3), ``paths_deviations`` (D, S, 6), ``paths_log_durations`` (D,). Optional:
   files without it load, and refuse a goal or a seen beginning with a message to retrain. Optional in
   ``paths`` (issue 37): ``seen_band_scale``, and ``duration_smooth`` / ``duration_tolerance`` (a motion under
-  way's duration weights; files without them weigh durations with ``smooth`` and ``seen_tolerance``).
+  way's duration weights; files without them weigh durations with ``smooth`` and ``seen_tolerance``), and
+  ``rest_smooth`` / ``rest_tolerance`` (the conditioning of its rest, chosen on the left-out final pose; files
+  without them condition with ``smooth`` and ``seen_tolerance``, as before; an rbgp older than these fields
+  refuses a file that has them with its schema's "unknown field" error).
 * Version 9 (what this rbgp writes): the deviation process says how much its covariance between
   coordinates is shrunk (``variation.shrinkage``: α in [0, 1],
   :func:`rbgp_cli.dynamics.variation.shrinkage`), which its draws follow; files without it draw with

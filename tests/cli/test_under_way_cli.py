@@ -95,3 +95,21 @@ def test_crossval_given_rows(tmp_path):
     for r in rows:
         assert r["given"] == 0.3 and r["motions"] == 9
         assert np.isfinite(r["end_pos"]) and np.isfinite(r["rest_pos"]) and 0.0 <= r["cov_pos"] <= 1.0
+
+
+def test_crossval_given_json_writes_missing_coverage_as_null(monkeypatch):
+    """The nearest demonstration has no samples, so no coverage: --json writes null where the table writes '-'
+    (JSON has no NaN; the run failed with an internal error after the whole cross-validation before)."""
+    from rbgp_cli import workflows
+
+    nan = float("nan")
+    row = dict(method="nearest", given=0.4, end_pos=0.1, end_rot=0.2, end_time=0.3, rest_pos=0.1, rest_rot=0.2,
+               cov_pos=nan, cov_rot=nan, band_pos=nan, band_rot=nan, motions=9)
+    monkeypatch.setattr(workflows, "crossval_under_way",
+                        lambda *a, **k: {"rows": [row], "folds": 3, "samples": 5, "inputs": []})
+    res = run("--json", "crossval", CSV_DIR, "--given", "0.4", "--folds", 3)
+    assert res.exit_code == 0, res.stderr
+    out = json.loads(res.stdout)["rows"][0]
+    assert out["cov_pos"] is None and out["band_rot"] is None and out["end_pos"] == 0.1
+    res = run("crossval", CSV_DIR, "--given", "0.4", "--folds", 3)
+    assert res.exit_code == 0 and "nearest" in res.stdout and " -" in res.stdout

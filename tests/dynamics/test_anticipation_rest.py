@@ -1,0 +1,194 @@
+"""The conditioning of a motion under way's rest with its own τ² and r, chosen on the left-out final pose
+(issue 37, fourth pass): the batched criterion against a loop through PathDistribution.condition, the
+choice and its use, the model file's fields, and a family whose conditional end is known."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from rbgp_cli.dynamics import anticipation
+from rbgp_cli.dynamics.anticipation import REST_FROM, Anticipator, _end_loo, seen_split
+from rbgp_cli.dynamics.paths import GOAL_TOLERANCE, PathDistribution, fit_paths
+from rbgp_cli.dynamics.trajectory import Trajectory
+
+from .test_anticipation import family
+
+
+def offset_family(n, seed, *, t0=0.0, spread=0.05):
+    """``n`` motions whose deviation from a shared reach is one constant offset per motion (x, y, z ~ N(0,
+    spread²) m, from start to end) plus 1 mm of wiggle, durations 2 s ± 10 %, 50 Hz, no rotation: given any seen
+    part, the end's offset is the seen offset (the conditional is known)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for d in range(n):
+        D = float(np.exp(np.log(2.0) + 0.1 * rng.standard_normal()))
+        t = np.arange(0.0, D + 1e-9, 0.02)
+        s = t / D
+        base = np.stack([0.5 * (1 - np.cos(np.pi * s)), 0.2 * np.sin(np.pi * s), 0.0 * s], axis=1)
+        wiggle = 0.001 * np.sin(2 * np.pi * (s[:, None] + rng.uniform(size=3)))
+        pos = base + spread * rng.standard_normal(3) + wiggle
+        quat = Rotation.from_rotvec(np.outer(0.3 * s, [0, 0, 1])).as_quat()
+        out.append(Trajectory(t + t0, quat, pos, name=f"o{d}"))
+    return out
+
+
+@pytest.fixture(scope="module")
+def paths():
+    return fit_paths(family(12, 3)[0])
+
+
+def loop_end_loo(paths, smooths, tolerances):
+    """_end_loo as a loop: each demonstration left out, the others' PathDistribution conditioned (its own
+    PathDistribution.condition) on the left-out vector's seen entries, the end's error summed."""
+    X = paths.vectors()
+    D, S, P = len(X), paths.S, X.shape[1]
+    out = np.zeros((len(smooths), len(tolerances)))
+    end = slice(6 * (S - 1), 6 * S)
+    for F in anticipation.SEEN_FRACTIONS:
+        idx, no = seen_split(F, S, P, anticipation.SEEN_POINTS)
+        seen = idx[:no]
+        A = np.zeros((no, P))
+        A[np.arange(no), seen] = 1.0
+        for a, tau2 in enumerate(smooths):
+            for b, tol in enumerate(tolerances):
+                r2 = np.full(no, float(tol) ** 2)
+                r2[-7:-1] = (np.array(GOAL_TOLERANCE).repeat(3) / paths.scale) ** 2
+                r2[-1] = anticipation._ELL_TOL ** 2
+                total = 0.0
+                for d in range(D):
+                    others = np.delete(X, d, axis=0)
+                    m = others.mean(axis=0)
+                    C = others - m
+                    Sigma = (1 + 1 / (D - 1)) * C.T @ C / (D - 2) + paths.smooth_covariance(tau2)
+                    c = paths.condition(A, X[d, seen], r2, prior=(m, Sigma))
+                    total += float(np.sum((X[d, end] - c.mean[end]) ** 2))
+                out[a, b] += total / D
+    return out
+
+
+@pytest.mark.slow
+def test_end_loo_equals_the_loop_through_condition(paths):
+    smooths, tols = (0.01, 0.3, 1.0), (0.1, 0.8, 3.2)
+    got = _end_loo(paths, smooths, tols)
+    want = loop_end_loo(paths, smooths, tols)
+    np.testing.assert_allclose(got, want, rtol=1e-7)
+    assert np.ptp(got) > 0.05 * got.min()  # the candidates differ: the comparison can tell them apart
+
+
+@pytest.mark.slow
+def test_the_rest_has_the_choice_with_the_smallest_left_out_end_error(paths):
+    assert paths.demos >= REST_FROM
+    smooths = sorted(set(anticipation.REST_SMOOTH_GRID) | {paths.smooth})
+    tols = sorted(set(anticipation.SEEN_TOLERANCE_GRID) | {paths.seen_tolerance})
+    err = _end_loo(paths, smooths, tols)
+    chosen = err[smooths.index(paths.rest_smooth), tols.index(paths.rest_tolerance)]
+    own = err[smooths.index(paths.smooth), tols.index(paths.seen_tolerance)]
+    assert chosen == pytest.approx(err.min(), rel=1e-12)
+    assert chosen <= own
+    ant = Anticipator(paths)
+    assert (ant.rest_smooth, ant.rest_tolerance) == (paths.rest_smooth, paths.rest_tolerance)
+    np.testing.assert_allclose(ant.Sigma_rest, paths.prior(smooth=paths.rest_smooth)[1], rtol=0, atol=0)
+    np.testing.assert_allclose(ant.Sigma, paths.prior()[1], rtol=0, atol=0)
+    # the duration's weights and the off distance keep the path distribution's own τ² and r
+    assert ant.tolerance == paths.seen_tolerance
+    assert ant.duration_smooth == paths.duration_smooth
+
+
+@pytest.mark.slow
+def test_the_rest_is_conditioned_with_its_own_tolerance(paths):
+    """The seen poses' r² in the rest's observations is the rest's tolerance, the last seen pose stays exact."""
+    ant = Anticipator(paths)
+    tr = family(1, 11)[0][0]
+    k = len(tr.t) // 2
+    from rbgp_cli.dynamics.anticipation import _seen
+
+    _, _, _, tau, q, p = _seen(tr.t[:k], tr.quat[:k], tr.position[:k], ant.points)
+    A, y, r2 = ant._observations(tau, q, p, tr.quat[k - 1], tr.position[k - 1], 2.0)
+    n = 6 * len(tau)
+    np.testing.assert_allclose(r2[:n], paths.rest_tolerance ** 2)
+    np.testing.assert_allclose(r2[n:n + 6], (np.array(GOAL_TOLERANCE).repeat(3) / paths.scale) ** 2)
+    other = copy.copy(paths)
+    other.rest_smooth, other.rest_tolerance = None, None  # an older model file: the path distribution's own
+    old = Anticipator(other)
+    assert (old.rest_smooth, old.rest_tolerance) == (paths.smooth, paths.seen_tolerance)
+    assert Anticipator(paths, tolerance=0.7).rest_tolerance == 0.7  # an explicit tolerance applies throughout
+
+
+def test_model_file_fields_round_trip():
+    rng = np.random.default_rng(2)
+    S, D = 11, 5
+    paths = PathDistribution(np.linspace(0, 1, S), np.tile([0.0, 0.0, 0.0, 1.0], (S, 1)), np.zeros((S, 3)),
+                             rng.normal(size=(D, S, 6)), rng.normal(size=D), rest_smooth=0.7, rest_tolerance=0.4)
+    header = paths.header()
+    assert header["rest_smooth"] == paths.rest_smooth and header["rest_tolerance"] == paths.rest_tolerance
+    back = PathDistribution.from_arrays(paths.to_arrays(), header)
+    assert (back.rest_smooth, back.rest_tolerance) == (0.7, 0.4)
+    from rbgp_cli.io.model_schema import TOP
+
+    TOP["paths"][1](header, ("paths",))  # the model file's schema accepts the fields
+    old = {k: v for k, v in header.items() if not k.startswith("rest_")}
+    back = PathDistribution.from_arrays(paths.to_arrays(), old)
+    assert back.rest_smooth is None and back.rest_tolerance is None
+
+
+@pytest.mark.slow
+def test_fewer_demonstrations_keep_the_path_distributions_own():
+    few = fit_paths(family(REST_FROM - 1, 4)[0])
+    assert few.rest_smooth is None and few.rest_tolerance is None
+    assert "rest_smooth" not in few.header()
+    ant = Anticipator(few)
+    assert (ant.rest_smooth, ant.rest_tolerance) == (few.smooth, few.seen_tolerance)
+
+
+@pytest.mark.slow
+def test_a_family_whose_end_is_its_seen_offset():
+    """Each motion is a shared reach shifted by its own constant offset (σ = 5 cm), so the conditional end given
+    any seen part is the seen offset: after 40 % of a new motion (its duration estimated), the continuation's end
+    with the chosen conditioning lies within a fifth of the offsets' spread of the real end, where the
+    demonstrations' mean end is a whole spread away (measured: 7 mm against 78 mm)."""
+    trained = fit_paths(offset_family(16, 7))
+    assert trained.rest_smooth is not None
+    ant = Anticipator(trained)
+    new = offset_family(8, 8, t0=3.0)
+    err, prior = [], []
+    mean_end = trained.position[-1]
+    for tr in new:
+        k = int(np.argmin(np.abs(tr.t - (tr.t[0] + 0.4 * tr.duration))))
+        c = ant.continuation(tr.t[: k + 1], tr.quat[: k + 1], tr.position[: k + 1])
+        err.append(np.linalg.norm(c.position[-1] - tr.position[-1]))
+        prior.append(np.linalg.norm(mean_end - tr.position[-1]))
+    assert np.mean(prior) > 0.05  # the offsets are there to find
+    assert np.mean(err) < 0.2 * 0.05 * np.sqrt(3)
+
+
+@pytest.mark.slow
+def test_the_samples_keep_the_own_spread_about_the_new_mean(paths):
+    """The samples' final positions less the mean's are those of the conditioning before (the path distribution's
+    own τ² and r, the same seed) to rounding: only the mean moves. With the rest's pair equal to its own, the whole
+    continuation is the same as without it, bit for bit."""
+    changed = copy.copy(paths)
+    changed.rest_smooth, changed.rest_tolerance = 1.0, 0.8  # a pair the real sets chose, not the family's own
+    assert (changed.rest_smooth, changed.rest_tolerance) != (paths.smooth, paths.seen_tolerance)
+    before = copy.copy(paths)
+    before.rest_smooth = before.rest_tolerance = None
+    tr = family(1, 12)[0][0]
+    k = int(0.5 * len(tr.t))
+    seen = (tr.t[:k], tr.quat[:k], tr.position[:k])
+    new = Anticipator(changed).continuation(*seen, samples=8, seed=3)
+    old = Anticipator(before).continuation(*seen, samples=8, seed=3)
+    assert np.linalg.norm(new.position[-1] - old.position[-1]) > 1e-4  # the means differ
+    d_new = np.array([p[-1] for _, _, p in new.samples]) - new.position[-1]
+    d_old = np.array([p[-1] for _, _, p in old.samples]) - old.position[-1]
+    assert np.ptp(d_old) > 1e-3  # the samples spread
+    np.testing.assert_allclose(d_new, d_old, atol=1e-9)
+    same = copy.copy(paths)
+    same.rest_smooth, same.rest_tolerance = paths.smooth, paths.seen_tolerance
+    a = Anticipator(same).continuation(*seen, samples=4, seed=5)
+    b = Anticipator(before).continuation(*seen, samples=4, seed=5)
+    np.testing.assert_array_equal(a.position, b.position)
+    for (_, _, pa), (_, _, pb) in zip(a.samples, b.samples):
+        np.testing.assert_array_equal(pa, pb)
