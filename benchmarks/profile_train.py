@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/profile_train.py                         # every set in ../shared/realdata
     .venv/bin/python benchmarks/profile_train.py --demos sample_data/csv --rounds 3
     .venv/bin/python benchmarks/profile_train.py --cprofile fit_paths    # the top functions of one stage
+    .venv/bin/python benchmarks/profile_train.py --paper-scale --sets handover_object_csv   # bench_train_cli.py's job
 
 Runs the same library calls as ``rbgp train DEMOS -o MODEL`` (:func:`rbgp_cli.workflows.train_from_files`)
 in this process, with each stage's function wrapped: CPU seconds of this process
@@ -11,6 +12,10 @@ in this process, with each stage's function wrapped: CPU seconds of this process
 imports of ``rbgp --help``-free ``rbgp train``) is measured apart, as a subprocess that imports
 what the command imports and exits. The machine may be shared: CPU time per stage is the figure to
 trust, wall time moves with the load (printed).
+
+``--paper-scale`` profiles the job of ``bench_train_cli.py`` instead of the defaults: the paper's pose-only
+exact GP (``--train-rate 0 --inducing 0 --subsample 1 --max-points 1752 --hyper-points 0 --kernel se-chordal
+--time-input none --prior none``).
 
 Stages nest (the drift test runs inside the variation's stage); each row is the stage's own time,
 the inner stages' included, and ``rest`` is what no row covers.
@@ -136,14 +141,21 @@ def startup_cost(rounds: int) -> tuple[float, float]:
     return best
 
 
-def profile_once(demos: str, out: str, cprofile: str | None):
+#: ``rbgp train``'s options of ``bench_train_cli.py`` (the paper's pose-only exact GP at n = 1752)
+PAPER_SCALE = dict(train_rate=0, inducing=0, subsample=1.0, max_points=1752, hyper_points=0, time_input="none",
+                   prior="none")
+
+
+def profile_once(demos: str, out: str, cprofile: str | None, paper_scale: bool = False):
+    from rbgp_cli.api import train_options
     from rbgp_cli.workflows import train_from_files
 
+    kwargs = dict(train_options(**PAPER_SCALE), kernel="se-chordal") if paper_scale else {}
     rec = Recorder()
     rec.cprofile = cprofile
     c0, w0 = cpu_now(), time.perf_counter()
     with patched(rec):
-        train_from_files([demos], out)
+        train_from_files([demos], out, **kwargs)
     total = (cpu_now() - c0, time.perf_counter() - w0)
     return rec, total
 
@@ -162,6 +174,8 @@ def main(argv=None) -> int:
     ap.add_argument("--demos", nargs="*", default=[], help="other folders of demonstrations")
     ap.add_argument("--rounds", type=int, default=2, help="runs per set; the least CPU per stage is kept")
     ap.add_argument("--cprofile", help="a stage's function name: print its top functions by cumulative time")
+    ap.add_argument("--paper-scale", action="store_true",
+                    help="bench_train_cli.py's job (the paper's pose-only exact GP at n = 1752) instead of the defaults")
     args = ap.parse_args(argv)
     folders = [str(REALDATA / s) for s in args.sets if (REALDATA / s).is_dir()] + list(args.demos)
     su_cpu, su_wall = startup_cost(args.rounds)
@@ -173,7 +187,8 @@ def main(argv=None) -> int:
             totals = []
             rec = None
             for r in range(args.rounds):
-                rec, total = profile_once(folder, os.path.join(tmp, "m.rbgp"), args.cprofile if r == 0 else None)
+                rec, total = profile_once(folder, os.path.join(tmp, "m.rbgp"), args.cprofile if r == 0 else None,
+                                          args.paper_scale)
                 totals.append(total)
                 for label, (cpu, wall, calls) in rec.rows.items():
                     b = best.setdefault(label, [cpu, wall, calls])
