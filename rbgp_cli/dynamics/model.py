@@ -731,7 +731,10 @@ def train_model(
         # fit the GP (when one of them has no output left), and goes on beside the posterior on all rows and
         # the calibration; BLAS single-threaded throughout, as the fit and the calibration run it
         with blas_threads(0):
-            gp, gp_choice = _fit_exact(X, Y, kern, gp_choice, hyper_points, jobs, dict(fit, beside=side.start))
+            # the calibration and the noise scale make a posterior of their own: the fit's factors are not needed
+            replaced = bool(calibrate) or noise_scale != 1.0
+            gp, gp_choice = _fit_exact(X, Y, kern, gp_choice, hyper_points, jobs,
+                                       dict(fit, beside=side.start, factorise=not replaced))
             gp = _scaled_posterior_noise(gp, gp_choice, info, calibrate, noise_scale, seed, progress)
             side()  # waits for the thread
     recorded_dt = float(np.median(np.concatenate([np.diff(tr.t) for tr in trajs])))
