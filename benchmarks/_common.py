@@ -83,6 +83,22 @@ def median_time(fn, repeats: int = 7, warmup: int = 1) -> tuple[float, list[floa
     return statistics.median(times), times
 
 
+def compile_package() -> str:
+    """Write rbgp_cli's bytecode (``__pycache__``, ignored by git) before timing whole processes, as an
+    installed package has it (pip compiles a wheel's modules at install). Without it, where
+    ``PYTHONDONTWRITEBYTECODE`` is set (as on this project's shared machine), every process that imports
+    rbgp compiles its modules from source: 0.12 s of CPU for ``rbgp train``'s start-up imports alone and
+    about 0.5 s in all, measured in issue 35's fourth pass. Returns a line for the log."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    res = subprocess.run([sys.executable, "-m", "compileall", "-q", str(root / "rbgp_cli")], env=env,
+                         capture_output=True, text=True)
+    return "rbgp_cli's bytecode " + ("written (compileall)" if res.returncode == 0 else
+                                     f"NOT written ({res.stderr.strip()[-200:]})")
+
+
 def machine_line() -> str:
     """One line describing the machine and the load when called."""
     try:

@@ -28,7 +28,8 @@ from each held-out start, the same without the GP's residual, the scores) agains
 row on the same fold (its fit, conditioned rollouts and samples, the scores): wall and CPU seconds
 (the fold's worker process), the best of the rounds, and their ratio.
 
-The machine may be shared: the load average is printed with every run.
+The machine may be shared: the load average is printed with every run. Before timing, rbgp_cli's
+bytecode is written (``_common.compile_package``), as an installed package has it.
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import machine_line  # noqa: E402
+from _common import compile_package, machine_line  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 REALDATA = ROOT.parent / "shared" / "realdata"
@@ -158,6 +159,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     folders = [str(REALDATA / s) for s in args.sets if (REALDATA / s).is_dir()] + list(args.demos)
     print(machine_line())
+    print(compile_package())  # both processes import rbgp_cli: as installed, from bytecode
     print(f"{'set':<26} {'measured':<14} {'condition':<9} {'rbgp s':>8} {'ProMP s':>8} {'ratio':>6} {'rbgp CPU':>9}"
           f" {'ProMP CPU':>10} {'CPU ratio':>9}  load")
     out = []

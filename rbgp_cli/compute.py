@@ -48,35 +48,23 @@ def usable_cores() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-def _own_runnable() -> int:
-    """Linux: this process's threads in state R (/proc/self/task/TID/stat), the calling one included;
-    0 where /proc cannot be read. OpenBLAS's threads spin for a while after a multi-threaded call and
-    are runnable then: counted as other programs' tasks they made a machine with nothing else running
-    look busy (the calibration after the posterior's threaded factorisations ran on one thread)."""
-    import glob
-
-    count = 0
-    for path in glob.glob("/proc/self/task/[0-9]*/stat"):
-        try:
-            with open(path, "rb") as fh:
-                if fh.read().rsplit(b")", 1)[1].split()[0] == b"R":
-                    count += 1
-        except (OSError, IndexError):
-            continue
-    return count
-
-
-def _yielding_runnable() -> int:
-    """Linux: runnable tasks (threads in state R, /proc/PID/task/TID/stat) with a higher nice value than
-    this process's: the scheduler gives them a small share of a core this process wants (nice 19 against
-    0: about 1.5 %), so they do not make a core busy for rbgp. 0 where /proc cannot be read."""
+def _runnable_tasks() -> tuple[int, int]:
+    """Linux: one scan of /proc/PID/task/TID/stat for the runnable tasks (threads in state R) that do not
+    take a core from rbgp: (own, yielding). ``own``: this process's threads, the calling one included.
+    OpenBLAS's threads spin for a while after a multi-threaded call and are runnable then: counted as
+    other programs' tasks they made a machine with nothing else running look busy (the calibration after
+    the posterior's threaded factorisations ran on one thread). ``yielding``: other processes' tasks with
+    a higher nice value than this process's: the scheduler gives them a small share of a core this
+    process wants (nice 19 against 0: about 1.5 %), so they do not make a core busy for rbgp.
+    (0, 0) where /proc cannot be read (yielding 0 where the priority cannot be read)."""
     import glob
 
     try:
         mine = os.getpriority(os.PRIO_PROCESS, 0)
     except (AttributeError, OSError):
-        return 0
-    count = 0
+        mine = None
+    me = f"/proc/{os.getpid()}/"
+    own = yielding = 0
     for path in glob.glob("/proc/[0-9]*/task/[0-9]*/stat"):
         try:
             with open(path, "rb") as fh:
@@ -84,25 +72,40 @@ def _yielding_runnable() -> int:
         except (OSError, IndexError):
             continue  # the task ended while we looked
         # after the command: state (field 3 of proc(5)), …, nice (field 19)
-        if len(fields) > 16 and fields[0] == b"R" and int(fields[16]) > mine:
-            count += 1
-    return count
+        if not fields or fields[0] != b"R":
+            continue
+        if path.startswith(me):
+            own += 1
+        elif mine is not None and len(fields) > 16 and int(fields[16]) > mine:
+            yielding += 1
+    return own, yielding
+
+
+def _own_runnable() -> int:
+    """This process's runnable threads, the calling one included (:func:`_runnable_tasks`)."""
+    return _runnable_tasks()[0]
+
+
+def _yielding_runnable() -> int:
+    """Other processes' runnable tasks niced below this process (:func:`_runnable_tasks`)."""
+    return _runnable_tasks()[1]
 
 
 def free_cores() -> int:
     """Usable cores that no other runnable task is using right now (at least 1).
 
     Linux: the usable cores minus the other runnable tasks of the instantaneous count in
-    /proc/loadavg, not counting this process's own threads (:func:`_own_runnable`: BLAS threads
-    spinning after a threaded call) nor tasks niced below this process (:func:`_yielding_runnable`: a
+    /proc/loadavg, not counting this process's own threads (BLAS threads spinning after a threaded
+    call) nor tasks niced below this process (one scan of /proc finds both, :func:`_runnable_tasks`: a
     ``nice -n 19`` batch job beside ``rbgp train`` would otherwise make it fit on one thread while
     the job yields its core); elsewhere minus the 1-minute load average."""
     cores = usable_cores()
     try:
         with open("/proc/loadavg") as fh:
             others = int(fh.read().split()[3].split("/")[0]) - 1  # the count includes this process
-        if others > 0:  # the scans cost ~4 ms on a desktop's few hundred tasks: only when they can matter
-            others -= max(0, _own_runnable() - 1) + _yielding_runnable()
+        if others > 0:  # the scan costs ~4 ms on a desktop's few hundred tasks: only when it can matter
+            own, yielding = _runnable_tasks()
+            others -= max(0, own - 1) + yielding
     except (OSError, ValueError, IndexError):
         try:
             others = int(round(os.getloadavg()[0]))

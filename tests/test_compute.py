@@ -300,10 +300,10 @@ def test_a_niced_busy_process_does_not_count_as_a_busy_core(monkeypatch):
 
         monkeypatch.setattr("builtins.open", fake_open)
         monkeypatch.setattr(compute, "usable_cores", lambda: 4)
-        monkeypatch.setattr(compute, "_own_runnable", lambda: 1)  # the caller alone
-        monkeypatch.setattr(compute, "_yielding_runnable", lambda: 1)
+        # (own runnable threads: the caller alone, niced runnable tasks of other processes)
+        monkeypatch.setattr(compute, "_runnable_tasks", lambda: (1, 1))
         assert compute.free_cores() == 3  # 4 cores − (3 runnable − this one − the niced one)
-        monkeypatch.setattr(compute, "_yielding_runnable", lambda: 0)
+        monkeypatch.setattr(compute, "_runnable_tasks", lambda: (1, 0))
         assert compute.free_cores() == 2
     finally:
         loop.kill()
@@ -312,8 +312,8 @@ def test_a_niced_busy_process_does_not_count_as_a_busy_core(monkeypatch):
 
 @pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="Linux /proc only")
 def test_this_process_s_own_busy_threads_do_not_count_as_other_programs(monkeypatch):
-    """A thread of this process in a GIL-free numpy product is runnable: _own_runnable sees it beside
-    the caller, and free_cores does not count it as another program's task (BLAS threads spinning after
+    """A thread of this process in a GIL-free numpy product is runnable: the scan counts it among this
+    process's own tasks (not among the niced ones of other processes) beside the caller, and free_cores does not count it as another program's task (BLAS threads spinning after
     a threaded factorisation made an idle machine look busy to the calibration)."""
     import io
     import threading
@@ -331,8 +331,12 @@ def test_this_process_s_own_busy_threads_do_not_count_as_other_programs(monkeypa
 
     worker = threading.Thread(target=busy)
     worker.start()
+    seen = 0
     try:
-        seen = max(compute._own_runnable() for _ in range(200))
+        for _ in range(200):
+            seen = max(seen, compute._own_runnable())
+            if seen >= 2:
+                break
     finally:
         stop.set()
         worker.join()
@@ -344,8 +348,35 @@ def test_this_process_s_own_busy_threads_do_not_count_as_other_programs(monkeypa
 
     monkeypatch.setattr("builtins.open", fake_open)
     monkeypatch.setattr(compute, "usable_cores", lambda: 2)
-    monkeypatch.setattr(compute, "_yielding_runnable", lambda: 0)
-    monkeypatch.setattr(compute, "_own_runnable", lambda: 3)  # the caller and two spinning BLAS threads
+    monkeypatch.setattr(compute, "_runnable_tasks", lambda: (3, 0))  # the caller and two spinning BLAS threads
     assert compute.free_cores() == 2
-    monkeypatch.setattr(compute, "_own_runnable", lambda: 1)  # the two are other programs'
+    monkeypatch.setattr(compute, "_runnable_tasks", lambda: (1, 0))  # the two are other programs'
     assert compute.free_cores() == 1
+
+
+def test_free_cores_scans_the_tasks_once_and_only_when_others_run(monkeypatch):
+    """free_cores reads both counts (own threads, niced tasks) from one scan of /proc, and none when
+    /proc/loadavg shows no other runnable task."""
+    import io
+
+    from rbgp_cli import compute
+
+    scans = []
+    line = ["0.0 0.0 0.0 4/100 1\n"]
+    real_open = open
+
+    def fake_open(path, *args, **kwargs):
+        return io.StringIO(line[0]) if path == "/proc/loadavg" else real_open(path, *args, **kwargs)
+
+    def scan():
+        scans.append(1)
+        return 2, 1  # the caller and a spinning BLAS thread; one niced task
+
+    monkeypatch.setattr("builtins.open", fake_open)
+    monkeypatch.setattr(compute, "usable_cores", lambda: 4)
+    monkeypatch.setattr(compute, "_runnable_tasks", scan)
+    assert compute.free_cores() == 3  # 4 − (4 runnable − the caller − its thread − the niced task)
+    assert len(scans) == 1
+    line[0] = "0.0 0.0 0.0 1/100 1\n"  # the caller alone: no scan
+    assert compute.free_cores() == 4
+    assert len(scans) == 1

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rbgp_cli.compute import default_jobs
+from rbgp_cli.compute import blas_threads, default_jobs
 from rbgp_cli.dynamics.representations import Representation, make_representation
 from rbgp_cli.dynamics.defaults import DEFAULT_KERNELS, DEFAULTS, EXACT_HYPER_POINTS
 from rbgp_cli.dynamics.trajectory import Trajectory
@@ -724,15 +724,23 @@ def train_model(
     side = _WithoutGP(trajs, mean)
     if gp_choice["type"] == "sparse":
         gp, gp_choice, info = _fit_sparse(X, Y, kern, gp_choice, info, hyper_points, jobs, max_points=max_points, **fit)
+        gp = _scaled_posterior_noise(gp, gp_choice, info, calibrate, noise_scale, seed, progress)
+        side()
     else:
-        # the work that needs no GP runs in this process while the worker processes fit it
-        gp, gp_choice = _fit_exact(X, Y, kern, gp_choice, hyper_points, jobs, dict(fit, beside=side))
-    gp = _scaled_posterior_noise(gp, gp_choice, info, calibrate, noise_scale, seed, progress)
+        # the work that needs no GP runs on a thread of this process, started while the worker processes
+        # fit the GP (when one of them has no output left), and goes on beside the posterior on all rows and
+        # the calibration; BLAS single-threaded throughout, as the fit and the calibration run it
+        with blas_threads(0):
+            # the calibration and the noise scale make a posterior of their own: the fit's factors are not needed
+            replaced = bool(calibrate) or noise_scale != 1.0
+            gp, gp_choice = _fit_exact(X, Y, kern, gp_choice, hyper_points, jobs,
+                                       dict(fit, beside=side.start, factorise=not replaced))
+            gp = _scaled_posterior_noise(gp, gp_choice, info, calibrate, noise_scale, seed, progress)
+            side()  # waits for the thread
     recorded_dt = float(np.median(np.concatenate([np.diff(tr.t) for tr in trajs])))
     dt = 1.0 / velocity.rate if velocity.rate is not None else recorded_dt
     starts = np.array([np.concatenate([tr.quat[0], tr.position[0]]) for tr in trajs])
     durations = np.array([tr.duration for tr in trajs])
-    side()  # done already unless the GP is sparse
     summary = _train_summary(rep, kernel, kern, trajs, info, shared, velocity, gp, gp_choice, mean, side.variation,
                              time_input, recorded_dt, t0, paths=side.paths)
     return MotionModel(rep, gp, float(dt), starts, durations, summary=summary, velocity=velocity,
@@ -741,18 +749,48 @@ def train_model(
 
 
 class _WithoutGP:
-    """The parts of a trained model that do not depend on the GP, computed by the first call: the
-    demonstrations' variation (the bands' scale measures each demonstration left out against the mean
-    rollout's own prediction of it: the start map's ridge, ∞ without conditioning, and the pull that
-    closes a start's gap), the path distribution and the envelope. :func:`train_model` hands it to the
-    exact GP's fit, which runs it on the core a worker process leaves idle at the fit's end
-    (:func:`rbgp_cli.gp.exact.fit_gp`'s ``beside``): the same numbers as after the fit."""
+    """The parts of a trained model that do not depend on the GP: the demonstrations' variation (the
+    bands' scale measures each demonstration left out against the mean rollout's own prediction of it:
+    the start map's ridge, ∞ without conditioning, and the pull that closes a start's gap), the path
+    distribution and the envelope. :meth:`start` computes them on a thread of their own, the call
+    waits for it (or computes them, if not started) and re-raises its error. :func:`train_model` hands
+    ``start`` to the exact GP's fit, which calls it when a worker process has no output left
+    (:func:`rbgp_cli.gp.exact.fit_gp`'s ``beside``): the thread then runs on the core that worker
+    leaves idle, and on beside the posterior on all rows and the noise calibration, which need the fit
+    and used to wait for it (issue 35, fourth pass). The same numbers as after the fit (BLAS
+    single-threaded in both)."""
 
     def __init__(self, trajs, mean):
         self.trajs, self.mean = trajs, mean
         self.done = False
+        self._thread = None
+        self._error = None
+
+    def start(self):
+        """Compute on a thread of its own (daemon: an error elsewhere does not wait for it)."""
+        import threading
+
+        if self.done or self._thread is not None:
+            return
+
+        def run():
+            try:
+                self._compute()
+            except BaseException as exc:  # re-raised by the call that waits
+                self._error = exc
+
+        self._thread = threading.Thread(target=run, name="rbgp-without-gp", daemon=True)
+        self._thread.start()
 
     def __call__(self):
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+            if self._error is not None:
+                raise self._error
+        self._compute()
+
+    def _compute(self):
         if self.done:
             return
         from rbgp_cli.dynamics.envelope import envelope_from_demos

@@ -418,6 +418,10 @@ class FitOptions:
     fixed: dict | None
     bounds: dict | None
     max_iter: int
+    #: return the Cholesky factor and α with each fit (False: only the checked fit; the posterior
+    #: factorises at its first prediction, or never when the caller replaces it: rbgp train's
+    #: calibrated posterior)
+    factors: bool = True
 
 
 def _explore_then_polish(kernel, pre, y, spec, free, obj, rng, o: FitOptions, sub, pre_sub, on_evaluation):
@@ -503,7 +507,8 @@ def _refit_with_margin(kernel, pre, y, spec, free, rng, o: FitOptions, best, val
 
 def fit_target(kernel, pre, y, label, rng, o: FitOptions, sub=None, pre_sub=None, on_evaluation=None):
     """Fit one target (an output, or all outputs scaled in shared mode): returns (OutputFit, L, α)
-    with L the lower Cholesky factor of K + (σn² + jitter)I at the optimum and α = C⁻¹y."""
+    with L the lower Cholesky factor of K + (σn² + jitter)I at the optimum and α = C⁻¹y; (OutputFit,
+    None, None) with ``o.factors`` False (the optimum checked all the same)."""
     t0 = time.perf_counter()
     n = len(y)
     spec, free = free_spec(kernel, pre, y, o.noise, o.fixed, o.bounds)
@@ -548,7 +553,9 @@ def fit_target(kernel, pre, y, label, rng, o: FitOptions, sub=None, pre_sub=None
             hint="use kernel se-chordal or subsample fewer, less redundant points", param="kernel",
         )
     del K
-    alpha, _info = lapack.dpotrs(c, np.asfortranarray(y.reshape(n, -1)), lower=1)
+    alpha = None
+    if o.factors:
+        alpha, _info = lapack.dpotrs(c, np.asfortranarray(y.reshape(n, -1)), lower=1)
     at_bounds = []
     for nm, t in zip(free, best[0]):
         lo, hi = spec[nm].log_bounds
@@ -560,5 +567,7 @@ def fit_target(kernel, pre, y, label, rng, o: FitOptions, sub=None, pre_sub=None
         at_bounds=at_bounds, free=list(free), seconds=time.perf_counter() - t0, guarded=guarded,
         subsample=sub_info,
     )
+    if not o.factors:  # the checks above were made on c; the caller needs no factor (o.factors)
+        return fit, None, None
     return fit, np.tril(c), np.asarray(alpha)
 

@@ -51,3 +51,21 @@ def test_an_error_beside_the_workers_ends_them_and_propagates():
     for child in multiprocessing.active_children():  # joins the ended ones
         child.join(timeout=5)
     assert not multiprocessing.active_children()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("jobs, hyper_points", [(2, None), (1, 60)])
+def test_a_posterior_without_factors_predicts_the_same_numbers(jobs, hyper_points):
+    """``fit_gp(..., factorise=False)`` (rbgp train, which replaces the posterior by the calibrated one):
+    the same fits, no factors made or sent from the workers, and at the first prediction the factors and
+    the predictions of the posterior that had them."""
+    X, Y = _data()
+    k = SquaredExponential("chordal")
+    lazy = fit_gp(X, Y, k, restarts=1, seed=2, jobs=jobs, hyper_points=hyper_points, factorise=False)
+    eager = fit_gp(X, Y, k, restarts=1, seed=2, jobs=jobs, hyper_points=hyper_points)
+    assert lazy._L is None and eager._L is not None
+    assert [(f.values, f.jitter, f.rcond) for f in lazy.fits] == [(f.values, f.jitter, f.rcond) for f in eager.fits]
+    Xq = poses(10, 12)
+    np.testing.assert_array_equal(lazy.predict(Xq), eager.predict(Xq))
+    for a, b in zip(lazy._L, eager._L):
+        np.testing.assert_array_equal(a, b)

@@ -328,3 +328,22 @@ def test_path_reference_is_the_slerp_of_the_mean_path():
     np.testing.assert_array_equal(p, want_p)
     k = np.clip(np.searchsorted(mean["s"], np.clip(s, 0, 1), side="right") - 1, 0, len(mean["s"]) - 2)
     np.testing.assert_array_equal(v, mean["velocity"][k])
+
+
+@pytest.mark.parametrize("n", [1, 5, 127, 128, 129, 300])
+def test_the_blocked_symmetrisation_is_bit_for_bit_the_transposed_add(n):
+    """likelihood.symmetrise_lower (issue 35): dpotri's lower triangle (upper zero) made symmetric in
+    cache-sized blocks gives exactly what W = inv + invᵀ with the diagonal halved gave."""
+    from scipy.linalg import lapack
+
+    from rbgp_cli.gp.likelihood import symmetrise_lower
+
+    A = np.random.default_rng(n).standard_normal((n, n))
+    c, _ = lapack.dpotrf(np.asfortranarray(A @ A.T + n * np.eye(n)), lower=1, clean=1)
+    inv, _ = lapack.dpotri(c, lower=1)
+    old = inv.copy(order="F")
+    old += inv.T
+    old[np.arange(n), np.arange(n)] *= 0.5
+    new = symmetrise_lower(inv.copy(order="F"))
+    np.testing.assert_array_equal(new, old)
+    np.testing.assert_array_equal(new, new.T)
