@@ -148,8 +148,10 @@ def test_crossval_shows_the_promp_and_dmp_rows():
     pytest.importorskip("movement_primitives.dmp")
     res = CliRunner().invoke(app, ["crossval", str(SAMPLE_DATA / "csv"), "--folds", "3", *FAST, "--jobs", "1", "-q"])
     assert res.exit_code == 0, res.stderr
-    lines = {line.split()[0]: line.split() for line in res.stdout.splitlines() if line.strip()}
+    table = res.stdout.split("paired against")[0]  # the table, without the paired section under it
+    lines = {line.split()[0]: line.split() for line in table.splitlines() if line.strip()}
     assert {"promp", "dmp", "replay", "axis-angle"} <= set(lines)
+    assert "paired against" in res.stdout
     for name in ("promp", "dmp"):
         score, floor, ratio = (float(x) for x in lines[name][2:5])
         assert np.isfinite([score, floor, ratio]).all() and score > 0
