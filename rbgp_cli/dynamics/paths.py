@@ -347,16 +347,14 @@ class PathDistribution:
         AS = A @ S0 @ A.T
         AK = A @ self.smooth_covariance() @ A.T
         R = np.diag(r2)
-        best, best_ll = (1.0, 1.0), -np.inf
-        for kappa in STRENGTH_GRID:  # 8 × 8 small Cholesky factorisations (k × k, k the known coordinates)
-            for lam in STRENGTH_GRID:
-                G = kappa * AS + lam * AK + R
-                L = np.linalg.cholesky(0.5 * (G + G.T))
-                a = np.linalg.solve(L, e)
-                ll = -0.5 * float(a @ a) - float(np.sum(np.log(np.diag(L))))
-                if ll > best_ll:
-                    best, best_ll = (kappa, lam), ll
-        return max(1.0, best[1] / best[0])
+        grid = np.asarray(STRENGTH_GRID)
+        # every (κ, λ) at once: (g, g, k, k) small Cholesky factors, k the known coordinates
+        G = grid[:, None, None, None] * AS + grid[None, :, None, None] * AK + R
+        L = np.linalg.cholesky(0.5 * (G + np.swapaxes(G, -1, -2)))
+        a = np.linalg.solve(L, np.broadcast_to(e, G.shape[:-1])[..., None])[..., 0]
+        ll = -0.5 * np.sum(a**2, axis=-1) - np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
+        i, j = np.unravel_index(int(np.argmax(ll)), ll.shape)  # the first maximum, κ before λ
+        return max(1.0, float(grid[j] / grid[i]))
 
     def goal_prior(self, A, y, r2) -> tuple[np.ndarray, np.ndarray, float]:
         """(m, Σ, λ): the prior a motion with known poses y = A x + ε is conditioned with, its smooth

@@ -440,8 +440,8 @@ def _fold_scores(gen, drawn, model, train: list[Trajectory], test: list[Trajecto
     ``model`` (None for a peer), the sample columns and how many left the training envelope."""
     score = evaluate(gen, train, length=length, covariance=covariance, sample_size="record")
     T = score.steps
-    sp, sr, count = trajectory_errors(gen, test, T)
-    mp, mr, mc = per_motion_errors(gen, test, T)
+    mp, mr, mc = per_motion_errors(gen, test, T)  # the pooled sums are theirs (trajectory_errors')
+    sp, sr, count = float(np.sum(mp)), float(np.sum(mr)), int(np.sum(mc))
     out = {
         "score": score.mean, "rotation": score.rotation, "translation": score.translation,
         "offset": score.offset, "spread": score.spread,
