@@ -20,6 +20,7 @@ from rbgp_cli.errors import InputError, warn
 from rbgp_cli.gp.exact import ExactSpec, fit_gp
 from rbgp_cli.gp.posterior import Posterior
 from rbgp_cli.kernels import DotProduct, Kernel, SquaredExponential
+from rbgp_cli.wording import plural
 
 __all__ = ["MotionModel", "make_kernel", "training_set", "train_model", "choose_gp", "KERNELS", "DEFAULTS", "default_velocity"]
 
@@ -718,7 +719,7 @@ def train_model(
         Y = Y - prior_mean_outputs(rep, X[:, : len(rep.input_names)], mean, X[:, -1] if time_input == "phase" else None,
                                    start_dev=start_dev, step=step)
     if progress:
-        progress(f"{len(trajs)} demonstrations, {info['pairs']} pairs, training on {info['points']} points "
+        progress(f"{plural(len(trajs), 'demonstration')}, {info['pairs']} pairs, training on {info['points']} points "
                  f"({rep.name}, kernel {kernel}, {'shared' if shared else 'per-output'} hyperparameters)")
     fit = dict(noise=noise, restarts=restarts, seed=seed, shared=shared, progress=progress, explore_size=explore_size)
     side = _WithoutGP(trajs, mean)

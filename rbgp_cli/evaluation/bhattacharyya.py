@@ -46,6 +46,7 @@ from rbgp_cli.evaluation.resample import (
     resample_all,
     tangent_features,
 )
+from rbgp_cli.wording import plural
 
 __all__ = [
     "bhattacharyya_gaussian",
@@ -232,9 +233,6 @@ def bhattacharyya_gaussian_parts(mu1, S1, mu2, S2) -> tuple[np.ndarray, np.ndarr
     return np.where(regular, 0.125 * maha, np.nan), np.where(regular, logterm, np.nan)
 
 
-def _plural(n: int, word: str) -> str:
-    return f"{n} {word}" + ("" if n == 1 else "s")
-
 
 @dataclass(frozen=True)
 class SampleSizeCheck:
@@ -283,7 +281,7 @@ def check_sample_sizes(n_generated: int, n_demos: int, covariance: str = "diag",
     warnings_: list[str] = []
     if n_demos < MIN_TRAJECTORIES["diag"]:
         refusal = (
-            f"cannot score against {_plural(n_demos, 'demonstration')}: the demonstrations' per-step "
+            f"cannot score against {plural(n_demos, 'demonstration')}: the demonstrations' per-step "
             f"variance would be the ridge ({ridge:g} rad², m²) alone, so the score would measure the ridge, "
             f"not the motions; covariance {covariance} needs at least {need} demonstrations"
         )

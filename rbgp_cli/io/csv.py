@@ -714,7 +714,8 @@ def _describe_big(source: str):
 
 def describe_rows(desc: dict) -> list[str]:
     """The text rows of ``rbgp inspect`` for :func:`describe`'s result."""
-    from rbgp_cli.io.inspect import text_row as _row, plural as _plural, DELIMITER_NAMES as _DELIMITERS
+    from rbgp_cli.io.inspect import text_row as _row, DELIMITER_NAMES as _DELIMITERS
+    from rbgp_cli.wording import plural as _plural
 
     lines = [_row("table", f"{_DELIMITERS.get(desc.get('delimiter'), desc.get('delimiter'))}-separated, "
                            f"header on line {desc.get('header_line')}, {_plural(desc.get('data_rows') or 0, 'data row')}")]

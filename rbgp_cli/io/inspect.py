@@ -21,6 +21,7 @@ import numpy as np
 
 from rbgp_cli.errors import InputError
 from rbgp_cli.io.options import ReadOptions
+from rbgp_cli.wording import plural
 
 __all__ = ["inspect_file", "format_inspect", "trajectory_summary", "needs"]
 
@@ -310,9 +311,6 @@ def _row(label: str, value) -> str:
     return f"  {label:<{_LABEL}}{_plain(value)}"
 
 
-def _plural(n: int, word: str) -> str:
-    return f"{n} {word}{'' if n == 1 else 's'}"
-
 
 def _rate(desc: dict) -> str:
     r = desc.get("rate_hz")
@@ -340,7 +338,7 @@ def _rows_any(desc: dict) -> list[str]:
 
 
 #: For the formats' ``describe_rows``: aligned rows of plain words, as every part of inspect writes them.
-text_row, plain, fmt_num, plural, rate_text, DELIMITER_NAMES = _row, _plain, _fmt_num, _plural, _rate, _DELIMITERS
+text_row, plain, fmt_num, rate_text, DELIMITER_NAMES = _row, _plain, _fmt_num, _rate, _DELIMITERS
 
 
 def _trajectory_rows(tr: dict) -> list[str]:
@@ -351,7 +349,7 @@ def _trajectory_rows(tr: dict) -> list[str]:
     gap = f"{g['count']} gaps" + (f" (largest {_fmt_num(g['largest_s'], ' s')})" if g["count"] else "")
     held = tr.get("held") or 0
     lost = f"{tr['lost_frames'] + held} lost frames" + (
-        f" ({held} repeat the previous pose exactly, sample-and-hold in {_plural(tr.get('held_runs') or 0, 'run')})"
+        f" ({held} repeat the previous pose exactly, sample-and-hold in {plural(tr.get('held_runs') or 0, 'run')})"
         if held else "")
     lines.append(f"    {lost}, {gap}"
                  + (f", {tr['non_increasing_times']} non-increasing times" if tr["non_increasing_times"] else ""))
@@ -395,15 +393,15 @@ def _train_acts(tr: dict) -> list[str]:
     """What train's preparation does to the trajectory (:func:`prepared_summary`), in words."""
     acts = []
     if tr.get("dropped"):
-        acts.append(f"drops {_plural(tr['dropped'], 'lost frame')}")
+        acts.append(f"drops {plural(tr['dropped'], 'lost frame')}")
     if tr.get("filled"):
-        acts.append(f"fills {_plural(tr['filled'], 'lost frame')} (max_gap)")
+        acts.append(f"fills {plural(tr['filled'], 'lost frame')} (max_gap)")
     if tr.get("duplicates"):
-        acts.append(f"drops {_plural(tr['duplicates'], 'duplicate sample')}")
+        acts.append(f"drops {plural(tr['duplicates'], 'duplicate sample')}")
     if tr.get("glitches"):
         from rbgp_cli.dynamics.prepare import _rows_text
 
-        acts.append(f"removes {_plural(tr['glitches'], 'sample')} off the path as tracker glitches "
+        acts.append(f"removes {plural(tr['glitches'], 'sample')} off the path as tracker glitches "
                     f"({_rows_text(tr.get('glitch_rows') or [])})")
     used = tr.get("samples_used")
     if used is not None and tr.get("samples") and used < (tr["samples"] - (tr.get("dropped") or 0) - (tr.get("duplicates") or 0)
@@ -411,15 +409,15 @@ def _train_acts(tr: dict) -> list[str]:
         acts.append(f"uses {used} of {tr['samples']} samples")
     b = tr.get("breaks") or {}
     if b.get("count"):
-        acts.append(f"splits it at {_plural(b['count'], 'break')} (up to {_fmt_num(b['largest_s'], ' s')} without a sample; "
-                    f"split_gap decides) into {_plural(tr['demonstrations'], 'demonstration')}")
+        acts.append(f"splits it at {plural(b['count'], 'break')} (up to {_fmt_num(b['largest_s'], ' s')} without a sample; "
+                    f"split_gap decides) into {plural(tr['demonstrations'], 'demonstration')}")
     if "repetitions" in tr:
         spans = ", ".join(f"{_fmt_num(a, '', 3)}–{_fmt_num(e, ' s', 3)}" for a, e in tr["repetition_spans_s"][:6])
-        acts.append(f"splits it at rest into {_plural(tr['repetitions'], 'repetition')} ({spans}"
+        acts.append(f"splits it at rest into {plural(tr['repetitions'], 'repetition')} ({spans}"
                     + (" …" if len(tr["repetition_spans_s"]) > 6 else "") + ")")
     g = tr.get("training_gaps") or {}
     if g.get("count"):
-        acts.append(f"{_plural(g['count'], 'gap')} longer than {_fmt_num(g['longer_than_s'], ' s', 3)} (largest "
+        acts.append(f"{plural(g['count'], 'gap')} longer than {_fmt_num(g['longer_than_s'], ' s', 3)} (largest "
                     f"{_fmt_num(g['largest_s'], ' s')}) that no training pair crosses")
     return acts
 
@@ -462,11 +460,11 @@ def _problems(d: dict) -> list[str]:
     if held:
         out.append(f"{held} sample-and-hold")
     if lost:
-        out.append(_plural(lost, "lost frame"))
+        out.append(plural(lost, "lost frame"))
     if gaps:
-        out.append(_plural(gaps, "gap"))
+        out.append(plural(gaps, "gap"))
     if breaks:
-        out.append(_plural(breaks, "break"))
+        out.append(plural(breaks, "break"))
     if any(t.get("quat_order_suspect") for t in trs):
         out.append("quaternion order?")
     if any(t.get("prepare_error") for t in trs):
@@ -480,7 +478,7 @@ def format_compact(d: dict) -> str:
     rates = [t["rate_hz"] for t in trs if t.get("rate_hz")]
     dur = sum(t.get("duration_s") or 0.0 for t in trs)
     head = (f"{d['path']}: {_title(d.get('format'))}, "
-            f"{_plural(len(trs), 'trajectory').replace('trajectorys', 'trajectories')}, "
+            f"{plural(len(trs), 'trajectory').replace('trajectorys', 'trajectories')}, "
             f"{sum(t['samples'] for t in trs)} samples, {_fmt_num(dur, ' s')}"
             + (f", {_fmt_num(float(np.median(rates)), ' Hz')}" if rates else ""))
     probs = _problems(d)
@@ -511,5 +509,5 @@ def format_summary(results: list[dict]) -> str:
     probs = "; problems: " + ", ".join(f"{v} with {k}" if k not in ("unreadable", "train would stop") else
                                        f"{v} {'unreadable' if k == 'unreadable' else 'that train would stop at'}"
                                        for k, v in counts.items()) if counts else "; no problems"
-    return (f"{_plural(len(results), 'file')}, {_plural(len(trs), 'trajectory').replace('trajectorys', 'trajectories')}"
-            f" -> {_plural(demos, 'demonstration')}, {_fmt_num(dur, ' s')} in all{rate}{probs}")
+    return (f"{plural(len(results), 'file')}, {plural(len(trs), 'trajectory').replace('trajectorys', 'trajectories')}"
+            f" -> {plural(demos, 'demonstration')}, {_fmt_num(dur, ' s')} in all{rate}{probs}")

@@ -350,7 +350,8 @@ def describe(path, options: ReadOptions | None = None) -> dict:
 
 def describe_rows(desc: dict) -> list[str]:
     """The text rows of ``rbgp inspect`` for :func:`describe`'s result."""
-    from rbgp_cli.io.inspect import text_row as _row, plural as _plural, rate_text as _rate
+    from rbgp_cli.io.inspect import text_row as _row, rate_text as _rate
+    from rbgp_cli.wording import plural as _plural
 
     h = desc.get("header", {})
     lines = [_row("export", f"format version {h.get('Format Version', '?')}, take {h.get('Take Name', '-')!s}"

@@ -323,8 +323,9 @@ def describe(path, options: ReadOptions | None = None) -> dict:
 def describe_rows(desc: dict) -> list[str]:
     """The text rows of ``rbgp inspect`` for :func:`describe`'s result."""
     from rbgp_cli.io.inspect import (
-        text_row as _row, fmt_num as _fmt_num, plural as _plural, rate_text as _rate, DELIMITER_NAMES as _DELIMITERS,
+        text_row as _row, fmt_num as _fmt_num, rate_text as _rate, DELIMITER_NAMES as _DELIMITERS,
     )
+    from rbgp_cli.wording import plural as _plural
 
     sections = desc.get("sections") or []
     lines = [_row("sections", "; ".join(
