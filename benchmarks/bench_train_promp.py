@@ -187,23 +187,25 @@ def main(argv=None) -> int:
         for folder in folders:
             for cond in conditions:
                 loop = busy_process() if cond == "busy" else None
+                name = Path(folder).name
                 try:
-                    parts = [("whole process", measure(folder, args.rounds, tmp))]
+                    # each part printed as soon as it is measured
+                    parts = [("whole process", lambda: measure(folder, args.rounds, tmp))]
                     if args.fold_rounds > 0:
-                        parts.append(("crossval fold", measure_fold(folder, args.fold_rounds)))
+                        parts.append(("crossval fold", lambda: measure_fold(folder, args.fold_rounds)))
+                    for what, run in parts:
+                        r = run()
+                        pw, pc = f"{r['promp_wall']:.2f}", f"{r['promp_cpu']:.2f}"
+                        if "promp1_wall" in r:
+                            pw, pc = f"{pw} / {r['promp1_wall']:.2f}", f"{pc} / {r['promp1_cpu']:.2f}"
+                        print(f"{name:<26} {what:<14} {cond:<9} {r['rbgp_wall']:8.2f} {pw:>15} {r['ratio']:6.2f}"
+                              f" {r.get('ratio_default', r['ratio']):10.2f} {r['rbgp_cpu']:9.2f} {pc:>15}"
+                              f" {r['cpu_ratio']:9.2f}  {r['load']}", flush=True)
+                        out.append({"set": name, "measured": what, "condition": cond, **r})
                 finally:
                     if loop is not None:
                         loop.kill()
                         loop.wait()
-                name = Path(folder).name
-                for what, r in parts:
-                    pw, pc = f"{r['promp_wall']:.2f}", f"{r['promp_cpu']:.2f}"
-                    if "promp1_wall" in r:
-                        pw, pc = f"{pw} / {r['promp1_wall']:.2f}", f"{pc} / {r['promp1_cpu']:.2f}"
-                    print(f"{name:<26} {what:<14} {cond:<9} {r['rbgp_wall']:8.2f} {pw:>15} {r['ratio']:6.2f}"
-                          f" {r.get('ratio_default', r['ratio']):10.2f} {r['rbgp_cpu']:9.2f} {pc:>15} {r['cpu_ratio']:9.2f}"
-                          f"  {r['load']}", flush=True)
-                    out.append({"set": name, "measured": what, "condition": cond, **r})
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))
     return 0
