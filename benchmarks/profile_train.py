@@ -22,6 +22,10 @@ the inner stages' included, and ``rest`` is what no row covers. The variation, t
 and the envelope run on a thread of their own beside the fit and the calibration (since issue 35's
 fourth pass): their rows give that thread's CPU time, and the fit's and the calibration's rows (the
 process's CPU while they ran) include whatever of it ran meanwhile.
+
+Each round prints the thread counts that ``compute.thread_workers`` chose and the stage that asked (the
+posterior on all rows and the noise calibration run their hyperparameter sets on that many threads): one
+thread where two cores were idle doubles those stages' wall time.
 """
 
 from __future__ import annotations
@@ -78,6 +82,10 @@ class Recorder:
         self.rows: dict[str, list[float]] = {}
         self.profilers: dict[str, object] = {}
         self.cprofile: str | None = None
+        #: (stage, threads, work) of every compute.thread_workers decision in the main thread's stages:
+        #: the posterior on all rows and the calibration take one thread where /proc shows other runnable
+        #: tasks at that instant (compute.free_cores), which doubles their wall time
+        self.threads: list[tuple[str, int, int]] = []
 
     def wrap(self, label, fn):
         @functools.wraps(fn)
@@ -125,11 +133,33 @@ def patched(recorder: Recorder):
             if mod is not src and getattr(mod, attr, None) is not None and attr in vars(mod):
                 extra.append((mod, attr, vars(mod)[attr]))
                 setattr(mod, attr, getattr(src, attr))
+    # the thread-count decisions, with the innermost stage they were made in
+    stage_of = {attr: label.strip() for label, _m, attr in STAGES}
+    for mod_name in ("rbgp_cli.compute", "rbgp_cli.gp.calibration", "rbgp_cli.gp.exact"):
+        mod = importlib.import_module(mod_name)
+        orig = vars(mod)["thread_workers"]
+        extra.append((mod, "thread_workers", orig))
+        setattr(mod, "thread_workers", _traced_thread_workers(recorder, orig, stage_of))
     try:
         yield
     finally:
         for mod, attr, orig in saved + extra:
             setattr(mod, attr, orig)
+
+
+def _traced_thread_workers(recorder: Recorder, orig, stage_of: dict):
+    @functools.wraps(orig)
+    def traced(work, min_work):
+        n = orig(work, min_work)
+        frame, stage = sys._getframe(1), "?"
+        while frame is not None:
+            if frame.f_code.co_name in stage_of:
+                stage = stage_of[frame.f_code.co_name]
+                break
+            frame = frame.f_back
+        recorder.threads.append((stage, n, int(work)))
+        return n
+    return traced
 
 
 def startup_cost(rounds: int) -> tuple[float, float]:
@@ -198,6 +228,9 @@ def main(argv=None) -> int:
                 rec, total = profile_once(folder, os.path.join(tmp, "m.rbgp"), args.cprofile if r == 0 else None,
                                           args.paper_scale)
                 totals.append(total)
+                print(f"round {r + 1}: {total[1]:.2f} s wall; threads chosen (compute.thread_workers): "
+                      + (", ".join(f"{st} {n}" for st, n, _w in rec.threads) or "none") + f"  {load_line()}",
+                      flush=True)
                 for label, (cpu, wall, calls) in rec.rows.items():
                     b = best.setdefault(label, [cpu, wall, calls])
                     b[0], b[1] = min(b[0], cpu), min(b[1], wall)

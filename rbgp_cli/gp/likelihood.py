@@ -110,6 +110,12 @@ def nlml_and_gradient(kernel: Kernel, pre: dict, values: dict, y: np.ndarray, gr
     W *= -float(L)
     alpha_f = np.asfortranarray(alpha)
     W = blas.dgemm(1.0, alpha_f, alpha_f, beta=1.0, c=W, trans_b=1, overwrite_c=1)
+    # W is symmetric bit for bit (dpotri's lower triangle mirrored; α_i α_j = α_j α_i) and Fortran-ordered
+    # (LAPACK's): its transpose is the same matrix in C order, which the kernels' contractions (fdot and
+    # products with the C-ordered K) read without copying it first: the same numbers, ~1 ms less per
+    # evaluation at n = 400 (issue 35, sixth pass)
+    if W.flags.f_contiguous and not W.flags.c_contiguous:
+        W = W.T
     kernel_names = [nm for nm in grad_names if nm != NOISE]
     g_kernel = kernel.grad_contract(pre, values, K, state, W, kernel_names) if kernel_names else np.zeros(0)
     grad = np.empty(len(grad_names))

@@ -176,3 +176,24 @@ def test_held_out_errors_equal_explicit_refits_of_the_other_demonstrations(folds
             mean = K[np.ix_(h, t)] @ np.linalg.solve(K[np.ix_(t, t)] + (c * s2 + fit.jitter) * np.eye(t.sum()), ys[t])
             sse += float(np.sum((ys[h] - mean) ** 2))
         assert err == pytest.approx(sse / len(ys), rel=1e-8)
+
+
+def test_held_out_errors_for_blocks_of_any_size_and_several_outputs():
+    """The blocks' B_hh from the pairs of rows (one product for every factor) give the partitioned
+    inverse's residuals (B_hh)⁻¹ α_h of an explicit C⁻¹, for blocks of 1, 2 and uneven sizes, in any
+    order of rows, with two outputs at once."""
+    from rbgp_cli.gp.calibration import _held_out_errors
+
+    rng = np.random.default_rng(5)
+    A = rng.normal(size=(23, 23))
+    K = A @ A.T / 23
+    y = rng.normal(size=(23, 2))
+    rows = rng.permutation(23)
+    blocks = [np.sort(rows[:1]), np.sort(rows[1:3]), np.sort(rows[3:10]), np.sort(rows[10:])]
+    grid = np.array([1.0, 3.0, 40.0])
+    got = _held_out_errors(K, y, 0.05, 1e-9, blocks, grid)
+    for c, err in zip(grid, got):
+        B = np.linalg.inv(K + (c * 0.05 + 1e-9) * np.eye(23))
+        alpha = B @ y
+        want = sum(float(np.sum(np.linalg.solve(B[np.ix_(h, h)], alpha[h]) ** 2)) for h in blocks)
+        assert err == pytest.approx(want, rel=1e-9)
