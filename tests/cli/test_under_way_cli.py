@@ -121,6 +121,7 @@ def test_crossval_given_json_writes_missing_coverage_as_null(monkeypatch):
     assert res.exit_code == 0 and "nearest" in res.stdout and " -" in res.stdout
 
 
+@pytest.mark.slow
 def test_crossval_given_prints_and_writes_the_paired_comparison(monkeypatch):
     """The paired section under the --given F table and the per_motion / paired blocks of --json, from
     per-motion values whose paired differences are known: the peer's end position is 10 mm further on every
