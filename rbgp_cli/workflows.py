@@ -591,14 +591,17 @@ def crossval_under_way(sources, fractions, train_kwargs: dict, *, options: ReadO
                        folds: int = 5, seed: int = 0, samples: int = 20, progress=None, peers: bool = True) -> dict:
     """``rbgp crossval --given F``: per fold, train on the others (``train_kwargs``, the default
     representation and kernel), see each held-out demonstration's first fraction F and predict the rest
-    (:mod:`rbgp_cli.evaluation.under_way`). Returns ``{"rows": [{method, given, end_pos, ...}], "folds",
-    "inputs"}``, rows in the order F, then method."""
+    (:mod:`rbgp_cli.evaluation.under_way`). Returns ``{"rows": [{method, given, end_pos, ..., per_motion,
+    paired}], "folds", "samples", "inputs", "paired_reference"}``, rows in the order F, then method; each row's
+    ``per_motion`` its scores per held-out demonstration (index in the input order, name) and ``paired`` its
+    paired comparison with rbgp's row at the same F (:func:`~rbgp_cli.evaluation.under_way.add_paired`;
+    None for rbgp's own)."""
     from rbgp_cli.dynamics.defaults import DEFAULTS
     from rbgp_cli.dynamics.model import train_model
     from rbgp_cli.dynamics.paths import fit_paths
     from rbgp_cli.evaluation.crossval import make_folds
     from rbgp_cli.evaluation.peers import missing
-    from rbgp_cli.evaluation.under_way import METHODS, under_way_fold
+    from rbgp_cli.evaluation.under_way import METHODS, REFERENCE, add_paired, under_way_fold
     from rbgp_cli.progress import as_progress
 
     fractions = [float(f) for f in fractions]
@@ -626,12 +629,17 @@ def crossval_under_way(sources, fractions, train_kwargs: dict, *, options: ReadO
             model = train_model(train, representation=DEFAULTS["representation"], kernel=DEFAULTS["kernel"],
                                 **train_kwargs)
             paths = getattr(model, "paths", None) or fit_paths(train)
-            out = under_way_fold(model, paths, train, test, fractions, samples=samples, seed=seed + i, methods=methods)
+            out = under_way_fold(model, paths, train, test, fractions, samples=samples, seed=seed + i, methods=methods,
+                                 indices=fold)
             for k, v in out.items():
                 tot[k] = v if k not in tot else tot[k].add(v)
             task.advance()
-    rows = [dict(method=m, given=F, **tot[(m, F)].to_dict()) for F in fractions for m in methods if (m, F) in tot]
-    return {"rows": rows, "folds": folds, "samples": samples, "inputs": [i["name"] for i in inputs]}
+    names = [d.name for d in demos]
+    rows = [dict(method=m, given=F, **tot[(m, F)].to_dict(), per_motion=tot[(m, F)].per_motion(names))
+            for F in fractions for m in methods if (m, F) in tot]
+    add_paired(rows)  # each row's "paired" against rbgp's at the same F
+    return {"rows": rows, "folds": folds, "samples": samples, "inputs": [i["name"] for i in inputs],
+            "paired_reference": REFERENCE}
 
 
 def generate_like_paper(model, demos, count=100, spread=0.02, seed=0, progress=None):

@@ -3,6 +3,9 @@ difference over the held-out motions with its standard error, and the folds' spr
 
 Usage: python scripts/under_way_table.py RECORDS.json [A [B]]   (default A = base, B = promp-ridge)
        python scripts/under_way_table.py RECORDS.json --summary  (every method's columns)
+       python scripts/under_way_table.py --crossval NAME=OUT.json ...  (``rbgp --json crossval --given F``'s
+       output: one markdown row per set, F and method, each value with its paired z against rbgp's row,
+       then per set the Done-when verdict of each cell, :func:`verdicts`)
 
 end_pos, end_rot, end_time are means over the motions: the difference's standard error is the paired
 differences' standard deviation / √n. rest_pos, rest_rot are pooled RMSEs √(mean of each motion's mean
@@ -70,8 +73,64 @@ def compare(res, recs, A="base", B="promp-ridge"):
     return rows
 
 
+def crossval_rows(name, result):
+    """Markdown rows of one ``crossval --given F --json`` result: value (z of the paired Δ against rbgp)."""
+    out = []
+    for r in result["rows"]:
+        cells = []
+        for c in METRICS:
+            v = r[c]
+            p = (r.get("paired") or {}).get(c)
+            z = "" if not p or p["z"] is None else f" ({p['z']:+.1f}{'!' if abs(p['z']) >= 2 else ''})"
+            cells.append(("—" if v is None else f"{v:.3f}") + z)
+        cov = "—" if r["cov_pos"] is None else f"{r['cov_pos']:.2f} / {r['cov_rot']:.2f}"
+        out.append(f"| {name} | {r['given']:g} | {r['method']} | " + " | ".join(cells) + f" | {cov} |")
+    return out
+
+
+PEERS = ("nearest", "promp", "promp-ridge")
+
+
+def verdicts(result, row="rbgp"):
+    """Per F and column, ``row`` against the best peer (the one with the smallest value): "pass" (no
+    worse), "fail (z)" with |z| of the paired Δ below 2 (within noise), "FAIL (z)" at 2 or more."""
+    by = {(r["given"], r["method"]): r for r in result["rows"]}
+    out = {}
+    for F in sorted({r["given"] for r in result["rows"]}):
+        ref = by.get((F, row))
+        if ref is None:
+            continue
+        for c in METRICS:
+            peers = [by[(F, m)] for m in PEERS if (F, m) in by]
+            best = min(peers, key=lambda r: r[c])
+            if ref[c] <= best[c] + 5e-4:  # level at the tables' three decimals counts as no worse
+                out[(F, c)] = "pass"
+                continue
+            from rbgp_cli.evaluation.crossval import paired_difference
+
+            mine = {m["index"]: m[c] for m in ref["per_motion"]}
+            theirs = [(mine[m["index"]], m[c]) for m in best["per_motion"] if m["index"] in mine]
+            z = paired_difference([b for _, b in theirs], [a for a, _ in theirs])["z"]  # the row − the peer
+            z = float("nan") if z is None else z
+            out[(F, c)] = f"{'FAIL' if abs(z) >= 2 else 'fail'} ({best['method']} {best[c]:.3f}, z {z:+.1f})"
+    return out
+
+
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv
+    if argv and argv[0] == "--crossval":
+        print("| set | F | method | end m | end rad | t s | rest m | rest rad | cov pos / rot |")
+        print("|---|---|---|---|---|---|---|---|---|")
+        results = [(a.split("=", 1)[0], json.load(open(a.split("=", 1)[1]))) for a in argv[1:]]
+        for name, res in results:
+            print("\n".join(crossval_rows(name, res)))
+        for name, res in results:
+            for row in ("rbgp", "no-GP"):
+                print(f"\n{name}, {row} against the best peer (cells not passed):")
+                for (F, c), v in verdicts(res, row).items():
+                    if v != "pass":
+                        print(f"  F = {F:g} {c}: {v}")
+        return
     res, recs = load(argv[0])
     if len(argv) > 1 and argv[1] == "--summary":
         names = sorted({n for (n, _) in recs}, key=lambda n: (n.startswith("sweep"), n))

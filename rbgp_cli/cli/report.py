@@ -327,4 +327,26 @@ def format_under_way(result: dict) -> str:
         lines.append(f"{r['given']:>5g} {r['method']:<12} {f(r['end_pos'], 8, 3)} {f(r['end_rot'], 8, 3)} "
                      f"{f(r['end_time'], 8, 3)} {f(r['rest_pos'], 8, 3)} {f(r['rest_rot'], 8, 3)} "
                      f"{f(r['cov_pos'], 7, 2)} {f(r['cov_rot'], 7, 2)}")
-    return "\n".join(lines)
+    return "\n".join(lines + _under_way_paired_lines(result))
+
+
+def _under_way_paired_lines(result: dict) -> list[str]:
+    """The section below crossval --given F's table: each row's per-motion values paired with the
+    reference's (rbgp's) at the same F, per column (rbgp_cli.evaluation.under_way.add_paired); nothing
+    without paired rows."""
+    from rbgp_cli.evaluation.under_way import COLUMNS
+
+    rows = [r for r in result["rows"] if r.get("paired")]
+    if not rows:
+        return []
+    ref = rows[0]["paired"]["reference"]
+    n = max(r["paired"][COLUMNS[0]]["motions"] for r in rows)
+    lines = ["", f"paired against {ref} at the same F on the {n} held-out motions (Δ: the row's value minus {ref}'s per "
+             "motion, mean ± standard error, m / rad / s; z = Δ / se, ! where |z| ≥ 2, a difference beyond the "
+             "motions' scatter; closer: on how many motions the row is closer, per column in this order):",
+             f"{'given':>5} {'method':<12} " + "  ".join(f"{'Δ' + c:<26}" for c in COLUMNS) + "  closer"]
+    for r in rows:
+        p = r["paired"]
+        lines.append(f"{r['given']:>5g} {r['method']:<12} " + "  ".join(f"{_paired_cell(p[c]):<26}" for c in COLUMNS)
+                     + "  " + " / ".join(str(p[c]["closer"]) for c in COLUMNS))
+    return lines

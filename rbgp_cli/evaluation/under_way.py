@@ -29,13 +29,17 @@ import numpy as np
 
 from rbgp_cli.dynamics.trajectory import Trajectory
 
-__all__ = ["FRACTIONS", "METHODS", "split_seen", "UnderWayScores", "score", "nearest_continuation",
-           "PhaseProMP", "under_way_fold"]
+__all__ = ["FRACTIONS", "METHODS", "COLUMNS", "split_seen", "UnderWayScores", "score", "nearest_continuation",
+           "PhaseProMP", "under_way_fold", "add_paired"]
 
 #: The fractions crossval --given takes by default.
 FRACTIONS = (0.2, 0.4, 0.6, 0.8)
 #: Row names.
 METHODS = ("rbgp", "no-GP", "nearest", "promp", "promp-ridge")
+#: The per-motion columns (m, rad, s, m, rad) that the paired comparison takes.
+COLUMNS = ("end_pos", "end_rot", "end_time", "rest_pos", "rest_rot")
+#: The row the others are paired against.
+REFERENCE = "rbgp"
 #: ProMP conditioning noise (rad, m) of the plain peer: a tracker's.
 PROMP_PLAIN_STD = 1e-3
 #: Ridge σ (in the curve's units, rad and m) tried for the regularised ProMP.
@@ -57,34 +61,91 @@ def split_seen(traj: Trajectory, fraction: float) -> tuple[Trajectory, Trajector
 
 @dataclass
 class UnderWayScores:
-    """Sums over held-out motions of one method at one F (see the module docstring)."""
+    """Per held-out motion of one method at one F (see the module docstring), in the order they were
+    scored: ``end_pos``, ``end_rot``, ``end_time`` (one value each), ``motion_sq`` ((Σ squared position
+    error, Σ squared rotation error, steps) of its remainder), ``index`` (its place in the input order, or
+    None); ``coverage`` the pooled :class:`~rbgp_cli.evaluation.coverage.Coverage` (None without samples)."""
 
     end_pos: list = field(default_factory=list)
     end_rot: list = field(default_factory=list)
     end_time: list = field(default_factory=list)
-    sp: float = 0.0
-    sr: float = 0.0
-    n: int = 0
+    motion_sq: list = field(default_factory=list)
+    index: list = field(default_factory=list)
     coverage: object = None
+
+    @property
+    def sp(self) -> float:
+        """Σ over motions of the remainders' squared position errors (m²)."""
+        return float(sum(m[0] for m in self.motion_sq))
+
+    @property
+    def sr(self) -> float:
+        """Σ over motions of the remainders' squared rotation errors (rad²)."""
+        return float(sum(m[1] for m in self.motion_sq))
+
+    @property
+    def n(self) -> int:
+        """Steps summed in :attr:`sp` and :attr:`sr`."""
+        return int(sum(m[2] for m in self.motion_sq))
 
     def add(self, other: "UnderWayScores") -> "UnderWayScores":
         cov = self.coverage if other.coverage is None else (other.coverage if self.coverage is None else self.coverage + other.coverage)
         return UnderWayScores(self.end_pos + other.end_pos, self.end_rot + other.end_rot, self.end_time + other.end_time,
-                              self.sp + other.sp, self.sr + other.sr, self.n + other.n, cov)
+                              self.motion_sq + other.motion_sq, self.index + other.index, cov)
+
+    def with_index(self, index: int) -> "UnderWayScores":
+        """The same scores of one motion, labelled with its place in the input order."""
+        return UnderWayScores(self.end_pos, self.end_rot, self.end_time, self.motion_sq, [int(index)] * len(self.end_pos),
+                              self.coverage)
 
     def to_dict(self) -> dict:
         nan = float("nan")
+        n = self.n
         out = {"end_pos": float(np.mean(self.end_pos)) if self.end_pos else nan,
                "end_rot": float(np.mean(self.end_rot)) if self.end_rot else nan,
                "end_time": float(np.mean(self.end_time)) if self.end_time else nan,
-               "rest_pos": float(np.sqrt(self.sp / self.n)) if self.n else nan,
-               "rest_rot": float(np.sqrt(self.sr / self.n)) if self.n else nan,
+               "rest_pos": float(np.sqrt(self.sp / n)) if n else nan,
+               "rest_rot": float(np.sqrt(self.sr / n)) if n else nan,
                "cov_pos": nan, "cov_rot": nan, "band_pos": nan, "band_rot": nan, "motions": len(self.end_pos)}
         if self.coverage is not None:
             c = self.coverage.to_dict()
             out.update(cov_pos=c["coverage_position"], cov_rot=c["coverage_rotation"], band_pos=c["band_position"],
                        band_rot=c["band_rotation"])
         return out
+
+    def per_motion(self, names: list | None = None) -> list[dict]:
+        """[{"index", "name", "end_pos", "end_rot", "end_time", "rest_pos", "rest_rot"}, ...], one per
+        scored motion sorted by index (the remainder's RMSEs √(Σ/steps) of that motion alone); ``name``
+        only with ``names`` (the input order's names) and an index."""
+        out = []
+        for k in range(len(self.end_pos)):
+            i = self.index[k] if k < len(self.index) else None
+            sp, sr, c = self.motion_sq[k]
+            out.append({"index": i, **({"name": names[i]} if names is not None and i is not None else {}),
+                        "end_pos": self.end_pos[k], "end_rot": self.end_rot[k], "end_time": self.end_time[k],
+                        "rest_pos": float(np.sqrt(sp / c)) if c else float("nan"),
+                        "rest_rot": float(np.sqrt(sr / c)) if c else float("nan")})
+        return sorted(out, key=lambda m: (m["index"] is None, m["index"] if m["index"] is not None else 0))
+
+
+def add_paired(rows: list[dict], reference: str = REFERENCE) -> None:
+    """Give every row of ``rows`` (dicts with ``method``, ``given`` and ``per_motion``) its ``paired``
+    comparison with the ``reference`` method's row at the same F: per column of :data:`COLUMNS`,
+    :func:`~rbgp_cli.evaluation.crossval.paired_difference` of the two rows' per-motion values over the
+    motions both scored (matched by index): Δ = the row's minus the reference's, mean ± standard error, z,
+    closer. The reference's own ``paired`` is None, and so is every row's at an F without a reference."""
+    from rbgp_cli.evaluation.crossval import paired_difference
+
+    refs = {r["given"]: r for r in rows if r["method"] == reference}
+    for r in rows:
+        ref = refs.get(r["given"])
+        if ref is None or r is ref or not r.get("per_motion") or not ref.get("per_motion"):
+            r["paired"] = None
+            continue
+        base = {m["index"]: m for m in ref["per_motion"]}
+        both = [(base[m["index"]], m) for m in r["per_motion"] if m["index"] in base]
+        r["paired"] = {"reference": reference, **{
+            key: paired_difference([a[key] for a, _ in both], [b[key] for _, b in both]) for key in COLUMNS}}
 
 
 def score(mean: Trajectory, samples: list, rest: Trajectory) -> UnderWayScores:
@@ -96,7 +157,8 @@ def score(mean: Trajectory, samples: list, rest: Trajectory) -> UnderWayScores:
     dq = abs(float(np.dot(mean.quat[-1], rest.quat[-1])) / (np.linalg.norm(mean.quat[-1]) * np.linalg.norm(rest.quat[-1])))
     cov = prediction_coverage(samples, rest, _T) if len(samples) >= MIN_SAMPLES else None
     return UnderWayScores([float(np.linalg.norm(mean.position[-1] - rest.position[-1]))],
-                          [float(2.0 * np.arccos(min(1.0, dq)))], [abs(float(mean.t[-1] - rest.t[-1]))], sp, sr, n, cov)
+                          [float(2.0 * np.arccos(min(1.0, dq)))], [abs(float(mean.t[-1] - rest.t[-1]))], [(sp, sr, n)],
+                          [], cov)
 
 
 # ---------------------------------------------------------------------------------------- nearest
@@ -260,8 +322,10 @@ def ridge_std(train: list, *, folds: int = 5, fractions=(0.2, 0.6), seed: int = 
 
 # ---------------------------------------------------------------------------------------- one fold
 def under_way_fold(model, paths, train: list, test: list, fractions=FRACTIONS, *, samples: int = 20, seed: int = 0,
-                   methods=METHODS) -> dict:
-    """Scores {(method, F): UnderWayScores} of one fold: ``model`` and ``paths`` fitted on ``train``."""
+                   methods=METHODS, indices=None) -> dict:
+    """Scores {(method, F): UnderWayScores} of one fold: ``model`` and ``paths`` fitted on ``train``;
+    ``indices``: the held-out motions' places in the input order (default 0, 1, … in ``test``'s order),
+    which label their per-motion scores."""
     from rbgp_cli.dynamics.anticipation import Anticipator
 
     out = {}
@@ -279,18 +343,19 @@ def under_way_fold(model, paths, train: list, test: list, fractions=FRACTIONS, *
                 promps["promp"] = PhaseProMP(train)
             if "promp-ridge" in methods:
                 promps["promp-ridge"] = PhaseProMP(train, ridge_std(train, seed=seed))
+    indices = list(range(len(test))) if indices is None else [int(j) for j in indices]
     for i, tr in enumerate(test):
         for F in fractions:
             seen, rest = split_seen(tr, F)
             for name, ant in ants.items():
                 c = ant.continuation(seen.t, seen.quat, seen.position, samples=samples, seed=seed + i)
                 trs = c.trajectories(include_samples=True)
-                _add(out, (name, F), score(trs[0], trs[1:], rest))
+                _add(out, (name, F), score(trs[0], trs[1:], rest).with_index(indices[i]))
             if "nearest" in methods:
-                _add(out, ("nearest", F), score(nearest_continuation(train, seen), [], rest))
+                _add(out, ("nearest", F), score(nearest_continuation(train, seen), [], rest).with_index(indices[i]))
             for name, pm in promps.items():
                 mean, smp = pm.predict(seen, samples=samples, seed=seed + i)
-                _add(out, (name, F), score(mean, smp, rest))
+                _add(out, (name, F), score(mean, smp, rest).with_index(indices[i]))
     return out
 
 

@@ -95,6 +95,12 @@ def test_crossval_given_rows(tmp_path):
     for r in rows:
         assert r["given"] == 0.3 and r["motions"] == 9
         assert np.isfinite(r["end_pos"]) and np.isfinite(r["rest_pos"]) and 0.0 <= r["cov_pos"] <= 1.0
+        # every demonstration held out once, its own scores averaging to the row's
+        assert [m["index"] for m in r["per_motion"]] == list(range(9))
+        assert np.mean([m["end_pos"] for m in r["per_motion"]]) == pytest.approx(r["end_pos"], rel=1e-9)
+    assert rows[0]["paired"] is None and rows[1]["paired"]["reference"] == "rbgp"
+    d = [b["end_time"] - a["end_time"] for a, b in zip(rows[0]["per_motion"], rows[1]["per_motion"])]
+    assert rows[1]["paired"]["end_time"]["difference"] == pytest.approx(np.mean(d), abs=1e-12)
 
 
 def test_crossval_given_json_writes_missing_coverage_as_null(monkeypatch):
@@ -113,3 +119,47 @@ def test_crossval_given_json_writes_missing_coverage_as_null(monkeypatch):
     assert out["cov_pos"] is None and out["band_rot"] is None and out["end_pos"] == 0.1
     res = run("crossval", CSV_DIR, "--given", "0.4", "--folds", 3)
     assert res.exit_code == 0 and "nearest" in res.stdout and " -" in res.stdout
+
+
+@pytest.mark.slow
+def test_crossval_given_prints_and_writes_the_paired_comparison(monkeypatch):
+    """The paired section under the --given F table and the per_motion / paired blocks of --json, from
+    per-motion values whose paired differences are known: the peer's end position is 10 mm further on every
+    motion but one (z far beyond 2: `!`), its end time the same as rbgp's on every motion (se 0: z null)."""
+    from rbgp_cli import workflows
+    from rbgp_cli.evaluation.under_way import COLUMNS, add_paired
+
+    nan = float("nan")
+    rng = np.random.default_rng(1)
+    ref = [{"index": i, "name": f"m{i}", **{c: float(rng.uniform(0.1, 0.2)) for c in COLUMNS}} for i in range(8)]
+    peer = [{**m, "end_pos": m["end_pos"] + (0.010 if i else -0.001) + 0.001 * float(rng.standard_normal()),
+             "end_rot": m["end_rot"] + 0.01 * float(rng.standard_normal())} for i, m in enumerate(ref)]
+    base = dict(given=0.4, end_pos=0.1, end_rot=0.2, end_time=0.3, rest_pos=0.1, rest_rot=0.2, cov_pos=0.9,
+                cov_rot=0.9, band_pos=0.1, band_rot=0.2, motions=8)
+    rows = [dict(base, method="rbgp", per_motion=ref),
+            dict(base, method="nearest", cov_pos=nan, cov_rot=nan, band_pos=nan, band_rot=nan, per_motion=peer)]
+    add_paired(rows)
+    expected = rows[1]["paired"]["end_pos"]
+    monkeypatch.setattr(workflows, "crossval_under_way", lambda *a, **k: {
+        "rows": rows, "folds": 3, "samples": 5, "inputs": [], "paired_reference": "rbgp"})
+    res = run("--json", "crossval", CSV_DIR, "--given", "0.4", "--folds", 3)
+    assert res.exit_code == 0, res.stderr
+    out = json.loads(res.stdout)
+    assert out["paired_reference"] == "rbgp" and out["rows"][0]["paired"] is None
+    p = out["rows"][1]["paired"]
+    assert p["end_pos"]["z"] == pytest.approx(expected["z"]) and p["end_pos"]["z"] > 5
+    assert p["end_pos"]["closer"] == 1 and p["end_pos"]["motions"] == 8
+    assert p["end_time"]["difference"] == 0.0 and p["end_time"]["z"] is None and p["end_time"]["se"] is None
+    assert out["rows"][1]["cov_pos"] is None
+    assert [m["index"] for m in out["rows"][1]["per_motion"]] == list(range(8))
+    assert out["rows"][1]["per_motion"][3]["end_pos"] == pytest.approx(peer[3]["end_pos"])
+
+    res = run("crossval", CSV_DIR, "--given", "0.4", "--folds", 3)
+    assert res.exit_code == 0, res.stderr
+    lines = res.stdout.splitlines()
+    head = next(i for i, x in enumerate(lines) if x.startswith("paired against rbgp at the same F on the 8"))
+    row = next(x for x in lines[head:] if x.split()[:2] == ["0.4", "nearest"])
+    assert f"{expected['difference']:+.4f} ± {expected['se']:.4f} z {expected['z']:+.2f} !" in row
+    assert "+0.0000 ± -" in row  # the end time: no scatter, no z
+    assert row.rstrip().endswith(" / ".join(str(rows[1]["paired"][c]["closer"]) for c in COLUMNS))
+    assert not any(x.split()[:2] == ["0.4", "rbgp"] for x in lines[head:])  # the reference has no paired row

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.evaluation.under_way import nearest_continuation, score, split_seen
 from tests.dynamics.test_anticipation import family
 
@@ -45,3 +46,74 @@ def test_the_promp_peer_estimates_the_duration():
         assert abs(pm.duration(tau, Y) - D) < 0.1 * D
         mean, samples = pm.predict(seen, samples=3)
         assert mean.t[0] == pytest.approx(seen.t[-1]) and len(samples) == 3
+
+
+# ---------------------------------------------------------------------------------- paired comparisons
+def _rows(rng, n=12, shift=0.01):
+    """rbgp's and a peer's rows at F = 0.4 with known per-motion values (the peer's order reversed and its
+    first motion missing, as a row that could not score one would be)."""
+    from rbgp_cli.evaluation.under_way import COLUMNS
+
+    ref = [{"index": i, **{c: float(rng.uniform(0.1, 0.3)) for c in COLUMNS}} for i in range(n)]
+    peer = [{"index": m["index"], **{c: m[c] + shift + 0.02 * float(rng.standard_normal()) for c in COLUMNS}}
+            for m in ref[1:]][::-1]
+    return ([{"method": "rbgp", "given": 0.4, "per_motion": ref}, {"method": "promp", "given": 0.4, "per_motion": peer},
+             {"method": "promp", "given": 0.6, "per_motion": peer}], ref, peer)
+
+
+@pytest.mark.slow
+def test_paired_rows_are_scipys_paired_t_on_the_motions_both_scored():
+    from scipy.stats import ttest_rel
+
+    from rbgp_cli.evaluation.under_way import COLUMNS, add_paired
+
+    rows, ref, peer = _rows(np.random.default_rng(3))
+    add_paired(rows)
+    assert rows[0]["paired"] is None  # the reference itself
+    assert rows[2]["paired"] is None  # no rbgp row at F = 0.6
+    p = rows[1]["paired"]
+    assert p["reference"] == "rbgp"
+    by_index = {m["index"]: m for m in peer}
+    for c in COLUMNS:
+        a = np.array([m[c] for m in ref[1:]])
+        b = np.array([by_index[m["index"]][c] for m in ref[1:]])
+        t = ttest_rel(b, a)
+        assert p[c]["motions"] == 11
+        assert p[c]["z"] == pytest.approx(t.statistic, rel=1e-12)
+        assert p[c]["difference"] == pytest.approx(np.mean(b - a), rel=1e-12)
+        assert p[c]["closer"] == int(np.sum(b < a))
+
+
+def test_per_motion_scores_pool_to_the_rows_rmse():
+    """Each motion's remainder RMSE is its own √(Σ/steps); the row's pooled RMSE is √ of their mean square
+    (every motion has the same steps), and the end columns are the per-motion values' means."""
+    from rbgp_cli.evaluation.under_way import UnderWayScores
+
+    rng = np.random.default_rng(0)
+    parts = []
+    for i in (5, 2, 9):
+        tr = family(1, i)[0][0]
+        _, rest = split_seen(tr, 0.5)
+        off = Trajectory(rest.t * 1.05, rest.quat, rest.position + rng.normal(0, 0.01, 3), name="x")
+        parts.append(score(off, [], rest).with_index(i))
+    tot = parts[0].add(parts[1]).add(parts[2])
+    pm = tot.per_motion([f"m{k}" for k in range(10)])
+    assert [m["index"] for m in pm] == [2, 5, 9] and pm[0]["name"] == "m2"
+    d = tot.to_dict()
+    assert d["rest_pos"] == pytest.approx(np.sqrt(np.mean([m["rest_pos"] ** 2 for m in pm])), rel=1e-12)
+    assert d["end_time"] == pytest.approx(np.mean([m["end_time"] for m in pm]), rel=1e-12)
+    assert all(m["end_time"] > 0 and m["rest_pos"] > 0.001 for m in pm)
+
+
+@pytest.mark.slow
+def test_a_fold_labels_each_motion_with_its_place_in_the_input_order():
+    from rbgp_cli.dynamics.paths import fit_paths
+    from rbgp_cli.evaluation.under_way import under_way_fold
+
+    demos, _ = family(10, 1)
+    out = under_way_fold(None, fit_paths(demos[:8]), demos[:8], demos[8:], (0.5,), samples=0,
+                         methods=("no-GP", "nearest"), indices=[17, 4])
+    for key in (("no-GP", 0.5), ("nearest", 0.5)):
+        pm = out[key].per_motion()
+        assert [m["index"] for m in pm] == [4, 17]
+        assert pm[1]["end_time"] == pytest.approx(out[key].end_time[0])  # index 17 is the first held out
