@@ -764,14 +764,14 @@ def train_model(
     durations = np.array([tr.duration for tr in trajs])
     model = MotionModel(rep, gp, float(dt), starts, durations, velocity=velocity, time_input=time_input, mean=mean,
                         variation=side.variation, envelope=side.envelope, paths=side.paths)
-    gain = _residual_gain_of(model, trajs, info, residual_gain, progress)
+    gain = _residual_gain_of(model, trajs, info, residual_gain, progress, seed)
     model.summary = _train_summary(rep, kernel, kern, trajs, info, shared, velocity, gp, gp_choice, mean, side.variation,
                                    time_input, recorded_dt, t0, paths=side.paths)
     model.summary["residual_gain"] = gain
     return model
 
 
-def _residual_gain_of(model, trajs, info, residual_gain, progress) -> dict:
+def _residual_gain_of(model, trajs, info, residual_gain, progress, seed: int = 0) -> dict:
     """Set ``model.residual_gain``: the number given, or with ``"auto"`` the gain chosen by leaving
     demonstrations out (:func:`rbgp_cli.dynamics.residual_gain.choose_residual_gain`; 1 where it cannot
     be chosen). Returns the summary's record: {"gain", "chosen": "given" | "left-out rollouts" | "default",
@@ -781,7 +781,7 @@ def _residual_gain_of(model, trajs, info, residual_gain, progress) -> dict:
 
         groups = np.repeat(np.arange(len(info["per_demo"])), info["per_demo"])[np.asarray(info["indices"])]
         with blas_threads(0):
-            choice = None if model.mean is None else choose_residual_gain(model, trajs, groups)
+            choice = None if model.mean is None else choose_residual_gain(model, trajs, groups, seed=seed)
         if choice is None:
             model.residual_gain = 1.0
             return {"gain": 1.0, "chosen": "default",

@@ -29,8 +29,9 @@ unit-free and 1 for the path distribution alone on average). The gain with the s
 unless a smaller gain is within one standard error of the paired differences J_d(g) − J_d(g_best)
 (the one-standard-error rule: the simpler model unless the folds' noise cannot explain the gain).
 
-Cost: one Cholesky factor and inverse per hyperparameter set (n³), and one batched rollout of D × G
-trajectories at the training step (one kernel block of (D·G) × n per step and set).
+Cost: one Cholesky factor and inverse per hyperparameter set (m³, on at most m = LEFT_OUT_POINTS rows:
+:func:`subset_posterior`), and one batched rollout of D × G trajectories (D at most LEFT_OUT_DEMOS) at the training step (one
+kernel block of (D·G) × m per step and set).
 """
 
 from __future__ import annotations
@@ -43,6 +44,33 @@ __all__ = ["GAIN_GRID", "choose_residual_gain", "left_out_weights", "left_out_ro
 
 #: The gains tried on the GP's residual mean (1: the full model; 0: the path distribution alone).
 GAIN_GRID = (0.0, 0.25, 0.5, 1.0)
+#: At most this many training rows (a seeded random subset, each standing for n/m rows: σn² × m/n) carry
+#: the left-out posteriors: one m³ inverse per hyperparameter set instead of n³ (2000 rows: 8× less).
+LEFT_OUT_POINTS = 800
+#: At most this many demonstrations (a seeded random choice) are rolled out left out: the rollouts cost
+#: in proportion to them, and 20 paired differences already give the one-standard-error rule its scale.
+LEFT_OUT_DEMOS = 20
+
+
+def subset_posterior(gp, points: int = LEFT_OUT_POINTS, seed: int = 0):
+    """(gp_m, rows): the exact GP ``gp`` on a seeded random ``points`` of its n training rows (sorted), with
+    σn² × m/n in every hyperparameter set, so that each kept row stands for the n/m rows it was drawn from
+    (rows repeated r times are exactly one row with noise σn²/r); ``gp`` itself and all rows when n ≤ points.
+    Not factorised (the left-out weights make their own inverse)."""
+    from dataclasses import replace
+
+    from rbgp_cli.gp.exact import GaussianProcess
+    from rbgp_cli.gp.likelihood import NOISE
+
+    n = len(gp.X)
+    if n <= int(points) or getattr(gp, "sparse", False):
+        return gp, np.arange(n)
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 36]))
+    rows = np.sort(rng.choice(n, size=int(points), replace=False))
+    shrink = float(np.sqrt(len(rows) / n))
+    fits = [replace(f, values={**f.values, NOISE: float(f.values[NOISE]) * shrink}) for f in gp.fits]
+    return GaussianProcess(gp.kernel, gp.X[rows], gp.Y[rows], fits, shared=gp.shared, y_scale=gp.y_scale,
+                           lazy=True), rows
 
 
 def left_out_weights(gp, groups) -> list[np.ndarray] | None:
@@ -95,16 +123,20 @@ def left_out_weights(gp, groups) -> list[np.ndarray] | None:
     return None if any(a is None for a in out) else out
 
 
-def left_out_rollout_errors(model, trajs, groups, gains=GAIN_GRID, weights=None):
+def left_out_rollout_errors(model, trajs, groups, gains=GAIN_GRID, weights=None, return_poses: bool = False,
+                            gp=None):
     """Each demonstration rolled out from its own start for its own duration with every gain g of
     ``gains`` on the residual of the GP that has not seen it (:func:`left_out_weights`), batched: D × G
     trajectories advance together at the model's training step. Returns (P, R), each (D, G): the mean
     squared position error (m²) and rotation angle (rad²) against the demonstration at the rollout's
-    phases k/S_d, k = 1 … S_d. None where the GP has no exact posterior."""
+    phases k/S_d, k = 1 … S_d. None where the GP has no exact posterior. With ``return_poses`` also the
+    rollouts' poses, quat (S + 1, D·G, 4) and position (S + 1, D·G, 3) (row d·G + j: demonstration d, gain
+    j; its first S_d + 1 steps), and the steps S_d (D,). ``gp``: the GP whose left-out posteriors roll out
+    (default the model's; :func:`subset_posterior`), ``groups`` its rows'."""
     from rbgp_cli.dynamics.trajectory import interpolate_poses
     from rbgp_cli.geometry.so3 import log_quat, quat_conjugate, quat_make_continuous, quat_multiply
 
-    gp = model.gp
+    gp = model.gp if gp is None else gp
     A = left_out_weights(gp, groups) if weights is None else weights
     if A is None:
         return None
@@ -165,30 +197,44 @@ def left_out_rollout_errors(model, trajs, groups, gains=GAIN_GRID, weights=None)
         P[d] = np.mean(np.sum((rp - tp[None]) ** 2, axis=-1), axis=1)
         ang = log_quat(quat_multiply(rq.reshape(-1, 4), quat_conjugate(np.broadcast_to(tq[None], rq.shape).reshape(-1, 4))))
         R[d] = np.mean(np.sum(ang.reshape(G, n_d, 3) ** 2, axis=-1), axis=1)
-    return P, R
+    return (P, R, quat, pos, steps_d) if return_poses else (P, R)
 
 
-def choose_residual_gain(model, trajs, groups, gains=GAIN_GRID) -> dict | None:
+def choose_residual_gain(model, trajs, groups, gains=GAIN_GRID, points: int = LEFT_OUT_POINTS,
+                         seed: int = 0) -> dict | None:
     """The gain g on the GP's residual mean that predicts left-out demonstrations' rollouts best (module
     docstring: the criterion J and the one-standard-error rule toward the smaller gain).
 
     ``model``: a trained :class:`~rbgp_cli.dynamics.model.MotionModel` (an exact GP, a phase input);
     ``trajs``: its D training demonstrations in the order of ``groups`` (n,), each training row's
-    demonstration. Returns None with fewer than three demonstrations or without an exact GP, else
+    demonstration. The left-out posteriors rest on at most ``points`` rows (:func:`subset_posterior`, seeded
+    by ``seed``). Returns None with fewer than three demonstrations or without an exact GP, else
     {"gain", "grid", "error" (mean J per gain), "standard_error" (of J(g) − J(g_best) per gain),
     "best" (the gain with the smallest mean J), "demos", "position_rmse", "rotation_rmse" (m, rad per
-    gain, pooled over the demonstrations), "seconds"}."""
+    gain, pooled over the demonstrations), "points" (rows of the left-out posteriors), "seconds"}. At
+    most LEFT_OUT_DEMOS demonstrations (seeded) are left out and rolled out; ``demos`` says how many."""
     t0 = time.perf_counter()
     if len(trajs) < 3 or model.time_input != "phase":
         return None
     gains = np.asarray(sorted(set(float(g) for g in gains) | {0.0}), dtype=np.float64)
-    errs = left_out_rollout_errors(model, trajs, groups, gains)
-    if errs is None:
+    gp, rows = subset_posterior(model.gp, points, seed)
+    A = left_out_weights(gp, np.asarray(groups)[rows])
+    if A is None:
         return None
+    D = len(trajs)
+    pick = np.arange(D)
+    if D > LEFT_OUT_DEMOS:
+        rng = np.random.default_rng(np.random.SeedSequence([int(seed), 37]))
+        pick = np.sort(rng.choice(D, size=LEFT_OUT_DEMOS, replace=False))
+    trajs = [trajs[i] for i in pick]
+    errs = left_out_rollout_errors(model, trajs, None, gains, weights=[Ag[pick] for Ag in A], gp=gp)
     P, R = errs
-    P0 = max(float(np.mean(P[:, 0])), 1e-300)
-    R0 = max(float(np.mean(R[:, 0])), 1e-300)
-    J = 0.5 * (P / P0 + R / R0)  # (D, G)
+    # each part relative to the path distribution's own (g = 0); a part it reproduces to round-off
+    # (demonstrations that never turn, or never move) is left out: its ratio would be round-off's
+    parts = [E / float(np.mean(E[:, 0])) for E, tiny in ((P, 1e-20), (R, 1e-20)) if float(np.mean(E[:, 0])) > tiny]
+    if not parts:
+        return None
+    J = sum(parts) / len(parts)  # (D, G)
     mean = J.mean(axis=0)
     best = int(np.argmin(mean))
     diff = J - J[:, best:best + 1]
@@ -199,6 +245,6 @@ def choose_residual_gain(model, trajs, groups, gains=GAIN_GRID) -> dict | None:
             chosen = i
             break
     return {"gain": float(gains[chosen]), "grid": gains.tolist(), "error": mean.tolist(),
-            "standard_error": se.tolist(), "best": float(gains[best]), "demos": len(trajs),
+            "standard_error": se.tolist(), "best": float(gains[best]), "demos": len(trajs), "points": int(len(rows)),
             "position_rmse": np.sqrt(P.mean(axis=0)).tolist(), "rotation_rmse": np.sqrt(R.mean(axis=0)).tolist(),
             "seconds": time.perf_counter() - t0}
