@@ -253,7 +253,10 @@ def train_options(*, rho_rot=DEFAULTS["rho_rot"], restarts: int = DEFAULTS["rest
     scale = _number(noise_scale, "noise_scale")
     if not scale >= 1.0 or not np.isfinite(scale):
         raise InputError(f"noise_scale must be a number of at least 1, got {noise_scale}", param="noise_scale")
-    gain = "auto" if str(residual_gain).strip().lower() == "auto" else _number(residual_gain, "residual_gain")
+    try:
+        gain = "auto" if str(residual_gain).strip().lower() == "auto" else float(residual_gain)
+    except (TypeError, ValueError):
+        gain = float("nan")
     if gain != "auto" and not (np.isfinite(gain) and 0.0 <= gain <= 100.0):
         raise InputError(f"residual_gain must be 'auto' or a number from 0 to 100, got {residual_gain}",
                          param="residual_gain", hint="1 is the GP's full residual, 0 the path distribution alone")
