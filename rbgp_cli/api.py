@@ -486,7 +486,7 @@ class RigidBodyGP:
                  hyper_points: int | None = None, calibrate_noise: bool = DEFAULTS["calibrate"],
                  start_conditioning: bool = DEFAULTS["start_conditioning"],
                  noise_scale: float = DEFAULTS["noise_scale"], pull_profile: bool = DEFAULTS["pull_profile"],
-                 jobs: int = 0):
+                 residual_gain=DEFAULTS["residual_gain"], jobs: int = 0):
         self.representation = representation
         self.kernel = kernel
         self.rho_rot = rho_rot
@@ -509,11 +509,13 @@ class RigidBodyGP:
         self.start_conditioning = start_conditioning
         self.noise_scale = noise_scale
         self.pull_profile = pull_profile
+        self.residual_gain = residual_gain
         self.jobs = jobs
 
     _TRAIN = ("rho_rot", "restarts", "explore_size", "seed", "noise", "share_hyperparameters", "subsample",
               "max_points", "train_rate", "smooth_window", "smooth_degree", "time_input", "prior", "prior_gain",
-              "inducing", "hyper_points", "calibrate_noise", "start_conditioning", "noise_scale", "pull_profile")
+              "inducing", "hyper_points", "calibrate_noise", "start_conditioning", "noise_scale", "pull_profile",
+              "residual_gain")
 
     def get_params(self, deep: bool = True) -> dict:
         """The constructor's parameters (scikit-learn convention)."""
