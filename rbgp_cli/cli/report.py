@@ -144,16 +144,23 @@ def _variation_text(v: dict) -> str:
 def _residual_gain_text(r: dict, gain=None) -> str:
     """The gain on the GP's residual mean (``summary["residual_gain"]``, dynamics/residual_gain.py): how it
     was set and, when chosen, the left-out rollouts' relative errors per gain."""
-    g = float(r.get("gain", 1.0) if gain is None else gain)
+    r = r if isinstance(r, dict) else {}  # a model file's summary is free-form: shown as far as it makes sense
+    try:
+        g = float(r.get("gain", 1.0) if gain is None else gain)
+    except (TypeError, ValueError):
+        g = 1.0
     line = f"GP residual gain: {g:g}"
-    if r.get("chosen") == "left-out rollouts" and r.get("grid"):
-        errs = ", ".join(f"{x:g}: {e:.3f}" for x, e in zip(r["grid"], r.get("error", [])))
-        line += (f", chosen by rolling out each of {r.get('demos', '?')} demonstrations with the GP that has not seen "
-                 f"it (relative error, 1 = without the GP: {errs}; the smaller gain within one standard error)")
-    elif r.get("chosen") == "given":
-        line += " (given)"
-    elif r.get("reason"):
-        line += f" ({r['reason']})"
+    try:
+        if r.get("chosen") == "left-out rollouts" and r.get("grid"):
+            errs = ", ".join(f"{float(x):g}: {float(e):.3f}" for x, e in zip(r["grid"], r.get("error", [])))
+            line += (f", chosen by rolling out each of {r.get('demos', '?')} demonstrations with the GP that has not "
+                     f"seen it (relative error, 1 = without the GP: {errs}; the smaller gain within one standard error)")
+        elif r.get("chosen") == "given":
+            line += " (given)"
+        elif r.get("reason"):
+            line += f" ({_value(r['reason'])})"
+    except (TypeError, ValueError, KeyError):
+        pass
     return line
 
 
