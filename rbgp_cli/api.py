@@ -229,11 +229,13 @@ def train_options(*, rho_rot=DEFAULTS["rho_rot"], restarts: int = DEFAULTS["rest
                   calibrate_noise: bool = DEFAULTS["calibrate"],
                   start_conditioning: bool = DEFAULTS["start_conditioning"],
                   noise_scale: float = DEFAULTS["noise_scale"],
-                  pull_profile: bool = DEFAULTS["pull_profile"]) -> dict:
+                  pull_profile: bool = DEFAULTS["pull_profile"],
+                  residual_gain=DEFAULTS["residual_gain"]) -> dict:
     """Check the training options (named and spelled as ``rbgp train``'s, with ``_`` for ``-``) and
     build the keyword arguments of :func:`rbgp_cli.dynamics.model.train_model` (without representation,
     kernel and jobs). ``noise`` is ``"learn"`` or a positive number; ``time_input`` and ``prior`` accept
-    None or ``"none"``; ``train_rate`` 0 or None keeps the recorded samples; ``noise_scale`` ≥ 1.
+    None or ``"none"``; ``train_rate`` 0 or None keeps the recorded samples; ``noise_scale`` ≥ 1;
+    ``residual_gain`` ``"auto"`` or a number from 0 to 100 (the gain on the GP's residual mean).
 
     Examples
     --------
@@ -251,6 +253,13 @@ def train_options(*, rho_rot=DEFAULTS["rho_rot"], restarts: int = DEFAULTS["rest
     scale = _number(noise_scale, "noise_scale")
     if not scale >= 1.0 or not np.isfinite(scale):
         raise InputError(f"noise_scale must be a number of at least 1, got {noise_scale}", param="noise_scale")
+    try:
+        gain = "auto" if str(residual_gain).strip().lower() == "auto" else float(residual_gain)
+    except (TypeError, ValueError):
+        gain = float("nan")
+    if gain != "auto" and not (np.isfinite(gain) and 0.0 <= gain <= 100.0):
+        raise InputError(f"residual_gain must be 'auto' or a number from 0 to 100, got {residual_gain}",
+                         param="residual_gain", hint="1 is the GP's full residual, 0 the path distribution alone")
     if prior_v == "path" and time_in != "phase":
         raise InputError("prior path follows the phase of the motion", param="prior",
                          hint="add time_input phase, or use prior goal or none")
@@ -264,6 +273,7 @@ def train_options(*, rho_rot=DEFAULTS["rho_rot"], restarts: int = DEFAULTS["rest
         "start_conditioning": bool(start_conditioning),
         "noise_scale": scale,
         "pull_profile": bool(pull_profile),
+        "residual_gain": gain,
     }
 
 
@@ -476,7 +486,7 @@ class RigidBodyGP:
                  hyper_points: int | None = None, calibrate_noise: bool = DEFAULTS["calibrate"],
                  start_conditioning: bool = DEFAULTS["start_conditioning"],
                  noise_scale: float = DEFAULTS["noise_scale"], pull_profile: bool = DEFAULTS["pull_profile"],
-                 jobs: int = 0):
+                 residual_gain=DEFAULTS["residual_gain"], jobs: int = 0):
         self.representation = representation
         self.kernel = kernel
         self.rho_rot = rho_rot
@@ -499,11 +509,13 @@ class RigidBodyGP:
         self.start_conditioning = start_conditioning
         self.noise_scale = noise_scale
         self.pull_profile = pull_profile
+        self.residual_gain = residual_gain
         self.jobs = jobs
 
     _TRAIN = ("rho_rot", "restarts", "explore_size", "seed", "noise", "share_hyperparameters", "subsample",
               "max_points", "train_rate", "smooth_window", "smooth_degree", "time_input", "prior", "prior_gain",
-              "inducing", "hyper_points", "calibrate_noise", "start_conditioning", "noise_scale", "pull_profile")
+              "inducing", "hyper_points", "calibrate_noise", "start_conditioning", "noise_scale", "pull_profile",
+              "residual_gain")
 
     def get_params(self, deep: bool = True) -> dict:
         """The constructor's parameters (scikit-learn convention)."""

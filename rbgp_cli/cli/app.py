@@ -14,7 +14,7 @@ import typer
 from rbgp_cli import __version__
 from rbgp_cli.cli.args import RbgpGroup, paths_option
 from rbgp_cli.cli.train_options import (
-    ExploreOpt, MaxPointsOpt, NoiseOpt, NoiseScaleOpt, PriorGainOpt, PriorOpt, PullProfileOpt, StartCondOpt, RestartsOpt, RhoOpt, SeedOpt, ShareOpt, SmoothDegreeOpt,
+    ExploreOpt, MaxPointsOpt, NoiseOpt, NoiseScaleOpt, PriorGainOpt, PriorOpt, PullProfileOpt, ResidualGainOpt, StartCondOpt, RestartsOpt, RhoOpt, SeedOpt, ShareOpt, SmoothDegreeOpt,
     CalibrateOpt, HyperPointsOpt, InducingOpt, SmoothWindowOpt, SubsampleOpt, TimeInputOpt, TrainRateOpt, defaults, kernel_help, train_kwargs,
 )
 from rbgp_cli.cli.common import (
@@ -70,7 +70,7 @@ def train(
     smooth_degree: SmoothDegreeOpt = _D["smooth_degree"], inducing: InducingOpt = None,
     hyper_points: HyperPointsOpt = None, calibrate_noise: CalibrateOpt = _D["calibrate"],
     start_conditioning: StartCondOpt = _D["start_conditioning"], noise_scale: NoiseScaleOpt = _D["noise_scale"],
-    pull_profile: PullProfileOpt = _D["pull_profile"],
+    pull_profile: PullProfileOpt = _D["pull_profile"], residual_gain: ResidualGainOpt = _D["residual_gain"],
     jobs: Annotated[int, typer.Option(min=0, help="Worker processes for the per-output fits (BLAS single-threaded in each; the model does not depend on it); 0 = one per output, fewer if memory is short, 1 on a single core.", rich_help_panel=_TRAIN)] = 0,
     json_out: Annotated[bool, typer.Option("--json", help="Print the summary as JSON on stdout.", rich_help_panel=_OUT)] = False,
     rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd) of the demonstrations and training points.", rich_help_panel=_OUT)] = None,
@@ -91,7 +91,7 @@ def train(
                           time_input=time_input, prior=prior, prior_gain=prior_gain, inducing=inducing,
                           hyper_points=hyper_points, calibrate_noise=calibrate_noise,
                           start_conditioning=start_conditioning, noise_scale=noise_scale,
-                          pull_profile=pull_profile)
+                          pull_profile=pull_profile, residual_gain=residual_gain)
     if up not in ("z", "y"):
         raise InputError(f"--up must be z or y, got {up!r}")
     check_outputs(output, rerun)
@@ -577,7 +577,7 @@ def crossval(
     smooth_degree: SmoothDegreeOpt = _D["smooth_degree"], inducing: InducingOpt = None,
     hyper_points: HyperPointsOpt = None, calibrate_noise: CalibrateOpt = _D["calibrate"],
     start_conditioning: StartCondOpt = _D["start_conditioning"], noise_scale: NoiseScaleOpt = _D["noise_scale"],
-    pull_profile: PullProfileOpt = _D["pull_profile"],
+    pull_profile: PullProfileOpt = _D["pull_profile"], residual_gain: ResidualGainOpt = _D["residual_gain"],
     read: ReadArgs = None,
 ):
     """Cross-validate by demonstration: how well generated motions hold up from start poses the model has
@@ -606,7 +606,7 @@ def crossval(
                           time_input=time_input, prior=prior, prior_gain=prior_gain, inducing=inducing,
                           hyper_points=hyper_points, calibrate_noise=calibrate_noise,
                           start_conditioning=start_conditioning, noise_scale=noise_scale,
-                          pull_profile=pull_profile)
+                          pull_profile=pull_profile, residual_gain=residual_gain)
     goal = None
     if given and any(str(v).strip().lower() == "goal" for v in given):
         if len(given) > 1:

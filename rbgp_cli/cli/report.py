@@ -52,6 +52,8 @@ def format_train_summary(s: dict) -> str:
         lines.append(_variation_text(s["variation"]))
     if s.get("paths"):
         lines.append(_paths_text(s["paths"]))
+    if s.get("residual_gain"):
+        lines.append(_residual_gain_text(s["residual_gain"]))
     gp = s.get("gp") or {}
     if gp.get("type") == "sparse":
         lines.append(f"sparse GP, {gp['inducing']} inducing poses (NLML column: the negative variational bound): {gp['reason']}")
@@ -139,6 +141,29 @@ def _variation_text(v: dict) -> str:
     return line
 
 
+def _residual_gain_text(r: dict, gain=None) -> str:
+    """The gain on the GP's residual mean (``summary["residual_gain"]``, dynamics/residual_gain.py): how it
+    was set and, when chosen, the left-out rollouts' relative errors per gain."""
+    r = r if isinstance(r, dict) else {}  # a model file's summary is free-form: shown as far as it makes sense
+    try:
+        g = float(r.get("gain", 1.0) if gain is None else gain)
+    except (TypeError, ValueError):
+        g = 1.0
+    line = f"GP residual gain: {g:g}"
+    try:
+        if r.get("chosen") == "left-out rollouts" and r.get("grid"):
+            errs = ", ".join(f"{float(x):g}: {float(e):.3f}" for x, e in zip(r["grid"], r.get("error", [])))
+            line += (f", chosen by rolling out each of {r.get('demos', '?')} demonstrations with the GP that has not "
+                     f"seen it (relative error, 1 = without the GP: {errs}; the smaller gain within one standard error)")
+        elif r.get("chosen") == "given":
+            line += " (given)"
+        elif r.get("reason"):
+            line += f" ({_value(r['reason'])})"
+    except (TypeError, ValueError, KeyError):
+        pass
+    return line
+
+
 def _paths_text(p: dict) -> str:
     """One line on the path distribution that goals, via-points and a seen beginning condition
     (docs/method.md §12)."""
@@ -168,7 +193,9 @@ def format_model_info(path: str, h: dict) -> str:
     ] + ([f"sparse GP: {h['gp']['inducing']} inducing poses (NLML: the negative variational bound)"]
          if (h.get("gp") or {}).get("type") == "sparse" else []) + (
         [_variation_text({**(s.get("variation") or {}), **h["variation"]})] if h.get("variation") else []) + (
-        [_paths_text(h["paths"])] if h.get("paths") else [])
+        [_paths_text(h["paths"])] if h.get("paths") else []) + (
+        [_residual_gain_text(s.get("residual_gain") or {}, h.get("residual_gain", 1.0))]
+        if "residual_gain" in h or s.get("residual_gain") else [])
     names = ["all"] if h["shared"] else h.get("output_names", [])
     for nm, f in zip(names, h["fits"]):
         cal = f.get("calibration")

@@ -17,7 +17,7 @@ from rbgp_cli.dynamics.defaults import DEFAULTS
 __all__ = [
     "ModelPanel", "RhoOpt", "RestartsOpt", "ExploreOpt", "SeedOpt", "NoiseOpt", "ShareOpt", "SubsampleOpt",
     "MaxPointsOpt", "TrainRateOpt", "SmoothWindowOpt", "SmoothDegreeOpt", "TimeInputOpt", "PriorOpt",
-    "PriorGainOpt", "StartCondOpt", "NoiseScaleOpt", "InducingOpt", "train_kwargs", "train_option_names", "GRID_LISTS", "grid_variants",
+    "PriorGainOpt", "StartCondOpt", "NoiseScaleOpt", "ResidualGainOpt", "InducingOpt", "train_kwargs", "train_option_names", "GRID_LISTS", "grid_variants",
 ]
 
 ModelPanel = "Model"
@@ -40,6 +40,7 @@ PriorGainOpt = Annotated[float, typer.Option("--prior-gain", min=0.0, help="How 
 StartCondOpt = Annotated[bool, typer.Option("--start-conditioning/--no-start-conditioning", help="With --prior path: pull each motion toward the mean path displaced by the deviation the demonstrations keep from a start like its own (its conditional mean given the start: a ridge map over all six coordinates, its strength by cross-validation), not toward the mean path itself; chosen by crossval.", rich_help_panel=ModelPanel)]
 PullProfileOpt = Annotated[bool, typer.Option("--pull-profile/--no-pull-profile", help="With --start-conditioning: the pull's gain per phase and coordinate follows how fast the demonstrations converge on their start-conditioned paths (rising up to 20 per unit phase where they close in on a common pose, e.g. the end of a reach; --prior-gain elsewhere), so a rollout converges as they do; --no-pull-profile: --prior-gain throughout. Chosen by crossval.", rich_help_panel=ModelPanel)]
 NoiseScaleOpt = Annotated[float, typer.Option("--noise-scale", min=1.0, help="After the fit (and --calibrate-noise), multiply the posterior's noise variance by this factor (1: not): the mean rollout then leans further on the prior's motion (--prior path: the start-conditioned mean path) and less on the training demonstrations' own deviations; chosen by crossval.", rich_help_panel=ModelPanel)]
+ResidualGainOpt = Annotated[str, typer.Option("--residual-gain", metavar="auto|G", help="The gain g on the GP's residual mean: velocity = prior mean + g × the GP's residual. auto (the default) chooses g from 0, 0.25, 0.5, 1 by rolling out each demonstration with the GP that has not seen it (the smaller gain unless a larger one is better by more than one standard error); a number fixes it (1: the full GP, 0: the path distribution alone). rbgp info shows the gain and the left-out errors.", rich_help_panel=ModelPanel)]
 TrainRateOpt = Annotated[float, typer.Option("--train-rate", min=0.0, help="Resample each demonstration to this rate (Hz) before estimating velocities; the rollout step follows it. 0 keeps the recorded samples.", rich_help_panel=_VEL)]
 SmoothWindowOpt = Annotated[float, typer.Option("--smooth-window", min=0.0, help="Estimate velocities by a local polynomial fit over this many seconds around each sample (Savitzky–Golay type, in the rotation's tangent space); 0: forward differences.", rich_help_panel=_VEL)]
 SmoothDegreeOpt = Annotated[int, typer.Option("--smooth-degree", min=1, max=4, help="Degree of the local polynomial fit.", rich_help_panel=_VEL)]
@@ -50,7 +51,8 @@ def train_kwargs(*, rho_rot: str, restarts: int, explore_size: int, seed: int, n
                  time_input: str, prior: str, prior_gain: float, inducing: int | None = None,
                  hyper_points: int | None = None, calibrate_noise: bool = DEFAULTS["calibrate"],
                  start_conditioning: bool = DEFAULTS["start_conditioning"],
-                 noise_scale: float = DEFAULTS["noise_scale"], pull_profile: bool = DEFAULTS["pull_profile"]) -> dict:
+                 noise_scale: float = DEFAULTS["noise_scale"], pull_profile: bool = DEFAULTS["pull_profile"],
+                 residual_gain: str = DEFAULTS["residual_gain"]) -> dict:
     """Check the option values and build the keyword arguments of
     :func:`rbgp_cli.dynamics.model.train_model` (without representation and kernel): the library's
     :func:`rbgp_cli.api.train_options`, whose errors name the parameters (the command shows the flags)."""
@@ -61,7 +63,8 @@ def train_kwargs(*, rho_rot: str, restarts: int, explore_size: int, seed: int, n
                          train_rate=train_rate, smooth_window=smooth_window, smooth_degree=smooth_degree,
                          time_input=time_input, prior=prior, prior_gain=prior_gain, inducing=inducing,
                          hyper_points=hyper_points, calibrate_noise=calibrate_noise,
-                         start_conditioning=start_conditioning, noise_scale=noise_scale, pull_profile=pull_profile)
+                         start_conditioning=start_conditioning, noise_scale=noise_scale, pull_profile=pull_profile,
+                         residual_gain=residual_gain)
 
 
 def defaults() -> dict:

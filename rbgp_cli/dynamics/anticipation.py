@@ -608,7 +608,7 @@ class Anticipator:
         states = [X]
         with blas_threads(0):
             for _ in range(steps):
-                mu = model.gp.predict(X, manage_threads=False)
+                mu = model.residual(X, manage_threads=False)  # the GP's residual times the model's gain g
                 mu = mu + prior_mean_outputs(model.representation, X[:, :pd], ref, X[:, -1], path=reference, step=h)
                 X = model.advance(X, mu, dt, D)
                 states.append(X)

@@ -38,6 +38,10 @@ DEFAULTS = {
     # field trusts the training pairs less and the mean stays nearer the start-conditioned mean path
     # (docs/defaults.md measured 1, 16, 256, 4096; 256 with the weak pull is the default)
     "noise_scale": 256.0,
+    # the gain g on the GP's residual mean, ξ = m + g·μ_GP: "auto" chooses it from {0, ¼, ½, 1} by rolling
+    # out each demonstration with the GP that has not seen it (dynamics/residual_gain.py; docs/defaults.md,
+    # "The GP's residual, chosen by leaving demonstrations out"); a number fixes it (1: the full model)
+    "residual_gain": "auto",
 }
 
 #: The kernel each representation trains with unless one is named (``kernel=None``).

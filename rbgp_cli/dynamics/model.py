@@ -104,6 +104,10 @@ class MotionModel:
     #: and a motion's seen beginning (:class:`rbgp_cli.dynamics.paths.PathDistribution`); None for fewer
     #: than three demonstrations or a model file from before format 8
     paths: object | None = None
+    #: g, the gain on the GP's residual mean (docs/method.md §7, "The residual's gain"): the velocity is
+    #: m(x) + g · μ_GP(x); 1 the full model (and every model file without it), 0 the path distribution
+    #: alone; chosen by leaving demonstrations out (:mod:`rbgp_cli.dynamics.residual_gain`)
+    residual_gain: float = 1.0
 
     @property
     def recorded_rate(self) -> float | None:
@@ -224,10 +228,21 @@ class MotionModel:
 
         return replace(self, gp=PriorOnly(self.gp))
 
+    def residual(self, X, manage_threads: bool = True) -> np.ndarray:
+        """The GP's residual mean at inputs X (m, d) times the model's :attr:`residual_gain` g, (m, L):
+        what the velocity adds to the prior mean (g = 1: the GP's posterior mean itself)."""
+        out = self.gp.predict(X, manage_threads=manage_threads)
+        g = float(self.residual_gain)
+        return out if g == 1.0 else g * out
+
     def predict_output(self, X, return_std: bool = False, manage_threads: bool = True, start_dev=None, step=None):
         """Outputs (velocities in the representation's coordinates, per second or per unit phase) at
-        inputs X (m, d): the GP's prediction plus the prior mean (``start_dev``, ``step``: :meth:`prior_mean`)."""
+        inputs X (m, d): the prior mean plus the GP's prediction, its mean times the residual gain g
+        (:attr:`residual_gain`; the std is the GP's own) (``start_dev``, ``step``: :meth:`prior_mean`)."""
         out = self.gp.predict(X, return_std=return_std, manage_threads=manage_threads)
+        g = float(self.residual_gain)
+        if g != 1.0:
+            out = (g * out[0], out[1]) if return_std else g * out
         m = self.prior_mean(np.asarray(X, dtype=np.float64), start_dev, step)
         if m is None:
             return out
@@ -249,6 +264,7 @@ class MotionModel:
                                  "as an input", hint="give a time column with the poses")
             X = np.concatenate([X, np.asarray(tau, float).reshape(-1, 1)], axis=1)
         mean, std = self.gp.predict(X, return_std=True, noisy=noisy)
+        mean = float(self.residual_gain) * mean
         dev = None
         if start is not None:
             dev = self.start_deviation(np.asarray(start[0], float).reshape(-1, 4), np.asarray(start[1], float).reshape(-1, 3))
@@ -665,6 +681,7 @@ def train_model(
     start_conditioning: bool = DEFAULTS["start_conditioning"],
     noise_scale: float = DEFAULTS["noise_scale"],
     pull_profile: bool = DEFAULTS["pull_profile"],
+    residual_gain: float | str = DEFAULTS["residual_gain"],
 ) -> MotionModel:
     """Train a motion model on clean demonstrations (see :func:`rbgp_cli.dynamics.prepare.prepare_all`).
 
@@ -700,6 +717,10 @@ def train_model(
     (:func:`rbgp_cli.dynamics.variation.start_map`, its ridge chosen by cross-validation over the
     demonstrations) instead of toward the mean path itself; the
     training residuals use each demonstration's own start, a rollout its start (docs/method.md §11).
+    ``residual_gain``: g ≥ 0 on the GP's residual mean (:attr:`MotionModel.residual_gain`), or ``"auto"``:
+    chosen by rolling out each demonstration with the GP that has not seen it
+    (:func:`rbgp_cli.dynamics.residual_gain.choose_residual_gain`; 1 where it cannot be: a sparse GP, no
+    phase input, fewer than three demonstrations); ``summary["residual_gain"]`` says which and why.
     """
     t0 = time.perf_counter()
     rep, kernel, kern = _checked_model_options(representation, kernel, rho_rot, time_input, prior, prior_gain, euler_order)
@@ -742,11 +763,46 @@ def train_model(
     dt = 1.0 / velocity.rate if velocity.rate is not None else recorded_dt
     starts = np.array([np.concatenate([tr.quat[0], tr.position[0]]) for tr in trajs])
     durations = np.array([tr.duration for tr in trajs])
-    summary = _train_summary(rep, kernel, kern, trajs, info, shared, velocity, gp, gp_choice, mean, side.variation,
-                             time_input, recorded_dt, t0, paths=side.paths)
-    return MotionModel(rep, gp, float(dt), starts, durations, summary=summary, velocity=velocity,
-                       time_input=time_input, mean=mean, variation=side.variation, envelope=side.envelope,
-                       paths=side.paths)
+    model = MotionModel(rep, gp, float(dt), starts, durations, velocity=velocity, time_input=time_input, mean=mean,
+                        variation=side.variation, envelope=side.envelope, paths=side.paths)
+    gain = _residual_gain_of(model, trajs, info, residual_gain, progress, seed)
+    model.summary = _train_summary(rep, kernel, kern, trajs, info, shared, velocity, gp, gp_choice, mean, side.variation,
+                                   time_input, recorded_dt, t0, paths=side.paths)
+    model.summary["residual_gain"] = gain
+    return model
+
+
+def _residual_gain_of(model, trajs, info, residual_gain, progress, seed: int = 0) -> dict:
+    """Set ``model.residual_gain``: the number given, or with ``"auto"`` the gain chosen by leaving
+    demonstrations out (:func:`rbgp_cli.dynamics.residual_gain.choose_residual_gain`; 1 where it cannot
+    be chosen). Returns the summary's record: {"gain", "chosen": "given" | "left-out rollouts" | "default",
+    and the choice's errors, or a "reason"}."""
+    if residual_gain is None or (isinstance(residual_gain, str) and residual_gain == "auto"):
+        from rbgp_cli.dynamics.residual_gain import choose_residual_gain
+
+        groups = np.repeat(np.arange(len(info["per_demo"])), info["per_demo"])[np.asarray(info["indices"])]
+        with blas_threads(0):
+            choice = None if model.mean is None else choose_residual_gain(model, trajs, groups, seed=seed)
+        if choice is None:
+            model.residual_gain = 1.0
+            return {"gain": 1.0, "chosen": "default",
+                    "reason": "not chosen: needs an exact GP with the phase input, a prior mean and 3 demonstrations"}
+        model.residual_gain = choice["gain"]
+        if progress:
+            progress(f"GP residual gain {choice['gain']:g} (left-out rollouts of {choice['demos']} demonstrations, "
+                     "relative error " + ", ".join(f"{g:g}: {e:.3f}" for g, e in zip(choice["grid"], choice["error"]))
+                     + f"; {choice['seconds']:.2f} s)")
+        return {**{k: (round(v, 6) if isinstance(v, float) else v) for k, v in choice.items()},
+                "error": [round(v, 5) for v in choice["error"]],
+                "standard_error": [round(v, 5) for v in choice["standard_error"]],
+                "position_rmse": [round(v, 6) for v in choice["position_rmse"]],
+                "rotation_rmse": [round(v, 6) for v in choice["rotation_rmse"]], "chosen": "left-out rollouts"}
+    g = float(residual_gain)
+    if not (np.isfinite(g) and 0.0 <= g <= 100.0):
+        raise InputError(f"residual_gain must be 'auto' or a number from 0 to 100, got {residual_gain}",
+                         param="residual_gain")
+    model.residual_gain = g
+    return {"gain": g, "chosen": "given"}
 
 
 class _WithoutGP:

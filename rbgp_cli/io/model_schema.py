@@ -257,6 +257,8 @@ TOP: dict = {
         # version 9: the shrinkage of the covariance between coordinates (dynamics/variation.shrinkage)
         "shrinkage": num(0.0, 1.0, what="a weight in [0, 1]"),
     }, ("demos", "steps")))),
+    # optional: the gain g on the GP's residual mean (dynamics/residual_gain.py); absent: 1, the full GP
+    "residual_gain": (10**6, num(0.0, 100.0, what="a gain from 0 to 100")),
     # version 8 (optional): the path distribution (dynamics/paths.py)
     "paths": (10**6, nullable(obj({
         "demos": integer(3, 10**7), "steps": integer(2, 10**5),

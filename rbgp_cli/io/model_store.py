@@ -215,6 +215,8 @@ def save_model(model, path) -> dict:
         header["paths"] = paths.header()
     if getattr(model, "envelope", None) is not None:  # optional: files without it load (computed then)
         header["envelope"] = model.envelope.to_dict()
+    # optional: the gain on the GP's residual mean (dynamics/residual_gain.py); files without it load with 1
+    header["residual_gain"] = float(getattr(model, "residual_gain", 1.0))
     header = json.loads(canonical_json(header))  # as a reader will parse it (keys as strings, tuples as lists)
     header["checksums"]["header"] = header_sha256(header)
     raw = canonical_json(header)
@@ -529,7 +531,7 @@ def load_model(path):
     return MotionModel(rep, gp, dt, arrays["starts"], arrays["durations"],
                        summary=header.get("summary", {}), provenance=header.get("provenance", {}),
                        velocity=velocity, time_input=time_input, mean=mean, variation=variation, envelope=envelope,
-                       paths=paths), header
+                       paths=paths, residual_gain=float(header.get("residual_gain", 1.0))), header
 
 
 #: Training inputs at which a loaded model must predict finite velocities (spread over the data).
