@@ -637,15 +637,6 @@ def crossval(
         print(format_crossval(result, per_fold=per_fold))
 
 
-def _nan_to_null(obj):
-    """``obj`` with every float NaN inside its dicts and lists replaced by None (JSON has no NaN)."""
-    if isinstance(obj, dict):
-        return {k: _nan_to_null(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_nan_to_null(v) for v in obj]
-    return None if isinstance(obj, float) and obj != obj else obj
-
-
 def _crossval_given(demos, given, kwargs, read, *, folds, seed, samples, peers, json_out, grid, representation, kernel):
     """crossval --given F: a motion under way (rbgp_cli.evaluation.under_way)."""
     from rbgp_cli import workflows
@@ -661,8 +652,8 @@ def _crossval_given(demos, given, kwargs, read, *, folds, seed, samples, peers, 
         raise InputError("--given runs the default representation and kernel", hint="drop --grid, --representation and --kernel")
     result = workflows.crossval_under_way(demos, fractions, kwargs, options=read.options, max_gap=read.max_gap, folds=folds,
                                           seed=seed, samples=samples, progress=progress, peers=peers)
-    if json_out:  # a method without samples (nearest) has no coverage: null, not NaN (which JSON has not)
-        emit_json(_nan_to_null(result))
+    if json_out:  # a method without samples (nearest) has no coverage: emit_json writes it as null
+        emit_json(result)
     else:
         from rbgp_cli.cli.report import format_under_way
 

@@ -429,9 +429,22 @@ def need_flags(text: str) -> str:
 
 
 def emit_json(obj) -> None:
-    """Write JSON to stdout (data), one document, newline-terminated."""
-    sys.stdout.write(json.dumps(obj, indent=2, sort_keys=False, default=_json_default, allow_nan=False) + "\n")
+    """Write JSON to stdout (data), one document, newline-terminated; a float NaN anywhere in it (a
+    method without samples has no coverage) is written as null, since JSON has no NaN."""
+    sys.stdout.write(json.dumps(_nan_to_null(obj), indent=2, sort_keys=False, default=_json_default,
+                                allow_nan=False) + "\n")
     sys.stdout.flush()
+
+
+def _nan_to_null(obj):
+    """``obj`` with every float NaN inside its dicts, lists and numpy arrays replaced by None."""
+    if isinstance(obj, dict):
+        return {k: _nan_to_null(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_nan_to_null(v) for v in obj]
+    if type(obj).__module__ == "numpy" and hasattr(obj, "tolist"):
+        return _nan_to_null(obj.tolist())
+    return None if isinstance(obj, float) and obj != obj else obj
 
 
 def _json_default(o):
