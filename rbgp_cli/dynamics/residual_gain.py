@@ -18,9 +18,22 @@ rows b of demonstration d, the weights of the posterior on the other rows (the p
 
     α₋d = α_¬b − B_¬b,b (B_bb)⁻¹ α_b     (zero on the rows b),
 
-exactly C_¬b¬b⁻¹ y_¬b, without a refit. The hyperparameters, the calibrated noise and the path
-distribution are the model's own (fitted with d): only the GP's residual is left out; the mean path
-then knows d a little (weight 1/D), which favours smaller gains, the conservative side.
+exactly C_¬b¬b⁻¹ y_¬b, without a refit.
+
+**The prior without a demonstration** (issue 36, seventh pass). The prior mean m steers the rollout as
+much as the residual does, and a prior fitted with d predicts d better than a new motion (its mean path
+by weight 1/D, its start map's six inputs by their leverage): the left-out rollouts then favour g = 0.
+So m₋d is refitted without d (:func:`left_out_priors`: the mean path, the deviations from it, the start
+map μ₋d(s) + B₋d(s) c(0) at the model's ridge λ and units, the pull's profile), the GP that has not seen
+d is the one on the other rows' residuals from m₋d,
+
+    y_d = y + m(X) − m₋d(X)   (y the GP's targets, the training velocities less m),
+    α₋d = C_¬b¬b⁻¹ (y_d)_¬b = (B y_d)_¬b − B_¬b,b (B_bb)⁻¹ (B y_d)_b,
+
+and d's rollout follows m₋d(x) + g k(x, X) α₋d (:class:`StackedPriors`: each rollout row its own m₋d):
+the model :func:`~rbgp_cli.dynamics.model.train_model` makes without d, but for what is kept from the
+fit on all D: the GP's hyperparameters and noise factor, the start map's ridge λ and units (each chosen
+by its own folds over all D), and the rows of the left-out posteriors.
 
 **The criterion.** For each gain g of the grid, J_d(g) = ½ (P_d(g)/P̄(0) + R_d(g)/R̄(0)), with P_d and
 R_d the mean squared position (m²) and rotation angle (rad²) error of demonstration d's left-out rollout
@@ -30,7 +43,8 @@ unless a smaller gain is within one standard error of the paired differences J_d
 (the one-standard-error rule: the simpler model unless the folds' noise cannot explain the gain).
 
 Cost: one Cholesky factor and inverse per hyperparameter set (m³, on at most m = LEFT_OUT_POINTS rows:
-:func:`subset_posterior`), and one batched rollout of D × G trajectories (D at most LEFT_OUT_DEMOS) at the training step (one
+:func:`subset_posterior`), the D left-out priors and their targets (one product B [y_1 … y_D] per set),
+and one batched rollout of D × G trajectories (D at most LEFT_OUT_DEMOS) at the training step (one
 kernel block of (D·G) × m per step and set).
 """
 
