@@ -153,7 +153,8 @@ def _residual_gain_text(r: dict, gain=None) -> str:
     try:
         if r.get("chosen") == "left-out rollouts" and r.get("grid"):
             errs = ", ".join(f"{float(x):g}: {float(e):.3f}" for x, e in zip(r["grid"], r.get("error", [])))
-            line += (f", chosen by rolling out each of {r.get('demos', '?')} demonstrations with the GP that has not "
+            model = "the GP and mean path that have" if r.get("prior") == "left out" else "the GP that has"
+            line += (f", chosen by rolling out each of {r.get('demos', '?')} demonstrations with {model} not "
                      f"seen it (relative error, 1 = without the GP: {errs}; the smaller gain within one standard error)")
         elif r.get("chosen") == "given":
             line += " (given)"

@@ -782,7 +782,8 @@ def _residual_gain_of(model, trajs, info, residual_gain, progress, seed: int = 0
 
         groups = np.repeat(np.arange(len(info["per_demo"])), info["per_demo"])[np.asarray(info["indices"])]
         with blas_threads(0):
-            choice = None if model.mean is None else choose_residual_gain(model, trajs, groups, seed=seed)
+            choice = None if model.mean is None else choose_residual_gain(model, trajs, groups, seed=seed,
+                                                                            phase_steps=info.get("phase_steps"))
         if choice is None:
             model.residual_gain = 1.0
             return {"gain": 1.0, "chosen": "default",
