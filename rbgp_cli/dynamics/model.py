@@ -771,16 +771,19 @@ def train_model(
                 gp_q, choice_q = _fit_exact(X, Y, kern, dict(gp_choice), min(QUICK_HYPER_POINTS, hp) if hp > 0
                                             else QUICK_HYPER_POINTS, jobs,
                                             dict(fit, restarts=1, beside=side.start, factorise=not replaced))
-                gp_q = _scaled_posterior_noise(gp_q, choice_q, info, calibrate, noise_scale, seed, progress)
+                gp_q = _scaled_posterior_noise(gp_q, choice_q, info, calibrate, noise_scale, seed, progress,
+                                               QUICK_CALIBRATION_POINTS)
                 side()  # waits for the thread
                 model = motion_model(gp_q)
                 gain = _residual_gain_of(model, trajs, info, residual_gain, progress, seed)
                 if residual_off_clearly(gain):
                     gp, gp_choice = gp_q, choice_q
                     gain["fit"] = {"full_fit": False, "hyper_points": int(choice_q["hyper_points"]), "restarts": 1,
+                                   "calibration_points": QUICK_CALIBRATION_POINTS,
                                    "reason": "the GP's residual is off by more than one standard error of every other "
                                    "gain already with a cheap fit (one start on at most "
-                                   f"{QUICK_HYPER_POINTS} points); the full fit was skipped"}
+                                   f"{QUICK_HYPER_POINTS} points, the noise calibrated on at most "
+                                   f"{QUICK_CALIBRATION_POINTS}); the full fit was skipped"}
                     if progress:
                         progress("GP residual off by a clear margin: the full fit was skipped "
                                  "(--residual-gain 1 fits it)")
@@ -798,7 +801,8 @@ def train_model(
         gain = _residual_gain_of(model, trajs, info, residual_gain, progress, seed)
         if quick:
             gain["fit"] = {"full_fit": True, "reason": "a cheap fit first (one start on at most "
-                           f"{QUICK_HYPER_POINTS} points) did not switch the GP's residual off by a clear margin"}
+                           f"{QUICK_HYPER_POINTS} points, the noise calibrated on at most {QUICK_CALIBRATION_POINTS}) "
+                           "did not switch the GP's residual off by a clear margin"}
     model.summary = _train_summary(rep, kernel, kern, trajs, info, shared, velocity, gp, gp_choice, mean, side.variation,
                                    time_input, recorded_dt, t0, paths=side.paths)
     model.summary["residual_gain"] = gain
@@ -806,8 +810,12 @@ def train_model(
 
 
 #: The cheap fit that chooses the residual's gain first (:func:`train_model` with ``residual_gain="auto"``): the
-#: hyperparameters from one start (the data-driven one) on a random this many training points.
+#: hyperparameters from one start (the data-driven one) on a random this many training points, ...
 QUICK_HYPER_POINTS = 200
+#: ... and the noise calibrated on at most this many (the full fit's: 1000, gp.calibration.CALIBRATION_POINTS;
+#: its eigendecompositions cost 8× less). On the five real and sample sets the choice's margins moved by
+#: at most 0.1 standard errors (docs/defaults.md, issue 35's seventh pass).
+QUICK_CALIBRATION_POINTS = 500
 
 
 def _gain_first(residual_gain, time_input, mean, trajs) -> bool:
@@ -1064,16 +1072,18 @@ def _fit_sparse(X, Y, kern, gp_choice, info, hyper_points, jobs, *, noise, resta
     return gp, gp_choice, info
 
 
-def _scaled_posterior_noise(gp, gp_choice, info, calibrate, noise_scale, seed, progress):
+def _scaled_posterior_noise(gp, gp_choice, info, calibrate, noise_scale, seed, progress, points: int | None = None):
     """The posterior's σn² scaled: by held-out demonstrations (``calibrate``,
-    :func:`rbgp_cli.gp.calibration.calibrate_to_demonstrations`), then by ``noise_scale``
-    (:func:`rbgp_cli.gp.calibration.scale_noise`); ``gp_choice`` records the factors."""
+    :func:`rbgp_cli.gp.calibration.calibrate_to_demonstrations`, on at most ``points`` rows; None: its
+    default), then by ``noise_scale`` (:func:`rbgp_cli.gp.calibration.scale_noise`); ``gp_choice`` records
+    the factors."""
     if calibrate:
         from rbgp_cli.gp.calibration import calibrate_to_demonstrations
 
         groups = np.repeat(np.arange(len(info["per_demo"])), info["per_demo"])[info["indices"]]
         # the noise scale in the same posterior (one factorisation, not two)
-        gp, records = calibrate_to_demonstrations(gp, groups, seed=seed, extra_factor=noise_scale)
+        gp, records = calibrate_to_demonstrations(gp, groups, seed=seed, extra_factor=noise_scale,
+                                                  **({} if points is None else {"points": int(points)}))
         gp_choice["calibration"] = None if records is None else {
             "noise_variance_factors": [round(r["factor"], 3) for r in records],
             "points": records[0]["points"], "folds": records[0]["folds"]}

@@ -49,7 +49,7 @@ def test_a_residual_clearly_off_skips_the_full_fit_and_the_rollouts_are_those_of
     quick = train_model(train, **SMALL, calibrate=False, noise_scale=1.0)
     rec = quick.summary["residual_gain"]
     assert quick.residual_gain == 0.0 and residual_off_clearly(rec)
-    assert rec["fit"]["full_fit"] is False and rec["fit"]["restarts"] == 1
+    assert rec["fit"]["full_fit"] is False and rec["fit"]["restarts"] == 1 and rec["fit"]["calibration_points"] == 500
     assert quick.summary["gp"]["hyper_points"] == min(QUICK_HYPER_POINTS, len(quick.gp.X))
     # an explicit gain fits as before: three starts on up to 400 points, the same options otherwise
     full = train_model(train, **SMALL, calibrate=False, noise_scale=1.0, residual_gain=0.0)
