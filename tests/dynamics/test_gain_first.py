@@ -83,3 +83,14 @@ def test_a_residual_the_cheap_fit_leaves_open_gets_todays_full_fit():
         assert f.values == g.values
     np.testing.assert_array_equal(_rollouts(replace(model, residual_gain=1.0), demos[:3], 0).position,
                                   _rollouts(given, demos[:3], 0).position)
+
+
+@pytest.mark.slow
+def test_the_paper_scale_options_never_take_the_cheap_fit():
+    # bench_train_cli.py's paper-scale job pins --time-input none --prior none: the gain is 1 (not chosen)
+    # and the fit is the full one, as before
+    demos = family("noise", n=6, seed=1)
+    model = train_model(demos, **SMALL, time_input=None, prior=None)
+    rec = model.summary["residual_gain"]
+    assert rec["gain"] == 1.0 and rec["chosen"] == "default" and "fit" not in rec
+    assert model.summary["gp"]["hyper_points"] == min(400, len(model.gp.X))
