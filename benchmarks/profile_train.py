@@ -62,6 +62,7 @@ STAGES = (
     ("GP fit (hyperparameters + posterior)", "rbgp_cli.dynamics.model", "_fit_exact"),
     ("  posterior on all rows", "rbgp_cli.gp.exact", "_posterior_on_all_rows"),
     ("noise calibration", "rbgp_cli.dynamics.model", "_scaled_posterior_noise"),
+    ("residual gain (left-out rollouts)", "rbgp_cli.dynamics.residual_gain", "choose_residual_gain"),
     ("variation (bands' scale, drift)", "rbgp_cli.dynamics.variation", "demonstration_variation"),
     ("  band calibration", "rbgp_cli.dynamics.variation", "band_calibration"),
     ("  drift over recording order", "rbgp_cli.dynamics.variation", "order_drift"),
