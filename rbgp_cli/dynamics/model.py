@@ -744,7 +744,8 @@ def train_model(
                  f"({rep.name}, kernel {kernel}, {'shared' if shared else 'per-output'} hyperparameters)")
     fit = dict(noise=noise, restarts=restarts, seed=seed, shared=shared, progress=progress, explore_size=explore_size)
     side = _WithoutGP(trajs, mean)
-    if gp_choice["type"] == "sparse":
+    exact = gp_choice["type"] != "sparse"  # (a sparse fit may fall back on the exact GP: then fitted already)
+    if not exact:
         gp, gp_choice, info = _fit_sparse(X, Y, kern, gp_choice, info, hyper_points, jobs, max_points=max_points, **fit)
         gp = _scaled_posterior_noise(gp, gp_choice, info, calibrate, noise_scale, seed, progress)
         side()
@@ -758,8 +759,8 @@ def train_model(
                            variation=side.variation, envelope=side.envelope, paths=side.paths)
 
     gain = None
-    quick = gp_choice["type"] != "sparse" and _gain_first(residual_gain, time_input, mean, trajs)
-    if gp_choice["type"] != "sparse":
+    quick = exact and _gain_first(residual_gain, time_input, mean, trajs)
+    if exact:
         # the work that needs no GP runs on a thread of this process, started while the worker processes
         # fit the GP (when one of them has no output left), and goes on beside the posterior on all rows and
         # the calibration; BLAS single-threaded throughout, as the fit and the calibration run it
