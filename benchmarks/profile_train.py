@@ -46,7 +46,9 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 REALDATA = ROOT.parent / "shared" / "realdata"
-SETS = ("handover_object_csv", "hand_raise_csv", "handover_variation_csv")
+SETS = ("handover_object_csv", "hand_raise_csv", "handover_variation_csv", "bvh_wave")
+#: The body each set is read with (``rbgp train --body``): the waves are raw BVH skeletons.
+BODY = {"bvh_wave": "Hand_R"}
 
 #: (label, module, attribute, module whose name for it to patch): the stages of train_from_files, in
 #: the order they run. Patched where they are looked up (a ``from … import`` inside a function looks
@@ -60,6 +62,7 @@ STAGES = (
     ("GP fit (hyperparameters + posterior)", "rbgp_cli.dynamics.model", "_fit_exact"),
     ("  posterior on all rows", "rbgp_cli.gp.exact", "_posterior_on_all_rows"),
     ("noise calibration", "rbgp_cli.dynamics.model", "_scaled_posterior_noise"),
+    ("residual gain (left-out rollouts)", "rbgp_cli.dynamics.residual_gain", "choose_residual_gain"),
     ("variation (bands' scale, drift)", "rbgp_cli.dynamics.variation", "demonstration_variation"),
     ("  band calibration", "rbgp_cli.dynamics.variation", "band_calibration"),
     ("  drift over recording order", "rbgp_cli.dynamics.variation", "order_drift"),
@@ -186,9 +189,11 @@ PAPER_SCALE = dict(train_rate=0, inducing=0, subsample=1.0, max_points=1752, hyp
 
 def profile_once(demos: str, out: str, cprofile: str | None, paper_scale: bool = False):
     from rbgp_cli.api import train_options
+    from rbgp_cli.io.options import ReadOptions
     from rbgp_cli.workflows import train_from_files
 
     kwargs = dict(train_options(**PAPER_SCALE), kernel="se-chordal") if paper_scale else {}
+    kwargs["options"] = ReadOptions(body=BODY.get(Path(demos).name))
     rec = Recorder()
     rec.cprofile = cprofile
     c0, w0 = cpu_now(), time.perf_counter()

@@ -156,6 +156,11 @@ def _residual_gain_text(r: dict, gain=None) -> str:
             model = "the GP and mean path that have" if r.get("prior") == "left out" else "the GP that has"
             line += (f", chosen by rolling out each of {r.get('demos', '?')} demonstrations with {model} not "
                      f"seen it (relative error, 1 = without the GP: {errs}; the smaller gain within one standard error)")
+            fit = r.get("fit")
+            if isinstance(fit, dict) and fit.get("full_fit") is False:  # dynamics/model.py: the gain chosen first
+                line = (f"GP residual off (gain {g:g}), " + line.split(", ", 1)[1] + "; the full fit was skipped "
+                        f"(hyperparameters from one start on {fit.get('hyper_points', '?')} points), use "
+                        "--residual-gain 1 to fit it")
         elif r.get("chosen") == "given":
             line += " (given)"
         elif r.get("reason"):

@@ -744,32 +744,99 @@ def train_model(
                  f"({rep.name}, kernel {kernel}, {'shared' if shared else 'per-output'} hyperparameters)")
     fit = dict(noise=noise, restarts=restarts, seed=seed, shared=shared, progress=progress, explore_size=explore_size)
     side = _WithoutGP(trajs, mean)
-    if gp_choice["type"] == "sparse":
+    exact = gp_choice["type"] != "sparse"  # (a sparse fit may fall back on the exact GP: then fitted already)
+    if not exact:
         gp, gp_choice, info = _fit_sparse(X, Y, kern, gp_choice, info, hyper_points, jobs, max_points=max_points, **fit)
         gp = _scaled_posterior_noise(gp, gp_choice, info, calibrate, noise_scale, seed, progress)
         side()
-    else:
+    recorded_dt = float(np.median(np.concatenate([np.diff(tr.t) for tr in trajs])))
+    dt = 1.0 / velocity.rate if velocity.rate is not None else recorded_dt
+    starts = np.array([np.concatenate([tr.quat[0], tr.position[0]]) for tr in trajs])
+    durations = np.array([tr.duration for tr in trajs])
+
+    def motion_model(gp):
+        return MotionModel(rep, gp, float(dt), starts, durations, velocity=velocity, time_input=time_input, mean=mean,
+                           variation=side.variation, envelope=side.envelope, paths=side.paths)
+
+    gain = None
+    quick = exact and _gain_first(residual_gain, time_input, mean, trajs)
+    if exact:
         # the work that needs no GP runs on a thread of this process, started while the worker processes
         # fit the GP (when one of them has no output left), and goes on beside the posterior on all rows and
         # the calibration; BLAS single-threaded throughout, as the fit and the calibration run it
         with blas_threads(0):
             # the calibration and the noise scale make a posterior of their own: the fit's factors are not needed
             replaced = bool(calibrate) or noise_scale != 1.0
-            gp, gp_choice = _fit_exact(X, Y, kern, gp_choice, hyper_points, jobs,
-                                       dict(fit, beside=side.start, factorise=not replaced))
-            gp = _scaled_posterior_noise(gp, gp_choice, info, calibrate, noise_scale, seed, progress)
-            side()  # waits for the thread
-    recorded_dt = float(np.median(np.concatenate([np.diff(tr.t) for tr in trajs])))
-    dt = 1.0 / velocity.rate if velocity.rate is not None else recorded_dt
-    starts = np.array([np.concatenate([tr.quat[0], tr.position[0]]) for tr in trajs])
-    durations = np.array([tr.duration for tr in trajs])
-    model = MotionModel(rep, gp, float(dt), starts, durations, velocity=velocity, time_input=time_input, mean=mean,
-                        variation=side.variation, envelope=side.envelope, paths=side.paths)
-    gain = _residual_gain_of(model, trajs, info, residual_gain, progress, seed)
+            if quick:  # the gain chosen from a cheap fit first: the full fit only if the residual may pay
+                hp = EXACT_HYPER_POINTS if hyper_points is None else int(hyper_points)
+                gp_q, choice_q = _fit_exact(X, Y, kern, dict(gp_choice), min(QUICK_HYPER_POINTS, hp) if hp > 0
+                                            else QUICK_HYPER_POINTS, jobs,
+                                            dict(fit, restarts=1, beside=side.start, factorise=not replaced))
+                gp_q = _scaled_posterior_noise(gp_q, choice_q, info, calibrate, noise_scale, seed, progress,
+                                               QUICK_CALIBRATION_POINTS)
+                side()  # waits for the thread
+                model = motion_model(gp_q)
+                gain = _residual_gain_of(model, trajs, info, residual_gain, progress, seed)
+                if residual_off_clearly(gain):
+                    gp, gp_choice = gp_q, choice_q
+                    gain["fit"] = {"full_fit": False, "hyper_points": int(choice_q["hyper_points"]), "restarts": 1,
+                                   "calibration_points": QUICK_CALIBRATION_POINTS,
+                                   "reason": "the GP's residual is off by more than one standard error of every other "
+                                   "gain already with a cheap fit (one start on at most "
+                                   f"{QUICK_HYPER_POINTS} points, the noise calibrated on at most "
+                                   f"{QUICK_CALIBRATION_POINTS}); the full fit was skipped"}
+                    if progress:
+                        progress("GP residual off by a clear margin: the full fit was skipped "
+                                 "(--residual-gain 1 fits it)")
+                else:
+                    if progress:
+                        progress("the cheap fit leaves the GP's residual gain open: the full fit")
+                    gain = None
+            if gain is None:
+                gp, gp_choice = _fit_exact(X, Y, kern, gp_choice, hyper_points, jobs,
+                                           dict(fit, beside=side.start, factorise=not replaced))
+                gp = _scaled_posterior_noise(gp, gp_choice, info, calibrate, noise_scale, seed, progress)
+                side()  # waits for the thread (at once when the cheap fit ran it)
+    if gain is None:
+        model = motion_model(gp)
+        gain = _residual_gain_of(model, trajs, info, residual_gain, progress, seed)
+        if quick:
+            gain["fit"] = {"full_fit": True, "reason": "a cheap fit first (one start on at most "
+                           f"{QUICK_HYPER_POINTS} points, the noise calibrated on at most {QUICK_CALIBRATION_POINTS}) "
+                           "did not switch the GP's residual off by a clear margin"}
     model.summary = _train_summary(rep, kernel, kern, trajs, info, shared, velocity, gp, gp_choice, mean, side.variation,
                                    time_input, recorded_dt, t0, paths=side.paths)
     model.summary["residual_gain"] = gain
     return model
+
+
+#: The cheap fit that chooses the residual's gain first (:func:`train_model` with ``residual_gain="auto"``): the
+#: hyperparameters from one start (the data-driven one) on a random this many training points, ...
+QUICK_HYPER_POINTS = 200
+#: ... and the noise calibrated on at most this many (the full fit's: 1000, gp.calibration.CALIBRATION_POINTS;
+#: its eigendecompositions cost 8× less). On the five real and sample sets the choice's margins moved by
+#: at most 0.1 standard errors (docs/defaults.md, issue 35's seventh pass).
+QUICK_CALIBRATION_POINTS = 500
+
+
+def _gain_first(residual_gain, time_input, mean, trajs) -> bool:
+    """Whether :func:`train_model` chooses the residual's gain from a cheap fit first: ``"auto"`` with what
+    the choice needs (the phase input, the mean-path prior, three demonstrations; an exact GP)."""
+    auto = residual_gain is None or (isinstance(residual_gain, str) and residual_gain == "auto")
+    return bool(auto and time_input == "phase" and mean is not None and len(trajs) >= 3)
+
+
+def residual_off_clearly(gain: dict | None, margin: float = 1.0) -> bool:
+    """Whether a gain choice (``summary["residual_gain"]`` of :func:`_residual_gain_of`) switched the GP's
+    residual off by a clear margin: g = 0 chosen and the best, and every other gain's mean left-out error
+    J(g) above J(0) by more than ``margin`` standard errors of the paired differences J_d(g) − J_d(0)
+    (:func:`rbgp_cli.dynamics.residual_gain.choose_residual_gain`), so that the one-standard-error rule's
+    lean toward the smaller gain did not decide it."""
+    if not gain or gain.get("chosen") != "left-out rollouts" or gain.get("gain") != 0.0 or gain.get("best") != 0.0:
+        return False
+    grid, err, se = gain["grid"], gain["error"], gain["standard_error"]
+    i0 = grid.index(0.0)
+    return all(err[i] - err[i0] > margin * se[i] for i in range(len(grid)) if i != i0)
 
 
 def _residual_gain_of(model, trajs, info, residual_gain, progress, seed: int = 0) -> dict:
@@ -1007,16 +1074,18 @@ def _fit_sparse(X, Y, kern, gp_choice, info, hyper_points, jobs, *, noise, resta
     return gp, gp_choice, info
 
 
-def _scaled_posterior_noise(gp, gp_choice, info, calibrate, noise_scale, seed, progress):
+def _scaled_posterior_noise(gp, gp_choice, info, calibrate, noise_scale, seed, progress, points: int | None = None):
     """The posterior's σn² scaled: by held-out demonstrations (``calibrate``,
-    :func:`rbgp_cli.gp.calibration.calibrate_to_demonstrations`), then by ``noise_scale``
-    (:func:`rbgp_cli.gp.calibration.scale_noise`); ``gp_choice`` records the factors."""
+    :func:`rbgp_cli.gp.calibration.calibrate_to_demonstrations`, on at most ``points`` rows; None: its
+    default), then by ``noise_scale`` (:func:`rbgp_cli.gp.calibration.scale_noise`); ``gp_choice`` records
+    the factors."""
     if calibrate:
         from rbgp_cli.gp.calibration import calibrate_to_demonstrations
 
         groups = np.repeat(np.arange(len(info["per_demo"])), info["per_demo"])[info["indices"]]
         # the noise scale in the same posterior (one factorisation, not two)
-        gp, records = calibrate_to_demonstrations(gp, groups, seed=seed, extra_factor=noise_scale)
+        gp, records = calibrate_to_demonstrations(gp, groups, seed=seed, extra_factor=noise_scale,
+                                                  **({} if points is None else {"points": int(points)}))
         gp_choice["calibration"] = None if records is None else {
             "noise_variance_factors": [round(r["factor"], 3) for r in records],
             "points": records[0]["points"], "folds": records[0]["folds"]}

@@ -187,7 +187,11 @@ def test_the_demo_is_one_task_around_each_representations_training_and_rollout(t
 
     rec = Recorder()
     run_demo(tmp_path / "d", count=3, representations=["axis-angle", "euler"], quick=True, progress=rec)
-    assert [t["description"] for t in rec.tasks] == ["demo", "training", "rollout", "training", "rollout"]
+    descs = [t["description"] for t in rec.tasks]
+    # the gain chosen from a cheap fit first (dynamics/model.py) adds a training task before the full fit's
+    # where it leaves the gain open: consecutive training tasks are one training here
+    descs = [d for k, d in enumerate(descs) if not (k and d == "training" == descs[k - 1])]
+    assert descs == ["demo", "training", "rollout", "training", "rollout"]
     outer = rec.tasks[0]
     assert (outer["total"], outer["unit"], outer["advanced"], outer["closed"]) == (2, "representations", 2, True)
     assert outer["statuses"] == ["axis-angle", "euler"]
