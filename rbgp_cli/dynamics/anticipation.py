@@ -38,8 +38,11 @@ others' conditioned mean at phase 1, in units of each coordinate's spread, summe
 :data:`REST_SMOOTH_GRID` × :data:`SEEN_TOLERANCE_GRID` and the path distribution's own (τ², r), which ties keep;
 with fewer, (τ²_rest, r_rest) = (τ², r). The mean is the rest's conditioning; the samples' spread about it keeps
 the path distribution's (τ², r), the distribution the left-out remainders' density chose, and the factors
-(c_rot, c_pos) ≥ 1 make those remainders' 90 % regions hold under it (as
-:func:`~rbgp_cli.dynamics.paths.fit_paths` does for the start-only draws). Plain conditioning (r → 0) over-fits the seen part and its bands collapse (the plain ProMP's failure).
+(c_rot(F), c_pos(F)), one pair per seen fraction F (:func:`seen_band_scales`), make those remainders' 90 % regions
+hold about the rest's mean under it (as :func:`~rbgp_cli.dynamics.paths.fit_paths` does for the start-only
+draws), narrowing below 1 as the goal bands' do; a draw at D_g takes them at its seen phase span / D_g
+(:meth:`Anticipator.band_at`). A path distribution without them (an older model file) uses its pooled pair
+``seen_band_scale`` ≥ 1 at every phase. Plain conditioning (r → 0) over-fits the seen part and its bands collapse (the plain ProMP's failure).
 
 **Leaving the demonstrations.** The seen part is "off" when the last seen pose's Mahalanobis distance under
 the prior's marginal at its estimated phase exceeds :data:`OFF_DISTANCE` (3.5: a χ with 6 degrees of
