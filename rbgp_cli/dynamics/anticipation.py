@@ -38,8 +38,11 @@ others' conditioned mean at phase 1, in units of each coordinate's spread, summe
 :data:`REST_SMOOTH_GRID` × :data:`SEEN_TOLERANCE_GRID` and the path distribution's own (τ², r), which ties keep;
 with fewer, (τ²_rest, r_rest) = (τ², r). The mean is the rest's conditioning; the samples' spread about it keeps
 the path distribution's (τ², r), the distribution the left-out remainders' density chose, and the factors
-(c_rot, c_pos) ≥ 1 make those remainders' 90 % regions hold under it (as
-:func:`~rbgp_cli.dynamics.paths.fit_paths` does for the start-only draws). Plain conditioning (r → 0) over-fits the seen part and its bands collapse (the plain ProMP's failure).
+(c_rot(F), c_pos(F)), one pair per seen fraction F (:func:`seen_band_scales`), make those remainders' 90 % regions
+hold about the rest's mean under it (as :func:`~rbgp_cli.dynamics.paths.fit_paths` does for the start-only
+draws), narrowing below 1 as the goal bands' do; a draw at D_g takes them at its seen phase span / D_g
+(:meth:`Anticipator.band_at`). A path distribution without them (an older model file) uses its pooled pair
+``seen_band_scale`` ≥ 1 at every phase. Plain conditioning (r → 0) over-fits the seen part and its bands collapse (the plain ProMP's failure).
 
 **Leaving the demonstrations.** The seen part is "off" when the last seen pose's Mahalanobis distance under
 the prior's marginal at its estimated phase exceeds :data:`OFF_DISTANCE` (3.5: a χ with 6 degrees of
@@ -60,7 +63,7 @@ from rbgp_cli.errors import InputError
 from rbgp_cli.geometry.conventions import SMALL_ANGLE
 from rbgp_cli.geometry.so3 import PI_TOLERANCE
 
-__all__ = ["Anticipator", "Anticipation", "Continuation", "anticipate", "fit_seen", "Follower",
+__all__ = ["Anticipator", "Anticipation", "Continuation", "anticipate", "fit_seen", "seen_band_scales", "Follower",
            "SEEN_TOLERANCE_GRID", "SEEN_FRACTIONS", "SEEN_POINTS", "DURATION_GRID", "DURATION_SMOOTH_GRID",
            "DURATION_TOLERANCE_GRID", "REST_SMOOTH_GRID", "REST_FROM"]
 
@@ -286,10 +289,23 @@ class Anticipator:
         S = paths.S
         self._end = 6 * (S - 1) + np.arange(6)
         self._band = getattr(paths, "seen_band_scale", None) or paths.band_scale
+        # the factors per seen fraction (fit_seen); files without them keep the pooled pair for every phase
+        per_F = getattr(paths, "seen_band_scales", None)
+        self._band_F = None if not per_F else (np.asarray(per_F["fractions"], float), np.asarray(per_F["rotation"], float),
+                                               np.asarray(per_F["position"], float))
         from rbgp_cli.dynamics.model import PathReference
 
         self._ref = PathReference({"s": paths.s, "quat": paths.quat, "position": paths.position,
                                    "velocity": np.zeros((S - 1, 6))})
+
+    def band_at(self, phase: float) -> tuple[float, float]:
+        """The bands' factors (c_rot, c_pos) of a motion seen up to ``phase``: :func:`fit_seen`'s per-fraction
+        factors interpolated linearly in the phase (the first and last held outside the fractions), or, for a
+        path distribution without them (an older model file), the pooled ``seen_band_scale`` at every phase."""
+        if self._band_F is None:
+            return self._band
+        F, rot, pos = self._band_F
+        return float(np.interp(phase, F, rot)), float(np.interp(phase, F, pos))
 
     # -------------------------------------------------------------- the duration's weights (batched)
     def _constants(self):
@@ -438,7 +454,7 @@ class Anticipator:
         sc = self.scale
         mu_u = mu * sc
         cov_u = cov * sc[:, None] * sc[None, :]
-        c_rot, c_pos = self._band
+        c_rot, c_pos = self.band_at(min(span / D, 1.0) if D > 0 else 1.0)
         ref_q, ref_p = self.paths.quat[-1], self.paths.position[-1]
         # exp(μ_rot) ⊗ q̄_end, the product as L(exp(μ_rot)) q̄_end (_LEFT)
         theta = float(np.sqrt(mu_u[:3] @ mu_u[:3]))
@@ -525,17 +541,17 @@ class Anticipator:
             self._root = root
         return root
 
-    def _draws(self, count, rng, A, r2, gain):
+    def _draws(self, count, rng, A, r2, gain, phase: float = 1.0):
         """``count`` zero-mean draws (count, P) of the conditioned distribution by Matheron's rule,
         η = c ⊙ u · ((f − m) − gain (A (f − m) + ε)), f ~ N(m, Σ), ε ~ N(0, diag r²), u = √(ν/χ²_ν) the
-        Student-t factor and c the seen bands' factors."""
+        Student-t factor and c the seen bands' factors at the seen ``phase`` (:meth:`band_at`)."""
         P = len(self.m)
         z = rng.standard_normal((count, P)) @ self._prior_root().T
         eps = rng.standard_normal((count, len(r2))) * np.sqrt(r2)
         eta = z - (z @ A.T + eps) @ gain.T
         nu = max(self.paths.demos - 2, 1)
         eta *= _student_factor(rng, nu, count)[:, None]
-        c_rot, c_pos = self._band
+        c_rot, c_pos = self.band_at(phase)
         eta[:, :-1] *= np.tile(np.array([c_rot] * 3 + [c_pos] * 3), self.paths.S)
         return eta
 
@@ -639,7 +655,7 @@ class Anticipator:
             ks = np.flatnonzero(idx == g)
             Dg = float(max(grid[g], span + 1e-6))
             xg, (A, r2, gain) = self._conditioned_mean(tau, q, p, last_q, last_p, Dg, rest=False)
-            eta = self._draws(len(ks), rng, A, r2, gain)
+            eta = self._draws(len(ks), rng, A, r2, gain, phase=min(span / Dg, 1.0))  # the factors at this D's seen phase
             draws = paths.unscale(xg[None] + eta)[0]  # (n, S, 6)
             for k, draw in zip(ks, draws):
                 Dk = float(max(np.exp(np.log(Dg) + jitter[k]), span + 1e-6))
@@ -683,7 +699,8 @@ def seen_split(F: float, S: int, P: int, points: int) -> tuple[np.ndarray, int]:
     return np.concatenate([io, it]), len(io)
 
 
-def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS, smooth: float | None = None):
+def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS, smooth: float | None = None,
+              by_fraction: bool = False, rest: tuple | None = None):
     """Leave each demonstration out; see its first F (each of SEEN_FRACTIONS) at its true phases on the grid
     (≤ points grid phases, the last exactly) and its ln D; score the rest (every 5th grid phase after F,
     and the end) by its log density under the others' distribution so conditioned, for each tolerance of
@@ -691,29 +708,43 @@ def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS,
     the mean log density per tolerance and, with ``stats`` (one tolerance), the rotation Mahalanobis² and
     position z-scores of the scored phases (for the bands' factors). All demonstrations at once
     (:func:`~rbgp_cli.dynamics.paths.left_out_moments`, :func:`~rbgp_cli.dynamics.paths.held_out_scores`).
-    ``smooth``: the τ² of the others' distribution (default the path distribution's)."""
+    ``smooth``: the τ² of the others' distribution (default the path distribution's). ``by_fraction`` (with
+    ``stats``): the Mahalanobis² and z-scores as lists, one array per fraction of SEEN_FRACTIONS. ``rest`` (τ²_rest,
+    r_rest), with ``stats``: the scores' errors are taken from the mean conditioned with these (the mean a
+    continuation follows), their covariance still the one of ``smooth`` and the tolerance (its samples' spread)."""
     from rbgp_cli.dynamics.paths import GOAL_TOLERANCE, SELECT_EVERY, held_out_scores, left_out_moments
 
     X = paths.vectors()
     S, P = paths.S, X.shape[1]
     Ks = paths.smooth_covariance(smooth)
+    K_rest = None if rest is None else paths.smooth_covariance(rest[0])
     r_last = (np.array(GOAL_TOLERANCE).repeat(3) / paths.scale) ** 2
     total = np.zeros(len(tolerances))
     count, m2, z = 0, [], []
+    m2_F, z_F = [], []
     for F in SEEN_FRACTIONS:
+        start = len(m2)
         idx, no = seen_split(F, S, P, points)
         Xs = X[:, idx]
         Kss = Ks[np.ix_(idx, idx)]
         for block, m, Sigma in left_out_moments(Xs):  # the others' Gaussian per left-out d, (B, ...)
+            innovation = Xs[block, :no] - m[:, :no]
+            mean_rest = None
+            if rest is not None and stats:  # the continuation's mean: the rest's τ² and r
+                Sr = Sigma + K_rest[np.ix_(idx, idx)]
+                r2 = np.full(no, float(rest[1]) ** 2)
+                r2[-7:-1] = r_last
+                r2[-1] = _ELL_TOL ** 2
+                g = np.swapaxes(np.linalg.solve(Sr[:, :no, :no] + np.diag(r2), Sr[:, :no, no:]), 1, 2)
+                mean_rest = m[:, no:] + np.einsum("bij,bj->bi", g, innovation)
             Sigma += Kss
             Soo, Sot, Stt = Sigma[:, :no, :no], Sigma[:, :no, no:], Sigma[:, no:, no:]
-            innovation = Xs[block, :no] - m[:, :no]
             for i, tol in enumerate(tolerances):
                 r2 = np.full(no, float(tol) ** 2)
                 r2[-7:-1] = r_last
                 r2[-1] = _ELL_TOL ** 2
                 gain = np.swapaxes(np.linalg.solve(Soo + np.diag(r2), Sot), 1, 2)  # (B, nt, no)
-                mean = m[:, no:] + np.einsum("bij,bj->bi", gain, innovation)
+                mean = m[:, no:] + np.einsum("bij,bj->bi", gain, innovation) if mean_rest is None else mean_rest
                 cov = Stt - gain @ Sot
                 ld, m2_b, z_b = held_out_scores(Xs[block, no:] - mean, cov, stats)
                 total[i] += float(np.sum(ld))
@@ -721,6 +752,11 @@ def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS,
                     m2.append(m2_b.reshape(-1))
                     z.append(z_b.reshape(-1, 3))
             count += len(block)
+        if stats:
+            m2_F.append(np.concatenate(m2[start:]))
+            z_F.append(np.concatenate(z[start:]))
+    if stats and by_fraction:
+        return total / count, m2_F, z_F
     if stats:
         return total / count, np.concatenate(m2), np.concatenate(z)
     return total / count
@@ -772,7 +808,7 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True):
     ``paths.seen_band_scale`` and returns ``paths``. With the demonstrations ``trajs`` (in the path
     distribution's order) and ``duration``, also the duration weights' own τ² and r
     (:func:`_duration_loo`; ``paths.duration_smooth``, ``paths.duration_tolerance``)."""
-    from scipy.special import fdtri, stdtrit
+    from rbgp_cli.dynamics.paths import _band_factors
 
     scores = dict(zip(SEEN_TOLERANCE_GRID, _seen_loo(paths, SEEN_TOLERANCE_GRID)))
     r = max(scores, key=scores.get)
@@ -788,11 +824,17 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True):
             rest = (float(smooths[a]), float(tols[b]))
         paths.rest_smooth, paths.rest_tolerance = rest
         paths.info.update(rest_smooth=rest[0], rest_tolerance=rest[1], rest_end_loo=float(err.min()))
-    _, m2, z = _seen_loo(paths, [r], stats=True)  # the samples' spread keeps the path distribution's conditioning
-    nu = max(paths.demos - 2, 1)
-    c_rot = np.sqrt(np.quantile(m2, level) / (3.0 * fdtri(3, nu, level)))
-    c_pos = np.quantile(z.ravel(), level) / stdtrit(nu, 0.5 + level / 2.0)
-    paths.seen_band_scale = (max(1.0, float(c_rot)), max(1.0, float(c_pos)))
+    # the samples' spread keeps the path distribution's conditioning; its factors from the same left-out remainders:
+    # pooled over F and ≥ 1 about its own mean (as before the seventh pass; what files without the per-F ones use),
+    # and per F about the mean the continuation follows (the rest's conditioning), allowed below 1
+    _, m2, z = _seen_loo(paths, [r], stats=True)
+    c_rot, c_pos = _band_factors(m2, z, paths.demos, level)
+    paths.seen_band_scale = (max(1.0, c_rot), max(1.0, c_pos))
+    if rest != (float(paths.smooth), float(r)):
+        _, m2_F, z_F = _seen_loo(paths, [r], stats=True, by_fraction=True, rest=rest)
+    else:
+        _, m2_F, z_F = _seen_loo(paths, [r], stats=True, by_fraction=True)
+    paths.seen_band_scales = seen_band_scales(m2_F, z_F, paths.demos, level)
     if duration:
         errors = _duration_loo(paths, trajs)
         if errors:
@@ -800,6 +842,26 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True):
             paths.info.update(duration_smooth=paths.duration_smooth, duration_tolerance=paths.duration_tolerance,
                               duration_loo_error=float(errors[(paths.duration_smooth, paths.duration_tolerance)]))
     return paths
+
+
+def seen_band_scales(m2_F, z_F, demos: int, level: float = 0.90) -> dict:
+    """The bands' factors per seen fraction: {"fractions": SEEN_FRACTIONS, "rotation": [c_rot per F],
+    "position": [c_pos per F]}, from the left-out remainders' rotation Mahalanobis² ``m2_F`` and position
+    z-scores ``z_F`` at each fraction (:func:`_seen_loo` with ``by_fraction``): at each F the factors that make
+    those remainders' 90 % regions hold at ``level`` under the draws' Student-t (ν = D − 2;
+    :func:`~rbgp_cli.dynamics.paths._band_factors`), allowed below 1 as the goal bands' are
+    (:meth:`~rbgp_cli.dynamics.paths.PathDistribution.goal_band_scale`): c < 1 taken as c^w, w = min(1, D /
+    NARROW_FROM), and never below NARROWEST. :meth:`Anticipator.band_at` interpolates them in the seen phase."""
+    from rbgp_cli.dynamics.paths import NARROWEST, _band_factors
+
+    w = min(1.0, demos / NARROW_FROM)
+    rot, pos = [], []
+    for m2, z in zip(m2_F, z_F):
+        c = _band_factors(m2, z, demos, level)
+        c = [max(NARROWEST, x if x >= 1.0 else x ** w) for x in c]
+        rot.append(float(c[0]))
+        pos.append(float(c[1]))
+    return {"fractions": [float(F) for F in SEEN_FRACTIONS], "rotation": rot, "position": pos}
 
 
 def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6, grid_size: int = 16) -> dict:

@@ -198,6 +198,9 @@ class PathDistribution:
     #: chosen on the left-out final pose; None: ``smooth`` and ``seen_tolerance``)
     rest_smooth: float | None = None
     rest_tolerance: float | None = None
+    #: the draws' factors of a motion under way per seen fraction, {"fractions", "rotation", "position"} (lists;
+    #: :func:`rbgp_cli.dynamics.anticipation.seen_band_scales`; None: ``seen_band_scale`` at every fraction)
+    seen_band_scales: dict | None = None
     #: :meth:`goal_band_scale`, computed once
     _goal_scale: tuple | None = field(default=None, repr=False, compare=False)
 
@@ -499,7 +502,10 @@ class PathDistribution:
                 **({"duration_smooth": float(self.duration_smooth)} if self.duration_smooth is not None else {}),
                 **({"duration_tolerance": float(self.duration_tolerance)} if self.duration_tolerance is not None else {}),
                 **({"rest_smooth": float(self.rest_smooth)} if self.rest_smooth is not None else {}),
-                **({"rest_tolerance": float(self.rest_tolerance)} if self.rest_tolerance is not None else {})}
+                **({"rest_tolerance": float(self.rest_tolerance)} if self.rest_tolerance is not None else {}),
+                **({"seen_band_scales": {k: [float(x) for x in self.seen_band_scales[k]]
+                                         for k in ("fractions", "rotation", "position")}}
+                   if self.seen_band_scales is not None else {})}
 
     @classmethod
     def from_arrays(cls, arrays: dict, header: dict) -> "PathDistribution":
@@ -515,7 +521,9 @@ class PathDistribution:
                    duration_smooth=None if header.get("duration_smooth") is None else float(header["duration_smooth"]),
                    duration_tolerance=None if header.get("duration_tolerance") is None else float(header["duration_tolerance"]),
                    rest_smooth=None if header.get("rest_smooth") is None else float(header["rest_smooth"]),
-                   rest_tolerance=None if header.get("rest_tolerance") is None else float(header["rest_tolerance"]))
+                   rest_tolerance=None if header.get("rest_tolerance") is None else float(header["rest_tolerance"]),
+                   seen_band_scales=None if header.get("seen_band_scales") is None else
+                   {k: [float(x) for x in header["seen_band_scales"][k]] for k in ("fractions", "rotation", "position")})
 
 
 # ---------------------------------------------------------------------- fitting

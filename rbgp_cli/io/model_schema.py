@@ -275,6 +275,11 @@ TOP: dict = {
         # optional: a motion under way's conditioning of the rest, its own τ² and tolerance (issue 37)
         "rest_smooth": num(0.0, 1e6, what="a non-negative variance"),
         "rest_tolerance": num(0.0, 1e6, what="a non-negative tolerance"),
+        # optional: a motion under way's bands' factors per seen fraction (issue 37, seventh pass)
+        "seen_band_scales": obj({"fractions": list_of(num(0.0, 1.0, what="a seen fraction in [0, 1]"), 1, 100),
+                                 "rotation": list_of(num(0.0, 1e6, what="a non-negative factor"), 1, 100),
+                                 "position": list_of(num(0.0, 1e6, what="a non-negative factor"), 1, 100)},
+                                ("fractions", "rotation", "position")),
     }, ("demos", "steps", "smooth", "length", "seen_tolerance", "band_scale")))),
 }
 
@@ -349,6 +354,13 @@ def _agree(h: dict) -> None:
             raise SchemaError("unknown field 'prior.start' (a goal prior has no start conditioning)")
         if prior.get("gain_profile") and prior.get("start") != "conditioned":
             raise SchemaError("prior.gain_profile needs a start-conditioned path prior (prior.start = 'conditioned')")
+    sbs = (h.get("paths") or {}).get("seen_band_scales")
+    if sbs is not None:
+        F = sbs["fractions"]
+        if not (len(sbs["rotation"]) == len(F) and len(sbs["position"]) == len(F)):
+            raise SchemaError("paths.seen_band_scales needs as many rotation and position factors as fractions")
+        if any(b <= a for a, b in zip(F, F[1:])):
+            _fail(("paths", "seen_band_scales", "fractions"), F, "increasing fractions")
     gp = h.get("gp") or {"type": "exact"}
     if gp["type"] == "sparse" and "inducing" not in gp:
         raise SchemaError("gp.inducing is missing")

@@ -41,7 +41,9 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
   ``paths`` (issue 37): ``seen_band_scale``, and ``duration_smooth`` / ``duration_tolerance`` (a motion under
   way's duration weights; files without them weigh durations with ``smooth`` and ``seen_tolerance``), and
   ``rest_smooth`` / ``rest_tolerance`` (the conditioning of its rest, chosen on the left-out final pose; files
-  without them condition with ``smooth`` and ``seen_tolerance``, as before; an rbgp older than these fields
+  without them condition with ``smooth`` and ``seen_tolerance``, as before), and ``seen_band_scales`` ({"fractions",
+  "rotation", "position"}: the bands' factors per seen fraction; files without them draw with ``seen_band_scale``
+  at every fraction, as before; an rbgp older than these fields
   refuses a file that has them with its schema's "unknown field" error).
 * Version 9 (what this rbgp writes): the deviation process says how much its covariance between
   coordinates is shrunk (``variation.shrinkage``: α in [0, 1],
