@@ -781,12 +781,12 @@ def train_model(
                     gp, gp_choice = gp_q, choice_q
                     gain["fit"] = {"full_fit": False, "hyper_points": int(choice_q["hyper_points"]), "restarts": 1,
                                    "calibration_points": QUICK_CALIBRATION_POINTS,
-                                   "reason": "the GP's residual is off by more than one standard error of every other "
-                                   "gain already with a cheap fit (one start on at most "
+                                   "reason": "the GP's residual is off already with a cheap fit (no other gain closer "
+                                   "than g = 0 by half a standard error; one start on at most "
                                    f"{QUICK_HYPER_POINTS} points, the noise calibrated on at most "
                                    f"{QUICK_CALIBRATION_POINTS}); the full fit was skipped"}
                     if progress:
-                        progress("GP residual off by a clear margin: the full fit was skipped "
+                        progress("GP residual off already with a cheap fit: the full fit was skipped "
                                  "(--residual-gain 1 fits it)")
                 else:
                     if progress:
@@ -803,7 +803,7 @@ def train_model(
         if quick:
             gain["fit"] = {"full_fit": True, "reason": "a cheap fit first (one start on at most "
                            f"{QUICK_HYPER_POINTS} points, the noise calibrated on at most {QUICK_CALIBRATION_POINTS}) "
-                           "did not switch the GP's residual off by a clear margin"}
+                           "did not switch the GP's residual off with half a standard error to spare"}
     model.summary = _train_summary(rep, kernel, kern, trajs, info, shared, velocity, gp, gp_choice, mean, side.variation,
                                    time_input, recorded_dt, t0, paths=side.paths)
     model.summary["residual_gain"] = gain
@@ -826,17 +826,26 @@ def _gain_first(residual_gain, time_input, mean, trajs) -> bool:
     return bool(auto and time_input == "phase" and mean is not None and len(trajs) >= 3)
 
 
-def residual_off_clearly(gain: dict | None, margin: float = 1.0) -> bool:
+def residual_off_clearly(gain: dict | None, margin: float = 0.5) -> bool:
     """Whether a gain choice (``summary["residual_gain"]`` of :func:`_residual_gain_of`) switched the GP's
-    residual off by a clear margin: g = 0 chosen and the best, and every other gain's mean left-out error
-    J(g) above J(0) by more than ``margin`` standard errors of the paired differences J_d(g) − J_d(0)
-    (:func:`rbgp_cli.dynamics.residual_gain.choose_residual_gain`), so that the one-standard-error rule's
-    lean toward the smaller gain did not decide it."""
-    if not gain or gain.get("chosen") != "left-out rollouts" or gain.get("gain") != 0.0 or gain.get("best") != 0.0:
+    residual off with room to spare: g = 0 chosen, and no other gain's mean left-out error J(g) below J(0)
+    by more than ``margin`` standard errors of the paired differences J_d(g) − J_d(0)
+    (:func:`rbgp_cli.dynamics.residual_gain.choose_residual_gain`):
+
+        J(g) − J(0) ≥ −margin · SE(g)   for every g ≠ 0   (and round-off: 1e-9 · J(0)).
+
+    The one-standard-error rule keeps g = 0 while the best gain improves on it by less than one SE; with
+    ``margin`` = ½ the cheap fit's choice holds even if the full fit's hyperparameters moved every J(g)
+    by half a standard error in the residual's favour. (The first form of this test asked J(g) − J(0) >
+    +1 SE: with the prior left out of the criterion, J(g) lies within a few tenths of a per cent of J(0)
+    on the handovers and hand raises, and the full fit ran after the cheap one for nothing; issue 35's
+    seventh pass in docs/defaults.md.)"""
+    if not gain or gain.get("chosen") != "left-out rollouts" or gain.get("gain") != 0.0:
         return False
     grid, err, se = gain["grid"], gain["error"], gain["standard_error"]
     i0 = grid.index(0.0)
-    return all(err[i] - err[i0] > margin * se[i] for i in range(len(grid)) if i != i0)
+    tol = 1e-9 * abs(err[i0])
+    return all(err[i] - err[i0] >= -margin * se[i] - tol for i in range(len(grid)) if i != i0)
 
 
 def _residual_gain_of(model, trajs, info, residual_gain, progress, seed: int = 0) -> dict:

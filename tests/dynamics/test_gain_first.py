@@ -23,13 +23,17 @@ def _choice(error, se, gain=0.0, best=0.0, chosen="left-out rollouts"):
             "standard_error": se}
 
 
-def test_a_clear_margin_is_more_than_one_standard_error_on_every_other_gain():
+def test_off_with_room_to_spare_means_no_gain_closer_than_g0_by_half_a_standard_error():
     assert residual_off_clearly(_choice([1.0, 1.02, 1.05, 1.2], [0.0, 0.01, 0.02, 0.05]))
-    # one gain within one standard error of g = 0: the one-standard-error rule decided, not the data
-    assert not residual_off_clearly(_choice([1.0, 1.005, 1.05, 1.2], [0.0, 0.01, 0.02, 0.05]))
-    assert residual_off_clearly(_choice([1.0, 1.005, 1.05, 1.2], [0.0, 0.01, 0.02, 0.05]), margin=0.4)
-    # g = 0 chosen by the rule although another gain was best
-    assert not residual_off_clearly(_choice([1.0, 0.99, 1.05, 1.2], [0.0, 0.02, 0.02, 0.05], best=0.25))
+    # the handovers' case: every J within a few tenths of a per cent, none below J(0)
+    assert residual_off_clearly(_choice([1.0, 1.0, 1.001, 1.003], [0.0, 0.001, 0.002, 0.004]))
+    # a gain better than g = 0 by less than half a standard error: still off
+    assert residual_off_clearly(_choice([1.0, 0.996, 1.05, 1.2], [0.0, 0.01, 0.02, 0.05], best=0.25))
+    # better by more than half (0.6 SE) but less than one: the rule chose 0, the full fit might not
+    assert not residual_off_clearly(_choice([1.0, 0.994, 1.05, 1.2], [0.0, 0.01, 0.02, 0.05], best=0.25))
+    assert residual_off_clearly(_choice([1.0, 0.994, 1.05, 1.2], [0.0, 0.01, 0.02, 0.05], best=0.25), margin=1.0)
+    # round-off ties (standard errors 0) count as off
+    assert residual_off_clearly(_choice([1.0, 1.0 - 1e-12, 1.0, 1.0], [0.0, 0.0, 0.0, 0.0], best=0.25))
     # another gain chosen, a given gain, no choice at all
     assert not residual_off_clearly(_choice([1.0, 0.9, 0.8, 0.7], [0.1, 0.1, 0.1, 0.0], gain=1.0, best=1.0))
     assert not residual_off_clearly({"gain": 0.0, "chosen": "given"})
