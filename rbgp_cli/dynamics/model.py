@@ -230,15 +230,30 @@ class MotionModel:
 
     def residual(self, X, manage_threads: bool = True) -> np.ndarray:
         """The GP's residual mean at inputs X (m, d) times the model's :attr:`residual_gain` g, (m, L):
-        what the velocity adds to the prior mean (g = 1: the GP's posterior mean itself)."""
+        what the velocity adds to the prior mean (g = 1: the GP's posterior mean itself). At g = 0 the
+        product is zero and the GP is not evaluated (:attr:`residual_off`)."""
+        if self.residual_off:
+            return np.zeros((len(X), self.gp.n_outputs))
         out = self.gp.predict(X, manage_threads=manage_threads)
         g = float(self.residual_gain)
         return out if g == 1.0 else g * out
 
+    @property
+    def residual_off(self) -> bool:
+        """Whether the residual's gain is exactly g = 0: the velocity is the prior mean alone, m(x) + 0 · μ_GP(x),
+        so that every prediction of the mean skips the GP (its kernel block against the n training inputs,
+        the costly part of a rollout step); the std (``return_std``) is the GP's own and still evaluates it.
+        The numbers are those of the product (up to the sign of an exact zero)."""
+        return float(self.residual_gain) == 0.0
+
     def predict_output(self, X, return_std: bool = False, manage_threads: bool = True, start_dev=None, step=None):
         """Outputs (velocities in the representation's coordinates, per second or per unit phase) at
         inputs X (m, d): the prior mean plus the GP's prediction, its mean times the residual gain g
-        (:attr:`residual_gain`; the std is the GP's own) (``start_dev``, ``step``: :meth:`prior_mean`)."""
+        (:attr:`residual_gain`; the std is the GP's own) (``start_dev``, ``step``: :meth:`prior_mean`). The mean
+        alone at g = 0 is the prior mean's, the GP not evaluated (:attr:`residual_off`)."""
+        if self.residual_off and not return_std:
+            m = self.prior_mean(np.asarray(X, dtype=np.float64), start_dev, step)
+            return np.zeros((len(X), self.gp.n_outputs)) if m is None else m
         out = self.gp.predict(X, return_std=return_std, manage_threads=manage_threads)
         g = float(self.residual_gain)
         if g != 1.0:
@@ -263,8 +278,11 @@ class MotionModel:
                 raise InputError(f"this model takes the {'phase' if self.time_input == 'phase' else 'time since the start'} "
                                  "as an input", hint="give a time column with the poses")
             X = np.concatenate([X, np.asarray(tau, float).reshape(-1, 1)], axis=1)
-        mean, std = self.gp.predict(X, return_std=True, noisy=noisy)
-        mean = float(self.residual_gain) * mean
+        if self.residual_off and not return_std:  # g = 0: the mean is the prior's, the GP not evaluated
+            mean, std = np.zeros((len(X), self.gp.n_outputs)), None
+        else:
+            mean, std = self.gp.predict(X, return_std=True, noisy=noisy)
+            mean = float(self.residual_gain) * mean
         dev = None
         if start is not None:
             dev = self.start_deviation(np.asarray(start[0], float).reshape(-1, 4), np.asarray(start[1], float).reshape(-1, 3))
