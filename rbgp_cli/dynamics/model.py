@@ -847,10 +847,14 @@ def _gain_first(residual_gain, time_input, mean, trajs) -> bool:
 def residual_off_clearly(gain: dict | None, margin: float = 0.5) -> bool:
     """Whether a gain choice (``summary["residual_gain"]`` of :func:`_residual_gain_of`) switched the GP's
     residual off with room to spare: g = 0 chosen, and no other gain's mean left-out error J(g) below J(0)
-    by more than ``margin`` standard errors of the paired differences J_d(g) − J_d(0)
-    (:func:`rbgp_cli.dynamics.residual_gain.choose_residual_gain`):
+    by more than ``margin`` standard errors of the paired differences J_d(g) − J_d(0), or by more than
+    ``margin`` times the practical-equivalence margin ε J(0) (ε = EQUIVALENT_FRACTION, 0.5 %;
+    :func:`rbgp_cli.dynamics.residual_gain.choose_residual_gain`):
 
-        J(g) − J(0) ≥ −margin · SE(g)   for every g ≠ 0   (and round-off: 1e-9 · J(0)).
+        J(g) − J(0) ≥ −margin · max(SE₀(g), ε J(0))   for every g ≠ 0   (and round-off: 1e-9 · J(0)).
+
+    SE₀ is the record's ``standard_error_zero``; a record without it (a model file from before) has the
+    standard errors against the best gain, the same where the best is g = 0.
 
     The one-standard-error rule keeps g = 0 while the best gain improves on it by less than one SE; with
     ``margin`` = ½ the cheap fit's choice holds even if the full fit's hyperparameters moved every J(g)
@@ -860,10 +864,14 @@ def residual_off_clearly(gain: dict | None, margin: float = 0.5) -> bool:
     seventh pass in docs/defaults.md.)"""
     if not gain or gain.get("chosen") != "left-out rollouts" or gain.get("gain") != 0.0:
         return False
-    grid, err, se = gain["grid"], gain["error"], gain["standard_error"]
+    from rbgp_cli.dynamics.residual_gain import EQUIVALENT_FRACTION
+
+    grid, err = gain["grid"], gain["error"]
+    se = gain.get("standard_error_zero") or gain["standard_error"]
     i0 = grid.index(0.0)
     tol = 1e-9 * abs(err[i0])
-    return all(err[i] - err[i0] >= -margin * se[i] - tol for i in range(len(grid)) if i != i0)
+    equal = EQUIVALENT_FRACTION * abs(err[i0])
+    return all(err[i] - err[i0] >= -margin * max(se[i], equal) - tol for i in range(len(grid)) if i != i0)
 
 
 def _residual_gain_of(model, trajs, info, residual_gain, progress, seed: int = 0) -> dict:
