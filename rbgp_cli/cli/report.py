@@ -144,6 +144,8 @@ def _variation_text(v: dict) -> str:
 def _residual_gain_text(r: dict, gain=None) -> str:
     """The gain on the GP's residual mean (``summary["residual_gain"]``, dynamics/residual_gain.py): how it
     was set and, when chosen, the left-out rollouts' relative errors per gain."""
+    from rbgp_cli.dynamics.residual_gain import EQUIVALENT_FRACTION
+
     r = r if isinstance(r, dict) else {}  # a model file's summary is free-form: shown as far as it makes sense
     try:
         g = float(r.get("gain", 1.0) if gain is None else gain)
@@ -155,7 +157,9 @@ def _residual_gain_text(r: dict, gain=None) -> str:
             errs = ", ".join(f"{float(x):g}: {float(e):.3f}" for x, e in zip(r["grid"], r.get("error", [])))
             model = "the GP and mean path that have" if r.get("prior") == "left out" else "the GP that has"
             line += (f", chosen by rolling out each of {r.get('demos', '?')} demonstrations with {model} not "
-                     f"seen it (relative error, 1 = without the GP: {errs}; the smaller gain within one standard error)")
+                     f"seen it (relative error, 1 = without the GP: {errs}; the smaller gain within one standard error"
+                     # the equivalence margin came with the standard errors against g = 0 (older files: without)
+                     + (f" or {100 * EQUIVALENT_FRACTION:g} %)" if "standard_error_zero" in r else ")"))
             fit = r.get("fit")
             if isinstance(fit, dict) and fit.get("full_fit") is False:  # dynamics/model.py: the gain chosen first
                 line = (f"GP residual off (gain {g:g}), " + line.split(", ", 1)[1] + "; the full fit was skipped "

@@ -230,15 +230,30 @@ class MotionModel:
 
     def residual(self, X, manage_threads: bool = True) -> np.ndarray:
         """The GP's residual mean at inputs X (m, d) times the model's :attr:`residual_gain` g, (m, L):
-        what the velocity adds to the prior mean (g = 1: the GP's posterior mean itself)."""
+        what the velocity adds to the prior mean (g = 1: the GP's posterior mean itself). At g = 0 the
+        product is zero and the GP is not evaluated (:attr:`residual_off`)."""
+        if self.residual_off:
+            return np.zeros((len(X), self.gp.n_outputs))
         out = self.gp.predict(X, manage_threads=manage_threads)
         g = float(self.residual_gain)
         return out if g == 1.0 else g * out
 
+    @property
+    def residual_off(self) -> bool:
+        """Whether the residual's gain is exactly g = 0: the velocity is the prior mean alone, m(x) + 0 · μ_GP(x),
+        so that every prediction of the mean skips the GP (its kernel block against the n training inputs,
+        the costly part of a rollout step); the std (``return_std``) is the GP's own and still evaluates it.
+        The numbers are those of the product (up to the sign of an exact zero)."""
+        return float(self.residual_gain) == 0.0
+
     def predict_output(self, X, return_std: bool = False, manage_threads: bool = True, start_dev=None, step=None):
         """Outputs (velocities in the representation's coordinates, per second or per unit phase) at
         inputs X (m, d): the prior mean plus the GP's prediction, its mean times the residual gain g
-        (:attr:`residual_gain`; the std is the GP's own) (``start_dev``, ``step``: :meth:`prior_mean`)."""
+        (:attr:`residual_gain`; the std is the GP's own) (``start_dev``, ``step``: :meth:`prior_mean`). The mean
+        alone at g = 0 is the prior mean's, the GP not evaluated (:attr:`residual_off`)."""
+        if self.residual_off and not return_std:
+            m = self.prior_mean(np.asarray(X, dtype=np.float64), start_dev, step)
+            return np.zeros((len(X), self.gp.n_outputs)) if m is None else m
         out = self.gp.predict(X, return_std=return_std, manage_threads=manage_threads)
         g = float(self.residual_gain)
         if g != 1.0:
@@ -263,8 +278,11 @@ class MotionModel:
                 raise InputError(f"this model takes the {'phase' if self.time_input == 'phase' else 'time since the start'} "
                                  "as an input", hint="give a time column with the poses")
             X = np.concatenate([X, np.asarray(tau, float).reshape(-1, 1)], axis=1)
-        mean, std = self.gp.predict(X, return_std=True, noisy=noisy)
-        mean = float(self.residual_gain) * mean
+        if self.residual_off and not return_std:  # g = 0: the mean is the prior's, the GP not evaluated
+            mean, std = np.zeros((len(X), self.gp.n_outputs)), None
+        else:
+            mean, std = self.gp.predict(X, return_std=True, noisy=noisy)
+            mean = float(self.residual_gain) * mean
         dev = None
         if start is not None:
             dev = self.start_deviation(np.asarray(start[0], float).reshape(-1, 4), np.asarray(start[1], float).reshape(-1, 3))
@@ -829,10 +847,14 @@ def _gain_first(residual_gain, time_input, mean, trajs) -> bool:
 def residual_off_clearly(gain: dict | None, margin: float = 0.5) -> bool:
     """Whether a gain choice (``summary["residual_gain"]`` of :func:`_residual_gain_of`) switched the GP's
     residual off with room to spare: g = 0 chosen, and no other gain's mean left-out error J(g) below J(0)
-    by more than ``margin`` standard errors of the paired differences J_d(g) − J_d(0)
-    (:func:`rbgp_cli.dynamics.residual_gain.choose_residual_gain`):
+    by more than ``margin`` standard errors of the paired differences J_d(g) − J_d(0), or by more than
+    ``margin`` times the practical-equivalence margin ε J(0) (ε = EQUIVALENT_FRACTION, 0.5 %;
+    :func:`rbgp_cli.dynamics.residual_gain.choose_residual_gain`):
 
-        J(g) − J(0) ≥ −margin · SE(g)   for every g ≠ 0   (and round-off: 1e-9 · J(0)).
+        J(g) − J(0) ≥ −margin · max(SE₀(g), ε J(0))   for every g ≠ 0   (and round-off: 1e-9 · J(0)).
+
+    SE₀ is the record's ``standard_error_zero``; a record without it (a model file from before) has the
+    standard errors against the best gain, the same where the best is g = 0.
 
     The one-standard-error rule keeps g = 0 while the best gain improves on it by less than one SE; with
     ``margin`` = ½ the cheap fit's choice holds even if the full fit's hyperparameters moved every J(g)
@@ -842,10 +864,14 @@ def residual_off_clearly(gain: dict | None, margin: float = 0.5) -> bool:
     seventh pass in docs/defaults.md.)"""
     if not gain or gain.get("chosen") != "left-out rollouts" or gain.get("gain") != 0.0:
         return False
-    grid, err, se = gain["grid"], gain["error"], gain["standard_error"]
+    from rbgp_cli.dynamics.residual_gain import EQUIVALENT_FRACTION
+
+    grid, err = gain["grid"], gain["error"]
+    se = gain.get("standard_error_zero") or gain["standard_error"]
     i0 = grid.index(0.0)
     tol = 1e-9 * abs(err[i0])
-    return all(err[i] - err[i0] >= -margin * se[i] - tol for i in range(len(grid)) if i != i0)
+    equal = EQUIVALENT_FRACTION * abs(err[i0])
+    return all(err[i] - err[i0] >= -margin * max(se[i], equal) - tol for i in range(len(grid)) if i != i0)
 
 
 def _residual_gain_of(model, trajs, info, residual_gain, progress, seed: int = 0) -> dict:

@@ -40,7 +40,9 @@ R_d the mean squared position (m²) and rotation angle (rad²) error of demonstr
 against d at the same phases, and P̄(0), R̄(0) their means over the demonstrations at g = 0 (so J is
 unit-free and 1 for the path distribution alone on average). The gain with the smallest mean J wins,
 unless a smaller gain is within one standard error of the paired differences J_d(g) − J_d(g_best)
-(the one-standard-error rule: the simpler model unless the folds' noise cannot explain the gain).
+(the one-standard-error rule: the simpler model unless the folds' noise cannot explain the gain) or
+within EQUIVALENT_FRACTION · J(0) of it (practical equivalence: an improvement too small to matter, however
+consistent).
 
 Cost: one Cholesky factor and inverse per hyperparameter set (m³, on at most m = LEFT_OUT_POINTS rows:
 :func:`subset_posterior`), the D left-out priors and their targets (one product B [y_1 … y_D] per set),
@@ -54,11 +56,16 @@ import time
 
 import numpy as np
 
-__all__ = ["GAIN_GRID", "choose_residual_gain", "left_out_weights", "left_out_rollout_errors", "left_out_priors",
-           "StackedPriors"]
+__all__ = ["EQUIVALENT_FRACTION", "GAIN_GRID", "choose_residual_gain", "smallest_equivalent", "left_out_weights",
+           "left_out_rollout_errors", "left_out_priors", "StackedPriors"]
 
 #: The gains tried on the GP's residual mean (1: the full model; 0: the path distribution alone).
 GAIN_GRID = (0.0, 0.25, 0.5, 1.0)
+#: Practical equivalence: a gain whose mean left-out error J improves on a smaller gain's by no more than this
+#: fraction of J(0) (= 1, the path distribution alone) is no better, whatever its standard error. J is a mean
+#: squared error, so 0.5 % of J is about 0.25 % of an RMSE, an eighth of the 2 % crossval counts as a tie
+#: (docs/defaults.md, "the practical-equivalence margin").
+EQUIVALENT_FRACTION = 0.005
 #: At most this many training rows (a seeded random subset, each standing for n/m rows: σn² × m/n) carry
 #: the left-out posteriors: one m³ inverse per hyperparameter set instead of n³ (2000 rows: 8× less).
 LEFT_OUT_POINTS = 800
@@ -236,6 +243,21 @@ def left_out_rollout_errors(model, trajs, groups, gains=GAIN_GRID, weights=None,
     return (P, R, quat, pos, steps_d) if return_poses else (P, R)
 
 
+def smallest_equivalent(mean, se, equal: float = EQUIVALENT_FRACTION) -> int:
+    """The index of the gain :func:`choose_residual_gain` keeps, from the mean left-out errors J (G,) over the
+    sorted grid (J[0] = J(0)) and the standard errors (G,) of J_d(g) − J_d(ĝ) against the best gain ĝ: the
+    smallest gain i with J(i) − J(ĝ) ≤ max(SE(i), ``equal`` · J(0)) (the one-standard-error rule, or practical
+    equivalence: a residual of no consequence makes every J equal to a few parts in 10⁵ with a standard error
+    near zero, a consistent improvement nobody would see)."""
+    mean = np.asarray(mean, dtype=np.float64)
+    best = int(np.argmin(mean))
+    margin = max(float(equal), 1e-9) * abs(float(mean[0]))  # at least round-off's reach
+    for i in range(best):
+        if mean[i] - mean[best] <= max(float(se[i]), margin):
+            return i
+    return best
+
+
 def choose_residual_gain(model, trajs, groups, gains=GAIN_GRID, points: int = LEFT_OUT_POINTS,
                          seed: int = 0, *, phase_steps=None, left_out_prior: bool = True) -> dict | None:
     """The gain g on the GP's residual mean that predicts left-out demonstrations' rollouts best (module
@@ -290,14 +312,12 @@ def choose_residual_gain(model, trajs, groups, gains=GAIN_GRID, points: int = LE
     best = int(np.argmin(mean))
     diff = J - J[:, best:best + 1]
     se = diff.std(axis=0, ddof=1) / np.sqrt(len(trajs))
-    chosen = best
-    for i in range(best):  # the smallest gain within one standard error of the best (and round-off's reach:
-        # a residual of no consequence makes every J equal but for the last bits, and its se zero)
-        if mean[i] - mean[best] <= se[i] + 1e-9 * abs(mean[best]):
-            chosen = i
-            break
+    chosen = smallest_equivalent(mean, se)
+    # the standard errors of J_d(g) − J_d(0), what residual_off_clearly weighs each gain against g = 0 with
+    se0 = (J - J[:, :1]).std(axis=0, ddof=1) / np.sqrt(len(trajs))
     return {"gain": float(gains[chosen]), "grid": gains.tolist(), "error": mean.tolist(),
-            "standard_error": se.tolist(), "best": float(gains[best]), "demos": len(trajs), "points": int(len(rows)),
+            "standard_error": se.tolist(), "standard_error_zero": se0.tolist(), "best": float(gains[best]),
+            "demos": len(trajs), "points": int(len(rows)),
             "prior": "left out" if priors is not None else "shared", "position_rmse": np.sqrt(P.mean(axis=0)).tolist(), "rotation_rmse": np.sqrt(R.mean(axis=0)).tolist(),
             "seconds": time.perf_counter() - t0}
 

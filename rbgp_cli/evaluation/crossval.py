@@ -56,6 +56,7 @@ Folds of every configuration run as independent tasks, in worker processes with 
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 import warnings
@@ -421,17 +422,31 @@ def run_fold(config: Config, train: list[Trajectory], test: list[Trajectory], *,
             # the same fit with the GP's residual switched off: the path distribution alone, from the
             # same starts with the same draws (what the GP adds, issue 35)
             t0 = time.perf_counter()
-            prior = model.without_residual()
-            gen0, drawn0 = (model_goal_rollouts if given == "goal" else _model_rollouts)(prior, test, samples, seed)
-            out["without_gp"] = {**_fold_scores(gen0, drawn0, prior, train, test, length, covariance),
-                                 "train_s": train_s, "rollout_s": time.perf_counter() - t0}
-            if given == "goal":
-                out["without_gp"]["end"] = end_errors(gen0, test)
+            if _same_without_gp(model, samples, given):  # g = 0: the model's rows are already the path distribution's
+                out["without_gp"] = {**copy.deepcopy(out), "rollout_s": time.perf_counter() - t0}
+            else:
+                prior = model.without_residual()
+                gen0, drawn0 = (model_goal_rollouts if given == "goal" else _model_rollouts)(prior, test, samples, seed)
+                out["without_gp"] = {**_fold_scores(gen0, drawn0, prior, train, test, length, covariance),
+                                     "train_s": train_s, "rollout_s": time.perf_counter() - t0}
+                if given == "goal":
+                    out["without_gp"]["end"] = end_errors(gen0, test)
     warned = {str(w.message) for w in caught}
     out["warnings"] = sorted(warned | set(out["warnings"]))
     if "without_gp" in out:
         out["without_gp"]["warnings"] = out["warnings"]
     return out
+
+
+def _same_without_gp(model, samples: int, given: str | None) -> bool:
+    """Whether a fold's row without the GP would repeat its model row's computation: the residual's gain is
+    g = 0 (:attr:`~rbgp_cli.dynamics.model.MotionModel.residual_off`: the mean velocity is the prior mean's
+    either way, from the same starts, and the velocity errors with it) and the samples do not draw on the GP's
+    std (the path distribution's draws, or none). Per-step Monte Carlo samples (a model without a variation
+    model) draw from the GP's std, which the row without the GP replaces by the prior's."""
+    if not getattr(model, "residual_off", False):
+        return False
+    return given == "goal" or samples == 0 or getattr(model, "variation", None) is not None
 
 
 def _fold_scores(gen, drawn, model, train: list[Trajectory], test: list[Trajectory], length, covariance) -> dict:
@@ -455,6 +470,11 @@ def _fold_scores(gen, drawn, model, train: list[Trajectory], test: list[Trajecto
     }
     if model is not None:
         out["points"] = int(model.summary.get("points", 0))
+        # the residual's gain the fold's training chose (and whether the full fit ran: issue 35's cheap fit)
+        out["residual_gain"] = float(getattr(model, "residual_gain", 1.0))
+        fit = (model.summary.get("residual_gain") or {}).get("fit")
+        if fit is not None:
+            out["full_fit"] = bool(fit.get("full_fit"))
     sampled = _sample_columns(drawn, train, test, T, covariance, gen)
     if sampled is not None:
         out.update(sampled)
@@ -583,8 +603,9 @@ def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[di
             "left_data": r.get("left_data"),
             "reliable": bool(r.get("reliable", True) and floor.reliable),
         }
-        if "points" in r:
-            entry["points"] = r["points"]
+        for key in ("points", "residual_gain", "full_fit"):
+            if key in r:
+                entry[key] = r[key]
         entry.update(_sampled_summary([r], [floor.mean]))
         per_fold.append(entry)
     score = float(np.mean([r["score"] for r in results]))

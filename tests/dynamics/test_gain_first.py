@@ -98,3 +98,39 @@ def test_the_paper_scale_options_never_take_the_cheap_fit():
     rec = model.summary["residual_gain"]
     assert rec["gain"] == 1.0 and rec["chosen"] == "default" and "fit" not in rec
     assert model.summary["gp"]["hyper_points"] == min(400, len(model.gp.X))
+
+
+def test_practical_equivalence_keeps_the_smaller_gain_when_the_improvement_is_too_small_to_matter():
+    from rbgp_cli.dynamics.residual_gain import EQUIVALENT_FRACTION, smallest_equivalent
+
+    assert EQUIVALENT_FRACTION == 0.005
+    # sample_data/'s case: every J 1.000, consistently a little lower with the residual (kept by either rule)
+    assert smallest_equivalent([1.0, 0.99998, 0.99996, 0.99992], [0.0006, 0.0005, 0.0003, 0.0]) == 0
+    # better by 0.4 % of J(0) with a standard error of 0.1 %: equivalent; by 0.6 %: the gain is taken
+    assert smallest_equivalent([1.0, 0.998, 0.997, 0.996], [0.001, 0.001, 0.001, 0.0]) == 0
+    assert smallest_equivalent([1.0, 0.998, 0.996, 0.994], [0.001, 0.001, 0.001, 0.0]) == 1  # ¼: within 0.5 % of the best
+    assert smallest_equivalent([1.0, 0.998, 0.996, 0.994], [0.001, 0.001, 0.001, 0.0], equal=0.0) == 3
+    # the one-standard-error rule as before: a large improvement within a larger standard error
+    assert smallest_equivalent([1.0, 0.9, 0.95, 0.97], [0.15, 0.0, 0.1, 0.1]) == 0
+    assert smallest_equivalent([1.0, 0.9, 0.95, 0.97], [0.05, 0.0, 0.1, 0.1]) == 1
+
+
+def test_off_clearly_weighs_each_gain_against_g0_and_takes_the_equivalence_margin():
+    # sample_data/'s cheap fit: the best gain (1) is 8e-5 below J(0); its standard error against the best is
+    # 0 (it is the best), against g = 0 6e-4: off by the half standard error, and by the margin
+    rec = {**_choice([1.0, 0.99998, 0.99996, 0.99992], [0.00059, 0.00045, 0.0003, 0.0], best=1.0),
+           "standard_error_zero": [0.0, 0.00015, 0.0003, 0.0006]}
+    assert residual_off_clearly(rec)
+    assert residual_off_clearly({k: v for k, v in rec.items() if k != "standard_error_zero"})  # the margin alone
+    # better than g = 0 by 0.3 % with standard errors of 0.01 %: half the margin (0.25 %) is exceeded
+    rec = {**_choice([1.0, 0.999, 0.998, 0.997], [0.0003, 0.0002, 0.0001, 0.0], best=1.0),
+           "standard_error_zero": [0.0, 0.0001, 0.0001, 0.0001]}
+    assert not residual_off_clearly(rec)
+    assert residual_off_clearly(rec, margin=1.0)
+
+
+def test_the_summary_names_the_margin_only_for_a_choice_made_with_it():
+    rec = _choice([1.0, 0.99998, 0.99996, 0.99992], [0.00059, 0.00045, 0.0003, 0.0], best=1.0)
+    assert _residual_gain_text(rec).endswith("within one standard error)")  # an older model file's record
+    rec["standard_error_zero"] = [0.0, 0.00015, 0.0003, 0.0006]
+    assert _residual_gain_text(rec).endswith("within one standard error or 0.5 %)")

@@ -45,3 +45,36 @@ def test_no_row_without_the_gp_for_a_zero_mean_gp_or_when_switched_off():
                    without_gp=False)
     assert len(res["results"]) == 1
     assert np.isfinite(res["results"][0]["position_rmse"])
+
+
+@pytest.mark.slow
+def test_at_g0_the_row_without_the_gp_is_the_model_row_and_each_fold_says_its_gain(monkeypatch):
+    # oracle: the rows without the GP rolled out again (the skip switched off) equal the ones taken over
+    from rbgp_cli.evaluation import crossval as cv
+
+    demos = reaching_demos(8)
+    off = Config("axis-angle", "se-chordal", {**PATH, "residual_gain": 0.0}, label="off")
+    reused = crossval(demos, [off], folds=4, jobs=1, samples=6)
+    monkeypatch.setattr(cv, "_same_without_gp", lambda *a: False)
+    again = crossval(demos, [off], folds=4, jobs=1, samples=6)
+    for a, b in zip(reused["results"], again["results"]):
+        assert a["label"] == b["label"]
+        for c in COLUMNS + ("coverage_rotation", "score_ratio"):
+            assert a.get(c) == b.get(c), (a["label"], c)
+        assert [f["residual_gain"] for f in a["per_fold"]] == [0.0] * 4
+        assert [f["position_rmse"] for f in a["per_fold"]] == [f["position_rmse"] for f in b["per_fold"]]
+
+
+def test_the_row_without_the_gp_is_taken_over_only_at_g0_with_samples_that_do_not_read_the_gp():
+    from types import SimpleNamespace
+
+    from rbgp_cli.evaluation.crossval import _same_without_gp
+
+    def model(g, variation):
+        return SimpleNamespace(residual_off=g == 0.0, residual_gain=g, variation=variation)
+
+    assert _same_without_gp(model(0.0, object()), 20, None)
+    assert _same_without_gp(model(0.0, None), 0, None)
+    assert _same_without_gp(model(0.0, None), 20, "goal")  # the conditioned samples are the path distribution's
+    assert not _same_without_gp(model(0.0, None), 20, None)  # per-step samples draw from the GP's std
+    assert not _same_without_gp(model(0.5, object()), 20, None)
