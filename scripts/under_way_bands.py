@@ -2,6 +2,8 @@
 fraction, and the path distribution's cells against the peers, on crossval's folds without the GP's training.
 
 Usage: python scripts/under_way_bands.py SET_DIR OUT.json [--folds 5] [--body NAME] [--samples 20] [--no-peers]
+[--spread on|off]  (``--spread``: the factors scored against the samples' durations, issue 37's eighth pass; default
+as rbgp's DURATION_SPREAD)
 
 For each fold of ``rbgp crossval --given F`` (:func:`~rbgp_cli.evaluation.crossval.make_folds`, seed 0; the
 samples seeded as crossval seeds them) it fits the path distribution on the training demonstrations
@@ -46,7 +48,12 @@ def main(argv=None):
     ap.add_argument("--body", default=None)
     ap.add_argument("--samples", type=int, default=20)
     ap.add_argument("--no-peers", action="store_true")
+    ap.add_argument("--spread", choices=("on", "off"), default=None)
     a = ap.parse_args(argv)
+    if a.spread is not None:
+        from rbgp_cli.dynamics import anticipation
+
+        anticipation.DURATION_SPREAD = a.spread == "on"
     options = ReadOptions(body=a.body) if a.body else None
     demos, _, _ = load_demonstrations([a.source], options)
     folds = make_folds(len(demos), min(a.folds, len(demos)), 0)

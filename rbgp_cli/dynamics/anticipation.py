@@ -41,8 +41,10 @@ the path distribution's (τ², r), the distribution the left-out remainders' den
 (c_rot(F), c_pos(F)), one pair per seen fraction F (:func:`seen_band_scales`), make those remainders' 90 % regions
 hold about the rest's mean under it (as :func:`~rbgp_cli.dynamics.paths.fit_paths` does for the start-only
 draws), narrowing below 1 as the goal bands' do; a draw at D_g takes them at its seen phase span / D_g
-(:meth:`Anticipator.band_at`). A path distribution without them (an older model file) uses its pooled pair
-``seen_band_scale`` ≥ 1 at every phase. Plain conditioning (r → 0) over-fits the seen part and its bands collapse (the plain ProMP's failure).
+(:meth:`Anticipator.band_at`). With :data:`DURATION_SPREAD`, from :data:`SPREAD_FROM` demonstrations on, those
+remainders are scored against the samples as they are drawn, each at its own duration, at every grid phase after F
+in the remainder's normalised time (:func:`_spread_terms`, :func:`_spread_factors`). A path distribution without
+them (an older model file) uses its pooled pair ``seen_band_scale`` ≥ 1 at every phase. Plain conditioning (r → 0) over-fits the seen part and its bands collapse (the plain ProMP's failure).
 
 **Leaving the demonstrations.** The seen part is "off" when the last seen pose's Mahalanobis distance under
 the prior's marginal at its estimated phase exceeds :data:`OFF_DISTANCE` (3.5: a χ with 6 degrees of
@@ -801,13 +803,16 @@ def _end_loo(paths, smooths, tolerances, points: int = SEEN_POINTS) -> np.ndarra
     return out
 
 
-def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True):
+def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, spread: bool | None = None):
     """Choose the seen poses' regularising tolerance r, the rest's own τ² and r and the bands' factors of a motion
     under way by leaving demonstrations out (module docstring); sets ``paths.seen_tolerance``,
     ``paths.rest_smooth`` and ``paths.rest_tolerance`` (from REST_FROM demonstrations on; else left None) and
     ``paths.seen_band_scale`` and returns ``paths``. With the demonstrations ``trajs`` (in the path
     distribution's order) and ``duration``, also the duration weights' own τ² and r
-    (:func:`_duration_loo`; ``paths.duration_smooth``, ``paths.duration_tolerance``)."""
+    (:func:`_duration_loo`; ``paths.duration_smooth``, ``paths.duration_tolerance``), chosen before the bands'
+    factors, which ``spread`` (default :data:`DURATION_SPREAD`) scores against the samples' durations drawn from
+    those weights (:func:`_spread_terms`; by default from :data:`SPREAD_FROM` demonstrations on); else at the
+    remainders' true durations (:func:`_seen_loo`)."""
     from rbgp_cli.dynamics.paths import _band_factors
 
     scores = dict(zip(SEEN_TOLERANCE_GRID, _seen_loo(paths, SEEN_TOLERANCE_GRID)))
@@ -830,17 +835,23 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True):
     _, m2, z = _seen_loo(paths, [r], stats=True)
     c_rot, c_pos = _band_factors(m2, z, paths.demos, level)
     paths.seen_band_scale = (max(1.0, c_rot), max(1.0, c_pos))
-    if rest != (float(paths.smooth), float(r)):
-        _, m2_F, z_F = _seen_loo(paths, [r], stats=True, by_fraction=True, rest=rest)
-    else:
-        _, m2_F, z_F = _seen_loo(paths, [r], stats=True, by_fraction=True)
-    paths.seen_band_scales = seen_band_scales(m2_F, z_F, paths.demos, level)
     if duration:
         errors = _duration_loo(paths, trajs)
         if errors:
             (paths.duration_smooth, paths.duration_tolerance) = min(errors, key=errors.get)
             paths.info.update(duration_smooth=paths.duration_smooth, duration_tolerance=paths.duration_tolerance,
                               duration_loo_error=float(errors[(paths.duration_smooth, paths.duration_tolerance)]))
+    own = rest == (float(paths.smooth), float(r))
+    if spread is None:
+        spread = DURATION_SPREAD and paths.demos >= SPREAD_FROM
+    if spread:  # the remainders against the samples as drawn, each at its own duration (eighth pass)
+        ctx = _spread_context(paths)
+        raw = [_spread_factors(_spread_terms(paths, F, rest=None if own else rest, ctx=ctx), paths.demos, level)
+               for F in SEEN_FRACTIONS]
+        paths.seen_band_scales = _narrowed(raw, paths.demos)
+    else:
+        _, m2_F, z_F = _seen_loo(paths, [r], stats=True, by_fraction=True, rest=None if own else rest)
+        paths.seen_band_scales = seen_band_scales(m2_F, z_F, paths.demos, level)
     return paths
 
 
@@ -852,16 +863,20 @@ def seen_band_scales(m2_F, z_F, demos: int, level: float = 0.90) -> dict:
     :func:`~rbgp_cli.dynamics.paths._band_factors`), allowed below 1 as the goal bands' are
     (:meth:`~rbgp_cli.dynamics.paths.PathDistribution.goal_band_scale`): c < 1 taken as c^w, w = min(1, D /
     NARROW_FROM), and never below NARROWEST. :meth:`Anticipator.band_at` interpolates them in the seen phase."""
-    from rbgp_cli.dynamics.paths import NARROWEST, _band_factors
+    from rbgp_cli.dynamics.paths import _band_factors
+
+    return _narrowed([_band_factors(m2, z, demos, level) for m2, z in zip(m2_F, z_F)], demos)
+
+
+def _narrowed(raw, demos: int) -> dict:
+    """:func:`seen_band_scales`' dictionary from the unclamped factors ``raw`` [(c_rot, c_pos) per fraction of
+    SEEN_FRACTIONS]: c < 1 taken as c^w, w = min(1, D / NARROW_FROM), never below NARROWEST."""
+    from rbgp_cli.dynamics.paths import NARROWEST
 
     w = min(1.0, demos / NARROW_FROM)
-    rot, pos = [], []
-    for m2, z in zip(m2_F, z_F):
-        c = _band_factors(m2, z, demos, level)
-        c = [max(NARROWEST, x if x >= 1.0 else x ** w) for x in c]
-        rot.append(float(c[0]))
-        pos.append(float(c[1]))
-    return {"fractions": [float(F) for F in SEEN_FRACTIONS], "rotation": rot, "position": pos}
+    c = [[max(NARROWEST, x if x >= 1.0 else x ** w) for x in pair] for pair in raw]
+    return {"fractions": [float(F) for F in SEEN_FRACTIONS], "rotation": [float(x[0]) for x in c],
+            "position": [float(x[1]) for x in c]}
 
 
 def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6, grid_size: int = 16) -> dict:
@@ -983,6 +998,272 @@ def _duration_medians(ant, seen, poses) -> list:
         w = np.exp(lw - lw.max())
         out[i] = ant._duration_quantiles(full[keep], w / w.sum(), span)[1]
     return out
+
+
+# ----------------------------------------------------------------------------------------- the duration's part of the bands
+#: :func:`fit_seen` scores the left-out remainders against the samples as they are drawn: each at its own duration
+#: (:func:`_spread_terms`), not at the remainder's true duration (docs/defaults.md, issue 37's eighth pass)
+DURATION_SPREAD = True
+#: ... from this many demonstrations on (fewer: the seventh pass's statistic; docs/defaults.md, issue 37's eighth pass)
+SPREAD_FROM = NARROW_FROM
+#: :func:`_spread_terms`' duration grid (per left-out demonstration, over GRID_RANGE times the others' durations), the
+#: cells kept (weight above SPREAD_KEEP of the largest) and the durations per kept cell (midpoints of equal sub-cells:
+#: the samples' uniform jitter within a cell)
+SPREAD_GRID = 16
+SPREAD_KEEP = 1e-3
+SPREAD_SUB = 3
+SPREAD_BLOCK = 256
+#: seen poses of the duration's weights in :func:`_spread_terms` (as :func:`_duration_loo`'s)
+SPREAD_POINTS = 6
+
+
+def _loo_rows(ctx, d, dur, tau2, tol, query, *, logw: bool = False, cov: bool = False):
+    """Batched over rows b: the others' distribution of left-out demonstration d_b (the mean m_d and the sample part
+    c (X_o − m_d)ᵀ(X_o − m_d) of :func:`~rbgp_cli.dynamics.paths.left_out_moments`, c = (1 + 1/N)/(N − 1), plus the
+    smooth term τ² (K_ℓ ⊗ I_6 ⊕ 1)) conditioned on d_b's seen grid poses (``ctx["js"]``, at true times
+    τ_k = s_k D_(d_b)) taken as lying at the phases a_k = min(τ_k / D_b, 1) of the duration D_b = ``dur[b]``: the
+    deviation y_k of the pose from the mean path at a_k (tolerance ``tol`` in units of the spread; the last seen
+    pose exactly, GOAL_TOLERANCE, unless ``logw``, where every pose has ``tol`` as the duration's weights do) and
+    ℓ = ln D_b (tolerance _ELL_TOL). With G = A Σ Aᵀ + R (A the linear interpolation at the a_k),
+
+        x̂(q) = W(q) m_d + W(q) Σ Aᵀ G⁻¹ (y − A m_d),    W(q) Σ Aᵀ = (W(q) Z)(A Z)ᵀ + τ² K_ℓ(q, a) ⊗ I_6,
+
+    Z the others' centred, scaled rows (as columns; d_b's own column zero). ``query`` (B, T) phases. Returns
+    x̂ at the query phases (B, T, 6) scaled; with ``logw`` also −½ eᵀG⁻¹e − ½ log det G (B,) (e = y − A m_d), with
+    ``cov`` the conditioned covariance's diagonal blocks at the query phases (B, T, 6, 6). No loop over the rows:
+    every interpolation is a gather of grid values."""
+    X, Ks, S, js = ctx["X"], ctx["Ks"], ctx["S"], ctx["js"]
+    Dn = len(X)
+    B, n, T = len(d), len(js), query.shape[1]
+    c = np.sqrt((1.0 + 1.0 / (Dn - 1)) / max(Dn - 2, 1))
+    mask = np.ones((B, Dn))
+    mask[np.arange(B), d] = 0.0
+    mo = ctx["m_loo"][d]  # (B, P) the others' means
+    a = np.minimum(ctx["seen_time"][d] / dur[:, None], 1.0)  # (B, n) the seen poses' phases at D_b
+
+    def interp(ph):
+        x = ph * (S - 1)
+        k = np.minimum(x.astype(np.intp), S - 2)
+        return k, x - k
+
+    ka, fa = interp(a)
+    kq, fq = interp(np.clip(query, 0.0, 1.0))
+    Xg = ctx["Xg"]  # (S, 6, Dn) the demonstrations' path entries per grid phase
+    mg = mo[:, :-1].reshape(B, S, 6)
+
+    def rows_m(k, f):  # W m_d (B, ·, 6) at interval k, fraction f
+        bi = np.arange(B)[:, None]
+        return (1.0 - f)[..., None] * mg[bi, k] + f[..., None] * mg[bi, k + 1]
+
+    def rows(k, f):  # W X (B, ·, 6, Dn) and W m_d (B, ·, 6)
+        return (1.0 - f)[..., None, None] * Xg[k] + f[..., None, None] * Xg[k + 1], rows_m(k, f)
+
+    def kern(k1, f1, k2, f2):  # K_ℓ interpolated in both arguments (B, ·, ·)
+        g0, g1, h0, h1 = 1.0 - f1[:, :, None], f1[:, :, None], 1.0 - f2[:, None, :], f2[:, None, :]
+        i, j = k1[:, :, None], k2[:, None, :]
+        return g0 * h0 * Ks[i, j] + g0 * h1 * Ks[i, j + 1] + g1 * h0 * Ks[i + 1, j] + g1 * h1 * Ks[i + 1, j + 1]
+
+    WXa, Wma = rows(ka, fa)
+    k6 = 6 * n + 1
+    Za = np.empty((B, k6, Dn))
+    Za[:, :-1] = (WXa - Wma[..., None]).reshape(B, 6 * n, Dn)
+    Za[:, -1] = X[:, -1][None, :] - mo[:, -1:]
+    Za *= c * mask[:, None, :]
+    Kaa = kern(ka, fa, ka, fa)
+    G = Za @ Za.transpose(0, 2, 1)
+    for j in range(6):  # τ² K_ℓ ⊗ I_6: one coordinate at a time
+        G[:, j:6 * n:6, j:6 * n:6] += tau2 * Kaa
+    G[:, -1, -1] += tau2 + _ELL_TOL ** 2
+    r2 = np.full(6 * n, float(tol) ** 2)
+    if not logw:
+        r2[-6:] = ctx["r_last"]
+    dg = np.arange(6 * n)
+    G[:, dg, dg] += r2
+    e = np.empty((B, k6))
+    e[:, :-1] = (ctx["ant"]._deviations(ka, fa, ctx["seen_q"][d], ctx["seen_p"][d])
+                 + ctx["ant_m"][ka] + fa[..., None] * ctx["ant_dm"][ka] - Wma).reshape(B, 6 * n)
+    e[:, -1] = np.log(dur) / ctx["lscale"] - mo[:, -1]
+    alpha = np.linalg.solve(G, e[..., None])[..., 0]  # G⁻¹ e
+    # W(q) Z β with β = (A Z)ᵀ α: c (W(q) X b − W(q) m_d Σ b), b = mask ⊙ β, without W(q) Z itself
+    b = c * np.einsum("bkn,bk->bn", Za, alpha) * mask
+    Xb = np.einsum("scn,bn->bsc", Xg, b)  # (B, S, 6)
+    bi = np.arange(B)[:, None]
+    Wmq = rows_m(kq, fq)
+    Kqa = kern(kq, fq, ka, fa)  # (B, T, n)
+    mean = (Wmq + ((1.0 - fq)[..., None] * Xb[bi, kq] + fq[..., None] * Xb[bi, kq + 1] - Wmq * b.sum(axis=1)[:, None, None])
+            + tau2 * np.einsum("bti,bic->btc", Kqa, alpha[:, :-1].reshape(B, n, 6)))
+    out = [mean]
+    if logw:
+        L = np.linalg.cholesky(G)
+        out.append(-0.5 * np.einsum("bk,bk->b", e, alpha) - np.sum(np.log(np.diagonal(L, axis1=1, axis2=2)), axis=1))
+    if cov:
+        WXq, _ = rows(kq, fq)
+        Zq = c * (WXq - Wmq[..., None]) * mask[:, None, None, :]  # (B, T, 6, Dn)
+        SqA = np.einsum("btcn,bkn->btck", Zq, Za)  # (B, T, 6, k6) Σ_qA
+        SqA[..., :-1] += tau2 * (Kqa[:, :, None, :, None] * np.eye(6)[None, None, :, None, :]).reshape(B, T, 6, 6 * n)
+        SqA = SqA.reshape(B, 6 * T, k6)
+        GS = np.linalg.solve(G, SqA.transpose(0, 2, 1)).reshape(B, k6, T, 6)  # G⁻¹ Σ_Aq
+        Kqq = Ks[kq, kq] * (1 - fq) ** 2 + 2 * Ks[kq, kq + 1] * fq * (1 - fq) + Ks[kq + 1, kq + 1] * fq ** 2
+        C = np.einsum("btcn,btdn->btcd", Zq, Zq) + tau2 * Kqq[..., None, None] * np.eye(6)
+        out.append(C - np.einsum("btck,bktd->btcd", SqA.reshape(B, T, 6, k6), GS))
+    return tuple(out) if len(out) > 1 else mean
+
+
+def _spread_context(paths, points: int = SEEN_POINTS):
+    """What :func:`_loo_rows` needs whatever the fraction: the demonstrations' vectors X (D, P) and their path
+    entries per grid phase (S, 6, D), each one's others' mean (D, P) and durations' grid (D, SPREAD_GRID), K_ℓ,
+    an :class:`Anticipator` of the whole distribution (its :meth:`~Anticipator._deviations`, whose prior mean is
+    added back), the last seen pose's tolerance r² (6,) and each demonstration's poses on the grid."""
+    from rbgp_cli.dynamics.paths import GOAL_TOLERANCE
+
+    X = paths.vectors()
+    Dn, P = X.shape
+    S = paths.S
+    m_loo = (X.sum(axis=0)[None] - X) / (Dn - 1)
+    ant = Anticipator(paths)
+    am = ant.m[:-1].reshape(S, 6)
+    q, p = paths.pose_at(paths.deviations, paths.s)  # (D, S, 4), (D, S, 3) the demonstrations on the grid
+    dur = np.exp(paths.log_durations)
+    others = np.array([np.delete(dur, i) for i in range(Dn)])
+    lo, hi = np.log(GRID_RANGE[0] * others.min(axis=1)), np.log(GRID_RANGE[1] * others.max(axis=1))
+    grid = np.exp(lo[:, None] + (hi - lo)[:, None] * np.linspace(0.0, 1.0, SPREAD_GRID)[None])
+    return dict(X=X, Xg=np.ascontiguousarray(X[:, :-1].T.reshape(S, 6, Dn)), S=S, m_loo=m_loo,
+                Ks=np.exp(-0.5 * ((paths.s[:, None] - paths.s[None, :]) / paths.length) ** 2),
+                ant=ant, ant_m=am[:-1], ant_dm=np.diff(am, axis=0), lscale=paths.duration_scale,
+                r_last=(np.array(GOAL_TOLERANCE).repeat(3) / paths.scale) ** 2, q=q, p=p, dur=dur, grid=grid,
+                half=0.5 * (hi - lo) / (SPREAD_GRID - 1), points=points)
+
+
+def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None) -> dict:
+    """The left-out remainders of fraction F against the samples as drawn (module docstring, issue 37's eighth
+    pass). Each demonstration d left out, its first F seen at its true phases (:func:`seen_split`'s seen grid
+    phases; the last exactly); the remainder scored at every grid phase s_j after F, u_j = (s_j − s_J)/(1 − s_J)
+    its normalised time. The samples draw D from the duration's weights (the others' distribution with the
+    duration's τ² and r on SPREAD_GRID durations; cells above SPREAD_KEEP of the largest, SPREAD_SUB durations
+    each) and follow, at u_j, the phase s_g(u_j) = s0_g + u_j (1 − s0_g), s0_g = s_J D_d / D_g. With y_gj the
+    deviation from the mean path at s_j of the own conditioned mean at D_g taken at s_g(u_j) (scaled),
+
+        ȳ_j = Σ_g w_g y_gj,   V_j = Σ_g w_g (y_gj − ȳ_j)(y_gj − ȳ_j)ᵀ,   ê_j = x_dj − μ_j − (ȳ_j − x̂_j),
+
+    μ_j the mean the continuation follows (the rest's τ² and r; ``rest`` None: the own) and x̂_j the own conditioned
+    mean at the true duration. Returns {"e": ê (R, 6), "V": (R, 6, 6), "C": the own conditioned covariance's
+    diagonal blocks at the true duration (R, 6, 6), "w": each scored phase's share of the remainder's normalised
+    time (R,)}, R = D × the scored phases, demonstration-major."""
+    ctx = _spread_context(paths) if ctx is None else ctx
+    X, S = ctx["X"], ctx["S"]
+    Dn, P = X.shape
+    idx, no = seen_split(F, S, P, ctx["points"])
+    js = idx[:no - 1:6] // 6  # the seen grid phases
+    J = int(js[-1])
+    jt = np.arange(J + 1, S)
+    T = len(jt)
+    u = (jt - J) / (S - 1 - J)
+    ctx = dict(ctx, js=js, seen_time=ctx["dur"][:, None] * paths.s[js][None], seen_q=ctx["q"][:, js], seen_p=ctx["p"][:, js])
+    tau2, r = float(paths.smooth), float(paths.seen_tolerance)
+    ds = np.arange(Dn)
+    true_q = np.broadcast_to(paths.s[jt], (Dn, T))
+    own, C = _loo_rows(ctx, ds, ctx["dur"], tau2, r, true_q, cov=True)
+    mu = own if rest is None or tuple(rest) == (tau2, r) else _loo_rows(ctx, ds, ctx["dur"], float(rest[0]), float(rest[1]), true_q)
+    # the duration's weights over each left-out demonstration's grid (durations shorter than the seen span left out)
+    dsm = float(paths.smooth if paths.duration_smooth is None else paths.duration_smooth)
+    dtol = float(paths.seen_tolerance if paths.duration_tolerance is None else paths.duration_tolerance)
+    span = ctx["seen_time"][:, -1]
+    grid = ctx["grid"]
+    rows_d = np.repeat(ds, SPREAD_GRID)
+    idx6, no6 = seen_split(F, S, P, SPREAD_POINTS)
+    js6 = idx6[:no6 - 1:6] // 6
+    ctx6 = dict(ctx, js=js6, seen_time=ctx["dur"][:, None] * paths.s[js6][None], seen_q=ctx["q"][:, js6],
+                seen_p=ctx["p"][:, js6])
+    _, lw = _loo_rows(ctx6, rows_d, grid.ravel(), dsm, dtol, np.zeros((len(rows_d), 1)), logw=True)
+    lw = np.where(grid.ravel() >= span[rows_d], lw, -np.inf).reshape(Dn, SPREAD_GRID)
+    lw = np.where(np.isfinite(lw).any(axis=1, keepdims=True), lw, np.where(np.arange(SPREAD_GRID) == SPREAD_GRID - 1, 0.0, -np.inf))
+    w = np.exp(lw - lw.max(axis=1, keepdims=True))
+    w /= w.sum(axis=1, keepdims=True)
+    dd, gg = np.nonzero(w > SPREAD_KEEP * w.max(axis=1, keepdims=True))
+    off = (2.0 * np.arange(SPREAD_SUB) + 1.0 - SPREAD_SUB) / SPREAD_SUB  # sub-cell midpoints in half steps
+    rd = np.repeat(dd, SPREAD_SUB)
+    Dg = np.maximum(np.exp(np.log(grid[dd, gg])[:, None] + off[None] * ctx["half"][dd, None]).ravel(), span[rd] * (1 + 1e-9))
+    wg = np.repeat(w[dd, gg], SPREAD_SUB) / SPREAD_SUB
+    s0 = np.minimum(span[rd] / Dg, 1.0)
+    q = s0[:, None] + u[None] * (1.0 - s0[:, None])  # (R_g, T)
+    # the own conditioned means at D_g, at s_g(u_j) (R_g, T, 6), in blocks of SPREAD_BLOCK rows (memory)
+    xg = np.concatenate([_loo_rows(ctx, rd[i:i + SPREAD_BLOCK], Dg[i:i + SPREAD_BLOCK], tau2, r, q[i:i + SPREAD_BLOCK])
+                         for i in range(0, len(rd), SPREAD_BLOCK)])
+    y = _rebase(paths, xg, q, np.broadcast_to(paths.s[jt], q.shape))
+    wsum = np.zeros(Dn)
+    np.add.at(wsum, rd, wg)
+    wn = wg / wsum[rd]
+    ybar = np.zeros((Dn, T, 6))
+    np.add.at(ybar, rd, wn[:, None, None] * y)
+    dy = y - ybar[rd]
+    V = np.zeros((Dn, T, 6, 6))
+    np.add.at(V, rd, wn[:, None, None, None] * dy[..., :, None] * dy[..., None, :])
+    x_true = X[:, :-1].reshape(Dn, S, 6)[:, jt]
+    e_hat = x_true - mu - (ybar - own)
+    mid = np.concatenate([[0.0], 0.5 * (u[1:] + u[:-1]), [1.0]])
+    share = np.diff(mid)
+    return {"e": e_hat.reshape(-1, 6), "V": V.reshape(-1, 6, 6), "C": C.reshape(-1, 6, 6),
+            "w": np.tile(share, Dn)}
+
+
+def _rebase(paths, x, q, s):
+    """Scaled deviations x (..., 6) from the mean path at phases q (...) re-expressed from the mean path at
+    phases s (...): (log(exp(δ_rot) R̄(q) R̄(s)ᵀ), p̄(q) + δ_pos − p̄(s)) / σ, δ = x σ."""
+    from rbgp_cli.dynamics.paths import pose_deviation
+    from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
+
+    zero = np.zeros((paths.S, 6))
+    qq, qp = paths.pose_at(zero, q.reshape(-1))
+    sq, sp = paths.pose_at(zero, s.reshape(-1))
+    dev = x.reshape(-1, 6) * paths.scale
+    out = pose_deviation(sq, sp, quat_multiply(exp_quat(dev[:, :3]), qq), qp + dev[:, 3:])
+    return (out / paths.scale).reshape(x.shape)
+
+
+def _spread_factors(terms, demos: int, level: float = 0.90) -> tuple[float, float]:
+    """The factors (c_rot, c_pos) the scored remainders of :func:`_spread_terms` need (unclamped): per scored
+    phase and position coordinate the smallest c with ê² ≤ c² t_ν² σ² + z² v (σ² the draws' variance, C's
+    diagonal; v V's; t_ν the draws' Student-t 95 % quantile, ν = D − 2; z the normal's), per rotation the smallest
+    c with êᵀ(c² 3 F_0.9(3, ν) C + χ²_3,0.9 V)⁻¹ ê ≤ 1 (bisection in c²; V = 0: c² = êᵀC⁻¹ê / 3F, the rule of
+    :func:`~rbgp_cli.dynamics.paths._band_factors`); the factor is the ``level`` quantile of the needs, each
+    weighted by its phase's share of the remainder's normalised time."""
+    from scipy.special import chdtri, fdtri, ndtri, stdtrit
+
+    nu = max(int(demos) - 2, 1)
+    e, V, C, w = terms["e"], terms["V"], terms["C"], terms["w"]
+    t2 = stdtrit(nu, 0.5 + level / 2.0) ** 2
+    z2 = ndtri(0.5 + level / 2.0) ** 2
+    sig2 = np.maximum(np.einsum("rii->ri", C[:, 3:, 3:]), 1e-24)
+    v = np.einsum("rii->ri", V[:, 3:, 3:])
+    c_pos = np.sqrt(np.maximum(e[:, 3:] ** 2 - z2 * v, 0.0) / (t2 * sig2))  # (R, 3)
+    f3, chi = 3.0 * fdtri(3, nu, level), chdtri(3, 1.0 - level)
+    # with C = L Lᵀ and L⁻¹ V L⁻ᵀ = Q Λ Qᵀ the form is Σ_i a_i² / (c² 3F + χ² λ_i), a = Qᵀ L⁻¹ ê: decreasing in c²
+    L = np.linalg.cholesky(C[:, :3, :3] + 1e-12 * np.eye(3))
+    Li = np.linalg.inv(L)
+    lam, Q = np.linalg.eigh(Li @ V[:, :3, :3] @ np.swapaxes(Li, 1, 2))
+    a2 = np.einsum("rji,rj->ri", Q, np.einsum("rij,rj->ri", Li, e[:, :3])) ** 2
+    lam = np.maximum(lam, 0.0)
+
+    def form(c2):
+        return np.sum(a2 / np.maximum(c2[:, None] * f3 + chi * lam, 1e-300), axis=1)
+
+    hi = a2.sum(axis=1) / f3  # enough with V = 0 (then exactly êᵀC⁻¹ê / 3F)
+    lo = np.zeros_like(hi)
+    hi = np.where(form(lo) <= 1.0, 0.0, hi)
+    for _ in range(60):  # bisection, every phase at once
+        mid = 0.5 * (lo + hi)
+        ok = form(mid) <= 1.0
+        hi = np.where(ok, mid, hi)
+        lo = np.where(ok, lo, mid)
+    c_rot = np.sqrt(hi)
+    return _weighted_quantile(c_rot, w, level), _weighted_quantile(c_pos.ravel(), np.repeat(w, 3), level)
+
+
+def _weighted_quantile(x, w, level):
+    """The smallest x_i with Σ_{x_k ≤ x_i} w_k ≥ level Σ w."""
+    o = np.argsort(x)
+    cw = np.cumsum(w[o])
+    return float(x[o][min(int(np.searchsorted(cw, level * cw[-1])), len(x) - 1)])
 
 
 # ----------------------------------------------------------------------------------------- streams

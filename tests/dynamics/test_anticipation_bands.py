@@ -192,8 +192,8 @@ def test_a_model_file_keeps_the_factors_and_one_without_them_loads_as_before(tmp
         load_model(tmp_path / "bad.rbgp")
 
 
-def _rich_family(n, seed, K=5):
-    """``n`` motions of 2 s (± 0.2 %) at 50 Hz: a minimum-jerk reach (0.6 m in x, an arc of 0.15 m in y, a turn of
+def _rich_family(n, seed, K=5, spread=0.002):
+    """``n`` motions of 2 s (± ``spread`` in ln D, 0.2 %) at 50 Hz: a minimum-jerk reach (0.6 m in x, an arc of 0.15 m in y, a turn of
     1 rad about z) plus a random smooth deviation per motion in all six coordinates (K sines of phase per
     coordinate, amplitude 1/k each), scaled by 1 − 0.7 s (2 cm and 0.1 rad at the start, 0.3 of that at the end):
     paths whose spread depends on the phase."""
@@ -201,7 +201,7 @@ def _rich_family(n, seed, K=5):
     out = []
     k = np.arange(1, K + 1)
     for d in range(n):
-        D = float(np.exp(np.log(2.0) + 0.002 * rng.standard_normal()))
+        D = float(np.exp(np.log(2.0) + spread * rng.standard_normal()))
         t = np.arange(0.0, D + 1e-9, 0.02)
         s = t / D
         c = rng.standard_normal((6, K)) / k
