@@ -6,7 +6,15 @@ import os
 import stat
 from pathlib import Path
 
-import pytest
+# Under pytest-xdist (``-n auto``: one worker per core) a worker's BLAS runs on one thread: two workers
+# with a pool of two threads each would take four threads on two cores and spin-wait for each other.
+# Set before numpy is first imported (the plugins pytest loads do not import it); tests that need more
+# threads ask threadpoolctl for them. Subprocesses started by the tests inherit the setting.
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(_var, "1")
+
+import pytest  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 REALDATA = Path(os.environ.get("RBGP_REALDATA", REPO.parent / "shared" / "realdata"))

@@ -19,6 +19,7 @@ def _square(x):
 
 
 def _blas_threads(_):
+    import numpy  # noqa: F401  (threadpoolctl sees only the libraries loaded: numpy's OpenBLAS)
     from threadpoolctl import threadpool_info
 
     return max(p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas")
@@ -232,6 +233,7 @@ def _pool_result():
 
 
 def test_blas_threads_limits_small_problems_and_one_thread_limits_every_pool():
+    import numpy  # noqa: F401  (loads OpenBLAS: run alone, this module had not, and threadpoolctl saw no pool)
     import threadpoolctl
 
     from rbgp_cli import compute
@@ -242,6 +244,15 @@ def test_blas_threads_limits_small_problems_and_one_thread_limits_every_pool():
         with compute.one_thread():
             assert {p["threads"] for p in compute.blas_pools()} == {1}
         assert {p["num_threads"] for p in threadpoolctl.threadpool_info() if p["user_api"] == "blas"} == {2}
+
+
+def test_a_pytest_xdist_worker_runs_blas_on_one_thread():
+    """tests/conftest.py sets OPENBLAS_NUM_THREADS=1 in each pytest-xdist worker before numpy loads
+    (two workers with two BLAS threads each took four threads on the two cores); if numpy were imported
+    first, the pool would have one thread per core. A value set by the caller is kept."""
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        pytest.skip("not a pytest-xdist worker")
+    assert _blas_threads(0) == int(os.environ["OPENBLAS_NUM_THREADS"])
 
 
 @pytest.mark.slow
