@@ -422,6 +422,10 @@ def check_crossval(res, folder, shown):
     for r in rows.values():
         assert float(r["score"]) >= 0 and float(r["ratio"]) == pytest.approx(float(r["score"]) / float(r["floor"]), abs=0.006)
         assert 0 <= float(r["pos_m"]) < 1 and 0 <= float(r["rot_rad"]) < np.pi
+    for name in ("axis-angle", "euler", "quaternion"):  # rbgp's bands: coverage ± its SE over the motions
+        for key in ("cov_pos", "cov_rot"):
+            cov, se = (float(x) for x in rows[name][key].split("±"))
+            assert 0 <= cov <= 1 and 0 <= se < 0.5
 
 
 def check_bench(res, folder, shown):

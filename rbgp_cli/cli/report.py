@@ -244,6 +244,15 @@ def _num(v, fmt: str = ".3f") -> str:
     return "-" if v is None else format(v, fmt)
 
 
+def _cov_cell(value, se, width: int) -> str:
+    """A coverage and its standard error over the held-out motions, ``0.85±0.03`` (``0.85`` without an SE,
+    ``-`` without a coverage), right-aligned in ``width``."""
+    if value is None or value != value:
+        return f"{'-':>{width}}"
+    text = f"{value:.2f}" + ("" if se is None or se != se else f"±{se:.2f}")
+    return f"{text:>{width}}"
+
+
 def _options_label(row: dict) -> str:
     """The --grid options of a crossval row: its label after the representation and kernel."""
     if not row.get("options"):
@@ -267,7 +276,8 @@ def format_crossval(result: dict, per_fold: bool = False) -> str:
         "(lower is better); ratio = score / floor; pos/rot: RMSE against the held-out demonstration with the "
         "same start (m, rad); vel: relative velocity RMSE on held-out pairs (1 = predicting zero); sample: one "
         "sampled rollout per start scored like score, over the floor; cov_pos/cov_rot: how often the held-out "
-        "motion lies inside the samples' 90 % prediction region (0.90 = honest bands); left: rollouts "
+        "motion lies inside the samples' 90 % prediction region (0.90 = honest bands) ± its standard error over "
+        "the held-out motions; left: rollouts "
         "that left the training demonstrations' envelope; kernel 'no-GP': the same fits with the GP's residual "
         "switched off (the path distribution alone), what the GP adds is the difference"
         + (f" (held-out demonstrations: {result['floor_left_data']} of {result['demonstrations'] * R})"
@@ -275,7 +285,7 @@ def format_crossval(result: dict, per_fold: bool = False) -> str:
         splits_text(result),
         "",
         f"{'representation':<14} {'kernel':<10} {'score':>8} {'floor':>7} {'ratio':>7} {'rotation':>9} {'translation':>11}"
-        f" {'pos_m':>7} {'rot_rad':>7} {'vel':>6} {'sample':>7} {'cov_pos':>7} {'cov_rot':>7} {'train_s':>8} {'left':>5}",
+        f" {'pos_m':>7} {'rot_rad':>7} {'vel':>6} {'sample':>7} {'cov_pos':>9} {'cov_rot':>9} {'train_s':>8} {'left':>5}",
     ]
     goal = result.get("given") == "goal"
     if goal:  # the end errors of the mean motions, after the other columns
@@ -298,8 +308,8 @@ def format_crossval(result: dict, per_fold: bool = False) -> str:
             end = f" {_num(mm, '7.1f'):>7} {_num(mrad, '8.1f'):>8}"
         return (f"{label_rep:<14} {label_kern:<10} {r['score']:8.3f} {r['floor']:7.3f} {r['ratio']:7.2f} {r['rotation']:9.3f}"
                 f" {r['translation']:11.3f} {r['position_rmse']:7.3f} {r['rotation_rmse']:7.3f} {_num(r['velocity_rmse'], '6.3f'):>6}"
-                f" {_num(r.get('sample_ratio'), '7.2f'):>7} {_num(r.get('coverage_position'), '7.2f'):>7}"
-                f" {_num(r.get('coverage_rotation'), '7.2f'):>7}"
+                f" {_num(r.get('sample_ratio'), '7.2f'):>7} {_cov_cell(r.get('coverage_position'), r.get('coverage_position_se'), 9)}"
+                f" {_cov_cell(r.get('coverage_rotation'), r.get('coverage_rotation_se'), 9)}"
                 f" {r['train_s']:8.1f} {_num(r.get('left_data'), 'd'):>5}" + end + (f"  {opts}" if opts else "") + flag)
 
     for r in result["results"]:
@@ -353,9 +363,10 @@ def _paired_lines(result: dict) -> list[str]:
 def format_under_way(result: dict) -> str:
     """crossval --given's table: one row per seen fraction and method (rbgp_cli.evaluation.under_way)."""
     head = (f"{'given':>5} {'method':<12} {'end_pos':>8} {'end_rot':>8} {'end_time':>8} {'rest_pos':>8} "
-            f"{'rest_rot':>8} {'cov_pos':>7} {'cov_rot':>7}")
+            f"{'rest_rot':>8} {'cov_pos':>9} {'cov_rot':>9}")
     lines = [f"a motion under way: {result['folds']} folds, {result['samples']} samples per motion; "
-             "end and rest errors in m / rad / s, coverage of the remainder by the 90 % bands", head]
+             "end and rest errors in m / rad / s, coverage of the remainder by the 90 % bands ± its standard error "
+             "over the held-out motions", head]
 
     def f(x, w, d):
         return f"{x:>{w}.{d}f}" if x == x else f"{'-':>{w}}"
@@ -363,7 +374,7 @@ def format_under_way(result: dict) -> str:
     for r in result["rows"]:
         lines.append(f"{r['given']:>5g} {r['method']:<12} {f(r['end_pos'], 8, 3)} {f(r['end_rot'], 8, 3)} "
                      f"{f(r['end_time'], 8, 3)} {f(r['rest_pos'], 8, 3)} {f(r['rest_rot'], 8, 3)} "
-                     f"{f(r['cov_pos'], 7, 2)} {f(r['cov_rot'], 7, 2)}")
+                     f"{_cov_cell(r['cov_pos'], r.get('cov_pos_se'), 9)} {_cov_cell(r['cov_rot'], r.get('cov_rot_se'), 9)}")
     return "\n".join(lines + _under_way_paired_lines(result))
 
 

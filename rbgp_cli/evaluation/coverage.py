@@ -17,6 +17,10 @@ A model that gives its band directly (rbgp's sampled rollouts: the predictive's 
 mean rollout, :meth:`rbgp_cli.dynamics.variation.Variation.region`) is measured with that band instead
 (:func:`band_coverage`): its samples are typical motions, narrower than the next motion's band, and a
 band is what a user gets.
+Its standard error (:func:`coverage_se`) is taken over the held-out motions, not the steps: a motion's
+steps lie inside or outside together, so ten motions of a hundred steps each are ten observations, not a
+thousand.
+
 It comes with the band's width (position: the mean half-width in metres; rotation: the mean radius
 √(threshold · λ) of the ellipsoid, averaged over its three axes, in radians): a band is useful only when
 it is both honest and narrow.
@@ -31,7 +35,8 @@ import numpy as np
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.evaluation.resample import mean_rotation, resample_all, tangent_features
 
-__all__ = ["Coverage", "prediction_coverage", "band_coverage", "band_thresholds", "LEVEL", "MIN_SAMPLES"]
+__all__ = ["Coverage", "prediction_coverage", "band_coverage", "band_thresholds", "coverage_se", "LEVEL",
+           "MIN_SAMPLES"]
 
 #: The nominal level of the prediction region.
 LEVEL = 0.90
@@ -76,6 +81,38 @@ class Coverage:
                 "coverage_rotation": frac(self.rotation_inside, self.rotation_count),
                 "band_position": frac(self.position_width_sum, self.position_count),
                 "band_rotation": frac(self.rotation_width_sum, self.rotation_count)}
+
+
+def coverage_se(inside, count, groups=None) -> float | None:
+    """The standard error of the pooled coverage p = Σ inᵢ / Σ nᵢ over M independent units (held-out motions).
+
+    ``inside``, ``count``: (E,) steps inside and steps scored per entry; ``groups``: (E,) the unit of each
+    entry (e.g. a demonstration's index; None: every entry its own unit). Entries of one unit are summed
+    first, inᵢ = Σ in, nᵢ = Σ n over its entries (a motion held out by R repeats counts once, its R rollouts
+    pooled as its coverage pools them; the pooled p is unchanged by the grouping). Then the ratio
+    estimator's standard error (Cochran 1977, §6.3, without the finite-population factor)
+
+        SE = √( Σᵢ (inᵢ − p nᵢ)² / (M (M − 1)) ) / n̄,   n̄ = Σ nᵢ / M,
+
+    with nᵢ all equal the standard error of the mean of the per-motion coverages inᵢ / nᵢ. It treats the
+    units as independent (motions held out in one fold share a model, which this does not see) and the
+    steps within a unit as wholly dependent. None when M < 2 or nothing was scored; 0 when every unit has
+    the same coverage."""
+    a = np.asarray(inside, dtype=np.float64).ravel()
+    n = np.asarray(count, dtype=np.float64).ravel()
+    if a.shape != n.shape:
+        raise ValueError(f"coverage_se needs inside and count of one shape, got {a.shape} and {n.shape}")
+    if groups is not None:
+        g = np.asarray(groups).ravel()
+        if g.shape != a.shape:
+            raise ValueError(f"coverage_se needs one group per entry, got {g.shape} for {a.shape}")
+        _, unit = np.unique(g, return_inverse=True)
+        a, n = np.bincount(unit, weights=a), np.bincount(unit, weights=n)
+    M = len(a)
+    if M < 2 or n.sum() <= 0:
+        return None
+    p = a.sum() / n.sum()
+    return float(np.sqrt(np.sum((a - p * n) ** 2) / (M * (M - 1))) / (n.sum() / M))
 
 
 def band_thresholds(K: int, level: float = LEVEL) -> tuple[float, float]:

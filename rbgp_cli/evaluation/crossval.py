@@ -34,7 +34,9 @@ library, optional) are in :mod:`rbgp_cli.evaluation.peers`; their ``train_s`` is
 
 Overall numbers: score, floor, rotation and translation parts are means over folds (the ratio is
 score / floor of those means); trajectory and velocity errors are pooled over all held-out
-demonstrations; ``train_s`` is the mean training time per fold.
+demonstrations, and so are the coverages, each with its standard error over the held-out demonstrations
+(``coverage_position_se``, ``coverage_rotation_se``: :func:`rbgp_cli.evaluation.coverage.coverage_se`, a
+demonstration held out by several splits counted once); ``train_s`` is the mean training time per fold.
 
 **Paired comparisons.** Every row also keeps its trajectory errors per held-out demonstration
 (``per_motion``: its index in the input order, its name, and its position and rotation RMSE
@@ -382,17 +384,18 @@ def _sample_columns(drawn, train: list[Trajectory], test: list[Trajectory], T: i
     # one set's score varies by ±25 % from draw to draw)
     sets = [evaluate([d[k] for d in drawn], train, length=T, covariance=covariance, sample_size="record")
             for k in range(min(len(d) for d in drawn))]
-    cov = Coverage()
+    each = []  # one Coverage per held-out motion, in the order of ``test``
     if gen is not None and all("band" in g.info for g in gen):
-        for g, real in zip(gen, test):
-            cov = cov + band_coverage(g, *g.info["band"], real, T)
+        each = [band_coverage(g, *g.info["band"], real, T) for g, real in zip(gen, test)]
     elif len(drawn[0]) >= MIN_SAMPLES:
-        for d, real in zip(drawn, test):
-            cov = cov + prediction_coverage(d, real, T)
+        each = [prediction_coverage(d, real, T) for d, real in zip(drawn, test)]
+    cov = sum(each, Coverage())
     scores = [float(e.mean) for e in sets]
     return {"sample_score": float(np.mean(scores)), "sample_offset": float(np.mean([e.offset for e in sets])),
             "sample_spread": float(np.mean([e.spread for e in sets])), "sample_scores": scores,
-            "coverage": list(cov.astuple())}
+            "coverage": list(cov.astuple()),
+            # (position inside, position count, rotation inside, rotation count) per held-out motion: the SEs
+            "motion_coverage": [list(c.astuple()[:4]) for c in each]}
 
 
 def run_fold(config: Config, train: list[Trajectory], test: list[Trajectory], *, length: int | None = None,
@@ -521,15 +524,31 @@ def _per_motion(folds: list[np.ndarray], results: list[dict], names: list[str] |
     """Per held-out demonstration (by its index in the input order, and its ``name``): its position and
     rotation RMSE, sqrt(Σ sum / Σ count) over every split that held it out (one with a single set of
     folds; R with ``repeats`` R; those of its subsets with ``train_size``); sorted by index, the
-    demonstrations never held out left out. None when the results carry no per-motion sums."""
+    demonstrations never held out left out; with sampled coverage also its ``coverage_position`` and
+    ``coverage_rotation`` (steps inside over steps scored, pooled over the same splits) and
+    ``coverage_steps`` (the rotation's steps scored; the position's are three per step). None when the
+    results carry no per-motion sums."""
     if not results or any("motion_count" not in r for r in results):
         return None
     sums: dict[int, np.ndarray] = {}
+    covs: dict[int, np.ndarray] = {}
+    with_cov = all(r.get("motion_coverage") for r in results)
     for test_idx, r in zip(folds, results):
         for i, a, b, c in zip(test_idx, r["motion_position_sq"], r["motion_rotation_sq"], r["motion_count"]):
             sums[int(i)] = sums.get(int(i), np.zeros(3)) + (a, b, c)
+        if with_cov:
+            for i, c in zip(test_idx, r["motion_coverage"]):
+                covs[int(i)] = covs.get(int(i), np.zeros(4)) + np.asarray(c, dtype=np.float64)
+
+    def coverage(i):
+        if i not in covs:
+            return {}
+        a = covs[i]
+        return {"coverage_position": float(a[0] / a[1]) if a[1] else None,
+                "coverage_rotation": float(a[2] / a[3]) if a[3] else None, "coverage_steps": int(a[3])}
+
     return [{"index": i, **({"name": names[i]} if names is not None else {}),
-             "position_rmse": math.sqrt(v[0] / v[2]), "rotation_rmse": math.sqrt(v[1] / v[2])}
+             "position_rmse": math.sqrt(v[0] / v[2]), "rotation_rmse": math.sqrt(v[1] / v[2]), **coverage(i)}
             for i, v in sorted(sums.items())]
 
 
@@ -606,7 +625,7 @@ def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[di
         for key in ("points", "residual_gain", "full_fit"):
             if key in r:
                 entry[key] = r[key]
-        entry.update(_sampled_summary([r], [floor.mean]))
+        entry.update(_sampled_summary([r], [floor.mean], [test_idx]))
         per_fold.append(entry)
     score = float(np.mean([r["score"] for r in results]))
     floor = float(np.mean([f.mean for f in floors]))
@@ -639,7 +658,7 @@ def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[di
         "rotation_rmse": _pooled_rmse(sum(r["rotation_sq"] for r in results), count),
         **_velocity_summary([r["velocity"] for r in results]),
         "train_s": float(np.mean([r["train_s"] for r in results])),
-        **_sampled_summary(results, [f.mean for f in floors]),
+        **_sampled_summary(results, [f.mean for f in floors], folds),
         **_end_summary(results),
         "left_data": sum(int(r.get("left_data") or 0) for r in results),
         "reliable": all(e["reliable"] for e in per_fold),
@@ -658,13 +677,16 @@ def _end_summary(results: list[dict]) -> dict:
     return {"end_position": sum(r["end"][0] for r in results) / n, "end_rotation": sum(r["end"][1] for r in results) / n}
 
 
-def _sampled_summary(results: list[dict], floors: list[float]) -> dict:
-    """sample_score (mean over folds), sample_ratio (over the mean floor) and the pooled coverage
-    columns, or all None where the row has no samples (the replay peer, or samples=0)."""
-    from rbgp_cli.evaluation.coverage import Coverage
+def _sampled_summary(results: list[dict], floors: list[float], folds: list | None = None) -> dict:
+    """sample_score (mean over folds), sample_ratio (over the mean floor), the pooled coverage columns and
+    their standard errors over the held-out motions ``coverage_position_se`` / ``coverage_rotation_se``
+    (:func:`~rbgp_cli.evaluation.coverage.coverage_se`, a motion held out by several splits, ``folds`` the
+    splits' held-out indices, counted once; None with fewer than two motions), or all None where the row
+    has no samples (the replay peer, or samples=0)."""
+    from rbgp_cli.evaluation.coverage import Coverage, coverage_se
 
     keys = ("sample_score", "sample_ratio", "sample_score_one", "sample_offset", "sample_spread", "coverage_position",
-            "coverage_rotation", "band_position", "band_rotation")
+            "coverage_rotation", "band_position", "band_rotation", "coverage_position_se", "coverage_rotation_se")
     if not results or any("sample_score" not in r for r in results):
         return dict.fromkeys(keys)
     score = float(np.mean([r["sample_score"] for r in results]))
@@ -673,6 +695,13 @@ def _sampled_summary(results: list[dict], floors: list[float]) -> dict:
     for r in results:
         total = total + Coverage(*r["coverage"])
     cov = {k: (None if not math.isfinite(v) else v) for k, v in total.to_dict().items()}
+    cov["coverage_position_se"] = cov["coverage_rotation_se"] = None
+    if all(r.get("motion_coverage") for r in results):
+        each = np.array([c for r in results for c in r["motion_coverage"]], dtype=np.float64).reshape(-1, 4)
+        unit = (np.concatenate([np.asarray(f, dtype=np.int64) for f in folds]) if folds is not None
+                else np.arange(len(each)))
+        cov["coverage_position_se"] = coverage_se(each[:, 0], each[:, 1], unit)
+        cov["coverage_rotation_se"] = coverage_se(each[:, 2], each[:, 3], unit)
     parts = {k: float(np.mean([r[k] for r in results])) for k in ("sample_offset", "sample_spread")}
     # the first set alone (one draw per start), as a single `rollout --samples 1` per start would score
     one = float(np.mean([r["sample_scores"][0] for r in results])) if all(r.get("sample_scores") for r in results) else None

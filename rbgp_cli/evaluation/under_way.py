@@ -9,7 +9,9 @@ duration. The columns per method and F:
 - ``rest_pos`` (m), ``rest_rot`` (rad): the remainder's RMSE, prediction and truth each resampled to 100
   steps of its own normalised time;
 - ``cov_pos``, ``cov_rot``: how often the real remainder lies in the 90 % prediction region of K sampled
-  continuations (:func:`~rbgp_cli.evaluation.coverage.prediction_coverage`; methods without samples: none).
+  continuations (:func:`~rbgp_cli.evaluation.coverage.prediction_coverage`; methods without samples: none),
+  ``cov_pos_se``, ``cov_rot_se`` their standard errors over the held-out motions
+  (:func:`~rbgp_cli.evaluation.coverage.coverage_se`).
 
 Methods: ``rbgp`` (:class:`~rbgp_cli.dynamics.anticipation.Anticipator` with the model's GP dynamics),
 ``no-GP`` (the same, its mean the conditioned path alone), ``nearest`` (the training demonstration and
@@ -64,7 +66,9 @@ class UnderWayScores:
     """Per held-out motion of one method at one F (see the module docstring), in the order they were
     scored: ``end_pos``, ``end_rot``, ``end_time`` (one value each), ``motion_sq`` ((Σ squared position
     error, Σ squared rotation error, steps) of its remainder), ``index`` (its place in the input order, or
-    None); ``coverage`` the pooled :class:`~rbgp_cli.evaluation.coverage.Coverage` (None without samples)."""
+    None); ``coverage`` the pooled :class:`~rbgp_cli.evaluation.coverage.Coverage` (None without samples);
+    ``motion_coverage`` per motion with samples (position inside, position count, rotation inside, rotation
+    count): the coverages' standard errors over the motions."""
 
     end_pos: list = field(default_factory=list)
     end_rot: list = field(default_factory=list)
@@ -72,6 +76,7 @@ class UnderWayScores:
     motion_sq: list = field(default_factory=list)
     index: list = field(default_factory=list)
     coverage: object = None
+    motion_coverage: list = field(default_factory=list)
 
     @property
     def sp(self) -> float:
@@ -91,12 +96,13 @@ class UnderWayScores:
     def add(self, other: "UnderWayScores") -> "UnderWayScores":
         cov = self.coverage if other.coverage is None else (other.coverage if self.coverage is None else self.coverage + other.coverage)
         return UnderWayScores(self.end_pos + other.end_pos, self.end_rot + other.end_rot, self.end_time + other.end_time,
-                              self.motion_sq + other.motion_sq, self.index + other.index, cov)
+                              self.motion_sq + other.motion_sq, self.index + other.index, cov,
+                              self.motion_coverage + other.motion_coverage)
 
     def with_index(self, index: int) -> "UnderWayScores":
         """The same scores of one motion, labelled with its place in the input order."""
         return UnderWayScores(self.end_pos, self.end_rot, self.end_time, self.motion_sq, [int(index)] * len(self.end_pos),
-                              self.coverage)
+                              self.coverage, self.motion_coverage)
 
     def to_dict(self) -> dict:
         nan = float("nan")
@@ -106,25 +112,41 @@ class UnderWayScores:
                "end_time": float(np.mean(self.end_time)) if self.end_time else nan,
                "rest_pos": float(np.sqrt(self.sp / n)) if n else nan,
                "rest_rot": float(np.sqrt(self.sr / n)) if n else nan,
-               "cov_pos": nan, "cov_rot": nan, "band_pos": nan, "band_rot": nan, "motions": len(self.end_pos)}
+               "cov_pos": nan, "cov_rot": nan, "band_pos": nan, "band_rot": nan, "motions": len(self.end_pos),
+               "cov_pos_se": nan, "cov_rot_se": nan}
         if self.coverage is not None:
             c = self.coverage.to_dict()
             out.update(cov_pos=c["coverage_position"], cov_rot=c["coverage_rotation"], band_pos=c["band_position"],
                        band_rot=c["band_rotation"])
+        if self.motion_coverage and len(self.motion_coverage) == len(self.end_pos):
+            # over the motions (coverage_se: a motion scored twice, by its index, counts once)
+            from rbgp_cli.evaluation.coverage import coverage_se
+
+            m = np.asarray(self.motion_coverage, dtype=np.float64)
+            unit = self.index if len(self.index) == len(m) and None not in self.index else None
+            for key, (a, b) in (("cov_pos_se", (0, 1)), ("cov_rot_se", (2, 3))):
+                se = coverage_se(m[:, a], m[:, b], unit)
+                out[key] = nan if se is None else se
         return out
 
     def per_motion(self, names: list | None = None) -> list[dict]:
         """[{"index", "name", "end_pos", "end_rot", "end_time", "rest_pos", "rest_rot"}, ...], one per
-        scored motion sorted by index (the remainder's RMSEs √(Σ/steps) of that motion alone); ``name``
-        only with ``names`` (the input order's names) and an index."""
+        scored motion sorted by index (the remainder's RMSEs √(Σ/steps) of that motion alone; with samples
+        also its ``cov_pos``, ``cov_rot``); ``name`` only with ``names`` (the input order's names) and an
+        index."""
         out = []
+        covs = self.motion_coverage if len(self.motion_coverage) == len(self.end_pos) else None
         for k in range(len(self.end_pos)):
             i = self.index[k] if k < len(self.index) else None
             sp, sr, c = self.motion_sq[k]
+            cov = {}
+            if covs is not None:
+                a, n, b, m = covs[k]
+                cov = {"cov_pos": a / n if n else float("nan"), "cov_rot": b / m if m else float("nan")}
             out.append({"index": i, **({"name": names[i]} if names is not None and i is not None else {}),
                         "end_pos": self.end_pos[k], "end_rot": self.end_rot[k], "end_time": self.end_time[k],
                         "rest_pos": float(np.sqrt(sp / c)) if c else float("nan"),
-                        "rest_rot": float(np.sqrt(sr / c)) if c else float("nan")})
+                        "rest_rot": float(np.sqrt(sr / c)) if c else float("nan"), **cov})
         return sorted(out, key=lambda m: (m["index"] is None, m["index"] if m["index"] is not None else 0))
 
 
@@ -158,7 +180,7 @@ def score(mean: Trajectory, samples: list, rest: Trajectory) -> UnderWayScores:
     cov = prediction_coverage(samples, rest, _T) if len(samples) >= MIN_SAMPLES else None
     return UnderWayScores([float(np.linalg.norm(mean.position[-1] - rest.position[-1]))],
                           [float(2.0 * np.arccos(min(1.0, dq)))], [abs(float(mean.t[-1] - rest.t[-1]))], [(sp, sr, n)],
-                          [], cov)
+                          [], cov, [] if cov is None else [cov.astuple()[:4]])
 
 
 # ---------------------------------------------------------------------------------------- nearest

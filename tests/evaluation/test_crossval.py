@@ -227,7 +227,9 @@ def test_sample_columns_score_one_sample_per_start_and_pool_the_coverage(monkeyp
         whole = row["floor"] if prefix == "floor_" else row[prefix + "score"]
         assert off + spr == pytest.approx(whole, rel=1e-9)
     assert rows[REPLAY]["offset"] + rows[REPLAY]["spread"] == pytest.approx(rows[REPLAY]["score"], rel=1e-9)
-    assert all(rows[REPLAY][k] is None for k in ("sample_score", "coverage_position", "band_rotation"))
+    assert all(rows[REPLAY][k] is None for k in ("sample_score", "coverage_position", "band_rotation",
+                                                 "coverage_position_se"))
+    assert row["coverage_position_se"] > 0 and row["coverage_rotation_se"] >= 0
     # one fold recomputed by hand: the model's samples from the held-out starts, seeded as crossval seeds them
     from rbgp_cli.dynamics.model import train_model
     from rbgp_cli.dynamics.rollout import rollout_for
@@ -251,11 +253,16 @@ def test_sample_columns_score_one_sample_per_start_and_pool_the_coverage(monkeyp
     # the coverage is the band's rbgp gives with its samples (around the mean rollout), not the samples' own
     from rbgp_cli.evaluation.coverage import band_coverage
 
-    cov, own = Coverage(), Coverage()
+    cov, own, each = Coverage(), Coverage(), []
     for b, (real, mean) in enumerate(zip(test, r.trajectories()[:len(test)])):
         n = len(mean.t)
+        each.append(band_coverage(mean, r.band_position[b, :n], r.band_rotation[b, :n], real, T).to_dict())
         cov = cov + band_coverage(mean, r.band_position[b, :n], r.band_rotation[b, :n], real, T)
         own = own + prediction_coverage(trajs[b * 6:(b + 1) * 6], real, T)
+    # the fold's SE over its held-out motions (each T steps: the standard error of their mean coverage)
+    for key in ("coverage_position", "coverage_rotation"):
+        per = [e[key] for e in each]
+        assert fold0[key + "_se"] == pytest.approx(np.std(per, ddof=1) / np.sqrt(len(per)), rel=1e-9, abs=1e-15)
     assert fold0["coverage_position"] == pytest.approx(cov.to_dict()["coverage_position"])
     assert fold0["coverage_rotation"] == pytest.approx(cov.to_dict()["coverage_rotation"])
     assert fold0["band_position"] == pytest.approx(cov.to_dict()["band_position"])
