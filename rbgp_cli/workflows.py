@@ -622,6 +622,9 @@ def crossval_under_way(sources, fractions, train_kwargs: dict, *, options: ReadO
         from rbgp_cli.errors import warn
 
         warn("left out " + missing())
+    if order == "recorded" and int(repeats) > 1:
+        raise InputError("folds in recording order are the same on every repeat",
+                         hint="use repeats 1 with order recorded (or order random)", param="repeats")
     folds = min(int(folds), len(demos)) if train_size is None else int(folds)
     splits = [sp for r in range(int(repeats)) for sp in make_splits(len(demos), folds, int(seed) + r, order, train_size)]
     tot: dict = {}
@@ -645,7 +648,7 @@ def crossval_under_way(sources, fractions, train_kwargs: dict, *, options: ReadO
     return {"rows": rows, "folds": folds, "samples": samples, "inputs": [i["name"] for i in inputs],
             "paired_reference": REFERENCE, "repeats": int(repeats), "order": order,
             "train_size": None if train_size is None else int(train_size),
-            "splits": [[int(j) for j in f] for _, f in splits]}
+            "splits": [{"train": [int(j) for j in tr], "test": [int(j) for j in te]} for tr, te in splits]}
 
 
 def generate_like_paper(model, demos, count=100, spread=0.02, seed=0, progress=None):

@@ -173,10 +173,12 @@ def test_crossval_given_passes_train_size_order_and_repeats(monkeypatch):
     seen = {}
     monkeypatch.setattr(workflows, "crossval_under_way",
                         lambda *a, **k: seen.update(k) or {"rows": [], "folds": 2, "samples": 5, "inputs": []})
-    res = run("--json", "crossval", CSV_DIR, "--given", "0.4", "--train-size", 5, "--folds", 2, "--repeats", 2,
-              "--order", "recorded")
+    res = run("--json", "crossval", CSV_DIR, "--given", "0.4", "--train-size", 5, "--folds", 2, "--repeats", 2)
     assert res.exit_code == 0, res.stderr
-    assert (seen["train_size"], seen["folds"], seen["repeats"], seen["order"]) == (5, 2, 2, "recorded")
+    assert (seen["train_size"], seen["folds"], seen["repeats"], seen["order"]) == (5, 2, 2, "random")
+    res = run("--json", "crossval", CSV_DIR, "--given", "0.4", "--train-size", 5, "--order", "recorded")
+    assert res.exit_code == 0, res.stderr
+    assert (seen["train_size"], seen["repeats"], seen["order"]) == (5, 1, "recorded")
 
 
 def test_crossval_under_way_trains_on_each_split_of_make_splits(monkeypatch):
@@ -204,5 +206,9 @@ def test_crossval_under_way_trains_on_each_split_of_make_splits(monkeypatch):
         assert len(set(names)) == 9  # the held-out ones are all the others
         assert [int(j) for j in k["indices"]] == [int(j) for j in te_idx]
         assert k["seed"] == 4 + i
-    assert out["splits"] == [[int(j) for j in te] for _, te in want]
-    assert len({tuple(s) for s in out["splits"]}) > 1  # the subsets differ
+    assert out["splits"] == [{"train": tr.tolist(), "test": te.tolist()} for tr, te in want]
+    assert len({tuple(s["train"]) for s in out["splits"]}) > 1  # the subsets differ
+    from rbgp_cli.errors import InputError
+
+    with pytest.raises(InputError, match="recording order"):
+        workflows.crossval_under_way([CSV_DIR], [0.4], {}, folds=3, repeats=2, order="recorded", peers=False)
