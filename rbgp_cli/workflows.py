@@ -588,10 +588,14 @@ def follow_stream(model, lines, *, options: ReadOptions | None = None, every: in
 
 
 def crossval_under_way(sources, fractions, train_kwargs: dict, *, options: ReadOptions | None = None, max_gap=None,
-                       folds: int = 5, seed: int = 0, samples: int = 20, progress=None, peers: bool = True) -> dict:
+                       folds: int = 5, seed: int = 0, samples: int = 20, progress=None, peers: bool = True,
+                       repeats: int = 1, order: str = "random", train_size: int | None = None) -> dict:
     """``rbgp crossval --given F``: per fold, train on the others (``train_kwargs``, the default
     representation and kernel), see each held-out demonstration's first fraction F and predict the rest
-    (:mod:`rbgp_cli.evaluation.under_way`). Returns ``{"rows": [{method, given, end_pos, ..., per_motion,
+    (:mod:`rbgp_cli.evaluation.under_way`). The splits are crossval's
+    (:func:`~rbgp_cli.evaluation.crossval.make_splits`: ``folds`` folds, or with ``train_size`` N that many
+    subsets of N trained on and the others held out; ``order``; ``repeats`` times with fold seeds ``seed``,
+    ``seed`` + 1, ...); split i's samples are seeded ``seed`` + i. Returns ``{"rows": [{method, given, end_pos, ..., per_motion,
     paired}], "folds", "samples", "inputs", "paired_reference"}``, rows in the order F, then method; each row's
     ``per_motion`` its scores per held-out demonstration (index in the input order, name) and ``paired`` its
     paired comparison with rbgp's row at the same F (:func:`~rbgp_cli.evaluation.under_way.add_paired`;
@@ -599,7 +603,7 @@ def crossval_under_way(sources, fractions, train_kwargs: dict, *, options: ReadO
     from rbgp_cli.dynamics.defaults import DEFAULTS
     from rbgp_cli.dynamics.model import train_model
     from rbgp_cli.dynamics.paths import fit_paths
-    from rbgp_cli.evaluation.crossval import make_folds
+    from rbgp_cli.evaluation.crossval import make_splits
     from rbgp_cli.evaluation.peers import missing
     from rbgp_cli.evaluation.under_way import METHODS, REFERENCE, add_paired, under_way_fold
     from rbgp_cli.progress import as_progress
@@ -618,13 +622,16 @@ def crossval_under_way(sources, fractions, train_kwargs: dict, *, options: ReadO
         from rbgp_cli.errors import warn
 
         warn("left out " + missing())
-    folds = min(int(folds), len(demos))
+    if order == "recorded" and int(repeats) > 1:
+        raise InputError("folds in recording order are the same on every repeat",
+                         hint="use repeats 1 with order recorded (or order random)", param="repeats")
+    folds = min(int(folds), len(demos)) if train_size is None else int(folds)
+    splits = [sp for r in range(int(repeats)) for sp in make_splits(len(demos), folds, int(seed) + r, order, train_size)]
     tot: dict = {}
     prog = as_progress(progress)
-    with prog.task("crossval under way", total=folds, unit="folds") as task:
-        for i, fold in enumerate(make_folds(len(demos), folds, seed)):
-            held = set(fold)
-            train = [d for j, d in enumerate(demos) if j not in held]
+    with prog.task("crossval under way", total=len(splits), unit="folds") as task:
+        for i, (train_idx, fold) in enumerate(splits):
+            train = [demos[j] for j in train_idx]
             test = [demos[j] for j in fold]
             model = train_model(train, representation=DEFAULTS["representation"], kernel=DEFAULTS["kernel"],
                                 **train_kwargs)
@@ -639,7 +646,9 @@ def crossval_under_way(sources, fractions, train_kwargs: dict, *, options: ReadO
             for F in fractions for m in methods if (m, F) in tot]
     add_paired(rows)  # each row's "paired" against rbgp's at the same F
     return {"rows": rows, "folds": folds, "samples": samples, "inputs": [i["name"] for i in inputs],
-            "paired_reference": REFERENCE}
+            "paired_reference": REFERENCE, "repeats": int(repeats), "order": order,
+            "train_size": None if train_size is None else int(train_size),
+            "splits": [{"train": [int(j) for j in tr], "test": [int(j) for j in te]} for tr, te in splits]}
 
 
 def generate_like_paper(model, demos, count=100, spread=0.02, seed=0, progress=None):

@@ -614,7 +614,8 @@ def crossval(
         goal = given[0]
     elif given:
         return _crossval_given(demos, given, kwargs, read, folds=folds, seed=seed, samples=samples, peers=peers,
-                               json_out=json_out, grid=grid, representation=representation, kernel=kernel)
+                               json_out=json_out, grid=grid, representation=representation, kernel=kernel,
+                               repeats=repeats, order=order, train_size=train_size)
     variants, lists = grid_variants(ctx, grid)
     for name, listed in (("representation", representation), ("kernel", kernel)):
         if name in lists and listed:
@@ -637,7 +638,8 @@ def crossval(
         print(format_crossval(result, per_fold=per_fold))
 
 
-def _crossval_given(demos, given, kwargs, read, *, folds, seed, samples, peers, json_out, grid, representation, kernel):
+def _crossval_given(demos, given, kwargs, read, *, folds, seed, samples, peers, json_out, grid, representation, kernel,
+                    repeats=1, order="random", train_size=None):
     """crossval --given F: a motion under way (rbgp_cli.evaluation.under_way)."""
     from rbgp_cli import workflows
     from rbgp_cli.errors import InputError
@@ -651,7 +653,8 @@ def _crossval_given(demos, given, kwargs, read, *, folds, seed, samples, peers, 
     if grid or representation or kernel:
         raise InputError("--given runs the default representation and kernel", hint="drop --grid, --representation and --kernel")
     result = workflows.crossval_under_way(demos, fractions, kwargs, options=read.options, max_gap=read.max_gap, folds=folds,
-                                          seed=seed, samples=samples, progress=progress, peers=peers)
+                                          seed=seed, samples=samples, progress=progress, peers=peers, repeats=repeats,
+                                          order=order, train_size=train_size)
     if json_out:  # a method without samples (nearest) has no coverage: emit_json writes it as null
         emit_json(result)
     else:

@@ -163,3 +163,52 @@ def test_crossval_given_prints_and_writes_the_paired_comparison(monkeypatch):
     assert "+0.0000 ± -" in row  # the end time: no scatter, no z
     assert row.rstrip().endswith(" / ".join(str(rows[1]["paired"][c]["closer"]) for c in COLUMNS))
     assert not any(x.split()[:2] == ["0.4", "rbgp"] for x in lines[head:])  # the reference has no paired row
+
+
+def test_crossval_given_passes_train_size_order_and_repeats(monkeypatch):
+    """--train-size, --order and --repeats reach crossval --given F (they were ignored: a five-demonstration
+    study silently ran the five folds of the whole set)."""
+    from rbgp_cli import workflows
+
+    seen = {}
+    monkeypatch.setattr(workflows, "crossval_under_way",
+                        lambda *a, **k: seen.update(k) or {"rows": [], "folds": 2, "samples": 5, "inputs": []})
+    res = run("--json", "crossval", CSV_DIR, "--given", "0.4", "--train-size", 5, "--folds", 2, "--repeats", 2)
+    assert res.exit_code == 0, res.stderr
+    assert (seen["train_size"], seen["folds"], seen["repeats"], seen["order"]) == (5, 2, 2, "random")
+    res = run("--json", "crossval", CSV_DIR, "--given", "0.4", "--train-size", 5, "--order", "recorded")
+    assert res.exit_code == 0, res.stderr
+    assert (seen["train_size"], seen["repeats"], seen["order"]) == (5, 1, "recorded")
+
+
+def test_crossval_under_way_trains_on_each_split_of_make_splits(monkeypatch):
+    """With ``train_size`` N each split trains on N demonstrations and scores all the others, ``repeats`` times with
+    fold seeds seed, seed + 1 (crossval's :func:`make_splits`), each split's samples seeded seed + its index."""
+    from rbgp_cli import workflows
+    from rbgp_cli.dynamics import model as model_mod
+    from rbgp_cli.evaluation import under_way
+    from rbgp_cli.evaluation.crossval import make_splits
+
+    calls = []
+
+    class Fake:
+        paths = object()
+
+    monkeypatch.setattr(model_mod, "train_model", lambda train, **k: Fake())
+    monkeypatch.setattr(under_way, "under_way_fold",
+                        lambda model, paths, train, test, fractions, **k: calls.append((train, test, k)) or {})
+    out = workflows.crossval_under_way([CSV_DIR], [0.4], {}, folds=3, seed=4, repeats=2, train_size=5, peers=False)
+    want = make_splits(9, 3, 4, "random", 5) + make_splits(9, 3, 5, "random", 5)
+    assert len(calls) == 6 and out["train_size"] == 5 and out["repeats"] == 2
+    for i, ((train, test, k), (tr_idx, te_idx)) in enumerate(zip(calls, want)):
+        assert len(train) == 5 and len(test) == 4
+        names = [d.name for d in train] + [d.name for d in test]
+        assert len(set(names)) == 9  # the held-out ones are all the others
+        assert [int(j) for j in k["indices"]] == [int(j) for j in te_idx]
+        assert k["seed"] == 4 + i
+    assert out["splits"] == [{"train": tr.tolist(), "test": te.tolist()} for tr, te in want]
+    assert len({tuple(s["train"]) for s in out["splits"]}) > 1  # the subsets differ
+    from rbgp_cli.errors import InputError
+
+    with pytest.raises(InputError, match="recording order"):
+        workflows.crossval_under_way([CSV_DIR], [0.4], {}, folds=3, repeats=2, order="recorded", peers=False)

@@ -239,3 +239,32 @@ def test_fresh_continuations_fall_in_their_bands_nine_times_in_ten_early_and_lat
         d = cov.to_dict()
         assert 0.85 <= d["coverage_position"] <= 0.95, (F, d)
         assert 0.85 <= d["coverage_rotation"] <= 0.95, (F, d)
+
+
+@pytest.mark.slow
+def test_five_demonstrations_with_random_durations_keep_their_position_bands():
+    """A study of five (issue 37, eighth pass, later): two draws of 5 training motions of :func:`_rich_family` with
+    durations spread 5 % in ln D, each with 12 fresh motions seen up to F = 0.2 … 0.8 and 20 sampled continuations
+    (crossval's measure, pooled over the two draws). Measured: position 0.917 / 0.896 / 0.908 / 0.890, rotation
+    0.774 / 0.745 / 0.878 / 0.885. The position bands and the late rotation bands hold 0.85–0.95; the early rotation
+    bands do not, with factors near 1 or above (docs/defaults.md: no factor rule tried moved them in), so they are
+    not asserted here."""
+    from rbgp_cli.evaluation.under_way import score, split_seen
+
+    cov = {F: None for F in (0.2, 0.4, 0.6, 0.8)}
+    for sd in (0, 1):
+        trained = fit_paths(_rich_family(5, 10 + sd, spread=0.05))
+        assert trained.demos == 5 and trained.rest_smooth is None  # below REST_FROM: the rest keeps τ² and r
+        ant = Anticipator(trained)
+        for i, tr in enumerate(_rich_family(12, 100 + sd, spread=0.05)):
+            for F in cov:
+                seen, rest = split_seen(tr, F)
+                c = ant.continuation(seen.t, seen.quat, seen.position, samples=20, seed=i)
+                trs = c.trajectories(include_samples=True)
+                sc = score(trs[0], trs[1:], rest).coverage
+                cov[F] = sc if cov[F] is None else cov[F] + sc
+    for F, c in cov.items():
+        d = c.to_dict()
+        assert 0.85 <= d["coverage_position"] <= 0.95, (F, d)
+        if F >= 0.6:
+            assert 0.85 <= d["coverage_rotation"] <= 0.95, (F, d)
