@@ -130,23 +130,31 @@ class UnderWayScores:
         return out
 
     def per_motion(self, names: list | None = None) -> list[dict]:
-        """[{"index", "name", "end_pos", "end_rot", "end_time", "rest_pos", "rest_rot"}, ...], one per
-        scored motion sorted by index (the remainder's RMSEs √(Σ/steps) of that motion alone; with samples
-        also its ``cov_pos``, ``cov_rot``); ``name`` only with ``names`` (the input order's names) and an
-        index."""
-        out = []
+        """[{"index", "name", "end_pos", "end_rot", "end_time", "rest_pos", "rest_rot", "scored"}, ...], one per
+        held-out motion sorted by index. A motion scored by several splits (``--repeats``, ``--train-size``)
+        is one entry, as crossval's start-only ``per_motion`` is: its end errors the mean over those splits,
+        its remainder's RMSEs √(Σ/steps) pooled over them, with samples its ``cov_pos``, ``cov_rot`` (steps
+        inside over steps scored, pooled); ``scored`` how many splits held it out. Motions without an index
+        stay one entry per scoring. ``name`` only with ``names`` (the input order's names) and an index."""
         covs = self.motion_coverage if len(self.motion_coverage) == len(self.end_pos) else None
+        groups: dict = {}
         for k in range(len(self.end_pos)):
             i = self.index[k] if k < len(self.index) else None
-            sp, sr, c = self.motion_sq[k]
+            groups.setdefault(("k", k) if i is None else ("i", int(i)), []).append(k)
+        out = []
+        for key, ks in groups.items():
+            i = None if key[0] == "k" else key[1]
+            sp, sr, c = (float(sum(self.motion_sq[k][j] for k in ks)) for j in range(3))
             cov = {}
             if covs is not None:
-                a, n, b, m = covs[k]
+                a, n, b, m = (float(sum(covs[k][j] for k in ks)) for j in range(4))
                 cov = {"cov_pos": a / n if n else float("nan"), "cov_rot": b / m if m else float("nan")}
             out.append({"index": i, **({"name": names[i]} if names is not None and i is not None else {}),
-                        "end_pos": self.end_pos[k], "end_rot": self.end_rot[k], "end_time": self.end_time[k],
+                        "end_pos": float(np.mean([self.end_pos[k] for k in ks])),
+                        "end_rot": float(np.mean([self.end_rot[k] for k in ks])),
+                        "end_time": float(np.mean([self.end_time[k] for k in ks])),
                         "rest_pos": float(np.sqrt(sp / c)) if c else float("nan"),
-                        "rest_rot": float(np.sqrt(sr / c)) if c else float("nan"), **cov})
+                        "rest_rot": float(np.sqrt(sr / c)) if c else float("nan"), **cov, "scored": len(ks)})
         return sorted(out, key=lambda m: (m["index"] is None, m["index"] if m["index"] is not None else 0))
 
 
@@ -154,7 +162,7 @@ def add_paired(rows: list[dict], reference: str = REFERENCE) -> None:
     """Give every row of ``rows`` (dicts with ``method``, ``given`` and ``per_motion``) its ``paired``
     comparison with the ``reference`` method's row at the same F: per column of :data:`COLUMNS`,
     :func:`~rbgp_cli.evaluation.crossval.paired_difference` of the two rows' per-motion values over the
-    motions both scored (matched by index): Δ = the row's minus the reference's, mean ± standard error, z,
+    motions both scored (matched by index; a motion held out by several splits is one, :meth:`UnderWayScores.per_motion`): Δ = the row's minus the reference's, mean ± standard error, z,
     closer. The reference's own ``paired`` is None, and so is every row's at an F without a reference."""
     from rbgp_cli.evaluation.crossval import paired_difference
 

@@ -105,6 +105,35 @@ def test_per_motion_scores_pool_to_the_rows_rmse():
     assert all(m["end_time"] > 0 and m["rest_pos"] > 0.001 for m in pm)
 
 
+def test_a_motion_held_out_by_several_splits_is_one_motion_and_pairs_with_itself():
+    """With --repeats / --train-size a motion is scored by several splits: per_motion gives it one entry
+    (end errors averaged, remainder RMSE pooled, ``scored`` the count), and two rows scored alike pair to
+    Δ = 0 on every column (keyed by index, the last scoring of a motion used to stand for all of them)."""
+    from rbgp_cli.evaluation.under_way import UnderWayScores, add_paired
+
+    rng = np.random.default_rng(1)
+    parts = []
+    for i in (3, 1, 3, 1, 3):  # motion 3 held out three times, motion 1 twice, with different errors
+        tr = family(1, i)[0][0]
+        _, rest = split_seen(tr, 0.5)
+        off = Trajectory(rest.t * (1 + rng.uniform(0.01, 0.2)), rest.quat, rest.position + rng.normal(0, 0.02, 3), name="x")
+        parts.append(score(off, [], rest).with_index(i))
+    tot = parts[0]
+    for p in parts[1:]:
+        tot = tot.add(p)
+    pm = tot.per_motion()
+    assert [(m["index"], m["scored"]) for m in pm] == [(1, 2), (3, 3)]
+    three = [parts[k] for k in (0, 2, 4)]
+    assert pm[1]["end_pos"] == pytest.approx(np.mean([p.end_pos[0] for p in three]), rel=1e-12)
+    sq = sum(p.motion_sq[0][0] for p in three) / sum(p.motion_sq[0][2] for p in three)
+    assert pm[1]["rest_pos"] == pytest.approx(np.sqrt(sq), rel=1e-12)
+    assert len({round(p.end_pos[0], 9) for p in three}) == 3  # the scorings differ: averaging is tested
+    rows = [{"method": "rbgp", "given": 0.5, "per_motion": pm}, {"method": "no-GP", "given": 0.5, "per_motion": tot.per_motion()}]
+    add_paired(rows)
+    for key in ("end_pos", "end_rot", "end_time", "rest_pos", "rest_rot"):
+        assert rows[1]["paired"][key]["difference"] == 0.0 and rows[1]["paired"][key]["motions"] == 2
+
+
 @pytest.mark.slow
 def test_a_fold_labels_each_motion_with_its_place_in_the_input_order():
     from rbgp_cli.dynamics.paths import fit_paths
