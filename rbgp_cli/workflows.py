@@ -603,7 +603,7 @@ def crossval_under_way(sources, fractions, train_kwargs: dict, *, options: ReadO
     from rbgp_cli.dynamics.defaults import DEFAULTS
     from rbgp_cli.dynamics.model import train_model
     from rbgp_cli.dynamics.paths import fit_paths
-    from rbgp_cli.evaluation.crossval import make_splits
+    from rbgp_cli.evaluation.crossval import repeated_splits
     from rbgp_cli.evaluation.peers import missing
     from rbgp_cli.evaluation.under_way import METHODS, REFERENCE, add_paired, under_way_fold
     from rbgp_cli.progress import as_progress
@@ -622,11 +622,8 @@ def crossval_under_way(sources, fractions, train_kwargs: dict, *, options: ReadO
         from rbgp_cli.errors import warn
 
         warn("left out " + missing())
-    if order == "recorded" and int(repeats) > 1:
-        raise InputError("folds in recording order are the same on every repeat",
-                         hint="use repeats 1 with order recorded (or order random)", param="repeats")
     folds = min(int(folds), len(demos)) if train_size is None else int(folds)
-    splits = [sp for r in range(int(repeats)) for sp in make_splits(len(demos), folds, int(seed) + r, order, train_size)]
+    splits = repeated_splits(len(demos), folds, seed, order, train_size, repeats)
     tot: dict = {}
     prog = as_progress(progress)
     with prog.task("crossval under way", total=len(splits), unit="folds") as task:

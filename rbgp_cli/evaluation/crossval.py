@@ -80,6 +80,7 @@ __all__ = [
     "Config",
     "make_folds",
     "make_splits",
+    "repeated_splits",
     "splits_text",
     "ORDERS",
     "replay_nearest",
@@ -140,6 +141,22 @@ def make_folds(n: int, k: int, seed: int = 0, order: str = "random") -> list[np.
         return [part.copy() for part in np.array_split(np.arange(n), k)]
     perm = np.random.default_rng(np.random.SeedSequence([int(seed), 2024])).permutation(n)
     return [np.sort(part) for part in np.array_split(perm, k)]
+
+
+def repeated_splits(n: int, k: int, seed: int = 0, order: str = "random", train_size: int | None = None,
+                    repeats: int = 1) -> list[tuple[np.ndarray, np.ndarray]]:
+    """:func:`make_splits` drawn ``repeats`` times, from the fold seeds seed, seed + 1, …, seed + R − 1,
+    repetition by repetition (k splits each; the training demonstrations keep their recording order).
+    Refuses (InputError) a repeats that is not a whole number ≥ 1, an unknown ``order``, and repeats with
+    ``order="recorded"``, whose folds are the same on every repeat."""
+    if isinstance(repeats, bool) or not isinstance(repeats, (int, np.integer)) or repeats < 1:
+        raise InputError(f"repeats must be a whole number of at least 1, got {repeats!r}", param="repeats")
+    if order not in ORDERS:
+        raise InputError(f"unknown order {order!r}; expected one of {', '.join(ORDERS)}", param="order")
+    if order == "recorded" and repeats > 1:
+        raise InputError("folds in recording order are the same on every repeat",
+                         hint="use repeats 1 with order recorded (or order random)", param="repeats")
+    return [sp for r in range(int(repeats)) for sp in make_splits(n, k, int(seed) + r, order, train_size)]
 
 
 def make_splits(n: int, k: int, seed: int = 0, order: str = "random", train_size: int | None = None
@@ -774,16 +791,8 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
     """
     demos = list(demos)
     configs = _goal_configs(configs, given)
-    if isinstance(repeats, bool) or not isinstance(repeats, (int, np.integer)) or repeats < 1:
-        raise InputError(f"repeats must be a whole number of at least 1, got {repeats!r}", param="repeats")
-    if order not in ORDERS:
-        raise InputError(f"unknown order {order!r}; expected one of {', '.join(ORDERS)}", param="order")
-    if order == "recorded" and repeats > 1:
-        raise InputError("folds in recording order are the same on every repeat",
-                         hint="use repeats 1 with order recorded (or order random)", param="repeats")
+    index_splits = repeated_splits(len(demos), folds, seed, order, train_size, repeats)
     seeds = [int(seed) + r for r in range(int(repeats))]
-    # repetition by repetition; the training demonstrations keep their recording order
-    index_splits = [sp for s in seeds for sp in make_splits(len(demos), folds, s, order, train_size)]
     fold_idx = [test_idx for _, test_idx in index_splits]
     k = len(index_splits) // len(seeds)
     splits = [([demos[i] for i in train_idx], [demos[i] for i in test_idx]) for train_idx, test_idx in index_splits]
