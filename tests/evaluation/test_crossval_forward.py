@@ -172,3 +172,19 @@ def test_crossval_forward_refuses_bad_combinations_with_exit_2_and_one_line(fold
         res = runner.invoke(app, args if "--folds" in extra else [*args, "--folds", "4"])
         assert res.exit_code == 2, (extra, res.stdout, res.stderr)
         assert text in res.stderr and len(res.stderr.strip().splitlines()) == 1 and "Traceback" not in res.stderr
+
+
+def test_the_under_way_table_says_which_forward_splits_it_used():
+    from rbgp_cli.cli.report import format_under_way
+
+    row = dict(method="rbgp", given=0.5, end_pos=0.1, end_rot=0.2, end_time=0.3, rest_pos=0.1, rest_rot=0.2,
+               cov_pos=0.9, cov_rot=0.8, cov_pos_se=0.05, cov_rot_se=0.06)
+    with pytest.warns(RbgpWarning):
+        splits = make_splits(10, 5, order="forward")
+    result = {"rows": [row], "folds": len(splits), "samples": 5, "order": "forward", "train_size": None,
+              "splits": [{"train": a.tolist(), "test": b.tolist()} for a, b in splits], **split_info(10, 5, "forward")}
+    lines = format_under_way(result).splitlines()
+    assert lines[0].startswith("a motion under way: 3 forward folds, 5 samples per motion")
+    assert lines[1] == ("splits: forward in recording order, each block predicted from every demonstration before it: "
+                        "[1–4 → 5–6]; [1–6 → 7–8]; [1–8 → 9–10] (not predicted: [1–2]; [3–4])")
+    assert lines[2].split()[:2] == ["given", "method"]
