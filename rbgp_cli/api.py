@@ -786,10 +786,12 @@ def crossval(demos, estimators=None, *, folds: int = 5, seed: int = 0, replay: b
     length, covariance : as :func:`evaluate`;  jobs : worker processes (None: one per core)
     without_gp : beside every estimator with a prior mean, a row of the same fits with the GP's residual
         switched off (``"without_gp": True``): the path distribution alone (``rbgp crossval --without-gp``)
-    order : ``"random"`` folds, or ``"recorded"``: contiguous blocks in the demonstrations' order (the
-        recording order: files as read), the next session's case (``rbgp crossval --order``)
+    order : ``"random"`` folds, ``"recorded"``: contiguous blocks in the demonstrations' order (the
+        recording order: files as read), or ``"forward"``: those blocks, each after the first predicted
+        from the demonstrations before it only, the next session's case (``rbgp crossval --order``)
     train_size : N: train on N demonstrations and hold out the rest, ``folds`` times (random subsets, or
-        windows of N consecutive ones with the later ones held out; ``rbgp crossval --train-size``)
+        windows of N consecutive ones with the later ones held out; forward: the N just before each
+        block; ``rbgp crossval --train-size``)
     given : None, or ``"goal"``: each held-out demonstration's final pose and duration are given too, the
         rows roll out to that goal beside the goal-conditioned peers (``rbgp crossval --given goal``)
 

@@ -594,8 +594,10 @@ def crossval_under_way(sources, fractions, train_kwargs: dict, *, options: ReadO
     representation and kernel), see each held-out demonstration's first fraction F and predict the rest
     (:mod:`rbgp_cli.evaluation.under_way`). The splits are crossval's
     (:func:`~rbgp_cli.evaluation.crossval.make_splits`: ``folds`` folds, or with ``train_size`` N that many
-    subsets of N trained on and the others held out; ``order``; ``repeats`` times with fold seeds ``seed``,
-    ``seed`` + 1, ...); split i's samples are seeded ``seed`` + i. Returns ``{"rows": [{method, given, end_pos, ..., per_motion,
+    subsets of N trained on and the others held out; ``order``, with ``"forward"`` ``folds`` blocks each
+    predicted from those before it, the result's ``"folds"`` the splits used and ``"blocks"``,
+    ``"skipped_blocks"`` as crossval's; ``repeats`` times with fold seeds ``seed``, ``seed`` + 1, ...);
+    split i's samples are seeded ``seed`` + i. Returns ``{"rows": [{method, given, end_pos, ..., per_motion,
     paired}], "folds", "samples", "inputs", "paired_reference"}``, rows in the order F, then method; each row's
     ``per_motion`` its scores per held-out demonstration (index in the input order, name) and ``paired`` its
     paired comparison with rbgp's row at the same F (:func:`~rbgp_cli.evaluation.under_way.add_paired`;
@@ -603,7 +605,7 @@ def crossval_under_way(sources, fractions, train_kwargs: dict, *, options: ReadO
     from rbgp_cli.dynamics.defaults import DEFAULTS
     from rbgp_cli.dynamics.model import train_model
     from rbgp_cli.dynamics.paths import fit_paths
-    from rbgp_cli.evaluation.crossval import repeated_splits
+    from rbgp_cli.evaluation.crossval import repeated_splits, split_info
     from rbgp_cli.evaluation.peers import missing
     from rbgp_cli.evaluation.under_way import METHODS, REFERENCE, add_paired, under_way_fold
     from rbgp_cli.progress import as_progress
@@ -624,6 +626,9 @@ def crossval_under_way(sources, fractions, train_kwargs: dict, *, options: ReadO
         warn("left out " + missing())
     folds = min(int(folds), len(demos)) if train_size is None else int(folds)
     splits = repeated_splits(len(demos), folds, seed, order, train_size, repeats)
+    info = split_info(len(demos), folds, order, train_size)
+    if info:  # forward: the splits used, not the blocks
+        folds = len(splits)
     tot: dict = {}
     prog = as_progress(progress)
     with prog.task("crossval under way", total=len(splits), unit="folds") as task:
@@ -643,9 +648,9 @@ def crossval_under_way(sources, fractions, train_kwargs: dict, *, options: ReadO
             for F in fractions for m in methods if (m, F) in tot]
     add_paired(rows)  # each row's "paired" against rbgp's at the same F
     return {"rows": rows, "folds": folds, "samples": samples, "inputs": [i["name"] for i in inputs],
-            "paired_reference": REFERENCE, "repeats": int(repeats), "order": order,
+            "paired_reference": REFERENCE, "repeats": int(repeats), "order": order, "seed": int(seed),
             "train_size": None if train_size is None else int(train_size),
-            "splits": [{"train": [int(j) for j in tr], "test": [int(j) for j in te]} for tr, te in splits]}
+            "splits": [{"train": [int(j) for j in tr], "test": [int(j) for j in te]} for tr, te in splits], **info}
 
 
 def generate_like_paper(model, demos, count=100, spread=0.02, seed=0, progress=None):

@@ -269,8 +269,10 @@ def format_crossval(result: dict, per_fold: bool = False) -> str:
     sizes = ", ".join(str(n) for n in result["fold_sizes"])
     R = int(result.get("repeats", 1))
     seeds = f"seed {result['seed']}" if R == 1 else f"{R} repeats (fold seeds {result['seed']}–{result['seed'] + R - 1})"
+    folds = (f"{result['folds']} forward folds of {result['blocks']} blocks" if result.get("order") == "forward"
+             and result.get("blocks") else f"{result['folds']} folds")
     lines = [
-        f"{result['demonstrations']} demonstrations, {result['folds']} folds ({sizes} held out), {seeds}; "
+        f"{result['demonstrations']} demonstrations, {folds} ({sizes} held out), {seeds}; "
         f"floor {result['floor']:.3f} (the held-out demonstrations scored against the same training sets)",
         "score: Bhattacharyya distance of the rollouts from the held-out starts to the training demonstrations "
         "(lower is better); ratio = score / floor; pos/rot: RMSE against the held-out demonstration with the "
@@ -361,12 +363,16 @@ def _paired_lines(result: dict) -> list[str]:
 
 
 def format_under_way(result: dict) -> str:
-    """crossval --given's table: one row per seen fraction and method (rbgp_cli.evaluation.under_way)."""
+    """crossval --given's table: one row per seen fraction and method (rbgp_cli.evaluation.under_way),
+    after the line saying which splits it used."""
+    from rbgp_cli.evaluation.crossval import splits_text
+
     head = (f"{'given':>5} {'method':<12} {'end_pos':>8} {'end_rot':>8} {'end_time':>8} {'rest_pos':>8} "
             f"{'rest_rot':>8} {'cov_pos':>9} {'cov_rot':>9}")
-    lines = [f"a motion under way: {result['folds']} folds, {result['samples']} samples per motion; "
+    folds = f"{result['folds']} {'forward ' if result.get('order') == 'forward' else ''}folds"
+    lines = [f"a motion under way: {folds}, {result['samples']} samples per motion; "
              "end and rest errors in m / rad / s, coverage of the remainder by the 90 % bands ± its standard error "
-             "over the held-out motions", head]
+             "over the held-out motions"] + ([splits_text(result)] if "splits" in result else []) + [head]
 
     def f(x, w, d):
         return f"{x:>{w}.{d}f}" if x == x else f"{'-':>{w}}"

@@ -71,6 +71,7 @@ from rbgp_cli.dynamics.envelope import envelope_from_demos, left_envelope
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError, warn
 from rbgp_cli.progress import as_progress
+from rbgp_cli.wording import plural
 from rbgp_cli.evaluation.bhattacharyya import evaluate
 from rbgp_cli.evaluation.peers import PEERS, PROMP
 from rbgp_cli.evaluation.resample import resample_all
@@ -80,9 +81,12 @@ __all__ = [
     "Config",
     "make_folds",
     "make_splits",
+    "forward_splits",
+    "split_info",
     "repeated_splits",
     "splits_text",
     "ORDERS",
+    "FIXED_ORDERS",
     "replay_nearest",
     "nearest_index",
     "trajectory_errors",
@@ -119,17 +123,21 @@ class Config:
         return self.representation if self.kernel is None else f"{self.representation} {self.kernel}"
 
 
-#: How crossval holds demonstrations out: a seeded random permutation, or contiguous blocks in
-#: recording order (the order the demonstrations were read: docs/data.md, "Recording order").
-ORDERS = ("random", "recorded")
+#: How crossval holds demonstrations out: a seeded random permutation, contiguous blocks in recording
+#: order (the order the demonstrations were read: docs/data.md, "Recording order"), or those blocks each
+#: predicted from the blocks before it only ("forward": the next session's case, :func:`forward_splits`).
+ORDERS = ("random", "recorded", "forward")
+#: The orders whose splits do not depend on the fold seed (so ``repeats`` must be 1).
+FIXED_ORDERS = ("recorded", "forward")
 
 
 def make_folds(n: int, k: int, seed: int = 0, order: str = "random") -> list[np.ndarray]:
     """Held-out demonstration indices of ``k`` folds of ``n`` demonstrations, split into k parts whose
     sizes differ by at most one (each part sorted); every index is held out exactly once.
-    ``order="random"``: the parts of a seeded permutation; ``"recorded"``: contiguous blocks in
-    recording order (0 … n/k − 1, …; the seed is not used), so that a block's neighbours in time are
-    not in its training set, as for the next session's demonstrations."""
+    ``order="random"``: the parts of a seeded permutation; ``"recorded"`` (and ``"forward"``, whose
+    blocks they are): contiguous blocks in recording order (0 … n/k − 1, …; the seed is not used), so
+    that a block's neighbours in time are not in its training set, as for the next session's
+    demonstrations."""
     if order not in ORDERS:
         raise InputError(f"unknown order {order!r}; expected one of {', '.join(ORDERS)}", param="order")
     if k < 2:
@@ -137,7 +145,7 @@ def make_folds(n: int, k: int, seed: int = 0, order: str = "random") -> list[np.
     if n < k:
         raise InputError(f"{n} demonstrations cannot make {k} folds", hint=f"use folds {max(2, n)} or fewer"
                          if n >= 2 else "cross-validation needs at least 2 demonstrations", param="folds")
-    if order == "recorded":
+    if order in FIXED_ORDERS:
         return [part.copy() for part in np.array_split(np.arange(n), k)]
     perm = np.random.default_rng(np.random.SeedSequence([int(seed), 2024])).permutation(n)
     return [np.sort(part) for part in np.array_split(perm, k)]
@@ -148,14 +156,14 @@ def repeated_splits(n: int, k: int, seed: int = 0, order: str = "random", train_
     """:func:`make_splits` drawn ``repeats`` times, from the fold seeds seed, seed + 1, …, seed + R − 1,
     repetition by repetition (k splits each; the training demonstrations keep their recording order).
     Refuses (InputError) a repeats that is not a whole number ≥ 1, an unknown ``order``, and repeats with
-    ``order="recorded"``, whose folds are the same on every repeat."""
+    ``order="recorded"`` or ``"forward"``, whose folds are the same on every repeat."""
     if isinstance(repeats, bool) or not isinstance(repeats, (int, np.integer)) or repeats < 1:
         raise InputError(f"repeats must be a whole number of at least 1, got {repeats!r}", param="repeats")
     if order not in ORDERS:
         raise InputError(f"unknown order {order!r}; expected one of {', '.join(ORDERS)}", param="order")
-    if order == "recorded" and repeats > 1:
+    if order in FIXED_ORDERS and repeats > 1:
         raise InputError("folds in recording order are the same on every repeat",
-                         hint="use repeats 1 with order recorded (or order random)", param="repeats")
+                         hint=f"use repeats 1 with order {order} (or order random)", param="repeats")
     return [sp for r in range(int(repeats)) for sp in make_splits(n, k, int(seed) + r, order, train_size)]
 
 
@@ -167,7 +175,20 @@ def make_splits(n: int, k: int, seed: int = 0, order: str = "random", train_size
     ``train_size`` N ("train on N, test on the rest", a small study): ``order="random"`` trains on k
     seeded random subsets of N and holds out all the others; ``"recorded"`` trains on k windows of N
     consecutive demonstrations (starts spread evenly from the first to the last that leaves two after
-    it, where there are two) and holds out every demonstration recorded after the window (later predicted from earlier)."""
+    it, where there are two) and holds out every demonstration recorded after the window (later predicted from earlier).
+
+    ``order="forward"``: the k blocks of ``"recorded"``, each after the first predicted from the
+    demonstrations before it only (:func:`forward_splits`: all of them, or with ``train_size`` N the N just
+    before it); a block with too few before it is skipped with a warning (RbgpWarning), and none left is
+    an InputError."""
+    if order == "forward":
+        splits, skipped = forward_splits(n, k, train_size)
+        later = skipped[1:]  # the first block has nothing before it: it only trains, always
+        if later:
+            warn(f"forward folds: {plural(len(later), 'block')} after the first not predicted (demonstrations "
+                 f"{'; '.join(_ranges(b) for b in later)}, 1-based): fewer than {_forward_minimum(train_size)} "
+                 f"demonstrations recorded before {'it' if len(later) == 1 else 'them'}", param="folds")
+        return splits
     if train_size is None:
         folds = make_folds(n, k, seed, order)
         return [(np.setdiff1d(np.arange(n), f), f) for f in folds]
@@ -191,6 +212,65 @@ def make_splits(n: int, k: int, seed: int = 0, order: str = "random", train_size
     return out
 
 
+def _forward_minimum(train_size: int | None) -> int:
+    """The fewest demonstrations a forward split may train on: the path distribution's minimum
+    (:data:`~rbgp_cli.dynamics.paths.MIN_PATH_DEMOS`), or the window ``train_size`` itself."""
+    from rbgp_cli.dynamics.paths import MIN_PATH_DEMOS
+
+    return MIN_PATH_DEMOS if train_size is None else int(train_size)
+
+
+def forward_splits(n: int, k: int, train_size: int | None = None
+                   ) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[np.ndarray]]:
+    """Forward-chaining splits in recording order: the ``k`` contiguous blocks B₁ … B_k of
+    :func:`make_folds` (``order="recorded"``), and for each block B_j (j ≥ 2) that starts at index s_j the
+    split (training, held out) = ({0, …, s_j − 1}, B_j) (an expanding window), or with ``train_size`` N
+    ({s_j − N, …, s_j − 1}, B_j) (a sliding window of the N just before it). Every training index is
+    smaller than every held-out one. A block with fewer than m demonstrations before it (m =
+    MIN_PATH_DEMOS, the path distribution's minimum, or N) is skipped; B₁ always is.
+
+    Returns (splits, skipped): the splits in block order (each array sorted) and the skipped blocks'
+    indices (B₁ first). InputError: an unknown size (N < MIN_PATH_DEMOS or N ≥ n), and no block left."""
+    from rbgp_cli.dynamics.paths import MIN_PATH_DEMOS
+
+    blocks = make_folds(n, k, order="forward")
+    if train_size is not None:
+        N = int(train_size)
+        if N < MIN_PATH_DEMOS or N > n - 1:
+            raise InputError(f"train_size {N} does not leave demonstrations to hold out of {n}" if N >= MIN_PATH_DEMOS
+                             else f"forward folds train on at least {MIN_PATH_DEMOS} demonstrations (the path "
+                                  f"distribution's minimum), got train_size {N}",
+                             hint=f"use train_size between {MIN_PATH_DEMOS} and {max(MIN_PATH_DEMOS, n - 1)}",
+                             param="train_size")
+    m = _forward_minimum(train_size)
+    splits, skipped = [], [blocks[0]]
+    for block in blocks[1:]:
+        s = int(block[0])
+        if s < m:
+            skipped.append(block)
+            continue
+        splits.append((np.arange(0 if train_size is None else s - m, s), block))
+    if not splits:
+        fits = [j for j in range(2, n + 1) if n - n // j >= m]  # the last block, the smallest, starts at n − ⌊n/k⌋
+        raise InputError(f"forward folds need {m} demonstrations recorded before a block; {n} in {k} blocks "
+                         "leave none", param="folds",
+                         hint=(f"use folds {fits[0]} or more" if fits else
+                               f"forward folds need more than {m} demonstrations"))
+    return splits, skipped
+
+
+def split_info(n: int, k: int, order: str = "random", train_size: int | None = None) -> dict:
+    """What a result says about its splits beyond the splits themselves: with ``order="forward"``
+    ``{"blocks": k, "skipped_blocks": [[indices], ...]}`` (the blocks never held out, 0-based, the first
+    always among them: :func:`forward_splits`); otherwise {}."""
+    if order != "forward":
+        return {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        _, skipped = forward_splits(n, k, train_size)
+    return {"blocks": int(k), "skipped_blocks": [b.tolist() for b in skipped]}
+
+
 def _ranges(idx) -> str:
     """Indices (0-based, sorted) as 1-based runs: [0, 1, 2, 5] → "1–3, 6"."""
     idx = [int(i) + 1 for i in idx]
@@ -209,6 +289,14 @@ def splits_text(result: dict, limit: int = 6) -> str:
     out, from :func:`crossval`'s result (its ``order``, ``train_size`` and ``splits``)."""
     splits = result.get("splits") or []
     order, size = result.get("order", "random"), result.get("train_size")
+    if order == "forward":
+        head = ("forward in recording order, each block predicted from every demonstration before it" if size is None
+                else f"forward in recording order, each block predicted from the {size} just before it")
+        parts = [f"{_ranges(sp['train'])} → {_ranges(sp['test'])}" for sp in splits[:limit]]
+        skipped = result.get("skipped_blocks") or []
+        more = f"; and {len(splits) - limit} more" if len(splits) > limit else ""
+        return (f"splits: {head}: " + "; ".join(f"[{p}]" for p in parts) + more
+                + (f" (not predicted: {'; '.join(f'[{_ranges(b)}]' for b in skipped)})" if skipped else ""))
     if size is None:
         head = ("held out in contiguous blocks in recording order" if order == "recorded"
                 else f"held out at random (fold seed {result.get('seed', 0)})")
@@ -771,9 +859,13 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
         in the row); its velocity RMSE is the prior mean's
     order : ``"random"`` (the default) or ``"recorded"``: hold out contiguous blocks in recording order
         (the demonstrations' order in ``demos``), so that a block's neighbours in time are not trained
-        on, as for the next session (:func:`make_splits`; the seed does not move the folds)
+        on, as for the next session (:func:`make_splits`; the seed does not move the folds); or
+        ``"forward"``: those blocks, each after the first predicted from the demonstrations before it
+        only (:func:`forward_splits`; ``folds`` is then the number of blocks, the result's ``"folds"`` the
+        splits used)
     train_size : None, or N: train on N demonstrations and hold out the rest, ``folds`` times (random
-        subsets, or windows of N consecutive ones with the later ones held out; :func:`make_splits`)
+        subsets, or windows of N consecutive ones with the later ones held out; :func:`make_splits`);
+        with ``order="forward"`` each block is predicted from the N just before it
     given : None (each row generates from the held-out start alone) or ``"goal"``: the held-out
         demonstrations' final poses and durations are given too, the peers are the goal-conditioned ones
         (:mod:`rbgp_cli.evaluation.given_goal`: nearest, promp, dmp; a ``replay`` configuration is left
@@ -781,7 +873,8 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
 
     Returns ``{"folds": K, "repeats": R, "seed", "demonstrations", "fold_sizes", "order", "train_size",
     "splits": [{"train": [...], "test": [...]}, ...] (demonstration indices, 0-based, in recording
-    order), "results": [row, ...]}``
+    order), "results": [row, ...]}`` (forward: also ``"blocks"`` and ``"skipped_blocks"``,
+    :func:`split_info`)
     with the rows sorted by score / floor (best first); each row as in the module docstring (with
     ``by_repeat`` when R > 1; its ``per_fold`` entries then say their ``repeat``), its ``per_motion``
     ([{"index", "name", "position_rmse", "rotation_rmse"}, ...], one per demonstration held out, pooled
@@ -811,7 +904,8 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
     results: list = [None] * len(tasks)
     caught: set = set()
     progress = as_progress(progress)
-    progress(f"{len(demos)} demonstrations in {k} folds ({', '.join(str(len(f)) for f in fold_idx[:k])} held out)"
+    progress(f"{len(demos)} demonstrations in {k} " + (f"forward folds of {folds} blocks" if order == "forward" else "folds")
+             + f" ({', '.join(str(len(f)) for f in fold_idx[:k])} held out)"
              + (f" × {len(seeds)} repeats (fold seeds {seeds[0]}–{seeds[-1]})" if len(seeds) > 1 else "") + "; "
              f"{len(configs)} configuration{'s' * (len(configs) != 1)}, {len(tasks)} fits"
              + (f" on the Dask cluster {scheduler!r}" if scheduler else f" in {n_jobs} worker processes" if n_jobs > 1 else ""))
@@ -862,6 +956,7 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
         "order": order,
         "train_size": None if train_size is None else int(train_size),
         "splits": [{"train": tr.tolist(), "test": te.tolist()} for tr, te in index_splits],
+        **split_info(len(demos), folds, order, train_size),
         "floor": float(np.mean([f.mean for f in floors])),
         "floor_left_data": int(floor_left),
         **({"given": given} if given else {}),
