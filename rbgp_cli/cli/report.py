@@ -136,8 +136,9 @@ def _variation_text(v: dict) -> str:
                  f"to the last the mean path moves up to {100 * drift['position_m']:.1f} cm (at phase "
                  f"{drift.get('position_phase', 0):.2f}) and {math.degrees(drift['rotation_rad']):.1f}°, the start "
                  f"{100 * drift['start_m']:.1f} cm, the duration {d0:.2f} → {d1:.2f} s (p = {drift['p_value']:.3g}, "
-                 "a permutation test); a later session may differ as much: the bands cover demonstrations "
-                 "left out in blocks in recording order")
+                 "a permutation test); a later session may differ as much or more: the bands are calibrated on "
+                 "blocks left out in recording order, which need not cover takes recorded after all of these "
+                 "(measure it: rbgp crossval --order forward)")
     return line
 
 
