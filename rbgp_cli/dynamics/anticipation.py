@@ -882,7 +882,8 @@ def seen_band_scales(m2_F, z_F, demos: int, level: float = 0.90) -> dict:
     """The bands' factors per seen fraction: {"fractions": SEEN_FRACTIONS, "rotation": [c_rot per F],
     "position": [c_pos per F]}, from the left-out remainders' rotation Mahalanobis² ``m2_F`` and position
     z-scores ``z_F`` at each fraction (:func:`_seen_loo` with ``by_fraction``): at each F the factors that make
-    those remainders' 90 % regions hold at ``level`` under the draws' Student-t (ν = D − 2;
+    those remainders' 90 % regions hold at ``level`` under the Student-t regions the draws realise (ν = D − 2,
+    :func:`draw_scales`;
     :func:`~rbgp_cli.dynamics.paths._band_factors`), allowed below 1 as the goal bands' are
     (:meth:`~rbgp_cli.dynamics.paths.PathDistribution.goal_band_scale`): c < 1 taken as c^w, w = min(1, D /
     NARROW_FROM), and never below NARROWEST. :meth:`Anticipator.band_at` interpolates them in the seen phase."""
@@ -1246,7 +1247,7 @@ def _rebase(paths, x, q, s):
 def _spread_factors(terms, demos: int, level: float = 0.90) -> tuple[float, float]:
     """The factors (c_rot, c_pos) the scored remainders of :func:`_spread_terms` need (unclamped): per scored
     phase and position coordinate the smallest c with ê² ≤ c² t_ν² σ² + z² v (σ² the draws' variance, C's
-    diagonal; v V's; t_ν the draws' Student-t 95 % quantile, ν = D − 2; z the normal's), per rotation the smallest
+    diagonal; v V's; t_ν the Student-t 95 % quantile the draws realise, ν = D − 2; z the normal's), per rotation the smallest
     c with êᵀ(c² 3 F_0.9(3, ν) C + χ²_3,0.9 V)⁻¹ ê ≤ 1 (bisection in c²; V = 0: c² = êᵀC⁻¹ê / 3F, the rule of
     :func:`~rbgp_cli.dynamics.paths._band_factors`); the factor is the ``level`` quantile of the needs, each
     weighted by its phase's share of the remainder's normalised time."""
