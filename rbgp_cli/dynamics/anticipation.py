@@ -27,7 +27,8 @@ conditioned path (``model=None``, the path distribution alone) or the model's GP
 last seen pose at its phase with the conditioned path as the prior mean's reference (feed-forward along
 it and the pull toward it; the GP's residual field says how to move from an off-path pose). K samples draw
 D from the weights (jittered within its grid cell) and a path from the distribution conditioned at that D
-(Student-t, widened by the seen bands' factors), and displace the mean by the draw's difference from the
+(Gaussian, scaled so that its 90 % regions are the Student-t predictive's (:func:`draw_scales`), widened by the
+seen bands' factors), and displace the mean by the draw's difference from the
 conditioned mean at D̂, so duration and path vary together and every sample starts at the last seen pose.
 
 **The tolerance and the bands** (:func:`fit_seen`): each demonstration left out in turn, its first
@@ -56,6 +57,7 @@ Only samples up to the last seen one enter: nothing here reads past ``t[-1]``.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -246,8 +248,28 @@ def _log_unit(d: np.ndarray) -> np.ndarray:
     return v * (sign * scale)[..., None]
 
 
-def _student_factor(rng, nu, count):
-    return np.sqrt(nu / rng.chisquare(nu, count))
+#: The level of the bands the continuations' draws are scaled for (:func:`draw_scales`).
+DRAW_LEVEL = 0.90
+
+
+@functools.lru_cache(maxsize=64)
+def draw_scales(nu: int, level: float = DRAW_LEVEL) -> tuple[float, float]:
+    """(k_rot, k_pos): the scales of Gaussian draws whose ``level`` regions are those of the Student-t predictive
+    with ν degrees of freedom that the bands' factors are fitted against (:func:`seen_band_scales`,
+    :func:`_spread_factors`): a rotation's 3-D region m² ≤ 3 F_level(3, ν), a position coordinate's |z| ≤ t_ν,
+
+        k_rot = √(3 F_level(3, ν) / χ²_3,level),    k_pos = t_ν,(1+level)/2 / z_(1+level)/2.
+
+    Why not Student-t draws (u = √(ν/χ²_ν) per draw, as before issue 37's ninth pass): a band is computed from a
+    few draws as a Gaussian fits them (crossval's per-axis interval and 3-D Hotelling ellipsoid), and with few
+    demonstrations (ν = 3 at five) a draw's heavy tail widens that ellipsoid only along its own direction: with five
+    demonstrations the 3-D rotation region of 20 Student-t draws held 0.05–0.11 less than that of 20 such Gaussian
+    draws (docs/defaults.md, issue 37's ninth pass); per axis (position) it did not lose. ν → ∞: both → 1."""
+    from scipy.special import chdtri, fdtri, ndtri, stdtrit
+
+    nu = max(int(nu), 1)
+    return (float(np.sqrt(3.0 * fdtri(3, nu, level) / chdtri(3, 1.0 - level))),
+            float(stdtrit(nu, 0.5 + level / 2.0) / ndtri(0.5 + level / 2.0)))
 
 
 # ----------------------------------------------------------------------------------------- the estimator
@@ -465,7 +487,7 @@ class Anticipator:
         ex[3] = np.cos(0.5 * theta)
         end_q = (ex @ _LEFT).reshape(4, 4) @ ref_q
         end_p = ref_p + mu_u[3:]
-        # 90 %: a rotation's m² is 3 F(3, ν) for the Student-t draws; a position coordinate t_ν (once)
+        # 90 %: a rotation's m² is 3 F(3, ν) for the draws (draw_scales); a position coordinate t_ν (once)
         quantiles = self.__dict__.get("_quantiles")
         if quantiles is None:
             from scipy.special import fdtri, stdtrit
@@ -545,16 +567,17 @@ class Anticipator:
 
     def _draws(self, count, rng, A, r2, gain, phase: float = 1.0):
         """``count`` zero-mean draws (count, P) of the conditioned distribution by Matheron's rule,
-        η = c ⊙ u · ((f − m) − gain (A (f − m) + ε)), f ~ N(m, Σ), ε ~ N(0, diag r²), u = √(ν/χ²_ν) the
-        Student-t factor and c the seen bands' factors at the seen ``phase`` (:meth:`band_at`)."""
+        η = c ⊙ k ⊙ ((f − m) − gain (A (f − m) + ε)), f ~ N(m, Σ), ε ~ N(0, diag r²), k = (k_rot, k_pos) the
+        Gaussian's scales whose 90 % regions are the Student-t's with ν = D − 2 (:func:`draw_scales`) and c the
+        seen bands' factors at the seen ``phase`` (:meth:`band_at`), per rotation and position coordinate (ln D's
+        entry unscaled: the duration is drawn from the weights)."""
         P = len(self.m)
         z = rng.standard_normal((count, P)) @ self._prior_root().T
         eps = rng.standard_normal((count, len(r2))) * np.sqrt(r2)
         eta = z - (z @ A.T + eps) @ gain.T
-        nu = max(self.paths.demos - 2, 1)
-        eta *= _student_factor(rng, nu, count)[:, None]
+        k_rot, k_pos = draw_scales(max(self.paths.demos - 2, 1))
         c_rot, c_pos = self.band_at(phase)
-        eta[:, :-1] *= np.tile(np.array([c_rot] * 3 + [c_pos] * 3), self.paths.S)
+        eta[:, :-1] *= np.tile(np.array([c_rot * k_rot] * 3 + [c_pos * k_pos] * 3), self.paths.S)
         return eta
 
     def continuation(self, t, quat, position, *, samples: int = 0, seed: int = 0, dt: float | None = None,
@@ -859,7 +882,8 @@ def seen_band_scales(m2_F, z_F, demos: int, level: float = 0.90) -> dict:
     """The bands' factors per seen fraction: {"fractions": SEEN_FRACTIONS, "rotation": [c_rot per F],
     "position": [c_pos per F]}, from the left-out remainders' rotation Mahalanobis² ``m2_F`` and position
     z-scores ``z_F`` at each fraction (:func:`_seen_loo` with ``by_fraction``): at each F the factors that make
-    those remainders' 90 % regions hold at ``level`` under the draws' Student-t (ν = D − 2;
+    those remainders' 90 % regions hold at ``level`` under the Student-t regions the draws realise (ν = D − 2,
+    :func:`draw_scales`;
     :func:`~rbgp_cli.dynamics.paths._band_factors`), allowed below 1 as the goal bands' are
     (:meth:`~rbgp_cli.dynamics.paths.PathDistribution.goal_band_scale`): c < 1 taken as c^w, w = min(1, D /
     NARROW_FROM), and never below NARROWEST. :meth:`Anticipator.band_at` interpolates them in the seen phase."""
@@ -1223,7 +1247,7 @@ def _rebase(paths, x, q, s):
 def _spread_factors(terms, demos: int, level: float = 0.90) -> tuple[float, float]:
     """The factors (c_rot, c_pos) the scored remainders of :func:`_spread_terms` need (unclamped): per scored
     phase and position coordinate the smallest c with ê² ≤ c² t_ν² σ² + z² v (σ² the draws' variance, C's
-    diagonal; v V's; t_ν the draws' Student-t 95 % quantile, ν = D − 2; z the normal's), per rotation the smallest
+    diagonal; v V's; t_ν the Student-t 95 % quantile the draws realise, ν = D − 2; z the normal's), per rotation the smallest
     c with êᵀ(c² 3 F_0.9(3, ν) C + χ²_3,0.9 V)⁻¹ ê ≤ 1 (bisection in c²; V = 0: c² = êᵀC⁻¹ê / 3F, the rule of
     :func:`~rbgp_cli.dynamics.paths._band_factors`); the factor is the ``level`` quantile of the needs, each
     weighted by its phase's share of the remainder's normalised time."""

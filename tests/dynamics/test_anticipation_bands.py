@@ -220,7 +220,8 @@ def test_fresh_continuations_fall_in_their_bands_nine_times_in_ten_early_and_lat
     """Fitted on 30 motions of :func:`_rich_family`, the factors depend on the seen fraction (the rotation's
     larger early than late), and 12 fresh motions seen up to F = 0.2 and F = 0.8 lie inside the 90 % bands of
     20 sampled continuations (crossval's measure) 0.90 ± 0.05 of the time, position and rotation (measured:
-    0.87 / 0.89 at F = 0.2, 0.90 / 0.87 at 0.8; with the one pooled pair the rotation held 0.84 at F = 0.2)."""
+    0.87 / 0.89 at F = 0.2, 0.90 / 0.87 at 0.8; with the one pooled pair the rotation held 0.84 at F = 0.2; with the
+    ninth pass's Gaussian draws 0.885 / 0.907 and 0.883 / 0.918)."""
     from rbgp_cli.evaluation.under_way import score, split_seen
 
     trained = fit_paths(_rich_family(30, 0))
@@ -242,13 +243,14 @@ def test_fresh_continuations_fall_in_their_bands_nine_times_in_ten_early_and_lat
 
 
 @pytest.mark.slow
-def test_five_demonstrations_with_random_durations_keep_their_position_bands():
-    """A study of five (issue 37, eighth pass, later): two draws of 5 training motions of :func:`_rich_family` with
-    durations spread 5 % in ln D, each with 12 fresh motions seen up to F = 0.2 … 0.8 and 20 sampled continuations
-    (crossval's measure, pooled over the two draws). Measured: position 0.917 / 0.896 / 0.908 / 0.890, rotation
-    0.774 / 0.745 / 0.878 / 0.885. The position bands and the late rotation bands hold 0.85–0.95; the early rotation
-    bands do not, with factors near 1 or above (docs/defaults.md: no factor rule tried moved them in), so they are
-    not asserted here."""
+def test_five_demonstrations_with_random_durations_keep_their_bands():
+    """A study of five (issue 37, eighth pass, later; ninth pass): two draws of 5 training motions of
+    :func:`_rich_family` with durations spread 5 % in ln D, each with 12 fresh motions seen up to F = 0.2 … 0.8 and
+    20 sampled continuations (crossval's measure, pooled over the two draws). Measured with the Gaussian draws of
+    :func:`~rbgp_cli.dynamics.anticipation.draw_scales`: position 0.916 / 0.897 / 0.918 / 0.886, rotation 0.864 /
+    0.853 / 0.929 / 0.965 (with Student-t draws the rotation held 0.774 / 0.745 / 0.878 / 0.885: a band of 20
+    heavy-tailed draws is narrow in 3-D, docs/defaults.md). Asserted: 0.85–0.95 but the rotation at F = 0.8, which
+    is wide (its factor held up by the narrowing with few demonstrations) and asserted only at 0.85 or more."""
     from rbgp_cli.evaluation.under_way import score, split_seen
 
     cov = {F: None for F in (0.2, 0.4, 0.6, 0.8)}
@@ -266,5 +268,37 @@ def test_five_demonstrations_with_random_durations_keep_their_position_bands():
     for F, c in cov.items():
         d = c.to_dict()
         assert 0.85 <= d["coverage_position"] <= 0.95, (F, d)
-        if F >= 0.6:
-            assert 0.85 <= d["coverage_rotation"] <= 0.95, (F, d)
+        assert 0.85 <= d["coverage_rotation"] <= (0.95 if F < 0.8 else 1.0), (F, d)
+
+
+def test_the_draws_90_percent_regions_are_the_student_t_bands_the_factors_are_fitted_against():
+    """The continuation's draws (issue 37, ninth pass) are Gaussian, scaled so that at every phase the fraction of
+    draws inside the Student-t region the factors are fitted against (a rotation's m² ≤ 3 F_0.9(3, ν) under the
+    conditioned covariance, a position coordinate's |z| ≤ t_ν,0.95; ν = D − 2 = 3 at five demonstrations) is 0.90,
+    with the factors set to 1: 4000 draws, a binomial standard error of 0.005. Without the scales (plain Gaussian
+    draws) the rotation's fraction would be P(χ²_3 ≤ 16.2) = 0.999 and the position's P(|z| ≤ 2.35) = 0.98; the
+    draws are Gaussian: their m² has the χ²_3 tail, not the F's (beyond 5 × the 90 % quantile: a Student-t draw
+    1.1 % of the time at ν = 3, these 1e-6)."""
+    from rbgp_cli.dynamics.anticipation import _seen, draw_scales
+
+    trained = fit_paths(_rich_family(5, 7, spread=0.05))
+    flat = copy.copy(trained)
+    flat.seen_band_scales = {"fractions": [0.0], "rotation": [1.0], "position": [1.0]}
+    ant = Anticipator(flat)
+    tr = _rich_family(1, 8, spread=0.05)[0]
+    k = int(0.4 * len(tr.t))
+    _, quat, pos, tau, q, p = _seen(tr.t[:k], tr.quat[:k], tr.position[:k], ant.points)
+    _, (A, r2, gain) = ant._conditioned_mean(tau, q, p, quat[-1], pos[-1], tr.duration, rest=False)
+    cov = ant.Sigma - gain @ (A @ ant.Sigma)
+    eta = ant._draws(4000, np.random.default_rng(5), A, r2, gain)
+    nu = trained.demos - 2
+    f3, t95 = 3.0 * fdtri(3, nu, 0.9), stdtrit(nu, 0.95)
+    assert draw_scales(nu)[0] > 1.5 and draw_scales(nu)[1] > 1.4  # far from plain Gaussian draws at ν = 3
+    for j in (25, 35, 45):  # phases after the seen 40 %
+        C = cov[6 * j:6 * j + 6, 6 * j:6 * j + 6]
+        e = eta[:, 6 * j:6 * j + 6]
+        m2 = np.einsum("ki,ki->k", e[:, :3], np.linalg.solve(C[:3, :3], e[:, :3].T).T)
+        assert abs(np.mean(m2 <= f3) - 0.90) < 0.02, (j, np.mean(m2 <= f3))
+        assert np.mean(m2 > 5 * f3) < 0.003
+        z = np.abs(e[:, 3:]) / np.sqrt(np.diag(C)[3:])
+        assert abs(np.mean(z <= t95) - 0.90) < 0.015, (j, np.mean(z <= t95))
