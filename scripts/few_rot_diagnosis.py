@@ -25,39 +25,26 @@ Usage: python scripts/few_rot_diagnosis.py N [N ...] (N trained per draw; prints
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 from scipy.special import fdtri, stdtrit
 
 from rbgp_cli.dynamics.anticipation import Anticipator, _seen
 from rbgp_cli.dynamics.paths import fit_paths
-from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.evaluation.coverage import band_thresholds
 from rbgp_cli.evaluation.resample import mean_rotation, resample_all, tangent_features
 from rbgp_cli.evaluation.under_way import split_seen
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from tests.dynamics.test_anticipation_bands import _rich_family  # noqa: E402
 
 FRACTIONS = (0.2, 0.4, 0.6, 0.8)
 
 
 def rich_family(n, seed, K=5, spread=0.05):
-    """tests/dynamics/test_anticipation_bands.py's ``_rich_family`` (the same draws for the same seed)."""
-    rng = np.random.default_rng(seed)
-    out = []
-    k = np.arange(1, K + 1)
-    for d in range(n):
-        D = float(np.exp(np.log(2.0) + spread * rng.standard_normal()))
-        t = np.arange(0.0, D + 1e-9, 0.02)
-        s = t / D
-        c = rng.standard_normal((6, K)) / k
-        ph = rng.uniform(0, 2 * np.pi, (6, K))
-        g = (1.0 - 0.7 * s)[:, None] * np.einsum("tak,ak->ta", np.sin(np.pi * s[:, None, None] * k + ph[None]), c)
-        mj = 10 * s**3 - 15 * s**4 + 6 * s**5
-        pos = np.stack([0.6 * mj, 0.15 * np.sin(np.pi * s), np.zeros_like(s)], axis=1) + 0.02 * g[:, :3]
-        rv = 0.1 * g[:, 3:]
-        rv[:, 2] += mj
-        out.append(Trajectory(t, Rotation.from_rotvec(rv).as_quat(), pos, name=f"r{d}"))
-    return out
+    """tests/dynamics/test_anticipation_bands.py's ``_rich_family``, its durations spread 5 % in ln D."""
+    return _rich_family(n, seed, K=K, spread=spread)
 
 
 def detail(samples, ref, T=100):
