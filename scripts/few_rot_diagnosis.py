@@ -17,7 +17,8 @@ On the synthetic family of tests/dynamics/test_anticipation_bands.py (durations 
 The draws are the continuation's (Gaussian with the Student-t's 90 % regions, ninth pass); STUDENT=1 draws them
 Student-t as before. STAT=every fits the bands' factors at every grid phase after F at the true duration, STAT=spread
 with the eighth pass's statistic, both at every number of demonstrations; DRAWS=n training draws (default 2); BIG=k
-also scores k samples (default 400; 0: not).
+also scores k samples (default 400; 0: not). The tenth pass's variants of the factors below 1 (none kept): OWN_NU=1 the
+left-out scores against their own model's ν = D − 3, NOW=1 undamped (w = 1), NARROW=n damped with w = min(1, D / n).
 
 Usage: python scripts/few_rot_diagnosis.py N [N ...] (N trained per draw; prints one table per N).
 """
@@ -231,9 +232,31 @@ def student_draws(self, count, rng, A, r2, gain, phase=1.0):
     return eta
 
 
+def own_nu_scales(m2_F, z_F, demos, level=0.90):
+    """seen_band_scales with a factor below 1 taken from the left-out scores against their own model's quantiles
+    (D − 1 demonstrations, ν = D − 3) instead of the full model's (ν = D − 2), then damped as before; factors ≥ 1
+    as before (OWN_NU=1; issue 37's tenth pass, not kept)."""
+    from rbgp_cli.dynamics.anticipation import NARROW_FROM
+    from rbgp_cli.dynamics.paths import NARROWEST, _band_factors
+
+    w = min(1.0, demos / NARROW_FROM)
+    raw = [_band_factors(m2, z, demos, level) for m2, z in zip(m2_F, z_F)]
+    own = [_band_factors(m2, z, demos - 1, level) for m2, z in zip(m2_F, z_F)]
+    c = [[x if x >= 1.0 else max(NARROWEST, y ** w) for x, y in zip(a, b)] for a, b in zip(raw, own)]
+    return {"fractions": list(FRACTIONS), "rotation": [float(x[0]) for x in c], "position": [float(x[1]) for x in c]}
+
+
 if __name__ == "__main__":
     import os
 
+    from rbgp_cli.dynamics import anticipation
+
+    if os.environ.get("OWN_NU"):
+        anticipation.seen_band_scales = own_nu_scales
+    if os.environ.get("NOW"):  # no damping below NARROW_FROM: c < 1 taken as it is
+        anticipation.NARROW_FROM = 1
+    if os.environ.get("NARROW"):  # the continuation bands' narrowing from this many demonstrations (goal bands untouched)
+        anticipation.NARROW_FROM = float(os.environ["NARROW"])
     if os.environ.get("STUDENT"):
         Anticipator._draws = student_draws
     for arg in sys.argv[1:]:
