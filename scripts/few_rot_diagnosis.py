@@ -17,7 +17,7 @@ On the synthetic family of tests/dynamics/test_anticipation_bands.py (durations 
 The draws are the continuation's (Gaussian with the Student-t's 90 % regions, ninth pass); STUDENT=1 draws them
 Student-t as before. STAT=every fits the bands' factors at every grid phase after F at the true duration, STAT=spread
 with the eighth pass's statistic, both at every number of demonstrations; DRAWS=n training draws (default 2); BIG=k
-also scores k samples (default 400; 0: not). The tenth pass's variants of the factors below 1 (none kept): OWN_NU=1 the
+also scores k samples (default 400; 0: not). The ninth pass's later variants of the factors below 1 (none kept): OWN_NU=1 the
 left-out scores against their own model's ν = D − 3, NOW=1 undamped (w = 1), NARROW=n damped with w = min(1, D / n).
 
 Usage: python scripts/few_rot_diagnosis.py N [N ...] (N trained per draw; prints one table per N).
@@ -235,7 +235,7 @@ def student_draws(self, count, rng, A, r2, gain, phase=1.0):
 def own_nu_scales(m2_F, z_F, demos, level=0.90):
     """seen_band_scales with a factor below 1 taken from the left-out scores against their own model's quantiles
     (D − 1 demonstrations, ν = D − 3) instead of the full model's (ν = D − 2), then damped as before; factors ≥ 1
-    as before (OWN_NU=1; issue 37's tenth pass, not kept)."""
+    as before (OWN_NU=1; issue 37's ninth pass, later; not kept)."""
     from rbgp_cli.dynamics.anticipation import NARROW_FROM
     from rbgp_cli.dynamics.paths import NARROWEST, _band_factors
 
