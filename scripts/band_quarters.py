@@ -62,6 +62,7 @@ def main(argv=None):
     from rbgp_cli.dynamics.defaults import DEFAULTS
     from rbgp_cli.dynamics.model import train_model
     from rbgp_cli.dynamics.paths import SMOOTH_GRID, fit_paths
+    from rbgp_cli.evaluation.coverage import coverage_se
     from rbgp_cli.evaluation.crossval import make_splits
     from rbgp_cli.evaluation.under_way import FRACTIONS, split_seen, under_way_fold
     from rbgp_cli.io.options import ReadOptions
@@ -90,6 +91,7 @@ def main(argv=None):
     splits = make_splits(len(demos), folds, seed, "random", a.train_size)
     # sums (pos in, pos n, rot in, rot n) per (F, quarter); crossval's own pooled Coverage per F
     acc = {(F, k): np.zeros(4) for F in FRACTIONS for k in range(QUARTERS)}
+    per = {(F, k): [] for F in FRACTIONS for k in range(QUARTERS)}  # per held-out motion: (index, counts)
     ref = {}
     chosen = []
     t0 = time.time()
@@ -117,6 +119,7 @@ def main(argv=None):
                 trs = c.trajectories(include_samples=True)
                 for k, cov in enumerate(quarter_coverages(trs[1:], rest)):
                     acc[(F, k)] += np.asarray(cov.astuple()[:4], dtype=float)
+                    per[(F, k)].append((int(fold[m]), cov.astuple()[:4]))
         own = under_way_fold(model, paths, train, test, FRACTIONS, samples=a.samples, seed=seed + i,
                              methods=("rbgp",), indices=fold)
         for F in FRACTIONS:
@@ -129,7 +132,13 @@ def main(argv=None):
         own = ref[F].astuple()[:4]
         if not np.allclose(tot, own):
             raise SystemExit(f"F = {F}: the quarters sum to {tot.tolist()}, crossval's own to {list(own)}")
+        se = []  # over the held-out motions (evaluation.coverage.coverage_se; a motion held out twice counts once)
+        for k in range(QUARTERS):
+            g = [j for j, _ in per[(F, k)]]
+            c = np.asarray([x for _, x in per[(F, k)]], dtype=float)
+            se.append([float("nan") if v is None else float(v) for v in (coverage_se(c[:, 0], c[:, 1], g), coverage_se(c[:, 2], c[:, 3], g))])
         rows.append({"given": F, "pos": [float(x[0] / x[1]) for x in q], "rot": [float(x[2] / x[3]) for x in q],
+                     "pos_se": [x[0] for x in se], "rot_se": [x[1] for x in se],
                      "pos_total": float(tot[0] / tot[1]), "rot_total": float(tot[2] / tot[3]),
                      "crossval_pos": ref[F].to_dict()["coverage_position"],
                      "crossval_rot": ref[F].to_dict()["coverage_rotation"], "scored": int(tot[3] // T)})
@@ -140,6 +149,7 @@ def main(argv=None):
         cells = "  ".join(f"{p:.2f} / {o:.2f}" for p, o in zip(r["pos"], r["rot"]))
         print(f"  {r['given']:.1f}  {cells}  {r['pos_total']:.3f} / {r['rot_total']:.3f}  "
               f"{r['crossval_pos']:.3f} / {r['crossval_rot']:.3f}")
+        print("  ± " + "  ".join(f"{p:.2f} / {o:.2f}" for p, o in zip(r["pos_se"], r["rot_se"])) + "  (standard errors)")
     if a.json:
         with open(a.json, "w") as fh:
             json.dump({"source": a.source, "body": a.body, "folds": len(splits), "train_size": a.train_size,
