@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 from scipy.special import fdtri, stdtrit
 
-from rbgp_cli.dynamics.anticipation import Anticipator, _seen
+from rbgp_cli.dynamics.anticipation import Anticipator, _seen, _spread_terms  # the original: fit() may patch it
 from rbgp_cli.dynamics.paths import fit_paths
 from rbgp_cli.evaluation.coverage import band_thresholds
 from rbgp_cli.evaluation.resample import mean_rotation, resample_all, tangent_features
@@ -118,26 +118,7 @@ def true_variances(paths, n=2000, seed=999):
 def every_phase_terms(paths, F, rest=None, ctx=None):
     """:func:`~rbgp_cli.dynamics.anticipation._spread_terms` at the remainder's true duration (V = 0, ȳ = x̂): the
     left-out remainders scored at every grid phase after F, each weighted by its share of the remainder's time."""
-    from rbgp_cli.dynamics.anticipation import _loo_rows, _spread_context, seen_split
-
-    ctx = _spread_context(paths) if ctx is None else ctx
-    X, S = ctx["X"], ctx["S"]
-    Dn, P = X.shape
-    idx, no = seen_split(F, S, P, ctx["points"])
-    js = idx[:no - 1:6] // 6
-    J = int(js[-1])
-    jt = np.arange(J + 1, S)
-    T = len(jt)
-    u = (jt - J) / (S - 1 - J)
-    ctx = dict(ctx, js=js, seen_time=ctx["dur"][:, None] * paths.s[js][None], seen_q=ctx["q"][:, js], seen_p=ctx["p"][:, js])
-    tau2, r = float(paths.smooth), float(paths.seen_tolerance)
-    ds = np.arange(Dn)
-    true_q = np.broadcast_to(paths.s[jt], (Dn, T))
-    own, C = _loo_rows(ctx, ds, ctx["dur"], tau2, r, true_q, cov=True)
-    mu = own if rest is None else _loo_rows(ctx, ds, ctx["dur"], float(rest[0]), float(rest[1]), true_q)
-    e = X[:, :-1].reshape(Dn, S, 6)[:, jt] - mu
-    mid = np.concatenate([[0.0], 0.5 * (u[1:] + u[:-1]), [1.0]])
-    return {"e": e.reshape(-1, 6), "V": np.zeros((Dn * T, 6, 6)), "C": C.reshape(-1, 6, 6), "w": np.tile(np.diff(mid), Dn)}
+    return _spread_terms(paths, F, rest=rest, ctx=ctx, duration=False)
 
 
 def fit(trajs):

@@ -1158,7 +1158,7 @@ def _spread_context(paths, points: int = SEEN_POINTS):
                 half=0.5 * (hi - lo) / (SPREAD_GRID - 1), points=points)
 
 
-def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None) -> dict:
+def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration: bool = True) -> dict:
     """The left-out remainders of fraction F against the samples as drawn (module docstring, issue 37's eighth
     pass). Each demonstration d left out, its first F seen at its true phases (:func:`seen_split`'s seen grid
     phases; the last exactly); the remainder scored at every grid phase s_j after F, u_j = (s_j − s_J)/(1 − s_J)
@@ -1172,7 +1172,8 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None) -> dict:
     μ_j the mean the continuation follows (the rest's τ² and r; ``rest`` None: the own) and x̂_j the own conditioned
     mean at the true duration. Returns {"e": ê (R, 6), "V": (R, 6, 6), "C": the own conditioned covariance's
     diagonal blocks at the true duration (R, 6, 6), "w": each scored phase's share of the remainder's normalised
-    time (R,)}, R = D × the scored phases, demonstration-major."""
+    time (R,)}, R = D × the scored phases, demonstration-major. ``duration=False``: the remainders at their true
+    durations alone (V = 0, ȳ = x̂: ê_j = x_dj − μ_j), the statistic without the duration's part."""
     ctx = _spread_context(paths) if ctx is None else ctx
     X, S = ctx["X"], ctx["S"]
     Dn, P = X.shape
@@ -1188,6 +1189,11 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None) -> dict:
     true_q = np.broadcast_to(paths.s[jt], (Dn, T))
     own, C = _loo_rows(ctx, ds, ctx["dur"], tau2, r, true_q, cov=True)
     mu = own if rest is None or tuple(rest) == (tau2, r) else _loo_rows(ctx, ds, ctx["dur"], float(rest[0]), float(rest[1]), true_q)
+    x_true = X[:, :-1].reshape(Dn, S, 6)[:, jt]
+    mid = np.concatenate([[0.0], 0.5 * (u[1:] + u[:-1]), [1.0]])
+    share = np.tile(np.diff(mid), Dn)
+    if not duration:
+        return {"e": (x_true - mu).reshape(-1, 6), "V": np.zeros((Dn * T, 6, 6)), "C": C.reshape(-1, 6, 6), "w": share}
     # the duration's weights over each left-out demonstration's grid (durations shorter than the seen span left out)
     dsm = float(paths.smooth if paths.duration_smooth is None else paths.duration_smooth)
     dtol = float(paths.seen_tolerance if paths.duration_tolerance is None else paths.duration_tolerance)
@@ -1222,12 +1228,8 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None) -> dict:
     dy = y - ybar[rd]
     V = np.zeros((Dn, T, 6, 6))
     np.add.at(V, rd, wn[:, None, None, None] * dy[..., :, None] * dy[..., None, :])
-    x_true = X[:, :-1].reshape(Dn, S, 6)[:, jt]
     e_hat = x_true - mu - (ybar - own)
-    mid = np.concatenate([[0.0], 0.5 * (u[1:] + u[:-1]), [1.0]])
-    share = np.diff(mid)
-    return {"e": e_hat.reshape(-1, 6), "V": V.reshape(-1, 6, 6), "C": C.reshape(-1, 6, 6),
-            "w": np.tile(share, Dn)}
+    return {"e": e_hat.reshape(-1, 6), "V": V.reshape(-1, 6, 6), "C": C.reshape(-1, 6, 6), "w": share}
 
 
 def _rebase(paths, x, q, s):
