@@ -138,7 +138,8 @@ def _variation_text(v: dict) -> str:
                  f"{100 * drift['start_m']:.1f} cm, the duration {d0:.2f} → {d1:.2f} s (p = {drift['p_value']:.3g}, "
                  "a permutation test); a later session may differ as much or more: the bands are calibrated on "
                  "blocks left out in recording order, which need not cover takes recorded after all of these "
-                 "(measure it: rbgp crossval --order forward)")
+                 "(measure it: rbgp crossval --order forward; with --train-size N, from the latest N takes only, which "
+                 "may predict a drifting task's next session better than all of them)")
     return line
 
 

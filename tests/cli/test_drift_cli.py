@@ -37,6 +37,7 @@ def test_train_and_info_say_the_drift_over_the_recording_order_with_its_figure(t
     assert 7.0 <= cm <= 17.0, line  # the peak rises 12 cm from the first take to the last
     assert float(re.search(r"p = ([0-9.e-]+)", line).group(1)) < 0.01
     assert "crossval --order forward" in line  # where the next session's coverage is measured
+    assert "--train-size N" in line  # and how to measure training on the latest takes only
     info = runner.invoke(app, ["info", str(tmp_path / "m.rbgp")])
     assert info.exit_code == 0 and "drift over the recording order" in info.stdout
     # the same takes named in a random order: nothing to say
