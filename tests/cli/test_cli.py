@@ -226,6 +226,13 @@ def test_help_does_not_import_heavy_modules():
         (["train", str(CSV_DIR), "-o", "{tmp}/nodir/m.rbgp", "--max-points", "20"], ["folder does not exist"]),
         (["rollout", "{tmp}/none.rbgp"], ["not found"]),
         (["evaluate", "x.csv"], ["--demos"]),
+        # Click's own usage errors: one line too, not Typer's box with the usage above it
+        (["rollout", "{tmp}/none.rbgp", "--samples", "-1"], ["--samples", "rbgp rollout --help"]),
+        (["crossval", str(CSV_DIR), "--folds", "1"], ["--folds", "rbgp crossval --help"]),
+        (["train", str(CSV_DIR), "-o", "{tmp}/m.rbgp", "--bogus"], ["--bogus", "rbgp train --help"]),
+        (["rollout"], ["Missing argument", "rbgp rollout --help"]),
+        (["trian"], ["No such command 'trian'", "rbgp --help"]),
+        (["--bogus", "info"], ["--bogus", "rbgp --help"]),
     ],
 )
 def test_bad_usage_exits_2_with_one_line_and_no_output_file(tmp_path, args, fragments):
