@@ -34,10 +34,13 @@ from rbgp_cli.errors import InputError, warn
 
 __all__ = ["prepare_trajectory", "prepare_all", "lost_frame_mask", "line_of", "sign_change_note", "ZERO_QUAT_NORM",
            "STEP_LIMIT", "split_at_breaks", "break_threshold", "crop_trajectory", "RestSplit", "split_at_rest",
-           "speeds", "quaternion_order_note", "BREAK_FACTOR", "BREAK_SECONDS"]
+           "speeds", "quaternion_order_note", "BREAK_FACTOR", "BREAK_SECONDS", "UNIT_TOLERANCE"]
 
 #: A quaternion with a smaller norm is "no rotation recorded" (a lost frame), not a rotation.
 ZERO_QUAT_NORM = 1e-9
+#: A quaternion whose norm is further from 1 than this is not a unit quaternion (wrong columns, order
+#: or units), not noise: an error, where one nearer is normalised.
+UNIT_TOLERANCE = 0.1
 #: Largest accepted rotation between consecutive samples (rad). The relative rotation of two unit
 #: quaternions is at most π; within 1e-6 rad of π its direction is decided by rounding noise.
 STEP_LIMIT = np.pi - 1e-6
@@ -386,7 +389,7 @@ def _warn_repairs(traj: Trajectory, report: dict) -> None:
 
 
 def prepare_trajectory(
-    traj: Trajectory, *, max_gap: float | None = None, unit_tolerance: float = 0.1
+    traj: Trajectory, *, max_gap: float | None = None, unit_tolerance: float = UNIT_TOLERANCE
 ) -> tuple[Trajectory, dict]:
     """Clean a raw trajectory; return ``(clean, report)``.
 
@@ -730,7 +733,7 @@ def split_at_rest(traj: Trajectory, rest: RestSplit, *, quiet: bool = False):
     return out, record
 
 
-def prepare_all(trajectories, *, max_gap: float | None = None, unit_tolerance: float = 0.1,
+def prepare_all(trajectories, *, max_gap: float | None = None, unit_tolerance: float = UNIT_TOLERANCE,
                 crop: tuple | None = None, split_gap: float | None = None, rest: RestSplit | None = None,
                 quiet: bool = False) -> tuple[list[Trajectory], list[dict]]:
     """Clean each trajectory and cut it into demonstrations; returns (demonstrations, reports).

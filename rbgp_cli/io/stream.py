@@ -63,8 +63,8 @@ class RowStream:
             return None
         if self._row == 2 or self._fast is None:
             tr = self._first(line) if self._row == 2 else self._slow(line)
-            q = tr.quat[0] / np.linalg.norm(tr.quat[0])
-            return float(tr.t[0]), q, tr.position[0].astype(float)
+            q = np.asarray(tr.quat[0], dtype=float)
+            return float(tr.t[0]), q / self._unit_norm(q), tr.position[0].astype(float)
         idx, delim, lf, tf = self._fast
         parts = line.split(delim) if delim not in ("whitespace", None) else line.split()
         try:
@@ -77,7 +77,19 @@ class RowStream:
         if not np.all(np.isfinite(v)) or nq < 1e-9:
             raise InputError(f"row {self._row} has a missing or zero pose", path=self.source, row=self._row,
                              hint="drop lost frames before streaming them")
-        return v[0] * tf, q / nq, np.array(v[1:4]) * lf
+        return v[0] * tf, q / self._unit_norm(q), np.array(v[1:4]) * lf
+
+    def _unit_norm(self, q) -> float:
+        """The norm of a row's quaternion, refused (as the file reader refuses it) where it is far from 1."""
+        from rbgp_cli.dynamics.prepare import UNIT_TOLERANCE
+
+        nq = float(np.linalg.norm(q))
+        if not abs(nq - 1.0) <= UNIT_TOLERANCE:
+            raise InputError(f"row {self._row} has a quaternion of norm {nq:.6g}, far from 1 (tolerance {UNIT_TOLERANCE:g})",
+                             path=self.source, row=self._row, param="columns",
+                             hint="check the column mapping, the quaternion order and units (columns, quat_order); "
+                             "a unit quaternion's components lie in [-1, 1]")
+        return nq
 
     def _slow(self, line: str):
         from rbgp_cli.io.csv import read_text

@@ -78,6 +78,14 @@ def test_follow_bad_row_is_one_line_error(model):
     assert len(msg) == 1 and "row 3" in msg[0]
 
 
+@pytest.mark.parametrize("rows", [["0,0,0,0,0,0,3,1"], ["0,0,0,0,0,0,0,1", "0.01,0,0,0,0,0,3,1"]])
+def test_follow_refuses_a_quaternion_far_from_unit_as_the_file_reader_does(model, rows):
+    res = run("follow", model, "--no-detect", input="t,x,y,z,qx,qy,qz,qw\n" + "\n".join(rows) + "\n")
+    assert res.exit_code == 2, res.stderr
+    msg = res.stderr.strip().splitlines()
+    assert len(msg) == 1 and f"row {len(rows) + 1}" in msg[0] and "far from 1" in msg[0], res.stderr
+
+
 def test_crossval_given_refuses_a_fraction_outside_0_1(tmp_path):
     res = run("crossval", CSV_DIR, "--given", "1.5")
     assert res.exit_code == 2 and "between 0 and 1" in res.stderr
