@@ -31,6 +31,7 @@ class RowStream:
         self.source = source
         self._fast = None
         self._row = 1
+        self._last_t = None  # the previous row's time (s)
 
     def _first(self, line: str):
         from rbgp_cli.io.csv import read_text
@@ -64,7 +65,7 @@ class RowStream:
         if self._row == 2 or self._fast is None:
             tr = self._first(line) if self._row == 2 else self._slow(line)
             q = np.asarray(tr.quat[0], dtype=float)
-            return float(tr.t[0]), q / self._unit_norm(q), tr.position[0].astype(float)
+            return self._in_order(float(tr.t[0])), q / self._unit_norm(q), tr.position[0].astype(float)
         idx, delim, lf, tf = self._fast
         parts = line.split(delim) if delim not in ("whitespace", None) else line.split()
         try:
@@ -77,7 +78,15 @@ class RowStream:
         if not np.all(np.isfinite(v)) or nq < 1e-9:
             raise InputError(f"row {self._row} has a missing or zero pose", path=self.source, row=self._row,
                              hint="drop lost frames before streaming them")
-        return v[0] * tf, q / self._unit_norm(q), np.array(v[1:4]) * lf
+        return self._in_order(v[0] * tf), q / self._unit_norm(q), np.array(v[1:4]) * lf
+
+    def _in_order(self, t: float) -> float:
+        """A row's time, refused where it does not come after the previous row's."""
+        if self._last_t is not None and not t > self._last_t:
+            raise InputError(f"row {self._row} is at t = {t:g} s, not after the previous row's {self._last_t:g} s",
+                             path=self.source, row=self._row, hint="stream the rows in time order, each time once")
+        self._last_t = t
+        return t
 
     def _unit_norm(self, q) -> float:
         """The norm of a row's quaternion, refused (as the file reader refuses it) where it is far from 1."""

@@ -86,6 +86,15 @@ def test_follow_refuses_a_quaternion_far_from_unit_as_the_file_reader_does(model
     assert len(msg) == 1 and f"row {len(rows) + 1}" in msg[0] and "far from 1" in msg[0], res.stderr
 
 
+@pytest.mark.parametrize("time", ["0.005", "0.01"])
+def test_follow_names_the_row_whose_time_does_not_increase(model, time):
+    text = f"t,x,y,z,qx,qy,qz,qw\n0,0,0,0,0,0,0,1\n0.01,0,0,0,0,0,0,1\n{time},0,0,0,0,0,0,1\n"
+    res = run("follow", model, "--no-detect", input=text)
+    assert res.exit_code == 2, res.stderr
+    msg = res.stderr.strip().splitlines()
+    assert len(msg) == 1 and "stdin:4" in msg[0] and "time order" in msg[0], res.stderr
+
+
 def test_crossval_given_refuses_a_fraction_outside_0_1(tmp_path):
     res = run("crossval", CSV_DIR, "--given", "1.5")
     assert res.exit_code == 2 and "between 0 and 1" in res.stderr
