@@ -173,7 +173,19 @@ def parse_pose_quat(text: str) -> tuple[np.ndarray, np.ndarray]:
     if norm < ZERO_QUAT_NORM:
         raise InputError(f"start pose {text!r} (start_quat) has a zero quaternion, which is no rotation", param="start_quat",
                          hint='give a unit quaternion x y z w first, e.g. "0 0 0 1 x y z" for no rotation')
+    _warn_far_from_unit(norm, f"start pose {text!r} (start_quat)", "start_quat")
     return vals[:4] / norm, vals[4:]
+
+
+def _warn_far_from_unit(norm: float, what: str, flag: str) -> None:
+    """A typed quaternion is normalised whatever its length, but one further from unit length than a
+    file's rows may be (a digit or the order wrong, more often than a scaled quaternion) is said."""
+    from rbgp_cli.dynamics.prepare import UNIT_TOLERANCE
+    from rbgp_cli.errors import warn
+
+    if abs(norm - 1.0) > UNIT_TOLERANCE:
+        warn(f"the quaternion of the {what} has norm {norm:.4g}, not 1: it was normalised", param=flag,
+             hint="check its digits and the order x y z w (a unit quaternion's components lie in [-1, 1])")
 
 
 _GOAL_HINT = 'write it as "qx qy qz qw x y z" (quaternion x, y, z, w; m)'
@@ -194,6 +206,7 @@ def parse_goal(text: str, flag: str = "goal", what: str = "goal pose") -> tuple[
     if norm < ZERO_QUAT_NORM:
         raise InputError(f"the {what} {text!r} has a zero quaternion, which is no rotation", param=flag,
                          hint='give a unit quaternion x y z w first, e.g. "0 0 0 1 x y z" for no rotation')
+    _warn_far_from_unit(norm, f"{what} {str(text).strip()!r}", flag)
     return vals[:4] / norm, vals[4:]
 
 

@@ -124,6 +124,21 @@ def test_each_duration_needs_demonstrations():
     assert_one_line_error(run("rollout", "missing.rbgp", "--each-duration"), 2, "--from-demos")
 
 
+@pytest.mark.parametrize("flag,pose", [
+    ("--start-quat", "0 0 0.8 0.92 0.3 0 1.1"),  # 0.38 mistyped: norm 1.22
+    ("--goal", "0 0 0.8 0.92 0.3 0 1.1"),
+    ("--via", "1: 0 0 0.1 0.5 0.3 0 1.1"),  # norm 0.51
+])
+def test_a_typed_quaternion_far_from_unit_length_is_normalised_with_a_warning(model, tmp_path, flag, pose):
+    res = run("rollout", model, flag, pose, "--duration", 2, "--no-std", "-o", tmp_path / "r.csv")
+    assert res.exit_code == 0, res.stderr
+    said = [ln for ln in res.stderr.splitlines() if "it was normalised" in ln]
+    assert len(said) == 1 and said[0].startswith("rbgp: warning:") and "x y z w" in said[0], res.stderr
+    near = run("rollout", model, flag, pose.replace("0.8 0.92", "0.38 0.92").replace("0.1 0.5", "0.3 0.95"),
+               "--duration", 2, "--no-std", "-o", tmp_path / "r.csv")  # a few digits' rounding: no warning
+    assert near.exit_code == 0 and "normalised" not in near.stderr, near.stderr
+
+
 def test_start_quat_is_the_same_start_as_the_rotation_vector(model):
     half = float(np.sqrt(0.5))
     by_vec = run("rollout", model, "--start", f"0 0 {np.pi / 2!r} 0.3 0 1.1", "--steps", 3, "--output-rate", 0)
