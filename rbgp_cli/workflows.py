@@ -141,14 +141,16 @@ def check_writable(path) -> None:
 _WORDS = {6: "six", 7: "seven"}
 
 
-def _pose_numbers(text: str, n: int, flag: str, hint: str) -> np.ndarray:
-    """The ``n`` finite numbers of a pose typed after ``flag`` (spaces or commas between them)."""
+def _pose_numbers(text: str, n: int, flag: str, hint: str, what: str | None = None) -> np.ndarray:
+    """The ``n`` finite numbers of a pose typed after ``flag`` (spaces or commas between them); ``what``
+    names the pose in errors (default "start pose TEXT (FLAG)")."""
+    what = f"start pose {text!r} ({flag})" if what is None else what
     try:
         vals = np.array([float(v) for v in text.replace(",", " ").split()])
     except ValueError:
-        raise InputError(f"start pose {text!r} ({flag}) is not {_WORDS[n]} numbers", hint=hint, param=flag) from None
+        raise InputError(f"{what} is not {_WORDS[n]} numbers", hint=hint, param=flag) from None
     if vals.shape != (n,) or not np.all(np.isfinite(vals)):
-        raise InputError(f"start pose {text!r} ({flag}) must be {_WORDS[n]} finite numbers", hint=hint, param=flag)
+        raise InputError(f"{what} must be {_WORDS[n]} finite numbers", hint=hint, param=flag)
     return vals
 
 
@@ -156,8 +158,10 @@ def parse_pose(text: str) -> tuple[np.ndarray, np.ndarray]:
     """Parse a start pose "rx ry rz x y z" (rotation vector in rad, position in m; commas allowed)."""
     from rbgp_cli.geometry.so3 import quat_from_rotvec
 
-    vals = _pose_numbers(text, 6, "start", 'write it as "rx ry rz x y z" (rotation vector in rad, m), or a quaternion '
-                         'with start_quat "qx qy qz qw x y z"')
+    # "the start pose", the flag in the hint: the command line names a one-word option only at the start
+    # of the message or in the hint (rbgp_cli.cli.common.as_flags), so "(start)" would stay as it is
+    vals = _pose_numbers(text, 6, "start", 'write start as "rx ry rz x y z" (rotation vector in rad, m), or a quaternion '
+                         'with start_quat "qx qy qz qw x y z"', what=f"the start pose {text!r}")
     return quat_from_rotvec(vals[:3]), vals[3:]
 
 

@@ -245,7 +245,9 @@ def test_bad_usage_exits_2_with_one_line_and_no_output_file(tmp_path, args, frag
 
 @pytest.mark.parametrize("pose", ["1 2 3", "a b c d e f", "nan 0 0 0 0 0", "0 0 0 0 0 inf"])
 def test_malformed_start_poses(model, pose):
-    assert_one_line_error(run("rollout", model, "--start", pose), 2, "start pose")
+    res = run("rollout", model, "--start", pose)
+    assert_one_line_error(res, 2, "start pose", 'write --start as "rx ry rz x y z"')
+    assert "(start)" not in res.stderr and "--start pose" not in res.stderr  # the option, named as typed
 
 
 def test_model_file_errors(tmp_path):
