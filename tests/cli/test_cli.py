@@ -243,6 +243,15 @@ def test_bad_usage_exits_2_with_one_line_and_no_output_file(tmp_path, args, frag
     assert not any(p.name.endswith(".tmp") for p in tmp_path.rglob("*"))
 
 
+def test_a_recording_whose_pose_never_changes_says_why_nothing_is_left(tmp_path):
+    rows = "".join(f"{0.01 * k:.2f},0.1,0.2,0.3,0,0,0,1\n" for k in range(100))
+    (tmp_path / "still.csv").write_text("t,x,y,z,qx,qy,qz,qw\n" + rows)
+    res = run("train", tmp_path / "still.csv", "-o", tmp_path / "m.rbgp")
+    assert_one_line_error(res, 2, "still.csv", "1 left of 100", "99 repeating the previous pose exactly",
+                          "the pose never changes")
+    assert not (tmp_path / "m.rbgp").exists()
+
+
 @pytest.mark.parametrize("pose", ["1 2 3", "a b c d e f", "nan 0 0 0 0 0", "0 0 0 0 0 inf"])
 def test_malformed_start_poses(model, pose):
     res = run("rollout", model, "--start", pose)
