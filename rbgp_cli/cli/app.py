@@ -94,6 +94,9 @@ def train(
                           pull_profile=pull_profile, residual_gain=residual_gain)
     if up not in ("z", "y"):
         raise InputError(f"--up must be z or y, got {up!r}")
+    if output == "-":  # '-' is stdout elsewhere; the model is a binary zip that every command reads by name
+        raise InputError("-o - would write the model to stdout, but a model is a file (a binary zip read back by name)",
+                         hint="give -o NAME.rbgp")
     check_outputs(output, rerun)
     model, header, trajs = workflows.train_from_files(
         demos, output, options=opts, max_gap=max_gap, progress=progress,

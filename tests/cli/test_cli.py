@@ -243,6 +243,13 @@ def test_bad_usage_exits_2_with_one_line_and_no_output_file(tmp_path, args, frag
     assert not any(p.name.endswith(".tmp") for p in tmp_path.rglob("*"))
 
 
+def test_train_to_stdout_is_refused_not_written_to_a_file_named_dash(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    res = run("train", CSV_DIR, "-o", "-", *FAST)
+    assert_one_line_error(res, 2, "-o NAME.rbgp")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_a_recording_whose_pose_never_changes_says_why_nothing_is_left(tmp_path):
     rows = "".join(f"{0.01 * k:.2f},0.1,0.2,0.3,0,0,0,1\n" for k in range(100))
     (tmp_path / "still.csv").write_text("t,x,y,z,qx,qy,qz,qw\n" + rows)
