@@ -250,6 +250,14 @@ def test_train_to_stdout_is_refused_not_written_to_a_file_named_dash(tmp_path, m
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("args", [["info", "-"], ["rollout", "-", "--count", "1"], ["follow", "-"]])
+def test_a_model_named_dash_is_stdin_and_refused_as_such(tmp_path, monkeypatch, args):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "-").write_bytes(b"PK\x03\x04 not a model")  # not read as a file named '-' either
+    res = run(*args, input="t,x,y,z,qx,qy,qz,qw\n")
+    assert_one_line_error(res, 2, "a model is not read from stdin", "pass the model file's path")
+
+
 def test_a_recording_whose_pose_never_changes_says_why_nothing_is_left(tmp_path):
     rows = "".join(f"{0.01 * k:.2f},0.1,0.2,0.3,0,0,0,1\n" for k in range(100))
     (tmp_path / "still.csv").write_text("t,x,y,z,qx,qy,qz,qw\n" + rows)
