@@ -391,7 +391,7 @@ def _choose_topic(topics: dict, options: ReadOptions, source: str) -> _Topic:
             raise error(
                 f"no topic {want!r}"
                 + (f"; did you mean {guess!r}?" if guess else "")
-                + (f" pose topics are: {_listing(pose)}" if pose else f" (the file has no pose topic; topics are: {_listing(topics.values()) or 'none'})"),
+                + (f"{' ' if guess else '; '}pose topics are: {_listing(pose)}" if pose else f" (the file has no pose topic; topics are: {_listing(topics.values()) or 'none'})"),
                 path=source,
                 hint="pass topic with one of them", param="topic",
             )

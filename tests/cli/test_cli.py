@@ -321,6 +321,8 @@ def test_csv_and_mcap_give_the_same_model(tmp_path):
 def test_mcap_topic_pattern_errors_name_the_topics():
     res = run("train", MCAP, "--topic", "/hand/*", "-o", "/tmp/never.rbgp")
     assert_one_line_error(res, 2, "/hand/*")
+    res = run("train", MCAP, "--topic", "/nope", "-o", "/tmp/never.rbgp")  # no close name to suggest
+    assert_one_line_error(res, 2, "no topic '/nope'; pose topics are: /shoe/trial_01/pose", "--topic")
 
 
 @pytest.mark.slow
