@@ -238,6 +238,16 @@ def prose(doc: str | None) -> str | None:
     return "\n\n".join(p for p in paragraphs if p)
 
 
+#: What to make smaller when a command runs out of memory, by command (None: any other).
+_MEMORY_HINTS = {
+    "train": "use --max-points or --subsample to train on fewer points",
+    "crossval": "use --max-points or --subsample to train on fewer points",
+    "rollout": "ask for fewer or shorter motions (--count, --samples, --duration, --steps, --dt, --output-rate)",
+    "evaluate": "score fewer or shorter trajectories (--count, --length)",
+    None: "give it less data at once",
+}
+
+
 def command(func):
     """Wrap a command: rbgp errors become one line on stderr with their exit code (2 for bad input,
     1 for runtime failures); any other exception is an internal error (exit 1, no traceback unless
@@ -285,7 +295,7 @@ def command(func):
                     pass
                 raise typer.Exit(0) from None
             except MemoryError:
-                _stderr("rbgp: error: out of memory; use --max-points or --subsample to train on fewer points")
+                _stderr(f"rbgp: error: out of memory; {_MEMORY_HINTS.get(func.__name__, _MEMORY_HINTS[None])}")
                 raise typer.Exit(1) from None
             except OSError as exc:
                 line = _resource_error(exc)

@@ -258,6 +258,23 @@ def test_a_model_named_dash_is_stdin_and_refused_as_such(tmp_path, monkeypatch, 
     assert_one_line_error(res, 2, "a model is not read from stdin", "pass the model file's path")
 
 
+@pytest.mark.parametrize("args,target,names", [
+    (["rollout", "{model}", "--count", "3", "-q", "-o", "{tmp}/g.csv"], "rollout_model", ["--count", "--duration"]),
+    (["evaluate", "{tmp}/g.csv", "--demos", str(CSV_DIR)], "evaluate_files", ["--length"]),
+])
+def test_out_of_memory_says_what_to_make_smaller_for_that_command(model, tmp_path, monkeypatch, args, target, names):
+    import rbgp_cli.workflows as wf
+
+    def boom(*a, **k):
+        raise MemoryError
+
+    monkeypatch.setattr(wf, target, boom)
+    (tmp_path / "g.csv").write_text((CSV_DIR / "shoe_01.csv").read_text())
+    res = run(*[a.replace("{model}", str(model)).replace("{tmp}", str(tmp_path)) for a in args])
+    assert_one_line_error(res, 1, "out of memory", *names)
+    assert "--max-points" not in res.stderr  # a training option, for a command that trains nothing
+
+
 def test_a_recording_whose_pose_never_changes_says_why_nothing_is_left(tmp_path):
     rows = "".join(f"{0.01 * k:.2f},0.1,0.2,0.3,0,0,0,1\n" for k in range(100))
     (tmp_path / "still.csv").write_text("t,x,y,z,qx,qy,qz,qw\n" + rows)
