@@ -275,6 +275,11 @@ def test_out_of_memory_says_what_to_make_smaller_for_that_command(model, tmp_pat
     assert "--max-points" not in res.stderr  # a training option, for a command that trains nothing
 
 
+def test_evaluate_length_errors_name_the_option(tmp_path):
+    res = run("evaluate", CSV_DIR / "shoe_01.csv", CSV_DIR / "shoe_02.csv", "--demos", CSV_DIR, "--length", "100000")
+    assert_one_line_error(res, 2, "--length 100000 is more than", "use --length at most 2604")
+
+
 def test_a_recording_whose_pose_never_changes_says_why_nothing_is_left(tmp_path):
     rows = "".join(f"{0.01 * k:.2f},0.1,0.2,0.3,0,0,0,1\n" for k in range(100))
     (tmp_path / "still.csv").write_text("t,x,y,z,qx,qy,qz,qw\n" + rows)
