@@ -251,6 +251,12 @@ def rollout(
                              "--steps or --duration", hint="drop them, or drop --given")
         if fmt != "csv" or rerun or plot:
             raise InputError("--given writes CSV (no --rerun or --plot)", hint="write -o FILE.csv (or stdout)")
+        ignored = [flag for flag, on in (("--goal", goal), ("--goals", goals), ("--via", via), ("--goal-tolerance", goal_tolerance),
+                                         ("--count", count != 1), ("--dt", dt is not None), ("--output-rate", output_rate is not None),
+                                         ("--off-data", off_data != "keep")) if on]
+        if ignored:  # a continuation is conditioned on what was seen alone, on its own grid: these would do nothing
+            raise InputError(f"--given continues each seen motion on its own; it takes no {', '.join(ignored)}",
+                             hint="drop them, or drop --given")
         return _rollout_given(m, given, read, samples=samples, seed=seed, output=output, json_out=json_out)
     q0, p0, durations = workflows.rollout_starts(
         m, start=start, start_quat=start_quat, starts=starts, from_demos=from_demos, count=count,

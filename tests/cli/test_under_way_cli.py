@@ -49,6 +49,21 @@ def test_rollout_given_refuses_start_poses(model, tmp_path):
     assert "--given" in res.stderr and len(res.stderr.strip().splitlines()) == 1
 
 
+@pytest.mark.parametrize("args,named", [
+    (["--goal", "0 0 0 1 0.8 0.06 0.13"], "--goal"),
+    (["--via", "1: 0 0 0 1 0.8 0.06 0.13"], "--via"),
+    (["--output-rate", "50"], "--output-rate"),
+    (["--count", "5"], "--count"),
+    (["--off-data", "stop"], "--off-data"),
+])
+def test_rollout_given_refuses_what_it_would_ignore(model, tmp_path, args, named):
+    res = run("rollout", model, "--given", CSV_DIR / "shoe_01.csv", *args, "-o", tmp_path / "rest.csv")
+    assert res.exit_code == 2, res.stderr
+    msg = res.stderr.strip().splitlines()
+    assert len(msg) == 1 and "--given" in msg[0] and named in msg[0], res.stderr
+    assert not (tmp_path / "rest.csv").exists()
+
+
 @pytest.mark.slow
 def test_follow_reads_a_pipe_and_prints_one_json_line_per_prediction(model, tmp_path):
     lines = (CSV_DIR / "shoe_01.csv").read_text().splitlines()
