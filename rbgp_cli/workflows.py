@@ -388,6 +388,10 @@ def rollout_starts(model, *, start=(), start_quat=(), starts=None, from_demos=No
         qs.append(q)
         ps.append(p)
     given = sum(len(q) for q in qs)  # starts that are not drawn near a demonstration
+    if given and not from_demos and count != 1:  # count draws starts, and none are drawn: it would do nothing
+        raise InputError(f"count {count} is how many starts to draw near the demonstrations' start poses, and with "
+                         "start poses given none are drawn", param="count",
+                         hint="add from_demos FILES to draw them there as well, or drop count")
     if from_demos:
         demos, _, _ = load_demonstrations(from_demos, options, max_gap=max_gap)
         q, p, near = starts_near(start_vectors(demos), count, start_spread, seed=seed, return_index=True)

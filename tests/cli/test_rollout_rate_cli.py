@@ -124,6 +124,13 @@ def test_each_duration_needs_demonstrations():
     assert_one_line_error(run("rollout", "missing.rbgp", "--each-duration"), 2, "--from-demos")
 
 
+@pytest.mark.parametrize("starts", [["--start", START], ["--start-quat", "0 0 0 1 0.3 0 1.1"], ["--starts", str(CSV_DIR / "shoe_01.csv")]])
+def test_count_with_start_poses_and_nothing_to_draw_from_is_refused(model, tmp_path, starts):
+    res = run("rollout", model, *starts, "--count", 5, "-o", tmp_path / "r.csv")
+    assert_one_line_error(res, 2, "--count 5", "--from-demos")
+    assert not (tmp_path / "r.csv").exists()
+
+
 @pytest.mark.parametrize("flag,pose", [
     ("--start-quat", "0 0 0.8 0.92 0.3 0 1.1"),  # 0.38 mistyped: norm 1.22
     ("--goal", "0 0 0.8 0.92 0.3 0 1.1"),
