@@ -647,6 +647,12 @@ def crossval_under_way(sources, fractions, train_kwargs: dict, *, options: ReadO
         warn("left out " + missing())
     folds = min(int(folds), len(demos)) if train_size is None else int(folds)
     splits = repeated_splits(len(demos), folds, seed, order, train_size, repeats)
+    fewest = min(len(train_idx) for train_idx, _ in splits)
+    if fewest < 3:  # each split's path distribution: none from fewer than three
+        raise InputError(f"crossval with a seen fraction trains on at least 3 demonstrations in every split, and a split "
+                         f"here trains on {fewest}", hint="use train_size 3 or more" if train_size is not None
+                         else f"use folds {len(demos)} (one held out at a time), or record more demonstrations",
+                         param=("train_size", "folds"))
     info = split_info(len(demos), folds, order, train_size)
     if info:  # forward: the splits used, not the blocks
         folds = len(splits)

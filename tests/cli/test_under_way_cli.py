@@ -110,6 +110,18 @@ def test_follow_names_the_row_whose_time_does_not_increase(model, time):
     assert len(msg) == 1 and "stdin:4" in msg[0] and "time order" in msg[0], res.stderr
 
 
+@pytest.mark.parametrize("count,args,hint", [(9, ["--folds", "3", "--train-size", "2"], "--train-size 3 or more"),
+                                             (4, ["--folds", "2"], "--folds 4 (one held out at a time)")])
+def test_crossval_given_says_when_a_split_trains_on_too_few(tmp_path, count, args, hint):
+    for src in sorted(CSV_DIR.glob("*.csv"))[:count]:
+        (tmp_path / src.name).write_bytes(src.read_bytes())
+    res = run("crossval", tmp_path, "--given", "0.5", "--no-peers", *args)
+    assert res.exit_code == 2, res.stderr
+    msg = res.stderr.strip().splitlines()
+    assert len(msg) == 1 and "a split here trains on" in msg[0] and hint in msg[0], res.stderr
+    assert "retrain" not in msg[0]  # not about a model file: the user trained none
+
+
 def test_crossval_given_refuses_a_fraction_outside_0_1(tmp_path):
     res = run("crossval", CSV_DIR, "--given", "1.5")
     assert res.exit_code == 2 and "between 0 and 1" in res.stderr
