@@ -891,9 +891,14 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
     splits = [([demos[i] for i in train_idx], [demos[i] for i in test_idx]) for train_idx, test_idx in index_splits]
     smallest = min(len(f) for f in fold_idx)
     if smallest < 2:
+        if train_size is not None and len(demos) - 2 >= 2:
+            hint, param = f"use train_size {len(demos) - 2} or less (at least 2 held out)", "train_size"
+        elif train_size is None and len(demos) >= 4:
+            hint, param = f"use folds {len(demos) // 2} or fewer (at least 2 held out per fold)", "folds"
+        else:  # no split of so few holds out two and trains on two
+            hint, param = "record 4 demonstrations or more (two held out in each of two folds)", None
         warn(f"with {k} folds of {len(demos)} demonstrations some folds hold out only one: a score "
-             "of one trajectory rests on the ridge variance, not on the motions",
-             hint=f"use folds {max(2, len(demos) // 2)} or fewer (at least 2 held out per fold)", param="folds")
+             "of one trajectory rests on the ridge variance, not on the motions", hint=hint, param=param)
     floors = [evaluate(test, train, length=length, covariance=covariance, sample_size="record") for train, test in splits]
     # the held-out demonstrations themselves against the training envelope: what real new motions do
     floor_left = sum(left_envelope(test, envelope_from_demos(train))["count"] for train, test in splits)

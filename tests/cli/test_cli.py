@@ -280,6 +280,19 @@ def test_evaluate_length_errors_name_the_option(tmp_path):
     assert_one_line_error(res, 2, "--length 100000 is more than", "use --length at most 2604")
 
 
+@pytest.mark.parametrize("count,args,hint,not_hint", [
+    (2, ["--folds", "2"], "record 4 demonstrations or more", "--folds 2 or fewer"),  # it ran with 2 folds
+    (9, ["--folds", "2", "--train-size", "8"], "--train-size 7 or less", "--folds"),  # folds do not change it
+])
+def test_crossval_one_held_out_warning_gives_advice_that_helps(tmp_path, count, args, hint, not_hint):
+    for src in sorted(CSV_DIR.glob("*.csv"))[:count]:
+        (tmp_path / src.name).write_bytes(src.read_bytes())
+    res = run("crossval", tmp_path, *args, "--no-peers", "--samples", "2", "-q", *FAST)
+    assert res.exit_code == 0, res.stderr
+    (line,) = [ln for ln in res.stderr.splitlines() if "hold out only one" in ln]
+    assert hint in line and not_hint not in line.split("; ", 1)[1], line
+
+
 def test_a_recording_whose_pose_never_changes_says_why_nothing_is_left(tmp_path):
     rows = "".join(f"{0.01 * k:.2f},0.1,0.2,0.3,0,0,0,1\n" for k in range(100))
     (tmp_path / "still.csv").write_text("t,x,y,z,qx,qy,qz,qw\n" + rows)
