@@ -139,7 +139,7 @@ def make_folds(n: int, k: int, seed: int = 0, order: str = "random") -> list[np.
     that a block's neighbours in time are not in its training set, as for the next session's
     demonstrations."""
     if order not in ORDERS:
-        raise InputError(f"unknown order {order!r}; expected one of {', '.join(ORDERS)}", param="order")
+        raise InputError(f"order {order!r} is unknown; expected one of {', '.join(ORDERS)}", param="order")
     if k < 2:
         raise InputError(f"folds must be at least 2, got {k}", param="folds")
     if n < k:
@@ -160,7 +160,7 @@ def repeated_splits(n: int, k: int, seed: int = 0, order: str = "random", train_
     if isinstance(repeats, bool) or not isinstance(repeats, (int, np.integer)) or repeats < 1:
         raise InputError(f"repeats must be a whole number of at least 1, got {repeats!r}", param="repeats")
     if order not in ORDERS:
-        raise InputError(f"unknown order {order!r}; expected one of {', '.join(ORDERS)}", param="order")
+        raise InputError(f"order {order!r} is unknown; expected one of {', '.join(ORDERS)}", param="order")
     if order in FIXED_ORDERS and repeats > 1:
         raise InputError("folds in recording order are the same on every repeat",
                          hint=f"use repeats 1 with order {order} (or order random)", param="repeats")
@@ -193,7 +193,7 @@ def make_splits(n: int, k: int, seed: int = 0, order: str = "random", train_size
         folds = make_folds(n, k, seed, order)
         return [(np.setdiff1d(np.arange(n), f), f) for f in folds]
     if order not in ORDERS:
-        raise InputError(f"unknown order {order!r}; expected one of {', '.join(ORDERS)}", param="order")
+        raise InputError(f"order {order!r} is unknown; expected one of {', '.join(ORDERS)}", param="order")
     N = int(train_size)
     if k < 1:
         raise InputError(f"folds must be at least 1, got {k}", param="folds")
