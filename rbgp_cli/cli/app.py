@@ -258,6 +258,17 @@ def rollout(
             raise InputError(f"--given continues each seen motion on its own; it takes no {', '.join(ignored)}",
                              hint="drop them, or drop --given")
         return _rollout_given(m, given, read, samples=samples, seed=seed, output=output, json_out=json_out)
+    if goal or via or goal_tolerance:  # a mistyped pose is the one line said, before the starts' progress note
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # said once, below
+            for text in [goal] if goal else []:
+                workflows.parse_goal(text)
+            for text in via or []:
+                workflows.parse_via(text)
+            if goal_tolerance:
+                workflows.parse_tolerance(goal_tolerance)
     q0, p0, durations = workflows.rollout_starts(
         m, start=start, start_quat=start_quat, starts=starts, from_demos=from_demos, count=count,
         start_spread=start_spread, seed=seed, options=opts, max_gap=read.max_gap, each_duration=each_duration,

@@ -123,6 +123,14 @@ def test_bad_goal_and_via_text_is_a_one_line_error(model, tmp_path, args, fragme
     assert not out.exists()
 
 
+@pytest.mark.parametrize("args", [["--goal", "1 2 3"], ["--via", "1 2 3"], ["--goal", "0 0 0 1 0 0 0", "--goal-tolerance", "a"]])
+def test_a_bad_goal_without_a_start_is_the_only_line_on_stderr(model, tmp_path, args):
+    """Without a start the rollout says which starts it drew; a mistyped goal stops it before that."""
+    out = tmp_path / "r.csv"
+    assert_one_line_error(run("rollout", model, *args, "-o", out), 2, "write it as")
+    assert not out.exists()
+
+
 def test_crossval_given_must_be_goal():
     assert_one_line_error(run("crossval", CSV_DIR, "--given", "middle"), 2, "--given takes goal or a seen fraction F")
 
