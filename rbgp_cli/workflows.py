@@ -447,6 +447,8 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
     if dt is None:
         dt = model.dt if steps is not None and durations is None else model.rollout_dt
     step = float(dt)
+    if not np.isfinite(step) or step <= 0:  # before it divides a duration into steps
+        raise InputError(f"dt must be a positive number of seconds, got {step:g}", param="dt")
     kwargs = {"samples": samples, "seed": seed, "with_std": with_std, "progress": progress, "off_data": off_data}
     if goal_quat is not None or via:
         res = _rollout_to_goal(model, quat, pos, steps=steps, duration=duration, durations=durations, dt=step,

@@ -124,6 +124,14 @@ def test_each_duration_needs_demonstrations():
     assert_one_line_error(run("rollout", "missing.rbgp", "--each-duration"), 2, "--from-demos")
 
 
+@pytest.mark.parametrize("dt", ["0", "nan", "-0.01", "inf"])
+@pytest.mark.parametrize("more", [[], ["--duration", "2"], ["--goal", "0 0 0 1 0.8 0.06 0.13"]])
+def test_a_dt_that_is_not_a_positive_number_is_bad_input_not_an_internal_error(model, tmp_path, dt, more):
+    res = run("rollout", model, "--dt", dt, *more, "-q", "-o", tmp_path / "r.csv")
+    assert_one_line_error(res, 2, "--dt must be a positive number of seconds")
+    assert not (tmp_path / "r.csv").exists()
+
+
 @pytest.mark.parametrize("starts", [["--start", START], ["--start-quat", "0 0 0 1 0.3 0 1.1"], ["--starts", str(CSV_DIR / "shoe_01.csv")]])
 def test_count_with_start_poses_and_nothing_to_draw_from_is_refused(model, tmp_path, starts):
     res = run("rollout", model, *starts, "--count", 5, "-o", tmp_path / "r.csv")
