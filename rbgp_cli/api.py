@@ -219,6 +219,13 @@ def _choice(value, name: str, choices: tuple):
     return None if value == "none" else value
 
 
+#: Largest fixed noise std and noise scale accepted: far beyond any use (velocities in rad/s and m/s;
+#: the defaults are learnt and 256), and small enough that σn², with the calibration's factors (up to
+#: 4096) and the scale, stays a finite double.
+MAX_NOISE = 1e50
+MAX_NOISE_SCALE = 1e100
+
+
 def train_options(*, rho_rot=DEFAULTS["rho_rot"], restarts: int = DEFAULTS["restarts"],
                   explore_size: int = DEFAULTS["explore_size"], seed: int = 0, noise="learn",
                   share_hyperparameters: bool = False, subsample: float = DEFAULTS["subsample"],
@@ -246,13 +253,14 @@ def train_options(*, rho_rot=DEFAULTS["rho_rot"], restarts: int = DEFAULTS["rest
 
     rho = rho_rot if rho_rot == "learn" else _number(rho_rot, "rho_rot")
     noise_v = None if noise == "learn" else _number(noise, "noise")
-    if noise_v is not None and not noise_v > 0:
-        raise InputError(f"noise must be 'learn' or a positive number, got {noise}", param="noise")
+    if noise_v is not None and not 0 < noise_v <= MAX_NOISE:
+        raise InputError(f"noise must be 'learn' or a positive number up to {MAX_NOISE:g}, got {noise}", param="noise")
     time_in = _choice(time_input, "time_input", ("none", "seconds", "phase"))
     prior_v = _choice(prior, "prior", ("none", "goal", "path"))
     scale = _number(noise_scale, "noise_scale")
-    if not scale >= 1.0 or not np.isfinite(scale):
-        raise InputError(f"noise_scale must be a number of at least 1, got {noise_scale}", param="noise_scale")
+    if not 1.0 <= scale <= MAX_NOISE_SCALE:
+        raise InputError(f"noise_scale must be a number from 1 to {MAX_NOISE_SCALE:g}, got {noise_scale}",
+                         param="noise_scale")
     try:
         gain = "auto" if str(residual_gain).strip().lower() == "auto" else float(residual_gain)
     except (TypeError, ValueError):

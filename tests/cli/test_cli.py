@@ -293,6 +293,14 @@ def test_crossval_one_held_out_warning_gives_advice_that_helps(tmp_path, count, 
     assert hint in line and not_hint not in line.split("; ", 1)[1], line
 
 
+@pytest.mark.parametrize("option,value", [("--noise", "1e154"), ("--noise-scale", "1e308"), ("--train-rate", "1e308"),
+                                          ("--smooth-window", "1e308")])
+def test_train_options_too_large_for_a_double_are_bad_input_not_an_internal_error(tmp_path, option, value):
+    res = run("train", CSV_DIR, "-o", tmp_path / "m.rbgp", option, value, *FAST)
+    assert_one_line_error(res, 2, option)
+    assert not (tmp_path / "m.rbgp").exists()
+
+
 def test_a_recording_whose_pose_never_changes_says_why_nothing_is_left(tmp_path):
     rows = "".join(f"{0.01 * k:.2f},0.1,0.2,0.3,0,0,0,1\n" for k in range(100))
     (tmp_path / "still.csv").write_text("t,x,y,z,qx,qy,qz,qw\n" + rows)
