@@ -240,8 +240,8 @@ def prose(doc: str | None) -> str | None:
 
 #: What to make smaller when a command runs out of memory, by command (None: any other).
 _MEMORY_HINTS = {
-    "train": "use --max-points or --subsample to train on fewer points",
-    "crossval": "use --max-points or --subsample to train on fewer points",
+    "train": "use --max-points or --subsample to train on fewer points (or a lower --train-rate)",
+    "crossval": "use --max-points or --subsample to train on fewer points (or a lower --train-rate)",
     "rollout": "ask for fewer or shorter motions (--count, --samples, --duration, --steps, --dt, --output-rate)",
     "evaluate": "score fewer or shorter trajectories (--count, --length)",
     None: "give it less data at once",
