@@ -6,6 +6,7 @@ stdout carries data (CSV or JSON); progress, warnings and errors go to stderr. E
 
 from __future__ import annotations
 
+import math
 import sys
 from typing import Annotated, List, Optional
 
@@ -234,6 +235,13 @@ def rollout(
         raise InputError("--each-duration gives each start its demonstration's duration", hint="add --from-demos FILES")
     if each_duration and steps is not None:
         raise InputError("give --each-duration or --steps, not both", hint="--duration sets the starts not drawn near a demonstration")
+    for name, value in (("duration", duration), ("dt", dt)):  # before the starts are drawn and said
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise InputError(f"{name} must be a positive number of seconds, got {value:g}", param=name)
+    from rbgp_cli.dynamics.envelope import OFF_DATA
+
+    if off_data not in OFF_DATA:
+        raise InputError(f"off_data must be one of {', '.join(OFF_DATA)}, got {off_data!r}", param="off_data")
     opts = read.options
     if opts.rate is not None and not (starts or from_demos or goals):
         raise InputError("--rate is the sample rate of input files without a time column, and rollout reads none here",

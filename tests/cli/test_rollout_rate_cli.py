@@ -132,6 +132,14 @@ def test_a_dt_that_is_not_a_positive_number_is_bad_input_not_an_internal_error(m
     assert not (tmp_path / "r.csv").exists()
 
 
+@pytest.mark.parametrize("args,fragment", [(["--duration", "-1"], "--duration must be a positive"),
+                                           (["--dt", "0"], "--dt must be a positive"),
+                                           (["--off-data", "maybe"], "--off-data must be one of")])
+def test_a_bad_rollout_option_without_a_start_is_the_only_line_on_stderr(model, tmp_path, args, fragment):
+    """Without a start the rollout says which starts it drew; a bad option stops it before that."""
+    assert_one_line_error(run("rollout", model, *args, "-o", tmp_path / "r.csv"), 2, fragment)
+
+
 @pytest.mark.parametrize("starts", [["--start", START], ["--start-quat", "0 0 0 1 0.3 0 1.1"], ["--starts", str(CSV_DIR / "shoe_01.csv")]])
 def test_count_with_start_poses_and_nothing_to_draw_from_is_refused(model, tmp_path, starts):
     res = run("rollout", model, *starts, "--count", 5, "-o", tmp_path / "r.csv")
