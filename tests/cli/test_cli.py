@@ -233,6 +233,12 @@ def test_help_does_not_import_heavy_modules():
         (["rollout"], ["Missing argument", "rbgp rollout --help"]),
         (["trian"], ["No such command 'trian'", "rbgp --help"]),
         (["--bogus", "info"], ["--bogus", "rbgp --help"]),
+        # a negative seed: numpy's generators take none (it was an internal error, exit 1)
+        (["train", str(CSV_DIR), "-o", "{tmp}/m.rbgp", "--seed", "-1"], ["--seed", "greater than or equal to 0"]),
+        (["crossval", str(CSV_DIR), "--seed", "-1"], ["--seed"]),
+        (["rollout", "{tmp}/none.rbgp", "--seed", "-1"], ["--seed"]),
+        (["evaluate", "--model", "{tmp}/none.rbgp", "--demos", str(CSV_DIR), "--seed", "-1"], ["--seed"]),
+        (["bench", "paper", "theorem", "--seed", "-1"], ["--seed"]),
     ],
 )
 def test_bad_usage_exits_2_with_one_line_and_no_output_file(tmp_path, args, fragments):
