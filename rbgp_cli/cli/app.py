@@ -235,6 +235,9 @@ def rollout(
         raise InputError("--each-duration gives each start its demonstration's duration", hint="add --from-demos FILES")
     if each_duration and steps is not None:
         raise InputError("give --each-duration or --steps, not both", hint="--duration sets the starts not drawn near a demonstration")
+    if not (math.isfinite(start_time) and 0 <= start_time < 2**31):  # MCAP log times: unsigned; stamps: int32 seconds
+        raise InputError(f"start_time must be seconds since the epoch from 0 to {2**31 - 1} (1970 to 2038), got {start_time:g}",
+                         param="start_time")
     for name, value in (("duration", duration), ("dt", dt)):  # before the starts are drawn and said
         if value is not None and not (math.isfinite(value) and value > 0):
             raise InputError(f"{name} must be a positive number of seconds, got {value:g}", param=name)

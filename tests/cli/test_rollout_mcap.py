@@ -113,6 +113,8 @@ def test_options_frame_start_time_foxglove_and_stdout(model, tmp_path):
     (["--mcap-encoding", "ros1", "-o", "x.mcap"], "--mcap-encoding must be one of ros2, foxglove"),
     (["--mcap-encoding", "foxglove", "-o", "bag/"], "a rosbag2 folder holds ROS 2 messages"),
     (["--output-format", "csv", "-o", "bag/"], "a CSV needs a file name"),
+    (["--start-time", "-1", "-o", "x.mcap"], "--start-time must be seconds since the epoch from 0"),  # log times unsigned
+    (["--start-time", "1e308", "-o", "x.mcap"], "--start-time must be seconds since the epoch from 0"),
 ])
 def test_bad_output_choices_are_one_line_errors(model, tmp_path, monkeypatch, args, message):
     monkeypatch.chdir(tmp_path)
