@@ -140,6 +140,12 @@ def test_a_bad_rollout_option_without_a_start_is_the_only_line_on_stderr(model, 
     assert_one_line_error(run("rollout", model, *args, "-o", tmp_path / "r.csv"), 2, fragment)
 
 
+def test_an_output_rate_too_high_for_a_grid_is_bad_input_not_an_internal_error(model, tmp_path):
+    res = run("rollout", model, "--output-rate", "1e308", "--steps", 3, "-q", "-o", tmp_path / "r.csv")
+    assert_one_line_error(res, 2, "--output-rate", "too high")
+    assert not (tmp_path / "r.csv").exists()
+
+
 @pytest.mark.parametrize("starts", [["--start", START], ["--start-quat", "0 0 0 1 0.3 0 1.1"], ["--starts", str(CSV_DIR / "shoe_01.csv")]])
 def test_count_with_start_poses_and_nothing_to_draw_from_is_refused(model, tmp_path, starts):
     res = run("rollout", model, *starts, "--count", 5, "-o", tmp_path / "r.csv")
