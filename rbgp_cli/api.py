@@ -71,10 +71,12 @@ def _goal_keywords(count: int, goals, via, goal_tolerance) -> dict:
             points.append((tv, qv[0], pv[0]))
         out["via"] = points
     if goal_tolerance is not None:
+        from rbgp_cli.dynamics.paths import MAX_GOAL_TOLERANCE
+
         tol = np.asarray(goal_tolerance, dtype=np.float64).reshape(-1)
-        if tol.shape != (2,) or not np.all(np.isfinite(tol) & (tol > 0)):
-            raise InputError(f"goal_tolerance must be two positive numbers (rad, m), got {goal_tolerance!r}",
-                             param="goal_tolerance")
+        if tol.shape != (2,) or not np.all((tol > 0) & (tol <= MAX_GOAL_TOLERANCE)):
+            raise InputError(f"goal_tolerance must be two positive numbers (rad, m) up to {MAX_GOAL_TOLERANCE:g}, "
+                             f"got {goal_tolerance!r}", param="goal_tolerance")
         out["goal_tolerance"] = (float(tol[0]), float(tol[1]))
     return out
 

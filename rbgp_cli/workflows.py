@@ -241,9 +241,11 @@ def parse_tolerance(text: str) -> tuple[float, float]:
     except ValueError:
         raise InputError(f"the goal tolerance {text!r} is not two numbers", hint=hint,
                          param="goal_tolerance") from None
-    if len(vals) != 2 or not all(np.isfinite(v) and v > 0 for v in vals):
-        raise InputError(f"the goal tolerance {text!r} must be two positive numbers", hint=hint,
-                         param="goal_tolerance")
+    from rbgp_cli.dynamics.paths import MAX_GOAL_TOLERANCE
+
+    if len(vals) != 2 or not all(0 < v <= MAX_GOAL_TOLERANCE for v in vals):
+        raise InputError(f"the goal tolerance {text!r} must be two positive numbers (up to {MAX_GOAL_TOLERANCE:g})",
+                         hint=hint, param="goal_tolerance")
     return vals[0], vals[1]
 
 

@@ -113,6 +113,7 @@ def test_a_softer_goal_ends_near_it_not_at_it(model, tmp_path):
     (["--via", "-1: 0 0 0 1 0 0 0"], ["positive number of seconds"]),
     (["--via", "1: 0 0 0 1 0 0"], ["via-point", "seven finite numbers"]),
     (["--goal", "0 0 0 1 0 0 0", "--goal-tolerance", "0.1"], ["two positive numbers"]),
+    (["--goal", "0 0 0 1 0 0 0", "--goal-tolerance", "1e200 1e200"], ["two positive numbers (up to 1e+100)"]),  # var. overflows
     (["--goal-tolerance", "0.1 0.1"], ["--goal-tolerance softens", "--goal POSE"]),
     (["--goal", "0 0 0 1 0 0 0", "--steps", "5"], ["--duration"]),
     (["--goal", "0 0 0 1 0 0 0", "--via", "100: 0 0 0 1 0 0 0", "--duration", "2"], ["via-point at 100 s", "outside the motion"]),
