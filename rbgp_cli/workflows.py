@@ -376,6 +376,8 @@ def rollout_starts(model, *, start=(), start_quat=(), starts=None, from_demos=No
     """
     from rbgp_cli.dynamics.rollout import start_vectors, starts_near
 
+    if not (np.isfinite(start_spread) and start_spread >= 0):  # inf: every drawn start at infinity
+        raise InputError(f"start_spread must be a non-negative number of metres, got {start_spread:g}", param="start_spread")
     qs, ps, durs = [], [], []
     for s in start or []:
         q, p = parse_pose(s)

@@ -140,6 +140,11 @@ def test_a_bad_rollout_option_without_a_start_is_the_only_line_on_stderr(model, 
     assert_one_line_error(run("rollout", model, *args, "-o", tmp_path / "r.csv"), 2, fragment)
 
 
+def test_an_infinite_start_spread_is_bad_input(model, tmp_path):
+    res = run("rollout", model, "--start-spread", "inf", "--count", 2, "-o", tmp_path / "r.csv")
+    assert_one_line_error(res, 2, "--start-spread must be a non-negative number of metres")
+
+
 def test_an_output_rate_too_high_for_a_grid_is_bad_input_not_an_internal_error(model, tmp_path):
     res = run("rollout", model, "--output-rate", "1e308", "--steps", 3, "-q", "-o", tmp_path / "r.csv")
     assert_one_line_error(res, 2, "--output-rate", "too high")
