@@ -162,7 +162,10 @@ class RolloutResult:
 
 def _check_finite(state, step):
     if not np.all(np.isfinite(state)):
-        raise RbgpRuntimeError(f"the rollout diverged (non-finite state) at step {step}", hint="check the model with rbgp info")
+        # at the first step the start is the likelier cause (a position in mm, or 1e308) than the model
+        hint = ("check the start poses (metres; near the demonstrations'), then the model with rbgp info" if step == 1
+                else "check the model with rbgp info")
+        raise RbgpRuntimeError(f"the rollout diverged (non-finite state) at step {step}", hint=hint)
 
 
 #: How sampled rollouts are drawn: ``path`` (one coherent deviation of the demonstrations' kind per

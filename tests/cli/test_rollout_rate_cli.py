@@ -145,6 +145,12 @@ def test_an_infinite_start_spread_is_bad_input(model, tmp_path):
     assert_one_line_error(res, 2, "--start-spread must be a non-negative number of metres")
 
 
+def test_a_rollout_that_diverges_at_once_points_at_the_start(model, tmp_path):
+    res = run("rollout", model, "--start", "0 0 0 1e308 0 1", "--steps", 3, "-q", "-o", tmp_path / "r.csv")
+    assert_one_line_error(res, 1, "diverged", "at step 1", "check the start poses (metres")
+    assert not (tmp_path / "r.csv").exists()
+
+
 def test_an_output_rate_too_high_for_a_grid_is_bad_input_not_an_internal_error(model, tmp_path):
     res = run("rollout", model, "--output-rate", "1e308", "--steps", 3, "-q", "-o", tmp_path / "r.csv")
     assert_one_line_error(res, 2, "--output-rate", "too high")
