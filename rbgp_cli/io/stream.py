@@ -32,6 +32,8 @@ class RowStream:
         self._fast = None
         self._row = 1
         self._last_t = None  # the previous row's time (s)
+        self._rate = None  # with no time column, the rate option: a row's time is its index / rate
+        self._rows = 0  # data rows parsed
 
     def _first(self, line: str):
         from rbgp_cli.io.csv import read_text
@@ -43,6 +45,8 @@ class RowStream:
                              hint="stream one body's rows (time, position, quaternion)")
         info = trajs[0].info
         cols = info.get("columns") or {}
+        if "t" not in cols and info.get("rate_option_hz"):  # each row read alone would be at t = 0
+            self._rate = float(info["rate_option_hz"])
         kind = str(info.get("rotation", ""))
         if kind.startswith("quaternion") and all(k in cols for k in ("t", "x", "y", "z", "qx", "qy", "qz", "qw")):
             table = parse_table(self.header + "\n" + line + "\n", self.source)
@@ -65,7 +69,9 @@ class RowStream:
         if self._row == 2 or self._fast is None:
             tr = self._first(line) if self._row == 2 else self._slow(line)
             q = np.asarray(tr.quat[0], dtype=float)
-            return self._in_order(float(tr.t[0])), q / self._unit_norm(q), tr.position[0].astype(float)
+            t = float(tr.t[0]) if self._rate is None else self._rows / self._rate  # a file's row / rate
+            self._rows += 1
+            return self._in_order(t), q / self._unit_norm(q), tr.position[0].astype(float)
         idx, delim, lf, tf = self._fast
         parts = line.split(delim) if delim not in ("whitespace", None) else line.split()
         try:

@@ -122,6 +122,16 @@ def test_crossval_given_says_when_a_split_trains_on_too_few(tmp_path, count, arg
     assert "retrain" not in msg[0]  # not about a model file: the user trained none
 
 
+def test_follow_a_stream_without_a_time_column_takes_its_times_from_the_rate(model):
+    """As a file without a time column is read (row / --rate): each streamed row is not at t = 0."""
+    rows = [ln.split(",") for ln in (CSV_DIR / "shoe_01.csv").read_text().splitlines()[1:41]]
+    text = "x,y,z,qx,qy,qz,qw\n" + "\n".join(",".join(r[1:]) for r in rows) + "\n"
+    res = run("follow", model, "--no-detect", "--rate", "200", input=text)
+    assert res.exit_code == 0, res.stderr
+    times = [json.loads(ln)["t"] for ln in res.stdout.splitlines()]
+    assert len(times) >= 30 and times == pytest.approx([k / 200 for k in range(40)][-len(times):])
+
+
 def test_crossval_given_refuses_a_fraction_outside_0_1(tmp_path):
     res = run("crossval", CSV_DIR, "--given", "1.5")
     assert res.exit_code == 2 and "between 0 and 1" in res.stderr
