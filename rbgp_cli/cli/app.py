@@ -19,7 +19,7 @@ from rbgp_cli.cli.train_options import (
     CalibrateOpt, HyperPointsOpt, InducingOpt, SmoothWindowOpt, SubsampleOpt, TimeInputOpt, TrainRateOpt, defaults, kernel_help, train_kwargs,
 )
 from rbgp_cli.cli.common import (
-    ReadArgs, as_flags, command, emit_json, flag_words, check_outputs, is_quiet, need_flags, progress, set_json, set_quiet,
+    ReadArgs, as_flags, command, emit_json, flag_words, check_files, check_outputs, is_quiet, need_flags, progress, set_json, set_quiet,
     with_read_options, write_text_output,
 )
 
@@ -98,6 +98,7 @@ def train(
     if output == "-":  # '-' is stdout elsewhere; the model is a binary zip that every command reads by name
         raise InputError("-o - would write the model to stdout, but a model is a file (a binary zip read back by name)",
                          hint="give -o NAME.rbgp")
+    check_files(__rerun=rerun)
     check_outputs(output, rerun)
     model, header, trajs = workflows.train_from_files(
         demos, output, options=opts, max_gap=max_gap, progress=progress,
@@ -250,6 +251,7 @@ def rollout(
         raise InputError("--rate is the sample rate of input files without a time column, and rollout reads none here",
                          hint="set the rate of the written trajectories with --output-rate HZ")
     fmt, folder = _rollout_format(output, output_format, mcap_encoding)
+    check_files(__rerun=rerun, __plot=plot)
     check_outputs(None if folder else (output or "-"), rerun, plot)
     if plot:
         from rbgp_cli.viz.plots import _matplotlib
@@ -483,6 +485,7 @@ def evaluate(
         if hint:
             raise InputError(hint)
     opts, max_gap = read.options, read.max_gap
+    check_files(__rerun=rerun, __plot=plot)
     check_outputs(per_step, rerun, plot)
     if plot:
         from rbgp_cli.viz.plots import _matplotlib
@@ -707,6 +710,8 @@ def demo(
     """Run the main job on the bundled sample data: train → rollout → evaluate for each representation,
     and print the Bhattacharyya scores (lower is closer to the demonstrations)."""
     from rbgp_cli.demo import run_demo
+
+    check_files(__out=out)
 
     scores = run_demo(out, count=count, representations=[r.strip() for r in representations.split(",") if r.strip()],
                       quick=quick, progress=progress)

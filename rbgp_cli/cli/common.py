@@ -480,6 +480,17 @@ def _drop_stdout() -> None:
         pass
 
 
+def check_files(**paths: Optional[str]) -> None:
+    """Refuse '-' for outputs that are files, not streams (a figure, a recording, a folder): keyed by
+    the option's flag with its dashes as underscores (``__plot`` for ``--plot``)."""
+    from rbgp_cli.errors import InputError
+
+    for key, path in paths.items():
+        if path is not None and str(path) == "-":
+            flag, what = key.replace("_", "-"), "folder" if key == "__out" else "file"
+            raise InputError(f"{flag} - would mean stdout, but {flag} writes a {what}", hint=f"give {flag} a {what} name")
+
+
 def check_outputs(*paths: Optional[str]) -> None:
     """Refuse output paths that cannot be written, before any work (reading, training, rolling out):
     each must name a file whose folder exists and is writable (:func:`rbgp_cli.workflows.check_writable`,

@@ -249,6 +249,21 @@ def test_bad_usage_exits_2_with_one_line_and_no_output_file(tmp_path, args, frag
     assert not any(p.name.endswith(".tmp") for p in tmp_path.rglob("*"))
 
 
+@pytest.mark.parametrize("args", [
+    ["rollout", "{model}", "--count", "1", "-o", "r.csv", "--plot", "-"],
+    ["rollout", "{model}", "--count", "1", "-o", "r.csv", "--rerun", "-"],
+    ["evaluate", str(CSV_DIR / "shoe_01.csv"), str(CSV_DIR / "shoe_02.csv"), "--demos", str(CSV_DIR), "--plot", "-"],
+    ["train", str(CSV_DIR), "-o", "m.rbgp", "--rerun", "-"],
+    ["demo", "--quick", "--out", "-"],
+])
+def test_a_figure_recording_or_folder_to_dash_is_refused_not_written_under_that_name(model, tmp_path, monkeypatch, args):
+    monkeypatch.chdir(tmp_path)
+    res = run(*[a.replace("{model}", str(model)) for a in args])
+    flag = args[args.index("-") - 1]
+    assert_one_line_error(res, 2, f"{flag} - would mean stdout", f"give {flag} a")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_train_to_stdout_is_refused_not_written_to_a_file_named_dash(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     res = run("train", CSV_DIR, "-o", "-", *FAST)
