@@ -485,6 +485,8 @@ def evaluate(
         if hint:
             raise InputError(hint)
     opts, max_gap = read.options, read.max_gap
+    if per_step == "-" and json_out:  # stdout holds one thing: the per-step CSV or the JSON
+        raise InputError("--json prints a summary on stdout, so the per-step series needs --per-step FILE")
     check_files(__rerun=rerun, __plot=plot)
     check_outputs(per_step, rerun, plot)
     if plot:
@@ -532,7 +534,8 @@ def evaluate(
         b = result.to_dict()["bhattacharyya"]
         print(f"bhattacharyya mean {b['mean']:.4f}  rotation {b['rotation']:.4f}  translation {b['translation']:.4f}"
               f"  offset {b['offset']:.4f}  spread {b['spread']:.4f}  ({result.steps} steps, {result.n_generated} generated, {result.n_demos} demonstrations)"
-              f"; {left['count']} of {left['of']} generated left the demonstrations' envelope")
+              f"; {left['count']} of {left['of']} generated left the demonstrations' envelope",
+              file=sys.stderr if per_step == "-" else sys.stdout)  # --per-step -: stdout is the CSV alone
 
 
 # ---------------------------------------------------------------------------------------------- inspect

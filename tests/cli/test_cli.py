@@ -264,6 +264,17 @@ def test_a_figure_recording_or_folder_to_dash_is_refused_not_written_under_that_
     assert list(tmp_path.iterdir()) == []
 
 
+def test_evaluate_per_step_to_stdout_is_the_csv_alone():
+    gen = [CSV_DIR / "shoe_01.csv", CSV_DIR / "shoe_02.csv"]
+    res = run("evaluate", *gen, "--demos", CSV_DIR, "--per-step", "-", "-q")
+    assert res.exit_code == 0, res.stderr
+    lines = res.stdout.strip().splitlines()
+    assert lines[0].startswith("step,s,bhattacharyya") and all(ln[0].isdigit() for ln in lines[1:])
+    assert res.stderr.startswith("bhattacharyya mean")  # the summary, beside the data
+    res = run("evaluate", *gen, "--demos", CSV_DIR, "--per-step", "-", "--json")
+    assert_one_line_error(res, 2, "--json", "--per-step FILE")
+
+
 def test_train_to_stdout_is_refused_not_written_to_a_file_named_dash(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     res = run("train", CSV_DIR, "-o", "-", *FAST)
