@@ -753,6 +753,7 @@ def bench_paper(
 
     if part not in ("all", *PARTS):
         raise InputError(f"unknown part {part!r}; expected all, {', '.join(PARTS)}")
+    check_files(__markdown=markdown)  # the report (or the JSON) is on stdout already
     check_outputs(markdown)
     res = run_paper_bench(PARTS if part == "all" else (part,), repeats=repeats, seed=seed, quick=quick, progress=progress)
     report = format_report(res)

@@ -255,6 +255,7 @@ def test_bad_usage_exits_2_with_one_line_and_no_output_file(tmp_path, args, frag
     ["evaluate", str(CSV_DIR / "shoe_01.csv"), str(CSV_DIR / "shoe_02.csv"), "--demos", str(CSV_DIR), "--plot", "-"],
     ["train", str(CSV_DIR), "-o", "m.rbgp", "--rerun", "-"],
     ["demo", "--quick", "--out", "-"],
+    ["bench", "paper", "theorem", "--quick", "--json", "--markdown", "-"],  # the Markdown, then the JSON
 ])
 def test_a_figure_recording_or_folder_to_dash_is_refused_not_written_under_that_name(model, tmp_path, monkeypatch, args):
     monkeypatch.chdir(tmp_path)
