@@ -571,9 +571,9 @@ def parse_columns(text: Optional[str]) -> Optional[dict]:
     for part in text.split(","):
         if not part.strip():
             continue
-        if "=" not in part:
+        k, eq, v = part.partition("=")
+        if not eq or not k.strip() or not v.strip():  # 't=' or '=stamp': a key or a column name missing
             raise InputError(f"--columns entry {part.strip()!r} is not KEY=NAME", hint="e.g. --columns t=stamp,qw=w")
-        k, v = part.split("=", 1)
         out[k.strip()] = v.strip()
     return out
 

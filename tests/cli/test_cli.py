@@ -226,6 +226,8 @@ def test_help_does_not_import_heavy_modules():
         (["train", str(CSV_DIR), "-o", "{tmp}/nodir/m.rbgp", "--max-points", "20"], ["folder does not exist"]),
         (["rollout", "{tmp}/none.rbgp"], ["not found"]),
         (["evaluate", "x.csv"], ["--demos"]),
+        (["train", str(CSV_DIR), "-o", "{tmp}/m.rbgp", "--columns", "t="], ["--columns entry 't=' is not KEY=NAME"]),
+        (["train", str(CSV_DIR), "-o", "{tmp}/m.rbgp", "--columns", "=stamp"], ["--columns entry '=stamp' is not KEY=NAME"]),
         # Click's own usage errors: one line too, not Typer's box with the usage above it
         (["rollout", "{tmp}/none.rbgp", "--samples", "-1"], ["--samples", "rbgp rollout --help"]),
         (["crossval", str(CSV_DIR), "--folds", "1"], ["--folds", "rbgp crossval --help"]),
