@@ -71,10 +71,12 @@ def _goal_keywords(count: int, goals, via, goal_tolerance) -> dict:
             points.append((tv, qv[0], pv[0]))
         out["via"] = points
     if goal_tolerance is not None:
+        from rbgp_cli.dynamics.paths import MAX_GOAL_TOLERANCE
+
         tol = np.asarray(goal_tolerance, dtype=np.float64).reshape(-1)
-        if tol.shape != (2,) or not np.all(np.isfinite(tol) & (tol > 0)):
-            raise InputError(f"goal_tolerance must be two positive numbers (rad, m), got {goal_tolerance!r}",
-                             param="goal_tolerance")
+        if tol.shape != (2,) or not np.all((tol > 0) & (tol <= MAX_GOAL_TOLERANCE)):
+            raise InputError(f"goal_tolerance must be two positive numbers (rad, m) up to {MAX_GOAL_TOLERANCE:g}, "
+                             f"got {goal_tolerance!r}", param="goal_tolerance")
         out["goal_tolerance"] = (float(tol[0]), float(tol[1]))
     return out
 
@@ -219,6 +221,13 @@ def _choice(value, name: str, choices: tuple):
     return None if value == "none" else value
 
 
+#: Largest fixed noise std and noise scale accepted: far beyond any use (velocities in rad/s and m/s;
+#: the defaults are learnt and 256), and small enough that σn², with the calibration's factors (up to
+#: 4096) and the scale, stays a finite double.
+MAX_NOISE = 1e50
+MAX_NOISE_SCALE = 1e100
+
+
 def train_options(*, rho_rot=DEFAULTS["rho_rot"], restarts: int = DEFAULTS["restarts"],
                   explore_size: int = DEFAULTS["explore_size"], seed: int = 0, noise="learn",
                   share_hyperparameters: bool = False, subsample: float = DEFAULTS["subsample"],
@@ -246,13 +255,14 @@ def train_options(*, rho_rot=DEFAULTS["rho_rot"], restarts: int = DEFAULTS["rest
 
     rho = rho_rot if rho_rot == "learn" else _number(rho_rot, "rho_rot")
     noise_v = None if noise == "learn" else _number(noise, "noise")
-    if noise_v is not None and not noise_v > 0:
-        raise InputError(f"noise must be 'learn' or a positive number, got {noise}", param="noise")
+    if noise_v is not None and not 0 < noise_v <= MAX_NOISE:
+        raise InputError(f"noise must be 'learn' or a positive number up to {MAX_NOISE:g}, got {noise}", param="noise")
     time_in = _choice(time_input, "time_input", ("none", "seconds", "phase"))
     prior_v = _choice(prior, "prior", ("none", "goal", "path"))
     scale = _number(noise_scale, "noise_scale")
-    if not scale >= 1.0 or not np.isfinite(scale):
-        raise InputError(f"noise_scale must be a number of at least 1, got {noise_scale}", param="noise_scale")
+    if not 1.0 <= scale <= MAX_NOISE_SCALE:
+        raise InputError(f"noise_scale must be a number from 1 to {MAX_NOISE_SCALE:g}, got {noise_scale}",
+                         param="noise_scale")
     try:
         gain = "auto" if str(residual_gain).strip().lower() == "auto" else float(residual_gain)
     except (TypeError, ValueError):

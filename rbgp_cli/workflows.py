@@ -141,14 +141,16 @@ def check_writable(path) -> None:
 _WORDS = {6: "six", 7: "seven"}
 
 
-def _pose_numbers(text: str, n: int, flag: str, hint: str) -> np.ndarray:
-    """The ``n`` finite numbers of a pose typed after ``flag`` (spaces or commas between them)."""
+def _pose_numbers(text: str, n: int, flag: str, hint: str, what: str | None = None) -> np.ndarray:
+    """The ``n`` finite numbers of a pose typed after ``flag`` (spaces or commas between them); ``what``
+    names the pose in errors (default "start pose TEXT (FLAG)")."""
+    what = f"start pose {text!r} ({flag})" if what is None else what
     try:
         vals = np.array([float(v) for v in text.replace(",", " ").split()])
     except ValueError:
-        raise InputError(f"start pose {text!r} ({flag}) is not {_WORDS[n]} numbers", hint=hint, param=flag) from None
+        raise InputError(f"{what} is not {_WORDS[n]} numbers", hint=hint, param=flag) from None
     if vals.shape != (n,) or not np.all(np.isfinite(vals)):
-        raise InputError(f"start pose {text!r} ({flag}) must be {_WORDS[n]} finite numbers", hint=hint, param=flag)
+        raise InputError(f"{what} must be {_WORDS[n]} finite numbers", hint=hint, param=flag)
     return vals
 
 
@@ -156,8 +158,10 @@ def parse_pose(text: str) -> tuple[np.ndarray, np.ndarray]:
     """Parse a start pose "rx ry rz x y z" (rotation vector in rad, position in m; commas allowed)."""
     from rbgp_cli.geometry.so3 import quat_from_rotvec
 
-    vals = _pose_numbers(text, 6, "start", 'write it as "rx ry rz x y z" (rotation vector in rad, m), or a quaternion '
-                         'with start_quat "qx qy qz qw x y z"')
+    # "the start pose", the flag in the hint: the command line names a one-word option only at the start
+    # of the message or in the hint (rbgp_cli.cli.common.as_flags), so "(start)" would stay as it is
+    vals = _pose_numbers(text, 6, "start", 'write start as "rx ry rz x y z" (rotation vector in rad, m), or a quaternion '
+                         'with start_quat "qx qy qz qw x y z"', what=f"the start pose {text!r}")
     return quat_from_rotvec(vals[:3]), vals[3:]
 
 
@@ -173,7 +177,19 @@ def parse_pose_quat(text: str) -> tuple[np.ndarray, np.ndarray]:
     if norm < ZERO_QUAT_NORM:
         raise InputError(f"start pose {text!r} (start_quat) has a zero quaternion, which is no rotation", param="start_quat",
                          hint='give a unit quaternion x y z w first, e.g. "0 0 0 1 x y z" for no rotation')
+    _warn_far_from_unit(norm, f"start pose {text!r} (start_quat)", "start_quat")
     return vals[:4] / norm, vals[4:]
+
+
+def _warn_far_from_unit(norm: float, what: str, flag: str) -> None:
+    """A typed quaternion is normalised whatever its length, but one further from unit length than a
+    file's rows may be (a digit or the order wrong, more often than a scaled quaternion) is said."""
+    from rbgp_cli.dynamics.prepare import UNIT_TOLERANCE
+    from rbgp_cli.errors import warn
+
+    if abs(norm - 1.0) > UNIT_TOLERANCE:
+        warn(f"the quaternion of the {what} has norm {norm:.4g}, not 1: it was normalised", param=flag,
+             hint="check its digits and the order x y z w (a unit quaternion's components lie in [-1, 1])")
 
 
 _GOAL_HINT = 'write it as "qx qy qz qw x y z" (quaternion x, y, z, w; m)'
@@ -194,6 +210,7 @@ def parse_goal(text: str, flag: str = "goal", what: str = "goal pose") -> tuple[
     if norm < ZERO_QUAT_NORM:
         raise InputError(f"the {what} {text!r} has a zero quaternion, which is no rotation", param=flag,
                          hint='give a unit quaternion x y z w first, e.g. "0 0 0 1 x y z" for no rotation')
+    _warn_far_from_unit(norm, f"{what} {str(text).strip()!r}", flag)
     return vals[:4] / norm, vals[4:]
 
 
@@ -224,9 +241,11 @@ def parse_tolerance(text: str) -> tuple[float, float]:
     except ValueError:
         raise InputError(f"the goal tolerance {text!r} is not two numbers", hint=hint,
                          param="goal_tolerance") from None
-    if len(vals) != 2 or not all(np.isfinite(v) and v > 0 for v in vals):
-        raise InputError(f"the goal tolerance {text!r} must be two positive numbers", hint=hint,
-                         param="goal_tolerance")
+    from rbgp_cli.dynamics.paths import MAX_GOAL_TOLERANCE
+
+    if len(vals) != 2 or not all(0 < v <= MAX_GOAL_TOLERANCE for v in vals):
+        raise InputError(f"the goal tolerance {text!r} must be two positive numbers (up to {MAX_GOAL_TOLERANCE:g})",
+                         hint=hint, param="goal_tolerance")
     return vals[0], vals[1]
 
 
@@ -357,6 +376,8 @@ def rollout_starts(model, *, start=(), start_quat=(), starts=None, from_demos=No
     """
     from rbgp_cli.dynamics.rollout import start_vectors, starts_near
 
+    if not (np.isfinite(start_spread) and start_spread >= 0):  # inf: every drawn start at infinity
+        raise InputError(f"start_spread must be a non-negative number of metres, got {start_spread:g}", param="start_spread")
     qs, ps, durs = [], [], []
     for s in start or []:
         q, p = parse_pose(s)
@@ -371,6 +392,10 @@ def rollout_starts(model, *, start=(), start_quat=(), starts=None, from_demos=No
         qs.append(q)
         ps.append(p)
     given = sum(len(q) for q in qs)  # starts that are not drawn near a demonstration
+    if given and not from_demos and count != 1:  # count draws starts, and none are drawn: it would do nothing
+        raise InputError(f"count {count} is how many starts to draw near the demonstrations' start poses, and with "
+                         "start poses given none are drawn", param="count",
+                         hint="add from_demos FILES to draw them there as well, or drop count")
     if from_demos:
         demos, _, _ = load_demonstrations(from_demos, options, max_gap=max_gap)
         q, p, near = starts_near(start_vectors(demos), count, start_spread, seed=seed, return_index=True)
@@ -426,6 +451,8 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
     if dt is None:
         dt = model.dt if steps is not None and durations is None else model.rollout_dt
     step = float(dt)
+    if not np.isfinite(step) or step <= 0:  # before it divides a duration into steps
+        raise InputError(f"dt must be a positive number of seconds, got {step:g}", param="dt")
     kwargs = {"samples": samples, "seed": seed, "with_std": with_std, "progress": progress, "off_data": off_data}
     if goal_quat is not None or via:
         res = _rollout_to_goal(model, quat, pos, steps=steps, duration=duration, durations=durations, dt=step,
@@ -626,6 +653,12 @@ def crossval_under_way(sources, fractions, train_kwargs: dict, *, options: ReadO
         warn("left out " + missing())
     folds = min(int(folds), len(demos)) if train_size is None else int(folds)
     splits = repeated_splits(len(demos), folds, seed, order, train_size, repeats)
+    fewest = min(len(train_idx) for train_idx, _ in splits)
+    if fewest < 3:  # each split's path distribution: none from fewer than three
+        raise InputError(f"crossval with a seen fraction trains on at least 3 demonstrations in every split, and a split "
+                         f"here trains on {fewest}", hint="use train_size 3 or more" if train_size is not None
+                         else f"use folds {len(demos)} (one held out at a time), or record more demonstrations",
+                         param=("train_size", "folds"))
     info = split_info(len(demos), folds, order, train_size)
     if info:  # forward: the splits used, not the blocks
         folds = len(splits)

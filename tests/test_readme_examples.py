@@ -541,3 +541,29 @@ def test_rules_keep_the_command_line_and_make_what_is_missing(tmp_path, small_mo
     assert (tmp_path / "export.tsv").read_text().startswith("FILE_VERSION")
     assert (tmp_path / "poses.csv").read_text().startswith("t,x,y,z")
     assert len(list((tmp_path / "d").glob("*.csv"))) == 3
+
+
+@pytest.mark.slow
+def test_the_scores_the_readme_shows_are_what_the_full_size_commands_print(tmp_path):
+    """The smoke-size run above checks the form of the shown outputs; here the README's main-job and
+    evaluate examples run at their full size (the defaults, 100 rollouts), and every score they print is
+    the one the README shows, to one unit of its last printed digit."""
+    env = {**os.environ, "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}"}
+    (tmp_path / "sample_data").symlink_to(SAMPLE)
+
+    def sh(line):
+        res = subprocess.run(["bash", "-e", "-o", "pipefail", "-c", line], cwd=tmp_path, env=env,
+                             capture_output=True, text=True, timeout=900)
+        assert res.returncode == 0, res.stderr
+        return res.stdout
+
+    evaluate = next(c for c in CHECKS if c.startswith("rbgp evaluate"))
+    for line in [c for c in CHECKS if c.startswith(("rbgp train", "rbgp rollout"))] + [evaluate]:
+        out = sh(line + " -q")
+    got, shown = EVALUATE.fullmatch(out.strip()), EVALUATE.fullmatch(SHOWN[evaluate].strip())
+    np.testing.assert_allclose([float(got.group(k)) for k in range(1, 6)], [float(shown.group(k)) for k in range(1, 6)],
+                               atol=1.01e-4, err_msg=f"README shows {SHOWN[evaluate].strip()!r}, rbgp prints {out.strip()!r}")
+    demo = next(c for c in CHECKS if c.endswith("rbgp demo"))
+    printed = {r[0]: _numbers(r[1:4]) for r in _rows(sh("rbgp demo -q"))[1:]}
+    for r in _rows(SHOWN[demo])[1:]:
+        np.testing.assert_allclose(printed[r[0]], _numbers(r[1:4]), atol=1.01e-3, err_msg=r[0])

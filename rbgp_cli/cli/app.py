@@ -6,6 +6,7 @@ stdout carries data (CSV or JSON); progress, warnings and errors go to stderr. E
 
 from __future__ import annotations
 
+import math
 import sys
 from typing import Annotated, List, Optional
 
@@ -18,7 +19,7 @@ from rbgp_cli.cli.train_options import (
     CalibrateOpt, HyperPointsOpt, InducingOpt, SmoothWindowOpt, SubsampleOpt, TimeInputOpt, TrainRateOpt, defaults, kernel_help, train_kwargs,
 )
 from rbgp_cli.cli.common import (
-    ReadArgs, as_flags, command, emit_json, flag_words, check_outputs, is_quiet, need_flags, progress, set_json, set_quiet,
+    ReadArgs, as_flags, command, emit_json, flag_words, check_files, check_outputs, is_quiet, need_flags, progress, set_json, set_quiet,
     with_read_options, write_text_output,
 )
 
@@ -94,6 +95,10 @@ def train(
                           pull_profile=pull_profile, residual_gain=residual_gain)
     if up not in ("z", "y"):
         raise InputError(f"--up must be z or y, got {up!r}")
+    if output == "-":  # '-' is stdout elsewhere; the model is a binary zip that every command reads by name
+        raise InputError("-o - would write the model to stdout, but a model is a file (a binary zip read back by name)",
+                         hint="give -o NAME.rbgp")
+    check_files(__rerun=rerun)
     check_outputs(output, rerun)
     model, header, trajs = workflows.train_from_files(
         demos, output, options=opts, max_gap=max_gap, progress=progress,
@@ -194,7 +199,7 @@ def rollout(
     dt: Annotated[Optional[float], typer.Option(help="Integration step in seconds. Default: the demonstrations' recorded sample interval (at most 10 steps per training step; model files without the recorded rate: the training step), so that a curved motion written at the recorded rate is integrated at every sample instead of interpolated between training steps; with --steps, the training step. A different step changes the motion, while --output-rate only writes more points of the same one.")] = None,
     output_rate: Annotated[Optional[float], typer.Option("--output-rate", min=0.0, help="Rate (Hz) of the written trajectories. Default: the demonstrations' recorded rate (their median sample rate, stored in the model; model files from before rbgp stored it: the integration grid). The motion is integrated on --dt either way and resampled, slerp for the rotation and linear for the position and the stds, so the poses at the integration steps do not depend on the rate. 0 writes the integration grid. (--rate is the sample rate of input files without a time column, as in every command.)")] = None,
     samples: Annotated[int, typer.Option(min=0, help="Sampled rollouts per start: the mean rollout displaced by a smooth draw of how the demonstrations differ from one another (the variation model, docs/method.md §11), zero at the start, one alternative way of doing the task each. A model trained on fewer than 3 demonstrations has no variation model; its samples draw each step's velocity from the GP's predictive distribution instead.")] = 0,
-    seed: Annotated[int, typer.Option(help="Seed for start perturbations and Monte Carlo draws.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed for start perturbations and Monte Carlo draws.")] = 0,
     no_std: Annotated[bool, typer.Option("--no-std", help="Skip the predictive standard deviations (faster).")] = False,
     off_data: Annotated[str, typer.Option("--off-data", help="What a rollout does once it leaves the demonstrations' envelope (the positions they reach near the same phase of the motion, widened by 25 % of their largest extent, at least 5 cm): keep (go on), stop (end the trajectory at its first sample outside) or prior (while outside, follow the prior mean alone: the mean-path prior's pull back toward the demonstrations). Every mode warns and marks those samples (CSV column left_data = 1; --json: left_data).")] = "keep",
     output: Annotated[Optional[str], typer.Option("--output", "-o", help="File to write ('-' or omitted: stdout): a CSV, or an MCAP when it ends in .mcap, or a rosbag2 folder (the MCAP and its metadata.yaml) when it ends in '/'.")] = None,
@@ -231,11 +236,22 @@ def rollout(
         raise InputError("--each-duration gives each start its demonstration's duration", hint="add --from-demos FILES")
     if each_duration and steps is not None:
         raise InputError("give --each-duration or --steps, not both", hint="--duration sets the starts not drawn near a demonstration")
+    if not (math.isfinite(start_time) and 0 <= start_time < 2**31):  # MCAP log times: unsigned; stamps: int32 seconds
+        raise InputError(f"start_time must be seconds since the epoch from 0 to {2**31 - 1} (1970 to 2038), got {start_time:g}",
+                         param="start_time")
+    for name, value in (("duration", duration), ("dt", dt)):  # before the starts are drawn and said
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise InputError(f"{name} must be a positive number of seconds, got {value:g}", param=name)
+    from rbgp_cli.dynamics.envelope import OFF_DATA
+
+    if off_data not in OFF_DATA:
+        raise InputError(f"off_data must be one of {', '.join(OFF_DATA)}, got {off_data!r}", param="off_data")
     opts = read.options
     if opts.rate is not None and not (starts or from_demos or goals):
         raise InputError("--rate is the sample rate of input files without a time column, and rollout reads none here",
                          hint="set the rate of the written trajectories with --output-rate HZ")
     fmt, folder = _rollout_format(output, output_format, mcap_encoding)
+    check_files(__rerun=rerun, __plot=plot)
     check_outputs(None if folder else (output or "-"), rerun, plot)
     if plot:
         from rbgp_cli.viz.plots import _matplotlib
@@ -248,7 +264,24 @@ def rollout(
                              "--steps or --duration", hint="drop them, or drop --given")
         if fmt != "csv" or rerun or plot:
             raise InputError("--given writes CSV (no --rerun or --plot)", hint="write -o FILE.csv (or stdout)")
+        ignored = [flag for flag, on in (("--goal", goal), ("--goals", goals), ("--via", via), ("--goal-tolerance", goal_tolerance),
+                                         ("--count", count != 1), ("--dt", dt is not None), ("--output-rate", output_rate is not None),
+                                         ("--off-data", off_data != "keep")) if on]
+        if ignored:  # a continuation is conditioned on what was seen alone, on its own grid: these would do nothing
+            raise InputError(f"--given continues each seen motion on its own; it takes no {', '.join(ignored)}",
+                             hint="drop them, or drop --given")
         return _rollout_given(m, given, read, samples=samples, seed=seed, output=output, json_out=json_out)
+    if goal or via or goal_tolerance:  # a mistyped pose is the one line said, before the starts' progress note
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # said once, below
+            for text in [goal] if goal else []:
+                workflows.parse_goal(text)
+            for text in via or []:
+                workflows.parse_via(text)
+            if goal_tolerance:
+                workflows.parse_tolerance(goal_tolerance)
     q0, p0, durations = workflows.rollout_starts(
         m, start=start, start_quat=start_quat, starts=starts, from_demos=from_demos, count=count,
         start_spread=start_spread, seed=seed, options=opts, max_gap=read.max_gap, each_duration=each_duration,
@@ -414,7 +447,7 @@ def evaluate(
     model: Annotated[Optional[str], typer.Option("--model", help="Generate --count trajectories from this model like the paper instead.")] = None,
     count: Annotated[int, typer.Option(min=1, help="With --model: number of rollouts from starts near the demonstrations'.")] = 100,
     start_spread: Annotated[float, typer.Option("--start-spread", min=0.0, help="With --model: start perturbation std in metres.")] = 0.02,
-    seed: Annotated[int, typer.Option(help="With --model: seed of the start perturbations.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="With --model: seed of the start perturbations.")] = 0,
     length: Annotated[Optional[int], typer.Option(min=2, help="Resample every trajectory to this many steps (default: the demonstrations' median).")] = None,
     covariance: Annotated[str, typer.Option(help="Per-step Gaussians with diag (mean and variance per dimension) or full covariance.")] = "diag",
     per_step: Annotated[Optional[str], typer.Option("--per-step", help="Write the per-step series to this CSV.")] = None,
@@ -452,6 +485,9 @@ def evaluate(
         if hint:
             raise InputError(hint)
     opts, max_gap = read.options, read.max_gap
+    if per_step == "-" and json_out:  # stdout holds one thing: the per-step CSV or the JSON
+        raise InputError("--json prints a summary on stdout, so the per-step series needs --per-step FILE")
+    check_files(__rerun=rerun, __plot=plot)
     check_outputs(per_step, rerun, plot)
     if plot:
         from rbgp_cli.viz.plots import _matplotlib
@@ -498,7 +534,8 @@ def evaluate(
         b = result.to_dict()["bhattacharyya"]
         print(f"bhattacharyya mean {b['mean']:.4f}  rotation {b['rotation']:.4f}  translation {b['translation']:.4f}"
               f"  offset {b['offset']:.4f}  spread {b['spread']:.4f}  ({result.steps} steps, {result.n_generated} generated, {result.n_demos} demonstrations)"
-              f"; {left['count']} of {left['of']} generated left the demonstrations' envelope")
+              f"; {left['count']} of {left['of']} generated left the demonstrations' envelope",
+              file=sys.stderr if per_step == "-" else sys.stdout)  # --per-step -: stdout is the CSV alone
 
 
 # ---------------------------------------------------------------------------------------------- inspect
@@ -677,6 +714,8 @@ def demo(
     and print the Bhattacharyya scores (lower is closer to the demonstrations)."""
     from rbgp_cli.demo import run_demo
 
+    check_files(__out=out)
+
     scores = run_demo(out, count=count, representations=[r.strip() for r in representations.split(",") if r.strip()],
                       quick=quick, progress=progress)
     if json_out:
@@ -699,7 +738,7 @@ def bench_paper(
     part: Annotated[str, typer.Argument(help="all, theorem, runtime or accuracy.")] = "all",
     quick: Annotated[bool, typer.Option("--quick", help="A smoke run of a few seconds (2 repetitions, no 200-rotation sets).")] = False,
     repeats: Annotated[Optional[int], typer.Option(min=1, help="Repetitions of each part: random rotation sets per size, timing runs, random dynamics (default 50; 2 with --quick).")] = None,
-    seed: Annotated[int, typer.Option(help="Seed of every random draw.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of every random draw.")] = 0,
     json_out: Annotated[bool, typer.Option("--json", help="Print the results as one JSON object on stdout.")] = False,
     markdown: Annotated[Optional[str], typer.Option("--markdown", help="Also write the report as Markdown to this file.")] = None,
 ):
@@ -714,6 +753,7 @@ def bench_paper(
 
     if part not in ("all", *PARTS):
         raise InputError(f"unknown part {part!r}; expected all, {', '.join(PARTS)}")
+    check_files(__markdown=markdown)  # the report (or the JSON) is on stdout already
     check_outputs(markdown)
     res = run_paper_bench(PARTS if part == "all" else (part,), repeats=repeats, seed=seed, quick=quick, progress=progress)
     report = format_report(res)

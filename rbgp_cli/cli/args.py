@@ -173,9 +173,48 @@ def took_too_much(what: str, missing: int = 1, *, alternative: str | None = None
     return msg
 
 
+def _usage_errors():
+    """Click's (NoArgsIsHelpError, UsageError) classes, from the click Typer uses."""
+    try:  # Typer >= 0.29 vendors click (/work/shared/ECOSYSTEM.md)
+        from typer._click.exceptions import NoArgsIsHelpError, UsageError
+    except ImportError:  # pragma: no cover - an older Typer on click
+        from click.exceptions import NoArgsIsHelpError, UsageError
+    return NoArgsIsHelpError, UsageError
+
+
+def _usage_error_line(exc) -> None:
+    """Click's usage error (an option's value out of range, an unknown option, a missing argument) as
+    rbgp says every bad-usage error: one line on stderr, ``rbgp: error: MESSAGE; see rbgp CMD --help``,
+    then exit 2. (Typer would draw a box of five or more lines with the usage above it.)"""
+    ctx = getattr(exc, "ctx", None)
+    where = ctx.command_path if ctx is not None else "rbgp"
+    msg = " ".join(exc.format_message().split()).rstrip(".")
+    print(f"rbgp: error: {msg}; see {where} --help", file=sys.stderr, flush=True)
+    raise typer.Exit(exc.exit_code)
+
+
 class RbgpGroup(TyperGroup):
-    """The ``rbgp`` group: rewrites each subcommand's arguments with :func:`expand_path_lists` and
-    stops with one clear line when a path list took a required argument."""
+    """The ``rbgp`` group: rewrites each subcommand's arguments with :func:`expand_path_lists`, stops
+    with one clear line when a path list took a required argument, and prints Click's usage errors as
+    one line (:func:`_usage_error_line`)."""
+
+    def make_context(self, info_name, args, parent=None, **extra):
+        NoArgsIsHelpError, UsageError = _usage_errors()
+        try:
+            return super().make_context(info_name, args, parent=parent, **extra)
+        except NoArgsIsHelpError:
+            raise
+        except UsageError as exc:  # the group's own options: rbgp --bogus
+            _usage_error_line(exc)
+
+    def invoke(self, ctx):
+        NoArgsIsHelpError, UsageError = _usage_errors()
+        try:
+            return super().invoke(ctx)
+        except NoArgsIsHelpError:
+            raise
+        except UsageError as exc:  # a subcommand's options and arguments, or an unknown command
+            _usage_error_line(exc)
 
     def resolve_command(self, ctx, args):
         name, cmd, rest = super().resolve_command(ctx, args)

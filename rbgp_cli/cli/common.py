@@ -238,6 +238,16 @@ def prose(doc: str | None) -> str | None:
     return "\n\n".join(p for p in paragraphs if p)
 
 
+#: What to make smaller when a command runs out of memory, by command (None: any other).
+_MEMORY_HINTS = {
+    "train": "use --max-points or --subsample to train on fewer points (or a lower --train-rate)",
+    "crossval": "use --max-points or --subsample to train on fewer points (or a lower --train-rate)",
+    "rollout": "ask for fewer or shorter motions (--count, --samples, --duration, --steps, --dt, --output-rate)",
+    "evaluate": "score fewer or shorter trajectories (--count, --length)",
+    None: "give it less data at once",
+}
+
+
 def command(func):
     """Wrap a command: rbgp errors become one line on stderr with their exit code (2 for bad input,
     1 for runtime failures); any other exception is an internal error (exit 1, no traceback unless
@@ -285,7 +295,7 @@ def command(func):
                     pass
                 raise typer.Exit(0) from None
             except MemoryError:
-                _stderr("rbgp: error: out of memory; use --max-points or --subsample to train on fewer points")
+                _stderr(f"rbgp: error: out of memory; {_MEMORY_HINTS.get(func.__name__, _MEMORY_HINTS[None])}")
                 raise typer.Exit(1) from None
             except OSError as exc:
                 line = _resource_error(exc)
@@ -470,6 +480,17 @@ def _drop_stdout() -> None:
         pass
 
 
+def check_files(**paths: Optional[str]) -> None:
+    """Refuse '-' for outputs that are files, not streams (a figure, a recording, a folder): keyed by
+    the option's flag with its dashes as underscores (``__plot`` for ``--plot``)."""
+    from rbgp_cli.errors import InputError
+
+    for key, path in paths.items():
+        if path is not None and str(path) == "-":
+            flag, what = key.replace("_", "-"), "folder" if key == "__out" else "file"
+            raise InputError(f"{flag} - would mean stdout, but {flag} writes a {what}", hint=f"give {flag} a {what} name")
+
+
 def check_outputs(*paths: Optional[str]) -> None:
     """Refuse output paths that cannot be written, before any work (reading, training, rolling out):
     each must name a file whose folder exists and is writable (:func:`rbgp_cli.workflows.check_writable`,
@@ -550,9 +571,9 @@ def parse_columns(text: Optional[str]) -> Optional[dict]:
     for part in text.split(","):
         if not part.strip():
             continue
-        if "=" not in part:
+        k, eq, v = part.partition("=")
+        if not eq or not k.strip() or not v.strip():  # 't=' or '=stamp': a key or a column name missing
             raise InputError(f"--columns entry {part.strip()!r} is not KEY=NAME", hint="e.g. --columns t=stamp,qw=w")
-        k, v = part.split("=", 1)
         out[k.strip()] = v.strip()
     return out
 

@@ -26,7 +26,7 @@ _VEL = "Training velocities"
 RhoOpt = Annotated[str, typer.Option("--rho-rot", help="Rotation weight ρ1 of eq. 19 in (0, 1), or 'learn'.", rich_help_panel=ModelPanel)]
 RestartsOpt = Annotated[int, typer.Option("--restarts", min=1, help="Optimiser starts per output (the data-driven one plus random ones).", rich_help_panel=ModelPanel)]
 ExploreOpt = Annotated[int, typer.Option("--explore-size", min=0, help="With more than twice this many training points the starts explore a random subset of this size first and only new basins are refined on all points; 0 runs every start on all points.", rich_help_panel=ModelPanel)]
-SeedOpt = Annotated[int, typer.Option("--seed", help="Seed for subsampling and random starts (and crossval's folds).", rich_help_panel=ModelPanel)]
+SeedOpt = Annotated[int, typer.Option("--seed", min=0, help="Seed for subsampling and random starts (and crossval's folds).", rich_help_panel=ModelPanel)]
 NoiseOpt = Annotated[str, typer.Option("--noise", help="'learn', or a fixed noise standard deviation (the paper fixes 1).", rich_help_panel=ModelPanel)]
 ShareOpt = Annotated[bool, typer.Option("--share-hyperparameters", help="One set of hyperparameters for all outputs (faster).", rich_help_panel=ModelPanel)]
 SubsampleOpt = Annotated[float, typer.Option("--subsample", help="Random fraction of the training pairs to use (the paper: 0.1).", rich_help_panel=ModelPanel)]

@@ -60,6 +60,9 @@ SMOOTH_GRID = (1e-3, 3e-3, 0.01, 0.03, 0.1, 0.3, 1.0)
 LENGTH_GRID = (0.05, 0.1, 0.2, 0.4)
 #: A goal or via-point's default tolerance: (rotation rad, position m), one standard deviation.
 GOAL_TOLERANCE = (1e-3, 5e-4)
+#: The largest tolerance a caller may give (rad, m, one std): far softer than no goal at all, and small
+#: enough that its variance stays a finite double.
+MAX_GOAL_TOLERANCE = 1e100
 #: :meth:`PathDistribution.goal_band_scale` narrows the bands as far as the left-out paths say from this
 #: many demonstrations on (below, in proportion D / NARROW_FROM on the log scale: a 90 % quantile of fewer
 #: left-out paths is less certain), and at most to this factor.

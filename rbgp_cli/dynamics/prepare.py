@@ -34,10 +34,13 @@ from rbgp_cli.errors import InputError, warn
 
 __all__ = ["prepare_trajectory", "prepare_all", "lost_frame_mask", "line_of", "sign_change_note", "ZERO_QUAT_NORM",
            "STEP_LIMIT", "split_at_breaks", "break_threshold", "crop_trajectory", "RestSplit", "split_at_rest",
-           "speeds", "quaternion_order_note", "BREAK_FACTOR", "BREAK_SECONDS"]
+           "speeds", "quaternion_order_note", "BREAK_FACTOR", "BREAK_SECONDS", "UNIT_TOLERANCE"]
 
 #: A quaternion with a smaller norm is "no rotation recorded" (a lost frame), not a rotation.
 ZERO_QUAT_NORM = 1e-9
+#: A quaternion whose norm is further from 1 than this is not a unit quaternion (wrong columns, order
+#: or units), not noise: an error, where one nearer is normalised.
+UNIT_TOLERANCE = 0.1
 #: Largest accepted rotation between consecutive samples (rad). The relative rotation of two unit
 #: quaternions is at most π; within 1e-6 rad of π its direction is decided by rounding noise.
 STEP_LIMIT = np.pi - 1e-6
@@ -248,9 +251,10 @@ def _filled_gaps(t, p, qn, lost, keep, max_gap):
     return fill_idx, fill_q, fill_p
 
 
-def _too_few_samples(traj: Trajectory, rows: np.ndarray, n: int, n_lost: int, dup_raw: np.ndarray) -> InputError:
+def _too_few_samples(traj: Trajectory, rows: np.ndarray, n: int, n_lost: int, dup_raw: np.ndarray,
+                     n_held: int = 0) -> InputError:
     """The error for a trajectory with fewer than 2 clean ``rows`` left of ``n``, saying what was lost
-    (with a hint where the recorder left the quaternions all zero)."""
+    (with a hint where the recorder left the quaternions all zero, or repeated one pose throughout)."""
     q = traj.quat
     finite_q = np.all(np.isfinite(q), axis=1)
     n_zero = int(np.sum(finite_q & (np.linalg.norm(np.where(np.isfinite(q), q, 0.0), axis=1) < ZERO_QUAT_NORM)))
@@ -258,9 +262,13 @@ def _too_few_samples(traj: Trajectory, rows: np.ndarray, n: int, n_lost: int, du
     if n_zero:
         hint = (f"{n_zero} samples have an all-zero quaternion (an unset protobuf/foxglove Quaternion "
                 "defaults to w = 0): the recorder did not fill in the orientation")  # fmt: skip
+    elif n_held:
+        hint = ("the pose never changes: a demonstration must move (rows repeating the previous pose exactly "
+                "are the tracker holding a lost body's last pose, dropped as lost frames)")
     return InputError(
         f"{traj.name + ': ' if traj.name else ''}needs at least 2 samples for a velocity, "
         f"{len(rows)} left of {n} ({n_lost} lost frames"
+        + (f", {n_held} repeating the previous pose exactly" if n_held else "")
         + (f", {int(dup_raw.sum())} duplicates" if dup_raw.any() else "")
         + ")",
         path=traj.source or None,
@@ -386,7 +394,7 @@ def _warn_repairs(traj: Trajectory, report: dict) -> None:
 
 
 def prepare_trajectory(
-    traj: Trajectory, *, max_gap: float | None = None, unit_tolerance: float = 0.1
+    traj: Trajectory, *, max_gap: float | None = None, unit_tolerance: float = UNIT_TOLERANCE
 ) -> tuple[Trajectory, dict]:
     """Clean a raw trajectory; return ``(clean, report)``.
 
@@ -457,7 +465,7 @@ def prepare_trajectory(
     n_filled = int(fill_idx.size)
     n_filled_glitch = int(np.isin(fill_idx, np.flatnonzero(glitch)).sum()) if n_glitch else 0
     if len(rows) < 2:
-        raise _too_few_samples(traj, rows, n, n_lost, dup_raw)
+        raise _too_few_samples(traj, rows, n, n_lost, dup_raw, n_held)
     q_out, flips = _continuous_signs(q_out)
     _check_steps(traj, q_out, rows)
     report = {
@@ -730,7 +738,7 @@ def split_at_rest(traj: Trajectory, rest: RestSplit, *, quiet: bool = False):
     return out, record
 
 
-def prepare_all(trajectories, *, max_gap: float | None = None, unit_tolerance: float = 0.1,
+def prepare_all(trajectories, *, max_gap: float | None = None, unit_tolerance: float = UNIT_TOLERANCE,
                 crop: tuple | None = None, split_gap: float | None = None, rest: RestSplit | None = None,
                 quiet: bool = False) -> tuple[list[Trajectory], list[dict]]:
     """Clean each trajectory and cut it into demonstrations; returns (demonstrations, reports).

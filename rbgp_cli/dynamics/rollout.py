@@ -120,6 +120,10 @@ class RolloutResult:
         t = self.t
         ends = t[np.asarray([self.length(b) for b in range(self.count)]) - 1]  # (B,) seconds
         tol = 1e-9 * max(1.0, float(t[-1]))
+        if not (float(ends.max()) + tol) * rate < 2.0**62:  # past any integer count of samples: no grid at all
+            raise InputError(f"an output rate of {rate:g} Hz is too high for a {float(ends.max()):g} s motion",
+                             hint="use output_rate near the recorded rate, or leave it out for that rate",
+                             param="output_rate")
         count = np.floor((ends + tol) * rate).astype(int) + 1  # (B,) output samples of each trajectory
         t_new = np.arange(int(count.max())) / rate  # (T,) the times written
         # a target that is a step up to rounding is that step, so those samples are copied bit for bit
@@ -158,7 +162,10 @@ class RolloutResult:
 
 def _check_finite(state, step):
     if not np.all(np.isfinite(state)):
-        raise RbgpRuntimeError(f"the rollout diverged (non-finite state) at step {step}", hint="check the model with rbgp info")
+        # at the first step the start is the likelier cause (a position in mm, or 1e308) than the model
+        hint = ("check the start poses (metres; near the demonstrations'), then the model with rbgp info" if step == 1
+                else "check the model with rbgp info")
+        raise RbgpRuntimeError(f"the rollout diverged (non-finite state) at step {step}", hint=hint)
 
 
 #: How sampled rollouts are drawn: ``path`` (one coherent deviation of the demonstrations' kind per

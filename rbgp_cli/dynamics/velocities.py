@@ -80,6 +80,11 @@ def forward_differences(traj: Trajectory) -> tuple[np.ndarray, np.ndarray]:
 SEGMENT_GAP_FACTOR = 4.0
 
 
+#: The longest smoothing window accepted (s): far beyond any motion, and short enough for the local fit's
+#: scaled times not to underflow.
+MAX_WINDOW = 1e6
+
+
 @dataclass(frozen=True)
 class VelocityOptions:
     """How training velocities are estimated from a demonstration (docs/method.md §4, §4.1).
@@ -100,8 +105,9 @@ class VelocityOptions:
     def __post_init__(self):
         if self.rate is not None and not (math.isfinite(self.rate) and self.rate > 0):
             raise InputError(f"the training rate must be a positive number of Hz, got {self.rate}")
-        if not (math.isfinite(self.window) and self.window >= 0):
-            raise InputError(f"the smoothing window must be a non-negative number of seconds, got {self.window}")
+        if not (math.isfinite(self.window) and 0 <= self.window <= MAX_WINDOW):  # beyond it the fit's times underflow
+            raise InputError(f"the smoothing window (smooth_window) must be a number of seconds from 0 to {MAX_WINDOW:g}, "
+                             f"got {self.window}", param="smooth_window")
         if not (isinstance(self.degree, (int, np.integer)) and 1 <= self.degree <= 4):
             raise InputError(f"the local polynomial degree must be 1, 2, 3 or 4, got {self.degree}")
 
@@ -151,7 +157,11 @@ def _grid(t_start: float, t_end: float, rate: float | None, t: np.ndarray) -> np
     """Training times: the samples themselves (rate None) or t_start + k/rate up to t_end."""
     if rate is None:
         return t
-    n = int(math.floor((t_end - t_start) * rate + 1e-9))
+    span = (t_end - t_start) * rate
+    if not math.isfinite(span):  # a rate near the largest double: no grid at all
+        raise InputError(f"a training rate of {rate:g} Hz is too high for a {t_end - t_start:g} s demonstration",
+                         hint="use a rate near the recorded one (train_rate 10 is the default)", param="train_rate")
+    n = int(math.floor(span + 1e-9))
     return t_start + np.arange(n + 1) / rate
 
 

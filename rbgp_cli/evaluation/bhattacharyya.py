@@ -480,13 +480,13 @@ def _steps(demos, length) -> int:
         if T > MAX_UPSAMPLING * longest:
             raise InputError(
                 f"length {T} is more than {MAX_UPSAMPLING}x the longest demonstration ({longest} samples)",
-                hint=f"use a length of at most {MAX_UPSAMPLING * longest}, or omit it for the median "
-                f"demonstration length ({_default_length(demos)})",
+                hint=f"use length at most {MAX_UPSAMPLING * longest}, or omit it for the median "
+                f"demonstration's sample count ({_default_length(demos)})", param="length",
             )
         if T > longest:
             warn(
                 f"length {T} exceeds the longest demonstration ({longest} samples); "
-                "the demonstrations are upsampled by interpolation"
+                "the demonstrations are upsampled by interpolation", param="length"
             )
     return T
 

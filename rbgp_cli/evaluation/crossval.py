@@ -139,7 +139,7 @@ def make_folds(n: int, k: int, seed: int = 0, order: str = "random") -> list[np.
     that a block's neighbours in time are not in its training set, as for the next session's
     demonstrations."""
     if order not in ORDERS:
-        raise InputError(f"unknown order {order!r}; expected one of {', '.join(ORDERS)}", param="order")
+        raise InputError(f"order {order!r} is unknown; expected one of {', '.join(ORDERS)}", param="order")
     if k < 2:
         raise InputError(f"folds must be at least 2, got {k}", param="folds")
     if n < k:
@@ -160,7 +160,7 @@ def repeated_splits(n: int, k: int, seed: int = 0, order: str = "random", train_
     if isinstance(repeats, bool) or not isinstance(repeats, (int, np.integer)) or repeats < 1:
         raise InputError(f"repeats must be a whole number of at least 1, got {repeats!r}", param="repeats")
     if order not in ORDERS:
-        raise InputError(f"unknown order {order!r}; expected one of {', '.join(ORDERS)}", param="order")
+        raise InputError(f"order {order!r} is unknown; expected one of {', '.join(ORDERS)}", param="order")
     if order in FIXED_ORDERS and repeats > 1:
         raise InputError("folds in recording order are the same on every repeat",
                          hint=f"use repeats 1 with order {order} (or order random)", param="repeats")
@@ -193,7 +193,7 @@ def make_splits(n: int, k: int, seed: int = 0, order: str = "random", train_size
         folds = make_folds(n, k, seed, order)
         return [(np.setdiff1d(np.arange(n), f), f) for f in folds]
     if order not in ORDERS:
-        raise InputError(f"unknown order {order!r}; expected one of {', '.join(ORDERS)}", param="order")
+        raise InputError(f"order {order!r} is unknown; expected one of {', '.join(ORDERS)}", param="order")
     N = int(train_size)
     if k < 1:
         raise InputError(f"folds must be at least 1, got {k}", param="folds")
@@ -891,9 +891,14 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
     splits = [([demos[i] for i in train_idx], [demos[i] for i in test_idx]) for train_idx, test_idx in index_splits]
     smallest = min(len(f) for f in fold_idx)
     if smallest < 2:
+        if train_size is not None and len(demos) - 2 >= 2:
+            hint, param = f"use train_size {len(demos) - 2} or less (at least 2 held out)", "train_size"
+        elif train_size is None and len(demos) >= 4:
+            hint, param = f"use folds {len(demos) // 2} or fewer (at least 2 held out per fold)", "folds"
+        else:  # no split of so few holds out two and trains on two
+            hint, param = "record 4 demonstrations or more (two held out in each of two folds)", None
         warn(f"with {k} folds of {len(demos)} demonstrations some folds hold out only one: a score "
-             "of one trajectory rests on the ridge variance, not on the motions",
-             hint=f"use folds {max(2, len(demos) // 2)} or fewer (at least 2 held out per fold)", param="folds")
+             "of one trajectory rests on the ridge variance, not on the motions", hint=hint, param=param)
     floors = [evaluate(test, train, length=length, covariance=covariance, sample_size="record") for train, test in splits]
     # the held-out demonstrations themselves against the training envelope: what real new motions do
     floor_left = sum(left_envelope(test, envelope_from_demos(train))["count"] for train, test in splits)

@@ -194,7 +194,7 @@ def _inspect_stdin(options: ReadOptions, stdin, max_gap=None, words=str, name: s
     import tempfile
 
     from rbgp_cli.io import formats
-    from rbgp_cli.io.read import _format_option, detect_format
+    from rbgp_cli.io.read import _format_option, detect_format, warnings_renamed
     from rbgp_cli.io.special import stdin_stream
 
     stream = stdin_stream(stdin)
@@ -212,7 +212,8 @@ def _inspect_stdin(options: ReadOptions, stdin, max_gap=None, words=str, name: s
         tmp = f"/proc/self/fd/{fh.fileno()}"
         if not os.path.exists(tmp):  # pragma: no cover - no /proc: a named file, removed at once after
             return _inspect_named_copy(fh, options, max_gap, words, name, formats.get(fmt).suffix)
-        out = inspect_file(tmp, options, max_gap=max_gap, words=words)
+        with warnings_renamed(tmp, name, "stdin" if name == "-" else Path(name).stem):
+            out = inspect_file(tmp, options, max_gap=max_gap, words=words)
     return _renamed(out, tmp, name)
 
 
@@ -225,7 +226,10 @@ def _inspect_named_copy(fh, options, max_gap, words, name, suffix) -> dict:  # p
     try:
         with os.fdopen(fd, "wb") as out_fh:
             shutil.copyfileobj(fh, out_fh)
-        out = inspect_file(tmp, options, max_gap=max_gap, words=words)
+        from rbgp_cli.io.read import warnings_renamed
+
+        with warnings_renamed(tmp, name, "stdin" if name == "-" else Path(name).stem):
+            out = inspect_file(tmp, options, max_gap=max_gap, words=words)
     finally:
         os.unlink(tmp)
     return _renamed(out, tmp, name)

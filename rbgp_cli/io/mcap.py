@@ -391,7 +391,7 @@ def _choose_topic(topics: dict, options: ReadOptions, source: str) -> _Topic:
             raise error(
                 f"no topic {want!r}"
                 + (f"; did you mean {guess!r}?" if guess else "")
-                + (f" pose topics are: {_listing(pose)}" if pose else f" (the file has no pose topic; topics are: {_listing(topics.values()) or 'none'})"),
+                + (f"{' ' if guess else '; '}pose topics are: {_listing(pose)}" if pose else f" (the file has no pose topic; topics are: {_listing(topics.values()) or 'none'})"),
                 path=source,
                 hint="pass topic with one of them", param="topic",
             )
@@ -635,6 +635,12 @@ def _read(stream, source: str, options: ReadOptions, *, select_all: bool) -> lis
             for key in _select_subs(scan, t, options, select_all=True):
                 out.append(_trajectory(scan, t, key, time_source, source))
         return out
+    if chosen is None and options.topic is None:  # read without a summary (a pipe): rbgp rollout's file?
+        from rbgp_cli.io.mcap_out import ROLLOUT_TOPIC_RE
+
+        if any(ROLLOUT_TOPIC_RE.match(t.topic) for t in topics.values() if t.kind is not None):
+            return _in_rollout_order([_trajectory(scan, t, key, time_source, source) for t in topics.values()
+                                      if t.kind is not None for key in _select_subs(scan, t, options, select_all=True)])
     if chosen is None:
         chosen = _choose_topic(topics, options, source)
     keys = _select_subs(scan, chosen, options, select_all=False)
@@ -728,9 +734,13 @@ def _has_rollout_topics(fh) -> bool:
 def _read_rollouts(fh, source: str, options: ReadOptions) -> list[Trajectory]:
     """Every generated trajectory of a file rbgp rollout wrote (its mean rollouts, then their samples,
     the order of rollout's CSV), not the bands: one trajectory each."""
+    return _in_rollout_order(_read(fh, source, replace(options, topic=None), select_all=True))
+
+
+def _in_rollout_order(trajs) -> list[Trajectory]:
+    """The trajectories of generated topics among ``trajs``, mean rollouts first, then their samples."""
     from rbgp_cli.io.mcap_out import ROLLOUT_TOPIC_RE
 
-    trajs = _read(fh, source, replace(options, topic=None), select_all=True)
     keyed = []
     for tr in trajs:
         m = ROLLOUT_TOPIC_RE.match(tr.info.get("topic", ""))
@@ -744,6 +754,8 @@ def read_stream(stream, options: ReadOptions | None = None, source: str = "-") -
     options = options or ReadOptions()
     if _is_pattern(options.topic):
         return _read_matching(stream, source, options)
+    if options.topic is None and _has_rollout_topics(stream):  # stdin redirected from a file rbgp rollout wrote
+        return _read_rollouts(stream, source, options)
     return _read(stream, source, options, select_all=False)
 
 

@@ -367,6 +367,9 @@ def _seekable_source(path):
     in memory (zip needs to seek); a device is refused, and so is a FIFO nobody writes to."""
     if hasattr(path, "read"):
         return path
+    if str(path) == "-":  # stdin carries the data of the commands that read it (follow's rows, evaluate's rollouts)
+        raise InputError("the model '-' is stdin, and a model is not read from stdin",
+                         hint="pass the model file's path, e.g. shoe.rbgp")
     from rbgp_cli.io.special import is_stream_path, open_stream_path
 
     if not is_stream_path(path):

@@ -24,6 +24,7 @@ explicitly is read, and is an error if it is not pose data.
 
 from __future__ import annotations
 
+import contextlib
 import glob
 import io
 import os
@@ -454,7 +455,8 @@ def read_stream(stream, options: ReadOptions | None = None, source: str = "-") -
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
-        trajs = entry.read(tmp, options)
+        with warnings_renamed(tmp, source, "stdin"):
+            trajs = entry.read(tmp, options)
     except InputError as exc:
         raise InputError(exc.message.replace(tmp, source), path=source, row=exc.row, topic=exc.topic, hint=exc.hint,
                          param=exc.param) from None
@@ -462,6 +464,38 @@ def read_stream(stream, options: ReadOptions | None = None, source: str = "-") -
         os.unlink(tmp)
     stem = Path(tmp).stem
     return [t.with_(source=t.source.replace(tmp, source), name=t.name.replace(stem, "stdin")) for t in trajs]
+
+
+@contextlib.contextmanager
+def warnings_renamed(tmp: str, name: str, stem: str):
+    """Warnings raised inside, raised again on the way out with the temporary file ``tmp`` (stdin's
+    bytes, read through a file) called ``name`` and its stem called ``stem``: a warning about what came
+    in on stdin names '-', not a file that is gone when it is printed."""
+    import warnings
+
+    from rbgp_cli.errors import RbgpWarning
+
+    old_stem = Path(tmp).stem  # a trajectory named after the file (mkstemp's name; not /proc/self/fd/N's "N")
+
+    def fix(text):
+        if text is None:
+            return None
+        text = str(text).replace(tmp, name)
+        return text.replace(old_stem, stem) if old_stem.startswith("rbgp-stdin-") else text
+
+    caught: list = []
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            yield
+    finally:
+        for w in caught:
+            err = getattr(w.message, "error", None)
+            if isinstance(w.message, RbgpWarning) and err is not None:
+                warn(fix(err.message), path=fix(err.path), row=err.row, topic=err.topic, hint=fix(err.hint),
+                     param=err.param)
+            else:
+                warnings.warn(fix(w.message), w.category, stacklevel=3)
 
 
 def read_sources(sources, options: ReadOptions | None = None, stdin=None) -> tuple[list[Trajectory], SourceList]:

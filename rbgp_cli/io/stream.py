@@ -31,6 +31,9 @@ class RowStream:
         self.source = source
         self._fast = None
         self._row = 1
+        self._last_t = None  # the previous row's time (s)
+        self._rate = None  # with no time column, the rate option: a row's time is its index / rate
+        self._rows = 0  # data rows parsed
 
     def _first(self, line: str):
         from rbgp_cli.io.csv import read_text
@@ -42,6 +45,8 @@ class RowStream:
                              hint="stream one body's rows (time, position, quaternion)")
         info = trajs[0].info
         cols = info.get("columns") or {}
+        if "t" not in cols and info.get("rate_option_hz"):  # each row read alone would be at t = 0
+            self._rate = float(info["rate_option_hz"])
         kind = str(info.get("rotation", ""))
         if kind.startswith("quaternion") and all(k in cols for k in ("t", "x", "y", "z", "qx", "qy", "qz", "qw")):
             table = parse_table(self.header + "\n" + line + "\n", self.source)
@@ -63,8 +68,10 @@ class RowStream:
             return None
         if self._row == 2 or self._fast is None:
             tr = self._first(line) if self._row == 2 else self._slow(line)
-            q = tr.quat[0] / np.linalg.norm(tr.quat[0])
-            return float(tr.t[0]), q, tr.position[0].astype(float)
+            q = np.asarray(tr.quat[0], dtype=float)
+            t = float(tr.t[0]) if self._rate is None else self._rows / self._rate  # a file's row / rate
+            self._rows += 1
+            return self._in_order(t), q / self._unit_norm(q), tr.position[0].astype(float)
         idx, delim, lf, tf = self._fast
         parts = line.split(delim) if delim not in ("whitespace", None) else line.split()
         try:
@@ -77,7 +84,27 @@ class RowStream:
         if not np.all(np.isfinite(v)) or nq < 1e-9:
             raise InputError(f"row {self._row} has a missing or zero pose", path=self.source, row=self._row,
                              hint="drop lost frames before streaming them")
-        return v[0] * tf, q / nq, np.array(v[1:4]) * lf
+        return self._in_order(v[0] * tf), q / self._unit_norm(q), np.array(v[1:4]) * lf
+
+    def _in_order(self, t: float) -> float:
+        """A row's time, refused where it does not come after the previous row's."""
+        if self._last_t is not None and not t > self._last_t:
+            raise InputError(f"row {self._row} is at t = {t:g} s, not after the previous row's {self._last_t:g} s",
+                             path=self.source, row=self._row, hint="stream the rows in time order, each time once")
+        self._last_t = t
+        return t
+
+    def _unit_norm(self, q) -> float:
+        """The norm of a row's quaternion, refused (as the file reader refuses it) where it is far from 1."""
+        from rbgp_cli.dynamics.prepare import UNIT_TOLERANCE
+
+        nq = float(np.linalg.norm(q))
+        if not abs(nq - 1.0) <= UNIT_TOLERANCE:
+            raise InputError(f"row {self._row} has a quaternion of norm {nq:.6g}, far from 1 (tolerance {UNIT_TOLERANCE:g})",
+                             path=self.source, row=self._row, param="columns",
+                             hint="check the column mapping, the quaternion order and units (columns, quat_order); "
+                             "a unit quaternion's components lie in [-1, 1]")
+        return nq
 
     def _slow(self, line: str):
         from rbgp_cli.io.csv import read_text

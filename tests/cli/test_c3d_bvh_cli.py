@@ -77,3 +77,18 @@ def test_two_wave_takes_train_by_hand_r(realdata, tmp_path):
     assert res.exit_code == 0, res.stderr
     assert json.loads(res.stdout)["demos"] == 2
     assert "sign flip" not in res.stderr  # the reader's quaternions come from matrices: nothing to say
+
+
+@pytest.mark.parametrize("command", ["inspect", "train"])
+def test_warnings_about_a_c3d_on_stdin_name_it_dash_not_a_temporary_file(tmp_path, command):
+    """A C3D piped in is read through a temporary file; what rbgp says about it names '-'."""
+    labels, xyz, *_ = tool_take(n=120)
+    xyz[40:43, 2:5] = float("nan")  # three frames with only two tool markers seen: lost
+    path = write_c3d(tmp_path / "tool.c3d", labels, xyz)
+    args = ["-", "--body", "tool"] + (["-o", tmp_path / "m.rbgp", *FAST] if command == "train" else [])
+    res = run(command, *args, input=path.read_bytes())
+    assert res.exit_code == 0, res.stderr
+    warnings = [ln for ln in res.stderr.splitlines() if ln.startswith("rbgp: warning:")]
+    assert any("3 of 120 frames are lost" in ln for ln in warnings), res.stderr
+    assert all(ln.startswith("rbgp: warning: -: ") for ln in warnings), res.stderr
+    assert "rbgp-stdin-" not in res.stderr and "/proc/self/fd" not in res.stderr

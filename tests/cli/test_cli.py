@@ -226,6 +226,21 @@ def test_help_does_not_import_heavy_modules():
         (["train", str(CSV_DIR), "-o", "{tmp}/nodir/m.rbgp", "--max-points", "20"], ["folder does not exist"]),
         (["rollout", "{tmp}/none.rbgp"], ["not found"]),
         (["evaluate", "x.csv"], ["--demos"]),
+        (["train", str(CSV_DIR), "-o", "{tmp}/m.rbgp", "--columns", "t="], ["--columns entry 't=' is not KEY=NAME"]),
+        (["train", str(CSV_DIR), "-o", "{tmp}/m.rbgp", "--columns", "=stamp"], ["--columns entry '=stamp' is not KEY=NAME"]),
+        # Click's own usage errors: one line too, not Typer's box with the usage above it
+        (["rollout", "{tmp}/none.rbgp", "--samples", "-1"], ["--samples", "rbgp rollout --help"]),
+        (["crossval", str(CSV_DIR), "--folds", "1"], ["--folds", "rbgp crossval --help"]),
+        (["train", str(CSV_DIR), "-o", "{tmp}/m.rbgp", "--bogus"], ["--bogus", "rbgp train --help"]),
+        (["rollout"], ["Missing argument", "rbgp rollout --help"]),
+        (["trian"], ["No such command 'trian'", "rbgp --help"]),
+        (["--bogus", "info"], ["--bogus", "rbgp --help"]),
+        # a negative seed: numpy's generators take none (it was an internal error, exit 1)
+        (["train", str(CSV_DIR), "-o", "{tmp}/m.rbgp", "--seed", "-1"], ["--seed", "greater than or equal to 0"]),
+        (["crossval", str(CSV_DIR), "--seed", "-1"], ["--seed"]),
+        (["rollout", "{tmp}/none.rbgp", "--seed", "-1"], ["--seed"]),
+        (["evaluate", "--model", "{tmp}/none.rbgp", "--demos", str(CSV_DIR), "--seed", "-1"], ["--seed"]),
+        (["bench", "paper", "theorem", "--seed", "-1"], ["--seed"]),
     ],
 )
 def test_bad_usage_exits_2_with_one_line_and_no_output_file(tmp_path, args, fragments):
@@ -236,9 +251,107 @@ def test_bad_usage_exits_2_with_one_line_and_no_output_file(tmp_path, args, frag
     assert not any(p.name.endswith(".tmp") for p in tmp_path.rglob("*"))
 
 
+@pytest.mark.parametrize("args", [
+    ["rollout", "{model}", "--count", "1", "-o", "r.csv", "--plot", "-"],
+    ["rollout", "{model}", "--count", "1", "-o", "r.csv", "--rerun", "-"],
+    ["evaluate", str(CSV_DIR / "shoe_01.csv"), str(CSV_DIR / "shoe_02.csv"), "--demos", str(CSV_DIR), "--plot", "-"],
+    ["train", str(CSV_DIR), "-o", "m.rbgp", "--rerun", "-"],
+    ["demo", "--quick", "--out", "-"],
+    ["bench", "paper", "theorem", "--quick", "--json", "--markdown", "-"],  # the Markdown, then the JSON
+])
+def test_a_figure_recording_or_folder_to_dash_is_refused_not_written_under_that_name(model, tmp_path, monkeypatch, args):
+    monkeypatch.chdir(tmp_path)
+    res = run(*[a.replace("{model}", str(model)) for a in args])
+    flag = args[args.index("-") - 1]
+    assert_one_line_error(res, 2, f"{flag} - would mean stdout", f"give {flag} a")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_evaluate_per_step_to_stdout_is_the_csv_alone():
+    gen = [CSV_DIR / "shoe_01.csv", CSV_DIR / "shoe_02.csv"]
+    res = run("evaluate", *gen, "--demos", CSV_DIR, "--per-step", "-", "-q")
+    assert res.exit_code == 0, res.stderr
+    lines = res.stdout.strip().splitlines()
+    assert lines[0].startswith("step,s,bhattacharyya") and all(ln[0].isdigit() for ln in lines[1:])
+    assert res.stderr.startswith("bhattacharyya mean")  # the summary, beside the data
+    res = run("evaluate", *gen, "--demos", CSV_DIR, "--per-step", "-", "--json")
+    assert_one_line_error(res, 2, "--json", "--per-step FILE")
+
+
+def test_train_to_stdout_is_refused_not_written_to_a_file_named_dash(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    res = run("train", CSV_DIR, "-o", "-", *FAST)
+    assert_one_line_error(res, 2, "-o NAME.rbgp")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("args", [["info", "-"], ["rollout", "-", "--count", "1"], ["follow", "-"]])
+def test_a_model_named_dash_is_stdin_and_refused_as_such(tmp_path, monkeypatch, args):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "-").write_bytes(b"PK\x03\x04 not a model")  # not read as a file named '-' either
+    res = run(*args, input="t,x,y,z,qx,qy,qz,qw\n")
+    assert_one_line_error(res, 2, "a model is not read from stdin", "pass the model file's path")
+
+
+@pytest.mark.parametrize("args,target,names", [
+    (["rollout", "{model}", "--count", "3", "-q", "-o", "{tmp}/g.csv"], "rollout_model", ["--count", "--duration"]),
+    (["evaluate", "{tmp}/g.csv", "--demos", str(CSV_DIR)], "evaluate_files", ["--length"]),
+    (["train", str(CSV_DIR), "-q", "-o", "{tmp}/m.rbgp"], "train_from_files", ["--max-points", "--train-rate"]),
+])
+def test_out_of_memory_says_what_to_make_smaller_for_that_command(model, tmp_path, monkeypatch, args, target, names):
+    import rbgp_cli.workflows as wf
+
+    def boom(*a, **k):
+        raise MemoryError
+
+    monkeypatch.setattr(wf, target, boom)
+    (tmp_path / "g.csv").write_text((CSV_DIR / "shoe_01.csv").read_text())
+    res = run(*[a.replace("{model}", str(model)).replace("{tmp}", str(tmp_path)) for a in args])
+    assert_one_line_error(res, 1, "out of memory", *names)
+    if args[0] != "train":
+        assert "--max-points" not in res.stderr  # a training option, for a command that trains nothing
+
+
+def test_evaluate_length_errors_name_the_option(tmp_path):
+    res = run("evaluate", CSV_DIR / "shoe_01.csv", CSV_DIR / "shoe_02.csv", "--demos", CSV_DIR, "--length", "100000")
+    assert_one_line_error(res, 2, "--length 100000 is more than", "use --length at most 2604")
+
+
+@pytest.mark.parametrize("count,args,hint,not_hint", [
+    (2, ["--folds", "2"], "record 4 demonstrations or more", "--folds 2 or fewer"),  # it ran with 2 folds
+    (9, ["--folds", "2", "--train-size", "8"], "--train-size 7 or less", "--folds"),  # folds do not change it
+])
+def test_crossval_one_held_out_warning_gives_advice_that_helps(tmp_path, count, args, hint, not_hint):
+    for src in sorted(CSV_DIR.glob("*.csv"))[:count]:
+        (tmp_path / src.name).write_bytes(src.read_bytes())
+    res = run("crossval", tmp_path, *args, "--no-peers", "--samples", "2", "-q", *FAST)
+    assert res.exit_code == 0, res.stderr
+    (line,) = [ln for ln in res.stderr.splitlines() if "hold out only one" in ln]
+    assert hint in line and not_hint not in line.split("; ", 1)[1], line
+
+
+@pytest.mark.parametrize("option,value", [("--noise", "1e154"), ("--noise-scale", "1e308"), ("--train-rate", "1e308"),
+                                          ("--smooth-window", "1e308")])
+def test_train_options_too_large_for_a_double_are_bad_input_not_an_internal_error(tmp_path, option, value):
+    res = run("train", CSV_DIR, "-o", tmp_path / "m.rbgp", option, value, *FAST)
+    assert_one_line_error(res, 2, option)
+    assert not (tmp_path / "m.rbgp").exists()
+
+
+def test_a_recording_whose_pose_never_changes_says_why_nothing_is_left(tmp_path):
+    rows = "".join(f"{0.01 * k:.2f},0.1,0.2,0.3,0,0,0,1\n" for k in range(100))
+    (tmp_path / "still.csv").write_text("t,x,y,z,qx,qy,qz,qw\n" + rows)
+    res = run("train", tmp_path / "still.csv", "-o", tmp_path / "m.rbgp")
+    assert_one_line_error(res, 2, "still.csv", "1 left of 100", "99 repeating the previous pose exactly",
+                          "the pose never changes")
+    assert not (tmp_path / "m.rbgp").exists()
+
+
 @pytest.mark.parametrize("pose", ["1 2 3", "a b c d e f", "nan 0 0 0 0 0", "0 0 0 0 0 inf"])
 def test_malformed_start_poses(model, pose):
-    assert_one_line_error(run("rollout", model, "--start", pose), 2, "start pose")
+    res = run("rollout", model, "--start", pose)
+    assert_one_line_error(res, 2, "start pose", 'write --start as "rx ry rz x y z"')
+    assert "(start)" not in res.stderr and "--start pose" not in res.stderr  # the option, named as typed
 
 
 def test_model_file_errors(tmp_path):
@@ -288,6 +401,8 @@ def test_csv_and_mcap_give_the_same_model(tmp_path):
 def test_mcap_topic_pattern_errors_name_the_topics():
     res = run("train", MCAP, "--topic", "/hand/*", "-o", "/tmp/never.rbgp")
     assert_one_line_error(res, 2, "/hand/*")
+    res = run("train", MCAP, "--topic", "/nope", "-o", "/tmp/never.rbgp")  # no close name to suggest
+    assert_one_line_error(res, 2, "no topic '/nope'; pose topics are: /shoe/trial_01/pose", "--topic")
 
 
 @pytest.mark.slow

@@ -113,6 +113,7 @@ def test_a_softer_goal_ends_near_it_not_at_it(model, tmp_path):
     (["--via", "-1: 0 0 0 1 0 0 0"], ["positive number of seconds"]),
     (["--via", "1: 0 0 0 1 0 0"], ["via-point", "seven finite numbers"]),
     (["--goal", "0 0 0 1 0 0 0", "--goal-tolerance", "0.1"], ["two positive numbers"]),
+    (["--goal", "0 0 0 1 0 0 0", "--goal-tolerance", "1e200 1e200"], ["two positive numbers (up to 1e+100)"]),  # var. overflows
     (["--goal-tolerance", "0.1 0.1"], ["--goal-tolerance softens", "--goal POSE"]),
     (["--goal", "0 0 0 1 0 0 0", "--steps", "5"], ["--duration"]),
     (["--goal", "0 0 0 1 0 0 0", "--via", "100: 0 0 0 1 0 0 0", "--duration", "2"], ["via-point at 100 s", "outside the motion"]),
@@ -120,6 +121,14 @@ def test_a_softer_goal_ends_near_it_not_at_it(model, tmp_path):
 def test_bad_goal_and_via_text_is_a_one_line_error(model, tmp_path, args, fragments):
     out = tmp_path / "r.csv"
     assert_one_line_error(run("rollout", model, "--start-quat", demo_ends()[0], *args, "-o", out), 2, *fragments)
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("args", [["--goal", "1 2 3"], ["--via", "1 2 3"], ["--goal", "0 0 0 1 0 0 0", "--goal-tolerance", "a"]])
+def test_a_bad_goal_without_a_start_is_the_only_line_on_stderr(model, tmp_path, args):
+    """Without a start the rollout says which starts it drew; a mistyped goal stops it before that."""
+    out = tmp_path / "r.csv"
+    assert_one_line_error(run("rollout", model, *args, "-o", out), 2, "write it as")
     assert not out.exists()
 
 

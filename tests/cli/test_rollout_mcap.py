@@ -73,6 +73,23 @@ def test_evaluate_scores_the_mcap_as_the_csv(outputs, generated):
     assert "skipped" not in got.stderr  # a bag folder's metadata.yaml is its index, not a file to note
 
 
+def test_evaluate_reads_rollouts_mcap_on_stdin_as_the_file(outputs):
+    """Piped (a real pipe: no seeking, no summary first) or redirected, rbgp's own MCAP needs no --topic."""
+    import subprocess
+    import sys
+
+    ref = run("evaluate", outputs / "g.mcap", "--demos", CSV_DIR, "--json", "-q")
+    assert ref.exit_code == 0, ref.stderr
+    redirected = run("evaluate", "-", "--demos", CSV_DIR, "--json", "-q", input=(outputs / "g.mcap").read_bytes())
+    piped = subprocess.run(f"cat {outputs / 'g.mcap'} | {sys.executable} -m rbgp_cli evaluate - --demos {CSV_DIR} --json -q",
+                           shell=True, capture_output=True, text=True, timeout=300)
+    for out, err, code in ((redirected.stdout, redirected.stderr, redirected.exit_code),
+                           (piped.stdout, piped.stderr, piped.returncode)):
+        assert code == 0, err
+        a, b = json.loads(ref.stdout), json.loads(out)
+        assert b["n_generated"] == a["n_generated"] == 9 and b["bhattacharyya"] == a["bhattacharyya"]
+
+
 @pytest.mark.slow
 def test_options_frame_start_time_foxglove_and_stdout(model, tmp_path):
     res = run("rollout", model, "--count", "1", "--frame-id", "lab", "--start-time", "1700000000.5",
@@ -96,6 +113,8 @@ def test_options_frame_start_time_foxglove_and_stdout(model, tmp_path):
     (["--mcap-encoding", "ros1", "-o", "x.mcap"], "--mcap-encoding must be one of ros2, foxglove"),
     (["--mcap-encoding", "foxglove", "-o", "bag/"], "a rosbag2 folder holds ROS 2 messages"),
     (["--output-format", "csv", "-o", "bag/"], "a CSV needs a file name"),
+    (["--start-time", "-1", "-o", "x.mcap"], "--start-time must be seconds since the epoch from 0"),  # log times unsigned
+    (["--start-time", "1e308", "-o", "x.mcap"], "--start-time must be seconds since the epoch from 0"),
 ])
 def test_bad_output_choices_are_one_line_errors(model, tmp_path, monkeypatch, args, message):
     monkeypatch.chdir(tmp_path)

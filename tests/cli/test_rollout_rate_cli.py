@@ -124,6 +124,61 @@ def test_each_duration_needs_demonstrations():
     assert_one_line_error(run("rollout", "missing.rbgp", "--each-duration"), 2, "--from-demos")
 
 
+@pytest.mark.parametrize("dt", ["0", "nan", "-0.01", "inf"])
+@pytest.mark.parametrize("more", [[], ["--duration", "2"], ["--goal", "0 0 0 1 0.8 0.06 0.13"]])
+def test_a_dt_that_is_not_a_positive_number_is_bad_input_not_an_internal_error(model, tmp_path, dt, more):
+    res = run("rollout", model, "--dt", dt, *more, "-q", "-o", tmp_path / "r.csv")
+    assert_one_line_error(res, 2, "--dt must be a positive number of seconds")
+    assert not (tmp_path / "r.csv").exists()
+
+
+@pytest.mark.parametrize("args,fragment", [(["--duration", "-1"], "--duration must be a positive"),
+                                           (["--dt", "0"], "--dt must be a positive"),
+                                           (["--off-data", "maybe"], "--off-data must be one of")])
+def test_a_bad_rollout_option_without_a_start_is_the_only_line_on_stderr(model, tmp_path, args, fragment):
+    """Without a start the rollout says which starts it drew; a bad option stops it before that."""
+    assert_one_line_error(run("rollout", model, *args, "-o", tmp_path / "r.csv"), 2, fragment)
+
+
+def test_an_infinite_start_spread_is_bad_input(model, tmp_path):
+    res = run("rollout", model, "--start-spread", "inf", "--count", 2, "-o", tmp_path / "r.csv")
+    assert_one_line_error(res, 2, "--start-spread must be a non-negative number of metres")
+
+
+def test_a_rollout_that_diverges_at_once_points_at_the_start(model, tmp_path):
+    res = run("rollout", model, "--start", "0 0 0 1e308 0 1", "--steps", 3, "-q", "-o", tmp_path / "r.csv")
+    assert_one_line_error(res, 1, "diverged", "at step 1", "check the start poses (metres")
+    assert not (tmp_path / "r.csv").exists()
+
+
+def test_an_output_rate_too_high_for_a_grid_is_bad_input_not_an_internal_error(model, tmp_path):
+    res = run("rollout", model, "--output-rate", "1e308", "--steps", 3, "-q", "-o", tmp_path / "r.csv")
+    assert_one_line_error(res, 2, "--output-rate", "too high")
+    assert not (tmp_path / "r.csv").exists()
+
+
+@pytest.mark.parametrize("starts", [["--start", START], ["--start-quat", "0 0 0 1 0.3 0 1.1"], ["--starts", str(CSV_DIR / "shoe_01.csv")]])
+def test_count_with_start_poses_and_nothing_to_draw_from_is_refused(model, tmp_path, starts):
+    res = run("rollout", model, *starts, "--count", 5, "-o", tmp_path / "r.csv")
+    assert_one_line_error(res, 2, "--count 5", "--from-demos")
+    assert not (tmp_path / "r.csv").exists()
+
+
+@pytest.mark.parametrize("flag,pose", [
+    ("--start-quat", "0 0 0.8 0.92 0.3 0 1.1"),  # 0.38 mistyped: norm 1.22
+    ("--goal", "0 0 0.8 0.92 0.3 0 1.1"),
+    ("--via", "1: 0 0 0.1 0.5 0.3 0 1.1"),  # norm 0.51
+])
+def test_a_typed_quaternion_far_from_unit_length_is_normalised_with_a_warning(model, tmp_path, flag, pose):
+    res = run("rollout", model, flag, pose, "--duration", 2, "--no-std", "-o", tmp_path / "r.csv")
+    assert res.exit_code == 0, res.stderr
+    said = [ln for ln in res.stderr.splitlines() if "it was normalised" in ln]
+    assert len(said) == 1 and said[0].startswith("rbgp: warning:") and "x y z w" in said[0], res.stderr
+    near = run("rollout", model, flag, pose.replace("0.8 0.92", "0.38 0.92").replace("0.1 0.5", "0.3 0.95"),
+               "--duration", 2, "--no-std", "-o", tmp_path / "r.csv")  # a few digits' rounding: no warning
+    assert near.exit_code == 0 and "normalised" not in near.stderr, near.stderr
+
+
 def test_start_quat_is_the_same_start_as_the_rotation_vector(model):
     half = float(np.sqrt(0.5))
     by_vec = run("rollout", model, "--start", f"0 0 {np.pi / 2!r} 0.3 0 1.1", "--steps", 3, "--output-rate", 0)

@@ -49,6 +49,21 @@ def test_rollout_given_refuses_start_poses(model, tmp_path):
     assert "--given" in res.stderr and len(res.stderr.strip().splitlines()) == 1
 
 
+@pytest.mark.parametrize("args,named", [
+    (["--goal", "0 0 0 1 0.8 0.06 0.13"], "--goal"),
+    (["--via", "1: 0 0 0 1 0.8 0.06 0.13"], "--via"),
+    (["--output-rate", "50"], "--output-rate"),
+    (["--count", "5"], "--count"),
+    (["--off-data", "stop"], "--off-data"),
+])
+def test_rollout_given_refuses_what_it_would_ignore(model, tmp_path, args, named):
+    res = run("rollout", model, "--given", CSV_DIR / "shoe_01.csv", *args, "-o", tmp_path / "rest.csv")
+    assert res.exit_code == 2, res.stderr
+    msg = res.stderr.strip().splitlines()
+    assert len(msg) == 1 and "--given" in msg[0] and named in msg[0], res.stderr
+    assert not (tmp_path / "rest.csv").exists()
+
+
 @pytest.mark.slow
 def test_follow_reads_a_pipe_and_prints_one_json_line_per_prediction(model, tmp_path):
     lines = (CSV_DIR / "shoe_01.csv").read_text().splitlines()
@@ -76,6 +91,45 @@ def test_follow_bad_row_is_one_line_error(model):
     assert res.exit_code == 2
     msg = res.stderr.strip().splitlines()
     assert len(msg) == 1 and "row 3" in msg[0]
+
+
+@pytest.mark.parametrize("rows", [["0,0,0,0,0,0,3,1"], ["0,0,0,0,0,0,0,1", "0.01,0,0,0,0,0,3,1"]])
+def test_follow_refuses_a_quaternion_far_from_unit_as_the_file_reader_does(model, rows):
+    res = run("follow", model, "--no-detect", input="t,x,y,z,qx,qy,qz,qw\n" + "\n".join(rows) + "\n")
+    assert res.exit_code == 2, res.stderr
+    msg = res.stderr.strip().splitlines()
+    assert len(msg) == 1 and f"row {len(rows) + 1}" in msg[0] and "far from 1" in msg[0], res.stderr
+
+
+@pytest.mark.parametrize("time", ["0.005", "0.01"])
+def test_follow_names_the_row_whose_time_does_not_increase(model, time):
+    text = f"t,x,y,z,qx,qy,qz,qw\n0,0,0,0,0,0,0,1\n0.01,0,0,0,0,0,0,1\n{time},0,0,0,0,0,0,1\n"
+    res = run("follow", model, "--no-detect", input=text)
+    assert res.exit_code == 2, res.stderr
+    msg = res.stderr.strip().splitlines()
+    assert len(msg) == 1 and "stdin:4" in msg[0] and "time order" in msg[0], res.stderr
+
+
+@pytest.mark.parametrize("count,args,hint", [(9, ["--folds", "3", "--train-size", "2"], "--train-size 3 or more"),
+                                             (4, ["--folds", "2"], "--folds 4 (one held out at a time)")])
+def test_crossval_given_says_when_a_split_trains_on_too_few(tmp_path, count, args, hint):
+    for src in sorted(CSV_DIR.glob("*.csv"))[:count]:
+        (tmp_path / src.name).write_bytes(src.read_bytes())
+    res = run("crossval", tmp_path, "--given", "0.5", "--no-peers", *args)
+    assert res.exit_code == 2, res.stderr
+    msg = res.stderr.strip().splitlines()
+    assert len(msg) == 1 and "a split here trains on" in msg[0] and hint in msg[0], res.stderr
+    assert "retrain" not in msg[0]  # not about a model file: the user trained none
+
+
+def test_follow_a_stream_without_a_time_column_takes_its_times_from_the_rate(model):
+    """As a file without a time column is read (row / --rate): each streamed row is not at t = 0."""
+    rows = [ln.split(",") for ln in (CSV_DIR / "shoe_01.csv").read_text().splitlines()[1:41]]
+    text = "x,y,z,qx,qy,qz,qw\n" + "\n".join(",".join(r[1:]) for r in rows) + "\n"
+    res = run("follow", model, "--no-detect", "--rate", "200", input=text)
+    assert res.exit_code == 0, res.stderr
+    times = [json.loads(ln)["t"] for ln in res.stdout.splitlines()]
+    assert len(times) >= 30 and times == pytest.approx([k / 200 for k in range(40)][-len(times):])
 
 
 def test_crossval_given_refuses_a_fraction_outside_0_1(tmp_path):

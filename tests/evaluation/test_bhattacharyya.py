@@ -323,7 +323,7 @@ def test_mean_rotation_is_the_reference(sets):
         ("ok", {"length": 1}, "at least 2"),
         ("ok", {"length": 0}, "at least 2"),
         ("ok", {"length": 10_000},
-         r"more than 4x the longest demonstration \(\d+ samples\); use a length of at most"),
+         r"more than 4x the longest demonstration \(\d+ samples\); use length at most \d+"),
         ("ok", {"covariance": "spherical"}, "unknown covariance 'spherical'; use 'diag' or 'full'"),
         ("ok", {"ridge": -1e-6}, "ridge must be finite and >= 0"),
         ("short_demo", {}, r"demos\.csv: trajectory 'tiny' has 1 sample\(s\)"),

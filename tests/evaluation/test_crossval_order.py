@@ -105,4 +105,4 @@ def test_crossval_refuses_repeats_in_recording_order_and_a_bad_order_with_exit_2
     res = runner.invoke(app, ["crossval", str(folder), "--order", "recorded", "--repeats", "2", *FAST])
     assert res.exit_code == 2 and "same on every repeat" in res.stderr and "--repeats" in res.stderr
     res = runner.invoke(app, ["crossval", str(folder), "--order", "time", *FAST])
-    assert res.exit_code == 2 and "unknown order 'time'" in res.stderr and "Traceback" not in res.stderr
+    assert res.exit_code == 2 and "--order 'time' is unknown" in res.stderr and "Traceback" not in res.stderr
