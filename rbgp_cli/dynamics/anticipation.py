@@ -14,8 +14,8 @@ the shortest demonstration to twice the longest, those shorter than the seen spa
 
 (after Maeda et al. 2017's phase estimation; a log-spaced grid makes the weight the density of ln D). The
 weights (and the estimate's end pose) use their own τ² and r (``paths.duration_smooth``,
-``paths.duration_tolerance``: :func:`fit_seen` keeps (0.01, 0.8) or the distribution's own, whichever estimated
-the left-out demonstrations' durations better); the conditioning of the rest uses the distribution's.
+``paths.duration_tolerance``: :func:`fit_seen` keeps (0.01, 0.8), with fewer than ten demonstrations (0.01, 3.2),
+or the distribution's own, whichever estimated the left-out demonstrations' durations best); the conditioning of the rest uses the distribution's.
 The predicted end time is t_0 + D with D's weighted median and 5 %/95 % quantiles; the phase of the last
 seen sample is span / D̂ (D̂ the weighted median). One batched solve over the grid gives the weights and,
 per D_g, the conditioned end pose: the end pose's mean and band are the mixture's.
@@ -92,6 +92,12 @@ ACTIVE_AFTER = 8
 #: spread), chosen by :func:`fit_seen` from these and the path distribution's own τ² and r (docs/defaults.md)
 DURATION_SMOOTH_GRID = (0.01,)
 DURATION_TOLERANCE_GRID = (0.8,)
+#: With fewer demonstrations than DURATION_FEW_BELOW, :func:`fit_seen` also weighs this looser (τ², r) for the
+#: duration: the seen poses' fit to the few directions of Σ that so few span is worth less there than the
+#: durations' own prior (docs/defaults.md, issue 37's tenth pass: the end time of studies of five 2–15 % closer,
+#: and with more demonstrations the final pose of the slower handovers worse beyond the scatter)
+DURATION_FEW = (0.01, 3.2)
+DURATION_FEW_BELOW = NARROW_FROM
 #: Groups the demonstrations are left out in when :func:`fit_seen` chooses the duration's τ² and r
 DURATION_FOLDS = 5
 #: The conditioning of the rest has its own τ² and r, chosen by :func:`fit_seen` on the left-out final pose from
@@ -903,13 +909,22 @@ def _narrowed(raw, demos: int) -> dict:
             "position": [float(x[1]) for x in c]}
 
 
+def duration_candidates(paths) -> list[tuple[float, float]]:
+    """The (τ², r) pairs :func:`_duration_loo` weighs for the duration of ``paths``: those of
+    :data:`DURATION_SMOOTH_GRID` × :data:`DURATION_TOLERANCE_GRID`, :data:`DURATION_FEW` with fewer than
+    :data:`DURATION_FEW_BELOW` demonstrations, and the path distribution's own τ² and seen tolerance (sorted)."""
+    pairs = {(float(a), float(b)) for a in DURATION_SMOOTH_GRID for b in DURATION_TOLERANCE_GRID}
+    if paths.demos < DURATION_FEW_BELOW:
+        pairs.add(tuple(float(x) for x in DURATION_FEW))
+    return sorted(pairs | {(float(paths.smooth), float(paths.seen_tolerance))})
+
+
 def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6, grid_size: int = 16) -> dict:
     """The duration's τ² and r by leaving demonstrations out on the task itself: the demonstrations in
     ``folds`` groups; each group's first F (each of SEEN_FRACTIONS) seen on its own clock, its duration
     estimated (the weights' median; with ``points`` seen poses and ``grid_size`` durations, as the live
     :class:`Follower`'s, for speed) by the others' path distribution with each
-    candidate (τ², r): those of :data:`DURATION_SMOOTH_GRID` × :data:`DURATION_TOLERANCE_GRID`, and the path
-    distribution's own τ² and seen tolerance. Returns {(τ², r): mean |ln D̂ − ln D|} ({} without the trajectories or with
+    candidate (τ², r) of :func:`duration_candidates`. Returns {(τ², r): mean |ln D̂ − ln D|} ({} without the trajectories or with
     fewer than MIN_PATH_DEMOS + 1 demonstrations)."""
     import copy
 
@@ -918,8 +933,7 @@ def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6,
     if trajs is None or len(trajs) != paths.demos or paths.demos < MIN_PATH_DEMOS + 1:
         return {}
     D = paths.demos
-    candidates = sorted({(float(a), float(b)) for a in DURATION_SMOOTH_GRID for b in DURATION_TOLERANCE_GRID}
-                        | {(float(paths.smooth), float(paths.seen_tolerance))})
+    candidates = duration_candidates(paths)
     err = {c: 0.0 for c in candidates}
     count = 0
     order = np.random.default_rng(np.random.SeedSequence([37, D])).permutation(D)

@@ -90,11 +90,10 @@ def test_the_duration_has_its_own_tau_and_tolerance_chosen_on_the_task(paths):
 def _duration_loo_by_weights(paths, trajs, folds=5, points=6, grid_size=16):
     """The oracle: _duration_loo as a loop over the left-out demonstrations, fractions and candidates, each one call
     of Anticipator.weights on the raw beginning (checks, normalisation and interpolation each time)."""
-    from rbgp_cli.dynamics.anticipation import DURATION_SMOOTH_GRID, DURATION_TOLERANCE_GRID, SEEN_FRACTIONS
+    from rbgp_cli.dynamics.anticipation import SEEN_FRACTIONS, duration_candidates
 
     D = paths.demos
-    candidates = sorted({(float(a), float(b)) for a in DURATION_SMOOTH_GRID for b in DURATION_TOLERANCE_GRID}
-                        | {(float(paths.smooth), float(paths.seen_tolerance))})
+    candidates = duration_candidates(paths)
     err, count = {c: 0.0 for c in candidates}, 0
     order = np.random.default_rng(np.random.SeedSequence([37, D])).permutation(D)
     for group in np.array_split(order, min(folds, D)):
@@ -117,15 +116,16 @@ def _duration_loo_by_weights(paths, trajs, folds=5, points=6, grid_size=16):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("case", ["family", "short beginnings"])
+@pytest.mark.parametrize("case", ["family", "short beginnings", "five"])
 def test_duration_loo_batched_equals_the_loop_over_weights(case):
     """_duration_loo estimates every left-out beginning of a group in one batch per candidate (issue 35): the
     same errors as one Anticipator.weights call per beginning and candidate, to 1e-10. "short beginnings": one
     demonstration sampled so coarsely that its first fifth has fewer seen poses than the rest (not in the
-    batch), and one so slow that its beginnings outlast every duration of the grid (weights' own case)."""
-    from rbgp_cli.dynamics.anticipation import _duration_loo
+    batch), and one so slow that its beginnings outlast every duration of the grid (weights' own case). "five": a
+    study of five, whose candidates include DURATION_FEW."""
+    from rbgp_cli.dynamics.anticipation import DURATION_FEW, _duration_loo
 
-    demos, _ = family(10, 5)
+    demos, _ = family(5 if case == "five" else 10, 5)
     if case == "short beginnings":
         slow = demos[3]
         demos[3] = Trajectory(slow.t * 4.0, slow.quat, slow.position, name="slow")
@@ -135,6 +135,7 @@ def test_duration_loo_batched_equals_the_loop_over_weights(case):
     got = _duration_loo(paths, demos)
     want = _duration_loo_by_weights(paths, demos)
     assert got.keys() == want.keys() and len(got) >= 1
+    assert (tuple(DURATION_FEW) in got) == (case == "five")  # weighed below DURATION_FEW_BELOW only
     for c in want:
         assert abs(got[c] - want[c]) <= 1e-10, (c, got[c], want[c])
     assert all(0.0 < v < 2.0 for v in got.values())
