@@ -323,6 +323,7 @@ def follow(
     model: Annotated[str, typer.Argument(help="Model file.")],
     every: Annotated[int, typer.Option("--every", min=1, help="Print a prediction every N poses of a motion under way (1: after every pose).")] = 1,
     no_detect: Annotated[bool, typer.Option("--no-detect", help="The stream's first pose is the motion's start (phase 0); by default a motion starts when the pose leaves rest, so follow runs across repetitions.")] = False,
+    json_out: Annotated[bool, typer.Option("--json", help="Accepted as every command's --json is: follow prints JSON lines either way.")] = False,
     read: ReadArgs = None,
 ):
     """Follow a motion live: read poses as CSV rows on stdin, print one JSON line per prediction.

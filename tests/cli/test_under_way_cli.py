@@ -266,3 +266,16 @@ def test_crossval_under_way_trains_on_each_split_of_make_splits(monkeypatch):
 
     with pytest.raises(InputError, match="recording order"):
         workflows.crossval_under_way([CSV_DIR], [0.4], {}, folds=3, repeats=2, order="recorded", peers=False)
+
+
+def test_follow_takes_json_as_every_command_does_and_prints_the_same_lines(model):
+    """follow always prints JSON lines; ``rbgp --json follow`` and ``follow --json`` are accepted (a script that
+    passes --json to every command works) and print the same lines, not a refusal."""
+    text = (CSV_DIR / "shoe_01.csv").read_text()
+    plain = run("follow", model, "--no-detect", "--every", "40", input=text)
+    before = run("--json", "follow", model, "--no-detect", "--every", "40", input=text)
+    after = run("follow", model, "--no-detect", "--every", "40", "--json", input=text)
+    assert plain.exit_code == before.exit_code == after.exit_code == 0, (before.stderr, after.stderr)
+    lines = plain.stdout.splitlines()
+    assert len(lines) >= 2 and all("phase" in json.loads(x) for x in lines)
+    assert before.stdout == plain.stdout == after.stdout
