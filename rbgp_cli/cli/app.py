@@ -98,7 +98,7 @@ def train(
     if output == "-":  # '-' is stdout elsewhere; the model is a binary zip that every command reads by name
         raise InputError("-o - would write the model to stdout, but a model is a file (a binary zip read back by name)",
                          hint="give -o NAME.rbgp")
-    check_files(__rerun=rerun)
+    check_files({"--rerun": rerun})
     check_outputs(output, rerun)
     model, header, trajs = workflows.train_from_files(
         demos, output, options=opts, max_gap=max_gap, progress=progress,
@@ -251,7 +251,7 @@ def rollout(
         raise InputError("--rate is the sample rate of input files without a time column, and rollout reads none here",
                          hint="set the rate of the written trajectories with --output-rate HZ")
     fmt, folder = _rollout_format(output, output_format, mcap_encoding)
-    check_files(__rerun=rerun, __plot=plot)
+    check_files({"--rerun": rerun, "--plot": plot})
     check_outputs(None if folder else (output or "-"), rerun, plot)
     if plot:
         from rbgp_cli.viz.plots import _matplotlib
@@ -488,7 +488,7 @@ def evaluate(
     opts, max_gap = read.options, read.max_gap
     if per_step == "-" and json_out:  # stdout holds one thing: the per-step CSV or the JSON
         raise InputError("--json prints a summary on stdout, so the per-step series needs --per-step FILE")
-    check_files(__rerun=rerun, __plot=plot)
+    check_files({"--rerun": rerun, "--plot": plot})
     check_outputs(per_step, rerun, plot)
     if plot:
         from rbgp_cli.viz.plots import _matplotlib
@@ -715,7 +715,7 @@ def demo(
     and print the Bhattacharyya scores (lower is closer to the demonstrations)."""
     from rbgp_cli.demo import run_demo
 
-    check_files(__out=out)
+    check_files({"--out": out}, what="folder")
 
     scores = run_demo(out, count=count, representations=[r.strip() for r in representations.split(",") if r.strip()],
                       quick=quick, progress=progress)
@@ -754,7 +754,7 @@ def bench_paper(
 
     if part not in ("all", *PARTS):
         raise InputError(f"unknown part {part!r}; expected all, {', '.join(PARTS)}")
-    check_files(__markdown=markdown)  # the report (or the JSON) is on stdout already
+    check_files({"--markdown": markdown})  # the report (or the JSON) is on stdout already
     check_outputs(markdown)
     res = run_paper_bench(PARTS if part == "all" else (part,), repeats=repeats, seed=seed, quick=quick, progress=progress)
     report = format_report(res)

@@ -480,14 +480,13 @@ def _drop_stdout() -> None:
         pass
 
 
-def check_files(**paths: Optional[str]) -> None:
-    """Refuse '-' for outputs that are files, not streams (a figure, a recording, a folder): keyed by
-    the option's flag with its dashes as underscores (``__plot`` for ``--plot``)."""
+def check_files(paths: dict, *, what: str = "file") -> None:
+    """Refuse '-' for outputs that are files, not streams (a figure, a recording, a folder): ``paths`` maps each
+    option's flag (``"--plot"``) to its value; ``what`` names what the option writes."""
     from rbgp_cli.errors import InputError
 
-    for key, path in paths.items():
+    for flag, path in paths.items():
         if path is not None and str(path) == "-":
-            flag, what = key.replace("_", "-"), "folder" if key == "__out" else "file"
             raise InputError(f"{flag} - would mean stdout, but {flag} writes a {what}", hint=f"give {flag} a {what} name")
 
 
