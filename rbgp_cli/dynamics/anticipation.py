@@ -98,6 +98,11 @@ DURATION_TOLERANCE_GRID = (0.8,)
 #: and with more demonstrations the final pose of the slower handovers worse beyond the scatter)
 DURATION_FEW = (0.01, 3.2)
 DURATION_FEW_BELOW = NARROW_FROM
+#: ... and there it takes the loosest candidate (largest r, then smallest τ²) whose left-out error is within this
+#: many standard errors of the smallest (:func:`_loosest_within`; the one-standard-error rule of Hastie, Tibshirani
+#: and Friedman, §7.10: with four demonstrations per left-out fit the smallest error is a noisy winner;
+#: docs/defaults.md, issue 37's eleventh pass)
+DURATION_FEW_SE = 1.0
 #: Groups the demonstrations are left out in when :func:`fit_seen` chooses the duration's τ² and r
 DURATION_FOLDS = 5
 #: The conditioning of the rest has its own τ² and r, chosen by :func:`fit_seen` on the left-out final pose from
@@ -839,7 +844,9 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, s
     ``paths.seen_band_scale`` and returns ``paths``. With the demonstrations ``trajs`` (in the path
     distribution's order) and ``duration``, also the duration weights' own τ² and r
     (:func:`_duration_loo`; ``paths.duration_smooth``, ``paths.duration_tolerance``), chosen before the bands'
-    factors, which ``spread`` (default :data:`DURATION_SPREAD`) scores against the samples' durations drawn from
+    factors (the smallest mean left-out error; with fewer than :data:`DURATION_FEW_BELOW` demonstrations the loosest
+    candidate within :data:`DURATION_FEW_SE` standard errors of it, :func:`_loosest_within`), which ``spread``
+    (default :data:`DURATION_SPREAD`) scores against the samples' durations drawn from
     those weights (:func:`_spread_terms`; by default from :data:`SPREAD_FROM` demonstrations on); else at the
     remainders' true durations (:func:`_seen_loo`)."""
     from rbgp_cli.dynamics.paths import _band_factors
@@ -865,11 +872,13 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, s
     c_rot, c_pos = _band_factors(m2, z, paths.demos, level)
     paths.seen_band_scale = (max(1.0, c_rot), max(1.0, c_pos))
     if duration:
-        errors = _duration_loo(paths, trajs)
+        errors = _duration_loo(paths, trajs, per_beginning=True)
         if errors:
-            (paths.duration_smooth, paths.duration_tolerance) = min(errors, key=errors.get)
+            few = paths.demos < DURATION_FEW_BELOW
+            pick = _loosest_within(errors) if few else min(errors, key=lambda c: float(np.mean(errors[c])))
+            (paths.duration_smooth, paths.duration_tolerance) = pick
             paths.info.update(duration_smooth=paths.duration_smooth, duration_tolerance=paths.duration_tolerance,
-                              duration_loo_error=float(errors[(paths.duration_smooth, paths.duration_tolerance)]))
+                              duration_loo_error=float(np.mean(errors[pick])))
     own = rest == (float(paths.smooth), float(r))
     if spread is None:
         spread = DURATION_SPREAD and paths.demos >= SPREAD_FROM
@@ -919,13 +928,31 @@ def duration_candidates(paths) -> list[tuple[float, float]]:
     return sorted(pairs | {(float(paths.smooth), float(paths.seen_tolerance))})
 
 
-def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6, grid_size: int = 16) -> dict:
+def _loosest_within(errors: dict, k: float = DURATION_FEW_SE):
+    """The one-standard-error rule over ``errors`` {(τ², r): per-beginning left-out errors (n,)}, all scored on the
+    same left-out beginnings: with e* the candidate of the smallest mean error, the candidates c whose paired
+    difference d = e_c − e* has mean(d) ≤ k · sd(d) / √n; of these the loosest: the largest r (the seen poses
+    trusted least), and between equal r (the path distribution's own r on the grid's) the smaller τ², which the
+    studies of five measured closer (docs/defaults.md, issue 37's eleventh pass)."""
+    best = min(errors, key=lambda c: float(np.mean(errors[c])))
+    within = []
+    for c, e in errors.items():
+        d = np.asarray(e, dtype=np.float64) - np.asarray(errors[best], dtype=np.float64)
+        se = float(np.std(d, ddof=1) / np.sqrt(len(d))) if len(d) > 1 else 0.0
+        if float(np.mean(d)) <= k * se:
+            within.append(c)
+    return max(within, key=lambda c: (c[1], -c[0]))
+
+
+def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6, grid_size: int = 16,
+                  per_beginning: bool = False) -> dict:
     """The duration's τ² and r by leaving demonstrations out on the task itself: the demonstrations in
     ``folds`` groups; each group's first F (each of SEEN_FRACTIONS) seen on its own clock, its duration
     estimated (the weights' median; with ``points`` seen poses and ``grid_size`` durations, as the live
     :class:`Follower`'s, for speed) by the others' path distribution with each
     candidate (τ², r) of :func:`duration_candidates`. Returns {(τ², r): mean |ln D̂ − ln D|} ({} without the trajectories or with
-    fewer than MIN_PATH_DEMOS + 1 demonstrations)."""
+    fewer than MIN_PATH_DEMOS + 1 demonstrations); ``per_beginning``: {(τ², r): |ln D̂ − ln D| (n,)} per left-out
+    beginning, in the same order for every candidate."""
     import copy
 
     from rbgp_cli.dynamics.paths import MIN_PATH_DEMOS
@@ -934,8 +961,7 @@ def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6,
         return {}
     D = paths.demos
     candidates = duration_candidates(paths)
-    err = {c: 0.0 for c in candidates}
-    count = 0
+    err = {c: [] for c in candidates}
     order = np.random.default_rng(np.random.SeedSequence([37, D])).permutation(D)
     for group in np.array_split(order, min(int(folds), D)):
         keep = np.setdiff1d(np.arange(D), group)
@@ -960,10 +986,13 @@ def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6,
         poses = [_seen(*s, points, checked=True)[3:] for s in seen]  # τ, q, p of each
         left_out = np.repeat(group, len(SEEN_FRACTIONS))
         for c, ant in ants.items():
-            for d, D_hat in zip(left_out, _duration_medians(ant, seen, poses)):
-                err[c] += abs(np.log(max(D_hat, 1e-9)) - paths.log_durations[d])
-        count += len(seen)
-    return {c: e / count for c, e in err.items()} if count else {}
+            err[c].extend(abs(np.log(max(D_hat, 1e-9)) - paths.log_durations[d])
+                          for d, D_hat in zip(left_out, _duration_medians(ant, seen, poses)))
+    if not err[candidates[0]]:
+        return {}
+    if per_beginning:
+        return {c: np.asarray(e, dtype=np.float64) for c, e in err.items()}
+    return {c: float(np.mean(e)) for c, e in err.items()}
 
 
 def _duration_medians(ant, seen, poses) -> list:

@@ -139,3 +139,38 @@ def test_duration_loo_batched_equals_the_loop_over_weights(case):
     for c in want:
         assert abs(got[c] - want[c]) <= 1e-10, (c, got[c], want[c])
     assert all(0.0 < v < 2.0 for v in got.values())
+
+
+def test_the_loosest_candidate_within_one_standard_error_of_the_best():
+    """The one-standard-error rule (_loosest_within): a looser candidate whose paired excess over the best is
+    within its standard error is taken; one clearly worse is not, however loose; between equal r the smaller τ²."""
+    from rbgp_cli.dynamics.anticipation import _loosest_within
+
+    rng = np.random.default_rng(0)
+    best = rng.uniform(0.05, 0.15, 20)
+    z = rng.standard_normal(20)
+    noisy = best + 0.01 + 0.1 * (z - z.mean()) / z.std(ddof=1)  # 0.01 worse on average, se = 0.1 / √20 ≈ 0.022
+    worse = best + 0.05 + 0.001 * rng.standard_normal(20)  # 0.05 worse, se ≈ 0.0002
+    assert _loosest_within({(0.01, 0.8): best, (0.01, 3.2): noisy}) == (0.01, 3.2)
+    assert _loosest_within({(0.01, 0.8): best, (0.01, 3.2): worse}) == (0.01, 0.8)
+    assert _loosest_within({(0.01, 0.8): best, (0.01, 3.2): worse, (1.0, 1.6): noisy}) == (1.0, 1.6)
+    assert _loosest_within({(0.01, 0.8): best, (1.0, 3.2): noisy, (0.01, 3.2): noisy + 1e-3}) == (0.01, 3.2)
+    assert _loosest_within({(0.01, 0.8): best, (0.01, 3.2): noisy}, k=0.0) == (0.01, 0.8)
+
+
+@pytest.mark.parametrize("n", [5, 12])
+def test_fit_seen_takes_the_rule_below_ten_and_the_smallest_error_from_ten_on(n):
+    """A study of five takes the one-standard-error choice of the duration's (τ², r) over its left-out errors; twelve
+    take the smallest mean error (issue 37, eleventh pass)."""
+    from rbgp_cli.dynamics.anticipation import DURATION_FEW_BELOW, _duration_loo, _loosest_within
+
+    demos, _ = family(n, 7)
+    paths = fit_paths(demos)
+    errors = _duration_loo(paths, demos, per_beginning=True)
+    assert all(len(e) == 4 * n for e in errors.values())  # every left-out beginning, each candidate
+    want = _loosest_within(errors) if n < DURATION_FEW_BELOW else min(errors, key=lambda c: float(np.mean(errors[c])))
+    assert (paths.duration_smooth, paths.duration_tolerance) == want
+    means = _duration_loo(paths, demos)
+    assert means.keys() == errors.keys()
+    for c in means:
+        assert abs(means[c] - float(np.mean(errors[c]))) <= 1e-12
