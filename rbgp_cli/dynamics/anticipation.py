@@ -37,7 +37,8 @@ log density (over :data:`SEEN_TOLERANCE_GRID`). From :data:`REST_FROM` demonstra
 (τ²_rest, r_rest) minimise the left-out final pose's squared error given the seen part (:func:`_end_loo`: the
 others' conditioned mean at phase 1, in units of each coordinate's spread, summed over the fractions) over
 :data:`REST_SMOOTH_GRID` × :data:`SEEN_TOLERANCE_GRID` and the path distribution's own (τ², r), which ties keep;
-with fewer, (τ²_rest, r_rest) = (τ², r). The mean is the rest's conditioning; the samples' spread about it keeps
+with fewer, r_rest = r and τ²_rest is whichever of τ² and :data:`REST_FEW_SMOOTH` has the smaller such error
+(two candidates, not forty: the left-out ends are too few to choose among many). The mean is the rest's conditioning; the samples' spread about it keeps
 the path distribution's (τ², r), the distribution the left-out remainders' density chose, and the factors
 (c_rot(F), c_pos(F)), one pair per seen fraction F (:func:`seen_band_scales`), make those remainders' 90 % regions
 hold about the rest's mean under it (as :func:`~rbgp_cli.dynamics.paths.fit_paths` does for the start-only
@@ -69,7 +70,7 @@ from rbgp_cli.geometry.so3 import PI_TOLERANCE
 
 __all__ = ["Anticipator", "Anticipation", "Continuation", "anticipate", "fit_seen", "seen_band_scales", "Follower",
            "SEEN_TOLERANCE_GRID", "SEEN_FRACTIONS", "SEEN_POINTS", "DURATION_GRID", "DURATION_SMOOTH_GRID",
-           "DURATION_TOLERANCE_GRID", "REST_SMOOTH_GRID", "REST_FROM"]
+           "DURATION_TOLERANCE_GRID", "REST_SMOOTH_GRID", "REST_FROM", "REST_FEW_SMOOTH"]
 
 #: Regularising tolerances r tried by :func:`fit_seen` (units of each coordinate's spread).
 SEEN_TOLERANCE_GRID = (0.05, 0.1, 0.2, 0.4, 0.8, 1.6, 3.2)
@@ -110,6 +111,12 @@ DURATION_FOLDS = 5
 #: the left-out ends are too few to choose by: docs/defaults.md, issue 37's fourth pass)
 REST_SMOOTH_GRID = (0.01, 0.03, 0.1, 0.3, 1.0)
 REST_FROM = NARROW_FROM
+#: ... and with fewer, the rest keeps the seen r and takes this τ² instead of the path distribution's own where it
+#: predicts the left-out final pose better (:func:`_end_loo`): the seen part's relation to the end then comes mostly
+#: from the smooth process, not from the D − 1 directions so few demonstrations span (studies of five: chosen in 5,
+#: 4, 4 and 2 of the five subsets of the slower handovers, hand raises, handovers and waves; in no fold of the waves'
+#: eight nor of sample_data's six; docs/defaults.md, issue 37's twelfth pass)
+REST_FEW_SMOOTH = 10.0
 #: Tolerance of the exactly observed ln D (in units of ln D's spread) and of the last seen pose.
 _ELL_TOL = 1e-4
 
@@ -840,7 +847,8 @@ def _end_loo(paths, smooths, tolerances, points: int = SEEN_POINTS) -> np.ndarra
 def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, spread: bool | None = None):
     """Choose the seen poses' regularising tolerance r, the rest's own τ² and r and the bands' factors of a motion
     under way by leaving demonstrations out (module docstring); sets ``paths.seen_tolerance``,
-    ``paths.rest_smooth`` and ``paths.rest_tolerance`` (from REST_FROM demonstrations on; else left None) and
+    ``paths.rest_smooth`` and ``paths.rest_tolerance`` (from REST_FROM demonstrations on over the grids; with fewer
+    the seen r and the better of τ² and :data:`REST_FEW_SMOOTH`) and
     ``paths.seen_band_scale`` and returns ``paths``. With the demonstrations ``trajs`` (in the path
     distribution's order) and ``duration``, also the duration weights' own τ² and r
     (:func:`_duration_loo`; ``paths.duration_smooth``, ``paths.duration_tolerance``), chosen before the bands'
@@ -863,6 +871,12 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, s
         a, b = np.unravel_index(int(np.argmin(err)), err.shape)
         if err[a, b] < err[smooths.index(rest[0]), tols.index(rest[1])]:  # ties keep the path distribution's own
             rest = (float(smooths[a]), float(tols[b]))
+        paths.rest_smooth, paths.rest_tolerance = rest
+        paths.info.update(rest_smooth=rest[0], rest_tolerance=rest[1], rest_end_loo=float(err.min()))
+    else:  # few left-out ends: only the path distribution's own τ² against one smooth τ², at the seen r
+        err = _end_loo(paths, [rest[0], REST_FEW_SMOOTH], [rest[1]])[:, 0]
+        if err[1] < err[0]:  # ties keep the path distribution's own
+            rest = (float(REST_FEW_SMOOTH), rest[1])
         paths.rest_smooth, paths.rest_tolerance = rest
         paths.info.update(rest_smooth=rest[0], rest_tolerance=rest[1], rest_end_loo=float(err.min()))
     # the samples' spread keeps the path distribution's conditioning; its factors from the same left-out remainders:
