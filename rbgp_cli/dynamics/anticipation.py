@@ -108,7 +108,7 @@ DURATION_FEW_SE = 1.0
 DURATION_FOLDS = 5
 #: The conditioning of the rest has its own τ² and r, chosen by :func:`fit_seen` on the left-out final pose from
 #: these τ² (and the path distribution's own) × SEEN_TOLERANCE_GRID, from REST_FROM demonstrations on (with fewer
-#: the left-out ends are too few to choose by: docs/defaults.md, issue 37's fourth pass)
+#: the left-out ends are too few to choose among so many: docs/defaults.md, issue 37's fourth pass; see REST_FEW_SMOOTH)
 REST_SMOOTH_GRID = (0.01, 0.03, 0.1, 0.3, 1.0)
 REST_FROM = NARROW_FROM
 #: ... and with fewer, the rest keeps the seen r and takes this τ² instead of the path distribution's own where it
