@@ -38,8 +38,8 @@ log density (over :data:`SEEN_TOLERANCE_GRID`). From :data:`REST_FROM` demonstra
 others' conditioned mean at phase 1, in units of each coordinate's spread, summed over the fractions) over
 :data:`REST_SMOOTH_GRID` × :data:`SEEN_TOLERANCE_GRID` and the path distribution's own (τ², r), which ties keep;
 with fewer, r_rest = r and τ²_rest is whichever of τ² and :data:`REST_FEW_SMOOTH` has the smaller such error
-(two candidates, not forty: the left-out ends are too few to choose among many). The mean is the rest's conditioning; the samples' spread about it keeps
-the path distribution's (τ², r), the distribution the left-out remainders' density chose, and the factors
+(two candidates, not forty: the left-out ends are too few to choose among many). The mean is the rest's
+conditioning; the samples' spread about it keeps the path distribution's (τ², r), the distribution the left-out remainders' density chose, and the factors
 (c_rot(F), c_pos(F)), one pair per seen fraction F (:func:`seen_band_scales`), make those remainders' 90 % regions
 hold about the rest's mean under it (as :func:`~rbgp_cli.dynamics.paths.fit_paths` does for the start-only
 draws), narrowing below 1 as the goal bands' do; a draw at D_g takes them at its seen phase span / D_g
