@@ -11,6 +11,7 @@ weights' median) under:
 
 - ``chosen``: the (τ², r) fit_seen chose for the duration (what crossval's rbgp row uses);
 - ``r=R``: a fixed (τ² = 0.01, r = R), R in 0.8, 3.2, 12.8;
+- ``σ=0.3``: a fixed τ² = 0.01 with a tolerance of 0.3 rad and m for every coordinate (twelfth pass);
 - ``cross×K``: the chosen (τ², r) with the covariance between ln D and the path times K (0, 0.5): the seen part
   fitted without (or with half) its learnt relation to the duration;
 - ``median``: the training durations' median alone (no seen part; at least the seen span).
@@ -64,10 +65,11 @@ def main(argv=None):
         train = [trajs[i] for i in train_idx]
         paths = fit_paths(train)
         fit_seen(paths, train)
-        picks.append((paths.duration_smooth, paths.duration_tolerance))
+        picks.append((paths.duration_smooth, paths.duration_tolerance, paths.duration_sigma))
         ants = {"chosen": Anticipator(paths, None)}
         for r in (0.8, 3.2, 12.8):
             ants[f"r={r:g}"] = Anticipator(paths, None, duration_smooth=0.01, duration_tolerance=r)
+        ants["σ=0.3"] = Anticipator(paths, None, duration_smooth=0.01, duration_sigma=0.3)
         for k in (0.0, 0.5):
             a = Scaled(paths, None)
             a.kappa = k
@@ -82,7 +84,7 @@ def main(argv=None):
                     errors.setdefault(name, {f: [] for f in FRACTIONS})[F].append(abs(est.end_time - tr.t[-1]))
                 errors.setdefault("median", {f: [] for f in FRACTIONS})[F].append(
                     abs(tr.t[0] + max(median, seen.duration) - tr.t[-1]))
-    print(f"{args.dir}: {len(splits)} subsets of {args.train_size}; fit_seen's duration (τ², r) per subset: {picks}")
+    print(f"{args.dir}: {len(splits)} subsets of {args.train_size}; fit_seen's duration (τ², r, σ) per subset: {picks}")
     print("| seen fit | " + " | ".join(f"F = {F:g}" for F in FRACTIONS) + " |")
     print("|---|" + "---|" * len(FRACTIONS))
     for name, per_F in errors.items():

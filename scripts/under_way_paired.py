@@ -49,8 +49,11 @@ class Variant(Anticipator):
         p.seen_tolerance = float(tol)
         p.rest_smooth = p.rest_tolerance = None  # the conditioning with exactly these
         # the duration's weights keep the fitted τ² and r: only the path's conditioning changes
+        sigma = getattr(paths, "duration_sigma", None)  # a tolerance in rad and m (fewer than ten), else r
         super().__init__(p, None, duration_smooth=paths.duration_smooth if paths.duration_smooth is not None else paths.smooth,
-                         duration_tolerance=paths.duration_tolerance if paths.duration_tolerance is not None else paths.seen_tolerance)
+                         duration_tolerance=None if sigma is not None else (
+                             paths.duration_tolerance if paths.duration_tolerance is not None else paths.seen_tolerance),
+                         duration_sigma=sigma)
         self.exact_last = exact_last
 
     def _observations(self, tau, q, p, last_q, last_p, D):
@@ -178,7 +181,7 @@ def main(argv=None):
                     variants[f"sweep:{s}:{r}"] = Variant(paths, s, r)
         perF_vars = {F: Variant(paths, smooths[perF[fi][0]], tols[perF[fi][1]]) for fi, F in enumerate(FRACTIONS)}
         choices.append({"fold": i, "fitted": [paths.smooth, paths.seen_tolerance],
-                        "duration": [paths.duration_smooth, paths.duration_tolerance],
+                        "duration": [paths.duration_smooth, paths.duration_tolerance, getattr(paths, "duration_sigma", None)],
                         "end_loo": [smooths[a_], tols[b_]],
                         "end_loo_F": [[smooths[x], tols[y]] for x, y in perF], "grid_ridge_tol": gtol,
                         "loo_end_pos": ep.mean(axis=2).tolist(), "loo_end_rot": er.mean(axis=2).tolist(),

@@ -14,8 +14,10 @@ the shortest demonstration to twice the longest, those shorter than the seen spa
 
 (after Maeda et al. 2017's phase estimation; a log-spaced grid makes the weight the density of ln D). The
 weights (and the estimate's end pose) use their own τ² and r (``paths.duration_smooth``,
-``paths.duration_tolerance``: :func:`fit_seen` keeps (0.01, 0.8), with fewer than ten demonstrations (0.01, 3.2),
-or the distribution's own, whichever estimated the left-out demonstrations' durations best); the conditioning of the rest uses the distribution's.
+``paths.duration_tolerance``: :func:`fit_seen` keeps (0.01, 0.8) or the distribution's own, whichever estimated the
+left-out demonstrations' durations best; with fewer than ten demonstrations also (0.01, 3.2) and τ² = 0.01 with,
+instead of r, a tolerance σ = 0.3 rad and m for every coordinate (``paths.duration_sigma``, r_c = σ / σ_c), the
+loosest within a standard error of the best); the conditioning of the rest uses the distribution's.
 The predicted end time is t_0 + D with D's weighted median and 5 %/95 % quantiles; the phase of the last
 seen sample is span / D̂ (D̂ the weighted median). One batched solve over the grid gives the weights and,
 per D_g, the conditioned end pose: the end pose's mean and band are the mixture's.
@@ -70,7 +72,7 @@ from rbgp_cli.geometry.so3 import PI_TOLERANCE
 
 __all__ = ["Anticipator", "Anticipation", "Continuation", "anticipate", "fit_seen", "seen_band_scales", "Follower",
            "SEEN_TOLERANCE_GRID", "SEEN_FRACTIONS", "SEEN_POINTS", "DURATION_GRID", "DURATION_SMOOTH_GRID",
-           "DURATION_TOLERANCE_GRID", "REST_SMOOTH_GRID", "REST_FROM", "REST_FEW_SMOOTH"]
+           "DURATION_TOLERANCE_GRID", "REST_SMOOTH_GRID", "REST_FROM", "REST_FEW_SMOOTH", "duration_tolerances"]
 
 #: Regularising tolerances r tried by :func:`fit_seen` (units of each coordinate's spread).
 SEEN_TOLERANCE_GRID = (0.05, 0.1, 0.2, 0.4, 0.8, 1.6, 3.2)
@@ -99,10 +101,15 @@ DURATION_TOLERANCE_GRID = (0.8,)
 #: and with more demonstrations the final pose of the slower handovers worse beyond the scatter)
 DURATION_FEW = (0.01, 3.2)
 DURATION_FEW_BELOW = NARROW_FROM
-#: ... and there it takes the loosest candidate (largest r, then smallest τ²) whose left-out error is within this
-#: many standard errors of the smallest (:func:`_loosest_within`; the one-standard-error rule of Hastie, Tibshirani
-#: and Friedman, §7.10: with four demonstrations per left-out fit the smallest error is a noisy winner;
-#: docs/defaults.md, issue 37's eleventh pass)
+#: ... and τ² = DURATION_FEW[0] with a seen tolerance of DURATION_FEW_SIGMA in radians and metres for every
+#: coordinate (r_c = σ / σ_c in units of each coordinate's spread σ_c; the ridge ProMP's choice on these sets), the
+#: loosest candidate of all: with so few, the spreads a tolerance in their units is scaled by are themselves a guess
+#: (docs/defaults.md, issue 37's twelfth pass)
+DURATION_FEW_SIGMA = 0.3
+#: ... and there it takes the loosest candidate (the tolerance in rad and m, then the largest r, then the smallest
+#: τ²) whose left-out error is within this many standard errors of the smallest (:func:`_loosest_within`; the
+#: one-standard-error rule of Hastie, Tibshirani and Friedman, §7.10: with four demonstrations per left-out fit the
+#: smallest error is a noisy winner; docs/defaults.md, issue 37's eleventh pass)
 DURATION_FEW_SE = 1.0
 #: Groups the demonstrations are left out in when :func:`fit_seen` chooses the duration's τ² and r
 DURATION_FOLDS = 5
@@ -299,7 +306,7 @@ class Anticipator:
 
     def __init__(self, paths, model=None, *, points: int = SEEN_POINTS, grid_size: int = DURATION_GRID,
                  tolerance: float | None = None, duration_smooth: float | None = None,
-                 duration_tolerance: float | None = None):
+                 duration_tolerance: float | None = None, duration_sigma: float | None = None):
         if paths is None:
             raise InputError("this model has no path distribution to predict a motion under way (fewer than three "
                              "demonstrations, or a model file from an older rbgp)", hint="retrain it with rbgp train")
@@ -307,14 +314,17 @@ class Anticipator:
         self.model = model
         self.points = int(points)
         self.tolerance = float(paths.seen_tolerance if tolerance is None else tolerance)
-        # the duration's weights (and the estimate's end pose) with their own τ² and r (module docstring):
-        # given, else fit_seen's choice, else the path distribution's τ² and seen tolerance
+        # the duration's weights (and the estimate's end pose) with their own τ² and r, or σ in rad and m (module
+        # docstring): given, else fit_seen's choice, else the path distribution's τ² and seen tolerance
         if duration_smooth is None:
             duration_smooth = getattr(paths, "duration_smooth", None)
-        if duration_tolerance is None:
+        if duration_tolerance is None and duration_sigma is None:
             duration_tolerance = getattr(paths, "duration_tolerance", None)
+            duration_sigma = getattr(paths, "duration_sigma", None)
         self.duration_smooth = float(paths.smooth if duration_smooth is None else duration_smooth)
         self.duration_tolerance = float(self.tolerance if duration_tolerance is None else duration_tolerance)
+        self.duration_sigma = None if duration_sigma is None else float(duration_sigma)
+        self._duration_r2 = duration_tolerances(paths, self.duration_tolerance, self.duration_sigma) ** 2
         # the rest's mean conditioned with its own τ² and r (fit_seen), else the path distribution's; the samples'
         # spread about it (and the off distance) keep the path distribution's Σ and r
         rest_smooth = getattr(paths, "rest_smooth", None)
@@ -443,7 +453,7 @@ class Anticipator:
         M[:, 0, 1:k6 + 6] = M[:, 1:k6 + 6, 0]
         M[:, 0, 0] = c["uLuL"] + tau2 + _ELL_TOL ** 2
         d = np.arange(1, k6)
-        M[:, d, d] += self.duration_tolerance ** 2
+        M[:, d, d] += np.tile(self._duration_r2, n)
         M[:, -1, 0] = np.log(grid) / self.lscale - self.m[-1]
         M[:, -1, 1:k6] = self._deviations(k[:, :n], f[:, :n], q[None], p[None]).reshape(G_, 6 * n)  # e = y − A m
         M[:, :-1, -1] = M[:, -1, :-1]
@@ -853,7 +863,8 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, s
     distribution's order) and ``duration``, also the duration weights' own τ² and r
     (:func:`_duration_loo`; ``paths.duration_smooth``, ``paths.duration_tolerance``), chosen before the bands'
     factors (the smallest mean left-out error; with fewer than :data:`DURATION_FEW_BELOW` demonstrations the loosest
-    candidate within :data:`DURATION_FEW_SE` standard errors of it, :func:`_loosest_within`), which ``spread``
+    candidate within :data:`DURATION_FEW_SE` standard errors of it, :func:`_loosest_within`, which may be a tolerance
+    in rad and m, ``paths.duration_sigma``), which ``spread``
     (default :data:`DURATION_SPREAD`) scores against the samples' durations drawn from
     those weights (:func:`_spread_terms`; by default from :data:`SPREAD_FROM` demonstrations on); else at the
     remainders' true durations (:func:`_seen_loo`)."""
@@ -890,8 +901,8 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, s
         if errors:
             few = paths.demos < DURATION_FEW_BELOW
             pick = _loosest_within(errors) if few else min(errors, key=lambda c: float(np.mean(errors[c])))
-            (paths.duration_smooth, paths.duration_tolerance) = pick
-            paths.info.update(duration_smooth=paths.duration_smooth, duration_tolerance=paths.duration_tolerance,
+            (paths.duration_smooth, paths.duration_tolerance, paths.duration_sigma) = pick
+            paths.info.update(duration_smooth=pick[0], duration_tolerance=pick[1], duration_sigma=pick[2],
                               duration_loo_error=float(np.mean(errors[pick])))
     own = rest == (float(paths.smooth), float(r))
     if spread is None:
@@ -932,22 +943,27 @@ def _narrowed(raw, demos: int) -> dict:
             "position": [float(x[1]) for x in c]}
 
 
-def duration_candidates(paths) -> list[tuple[float, float]]:
-    """The (τ², r) pairs :func:`_duration_loo` weighs for the duration of ``paths``: those of
-    :data:`DURATION_SMOOTH_GRID` × :data:`DURATION_TOLERANCE_GRID`, :data:`DURATION_FEW` with fewer than
-    :data:`DURATION_FEW_BELOW` demonstrations, and the path distribution's own τ² and seen tolerance (sorted)."""
-    pairs = {(float(a), float(b)) for a in DURATION_SMOOTH_GRID for b in DURATION_TOLERANCE_GRID}
+def duration_candidates(paths) -> list[tuple]:
+    """The (τ², r, σ) candidates :func:`_duration_loo` weighs for the duration of ``paths``, each a τ² and either a
+    tolerance r in units of each coordinate's spread (σ None) or σ in rad and m (r None): those of
+    :data:`DURATION_SMOOTH_GRID` × :data:`DURATION_TOLERANCE_GRID`, with fewer than :data:`DURATION_FEW_BELOW`
+    demonstrations :data:`DURATION_FEW` and (DURATION_FEW's τ², :data:`DURATION_FEW_SIGMA`), and the path
+    distribution's own τ² and seen tolerance (sorted: the r's, then σ)."""
+    cands = {(float(a), float(b), None) for a in DURATION_SMOOTH_GRID for b in DURATION_TOLERANCE_GRID}
+    cands.add((float(paths.smooth), float(paths.seen_tolerance), None))
     if paths.demos < DURATION_FEW_BELOW:
-        pairs.add(tuple(float(x) for x in DURATION_FEW))
-    return sorted(pairs | {(float(paths.smooth), float(paths.seen_tolerance))})
+        cands.add((float(DURATION_FEW[0]), float(DURATION_FEW[1]), None))
+        cands.add((float(DURATION_FEW[0]), None, float(DURATION_FEW_SIGMA)))
+    return sorted(cands, key=lambda c: (c[2] is not None, c[0], c[1] or 0.0, c[2] or 0.0))
 
 
 def _loosest_within(errors: dict, k: float = DURATION_FEW_SE):
-    """The one-standard-error rule over ``errors`` {(τ², r): per-beginning left-out errors (n,)}, all scored on the
+    """The one-standard-error rule over ``errors`` {(τ², r, σ): per-beginning left-out errors (n,)}, all scored on the
     same left-out beginnings: with e* the candidate of the smallest mean error, the candidates c whose paired
-    difference d = e_c − e* has mean(d) ≤ k · sd(d) / √n; of these the loosest: the largest r (the seen poses
-    trusted least), and between equal r (the path distribution's own r on the grid's) the smaller τ², which the
-    studies of five measured closer (docs/defaults.md, issue 37's eleventh pass)."""
+    difference d = e_c − e* has mean(d) ≤ k · sd(d) / √n; of these the loosest: a tolerance σ in rad and m (the
+    largest), else the largest r (the seen poses trusted least), and between equal r (the path distribution's own r
+    on the grid's) the smaller τ², which the studies of five measured closer (docs/defaults.md, issue 37's eleventh
+    and twelfth passes)."""
     best = min(errors, key=lambda c: float(np.mean(errors[c])))
     within = []
     for c, e in errors.items():
@@ -955,7 +971,22 @@ def _loosest_within(errors: dict, k: float = DURATION_FEW_SE):
         se = float(np.std(d, ddof=1) / np.sqrt(len(d))) if len(d) > 1 else 0.0
         if float(np.mean(d)) <= k * se:
             within.append(c)
-    return max(within, key=lambda c: (c[1], -c[0]))
+    return max(within, key=lambda c: (c[2] is not None, c[2] or 0.0, c[1] or 0.0, -c[0]))
+
+
+def duration_tolerances(paths, tolerance: float | None = None, sigma: float | None = None) -> np.ndarray:
+    """The duration weights' seen tolerance per coordinate (6,), in units of each coordinate's spread σ_c
+    (``paths.scale``): σ / σ_c for a tolerance ``sigma`` in rad and m, else r = ``tolerance`` for every coordinate.
+    Both None: the path distribution's (``paths.duration_sigma``, else ``paths.duration_tolerance``, else its seen
+    tolerance)."""
+    if tolerance is None and sigma is None:
+        sigma = getattr(paths, "duration_sigma", None)
+        tolerance = getattr(paths, "duration_tolerance", None)
+        if tolerance is None:
+            tolerance = paths.seen_tolerance
+    if sigma is not None:
+        return float(sigma) / np.asarray(paths.scale, dtype=np.float64)
+    return np.full(6, float(tolerance))
 
 
 def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6, grid_size: int = 16,
@@ -964,9 +995,9 @@ def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6,
     ``folds`` groups; each group's first F (each of SEEN_FRACTIONS) seen on its own clock, its duration
     estimated (the weights' median; with ``points`` seen poses and ``grid_size`` durations, as the live
     :class:`Follower`'s, for speed) by the others' path distribution with each
-    candidate (τ², r) of :func:`duration_candidates`. Returns {(τ², r): mean |ln D̂ − ln D|} ({} without the trajectories or with
-    fewer than MIN_PATH_DEMOS + 1 demonstrations); ``per_beginning``: {(τ², r): |ln D̂ − ln D| (n,)} per left-out
-    beginning, in the same order for every candidate."""
+    candidate (τ², r, σ) of :func:`duration_candidates`. Returns {(τ², r, σ): mean |ln D̂ − ln D|} ({} without the
+    trajectories or with fewer than MIN_PATH_DEMOS + 1 demonstrations); ``per_beginning``: {(τ², r, σ): |ln D̂ − ln D|
+    (n,)} per left-out beginning, in the same order for every candidate."""
     import copy
 
     from rbgp_cli.dynamics.paths import MIN_PATH_DEMOS
@@ -983,9 +1014,9 @@ def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6,
             continue
         rest = copy.copy(paths)
         rest.deviations, rest.log_durations = paths.deviations[keep], paths.log_durations[keep]
-        rest.duration_smooth = rest.duration_tolerance = None
+        rest.duration_smooth = rest.duration_tolerance = rest.duration_sigma = None
         ants = {c: Anticipator(rest, None, points=points, grid_size=grid_size, duration_smooth=c[0],
-                               duration_tolerance=c[1]) for c in candidates}
+                               duration_tolerance=c[1], duration_sigma=c[2]) for c in candidates}
         # the group's seen beginnings (each left-out demonstration at each fraction), checked, normalised and
         # sign-continuous once per demonstration (what _seen does to each beginning: row by row, and continuity
         # runs from the start, so the whole motion's first rows are the beginning's own, bit for bit), their
@@ -1062,7 +1093,7 @@ def _duration_medians(ant, seen, poses) -> list:
     Gm[:, -1, :-1] = Gm[:, :-1, -1]
     Gm[:, -1, -1] = uL @ uL + tau2 + _ELL_TOL ** 2
     dg = np.arange(6 * n)
-    Gm[:, dg, dg] += ant.duration_tolerance ** 2
+    Gm[:, dg, dg] += np.tile(ant._duration_r2, n)
     e = M[:, :k6, k6]
     e[:, :-1] = ant._deviations(k, f, q, p).reshape(G_, 6 * n)  # y − A m, as the live update computes it
     e[:, -1] = np.log(grid) / ant.lscale - ant.m[-1]
@@ -1155,7 +1186,7 @@ def _loo_rows(ctx, d, dur, tau2, tol, query, *, logw: bool = False, cov: bool = 
     for j in range(6):  # τ² K_ℓ ⊗ I_6: one coordinate at a time
         G[:, j:6 * n:6, j:6 * n:6] += tau2 * Kaa
     G[:, -1, -1] += tau2 + _ELL_TOL ** 2
-    r2 = np.full(6 * n, float(tol) ** 2)
+    r2 = np.tile(np.broadcast_to(np.asarray(tol, dtype=np.float64) ** 2, (6,)), n)  # r, or r_c per coordinate
     if not logw:
         r2[-6:] = ctx["r_last"]
     dg = np.arange(6 * n)
@@ -1253,7 +1284,7 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration
         return {"e": (x_true - mu).reshape(-1, 6), "V": np.zeros((Dn * T, 6, 6)), "C": C.reshape(-1, 6, 6), "w": share}
     # the duration's weights over each left-out demonstration's grid (durations shorter than the seen span left out)
     dsm = float(paths.smooth if paths.duration_smooth is None else paths.duration_smooth)
-    dtol = float(paths.seen_tolerance if paths.duration_tolerance is None else paths.duration_tolerance)
+    dtol = duration_tolerances(paths)
     span = ctx["seen_time"][:, -1]
     grid = ctx["grid"]
     rows_d = np.repeat(ds, SPREAD_GRID)

@@ -197,6 +197,9 @@ class PathDistribution:
     #: ``smooth`` and ``seen_tolerance``)
     duration_smooth: float | None = None
     duration_tolerance: float | None = None
+    #: the duration weights' seen tolerance in rad and m for every coordinate, in place of ``duration_tolerance``
+    #: (fewer than ten demonstrations: :data:`rbgp_cli.dynamics.anticipation.DURATION_FEW_SIGMA`; None: r)
+    duration_sigma: float | None = None
     #: τ² and r of a motion under way's conditioning of the rest (:func:`rbgp_cli.dynamics.anticipation.fit_seen`,
     #: chosen on the left-out final pose; None: ``smooth`` and ``seen_tolerance``)
     rest_smooth: float | None = None
@@ -504,6 +507,7 @@ class PathDistribution:
                 "seen_band_scale": {"rotation": float(self.seen_band_scale[0]), "position": float(self.seen_band_scale[1])},
                 **({"duration_smooth": float(self.duration_smooth)} if self.duration_smooth is not None else {}),
                 **({"duration_tolerance": float(self.duration_tolerance)} if self.duration_tolerance is not None else {}),
+                **({"duration_sigma": float(self.duration_sigma)} if self.duration_sigma is not None else {}),
                 **({"rest_smooth": float(self.rest_smooth)} if self.rest_smooth is not None else {}),
                 **({"rest_tolerance": float(self.rest_tolerance)} if self.rest_tolerance is not None else {}),
                 **({"seen_band_scales": {k: [float(x) for x in self.seen_band_scales[k]]
@@ -523,6 +527,7 @@ class PathDistribution:
                    seen_band_scale=(float(ss["rotation"]), float(ss["position"])),
                    duration_smooth=None if header.get("duration_smooth") is None else float(header["duration_smooth"]),
                    duration_tolerance=None if header.get("duration_tolerance") is None else float(header["duration_tolerance"]),
+                   duration_sigma=None if header.get("duration_sigma") is None else float(header["duration_sigma"]),
                    rest_smooth=None if header.get("rest_smooth") is None else float(header["rest_smooth"]),
                    rest_tolerance=None if header.get("rest_tolerance") is None else float(header["rest_tolerance"]),
                    seen_band_scales=None if header.get("seen_band_scales") is None else

@@ -272,6 +272,7 @@ TOP: dict = {
         # optional: a motion under way's duration weights, their own τ² and tolerance (issue 37)
         "duration_smooth": num(0.0, 1e6, what="a non-negative variance"),
         "duration_tolerance": num(0.0, 1e6, what="a non-negative tolerance"),
+        "duration_sigma": num(0.0, 1e6, lo_open=True, what="a positive tolerance in radians and metres"),
         # optional: a motion under way's conditioning of the rest, its own τ² and tolerance (issue 37)
         "rest_smooth": num(0.0, 1e6, what="a non-negative variance"),
         "rest_tolerance": num(0.0, 1e6, what="a non-negative tolerance"),

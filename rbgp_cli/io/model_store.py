@@ -39,7 +39,9 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
   ``paths_position`` (S, 3), ``paths_deviations`` (D, S, 6), ``paths_log_durations`` (D,). Optional:
   files without it load, and refuse a goal or a seen beginning with a message to retrain. Optional in
   ``paths`` (issue 37): ``seen_band_scale``, and ``duration_smooth`` / ``duration_tolerance`` (a motion under
-  way's duration weights; files without them weigh durations with ``smooth`` and ``seen_tolerance``), and
+  way's duration weights; files without them weigh durations with ``smooth`` and ``seen_tolerance``) or
+  ``duration_sigma`` (the weights' tolerance in rad and m, in place of ``duration_tolerance``; fewer than ten
+  demonstrations), and
   ``rest_smooth`` / ``rest_tolerance`` (the conditioning of its rest, chosen on the left-out final pose; files
   without them condition with ``smooth`` and ``seen_tolerance``, as before), and ``seen_band_scales`` ({"fractions",
   "rotation", "position"}: the bands' factors per seen fraction; files without them draw with ``seen_band_scale``
