@@ -41,8 +41,8 @@ others' conditioned mean at phase 1, in units of each coordinate's spread, summe
 :data:`REST_SMOOTH_GRID` × :data:`SEEN_TOLERANCE_GRID` and the path distribution's own (τ², r), which ties keep;
 with fewer, r_rest = r and τ²_rest is whichever of τ² and :data:`REST_FEW_SMOOTH` has the smaller such error
 (two candidates, not forty: the left-out ends are too few to choose among many). The mean is the rest's
-conditioning; the samples' spread about it keeps the path distribution's (τ², r), the distribution the left-out remainders' density chose, and the factors
-(c_rot(F), c_pos(F)), one pair per seen fraction F (:func:`seen_band_scales`), make those remainders' 90 % regions
+conditioning; the samples' spread about it keeps the path distribution's (τ², r), the distribution the left-out
+remainders' density chose, and the factors (c_rot(F), c_pos(F)), one pair per seen fraction F (:func:`seen_band_scales`), make those remainders' 90 % regions
 hold about the rest's mean under it (as :func:`~rbgp_cli.dynamics.paths.fit_paths` does for the start-only
 draws), narrowing below 1 as the goal bands' do; a draw at D_g takes them at its seen phase span / D_g
 (:meth:`Anticipator.band_at`). With :data:`DURATION_SPREAD`, from :data:`SPREAD_FROM` demonstrations on, those
@@ -882,14 +882,12 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, s
         a, b = np.unravel_index(int(np.argmin(err)), err.shape)
         if err[a, b] < err[smooths.index(rest[0]), tols.index(rest[1])]:  # ties keep the path distribution's own
             rest = (float(smooths[a]), float(tols[b]))
-        paths.rest_smooth, paths.rest_tolerance = rest
-        paths.info.update(rest_smooth=rest[0], rest_tolerance=rest[1], rest_end_loo=float(err.min()))
     else:  # few left-out ends: only the path distribution's own τ² against one smooth τ², at the seen r
         err = _end_loo(paths, [rest[0], REST_FEW_SMOOTH], [rest[1]])[:, 0]
         if err[1] < err[0]:  # ties keep the path distribution's own
             rest = (float(REST_FEW_SMOOTH), rest[1])
-        paths.rest_smooth, paths.rest_tolerance = rest
-        paths.info.update(rest_smooth=rest[0], rest_tolerance=rest[1], rest_end_loo=float(err.min()))
+    paths.rest_smooth, paths.rest_tolerance = rest
+    paths.info.update(rest_smooth=rest[0], rest_tolerance=rest[1], rest_end_loo=float(err.min()))
     # the samples' spread keeps the path distribution's conditioning; its factors from the same left-out remainders:
     # pooled over F and ≥ 1 about its own mean (as before the seventh pass; what files without the per-F ones use),
     # and per F about the mean the continuation follows (the rest's conditioning), allowed below 1
