@@ -113,6 +113,14 @@ DURATION_FEW_SIGMA = 0.3
 DURATION_FEW_SE = 1.0
 #: Groups the demonstrations are left out in when :func:`fit_seen` chooses the duration's τ² and r
 DURATION_FOLDS = 5
+#: The weights λ of the seen poses' evidence in the duration's band tried by :func:`fit_seen`,
+#: w_g ∝ p(ℓ_g) p(y | ℓ_g)^λ (the prior of ln D whole): the evidence of 6n correlated coordinates under a Gaussian
+#: fitted to a few demonstrations is overconfident (with λ = 1 the 90 % end-time bands held 0.16–0.93 of the held-out
+#: motions' end times, 0.6–0.85 on most sets); the largest λ whose band holds the left-out durations at the bands'
+#: level (:func:`_evidence_loo`). The band and the samples' durations use it; the point estimate (the median) and
+#: the end pose keep λ = 1, which estimated the left-out durations best (docs/defaults.md, issue 37's thirteenth
+#: pass)
+DURATION_EVIDENCE_GRID = (1.0, 0.5, 0.25, 0.125, 0.0625, 0.03125, 0.015625, 0.0078125)
 #: The conditioning of the rest has its own τ² and r, chosen by :func:`fit_seen` on the left-out final pose from
 #: these τ² (and the path distribution's own) × SEEN_TOLERANCE_GRID, from REST_FROM demonstrations on (with fewer
 #: the left-out ends are too few to choose among so many: docs/defaults.md, issue 37's fourth pass; see REST_FEW_SMOOTH)
@@ -306,7 +314,8 @@ class Anticipator:
 
     def __init__(self, paths, model=None, *, points: int = SEEN_POINTS, grid_size: int = DURATION_GRID,
                  tolerance: float | None = None, duration_smooth: float | None = None,
-                 duration_tolerance: float | None = None, duration_sigma: float | None = None):
+                 duration_tolerance: float | None = None, duration_sigma: float | None = None,
+                 duration_evidence: float | None = None):
         if paths is None:
             raise InputError("this model has no path distribution to predict a motion under way (fewer than three "
                              "demonstrations, or a model file from an older rbgp)", hint="retrain it with rbgp train")
@@ -325,6 +334,9 @@ class Anticipator:
         self.duration_tolerance = float(self.tolerance if duration_tolerance is None else duration_tolerance)
         self.duration_sigma = None if duration_sigma is None else float(duration_sigma)
         self._duration_r2 = duration_tolerances(paths, self.duration_tolerance, self.duration_sigma) ** 2
+        if duration_evidence is None:
+            duration_evidence = getattr(paths, "duration_evidence", None)
+        self.duration_evidence = 1.0 if duration_evidence is None else float(duration_evidence)
         # the rest's mean conditioned with its own τ² and r (fit_seen), else the path distribution's; the samples'
         # spread about it (and the off distance) keep the path distribution's Σ and r
         rest_smooth = getattr(paths, "rest_smooth", None)
@@ -471,7 +483,9 @@ class Anticipator:
 
     def weights(self, t, quat, position, checked: bool = False, active=None):
         """The duration posterior of a motion seen from t[0] to t[-1]: (grid (G,) s, weights (G,)), and the
-        per-grid terms (:meth:`_grid_terms`) of the durations kept. ``active`` (G_full,) bool: only these
+        per-grid terms (:meth:`_grid_terms`) of the durations kept, with ``band_w`` (G,) the weights with the seen
+        poses' evidence weighted by ``duration_evidence`` (:meth:`_tempered`; the end time's band and the samples'
+        durations; the weights themselves give the point estimate and the end pose). ``active`` (G_full,) bool: only these
         grid durations are evaluated (the others' weights taken as 0; :class:`Follower` passes the cells
         whose weight was not negligible at the last update and their neighbours); None: all."""
         t, quat, position, tau, q, p = _seen(t, quat, position, self.points, checked)
@@ -484,9 +498,35 @@ class Anticipator:
         else:
             grid = self.grid[keep]
         logw, end_mean, end_cov, quad, k = self._grid_terms(tau, q, p, grid)
-        w = np.exp(logw - logw.max())
-        return grid, w / w.sum(), dict(end_mean=end_mean, end_cov=end_cov, quad=quad, k=k, span=span,
+        w = self._tempered(grid, logw, 1.0)
+        band_w = w if self.duration_evidence == 1.0 else self._tempered(grid, logw)
+        return grid, w, dict(end_mean=end_mean, end_cov=end_cov, quad=quad, k=k, span=span, band_w=band_w,
                                        beyond=not np.any(keep), seen=(t, quat, position, tau, q, p))
+
+    def _log_prior(self, grid, student: bool = False):
+        """log p(ℓ_g) up to a constant (G,): the path distribution's marginal of ℓ = ln D (scaled), N(m_ℓ, v), v = uᵀu
+        + τ² + ε² with the duration's τ² (:meth:`_constants`; ε = _ELL_TOL), at the grid's durations (s); ``student``:
+        the Student-t of ν = D − 1 degrees of freedom with the same scale, −(ν + 1)/2 ln(1 + e²/(ν v)), the
+        predictive of a new duration when the D durations' variance is itself estimated."""
+        c = self._constants()
+        e = np.log(grid) / self.lscale - self.m[-1]
+        v = c["uLuL"] + c["tau2"] + _ELL_TOL ** 2
+        if student:
+            nu = max(self.paths.demos - 1, 1)
+            return -0.5 * (nu + 1.0) * np.log1p(e * e / (nu * v))
+        return -0.5 * e * e / v
+
+    def _tempered(self, grid, logw, evidence: float | None = None):
+        """The normalised weights (G,) over ``grid`` from the log weights log p(ℓ_g) + log p(y | ℓ_g) (any constant,
+        the Gaussian prior of :meth:`_log_prior`) with the seen poses' evidence weighted by λ = ``evidence`` (default
+        ``duration_evidence``): for λ < 1, w_g ∝ exp(log t(ℓ_g) + λ (log w_g − log p(ℓ_g))), the prior of ln D
+        kept whole as its Student-t predictive (λ → 0: the durations' own predictive, truncated at the seen span)."""
+        lam = self.duration_evidence if evidence is None else float(evidence)
+        logw = np.asarray(logw, dtype=np.float64)
+        if lam != 1.0:
+            logw = self._log_prior(grid, student=True) + lam * (logw - self._log_prior(grid))
+        w = np.exp(logw - logw.max())
+        return w / w.sum()
 
     def estimate(self, t, quat, position, checked: bool = False) -> Anticipation:
         """The fast summary (:class:`Anticipation`) of a seen beginning: no path, one batched solve."""
@@ -498,6 +538,10 @@ class Anticipator:
         t0, span = float(t[0]), terms["span"]
         q = self._duration_quantiles(grid, w, span)
         D = q[1]
+        band_w = terms.get("band_w", w)
+        if band_w is not w:  # the band from the tempered weights, about the posterior's median
+            qb = self._duration_quantiles(grid, band_w, span)
+            q = [min(qb[0], D), D, max(qb[2], D)]
         # the end pose: moments of the mixture over the grid (scaled units), then unscaled
         E = terms["end_mean"]
         mu = w @ E
@@ -532,13 +576,13 @@ class Anticipator:
                             end_rotation_band=float(rot_band), end_position_band=pos_band, off=off,
                             distance=float(dist))
 
-    def _duration_quantiles(self, grid, w, span) -> list:
-        """The 5 %, 50 % and 95 % quantiles of D (s, at least the seen span) from the weights over the grid, each
-        grid value's weight spread evenly over its cell in ln D (half a step each side)."""
+    def _duration_quantiles(self, grid, w, span, levels=(0.05, 0.5, 0.95)) -> list:
+        """The quantiles of D at ``levels`` (default 5 %, 50 % and 95 %; s, at least the seen span) from the weights
+        over the grid, each grid value's weight spread evenly over its cell in ln D (half a step each side)."""
         lg = np.log(grid)
         edges = np.concatenate([[lg[0] - self._half_step], lg + self._half_step])
         cw = np.concatenate([[0.0], np.cumsum(w)])
-        return [max(float(np.exp(x)), span) for x in np.interp((0.05, 0.5, 0.95), cw, edges)]
+        return [max(float(np.exp(x)), span) for x in np.interp(levels, cw, edges)]
 
     def _distance(self, quat, position, phase) -> float:
         """The Mahalanobis distance of a pose's deviation at ``phase`` under the prior's marginal there (the
@@ -634,7 +678,7 @@ class Anticipator:
             # remainders fitted the bands' factors (its mean at D̂ is what each draw's difference is taken from)
             own = dev if self.Sigma_rest is self.Sigma and self.rest_tolerance == self.tolerance else \
                 self.paths.unscale(self._conditioned_mean(tau, q, p, quat[-1], position[-1], D, rest=False)[0])[0]
-            out = self._samples(int(samples), seed, grid, w, tau, q, p, quat[-1], position[-1], own, (t_out, mq, mp),
+            out = self._samples(int(samples), seed, grid, terms["band_w"], tau, q, p, quat[-1], position[-1], own, (t_out, mq, mp),
                                 t0, span, D, dt)
         return Continuation(t_out, mq, mp, out, est, D, name=name)
 
@@ -902,6 +946,13 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, s
             (paths.duration_smooth, paths.duration_tolerance, paths.duration_sigma) = pick
             paths.info.update(duration_smooth=pick[0], duration_tolerance=pick[1], duration_sigma=pick[2],
                               duration_loo_error=float(np.mean(errors[pick])))
+            inside = _evidence_loo(paths, trajs, level=level)
+            if inside:  # the largest λ whose band holds the left-out durations at the level, else the smallest λ
+                held = {lam: float(np.mean(v)) for lam, v in inside.items()}
+                ok = [lam for lam, c in held.items() if c >= level - 1e-12]
+                lam = max(ok) if ok else min(held)
+                paths.duration_evidence = None if lam == 1.0 else float(lam)
+                paths.info.update(duration_evidence=float(lam), duration_loo_coverage=held[lam])
     own = rest == (float(paths.smooth), float(r))
     if spread is None:
         spread = DURATION_SPREAD and paths.demos >= SPREAD_FROM
@@ -987,24 +1038,17 @@ def duration_tolerances(paths, tolerance: float | None = None, sigma: float | No
     return np.full(6, float(tolerance))
 
 
-def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6, grid_size: int = 16,
-                  per_beginning: bool = False) -> dict:
-    """The duration's τ² and r by leaving demonstrations out on the task itself: the demonstrations in
-    ``folds`` groups; each group's first F (each of SEEN_FRACTIONS) seen on its own clock, its duration
-    estimated (the weights' median; with ``points`` seen poses and ``grid_size`` durations, as the live
-    :class:`Follower`'s, for speed) by the others' path distribution with each
-    candidate (τ², r, σ) of :func:`duration_candidates`. Returns {(τ², r, σ): mean |ln D̂ − ln D|} ({} without the
-    trajectories or with fewer than MIN_PATH_DEMOS + 1 demonstrations); ``per_beginning``: {(τ², r, σ): |ln D̂ − ln D|
-    (n,)} per left-out beginning, in the same order for every candidate."""
+def _left_out_beginnings(paths, trajs, folds: int, points: int):
+    """The left-out beginnings :func:`_duration_loo` and :func:`_evidence_loo` score, per group of demonstrations
+    left out (``folds`` groups in a fixed random order): (the others' path distribution, the group's seen beginnings
+    [(t, quat, position)] (each left-out demonstration's first F on its own clock, every F of SEEN_FRACTIONS), their
+    seen poses [(τ, q, p)] (``points`` of them), the left-out demonstration of each beginning (n,)). Nothing when
+    fewer than MIN_PATH_DEMOS would be left."""
     import copy
 
     from rbgp_cli.dynamics.paths import MIN_PATH_DEMOS
 
-    if trajs is None or len(trajs) != paths.demos or paths.demos < MIN_PATH_DEMOS + 1:
-        return {}
     D = paths.demos
-    candidates = duration_candidates(paths)
-    err = {c: [] for c in candidates}
     order = np.random.default_rng(np.random.SeedSequence([37, D])).permutation(D)
     for group in np.array_split(order, min(int(folds), D)):
         keep = np.setdiff1d(np.arange(D), group)
@@ -1012,9 +1056,6 @@ def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6,
             continue
         rest = copy.copy(paths)
         rest.deviations, rest.log_durations = paths.deviations[keep], paths.log_durations[keep]
-        rest.duration_smooth = rest.duration_tolerance = rest.duration_sigma = None
-        ants = {c: Anticipator(rest, None, points=points, grid_size=grid_size, duration_smooth=c[0],
-                               duration_tolerance=c[1], duration_sigma=c[2]) for c in candidates}
         # the group's seen beginnings (each left-out demonstration at each fraction), checked, normalised and
         # sign-continuous once per demonstration (what _seen does to each beginning: row by row, and continuity
         # runs from the start, so the whole motion's first rows are the beginning's own, bit for bit), their
@@ -1027,8 +1068,30 @@ def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6,
                 k = int(np.clip(np.argmin(np.abs(tr.t - (tr.t[0] + F * tr.duration))), 1, len(tr.t) - 1))
                 seen.append((t_all[: k + 1], quat_all[: k + 1], pos_all[: k + 1]))
         poses = [_seen(*s, points, checked=True)[3:] for s in seen]  # τ, q, p of each
-        left_out = np.repeat(group, len(SEEN_FRACTIONS))
-        for c, ant in ants.items():
+        yield rest, seen, poses, np.repeat(group, len(SEEN_FRACTIONS))
+
+
+def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6, grid_size: int = 16,
+                  per_beginning: bool = False) -> dict:
+    """The duration's τ² and r by leaving demonstrations out on the task itself: the demonstrations in
+    ``folds`` groups; each group's first F (each of SEEN_FRACTIONS) seen on its own clock, its duration
+    estimated (the weights' median; with ``points`` seen poses and ``grid_size`` durations, as the live
+    :class:`Follower`'s, for speed) by the others' path distribution with each
+    candidate (τ², r, σ) of :func:`duration_candidates` (the seen poses' evidence whole, λ = 1). Returns
+    {(τ², r, σ): mean |ln D̂ − ln D|} ({} without the trajectories or with fewer than MIN_PATH_DEMOS + 1
+    demonstrations); ``per_beginning``: {(τ², r, σ): |ln D̂ − ln D| (n,)} per left-out beginning, in the same order
+    for every candidate (:func:`_left_out_beginnings`)."""
+    from rbgp_cli.dynamics.paths import MIN_PATH_DEMOS
+
+    if trajs is None or len(trajs) != paths.demos or paths.demos < MIN_PATH_DEMOS + 1:
+        return {}
+    candidates = duration_candidates(paths)
+    err = {c: [] for c in candidates}
+    for rest, seen, poses, left_out in _left_out_beginnings(paths, trajs, folds, points):
+        rest.duration_smooth = rest.duration_tolerance = rest.duration_sigma = None
+        for c in candidates:
+            ant = Anticipator(rest, None, points=points, grid_size=grid_size, duration_smooth=c[0],
+                              duration_tolerance=c[1], duration_sigma=c[2], duration_evidence=1.0)
             err[c].extend(abs(np.log(max(D_hat, 1e-9)) - paths.log_durations[d])
                           for d, D_hat in zip(left_out, _duration_medians(ant, seen, poses)))
     if not err[candidates[0]]:
@@ -1038,25 +1101,56 @@ def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6,
     return {c: float(np.mean(e)) for c, e in err.items()}
 
 
+def _evidence_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = SEEN_POINTS,
+                  grid_size: int = DURATION_GRID, evidences=DURATION_EVIDENCE_GRID, level: float = 0.90) -> dict:
+    """Whether the end time's band holds each left-out duration, per evidence weight λ: the beginnings of
+    :func:`_duration_loo` (with the anticipator's own seen poses and grid), the others' path distribution with the
+    duration's own τ² and r or σ as ``paths`` has them; the band of level ``level`` is what
+    :meth:`Anticipator._summary` reports, the (1 − level)/2 and (1 + level)/2 quantiles of the weights with the
+    evidence weighted by λ, widened to hold the median of the whole evidence's weights (the point estimate).
+    Returns {λ: inside (n,) bool} per left-out beginning; {} as :func:`_duration_loo`."""
+    from rbgp_cli.dynamics.paths import MIN_PATH_DEMOS
+
+    if trajs is None or len(trajs) != paths.demos or paths.demos < MIN_PATH_DEMOS + 1:
+        return {}
+    out = {float(lam): [] for lam in evidences}
+    lo_p, hi_p = 0.5 - level / 2.0, 0.5 + level / 2.0
+    for rest, seen, poses, left_out in _left_out_beginnings(paths, trajs, folds, points):
+        ant = Anticipator(rest, None, points=points, grid_size=grid_size, duration_evidence=1.0)
+        for d, (grid, lw, span) in zip(left_out, _duration_weights(ant, seen, poses, log=True)):
+            D = float(np.exp(paths.log_durations[d]))
+            med = ant._duration_quantiles(grid, ant._tempered(grid, lw, 1.0), span, (0.5,))[0]
+            for lam in out:
+                lo, hi = ant._duration_quantiles(grid, ant._tempered(grid, lw, lam), span, (lo_p, hi_p))
+                out[lam].append(min(lo, med) <= D <= max(hi, med))
+    if not out[float(evidences[0])]:
+        return {}
+    return {lam: np.asarray(e, dtype=bool) for lam, e in out.items()}
+
+
 def _duration_medians(ant, seen, poses) -> list:
     """The median duration (s) that :meth:`Anticipator.weights` and :meth:`Anticipator._duration_quantiles` give for
     each seen beginning of ``seen`` [(t (N,), quat (N, 4), position (N, 3))], checked, unit and sign-continuous as
     :func:`_seen` leaves them, and ``poses`` [(τ (n,), q (n, 4), p (n, 3))] its seen poses (:func:`_seen` with the
-    anticipator's ``points``), their log weights
-    computed for all of them at once: :meth:`Anticipator._grid_terms`' log weight, −½ eᵀG⁻¹e − ½ log det G, with
-    the beginnings × the grid's durations as one batch (its end pose's mean and covariance, which
-    :func:`_duration_loo` does not use, left out). The same numbers as the loop over ``weights`` to rounding
-    (tests/dynamics/test_anticipation_modes.py); a beginning longer than every duration of the grid, or with
-    another number of seen poses than the first, goes through ``weights`` itself."""
-    from rbgp_cli.dynamics.paths import pose_deviation
+    anticipator's ``points``): :func:`_duration_weights`' weights, their median."""
+    return [ant._duration_quantiles(grid, w, span)[1] for grid, w, span in _duration_weights(ant, seen, poses)]
 
+
+def _duration_weights(ant, seen, poses, log: bool = False) -> list:
+    """[(grid (G,) s, weights (G,), span s)] per seen beginning of ``seen`` (as :func:`_duration_medians` takes
+    them): :meth:`Anticipator.weights`' grid and weights, their log weights computed for all the beginnings at once: :meth:`Anticipator._grid_terms`'
+    log weight, −½ eᵀG⁻¹e − ½ log det G, with the beginnings × the grid's durations as one batch (its end pose's mean
+    and covariance, which :func:`_duration_loo` does not use, left out). The same numbers as the loop over
+    ``weights`` to rounding (tests/dynamics/test_anticipation_modes.py); a beginning longer than every duration of
+    the grid, or with another number of seen poses than the first, goes through ``weights`` itself. ``log``: the
+    log weights (any constant) in place of the weights."""
     out = [None] * len(seen)
     n0 = len(poses[0][0]) if seen else 0
     full = ant.grid
     batch = [i for i, (tau, _q, _p) in enumerate(poses) if len(tau) == n0 and n0 > 1 and np.any(full >= tau[-1])]
     for i in sorted(set(range(len(seen))) - set(batch)):
         grid, w, terms = ant.weights(*seen[i], checked=True)
-        out[i] = ant._duration_quantiles(grid, w, terms["span"])[1]
+        out[i] = (grid, np.log(np.maximum(w, 1e-300)) if log else w, terms["span"])
     if not batch:
         return out
     U, Ks, tau2 = ant._low_rank()
@@ -1104,9 +1198,7 @@ def _duration_medians(ant, seen, poses) -> list:
     for row, i in enumerate(batch):
         span = float(poses[i][0][-1])
         keep = full >= span
-        lw = logw[row, keep]
-        w = np.exp(lw - lw.max())
-        out[i] = ant._duration_quantiles(full[keep], w / w.sum(), span)[1]
+        out[i] = (full[keep], logw[row, keep] if log else ant._tempered(full[keep], logw[row, keep], 1.0), span)
     return out
 
 
@@ -1291,6 +1383,15 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration
     ctx6 = dict(ctx, js=js6, seen_time=ctx["dur"][:, None] * paths.s[js6][None], seen_q=ctx["q"][:, js6],
                 seen_p=ctx["p"][:, js6])
     _, lw = _loo_rows(ctx6, rows_d, grid.ravel(), dsm, dtol, np.zeros((len(rows_d), 1)), logw=True)
+    lam = 1.0 if paths.duration_evidence is None else float(paths.duration_evidence)
+    if lam != 1.0:  # the seen poses' evidence weighted by λ, the others' prior of ℓ kept whole (Anticipator._tempered)
+        xl = X[:, -1]
+        dev = xl[None, :] - ctx["m_loo"][:, -1:]  # (D, D): others' ℓ about each left-out one's others' mean
+        dev[ds, ds] = 0.0
+        v = ((1.0 + 1.0 / (Dn - 1)) / max(Dn - 2, 1) * np.sum(dev * dev, axis=1) + dsm + _ELL_TOL ** 2)[rows_d]
+        e2 = (np.log(grid.ravel()) / ctx["lscale"] - ctx["m_loo"][rows_d, -1]) ** 2
+        nu = max(Dn - 2, 1)  # the others' D − 1 durations
+        lw = -0.5 * (nu + 1.0) * np.log1p(e2 / (nu * v)) + lam * (lw + 0.5 * e2 / v)
     lw = np.where(grid.ravel() >= span[rows_d], lw, -np.inf).reshape(Dn, SPREAD_GRID)
     lw = np.where(np.isfinite(lw).any(axis=1, keepdims=True), lw, np.where(np.arange(SPREAD_GRID) == SPREAD_GRID - 1, 0.0, -np.inf))
     w = np.exp(lw - lw.max(axis=1, keepdims=True))
@@ -1478,7 +1579,8 @@ class Follower:
         if not terms["beyond"]:
             idx = np.searchsorted(a.grid, grid)
             heavy = np.zeros(len(a.grid), dtype=bool)
-            heavy[idx[w > ACTIVE_WEIGHT * w.max()]] = True
+            bw = terms["band_w"]  # the wider of the two (the band's): its cells hold the quantiles
+            heavy[idx[(w > ACTIVE_WEIGHT * w.max()) | (bw > ACTIVE_WEIGHT * bw.max())]] = True
             full = heavy.copy()
             full[1:] |= heavy[:-1]
             full[:-1] |= heavy[1:]

@@ -200,6 +200,10 @@ class PathDistribution:
     #: the duration weights' seen tolerance in rad and m for every coordinate, in place of ``duration_tolerance``
     #: (fewer than ten demonstrations: :data:`rbgp_cli.dynamics.anticipation.DURATION_FEW_SIGMA`; None: r)
     duration_sigma: float | None = None
+    #: the weight λ ∈ (0, 1] of the seen poses' evidence in the duration's band and samples, w_g ∝ p(ℓ_g)
+    #: p(y | ℓ_g)^λ (:func:`rbgp_cli.dynamics.anticipation.fit_seen`: the largest λ whose band holds the left-out
+    #: durations at 90 %; None: 1)
+    duration_evidence: float | None = None
     #: τ² and r of a motion under way's conditioning of the rest (:func:`rbgp_cli.dynamics.anticipation.fit_seen`,
     #: chosen on the left-out final pose; None: ``smooth`` and ``seen_tolerance``)
     rest_smooth: float | None = None
@@ -508,6 +512,7 @@ class PathDistribution:
                 **({"duration_smooth": float(self.duration_smooth)} if self.duration_smooth is not None else {}),
                 **({"duration_tolerance": float(self.duration_tolerance)} if self.duration_tolerance is not None else {}),
                 **({"duration_sigma": float(self.duration_sigma)} if self.duration_sigma is not None else {}),
+                **({"duration_evidence": float(self.duration_evidence)} if self.duration_evidence is not None else {}),
                 **({"rest_smooth": float(self.rest_smooth)} if self.rest_smooth is not None else {}),
                 **({"rest_tolerance": float(self.rest_tolerance)} if self.rest_tolerance is not None else {}),
                 **({"seen_band_scales": {k: [float(x) for x in self.seen_band_scales[k]]
@@ -528,6 +533,7 @@ class PathDistribution:
                    duration_smooth=None if header.get("duration_smooth") is None else float(header["duration_smooth"]),
                    duration_tolerance=None if header.get("duration_tolerance") is None else float(header["duration_tolerance"]),
                    duration_sigma=None if header.get("duration_sigma") is None else float(header["duration_sigma"]),
+                   duration_evidence=None if header.get("duration_evidence") is None else float(header["duration_evidence"]),
                    rest_smooth=None if header.get("rest_smooth") is None else float(header["rest_smooth"]),
                    rest_tolerance=None if header.get("rest_tolerance") is None else float(header["rest_tolerance"]),
                    seen_band_scales=None if header.get("seen_band_scales") is None else

@@ -41,7 +41,8 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
   ``paths`` (issue 37): ``seen_band_scale``, and ``duration_smooth`` / ``duration_tolerance`` (a motion under
   way's duration weights; files without them weigh durations with ``smooth`` and ``seen_tolerance``) or
   ``duration_sigma`` (the weights' tolerance in rad and m, in place of ``duration_tolerance``; fewer than ten
-  demonstrations), and
+  demonstrations), ``duration_evidence`` (the seen poses' evidence weight λ in the duration's weights; files
+  without it weigh with λ = 1, as before), and
   ``rest_smooth`` / ``rest_tolerance`` (the conditioning of its rest, chosen on the left-out final pose; files
   without them condition with ``smooth`` and ``seen_tolerance``, as before), and ``seen_band_scales`` ({"fractions",
   "rotation", "position"}: the bands' factors per seen fraction; files without them draw with ``seen_band_scale``

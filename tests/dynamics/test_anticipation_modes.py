@@ -38,7 +38,8 @@ def test_the_duration_weights_and_end_pose_equal_the_full_covariance_computation
     PathDistribution.duration_posterior (a loop over the grid with Σ's 307 × 307 entries) on a distribution
     whose τ² and seen tolerance are those values; the end pose's mean and covariance per duration equal the
     Gaussian conditional of PathDistribution.condition."""
-    ant = Anticipator(paths, None, points=8, grid_size=12, duration_smooth=smooth, duration_tolerance=tolerance)
+    ant = Anticipator(paths, None, points=8, grid_size=12, duration_smooth=smooth, duration_tolerance=tolerance,
+                      duration_evidence=1.0)
     ref = copy.copy(paths)
     ref.smooth, ref.seen_tolerance = smooth, tolerance
     tr = family(1, 11)[0][0]

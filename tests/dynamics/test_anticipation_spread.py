@@ -20,7 +20,9 @@ from .test_anticipation_bands import _rich_family
 
 @pytest.fixture(scope="module")
 def paths():
-    return anticipation.fit_seen(fit_paths(family(9, 3)[0]), spread=True)
+    p = anticipation.fit_seen(fit_paths(family(9, 3)[0]), spread=True)
+    p.duration_evidence = 0.25  # the duration's band tempered (fit_seen leaves it as the demonstrations ask)
+    return anticipation.fit_seen(p, spread=True, duration=False)
 
 
 def _direct(paths, d, F, rest):
@@ -73,6 +75,12 @@ def _direct(paths, d, F, rest):
     dsm = paths.smooth if paths.duration_smooth is None else paths.duration_smooth
     dtol = paths.seen_tolerance if paths.duration_tolerance is None else paths.duration_tolerance
     lw = np.array([cond(js6, times6, g, dsm, dtol, exact=False)[2] if g >= span else -np.inf for g in grid])
+    lam = 1.0 if paths.duration_evidence is None else paths.duration_evidence
+    if lam != 1.0:  # the seen poses' evidence weighted by λ about the others' prior of ℓ, whole as its Student-t
+        v = (sample + paths.smooth_covariance(dsm))[-1, -1] + _ELL_TOL ** 2
+        e2 = (np.log(grid) / paths.duration_scale - m[-1]) ** 2
+        nu = Dn - 2
+        lw = -0.5 * (nu + 1) * np.log1p(e2 / (nu * v)) + lam * (lw + 0.5 * e2 / v)
     w = np.exp(lw - lw.max())
     w /= w.sum()
     zero = np.zeros((S, 6))
