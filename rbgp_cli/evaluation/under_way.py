@@ -11,7 +11,9 @@ duration. The columns per method and F:
 - ``cov_pos``, ``cov_rot``: how often the real remainder lies in the 90 % prediction region of K sampled
   continuations (:func:`~rbgp_cli.evaluation.coverage.prediction_coverage`; methods without samples: none),
   ``cov_pos_se``, ``cov_rot_se`` their standard errors over the held-out motions
-  (:func:`~rbgp_cli.evaluation.coverage.coverage_se`).
+  (:func:`~rbgp_cli.evaluation.coverage.coverage_se`);
+- ``cov_end_time``: how often the real end time lies in the predicted end time's 90 % band (the held-out motions'
+  fraction; methods without a band: none), ``cov_end_time_se`` its standard error over the held-out motions.
 
 Methods: ``rbgp`` (:class:`~rbgp_cli.dynamics.anticipation.Anticipator` with the model's GP dynamics),
 ``no-GP`` (the same, its mean the conditioned path alone), ``nearest`` (the training demonstration and
@@ -68,7 +70,8 @@ class UnderWayScores:
     error, Σ squared rotation error, steps) of its remainder), ``index`` (its place in the input order, or
     None); ``coverage`` the pooled :class:`~rbgp_cli.evaluation.coverage.Coverage` (None without samples);
     ``motion_coverage`` per motion with samples (position inside, position count, rotation inside, rotation
-    count): the coverages' standard errors over the motions."""
+    count): the coverages' standard errors over the motions; ``end_time_in`` per motion with an end-time band
+    whether it held the real end time (1.0 or 0.0)."""
 
     end_pos: list = field(default_factory=list)
     end_rot: list = field(default_factory=list)
@@ -77,6 +80,8 @@ class UnderWayScores:
     index: list = field(default_factory=list)
     coverage: object = None
     motion_coverage: list = field(default_factory=list)
+    #: per motion with an end-time band: 1.0 where it held the real end time, else 0.0
+    end_time_in: list = field(default_factory=list)
 
     @property
     def sp(self) -> float:
@@ -97,12 +102,12 @@ class UnderWayScores:
         cov = self.coverage if other.coverage is None else (other.coverage if self.coverage is None else self.coverage + other.coverage)
         return UnderWayScores(self.end_pos + other.end_pos, self.end_rot + other.end_rot, self.end_time + other.end_time,
                               self.motion_sq + other.motion_sq, self.index + other.index, cov,
-                              self.motion_coverage + other.motion_coverage)
+                              self.motion_coverage + other.motion_coverage, self.end_time_in + other.end_time_in)
 
     def with_index(self, index: int) -> "UnderWayScores":
         """The same scores of one motion, labelled with its place in the input order."""
         return UnderWayScores(self.end_pos, self.end_rot, self.end_time, self.motion_sq, [int(index)] * len(self.end_pos),
-                              self.coverage, self.motion_coverage)
+                              self.coverage, self.motion_coverage, self.end_time_in)
 
     def to_dict(self) -> dict:
         nan = float("nan")
@@ -113,7 +118,7 @@ class UnderWayScores:
                "rest_pos": float(np.sqrt(self.sp / n)) if n else nan,
                "rest_rot": float(np.sqrt(self.sr / n)) if n else nan,
                "cov_pos": nan, "cov_rot": nan, "band_pos": nan, "band_rot": nan, "motions": len(self.end_pos),
-               "cov_pos_se": nan, "cov_rot_se": nan}
+               "cov_pos_se": nan, "cov_rot_se": nan, "cov_end_time": nan, "cov_end_time_se": nan}
         if self.coverage is not None:
             c = self.coverage.to_dict()
             out.update(cov_pos=c["coverage_position"], cov_rot=c["coverage_rotation"], band_pos=c["band_position"],
@@ -127,6 +132,13 @@ class UnderWayScores:
             for key, (a, b) in (("cov_pos_se", (0, 1)), ("cov_rot_se", (2, 3))):
                 se = coverage_se(m[:, a], m[:, b], unit)
                 out[key] = nan if se is None else se
+        if self.end_time_in and len(self.end_time_in) == len(self.end_pos):
+            from rbgp_cli.evaluation.coverage import coverage_se
+
+            inside = np.asarray(self.end_time_in, dtype=np.float64)
+            unit = self.index if len(self.index) == len(inside) and None not in self.index else None
+            se = coverage_se(inside, np.ones_like(inside), unit)
+            out.update(cov_end_time=float(inside.mean()), cov_end_time_se=nan if se is None else se)
         return out
 
     def per_motion(self, names: list | None = None) -> list[dict]:
@@ -178,8 +190,9 @@ def add_paired(rows: list[dict], reference: str = REFERENCE) -> None:
             key: paired_difference([a[key] for a, _ in both], [b[key] for _, b in both]) for key in COLUMNS}}
 
 
-def score(mean: Trajectory, samples: list, rest: Trajectory) -> UnderWayScores:
-    """One held-out remainder's scores (module docstring)."""
+def score(mean: Trajectory, samples: list, rest: Trajectory, end_band: tuple | None = None) -> UnderWayScores:
+    """One held-out remainder's scores (module docstring); ``end_band`` (lo, hi) s the predicted end time's band,
+    if the method has one."""
     from rbgp_cli.evaluation.coverage import MIN_SAMPLES, prediction_coverage
     from rbgp_cli.evaluation.crossval import trajectory_errors
 
@@ -188,7 +201,8 @@ def score(mean: Trajectory, samples: list, rest: Trajectory) -> UnderWayScores:
     cov = prediction_coverage(samples, rest, _T) if len(samples) >= MIN_SAMPLES else None
     return UnderWayScores([float(np.linalg.norm(mean.position[-1] - rest.position[-1]))],
                           [float(2.0 * np.arccos(min(1.0, dq)))], [abs(float(mean.t[-1] - rest.t[-1]))], [(sp, sr, n)],
-                          [], cov, [] if cov is None else [cov.astuple()[:4]])
+                          [], cov, [] if cov is None else [cov.astuple()[:4]],
+                          [] if end_band is None else [float(end_band[0] <= rest.t[-1] <= end_band[1])])
 
 
 # ---------------------------------------------------------------------------------------- nearest
@@ -380,7 +394,7 @@ def under_way_fold(model, paths, train: list, test: list, fractions=FRACTIONS, *
             for name, ant in ants.items():
                 c = ant.continuation(seen.t, seen.quat, seen.position, samples=samples, seed=seed + i)
                 trs = c.trajectories(include_samples=True)
-                _add(out, (name, F), score(trs[0], trs[1:], rest).with_index(indices[i]))
+                _add(out, (name, F), score(trs[0], trs[1:], rest, c.estimate.end_time_band).with_index(indices[i]))
             if "nearest" in methods:
                 _add(out, ("nearest", F), score(nearest_continuation(train, seen), [], rest).with_index(indices[i]))
             for name, pm in promps.items():

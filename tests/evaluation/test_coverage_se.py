@@ -118,6 +118,30 @@ def test_under_way_rows_have_the_standard_error_over_their_motions():
     assert [m["cov_pos"] for m in total.per_motion()] == pytest.approx([0.9, 0.7, 1.0])
     none = UnderWayScores([0.1], [0.1], [0.1], [(1.0, 1.0, 10)]).to_dict()
     assert math.isnan(none["cov_pos_se"]) and math.isnan(none["cov_pos"])
+    assert math.isnan(none["cov_end_time"]) and math.isnan(none["cov_end_time_se"])
+
+
+def test_the_end_time_band_coverage_is_the_motions_fraction_inside_with_its_standard_error():
+    """--given F's cov_end_time: score() marks whether the real end time lies in the band given; added over four
+    motions (one held out twice, which counts once in the SE), the pooled fraction inside and the motions' SE."""
+    from rbgp_cli.dynamics.trajectory import Trajectory
+    from rbgp_cli.evaluation.under_way import score
+
+    t = np.linspace(0.0, 1.0, 11)
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (11, 1))
+    p = np.zeros((11, 3))
+    rest = Trajectory(t, q, p)
+    bands = [(0.9, 1.1), (1.2, 1.4), (0.5, 1.0), (1.0, 2.0), (0.95, 0.99)]  # in, out, in (edge), in (edge), out
+    total = UnderWayScores()
+    for i, b in zip([0, 1, 2, 3, 3], bands):
+        total = total.add(score(rest, [], rest, b).with_index(i))
+    d = total.to_dict()
+    assert d["cov_end_time"] == pytest.approx(3 / 5)
+    inside, count = np.array([1.0, 0.0, 1.0, 1.0]), np.array([1.0, 1.0, 1.0, 2.0])  # motion 3: once in, once out
+    # the ratio estimator's SE (coverage_se's formula, written out): √(Σ (inᵢ − p nᵢ)² / (M (M − 1))) / n̄
+    want = math.sqrt(np.sum((inside - 0.6 * count) ** 2) / (4 * 3)) / count.mean()
+    assert d["cov_end_time_se"] == pytest.approx(want, rel=1e-12) and want == pytest.approx(0.196, abs=1e-3)
+    assert math.isnan(score(rest, [], rest).to_dict()["cov_end_time"])  # no band: no coverage
 
 
 def test_the_tables_print_each_coverage_with_its_standard_error():
@@ -131,13 +155,15 @@ def test_the_tables_print_each_coverage_with_its_standard_error():
     nan = float("nan")
     base = dict(given=0.4, end_pos=0.1, end_rot=0.2, end_time=0.3, rest_pos=0.1, rest_rot=0.2, band_pos=0.1,
                 band_rot=0.2, motions=3)
-    rows = [dict(base, method="rbgp", cov_pos=0.8667, cov_rot=0.8333, cov_pos_se=0.0882, cov_rot_se=0.1202),
-            dict(base, method="nearest", cov_pos=nan, cov_rot=nan, cov_pos_se=nan, cov_rot_se=nan),
-            dict(base, method="promp", cov_pos=0.5, cov_rot=0.25)]  # rows of an older result: no SE
+    rows = [dict(base, method="rbgp", cov_pos=0.8667, cov_rot=0.8333, cov_pos_se=0.0882, cov_rot_se=0.1202,
+                 cov_end_time=0.6667, cov_end_time_se=0.3333),
+            dict(base, method="nearest", cov_pos=nan, cov_rot=nan, cov_pos_se=nan, cov_rot_se=nan, cov_end_time=nan,
+                 cov_end_time_se=nan),
+            dict(base, method="promp", cov_pos=0.5, cov_rot=0.25)]  # rows of an older result: no SE, no end band
     lines = format_under_way({"rows": rows, "folds": 3, "samples": 5}).splitlines()
     head = next(i for i, x in enumerate(lines) if x.split()[:2] == ["given", "method"])
-    assert lines[head].split()[-2:] == ["cov_pos", "cov_rot"]
-    assert lines[head + 1].split()[-2:] == ["0.87±0.09", "0.83±0.12"]
-    assert lines[head + 2].split()[-2:] == ["-", "-"]
-    assert lines[head + 3].split()[-2:] == ["0.50", "0.25"]
+    assert lines[head].split()[-3:] == ["cov_pos", "cov_rot", "cov_end"]
+    assert lines[head + 1].split()[-3:] == ["0.87±0.09", "0.83±0.12", "0.67±0.33"]
+    assert lines[head + 2].split()[-3:] == ["-", "-", "-"]
+    assert lines[head + 3].split()[-3:] == ["0.50", "0.25", "-"]
     assert len({len(x) for x in lines[head:head + 4]}) == 1  # the columns stay aligned
