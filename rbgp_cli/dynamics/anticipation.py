@@ -18,8 +18,11 @@ weights (and the estimate's end pose) use their own τ² and r (``paths.duration
 left-out demonstrations' durations best; with fewer than ten demonstrations also (0.01, 3.2) and τ² = 0.01 with,
 instead of r, a tolerance σ = 0.3 rad and m for every coordinate (``paths.duration_sigma``, r_c = σ / σ_c), the
 loosest within a standard error of the best); the conditioning of the rest uses the distribution's.
-The predicted end time is t_0 + D with D's weighted median and 5 %/95 % quantiles; the phase of the last
-seen sample is span / D̂ (D̂ the weighted median). One batched solve over the grid gives the weights and,
+The predicted end time is t_0 + D with D's weighted median; the phase of the last seen sample is span / D̂ (D̂
+the weighted median). Its band is the 5 %/95 % quantiles of the weights with the seen poses' evidence weighted by
+λ = ``paths.duration_evidence``, w_g ∝ t_ν(ℓ_g) (w_g / N(ℓ_g))^λ (N the weights' Gaussian prior of ℓ, t_ν its
+Student-t, ν = D − 1), widened to hold D̂: :func:`fit_seen` takes the largest λ whose band holds the left-out
+durations at 90 % (:func:`_evidence_loo`); the samples draw their durations from these weights. One batched solve over the grid gives the weights and,
 per D_g, the conditioned end pose: the end pose's mean and band are the mixture's.
 
 **The rest.** At D̂ the path distribution, with the rest's own smooth term τ²_rest K_ℓ, is conditioned on the
