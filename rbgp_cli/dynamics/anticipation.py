@@ -21,8 +21,9 @@ loosest within a standard error of the best); the conditioning of the rest uses 
 The predicted end time is t_0 + D with D's weighted median; the phase of the last seen sample is span / D̂ (D̂
 the weighted median). Its band is the 5 %/95 % quantiles of the weights with the seen poses' evidence weighted by
 λ = ``paths.duration_evidence``, w_g ∝ t_ν(ℓ_g) (w_g / N(ℓ_g))^λ (N the weights' Gaussian prior of ℓ, t_ν its
-Student-t, ν = D − 1), widened to hold D̂: :func:`fit_seen` takes the largest λ whose band holds the left-out
-durations at 90 % (:func:`_evidence_loo`); the samples draw their durations from these weights. One batched solve over the grid gives the weights and,
+Student-t, ν = D − 1), times D̂ over their own median (:meth:`Anticipator.band_shift`: their spread, centred on D̂):
+:func:`fit_seen` takes the largest λ whose band holds the left-out durations at 90 % (:func:`_evidence_loo`); the
+samples draw their durations from these weights, moved the same way. One batched solve over the grid gives the weights and,
 per D_g, the conditioned end pose: the end pose's mean and band are the mixture's.
 
 **The rest.** At D̂ the path distribution, with the rest's own smooth term τ²_rest K_ℓ, is conditioned on the
@@ -120,9 +121,9 @@ DURATION_FOLDS = 5
 #: w_g ∝ p(ℓ_g) p(y | ℓ_g)^λ (the prior of ln D whole): the evidence of 6n correlated coordinates under a Gaussian
 #: fitted to a few demonstrations is overconfident (with λ = 1 the 90 % end-time bands held 0.16–0.93 of the held-out
 #: motions' end times, 0.6–0.85 on most sets); the largest λ whose band holds the left-out durations at the bands'
-#: level (:func:`_evidence_loo`). The band and the samples' durations use it; the point estimate (the median) and
-#: the end pose keep λ = 1, which estimated the left-out durations best (docs/defaults.md, issue 37's thirteenth
-#: pass)
+#: level (:func:`_evidence_loo`). The band and the samples' durations use it, moved onto the point estimate; the
+#: point estimate (the median) and the end pose keep λ = 1, which estimated the left-out durations best
+#: (docs/defaults.md, issue 37's thirteenth pass)
 DURATION_EVIDENCE_GRID = (1.0, 0.5, 0.25, 0.125, 0.0625, 0.03125, 0.015625, 0.0078125)
 #: The conditioning of the rest has its own τ² and r, chosen by :func:`fit_seen` on the left-out final pose from
 #: these τ² (and the path distribution's own) × SEEN_TOLERANCE_GRID, from REST_FROM demonstrations on (with fewer
@@ -542,9 +543,10 @@ class Anticipator:
         q = self._duration_quantiles(grid, w, span)
         D = q[1]
         band_w = terms.get("band_w", w)
-        if band_w is not w:  # the band from the tempered weights, about the posterior's median
-            qb = self._duration_quantiles(grid, band_w, span)
-            q = [min(qb[0], D), D, max(qb[2], D)]
+        if band_w is not w:  # the tempered weights' spread, moved to the whole evidence's median (band_shift)
+            k = self.band_shift(grid, w, band_w, span)
+            q = [max(x * k, span) for x in self._duration_quantiles(grid, band_w, span, (0.05, 0.95))]
+            q = [min(q[0], D), D, max(q[1], D)]
         # the end pose: moments of the mixture over the grid (scaled units), then unscaled
         E = terms["end_mean"]
         mu = w @ E
@@ -578,6 +580,17 @@ class Anticipator:
                             end_time=t0 + D, end_time_band=(t0 + q[0], t0 + q[2]), end_quat=end_q, end_position=end_p,
                             end_rotation_band=float(rot_band), end_position_band=pos_band, off=off,
                             distance=float(dist))
+
+    def band_shift(self, grid, w, band_w, span) -> float:
+        """The factor k = D̂ / D̂_band that moves the band's weights ``band_w`` onto the point estimate: the ratio of
+        the weights' ``w`` median to theirs (both at least the seen span). The band and the samples' durations are
+        the tempered weights' durations times k: their spread, centred where the whole evidence puts the end (the
+        tempered median lies toward the prior's, which estimated the held-out durations worse)."""
+        if band_w is w:
+            return 1.0
+        D = self._duration_quantiles(grid, w, span, (0.5,))[0]
+        Db = self._duration_quantiles(grid, band_w, span, (0.5,))[0]
+        return float(D / Db) if Db > 0 else 1.0
 
     def _duration_quantiles(self, grid, w, span, levels=(0.05, 0.5, 0.95)) -> list:
         """The quantiles of D at ``levels`` (default 5 %, 50 % and 95 %; s, at least the seen span) from the weights
@@ -681,8 +694,9 @@ class Anticipator:
             # remainders fitted the bands' factors (its mean at D̂ is what each draw's difference is taken from)
             own = dev if self.Sigma_rest is self.Sigma and self.rest_tolerance == self.tolerance else \
                 self.paths.unscale(self._conditioned_mean(tau, q, p, quat[-1], position[-1], D, rest=False)[0])[0]
-            out = self._samples(int(samples), seed, grid, terms["band_w"], tau, q, p, quat[-1], position[-1], own, (t_out, mq, mp),
-                                t0, span, D, dt)
+            k = self.band_shift(grid, w, terms["band_w"], span)
+            out = self._samples(int(samples), seed, grid * k, terms["band_w"], tau, q, p, quat[-1], position[-1], own,
+                                (t_out, mq, mp), t0, span, D, dt)
         return Continuation(t_out, mq, mp, out, est, D, name=name)
 
     @staticmethod
@@ -1110,7 +1124,8 @@ def _evidence_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = SE
     :func:`_duration_loo` (with the anticipator's own seen poses and grid), the others' path distribution with the
     duration's own τ² and r or σ as ``paths`` has them; the band of level ``level`` is what
     :meth:`Anticipator._summary` reports, the (1 − level)/2 and (1 + level)/2 quantiles of the weights with the
-    evidence weighted by λ, widened to hold the median of the whole evidence's weights (the point estimate).
+    evidence weighted by λ, moved by :meth:`Anticipator.band_shift` onto the median of the whole evidence's
+    weights (the point estimate) and widened to hold it.
     Returns {λ: inside (n,) bool} per left-out beginning; {} as :func:`_duration_loo`."""
     from rbgp_cli.dynamics.paths import MIN_PATH_DEMOS
 
@@ -1122,9 +1137,12 @@ def _evidence_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = SE
         ant = Anticipator(rest, None, points=points, grid_size=grid_size, duration_evidence=1.0)
         for d, (grid, lw, span) in zip(left_out, _duration_weights(ant, seen, poses, log=True)):
             D = float(np.exp(paths.log_durations[d]))
-            med = ant._duration_quantiles(grid, ant._tempered(grid, lw, 1.0), span, (0.5,))[0]
+            w1 = ant._tempered(grid, lw, 1.0)
+            med = ant._duration_quantiles(grid, w1, span, (0.5,))[0]
             for lam in out:
-                lo, hi = ant._duration_quantiles(grid, ant._tempered(grid, lw, lam), span, (lo_p, hi_p))
+                wl = w1 if lam == 1.0 else ant._tempered(grid, lw, lam)
+                k = ant.band_shift(grid, w1, wl, span)
+                lo, hi = (max(x * k, span) for x in ant._duration_quantiles(grid, wl, span, (lo_p, hi_p)))
                 out[lam].append(min(lo, med) <= D <= max(hi, med))
     if not out[float(evidences[0])]:
         return {}
@@ -1387,7 +1405,9 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration
                 seen_p=ctx["p"][:, js6])
     _, lw = _loo_rows(ctx6, rows_d, grid.ravel(), dsm, dtol, np.zeros((len(rows_d), 1)), logw=True)
     lam = 1.0 if paths.duration_evidence is None else float(paths.duration_evidence)
+    shift = np.ones(Dn)
     if lam != 1.0:  # the seen poses' evidence weighted by λ, the others' prior of ℓ kept whole (Anticipator._tempered)
+        lw1 = np.where(grid.ravel() >= span[rows_d], lw, -np.inf).reshape(Dn, SPREAD_GRID)
         xl = X[:, -1]
         dev = xl[None, :] - ctx["m_loo"][:, -1:]  # (D, D): others' ℓ about each left-out one's others' mean
         dev[ds, ds] = 0.0
@@ -1399,10 +1419,16 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration
     lw = np.where(np.isfinite(lw).any(axis=1, keepdims=True), lw, np.where(np.arange(SPREAD_GRID) == SPREAD_GRID - 1, 0.0, -np.inf))
     w = np.exp(lw - lw.max(axis=1, keepdims=True))
     w /= w.sum(axis=1, keepdims=True)
+    if lam != 1.0:  # the samples' durations moved onto the whole evidence's median (Anticipator.band_shift)
+        ok = np.isfinite(lw1).any(axis=1)
+        w1 = np.exp(lw1 - np.where(ok, lw1.max(axis=1), 0.0)[:, None])
+        w1 = np.where(ok[:, None], w1 / np.where(ok, w1.sum(axis=1), 1.0)[:, None], w)
+        shift = _row_medians(grid, w1, ctx["half"], span) / _row_medians(grid, w, ctx["half"], span)
     dd, gg = np.nonzero(w > SPREAD_KEEP * w.max(axis=1, keepdims=True))
     off = (2.0 * np.arange(SPREAD_SUB) + 1.0 - SPREAD_SUB) / SPREAD_SUB  # sub-cell midpoints in half steps
     rd = np.repeat(dd, SPREAD_SUB)
-    Dg = np.maximum(np.exp(np.log(grid[dd, gg])[:, None] + off[None] * ctx["half"][dd, None]).ravel(), span[rd] * (1 + 1e-9))
+    Dg = np.maximum(np.exp(np.log(grid[dd, gg] * shift[dd])[:, None] + off[None] * ctx["half"][dd, None]).ravel(),
+                    span[rd] * (1 + 1e-9))
     wg = np.repeat(w[dd, gg], SPREAD_SUB) / SPREAD_SUB
     s0 = np.minimum(span[rd] / Dg, 1.0)
     q = s0[:, None] + u[None] * (1.0 - s0[:, None])  # (R_g, T)
@@ -1420,6 +1446,19 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration
     np.add.at(V, rd, wn[:, None, None, None] * dy[..., :, None] * dy[..., None, :])
     e_hat = x_true - mu - (ybar - own)
     return {"e": e_hat.reshape(-1, 6), "V": V.reshape(-1, 6, 6), "C": C.reshape(-1, 6, 6), "w": share}
+
+
+def _row_medians(grid, w, half, span):
+    """Per row d the median duration of weights ``w`` (D, G) over ``grid`` (D, G) s, each grid value's weight spread
+    evenly over its cell in ln D (``half`` (D,) its half-width), at least ``span`` (D,): what
+    :meth:`Anticipator._duration_quantiles` gives at 50 %, for every row at once."""
+    lg = np.log(grid)
+    edges = np.concatenate([lg[:, :1] - half[:, None], lg + half[:, None]], axis=1)  # (D, G + 1)
+    cw = np.concatenate([np.zeros((len(w), 1)), np.cumsum(w, axis=1)], axis=1)
+    j = np.clip((cw < 0.5).sum(axis=1) - 1, 0, w.shape[1] - 1)  # the cell holding the median
+    r = np.arange(len(w))
+    f = (0.5 - cw[r, j]) / np.maximum(cw[r, j + 1] - cw[r, j], 1e-300)
+    return np.maximum(np.exp(edges[r, j] + f * (edges[r, j + 1] - edges[r, j])), span)
 
 
 def _rebase(paths, x, q, s):

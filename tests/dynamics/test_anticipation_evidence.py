@@ -33,7 +33,7 @@ def test_the_band_weights_equal_a_prior_times_the_evidence_to_the_power_lambda(p
     PathDistribution.duration_posterior (a loop over the grid with Σ's 307 × 307 entries), N and t_ν (ν = D − 1)
     scipy's densities of ℓ = ln D / σ_ℓ with the prior's mean and variance Σ_ℓℓ + ε². The weights themselves (the
     point estimate's) stay the whole evidence's, and so does the end time; the band is the tempered weights'
-    quantiles about it."""
+    quantiles moved onto it."""
     ant = Anticipator(paths, None, points=8, grid_size=12, duration_smooth=0.01, duration_tolerance=0.8,
                       duration_evidence=lam)
     whole = Anticipator(paths, None, points=8, grid_size=12, duration_smooth=0.01, duration_tolerance=0.8,
@@ -58,9 +58,18 @@ def test_the_band_weights_equal_a_prior_times_the_evidence_to_the_power_lambda(p
         assert ent(terms["band_w"]) > ent(w)
         e, e1 = ant.estimate(seen.t, seen.quat, seen.position), whole.estimate(seen.t, seen.quat, seen.position)
         assert e.end_time == e1.end_time
-        # the band: the tempered weights' 5 % and 95 % quantiles, widened to hold the point estimate
-        lo, hi = ant._duration_quantiles(grid, terms["band_w"], terms["span"], (0.05, 0.95))
+        # the band: the tempered weights' 5 % and 95 % quantiles times D̂ / their median (both medians computed
+        # here by np.interp over the cells in ln D), at least the seen span, widened to hold D̂
+        span = terms["span"]
+        edges = np.concatenate([[np.log(grid[0]) - ant._half_step], np.log(grid) + ant._half_step])
+
+        def q(wt, level):
+            return max(float(np.exp(np.interp(level, np.concatenate([[0.0], np.cumsum(wt)]), edges))), span)
+
         D = e.end_time - seen.t[0]
+        assert D == pytest.approx(q(w, 0.5), rel=1e-12)
+        k = D / q(terms["band_w"], 0.5)
+        lo, hi = max(q(terms["band_w"], 0.05) * k, span), max(q(terms["band_w"], 0.95) * k, span)
         np.testing.assert_allclose(np.subtract(e.end_time_band, seen.t[0]), [min(lo, D), max(hi, D)], rtol=1e-12)
 
 

@@ -76,11 +76,20 @@ def _direct(paths, d, F, rest):
     dtol = paths.seen_tolerance if paths.duration_tolerance is None else paths.duration_tolerance
     lw = np.array([cond(js6, times6, g, dsm, dtol, exact=False)[2] if g >= span else -np.inf for g in grid])
     lam = 1.0 if paths.duration_evidence is None else paths.duration_evidence
+
+    def median(wt):  # each cell's weight spread evenly over it in ln D; at least the seen span
+        edges = np.concatenate([[np.log(grid[0]) - half], np.log(grid) + half])
+        return max(float(np.exp(np.interp(0.5, np.concatenate([[0.0], np.cumsum(wt)]), edges))), span)
+
+    shift = 1.0
     if lam != 1.0:  # the seen poses' evidence weighted by λ about the others' prior of ℓ, whole as its Student-t
+        w1 = np.exp(lw - lw.max())
         v = (sample + paths.smooth_covariance(dsm))[-1, -1] + _ELL_TOL ** 2
         e2 = (np.log(grid) / paths.duration_scale - m[-1]) ** 2
         nu = Dn - 2
         lw = -0.5 * (nu + 1) * np.log1p(e2 / (nu * v)) + lam * (lw + 0.5 * e2 / v)
+        wt = np.exp(lw - lw.max())
+        shift = median(w1 / w1.sum()) / median(wt / wt.sum())  # onto the whole evidence's median
     w = np.exp(lw - lw.max())
     w /= w.sum()
     zero = np.zeros((S, 6))
@@ -88,7 +97,7 @@ def _direct(paths, d, F, rest):
     ys, ws = [], []
     for g in np.flatnonzero(w > SPREAD_KEEP * w.max()):
         for o in (2.0 * np.arange(SPREAD_SUB) + 1.0 - SPREAD_SUB) / SPREAD_SUB:
-            Dg = max(np.exp(np.log(grid[g]) + o * half), span * (1 + 1e-9))
+            Dg = max(np.exp(np.log(grid[g] * shift) + o * half), span * (1 + 1e-9))
             x = cond(js, times, Dg, tau2, r)[0]
             s0 = min(span / Dg, 1.0)
             q, p = paths.pose_at(paths.unscale(x)[0], s0 + u * (1.0 - s0))
