@@ -1227,8 +1227,10 @@ def _duration_weights(ant, seen, poses, log: bool = False) -> list:
 #: :func:`fit_seen` scores the left-out remainders against the samples as they are drawn: each at its own duration
 #: (:func:`_spread_terms`), not at the remainder's true duration (docs/defaults.md, issue 37's eighth pass)
 DURATION_SPREAD = True
-#: ... from this many demonstrations on (fewer: the seventh pass's statistic; docs/defaults.md, issue 37's eighth pass)
-SPREAD_FROM = NARROW_FROM
+#: ... from this many demonstrations on (fewer: the seventh pass's statistic, at the true durations). Ten until the
+#: thirteenth pass; since the samples draw their durations from the tempered weights, whose spread the statistic at
+#: the true durations does not see, five (docs/defaults.md, issue 37's eighth and thirteenth passes)
+SPREAD_FROM = 5
 #: :func:`_spread_terms`' duration grid (per left-out demonstration, over GRID_RANGE times the others' durations), the
 #: cells kept (weight above SPREAD_KEEP of the largest) and the durations per kept cell (midpoints of equal sub-cells:
 #: the samples' uniform jitter within a cell)

@@ -149,14 +149,22 @@ def test_without_the_durations_spread_the_rule_is_the_left_out_statistics_at_eve
 
 
 def test_fit_seen_keeps_the_rule_of_before_when_asked_and_below_spread_from(paths):
+    """spread=False is the seventh pass's statistic, spread=True the samples'; the default is the latter from
+    SPREAD_FROM demonstrations on (nine here) and the former below (four)."""
     import copy
 
     before = anticipation.fit_seen(copy.deepcopy(paths), spread=False)
     after = anticipation.fit_seen(copy.deepcopy(paths), spread=True)
     assert before.seen_tolerance == after.seen_tolerance and before.seen_band_scale == after.seen_band_scale
     assert before.seen_band_scales != after.seen_band_scales
-    assert paths.demos < anticipation.SPREAD_FROM  # nine: the default is the seventh pass's statistic
-    assert anticipation.fit_seen(copy.deepcopy(paths)).seen_band_scales == before.seen_band_scales
+    assert paths.demos >= anticipation.SPREAD_FROM  # nine: the default is the samples' statistic
+    assert anticipation.fit_seen(copy.deepcopy(paths)).seen_band_scales == after.seen_band_scales
+    four = copy.deepcopy(paths)  # below SPREAD_FROM the seventh pass's statistic
+    keep = four.deviations[:4], four.log_durations[:4]
+    four.deviations, four.log_durations = keep
+    assert four.demos < anticipation.SPREAD_FROM
+    assert anticipation.fit_seen(copy.deepcopy(four)).seen_band_scales == \
+        anticipation.fit_seen(copy.deepcopy(four), spread=False).seen_band_scales
 
 
 @pytest.mark.slow
