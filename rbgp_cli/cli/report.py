@@ -184,6 +184,10 @@ def _paths_text(p: dict) -> str:
     scale = p.get("band_scale")
     if scale and (scale["rotation"] > 1.0 or scale["position"] > 1.0):
         line += f"; bands widened ×{scale['rotation']:.3g} in rotation, ×{scale['position']:.3g} in position"
+    lam = p.get("duration_evidence")
+    if lam is not None and lam < 1.0:  # the end time's band of a motion under way (docs/method.md §13)
+        line += (f"; a motion under way's end-time band weighs the seen poses' evidence ×{lam:.3g} (the largest weight "
+                 "whose band held the demonstrations left out 9 times in 10, else the smallest tried)")
     return line
 
 

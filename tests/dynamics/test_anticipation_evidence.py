@@ -145,3 +145,16 @@ def test_the_model_file_keeps_lambda_and_refuses_one_outside_zero_to_one():
     assert PathDistribution.from_arrays(paths.to_arrays(), old).duration_evidence is None
     paths.duration_evidence = None
     assert "duration_evidence" not in paths.header()
+
+
+def test_train_and_info_say_how_much_the_end_time_band_weighs_the_seen_poses():
+    """rbgp train's summary and rbgp info print the path distribution's line (cli.report._paths_text): with λ < 1 it
+    names the weight; with λ = 1 (None) it says nothing of it. The header a model file keeps carries λ."""
+    from rbgp_cli.cli.report import _paths_text
+
+    p = fit_paths(_rich_family(5, 1, spread=0.2))
+    assert p.duration_evidence is not None and p.duration_evidence < 1.0
+    line = _paths_text(p.header())
+    assert f"×{p.duration_evidence:.3g}" in line and "end-time band" in line
+    p.duration_evidence = None
+    assert "end-time band" not in _paths_text(p.header())
