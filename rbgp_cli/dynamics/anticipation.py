@@ -507,28 +507,17 @@ class Anticipator:
         return grid, w, dict(end_mean=end_mean, end_cov=end_cov, quad=quad, k=k, span=span, band_w=band_w,
                                        beyond=not np.any(keep), seen=(t, quat, position, tau, q, p))
 
-    def _log_prior(self, grid, student: bool = False):
-        """log p(ℓ_g) up to a constant (G,): the path distribution's marginal of ℓ = ln D (scaled), N(m_ℓ, v), v = uᵀu
-        + τ² + ε² with the duration's τ² (:meth:`_constants`; ε = _ELL_TOL), at the grid's durations (s); ``student``:
-        the Student-t of ν = D − 1 degrees of freedom with the same scale, −(ν + 1)/2 ln(1 + e²/(ν v)), the
-        predictive of a new duration when the D durations' variance is itself estimated."""
-        c = self._constants()
-        e = np.log(grid) / self.lscale - self.m[-1]
-        v = c["uLuL"] + c["tau2"] + _ELL_TOL ** 2
-        if student:
-            nu = max(self.paths.demos - 1, 1)
-            return -0.5 * (nu + 1.0) * np.log1p(e * e / (nu * v))
-        return -0.5 * e * e / v
-
     def _tempered(self, grid, logw, evidence: float | None = None):
-        """The normalised weights (G,) over ``grid`` from the log weights log p(ℓ_g) + log p(y | ℓ_g) (any constant,
-        the Gaussian prior of :meth:`_log_prior`) with the seen poses' evidence weighted by λ = ``evidence`` (default
-        ``duration_evidence``): for λ < 1, w_g ∝ exp(log t(ℓ_g) + λ (log w_g − log p(ℓ_g))), the prior of ln D
-        kept whole as its Student-t predictive (λ → 0: the durations' own predictive, truncated at the seen span)."""
+        """The normalised weights (G,) over ``grid`` from the log weights log N(ℓ_g) + log p(y | ℓ_g) (any constant;
+        N the path distribution's marginal of ℓ = ln D (scaled), N(m_ℓ, uᵀu + τ² + ε²) with the duration's τ²,
+        :meth:`_constants`, ε = _ELL_TOL) with the seen poses' evidence weighted by λ = ``evidence`` (default
+        ``duration_evidence``; :func:`_temper_log`, ν = D − 1)."""
         lam = self.duration_evidence if evidence is None else float(evidence)
         logw = np.asarray(logw, dtype=np.float64)
         if lam != 1.0:
-            logw = self._log_prior(grid, student=True) + lam * (logw - self._log_prior(grid))
+            c = self._constants()
+            e = np.log(grid) / self.lscale - self.m[-1]
+            logw = _temper_log(logw, e * e, c["uLuL"] + c["tau2"] + _ELL_TOL ** 2, max(self.paths.demos - 1, 1), lam)
         w = np.exp(logw - logw.max())
         return w / w.sum()
 
@@ -1415,8 +1404,7 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration
         dev[ds, ds] = 0.0
         v = ((1.0 + 1.0 / (Dn - 1)) / max(Dn - 2, 1) * np.sum(dev * dev, axis=1) + dsm + _ELL_TOL ** 2)[rows_d]
         e2 = (np.log(grid.ravel()) / ctx["lscale"] - ctx["m_loo"][rows_d, -1]) ** 2
-        nu = max(Dn - 2, 1)  # the others' D − 1 durations
-        lw = -0.5 * (nu + 1.0) * np.log1p(e2 / (nu * v)) + lam * (lw + 0.5 * e2 / v)
+        lw = _temper_log(lw, e2, v, max(Dn - 2, 1), lam)  # ν: the others' D − 1 durations
     lw = np.where(grid.ravel() >= span[rows_d], lw, -np.inf).reshape(Dn, SPREAD_GRID)
     lw = np.where(np.isfinite(lw).any(axis=1, keepdims=True), lw, np.where(np.arange(SPREAD_GRID) == SPREAD_GRID - 1, 0.0, -np.inf))
     w = np.exp(lw - lw.max(axis=1, keepdims=True))
@@ -1448,6 +1436,14 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration
     np.add.at(V, rd, wn[:, None, None, None] * dy[..., :, None] * dy[..., None, :])
     e_hat = x_true - mu - (ybar - own)
     return {"e": e_hat.reshape(-1, 6), "V": V.reshape(-1, 6, 6), "C": C.reshape(-1, 6, 6), "w": share}
+
+
+def _temper_log(logw, e2, v, nu: int, lam: float):
+    """The log weights of ln D with the seen poses' evidence weighted by λ and the prior of ℓ kept whole as its
+    Student-t predictive: log t_ν(ℓ) + λ (log w − log N(ℓ)), up to a constant, elementwise; ``logw`` the log weights
+    log N(ℓ) + log p(y | ℓ) (any constant), ``e2`` (ℓ − m_ℓ)² and ``v`` the prior's variance of ℓ (scaled), ν its
+    degrees of freedom: −(ν + 1)/2 ln(1 + e²/(ν v)) + λ (log w + e²/(2 v)). λ → 0: the durations' own predictive."""
+    return -0.5 * (nu + 1.0) * np.log1p(e2 / (nu * v)) + lam * (logw + 0.5 * e2 / v)
 
 
 def _row_medians(grid, w, half, span):
