@@ -360,15 +360,17 @@ def predict_file(model, path, options: ReadOptions | None = None, noisy: bool = 
     return (np.concatenate(ts), np.concatenate(qs), np.concatenate(ps), np.concatenate(means), np.concatenate(stds))
 
 
-def rollout_starts(model, *, start=(), start_quat=(), starts=None, from_demos=None, count: int = 1,
+def rollout_starts(model, *, start=(), start_quat=(), starts=None, from_demos=None, count: int | None = None,
                    start_spread: float = 0.02, seed: int = 0, options: ReadOptions | None = None, max_gap=None,
                    each_duration: bool = False, duration=None, progress=None):
     """The start poses of ``rbgp rollout``, in this order: each ``start`` text ("rx ry rz x y z",
     :func:`parse_pose`), each ``start_quat`` text (:func:`parse_pose_quat`), the poses of the file
     ``starts`` (:func:`read_start_poses`), and ``count`` starts drawn near the start poses of the
-    demonstrations ``from_demos`` (:func:`~rbgp_cli.dynamics.rollout.starts_near`, ``start_spread`` m,
-    ``seed``). None of them given: ``count`` starts near the model's stored start poses (its first one
-    as it is when ``count`` is 1 and the spread 0).
+    demonstrations ``from_demos`` in the order they are read, start i near demonstration i mod D
+    (:func:`~rbgp_cli.dynamics.rollout.starts_near`, ``start_spread`` m, ``seed``; ``count`` None: one per
+    demonstration, so that a goals file in the demonstrations' order pairs each goal with its own start).
+    None of them given: ``count`` (None: 1) starts near the model's stored start poses (its first one as it
+    is when ``count`` is 1 and the spread 0).
 
     Returns (quat (B, 4) x, y, z, w, position (B, 3) m, durations (B,) s or None): with
     ``each_duration`` each start drawn near a demonstration lasts as long as it, the others
@@ -392,17 +394,19 @@ def rollout_starts(model, *, start=(), start_quat=(), starts=None, from_demos=No
         qs.append(q)
         ps.append(p)
     given = sum(len(q) for q in qs)  # starts that are not drawn near a demonstration
-    if given and not from_demos and count != 1:  # count draws starts, and none are drawn: it would do nothing
+    if given and not from_demos and count not in (None, 1):  # count draws starts, and none are drawn: it would do nothing
         raise InputError(f"count {count} is how many starts to draw near the demonstrations' start poses, and with "
                          "start poses given none are drawn", param="count",
                          hint="add from_demos FILES to draw them there as well, or drop count")
     if from_demos:
         demos, _, _ = load_demonstrations(from_demos, options, max_gap=max_gap)
-        q, p, near = starts_near(start_vectors(demos), count, start_spread, seed=seed, return_index=True)
+        q, p, near = starts_near(start_vectors(demos), len(demos) if count is None else count, start_spread, seed=seed,
+                                 return_index=True, in_order=True)
         qs.append(q)
         ps.append(p)
         durs = [demos[i].duration for i in near]
     if not qs:
+        count = 1 if count is None else count
         m_starts = model.starts
         q, p = (starts_near(m_starts, count, start_spread, seed=seed) if count > 1 or start_spread > 0
                 else (m_starts[:1, :4], m_starts[:1, 4:]))

@@ -187,7 +187,7 @@ def rollout(
     starts: Annotated[Optional[str], typer.Option("--starts", help="File of start poses, one per row (read with the read options below).")] = None,
     from_demos: Annotated[Optional[List[str]], paths_option("--from-demos", help="Draw starts near these demonstrations' start poses: files or folders, several after one flag (e.g. --from-demos data/*.csv), read with the read options below (--topic for an MCAP with several pose topics).")] = None,
     given: Annotated[Optional[List[str]], paths_option("--given", help="The seen beginnings of motions under way: files, folders or globs (as --from-demos), read with the read options below. Each is continued from its last seen sample to its predicted end (docs/method.md §13): trajectory i (samples i.s0, ...) starts at the last seen time on the file's own clock; --samples draws the duration and the path together; --json reports per file the phase, the predicted end time and end pose with 90 % bands.")] = None,
-    count: Annotated[int, typer.Option(min=1, help="Number of starts drawn near the demonstrations' (or the model's stored) start poses.")] = 1,
+    count: Annotated[Optional[int], typer.Option(min=1, help="Number of starts drawn near the demonstrations' (or the model's stored) start poses: start i near demonstration i of --from-demos, in the order they are read, cycling (default: one per demonstration of --from-demos, else 1).")] = None,
     start_spread: Annotated[float, typer.Option("--start-spread", min=0.0, help="Std of the start perturbation in metres (rotation: 0.1 rad per 0.3 m).")] = 0.02,
     steps: Annotated[Optional[int], typer.Option(min=1, help="Integration steps (default: the demonstrations' median duration / dt).")] = None,
     duration: Annotated[Optional[float], typer.Option(help="Duration in seconds instead of --steps.")] = None,
@@ -265,7 +265,7 @@ def rollout(
         if fmt != "csv" or rerun or plot:
             raise InputError("--given writes CSV (no --rerun or --plot)", hint="write -o FILE.csv (or stdout)")
         ignored = [flag for flag, on in (("--goal", goal), ("--goals", goals), ("--via", via), ("--goal-tolerance", goal_tolerance),
-                                         ("--count", count != 1), ("--dt", dt is not None), ("--output-rate", output_rate is not None),
+                                         ("--count", count is not None), ("--dt", dt is not None), ("--output-rate", output_rate is not None),
                                          ("--off-data", off_data != "keep")) if on]
         if ignored:  # a continuation is conditioned on what was seen alone, on its own grid: these would do nothing
             raise InputError(f"--given continues each seen motion on its own; it takes no {', '.join(ignored)}",

@@ -388,10 +388,11 @@ def start_vectors(trajs) -> np.ndarray:
 
 
 def starts_near(starts: np.ndarray, count: int, spread: float, seed: int = 0, spread_rot: float | None = None,
-                return_index: bool = False):
+                return_index: bool = False, in_order: bool = False):
     """``count`` start poses near the given ones (paper sec. 4.3: 100 unseen starts near the demos').
 
-    Each new start takes a demonstration start (cycling through them in a seeded random order) and
+    Each new start takes a demonstration start (cycling through them in a seeded random order; with
+    ``in_order``, new start i near start i mod D, so that the i-th output belongs to the i-th input) and
     perturbs it: translation by N(0, spread²) per axis (metres), rotation by exp of a N(0, s_r²)
     rotation vector with s_r = spread_rot (radians; default spread / 0.3 m × 0.1 rad, i.e. about
     0.1 rad per 0.3 m of translation spread, matching the scale of human start-pose variation).
@@ -410,7 +411,10 @@ def starts_near(starts: np.ndarray, count: int, spread: float, seed: int = 0, sp
         raise InputError(f"spread must be >= 0, got {spread}", param="spread")
     rng = np.random.default_rng(seed)
     s_r = spread / 0.3 * 0.1 if spread_rot is None else spread_rot
-    order = np.concatenate([rng.permutation(len(starts)) for _ in range(-(-count // len(starts)))])[:count]
+    if in_order:
+        order = np.arange(count) % len(starts)
+    else:
+        order = np.concatenate([rng.permutation(len(starts)) for _ in range(-(-count // len(starts)))])[:count]
     base = starts[order]
     dq = exp_quat(rng.normal(0.0, 1.0, (count, 3)) * s_r)
     q = quat_multiply(dq, base[:, :4])

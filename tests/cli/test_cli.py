@@ -117,6 +117,44 @@ def test_rollout_from_explicit_start_and_demos(model, tmp_path):
     assert res.exit_code == 0 and res.stdout.count("\n") == 2 + 3 * 6
 
 
+def _by_trajectory(path):
+    from rbgp_cli.io.options import ReadOptions
+    from rbgp_cli.io.read import read_demonstrations
+
+    return read_demonstrations([str(path)], ReadOptions())
+
+
+def test_from_demos_rolls_out_one_start_per_demonstration_in_the_order_read_and_pairs_the_goals(model, tmp_path):
+    """`rollout --from-demos A B C --start-spread 0` is what a user types to roll out from held-out starts: one
+    trajectory per demonstration, trajectory i at demonstration i's start (the order read, as docs/commands.md says
+    --goals pairs them), and with --goals in that order each motion ends at its own demonstration's goal."""
+    from rbgp_cli.io.options import ReadOptions
+    from rbgp_cli.io.read import read_demonstrations
+
+    files = sorted(CSV_DIR.glob("*.csv"))[:3][::-1]  # not the folder's order: the order given is the order read
+    demos = read_demonstrations([str(f) for f in files], ReadOptions())
+    goals = tmp_path / "goals.csv"
+    goals.write_text("qx,qy,qz,qw,x,y,z\n" + "".join(
+        ",".join(f"{v:.9f}" for v in (*d.quat[-1], *d.position[-1])) + "\n" for d in demos))
+    out = tmp_path / "gen.csv"
+    res = run("rollout", model, "--from-demos", *files, "--start-spread", 0, "--goals", goals, "--each-duration",
+              "--no-std", "-o", out)
+    assert res.exit_code == 0, res.stderr
+    gen = _by_trajectory(out)
+    assert len(gen) == 3
+    for g, d in zip(gen, demos):
+        assert np.allclose(g.position[0], d.position[0], atol=1e-6)
+        assert abs(abs(float(np.dot(g.quat[0], d.quat[0]))) - 1.0) < 1e-9
+        assert np.linalg.norm(g.position[-1] - d.position[-1]) < 5e-3  # its own goal, not another demonstration's
+        assert abs(g.duration - d.duration) < 0.02
+    # --count cycles through them in the same order: start 3 is demonstration 0's, start 4 demonstration 1's
+    res = run("rollout", model, "--from-demos", *files, "--start-spread", 0, "--count", 5, "--steps", 3, "--no-std",
+              "-o", out)
+    assert res.exit_code == 0, res.stderr
+    starts = np.array([g.position[0] for g in _by_trajectory(out)])
+    assert np.allclose(starts, np.array([demos[i % 3].position[0] for i in range(5)]), atol=1e-6)
+
+
 def test_evaluate_json_schema(model, tmp_path):
     gen = tmp_path / "gen.csv"
     assert run("rollout", model, "--count", 6, "-o", gen, "--no-std").exit_code == 0
