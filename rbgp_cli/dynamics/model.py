@@ -321,6 +321,10 @@ class PathReference:
             ds = np.diff(self.s)[:, None]
             self._dmu = np.diff(self.start_mean, axis=0) / ds
             self._dbeta = np.diff(self.start_beta, axis=0) / ds.reshape((-1,) + (1,) * (self.start_beta.ndim - 1))
+            #: the farthest the demonstrations went from the mean path at each phase (S, 2), rotation (rad) and
+            #: position (m) (:func:`~rbgp_cli.dynamics.variation.start_reach`); None: the map is not bounded
+            reach = mean.get("start_reach")
+            self.start_reach = None if reach is None else np.asarray(reach, dtype=np.float64)
 
     def start_deviation(self, quat, position) -> np.ndarray:
         """c = δ(0) − μ(0) (m, 6) of start poses (quat (m, 4), position (m, 3)): their deviation from
@@ -340,8 +344,12 @@ class PathReference:
         (:meth:`start_deviation`): with Δ(s) = μ(s) + B(s) dev (linear between grid phases; B (S, 6, 6)
         from :func:`~rbgp_cli.dynamics.variation.start_map`, or per-coordinate β(s) ⊙ dev), the
         pose (exp(Δ_rot) R̄(s), p̄(s) + Δ_pos) and the twist per unit phase ξ̄(s) + Δ'(s) (to first
-        order in Δ_rot); shapes (m, 4), (m, 3), (m, 6). With ``step`` h (scalar or (m,), > 0) the twist
-        is the secant over one step instead (:func:`path_secant`)."""
+        order in Δ_rot); shapes (m, 4), (m, 3), (m, 6). With the demonstrations' reach ρ(s) (S, 2)
+        (``mean["start_reach"]``, :func:`~rbgp_cli.dynamics.variation.start_reach`) the shift B(s) dev is
+        bounded per block b (rotation, position): scaled by min(1, max(|dev_b|, ρ_b(s)) / |(B(s) dev)_b|),
+        so a start the map has not seen is not extrapolated farther than any demonstration went (a start
+        within theirs keeps the linear map); its slope is scaled alike. With ``step`` h (scalar or (m,),
+        > 0) the twist is the secant over one step instead (:func:`path_secant`)."""
         from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
 
         if step is not None:
@@ -355,8 +363,17 @@ class PathReference:
         if self.start_beta.ndim == 3:  # the map B(s) (S, 6, 6) of variation.start_map
             g = f[:, :, None]
             beta = (1.0 - g) * self.start_beta[k] + g * self.start_beta[k + 1]
-            delta = mu + np.einsum("mij,mj->mi", beta, dev)
+            shift = np.einsum("mij,mj->mi", beta, dev)
             slope = np.einsum("mij,mj->mi", self._dbeta[k], dev)
+            if self.start_reach is not None:  # bounded per block by max(|start offset|, the reach ρ(s)): variation.start_reach
+                reach = (1.0 - f) * self.start_reach[k] + f * self.start_reach[k + 1]  # (m, 2)
+                for b, sl in ((0, slice(0, 3)), (1, slice(3, 6))):
+                    size = np.linalg.norm(shift[:, sl], axis=1)
+                    cap = np.maximum(np.linalg.norm(dev[:, sl], axis=1), reach[:, b])
+                    c = np.where(size > cap, cap / np.where(size > 0, size, 1.0), 1.0)[:, None]
+                    shift[:, sl] *= c
+                    slope[:, sl] *= c
+            delta = mu + shift
         else:  # per-coordinate slopes β(s) (S, 6) (model files of rbgp 0.x before the map)
             beta = (1.0 - f) * self.start_beta[k] + f * self.start_beta[k + 1]
             delta = mu + beta * dev
@@ -1020,12 +1037,13 @@ def _prior_of(trajs, info, prior, prior_gain, start_conditioning, seed, pull_pro
         mean = {"kind": "goal", "gain": float(prior_gain), "goal": goal_pose(trajs).tolist()}
     start_dev = None
     if mean is not None and mean["kind"] == "path" and start_conditioning and len(trajs) >= 3:
-        from rbgp_cli.dynamics.variation import demonstration_deviations, pull_profile as profile_of, start_map
+        from rbgp_cli.dynamics.variation import demonstration_deviations, pull_profile as profile_of, start_map, start_reach
 
         _, delta = demonstration_deviations(trajs, len(mean["s"]))
         cond = start_map(delta, seed=seed)
         mean["start_mean"], mean["start_beta"], mean["start_ridge"] = cond["mean"], cond["map"], cond["ridge"]
         mean["start_inputs"] = cond["inputs"]  # the map's units (issue 36); moved to the summary with the ridge
+        mean["start_reach"] = start_reach(delta, cond["mean"])  # the map's shift bounded by the demonstrations' reach
         if pull_profile:
             mean["gain_profile"] = profile_of(delta, cond["mean"], cond["map"], np.asarray(mean["s"]), float(prior_gain))
         demo_of_row = np.repeat(np.arange(len(trajs)), info["per_demo"])[np.asarray(info["indices"])]

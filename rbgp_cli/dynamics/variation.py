@@ -67,7 +67,8 @@ import numpy as np
 
 from rbgp_cli.dynamics.trajectory import Trajectory
 
-__all__ = ["Variation", "demonstration_variation", "demonstration_deviations", "start_regression", "start_map", "START_INPUTS",
+__all__ = ["Variation", "demonstration_variation", "demonstration_deviations", "start_regression", "start_map", "start_reach",
+           "START_INPUTS",
            "band_scale", "band_calibration", "band_quantiles", "shrinkage", "order_drift", "pull_profile", "DRIFT_P", "STEPS", "MIN_DEMOS", "MIN_BAND_DEMOS", "RIDGE_GRID", "BAND_LEVEL",
            "PULL_CAP", "PULL_WINDOW"]
 
@@ -348,6 +349,24 @@ def start_map(delta: np.ndarray, *, grid=RIDGE_GRID, folds: int = RIDGE_FOLDS, s
     mu, B = _ridge_map(delta, scale, lam, inputs)
     return {"mean": mu, "map": B, "ridge": lam, "inputs": inputs, "errors": errors["path"].tolist(),
             "errors_start": errors["start"].tolist()}
+
+
+def start_reach(delta: np.ndarray, start_mean: np.ndarray) -> np.ndarray:
+    """How far the demonstrations went from the start-conditioned map's mean at each phase: (S, 2), per phase s
+    the largest rotation angle and the largest position distance over the demonstrations d,
+
+        ρ_rot(s) = max_d |c_d,rot(s)|,   ρ_pos(s) = max_d |c_d,pos(s)|,   c_d = δ_d − μ,
+
+    of their deviations δ (D, S, 6) about μ (S, 6) (:func:`start_map`'s ``mean``). The start map is linear in
+    the start, fitted on starts that may barely vary (handovers picked up from a rest within 2 mm): a start
+    the map has never seen, centimetres or tens of their spreads off, is carried through the motion by gains
+    that reach 30 and more, metres from every demonstration. The conditioned path's shift B(s)(δ(0) − μ(0)) is
+    therefore bounded per phase and block by max(|its start offset|, ρ(s)) (``PathReference.conditioned_at``):
+    no farther from the mean path than the farthest demonstration went there, or than the start itself is;
+    a start within the demonstrations' keeps the linear map as it is (docs/method.md §11)."""
+    c = np.asarray(delta, dtype=np.float64) - np.asarray(start_mean, dtype=np.float64)[None]
+    return np.stack([np.linalg.norm(c[..., :3], axis=-1).max(axis=0), np.linalg.norm(c[..., 3:], axis=-1).max(axis=0)],
+                    axis=1)
 
 
 def pull_profile(delta: np.ndarray, start_mean: np.ndarray, start_map_: np.ndarray, s: np.ndarray, floor: float, *,

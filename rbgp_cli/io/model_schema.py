@@ -204,6 +204,7 @@ _PRIOR = nullable(obj({
     "start": string(("mean", "conditioned")),
     "feedforward": string(("tangent", "secant")),
     "gain_profile": boolean,
+    "start_reach": boolean,
 }, ("kind", "gain")))  # fmt: skip
 
 _GP = obj({"type": string(("exact", "sparse")), "inducing": integer(1, 10**6)}, ("type",))
@@ -356,6 +357,8 @@ def _agree(h: dict) -> None:
             raise SchemaError("unknown field 'prior.start' (a goal prior has no start conditioning)")
         if prior.get("gain_profile") and prior.get("start") != "conditioned":
             raise SchemaError("prior.gain_profile needs a start-conditioned path prior (prior.start = 'conditioned')")
+        if prior.get("start_reach") and prior.get("start") != "conditioned":
+            raise SchemaError("prior.start_reach needs a start-conditioned path prior (prior.start = 'conditioned')")
     sbs = (h.get("paths") or {}).get("seen_band_scales")
     if sbs is not None:
         F = sbs["fractions"]
@@ -384,6 +387,8 @@ def expected_arrays(h: dict) -> set:
             req |= {"prior_start_mean", "prior_start_beta"}
         if h["prior"].get("gain_profile"):
             req |= {"prior_gain_profile"}
+        if h["prior"].get("start_reach"):
+            req |= {"prior_start_reach"}
     if h.get("variation"):
         req |= {"variation_s", "variation_residuals"}
     if h.get("paths"):
@@ -461,6 +466,11 @@ def validate_arrays(h: dict, arrays: dict) -> None:
             _finite(arrays, "prior_gain_profile")
             if not np.all(arrays["prior_gain_profile"] >= 0):
                 raise SchemaError("array 'prior_gain_profile' holds negative gains")
+        if "prior_start_reach" in req:
+            _shape(arrays, "prior_start_reach", (S, 2), f"({S}, 2) (a row per entry of array 'prior_s')")
+            _finite(arrays, "prior_start_reach")
+            if not np.all(arrays["prior_start_reach"] >= 0):
+                raise SchemaError("array 'prior_start_reach' holds negative distances")
         if not np.all(np.diff(arrays["prior_s"]) > 0):
             raise SchemaError("array 'prior_s' is not increasing")
     if "variation_s" in req:

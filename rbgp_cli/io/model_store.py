@@ -52,7 +52,11 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
   coordinates is shrunk (``variation.shrinkage``: α in [0, 1],
   :func:`rbgp_cli.dynamics.variation.shrinkage`), which its draws follow; files without it draw with
   α = 0, as they were trained. An rbgp that reads only version 8 refuses these files instead of
-  drawing bands of the wrong shape.
+  drawing bands of the wrong shape. Optional in version 9: a start-conditioned prior whose map's shift is
+  bounded by the demonstrations' reach says ``"start_reach": true`` and holds ``prior_start_reach`` (S, 2),
+  the largest rotation (rad) and position (m) deviation per phase (:func:`rbgp_cli.dynamics.variation.start_reach`);
+  files without it roll out with the map unbounded, as they were trained, and an rbgp older than the field
+  refuses a file that has it with its schema's "unknown field" error.
 
 Loading reads the zip itself (never unpickling: .npy members of plain numbers only) with limits
 checked before anything large is decompressed: a member may decompress to at most
@@ -114,6 +118,8 @@ _PRIOR_ARRAYS = {"prior_s": "s", "prior_quat": "quat", "prior_position": "positi
 _START_ARRAYS = {"prior_start_mean": "start_mean", "prior_start_beta": "start_beta"}
 #: The pull's gain per phase and coordinate (header ``prior.gain_profile``).
 _PROFILE_ARRAY = ("prior_gain_profile", "gain_profile")
+#: The demonstrations' reach per phase that bounds the start map's shift (header ``prior.start_reach``).
+_REACH_ARRAY = ("prior_start_reach", "start_reach")
 
 
 def array_sha256(a: np.ndarray) -> str:
@@ -179,6 +185,9 @@ def save_model(model, path) -> dict:
                 if mean.get("gain_profile") is not None:  # the pull's profile (dynamics.variation.pull_profile)
                     prior["gain_profile"] = True
                     arrays[_PROFILE_ARRAY[0]] = np.ascontiguousarray(mean[_PROFILE_ARRAY[1]], dtype=np.float64)
+                if mean.get("start_reach") is not None:  # the map's bound (dynamics.variation.start_reach)
+                    prior["start_reach"] = True
+                    arrays[_REACH_ARRAY[0]] = np.ascontiguousarray(mean[_REACH_ARRAY[1]], dtype=np.float64)
     variation = getattr(model, "variation", None)
     if variation is not None:
         arrays.update(variation.to_arrays())
@@ -422,7 +431,7 @@ def read_header(path) -> tuple[dict, dict]:
             if raw.dtype != np.uint8 or raw.ndim != 1:
                 raise _bad(path, "the model header is damaged (not a byte string)")
             header, version = _check_header(path, _parse_header(path, raw.tobytes()))
-            known = (*_ARRAYS, *_PRIOR_ARRAYS, *_START_ARRAYS, _PROFILE_ARRAY[0], *_SPARSE_ARRAYS, *_VARIATION_ARRAYS,
+            known = (*_ARRAYS, *_PRIOR_ARRAYS, *_START_ARRAYS, _PROFILE_ARRAY[0], _REACH_ARRAY[0], *_SPARSE_ARRAYS, *_VARIATION_ARRAYS,
                      *_PATHS_ARRAYS)
             infos = {k: _member_info(zf, path, k, disk) for k in known if k in names}
             total = sum(i.file_size for i in infos.values())
@@ -602,11 +611,16 @@ def _model_extras(header: dict, arrays: dict, rep, X):
             if _PROFILE_ARRAY[0] not in arrays:
                 raise ValueError(f"array {_PROFILE_ARRAY[0]!r} of the pull's profile is missing")
             mean[_PROFILE_ARRAY[1]] = np.asarray(arrays[_PROFILE_ARRAY[0]], dtype=np.float64)
+        if prior.get("start_reach"):  # absent in files before it: the map unbounded, as they were trained
+            if _REACH_ARRAY[0] not in arrays:
+                raise ValueError(f"array {_REACH_ARRAY[0]!r} of the start map's bound is missing")
+            mean[_REACH_ARRAY[1]] = np.asarray(arrays[_REACH_ARRAY[0]], dtype=np.float64)
     S = len(mean["s"])
     if (S < 2 or mean["quat"].shape != (S, 4) or mean["position"].shape != (S, 3)
             or ("start_mean" in mean and mean["start_mean"].shape != (S, 6))
             or ("start_beta" in mean and mean["start_beta"].shape not in ((S, 6), (S, 6, 6)))
             or ("gain_profile" in mean and mean["gain_profile"].shape != (S, 6))
+            or ("start_reach" in mean and mean["start_reach"].shape != (S, 2))
             or mean["velocity"].shape != (S - 1, 6) or not all(np.all(np.isfinite(a)) for a in mean.values() if isinstance(a, np.ndarray))
             or not np.all(np.diff(mean["s"]) > 0)):
         raise ValueError("the mean-path prior's arrays are inconsistent")
