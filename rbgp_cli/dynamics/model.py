@@ -350,6 +350,7 @@ class PathReference:
         so a start the map has not seen is not extrapolated farther than any demonstration went (a start
         within theirs keeps the linear map); its slope is scaled alike. With ``step`` h (scalar or (m,),
         > 0) the twist is the secant over one step instead (:func:`path_secant`)."""
+        from rbgp_cli.dynamics.variation import bound_shift
         from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
 
         if step is not None:
@@ -363,17 +364,11 @@ class PathReference:
         if self.start_beta.ndim == 3:  # the map B(s) (S, 6, 6) of variation.start_map
             g = f[:, :, None]
             beta = (1.0 - g) * self.start_beta[k] + g * self.start_beta[k + 1]
-            shift = np.einsum("mij,mj->mi", beta, dev)
             slope = np.einsum("mij,mj->mi", self._dbeta[k], dev)
-            if self.start_reach is not None:  # bounded per block by max(|start offset|, the reach ρ(s)): variation.start_reach
-                reach = (1.0 - f) * self.start_reach[k] + f * self.start_reach[k + 1]  # (m, 2)
-                for b, sl in ((0, slice(0, 3)), (1, slice(3, 6))):
-                    size = np.linalg.norm(shift[:, sl], axis=1)
-                    cap = np.maximum(np.linalg.norm(dev[:, sl], axis=1), reach[:, b])
-                    c = np.where(size > cap, cap / np.where(size > 0, size, 1.0), 1.0)[:, None]
-                    shift[:, sl] *= c
-                    slope[:, sl] *= c
+            reach = None if self.start_reach is None else (1.0 - f) * self.start_reach[k] + f * self.start_reach[k + 1]
+            shift, kb = bound_shift(np.einsum("mij,mj->mi", beta, dev), dev, reach)  # ≤ max(|dev_b|, ρ_b(s))
             delta = mu + shift
+            slope = slope * np.repeat(kb, 3, axis=-1)
         else:  # per-coordinate slopes β(s) (S, 6) (model files of rbgp 0.x before the map)
             beta = (1.0 - f) * self.start_beta[k] + f * self.start_beta[k + 1]
             delta = mu + beta * dev

@@ -378,7 +378,7 @@ def left_out_priors(mean: dict, trajs, demos, *, ridge: float | None = None, inp
     else ``ridge`` (None: ∞) and ``inputs``). ``goal``: the others' mean final pose. Every other key is the
     model's. Returns one dict per demonstration of ``demos``, in that order."""
     from rbgp_cli.dynamics.model import goal_pose
-    from rbgp_cli.dynamics.variation import _coordinate_scale, _ridge_map, pull_profile
+    from rbgp_cli.dynamics.variation import _coordinate_scale, _ridge_map, pull_profile, start_reach
     from rbgp_cli.geometry.so3 import log_quat, quat_conjugate, quat_make_continuous, quat_multiply
 
     D = len(trajs)
@@ -403,6 +403,8 @@ def left_out_priors(mean: dict, trajs, demos, *, ridge: float | None = None, inp
             units = mean.get("start_inputs", inputs or "path")
             mu, B = _ridge_map(delta, _coordinate_scale(delta), float("inf") if lam is None else float(lam), units)
             m["start_mean"], m["start_beta"] = mu, B
+            if mean.get("start_reach") is not None:  # bounded as the model's (variation.start_reach)
+                m["start_reach"] = start_reach(delta, mu)
             if mean.get("gain_profile") is not None:
                 m["gain_profile"] = pull_profile(delta, mu, B, s, float(mean["gain"]))
         out.append(m)
@@ -437,6 +439,7 @@ class StackedPriors:
             ds = np.diff(self.s)
             self._dmu = np.diff(self.start_mean, axis=1) / ds[None, :, None]
             self._dbeta = np.diff(self.start_beta, axis=1) / ds[None, :, None, None]
+            self.start_reach = f("start_reach") if means[0].get("start_reach") is not None else None  # (R, S, 2)
         self.profile = f("gain_profile") if means[0].get("gain_profile") is not None else None
 
     def start_deviation(self, quat, position, ref) -> np.ndarray | None:
@@ -458,6 +461,7 @@ class StackedPriors:
     def _pose(self, s, ref, dev):
         """The (start-conditioned) reference pose of each row at phases s (m,) (PathReference.at /
         conditioned_at), and its tangent velocity."""
+        from rbgp_cli.dynamics.variation import bound_shift
         from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
 
         k, f = self._interval(s)
@@ -469,10 +473,13 @@ class StackedPriors:
             mu = (1.0 - f)[:, None] * self.start_mean[ref, k] + f[:, None] * self.start_mean[ref, k + 1]
             g = f[:, None, None]
             beta = (1.0 - g) * self.start_beta[ref, k] + g * self.start_beta[ref, k + 1]
-            delta = mu + np.einsum("mij,mj->mi", beta, dev)
+            reach = None if self.start_reach is None else (
+                (1.0 - f)[:, None] * self.start_reach[ref, k] + f[:, None] * self.start_reach[ref, k + 1])
+            shift, kb = bound_shift(np.einsum("mij,mj->mi", beta, dev), dev, reach)  # as PathReference.conditioned_at
+            delta = mu + shift
             q = quat_multiply(exp_quat(delta[:, :3]), q)
             p = p + delta[:, 3:]
-            ff = ff + self._dmu[ref, k] + np.einsum("mij,mj->mi", self._dbeta[ref, k], dev)
+            ff = ff + self._dmu[ref, k] + np.einsum("mij,mj->mi", self._dbeta[ref, k], dev) * np.repeat(kb, 3, axis=-1)
         return q, p, ff
 
     def outputs(self, representation, X, ref, dev=None, step=None) -> np.ndarray:

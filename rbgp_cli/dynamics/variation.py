@@ -68,7 +68,7 @@ import numpy as np
 from rbgp_cli.dynamics.trajectory import Trajectory
 
 __all__ = ["Variation", "demonstration_variation", "demonstration_deviations", "start_regression", "start_map", "start_reach",
-           "START_INPUTS",
+           "bound_shift", "START_INPUTS",
            "band_scale", "band_calibration", "band_quantiles", "shrinkage", "order_drift", "pull_profile", "DRIFT_P", "STEPS", "MIN_DEMOS", "MIN_BAND_DEMOS", "RIDGE_GRID", "BAND_LEVEL",
            "PULL_CAP", "PULL_WINDOW"]
 
@@ -369,6 +369,25 @@ def start_reach(delta: np.ndarray, start_mean: np.ndarray) -> np.ndarray:
                     axis=1)
 
 
+def bound_shift(shift: np.ndarray, start: np.ndarray, reach: np.ndarray | None):
+    """The start map's shift B(s) c bounded by the reach ρ(s) (:func:`start_reach`): per block b (rotation,
+    position) scaled by k_b = min(1, max(|c_b|, ρ_b) / |(B c)_b|). ``shift`` (..., 6), ``start`` c (..., 6)
+    and ``reach`` (..., 2) broadcast together (None: no bound). Returns (the bounded shift (..., 6), the
+    factors k (..., 2)), the factors for the shift's slope."""
+    shift = np.asarray(shift, dtype=np.float64)
+    if reach is None:
+        return shift, np.ones(shift.shape[:-1] + (2,))
+    start = np.asarray(start, dtype=np.float64)
+    out, k = np.array(shift), []
+    for b, sl in ((0, slice(0, 3)), (1, slice(3, 6))):
+        size = np.linalg.norm(shift[..., sl], axis=-1)
+        cap = np.maximum(np.linalg.norm(start[..., sl], axis=-1), np.asarray(reach)[..., b])
+        kb = np.where(size > cap, cap / np.where(size > 0, size, 1.0), 1.0)
+        out[..., sl] = shift[..., sl] * kb[..., None]
+        k.append(kb)
+    return out, np.stack(np.broadcast_arrays(*k), axis=-1)
+
+
 def pull_profile(delta: np.ndarray, start_mean: np.ndarray, start_map_: np.ndarray, s: np.ndarray, floor: float, *,
                  window: float = PULL_WINDOW, cap: float = PULL_CAP) -> np.ndarray:
     """The prior's pull gain per phase and coordinate that follows the demonstrations' convergence
@@ -456,7 +475,9 @@ def _held_out_errors(delta: np.ndarray, s: np.ndarray, train: np.ndarray, test: 
     C = _shrunk(np.einsum("dsi,dsj->sij", r[:, 1:], r[:, 1:]), a) * (1.0 + 1.0 / m) / (m - 2)
     mu, B = _ridge_map(rest, scale, ridge, inputs)
     held = delta[test]
-    e = held - mu[None] - np.einsum("sij,dj->dsi", B, held[:, 0] - mu[0])  # (T, S, 6)
+    c0 = held[:, 0] - mu[0]
+    shift, _ = bound_shift(np.einsum("sij,dj->dsi", B, c0), c0[:, None], start_reach(rest, mu)[None])  # as a rollout
+    e = held - mu[None] - shift  # (T, S, 6)
     decay = np.exp(-float(gain) * np.asarray(s, dtype=np.float64))[1:, None]
     e = e[:, 1:] - decay[None] * e[:, :1]
     Cr = C[:, :3, :3]
