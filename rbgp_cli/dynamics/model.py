@@ -368,7 +368,7 @@ class PathReference:
             reach = None if self.start_reach is None else (1.0 - f) * self.start_reach[k] + f * self.start_reach[k + 1]
             shift, kb = bound_shift(np.einsum("mij,mj->mi", beta, dev), dev, reach)  # ≤ max(|dev_b|, ρ_b(s))
             delta = mu + shift
-            slope = slope * np.repeat(kb, 3, axis=-1)
+            slope = slope * kb
         else:  # per-coordinate slopes β(s) (S, 6) (model files of rbgp 0.x before the map)
             beta = (1.0 - f) * self.start_beta[k] + f * self.start_beta[k + 1]
             delta = mu + beta * dev

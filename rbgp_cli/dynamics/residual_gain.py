@@ -479,7 +479,7 @@ class StackedPriors:
             delta = mu + shift
             q = quat_multiply(exp_quat(delta[:, :3]), q)
             p = p + delta[:, 3:]
-            ff = ff + self._dmu[ref, k] + np.einsum("mij,mj->mi", self._dbeta[ref, k], dev) * np.repeat(kb, 3, axis=-1)
+            ff = ff + self._dmu[ref, k] + np.einsum("mij,mj->mi", self._dbeta[ref, k], dev) * kb
         return q, p, ff
 
     def outputs(self, representation, X, ref, dev=None, step=None) -> np.ndarray:

@@ -363,7 +363,7 @@ def start_reach(delta: np.ndarray, start_mean: np.ndarray) -> np.ndarray:
     that reach 30 and more, metres from every demonstration. The conditioned path's shift B(s)(δ(0) − μ(0)) is
     therefore bounded per phase and block by max(|its start offset|, ρ(s)) (``PathReference.conditioned_at``):
     no farther from the mean path than the farthest demonstration went there, or than the start itself is;
-    a start within the demonstrations' keeps the linear map as it is (docs/method.md §11)."""
+    a start within the demonstrations' keeps the linear map as it is (docs/method.md §7, "The map's reach")."""
     c = np.asarray(delta, dtype=np.float64) - np.asarray(start_mean, dtype=np.float64)[None]
     return np.stack([np.linalg.norm(c[..., :3], axis=-1).max(axis=0), np.linalg.norm(c[..., 3:], axis=-1).max(axis=0)],
                     axis=1)
@@ -373,19 +373,17 @@ def bound_shift(shift: np.ndarray, start: np.ndarray, reach: np.ndarray | None):
     """The start map's shift B(s) c bounded by the reach ρ(s) (:func:`start_reach`): per block b (rotation,
     position) scaled by k_b = min(1, max(|c_b|, ρ_b) / |(B c)_b|). ``shift`` (..., 6), ``start`` c (..., 6)
     and ``reach`` (..., 2) broadcast together (None: no bound). Returns (the bounded shift (..., 6), the
-    factors k (..., 2)), the factors for the shift's slope."""
+    factors k per coordinate (..., 6): k_b on each of its block's three, for the shift's slope)."""
     shift = np.asarray(shift, dtype=np.float64)
     if reach is None:
-        return shift, np.ones(shift.shape[:-1] + (2,))
+        return shift, np.ones_like(shift)
     start = np.asarray(start, dtype=np.float64)
-    out, k = np.array(shift), []
+    k = np.ones_like(shift)
     for b, sl in ((0, slice(0, 3)), (1, slice(3, 6))):
         size = np.linalg.norm(shift[..., sl], axis=-1)
         cap = np.maximum(np.linalg.norm(start[..., sl], axis=-1), np.asarray(reach)[..., b])
-        kb = np.where(size > cap, cap / np.where(size > 0, size, 1.0), 1.0)
-        out[..., sl] = shift[..., sl] * kb[..., None]
-        k.append(kb)
-    return out, np.stack(np.broadcast_arrays(*k), axis=-1)
+        k[..., sl] = np.where(size > cap, cap / np.where(size > 0, size, 1.0), 1.0)[..., None]
+    return shift * k, k
 
 
 def pull_profile(delta: np.ndarray, start_mean: np.ndarray, start_map_: np.ndarray, s: np.ndarray, floor: float, *,
