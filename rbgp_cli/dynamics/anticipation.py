@@ -40,11 +40,13 @@ conditioned mean at D̂, so duration and path vary together and every sample sta
 **The tolerance and the bands** (:func:`fit_seen`): each demonstration left out in turn, its first
 F ∈ {0.2, 0.4, 0.6, 0.8} seen at its true phases, the rest predicted; r maximises the left-out remainders'
 log density (over :data:`SEEN_TOLERANCE_GRID`). From :data:`REST_FROM` demonstrations on, the rest's
-(τ²_rest, r_rest) minimise the left-out final pose's squared error given the seen part (:func:`_end_loo`: the
-others' conditioned mean at phase 1, in units of each coordinate's spread, summed over the fractions) over
-:data:`REST_SMOOTH_GRID` × :data:`SEEN_TOLERANCE_GRID` and the path distribution's own (τ², r), which ties keep;
-with fewer, r_rest = r and τ²_rest is whichever of τ² and :data:`REST_FEW_SMOOTH` has the smaller such error
-(two candidates, not forty: the left-out ends are too few to choose among many). The mean is the rest's
+(τ²_rest, r_rest) are chosen on the left-out final pose and remainder given the seen part (:func:`_end_loo` with
+``remainder``: the others' conditioned mean against the left-out demonstration at phase 1 and at the remainder's
+scored phases, in units of each coordinate's spread, summed over the fractions) over :data:`REST_SMOOTH_GRID` ×
+:data:`SEEN_TOLERANCE_GRID` and the path distribution's own (τ², r): of the candidates within :data:`REST_SE`
+standard errors of the smallest, the one that trusts the seen poses least (:func:`_loosest_rest`);
+with fewer, r_rest = r and τ²_rest is whichever of τ² and :data:`REST_FEW_SMOOTH` has the smaller left-out final
+pose error (two candidates, not forty: the left-out ends are too few to choose among many). The mean is the rest's
 conditioning; the samples' spread about it keeps the path distribution's (τ², r), the distribution the left-out
 remainders' density chose, and the factors (c_rot(F), c_pos(F)), one pair per seen fraction F (:func:`seen_band_scales`), make those remainders' 90 % regions
 hold about the rest's mean under it (as :func:`~rbgp_cli.dynamics.paths.fit_paths` does for the start-only
@@ -125,11 +127,16 @@ DURATION_FOLDS = 5
 #: point estimate (the median) and the end pose keep λ = 1, which estimated the left-out durations best
 #: (docs/defaults.md, issue 37's thirteenth pass)
 DURATION_EVIDENCE_GRID = (1.0, 0.5, 0.25, 0.125, 0.0625, 0.03125, 0.015625, 0.0078125)
-#: The conditioning of the rest has its own τ² and r, chosen by :func:`fit_seen` on the left-out final pose from
-#: these τ² (and the path distribution's own) × SEEN_TOLERANCE_GRID, from REST_FROM demonstrations on (with fewer
+#: The conditioning of the rest has its own τ² and r, chosen by :func:`fit_seen` on the left-out final pose and
+#: remainder from these τ² (and the path distribution's own) × SEEN_TOLERANCE_GRID, from REST_FROM demonstrations on (with fewer
 #: the left-out ends are too few to choose among so many: docs/defaults.md, issue 37's fourth pass; see REST_FEW_SMOOTH)
 REST_SMOOTH_GRID = (0.01, 0.03, 0.1, 0.3, 1.0)
 REST_FROM = NARROW_FROM
+#: ... and there it takes the candidate that trusts the seen poses least (the largest r, then the largest τ²) among
+#: those whose left-out end-and-remainder error is within this many standard errors of the smallest
+#: (:func:`_loosest_rest`; the smallest of 48 noisy errors is an optimistic winner: docs/defaults.md, issue 37's
+#: fifteenth pass)
+REST_SE = 1.0
 #: ... and with fewer, the rest keeps the seen r and takes this τ² instead of the path distribution's own where it
 #: predicts the left-out final pose better (:func:`_end_loo`): the seen part's relation to the end then comes mostly
 #: from the smooth process, not from the D − 1 directions so few demonstrations span (studies of five: chosen in 5,
@@ -865,14 +872,20 @@ def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS,
     return total / count
 
 
-def _end_loo(paths, smooths, tolerances, points: int = SEEN_POINTS) -> np.ndarray:
+def _end_loo(paths, smooths, tolerances, points: int = SEEN_POINTS, *, remainder: bool = False,
+             per_demo: bool = False) -> np.ndarray:
     """The left-out final pose given the seen part, for each τ² of ``smooths`` and r of ``tolerances``: each
     demonstration left out, its first F (each of SEEN_FRACTIONS) seen at its true phases (≤ ``points`` grid
     phases, the last exactly, as the continuation sees it) and its ln D, and the others' distribution (its
     smooth term τ² K_ℓ) conditioned on them; the error e (6,) of the conditioned mean at phase 1 against the
     left-out end, in units of each coordinate's spread. Returns the mean over the left-out demonstrations of
     eᵀe, summed over the fractions: (len(smooths), len(tolerances)). Batched over the demonstrations
-    (:func:`~rbgp_cli.dynamics.paths.left_out_moments`); only the coordinates involved enter."""
+    (:func:`~rbgp_cli.dynamics.paths.left_out_moments`); only the coordinates involved enter.
+
+    ``remainder``: the error of the whole rest as well, eᵀe at the end plus (1/k) Σ_j e_jᵀe_j over the k phases the
+    remainder is scored at (:func:`seen_split`: every SELECT_EVERY-th after F and the end), what crossval scores a
+    continuation by (its final pose and its remainder's RMSE). ``per_demo``: the sums per left-out demonstration,
+    (len(smooths), len(tolerances), D), instead of their mean."""
     from rbgp_cli.dynamics.paths import GOAL_TOLERANCE, left_out_moments
 
     X = paths.vectors()
@@ -880,13 +893,14 @@ def _end_loo(paths, smooths, tolerances, points: int = SEEN_POINTS) -> np.ndarra
     K1 = paths.smooth_covariance(1.0)
     r_last = (np.array(GOAL_TOLERANCE).repeat(3) / paths.scale) ** 2
     end = 6 * (S - 1) + np.arange(6)
-    out = np.zeros((len(smooths), len(tolerances)))
+    out = np.zeros((len(smooths), len(tolerances), len(X)))
     for F in SEEN_FRACTIONS:
         idx, no = seen_split(F, S, P, points)
-        idx = np.concatenate([idx[:no], end])  # the seen entries (ln D last), then the end's six
+        if not remainder:
+            idx = np.concatenate([idx[:no], end])  # the seen entries (ln D last), then the end's six
+        k = (len(idx) - no) // 6  # the scored phases, the end last
         Xs = X[:, idx]
         K = K1[np.ix_(idx, idx)]
-        sq, count = np.zeros_like(out), 0
         for block, m, sample in left_out_moments(Xs):
             innovation = Xs[block, :no] - m[:, :no]
             for a, tau2 in enumerate(smooths):
@@ -896,19 +910,39 @@ def _end_loo(paths, smooths, tolerances, points: int = SEEN_POINTS) -> np.ndarra
                     r2 = np.full(no, float(tol) ** 2)
                     r2[-7:-1] = r_last
                     r2[-1] = _ELL_TOL ** 2
-                    gain = np.swapaxes(np.linalg.solve(Soo + np.diag(r2), Sot), 1, 2)  # (B, 6, no)
+                    gain = np.swapaxes(np.linalg.solve(Soo + np.diag(r2), Sot), 1, 2)  # (B, 6k, no)
                     e = Xs[block, no:] - m[:, no:] - np.einsum("bij,bj->bi", gain, innovation)
-                    sq[a, b] += float(np.sum(e * e))
-            count += len(block)
-        out += sq / max(count, 1)
-    return out
+                    sq = np.sum(e[:, -6:] ** 2, axis=1)
+                    if remainder:
+                        sq = sq + np.sum(e * e, axis=1) / k
+                    out[a, b, block] += sq
+    return out if per_demo else out.mean(axis=2)
+
+
+def _loosest_rest(errors: np.ndarray, smooths, tolerances, k: float = REST_SE) -> tuple[float, float]:
+    """The one-standard-error rule over the rest's candidates (the rule of :func:`_loosest_within`): ``errors``
+    (len(smooths), len(tolerances), D) per left-out demonstration (:func:`_end_loo` with ``per_demo``); with e* the
+    candidate of the smallest mean, those c whose paired difference d = e_c − e* has mean(d) ≤ k · sd(d) / √D; of
+    these the one that trusts the seen poses least (the largest r), then the smoothest (the largest τ²). Returns
+    (τ², r)."""
+    E = np.asarray(errors, dtype=np.float64)
+    mean = E.mean(axis=2)
+    a, b = np.unravel_index(int(np.argmin(mean)), mean.shape)
+    d = E - E[a, b]
+    D = E.shape[2]
+    se = d.std(axis=2, ddof=1) / np.sqrt(D) if D > 1 else np.zeros_like(mean)
+    within = d.mean(axis=2) <= k * se + 1e-12 * np.abs(mean[a, b])
+    cands = [(float(tolerances[j]), float(smooths[i])) for i, j in zip(*np.nonzero(within))]
+    r, tau2 = max(cands)
+    return tau2, r
 
 
 def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, spread: bool | None = None):
     """Choose the seen poses' regularising tolerance r, the rest's own τ² and r and the bands' factors of a motion
     under way by leaving demonstrations out (module docstring); sets ``paths.seen_tolerance``,
-    ``paths.rest_smooth`` and ``paths.rest_tolerance`` (from REST_FROM demonstrations on over the grids; with fewer
-    the seen r and the better of τ² and :data:`REST_FEW_SMOOTH`) and
+    ``paths.rest_smooth`` and ``paths.rest_tolerance`` (from REST_FROM demonstrations on over the grids by the
+    one-standard-error rule, :func:`_loosest_rest`; with fewer the seen r and the better of τ² and
+    :data:`REST_FEW_SMOOTH`) and
     ``paths.seen_band_scale`` and returns ``paths``. With the demonstrations ``trajs`` (in the path
     distribution's order) and ``duration``, also the duration weights' own τ² and r
     (:func:`_duration_loo`; ``paths.duration_smooth``, ``paths.duration_tolerance``), chosen before the bands'
@@ -925,13 +959,12 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, s
     paths.seen_tolerance = float(r)
     paths.info = dict(paths.info or {}, seen_tolerance=float(r), seen_loo_log_density=float(scores[r]))
     rest = (float(paths.smooth), float(r))
-    if paths.demos >= REST_FROM:  # the rest's own τ² and r: the left-out final pose given the seen part
+    if paths.demos >= REST_FROM:  # the rest's own τ² and r: the left-out end and remainder given the seen part
         smooths = sorted(set(REST_SMOOTH_GRID) | {rest[0]})
         tols = sorted(set(SEEN_TOLERANCE_GRID) | {rest[1]})
-        err = _end_loo(paths, smooths, tols)
-        a, b = np.unravel_index(int(np.argmin(err)), err.shape)
-        if err[a, b] < err[smooths.index(rest[0]), tols.index(rest[1])]:  # ties keep the path distribution's own
-            rest = (float(smooths[a]), float(tols[b]))
+        per = _end_loo(paths, smooths, tols, remainder=True, per_demo=True)
+        rest = _loosest_rest(per, smooths, tols)
+        err = per.mean(axis=2)
     else:  # few left-out ends: only the path distribution's own τ² against one smooth τ², at the seen r
         err = _end_loo(paths, [rest[0], REST_FEW_SMOOTH], [rest[1]])[:, 0]
         if err[1] < err[0]:  # ties keep the path distribution's own

@@ -11,7 +11,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from rbgp_cli.dynamics import anticipation
-from rbgp_cli.dynamics.anticipation import REST_FEW_SMOOTH, REST_FROM, Anticipator, _end_loo, seen_split
+from rbgp_cli.dynamics.anticipation import (REST_FEW_SMOOTH, REST_FROM, REST_SE, Anticipator, _end_loo, _loosest_rest,
+                                            seen_split)
 from rbgp_cli.dynamics.paths import GOAL_TOLERANCE, PathDistribution, fit_paths
 from rbgp_cli.dynamics.trajectory import Trajectory
 
@@ -50,16 +51,18 @@ def paths():
     return fit_paths(family(12, 3)[0])
 
 
-def loop_end_loo(paths, smooths, tolerances):
+def loop_end_loo(paths, smooths, tolerances, remainder=False):
     """_end_loo as a loop: each demonstration left out, the others' PathDistribution conditioned (its own
-    PathDistribution.condition) on the left-out vector's seen entries, the end's error summed."""
+    PathDistribution.condition) on the left-out vector's seen entries, the end's error summed; with ``remainder``,
+    plus the mean over the scored phases after the seen part (seen_split's) of their squared error. Per left-out
+    demonstration: (len(smooths), len(tolerances), D)."""
     X = paths.vectors()
     D, S, P = len(X), paths.S, X.shape[1]
-    out = np.zeros((len(smooths), len(tolerances)))
+    out = np.zeros((len(smooths), len(tolerances), D))
     end = slice(6 * (S - 1), 6 * S)
     for F in anticipation.SEEN_FRACTIONS:
         idx, no = seen_split(F, S, P, anticipation.SEEN_POINTS)
-        seen = idx[:no]
+        seen, scored = idx[:no], idx[no:]
         A = np.zeros((no, P))
         A[np.arange(no), seen] = 1.0
         for a, tau2 in enumerate(smooths):
@@ -67,15 +70,16 @@ def loop_end_loo(paths, smooths, tolerances):
                 r2 = np.full(no, float(tol) ** 2)
                 r2[-7:-1] = (np.array(GOAL_TOLERANCE).repeat(3) / paths.scale) ** 2
                 r2[-1] = anticipation._ELL_TOL ** 2
-                total = 0.0
                 for d in range(D):
                     others = np.delete(X, d, axis=0)
                     m = others.mean(axis=0)
                     C = others - m
                     Sigma = (1 + 1 / (D - 1)) * C.T @ C / (D - 2) + paths.smooth_covariance(tau2)
                     c = paths.condition(A, X[d, seen], r2, prior=(m, Sigma))
-                    total += float(np.sum((X[d, end] - c.mean[end]) ** 2))
-                out[a, b] += total / D
+                    out[a, b, d] += float(np.sum((X[d, end] - c.mean[end]) ** 2))
+                    if remainder:
+                        e = X[d, scored] - c.mean[scored]
+                        out[a, b, d] += float(np.sum(e * e)) / (len(scored) // 6)
     return out
 
 
@@ -83,21 +87,48 @@ def loop_end_loo(paths, smooths, tolerances):
 def test_end_loo_equals_the_loop_through_condition(paths):
     smooths, tols = (0.01, 0.3, 1.0), (0.1, 0.8, 3.2)
     got = _end_loo(paths, smooths, tols)
-    want = loop_end_loo(paths, smooths, tols)
-    np.testing.assert_allclose(got, want, rtol=1e-7)
+    want = loop_end_loo(paths, smooths, tols, remainder=True)
+    np.testing.assert_allclose(got, loop_end_loo(paths, smooths, tols).mean(axis=2), rtol=1e-7)
     assert np.ptp(got) > 0.05 * got.min()  # the candidates differ: the comparison can tell them apart
+    both = _end_loo(paths, smooths, tols, remainder=True, per_demo=True)
+    np.testing.assert_allclose(both, want, rtol=1e-7)
+    assert np.all(both.mean(axis=2) > got * (1 + 1e-3))  # the remainder's term is there
+
+
+def test_the_one_standard_error_rule_takes_the_loosest_candidate_the_left_out_errors_cannot_tell_apart():
+    """_loosest_rest: among the candidates whose paired excess over the smallest mean error is within REST_SE
+    standard errors, the largest r, then the largest τ²; a candidate clearly worse is never taken."""
+    rng = np.random.default_rng(5)
+    base = 1.0 + rng.random(30)
+    smooths, tols = [0.01, 0.1, 1.0], [0.1, 0.8, 3.2]
+    E = np.empty((3, 3, 30))
+    E[:] = base + 0.5  # clearly worse than the best everywhere ...
+    E[0, 0] = base  # ... but the best (tight: small τ², small r)
+    E[1, 2] = base + 0.01 * rng.standard_normal(30)  # indistinguishable from it
+    E[2, 1] = base + 0.01 * rng.standard_normal(30)  # as well, but a smaller r than (0.1, 3.2)
+    assert _loosest_rest(E, smooths, tols) == (0.1, 3.2)
+    E[1, 2] = base + 0.2 + 0.01 * rng.standard_normal(30)  # now 20 standard errors worse
+    assert _loosest_rest(E, smooths, tols) == (1.0, 0.8)
+    assert _loosest_rest(E, smooths, tols, k=0.0) in {(0.01, 0.1), (1.0, 0.8)}  # k = 0: the smallest mean
+    E[2, 1] = base + 0.5
+    assert _loosest_rest(E, smooths, tols) == (0.01, 0.1)
 
 
 @pytest.mark.slow
-def test_the_rest_has_the_choice_with_the_smallest_left_out_end_error(paths):
+def test_the_rest_has_the_loosest_choice_within_a_standard_error_of_the_left_out_end_and_remainder(paths):
     assert paths.demos >= REST_FROM
     smooths = sorted(set(anticipation.REST_SMOOTH_GRID) | {paths.smooth})
     tols = sorted(set(anticipation.SEEN_TOLERANCE_GRID) | {paths.seen_tolerance})
-    err = _end_loo(paths, smooths, tols)
-    chosen = err[smooths.index(paths.rest_smooth), tols.index(paths.rest_tolerance)]
-    own = err[smooths.index(paths.smooth), tols.index(paths.seen_tolerance)]
-    assert chosen == pytest.approx(err.min(), rel=1e-12)
-    assert chosen <= own
+    per = _end_loo(paths, smooths, tols, remainder=True, per_demo=True)
+    i, j = smooths.index(paths.rest_smooth), tols.index(paths.rest_tolerance)
+    mean = per.mean(axis=2)
+    d = per[i, j] - per[np.unravel_index(int(np.argmin(mean)), mean.shape)]
+    assert d.mean() <= REST_SE * d.std(ddof=1) / np.sqrt(len(d)) + 1e-12  # within one standard error of the best
+    looser = [(a, b) for a in range(len(smooths)) for b in range(len(tols))
+              if (tols[b], smooths[a]) > (tols[j], smooths[i])]
+    for a, b in looser:  # every candidate that trusts the seen poses less is more than a standard error worse
+        d = per[a, b] - per[np.unravel_index(int(np.argmin(mean)), mean.shape)]
+        assert d.mean() > REST_SE * d.std(ddof=1) / np.sqrt(len(d))
     ant = Anticipator(paths)
     assert (ant.rest_smooth, ant.rest_tolerance) == (paths.rest_smooth, paths.rest_tolerance)
     np.testing.assert_allclose(ant.Sigma_rest, paths.prior(smooth=paths.rest_smooth)[1], rtol=0, atol=0)
