@@ -920,21 +920,13 @@ def _end_loo(paths, smooths, tolerances, points: int = SEEN_POINTS, *, remainder
 
 
 def _loosest_rest(errors: np.ndarray, smooths, tolerances, k: float = REST_SE) -> tuple[float, float]:
-    """The one-standard-error rule over the rest's candidates (the rule of :func:`_loosest_within`): ``errors``
-    (len(smooths), len(tolerances), D) per left-out demonstration (:func:`_end_loo` with ``per_demo``); with e* the
-    candidate of the smallest mean, those c whose paired difference d = e_c − e* has mean(d) ≤ k · sd(d) / √D; of
-    these the one that trusts the seen poses least (the largest r), then the smoothest (the largest τ²). Returns
-    (τ², r)."""
+    """The one-standard-error rule of :func:`_loosest_within` over the rest's candidates: ``errors``
+    (len(smooths), len(tolerances), D) per left-out demonstration (:func:`_end_loo` with ``per_demo``); of the
+    candidates within k standard errors of the smallest mean, the one that trusts the seen poses least (the
+    largest r), then the smoothest (the largest τ²). Returns (τ², r)."""
     E = np.asarray(errors, dtype=np.float64)
-    mean = E.mean(axis=2)
-    a, b = np.unravel_index(int(np.argmin(mean)), mean.shape)
-    d = E - E[a, b]
-    D = E.shape[2]
-    se = d.std(axis=2, ddof=1) / np.sqrt(D) if D > 1 else np.zeros_like(mean)
-    within = d.mean(axis=2) <= k * se + 1e-12 * np.abs(mean[a, b])
-    cands = [(float(tolerances[j]), float(smooths[i])) for i, j in zip(*np.nonzero(within))]
-    r, tau2 = max(cands)
-    return tau2, r
+    per = {(float(t2), float(r)): E[i, j] for i, t2 in enumerate(smooths) for j, r in enumerate(tolerances)}
+    return _loosest_within(per, k, looseness=lambda c: (c[1], c[0]))
 
 
 def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, spread: bool | None = None):
@@ -1045,13 +1037,14 @@ def duration_candidates(paths) -> list[tuple]:
     return sorted(cands, key=lambda c: (c[2] is not None, c[0], c[1] or 0.0, c[2] or 0.0))
 
 
-def _loosest_within(errors: dict, k: float = DURATION_FEW_SE):
+def _loosest_within(errors: dict, k: float = DURATION_FEW_SE, looseness=None):
     """The one-standard-error rule over ``errors`` {(τ², r, σ): per-beginning left-out errors (n,)}, all scored on the
     same left-out beginnings: with e* the candidate of the smallest mean error, the candidates c whose paired
     difference d = e_c − e* has mean(d) ≤ k · sd(d) / √n; of these the loosest: a tolerance σ in rad and m (the
     largest), else the largest r (the seen poses trusted least), and between equal r (the path distribution's own r
     on the grid's) the smaller τ², which the studies of five measured closer (docs/defaults.md, issue 37's eleventh
-    and twelfth passes)."""
+    and twelfth passes). ``looseness``: another order of the candidates (the largest is taken), as
+    :func:`_loosest_rest`'s."""
     best = min(errors, key=lambda c: float(np.mean(errors[c])))
     within = []
     for c, e in errors.items():
@@ -1059,7 +1052,9 @@ def _loosest_within(errors: dict, k: float = DURATION_FEW_SE):
         se = float(np.std(d, ddof=1) / np.sqrt(len(d))) if len(d) > 1 else 0.0
         if float(np.mean(d)) <= k * se:
             within.append(c)
-    return max(within, key=lambda c: (c[2] is not None, c[2] or 0.0, c[1] or 0.0, -c[0]))
+    if looseness is None:
+        looseness = lambda c: (c[2] is not None, c[2] or 0.0, c[1] or 0.0, -c[0])  # noqa: E731
+    return max(within, key=looseness)
 
 
 def duration_tolerances(paths, tolerance: float | None = None, sigma: float | None = None) -> np.ndarray:
