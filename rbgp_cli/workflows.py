@@ -584,8 +584,18 @@ def continue_files(model, sources, *, options: ReadOptions | None = None, max_ga
 
             warn(f"the seen motion has left what the demonstrations cover (distance {c.estimate.distance:.2f} "
                  "in units of the demonstrations' spread); its continuation is an extrapolation", path=tr.source or tr.name)
+        elif c.estimate.band_widening >= WIDENING_NOTE:
+            from rbgp_cli.errors import warn
+
+            warn(f"the seen motion is less like the demonstrations than most of them: its bands are widened "
+                 f"×{c.estimate.band_widening:.2f} (band_widening in --json)", path=tr.source or tr.name)
         out.append(c)
     return out
+
+
+#: ``rollout --given`` says on stderr when a seen motion's bands are widened by at least this factor (its surprise
+#: 2.25 × the left-out median; docs/method.md §13)
+WIDENING_NOTE = 1.5
 
 
 def follow_stream(model, lines, *, options: ReadOptions | None = None, every: int = 1, detect: bool = True,

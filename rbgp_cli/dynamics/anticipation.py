@@ -55,6 +55,11 @@ draws), narrowing below 1 as the goal bands' do; a draw at D_g takes them at its
 remainders are scored against the samples as they are drawn, each at its own duration, at every grid phase after F
 in the remainder's normalised time (:func:`_spread_terms`, :func:`_spread_factors`). A path distribution without
 them (an older model file) uses its pooled pair ``seen_band_scale`` ≥ 1 at every phase. Plain conditioning (r → 0) over-fits the seen part and its bands collapse (the plain ProMP's failure).
+From :data:`SURPRISE_FROM` demonstrations on the bands also widen with the seen part's surprise: ρ = eᵀG⁻¹e / n, the
+seen poses' and ln D̂'s innovation under the path distribution's own Σ and r per observed number, against the
+left-out seen parts' median ρ̄_F, s = √max(1, ρ / ρ̄_F) (:func:`surprise_scale`, :meth:`Anticipator.surprise_at`);
+the factors are fitted on the left-out needs divided by each one's own s, so a seen part as surprising as the median
+keeps them and a later session that drifted, less like the demonstrations, is widened (docs/method.md §13).
 
 **Leaving the demonstrations.** The seen part is "off" when the last seen pose's Mahalanobis distance under
 the prior's marginal at its estimated phase exceeds :data:`OFF_DISTANCE` (3.5: a χ with 6 degrees of
@@ -76,7 +81,7 @@ from rbgp_cli.errors import InputError
 from rbgp_cli.geometry.conventions import SMALL_ANGLE
 from rbgp_cli.geometry.so3 import PI_TOLERANCE
 
-__all__ = ["Anticipator", "Anticipation", "Continuation", "anticipate", "fit_seen", "seen_band_scales", "Follower",
+__all__ = ["Anticipator", "Anticipation", "Continuation", "anticipate", "fit_seen", "seen_band_scales", "surprise_scale", "Follower",
            "SEEN_TOLERANCE_GRID", "SEEN_FRACTIONS", "SEEN_POINTS", "DURATION_GRID", "DURATION_SMOOTH_GRID",
            "DURATION_TOLERANCE_GRID", "REST_SMOOTH_GRID", "REST_FROM", "REST_FEW_SMOOTH", "duration_tolerances"]
 
@@ -154,7 +159,9 @@ class Anticipation:
     ``end_time`` (median) with ``end_time_band`` (5 %, 95 %) on the seen clock, ``end_quat`` (4,) x, y, z, w
     and ``end_position`` (3,) m with their 90 % half-widths ``end_rotation_band`` (rad, the angle) and
     ``end_position_band`` (3,) m, ``off`` (the seen part has left what the demonstrations cover) and
-    ``distance`` (the last seen pose's Mahalanobis distance under the prior at its phase)."""
+    ``distance`` (the last seen pose's Mahalanobis distance under the prior at its phase), ``band_widening`` (the
+    factor s ≥ 1 the bands were widened by for a seen part less like the demonstrations than their median:
+    :meth:`Anticipator.surprise_at`)."""
 
     t: float
     phase: float
@@ -166,6 +173,7 @@ class Anticipation:
     end_position_band: np.ndarray
     off: bool
     distance: float
+    band_widening: float = 1.0
 
     def to_dict(self) -> dict:
         return {"t": float(self.t), "phase": float(self.phase), "end_time": float(self.end_time),
@@ -173,7 +181,7 @@ class Anticipation:
                 "end_quat": [float(x) for x in self.end_quat], "end_position": [float(x) for x in self.end_position],
                 "end_rotation_band": float(self.end_rotation_band),
                 "end_position_band": [float(x) for x in self.end_position_band],
-                "off": bool(self.off), "distance": float(self.distance)}
+                "off": bool(self.off), "distance": float(self.distance), "band_widening": float(self.band_widening)}
 
 
 @dataclass
@@ -368,6 +376,12 @@ class Anticipator:
         per_F = getattr(paths, "seen_band_scales", None)
         self._band_F = None if not per_F else (np.asarray(per_F["fractions"], float), np.asarray(per_F["rotation"], float),
                                                np.asarray(per_F["position"], float))
+        # the left-out reference of the seen part's surprise, for the number of seen poses nearest this one's
+        sur = getattr(paths, "seen_surprise", None)
+        self._surprise = None
+        if sur:
+            row = int(np.argmin([abs(int(n) - self.points) for n in sur["points"]]))
+            self._surprise = (np.asarray(sur["fractions"], float), np.asarray(sur["reference"][row], float))
         from rbgp_cli.dynamics.model import PathReference
 
         self._ref = PathReference({"s": paths.s, "quat": paths.quat, "position": paths.position,
@@ -381,6 +395,24 @@ class Anticipator:
             return self._band
         F, rot, pos = self._band_F
         return float(np.interp(phase, F, rot)), float(np.interp(phase, F, pos))
+
+    def surprise(self, tau, q, p, D) -> float:
+        """The seen part's surprise ρ = eᵀG⁻¹e / n of a motion seen at (τ (n_s,) s, q (n_s, 4), p (n_s, 3)) with
+        duration D: e = y − A m the seen poses' deviations at phases τ / D and ℓ = ln D against the prior mean,
+        G = A Σ Aᵀ + diag r² with the path distribution's own τ² and seen tolerance r on every seen pose (ℓ:
+        _ELL_TOL), n = 6 n_s + 1 (:meth:`_grid_terms` at the one duration D)."""
+        quad, k6 = self._grid_terms(tau, q, p, np.array([max(float(D), float(tau[-1]), 1e-9)]), tau2=self.paths.smooth,
+                                    r2=np.full(6, self.tolerance ** 2))[3:5]
+        return float(quad[0]) / k6
+
+    def surprise_at(self, tau, q, p, D) -> float:
+        """The bands' widening s = √max(1, ρ / ρ̄_F) (:func:`surprise_scale`) of a motion seen at (τ, q, p) with
+        duration D: its :meth:`surprise` ρ against fit_seen's left-out reference ρ̄_F interpolated at the seen
+        phase τ[-1] / D (held outside the fractions). 1 for a path distribution without the reference."""
+        if self._surprise is None:
+            return 1.0
+        F, ref = self._surprise
+        return float(surprise_scale(self.surprise(tau, q, p, D), np.interp(min(tau[-1] / D, 1.0) if D > 0 else 1.0, F, ref)))
 
     # -------------------------------------------------------------- the duration's weights (batched)
     def _constants(self):
@@ -446,13 +478,15 @@ class Anticipator:
         e -= f[..., None] * c["dC"][k]
         return e
 
-    def _grid_terms(self, tau, q, p, grid):
+    def _grid_terms(self, tau, q, p, grid, tau2=None, r2=None):
         """For each duration D_g: log weight, the conditioned end pose's mean (6,) and covariance (6, 6) in
         scaled units (module docstring). Batched over the grid, with Σ's low-rank-plus-smooth form
         (:meth:`_constants`); every linear interpolation between grid phases is a gather of values and
         differences, and the end phase is interpolated as one more seen phase (s = 1)."""
         c = self._constants()
-        tau2, S, D = c["tau2"], c["S"], c["D"]
+        S, D = c["S"], c["D"]
+        tau2 = c["tau2"] if tau2 is None else float(tau2)
+        r2 = self._duration_r2 if r2 is None else r2
         G_, n = len(grid), len(tau)
         k = np.empty((G_, n + 1), dtype=np.intp)
         f = np.empty((G_, n + 1))
@@ -476,7 +510,7 @@ class Anticipator:
         M[:, 0, 1:k6 + 6] = M[:, 1:k6 + 6, 0]
         M[:, 0, 0] = c["uLuL"] + tau2 + _ELL_TOL ** 2
         d = np.arange(1, k6)
-        M[:, d, d] += np.tile(self._duration_r2, n)
+        M[:, d, d] += np.tile(r2, n)
         M[:, -1, 0] = np.log(grid) / self.lscale - self.m[-1]
         M[:, -1, 1:k6] = self._deviations(k[:, :n], f[:, :n], q[None], p[None]).reshape(G_, 6 * n)  # e = y − A m
         M[:, :-1, -1] = M[:, -1, :-1]
@@ -552,6 +586,8 @@ class Anticipator:
         mu_u = mu * sc
         cov_u = cov * sc[:, None] * sc[None, :]
         c_rot, c_pos = self.band_at(min(span / D, 1.0) if D > 0 else 1.0)
+        s_ = self.surprise_at(*terms["seen"][3:], D)
+        c_rot, c_pos = c_rot * s_, c_pos * s_
         ref_q, ref_p = self.paths.quat[-1], self.paths.position[-1]
         # exp(μ_rot) ⊗ q̄_end, the product as L(exp(μ_rot)) q̄_end (_LEFT)
         theta = float(np.sqrt(mu_u[:3] @ mu_u[:3]))
@@ -575,7 +611,7 @@ class Anticipator:
         return Anticipation(t=float(t[-1]), phase=float(min(span / D, 1.0)) if D > 0 else 1.0,
                             end_time=t0 + D, end_time_band=(t0 + q[0], t0 + q[2]), end_quat=end_q, end_position=end_p,
                             end_rotation_band=float(rot_band), end_position_band=pos_band, off=off,
-                            distance=float(dist))
+                            distance=float(dist), band_widening=float(s_))
 
     def band_shift(self, grid, w, band_w, span) -> float:
         """The factor k = D̂ / D̂_band that moves the band's weights ``band_w`` onto the point estimate: the ratio of
@@ -649,7 +685,7 @@ class Anticipator:
             self._root = root
         return root
 
-    def _draws(self, count, rng, A, r2, gain, phase: float = 1.0):
+    def _draws(self, count, rng, A, r2, gain, phase: float = 1.0, widen: float = 1.0):
         """``count`` zero-mean draws (count, P) of the conditioned distribution by Matheron's rule,
         η = c ⊙ k ⊙ ((f − m) − gain (A (f − m) + ε)), f ~ N(m, Σ), ε ~ N(0, diag r²), k = (k_rot, k_pos) the
         Gaussian's scales whose 90 % regions are the Student-t's with ν = D − 2 (:func:`draw_scales`) and c the
@@ -661,6 +697,7 @@ class Anticipator:
         eta = z - (z @ A.T + eps) @ gain.T
         k_rot, k_pos = draw_scales(max(self.paths.demos - 2, 1))
         c_rot, c_pos = self.band_at(phase)
+        c_rot, c_pos = c_rot * widen, c_pos * widen
         eta[:, :-1] *= np.tile(np.array([c_rot * k_rot] * 3 + [c_pos * k_pos] * 3), self.paths.S)
         return eta
 
@@ -692,7 +729,7 @@ class Anticipator:
                 self.paths.unscale(self._conditioned_mean(tau, q, p, quat[-1], position[-1], D, rest=False)[0])[0]
             k = self.band_shift(grid, w, terms["band_w"], span)
             out = self._samples(int(samples), seed, grid * k, terms["band_w"], tau, q, p, quat[-1], position[-1], own,
-                                (t_out, mq, mp), t0, span, D, dt)
+                                (t_out, mq, mp), t0, span, D, dt, widen=est.band_widening)
         return Continuation(t_out, mq, mp, out, est, D, name=name)
 
     @staticmethod
@@ -743,7 +780,7 @@ class Anticipator:
         tt = s_last * D + np.arange(steps + 1) * dt
         return interpolate_poses(tt, quat_make_continuous(rq), rp, np.clip(tau_out, tt[0], tt[-1]))
 
-    def _samples(self, K, seed, grid, w, tau, q, p, last_q, last_p, dev0, mean, t0, span, D0, dt):
+    def _samples(self, K, seed, grid, w, tau, q, p, last_q, last_p, dev0, mean, t0, span, D0, dt, widen: float = 1.0):
         """K continuations (t, quat, position): at a duration D_k drawn from the weights (its grid cell, then
         uniformly within it), the mean's deviation at the same phase plus the difference between a draw of
         the distribution conditioned at D_k and the conditioned mean at D̂ (module docstring). One
@@ -765,7 +802,7 @@ class Anticipator:
             ks = np.flatnonzero(idx == g)
             Dg = float(max(grid[g], span + 1e-6))
             xg, (A, r2, gain) = self._conditioned_mean(tau, q, p, last_q, last_p, Dg, rest=False)
-            eta = self._draws(len(ks), rng, A, r2, gain, phase=min(span / Dg, 1.0))  # the factors at this D's seen phase
+            eta = self._draws(len(ks), rng, A, r2, gain, phase=min(span / Dg, 1.0), widen=widen)  # the factors at this D's seen phase
             draws = paths.unscale(xg[None] + eta)[0]  # (n, S, 6)
             for k, draw in zip(ks, draws):
                 Dk = float(max(np.exp(np.log(Dg) + jitter[k]), span + 1e-6))
@@ -943,7 +980,10 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, s
     in rad and m, ``paths.duration_sigma``), which ``spread``
     (default :data:`DURATION_SPREAD`) scores against the samples' durations drawn from
     those weights (:func:`_spread_terms`; by default from :data:`SPREAD_FROM` demonstrations on); else at the
-    remainders' true durations (:func:`_seen_loo`)."""
+    remainders' true durations (:func:`_seen_loo`). With that statistic and from :data:`SURPRISE_FROM`
+    demonstrations on, also ``paths.seen_surprise``: the left-out seen parts' median surprise per fraction (at
+    SEEN_POINTS and at the live update's SPREAD_POINTS seen poses), each left-out need divided by its own
+    :func:`surprise_scale` before the factors' quantile."""
     from rbgp_cli.dynamics.paths import _band_factors
 
     scores = dict(zip(SEEN_TOLERANCE_GRID, _seen_loo(paths, SEEN_TOLERANCE_GRID)))
@@ -989,9 +1029,19 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, s
         spread = DURATION_SPREAD and paths.demos >= SPREAD_FROM
     if spread:  # the remainders against the samples as drawn, each at its own duration (eighth pass)
         ctx = _spread_context(paths)
-        raw = [_spread_factors(_spread_terms(paths, F, rest=None if own else rest, ctx=ctx), paths.demos, level)
-               for F in SEEN_FRACTIONS]
+        raw, refs = [], []
+        for F in SEEN_FRACTIONS:
+            terms = _spread_terms(paths, F, rest=None if own else rest, ctx=ctx)
+            scale = None
+            if paths.demos >= SURPRISE_FROM:  # the left-out seen parts' median surprise at this fraction
+                ref = float(np.median(terms["rho"]))
+                refs.append([ref, float(np.median(terms["rho_live"]))] if "rho_live" in terms else [ref, ref])
+                scale = np.repeat(surprise_scale(terms["rho"], ref), terms["T"])
+            raw.append(_spread_factors(terms, paths.demos, level, scale=scale))
         paths.seen_band_scales = _narrowed(raw, paths.demos)
+        paths.seen_surprise = None if not refs else {
+            "fractions": [float(F) for F in SEEN_FRACTIONS], "points": [SEEN_POINTS, SPREAD_POINTS],
+            "reference": [[x[0] for x in refs], [x[1] for x in refs]]}
     else:
         _, m2_F, z_F = _seen_loo(paths, [r], stats=True, by_fraction=True, rest=None if own else rest)
         paths.seen_band_scales = seen_band_scales(m2_F, z_F, paths.demos, level)
@@ -1259,7 +1309,7 @@ SPREAD_BLOCK = 256
 SPREAD_POINTS = 6
 
 
-def _loo_rows(ctx, d, dur, tau2, tol, query, *, logw: bool = False, cov: bool = False):
+def _loo_rows(ctx, d, dur, tau2, tol, query, *, logw: bool = False, cov: bool = False, quad: bool = False):
     """Batched over rows b: the others' distribution of left-out demonstration d_b (the mean m_d and the sample part
     c (X_o − m_d)ᵀ(X_o − m_d) of :func:`~rbgp_cli.dynamics.paths.left_out_moments`, c = (1 + 1/N)/(N − 1), plus the
     smooth term τ² (K_ℓ ⊗ I_6 ⊕ 1)) conditioned on d_b's seen grid poses (``ctx["js"]``, at true times
@@ -1272,7 +1322,8 @@ def _loo_rows(ctx, d, dur, tau2, tol, query, *, logw: bool = False, cov: bool = 
 
     Z the others' centred, scaled rows (as columns; d_b's own column zero). ``query`` (B, T) phases. Returns
     x̂ at the query phases (B, T, 6) scaled; with ``logw`` also −½ eᵀG⁻¹e − ½ log det G (B,) (e = y − A m_d), with
-    ``cov`` the conditioned covariance's diagonal blocks at the query phases (B, T, 6, 6). No loop over the rows:
+    ``cov`` the conditioned covariance's diagonal blocks at the query phases (B, T, 6, 6), with ``quad`` (last) the
+    seen part's surprise eᵀG⁻¹e / (6n + 1) (B,) (:meth:`Anticipator.surprise` when ``logw``). No loop over the rows:
     every interpolation is a gather of grid values."""
     X, Ks, S, js = ctx["X"], ctx["Ks"], ctx["S"], ctx["js"]
     Dn = len(X)
@@ -1348,6 +1399,8 @@ def _loo_rows(ctx, d, dur, tau2, tol, query, *, logw: bool = False, cov: bool = 
         Kqq = Ks[kq, kq] * (1 - fq) ** 2 + 2 * Ks[kq, kq + 1] * fq * (1 - fq) + Ks[kq + 1, kq + 1] * fq ** 2
         C = np.einsum("btcn,btdn->btcd", Zq, Zq) + tau2 * Kqq[..., None, None] * np.eye(6)
         out.append(C - np.einsum("btck,bktd->btcd", SqA.reshape(B, T, 6, k6), GS))
+    if quad:  # the seen part's surprise: eᵀG⁻¹e per observed number
+        out.append(np.einsum("bk,bk->b", e, alpha) / k6)
     return tuple(out) if len(out) > 1 else mean
 
 
@@ -1390,7 +1443,9 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration
     μ_j the mean the continuation follows (the rest's τ² and r; ``rest`` None: the own) and x̂_j the own conditioned
     mean at the true duration. Returns {"e": ê (R, 6), "V": (R, 6, 6), "C": the own conditioned covariance's
     diagonal blocks at the true duration (R, 6, 6), "w": each scored phase's share of the remainder's normalised
-    time (R,)}, R = D × the scored phases, demonstration-major. ``duration=False``: the remainders at their true
+    time (R,), "rho": each left-out seen part's surprise (D,) at its point estimate of D (``duration=False``: at its
+    true D) and "rho_live" the same from SPREAD_POINTS seen poses, "T": the scored phases per demonstration},
+    R = D × the scored phases, demonstration-major. ``duration=False``: the remainders at their true
     durations alone (V = 0, ȳ = x̂: ê_j = x_dj − μ_j), the statistic without the duration's part."""
     ctx = _spread_context(paths) if ctx is None else ctx
     X, S = ctx["X"], ctx["S"]
@@ -1411,7 +1466,8 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration
     mid = np.concatenate([[0.0], 0.5 * (u[1:] + u[:-1]), [1.0]])
     share = np.tile(np.diff(mid), Dn)
     if not duration:
-        return {"e": (x_true - mu).reshape(-1, 6), "V": np.zeros((Dn * T, 6, 6)), "C": C.reshape(-1, 6, 6), "w": share}
+        return {"e": (x_true - mu).reshape(-1, 6), "V": np.zeros((Dn * T, 6, 6)), "C": C.reshape(-1, 6, 6), "w": share,
+                "rho": _loo_rows(ctx, ds, ctx["dur"], tau2, r, np.zeros((Dn, 1)), logw=True, quad=True)[2], "T": T}
     # the duration's weights over each left-out demonstration's grid (durations shorter than the seen span left out)
     dsm = float(paths.smooth if paths.duration_smooth is None else paths.duration_smooth)
     dtol = duration_tolerances(paths)
@@ -1442,6 +1498,11 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration
         w1 = np.exp(lw1 - np.where(ok, lw1.max(axis=1), 0.0)[:, None])
         w1 = np.where(ok[:, None], w1 / np.where(ok, w1.sum(axis=1), 1.0)[:, None], w)
         shift = _row_medians(grid, w1, ctx["half"], span) / _row_medians(grid, w, ctx["half"], span)
+    # the seen part's surprise at each left-out demonstration's point estimate of D (the whole evidence's median), as
+    # the continuation computes it (Anticipator.surprise_at), from ctx's seen poses and from the live update's
+    d_hat = np.maximum(_row_medians(grid, w, ctx["half"], span) * shift, span * (1 + 1e-9))
+    rho = _loo_rows(ctx, ds, d_hat, tau2, r, np.zeros((Dn, 1)), logw=True, quad=True)[2]
+    rho_live = _loo_rows(ctx6, ds, d_hat, tau2, r, np.zeros((Dn, 1)), logw=True, quad=True)[2]
     dd, gg = np.nonzero(w > SPREAD_KEEP * w.max(axis=1, keepdims=True))
     off = (2.0 * np.arange(SPREAD_SUB) + 1.0 - SPREAD_SUB) / SPREAD_SUB  # sub-cell midpoints in half steps
     rd = np.repeat(dd, SPREAD_SUB)
@@ -1463,7 +1524,8 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration
     V = np.zeros((Dn, T, 6, 6))
     np.add.at(V, rd, wn[:, None, None, None] * dy[..., :, None] * dy[..., None, :])
     e_hat = x_true - mu - (ybar - own)
-    return {"e": e_hat.reshape(-1, 6), "V": V.reshape(-1, 6, 6), "C": C.reshape(-1, 6, 6), "w": share}
+    return {"e": e_hat.reshape(-1, 6), "V": V.reshape(-1, 6, 6), "C": C.reshape(-1, 6, 6), "w": share, "rho": rho,
+            "rho_live": rho_live, "T": T}
 
 
 def _temper_log(logw, e2, v, nu: int, lam: float):
@@ -1501,13 +1563,14 @@ def _rebase(paths, x, q, s):
     return (out / paths.scale).reshape(x.shape)
 
 
-def _spread_factors(terms, demos: int, level: float = 0.90) -> tuple[float, float]:
+def _spread_factors(terms, demos: int, level: float = 0.90, scale=None) -> tuple[float, float]:
     """The factors (c_rot, c_pos) the scored remainders of :func:`_spread_terms` need (unclamped): per scored
     phase and position coordinate the smallest c with ê² ≤ c² t_ν² σ² + z² v (σ² the draws' variance, C's
     diagonal; v V's; t_ν the Student-t 95 % quantile the draws realise, ν = D − 2; z the normal's), per rotation the smallest
     c with êᵀ(c² 3 F_0.9(3, ν) C + χ²_3,0.9 V)⁻¹ ê ≤ 1 (bisection in c²; V = 0: c² = êᵀC⁻¹ê / 3F, the rule of
     :func:`~rbgp_cli.dynamics.paths._band_factors`); the factor is the ``level`` quantile of the needs, each
-    weighted by its phase's share of the remainder's normalised time."""
+    weighted by its phase's share of the remainder's normalised time. ``scale`` (R,): each row's need divided by it
+    first (its demonstration's :func:`surprise_scale`), so that the factors times a seen part's own widening hold."""
     from scipy.special import chdtri, fdtri, ndtri, stdtrit
 
     nu = max(int(demos) - 2, 1)
@@ -1537,7 +1600,23 @@ def _spread_factors(terms, demos: int, level: float = 0.90) -> tuple[float, floa
         hi = np.where(ok, mid, hi)
         lo = np.where(ok, lo, mid)
     c_rot = np.sqrt(hi)
+    if scale is not None:  # each row's need in units of its demonstration's surprise scale
+        c_rot = c_rot / scale
+        c_pos = c_pos / scale[:, None]
     return _weighted_quantile(c_rot, w, level), _weighted_quantile(c_pos.ravel(), np.repeat(w, 3), level)
+
+
+#: The bands of a motion under way widen with the seen part's surprise (:meth:`Anticipator.surprise_at`) from this
+#: many demonstrations on: the median of five left-out surprises is the third of five, and widening against it
+#: over-covered the studies of five (hand raises, position / rotation 0.96–1.00 / 0.93–0.98 from 0.92–0.99 /
+#: 0.89–0.94; docs/defaults.md, sixteenth pass)
+SURPRISE_FROM = 6
+
+
+def surprise_scale(rho, reference):
+    """s = √max(1, ρ / ρ̄): the bands' widening for a seen part whose innovation per observed number
+    ρ = eᵀG⁻¹e / n exceeds the left-out demonstrations' median ρ̄ at its fraction."""
+    return np.sqrt(np.maximum(1.0, np.asarray(rho, dtype=np.float64) / max(float(reference), 1e-300)))
 
 
 def _weighted_quantile(x, w, level):

@@ -211,6 +211,11 @@ class PathDistribution:
     #: the draws' factors of a motion under way per seen fraction, {"fractions", "rotation", "position"} (lists;
     #: :func:`rbgp_cli.dynamics.anticipation.seen_band_scales`; None: ``seen_band_scale`` at every fraction)
     seen_band_scales: dict | None = None
+    #: the left-out seen parts' median surprise per seen fraction, {"fractions" (F,), "points" (k,) seen poses,
+    #: "reference" (k, F)} (lists; the bands of a motion under way seen at that many poses widen by
+    #: √max(1, ρ / reference): :meth:`rbgp_cli.dynamics.anticipation.Anticipator.surprise_at`; None: no widening, as
+    #: files written before it)
+    seen_surprise: dict | None = None
     #: :meth:`goal_band_scale`, computed once
     _goal_scale: tuple | None = field(default=None, repr=False, compare=False)
 
@@ -517,7 +522,8 @@ class PathDistribution:
                 **({"rest_tolerance": float(self.rest_tolerance)} if self.rest_tolerance is not None else {}),
                 **({"seen_band_scales": {k: [float(x) for x in self.seen_band_scales[k]]
                                          for k in ("fractions", "rotation", "position")}}
-                   if self.seen_band_scales is not None else {})}
+                   if self.seen_band_scales is not None else {}),
+                **({"seen_surprise": _surprise_copy(self.seen_surprise)} if self.seen_surprise is not None else {})}
 
     @classmethod
     def from_arrays(cls, arrays: dict, header: dict) -> "PathDistribution":
@@ -537,7 +543,14 @@ class PathDistribution:
                    rest_smooth=None if header.get("rest_smooth") is None else float(header["rest_smooth"]),
                    rest_tolerance=None if header.get("rest_tolerance") is None else float(header["rest_tolerance"]),
                    seen_band_scales=None if header.get("seen_band_scales") is None else
-                   {k: [float(x) for x in header["seen_band_scales"][k]] for k in ("fractions", "rotation", "position")})
+                   {k: [float(x) for x in header["seen_band_scales"][k]] for k in ("fractions", "rotation", "position")},
+                   seen_surprise=None if header.get("seen_surprise") is None else _surprise_copy(header["seen_surprise"]))
+
+
+def _surprise_copy(sur: dict) -> dict:
+    """``seen_surprise`` as plain lists: {"fractions": [float], "points": [int], "reference": [[float]]}."""
+    return {"fractions": [float(x) for x in sur["fractions"]], "points": [int(n) for n in sur["points"]],
+            "reference": [[float(x) for x in row] for row in sur["reference"]]}
 
 
 # ---------------------------------------------------------------------- fitting

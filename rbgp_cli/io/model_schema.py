@@ -283,6 +283,12 @@ TOP: dict = {
                                  "rotation": list_of(num(0.0, 1e6, what="a non-negative factor"), 1, 100),
                                  "position": list_of(num(0.0, 1e6, what="a non-negative factor"), 1, 100)},
                                 ("fractions", "rotation", "position")),
+        # optional: the left-out seen parts' median surprise per seen fraction, the bands' widening (sixteenth pass)
+        "seen_surprise": obj({"fractions": list_of(num(0.0, 1.0, what="a seen fraction in [0, 1]"), 1, 100),
+                              "points": list_of(integer(1, 10000), 1, 10),
+                              "reference": list_of(list_of(num(0.0, 1e12, lo_open=True, what="a positive surprise"), 1, 100),
+                                                   1, 10)},
+                             ("fractions", "points", "reference")),
     }, ("demos", "steps", "smooth", "length", "seen_tolerance", "band_scale")))),
 }
 
@@ -366,6 +372,13 @@ def _agree(h: dict) -> None:
             raise SchemaError("paths.seen_band_scales needs as many rotation and position factors as fractions")
         if any(b <= a for a, b in zip(F, F[1:])):
             _fail(("paths", "seen_band_scales", "fractions"), F, "increasing fractions")
+    sur = (h.get("paths") or {}).get("seen_surprise")
+    if sur is not None:
+        F = sur["fractions"]
+        if len(sur["reference"]) != len(sur["points"]) or any(len(row) != len(F) for row in sur["reference"]):
+            raise SchemaError("paths.seen_surprise needs one reference per fraction for each number of seen poses")
+        if any(b <= a for a, b in zip(F, F[1:])):
+            _fail(("paths", "seen_surprise", "fractions"), F, "increasing fractions")
     gp = h.get("gp") or {"type": "exact"}
     if gp["type"] == "sparse" and "inducing" not in gp:
         raise SchemaError("gp.inducing is missing")

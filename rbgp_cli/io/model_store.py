@@ -46,7 +46,8 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
   ``rest_smooth`` / ``rest_tolerance`` (the conditioning of its rest, chosen on the left-out final pose; files
   without them condition with ``smooth`` and ``seen_tolerance``, as before), and ``seen_band_scales`` ({"fractions",
   "rotation", "position"}: the bands' factors per seen fraction; files without them draw with ``seen_band_scale``
-  at every fraction, as before; an rbgp older than these fields
+  at every fraction, as before), and ``seen_surprise`` ({"fractions", "reference"}: the left-out seen parts' median
+  surprise, which a seen part's bands widen against; files without it widen nothing, as before; an rbgp older than these fields
   refuses a file that has them with its schema's "unknown field" error).
 * Version 9 (what this rbgp writes): the deviation process says how much its covariance between
   coordinates is shrunk (``variation.shrinkage``: α in [0, 1],
