@@ -161,9 +161,25 @@ def test_fit_paths_stores_the_factors_and_the_header_round_trips(paths):
 
 
 @pytest.mark.slow
+def rewrite_paths_header(src, change, out):
+    """A copy of model file ``src`` at ``out`` whose header's ``paths`` ``change`` (a function of the dict) edits, with
+    the header's checksum recomputed (what an older rbgp, or a damaged file, would have written)."""
+    from rbgp_cli.io.model_store import header_sha256
+
+    with np.load(src, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    h = json.loads(arrays.pop("header").tobytes().decode())
+    change(h["paths"])
+    h["checksums"]["header"] = header_sha256(h)
+    with open(out, "wb") as fh:
+        np.savez_compressed(fh, header=np.frombuffer(json.dumps(h).encode(), dtype=np.uint8), **arrays)
+
+
 def test_a_model_file_keeps_the_factors_and_one_without_them_loads_as_before(tmp_path):
+    """The per-fraction factors and the surprise's reference (sixteenth pass) round-trip through a model file; a
+    file without them (older) loads, draws with the pooled pair and widens nothing; a malformed one is refused."""
     from rbgp_cli.dynamics.model import train_model
-    from rbgp_cli.io.model_store import header_sha256, load_model, save_model
+    from rbgp_cli.io.model_store import load_model, save_model
     from rbgp_cli.io.model_schema import SchemaError
 
     demos = family(6, 5)[0]
@@ -174,13 +190,7 @@ def test_a_model_file_keeps_the_factors_and_one_without_them_loads_as_before(tmp
     assert loaded.paths.seen_band_scales == model.paths.seen_band_scales
 
     def rewrite(change, out):
-        with np.load(tmp_path / "m.rbgp", allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-        h = json.loads(arrays.pop("header").tobytes().decode())
-        change(h["paths"])
-        h["checksums"]["header"] = header_sha256(h)
-        with open(out, "wb") as fh:
-            np.savez_compressed(fh, header=np.frombuffer(json.dumps(h).encode(), dtype=np.uint8), **arrays)
+        rewrite_paths_header(tmp_path / "m.rbgp", change, out)
 
     rewrite(lambda p: p.pop("seen_band_scales"), tmp_path / "old.rbgp")
     old, header = load_model(tmp_path / "old.rbgp")
@@ -190,6 +200,16 @@ def test_a_model_file_keeps_the_factors_and_one_without_them_loads_as_before(tmp
     rewrite(lambda p: p["seen_band_scales"]["rotation"].pop(), tmp_path / "bad.rbgp")
     with pytest.raises((SchemaError, Exception), match="seen_band_scales"):
         load_model(tmp_path / "bad.rbgp")
+    assert loaded.paths.seen_surprise == model.paths.seen_surprise is not None
+    rewrite(lambda p: p.pop("seen_surprise"), tmp_path / "old2.rbgp")
+    old, header = load_model(tmp_path / "old2.rbgp")
+    assert "seen_surprise" not in header["paths"] and old.paths.seen_surprise is None
+    tr = family(2, 79)[0][0]
+    k = len(tr.t) // 2
+    assert Anticipator(old.paths).estimate(tr.t[:k], tr.quat[:k], tr.position[:k]).band_widening == 1.0
+    rewrite(lambda p: p["seen_surprise"]["reference"][1].pop(), tmp_path / "bad2.rbgp")
+    with pytest.raises(Exception, match="seen_surprise"):
+        load_model(tmp_path / "bad2.rbgp")
 
 
 def _rich_family(n, seed, K=5, spread=0.002):
