@@ -588,7 +588,7 @@ def continue_files(model, sources, *, options: ReadOptions | None = None, max_ga
             from rbgp_cli.errors import warn
 
             warn(f"the seen motion is less like the demonstrations than most of them: its bands are widened "
-                 f"×{c.estimate.band_widening:.2f} (band_widening in --json)", path=tr.source or tr.name)
+                 f"×{c.estimate.band_widening:.2f} (band_widening)", path=tr.source or tr.name)
         out.append(c)
     return out
 

@@ -43,6 +43,34 @@ def test_rollout_given_continues_each_file_from_its_last_seen_sample(model, tmp_
     assert float(first_row[1]) == pytest.approx(last_seen)  # on the seen file's own clock
 
 
+@pytest.mark.slow
+def test_rollout_given_says_when_a_seen_part_unlike_the_demonstrations_widens_its_bands(model, tmp_path):
+    """The first half of shoe_01 as recorded: bands as calibrated (band_widening below 1.5, no warning); the same half
+    with a wiggle of 2 cm in y and z that no demonstration has: widened, and stderr says by how much."""
+    import math
+
+    lines = _prefix(CSV_DIR / "shoe_01.csv", tmp_path / "plain.csv", 0.5)
+    T = float(lines[-1].split(",")[0])
+    rows = [lines[0]]
+    for line in (tmp_path / "plain.csv").read_text().splitlines()[1:]:
+        f = line.split(",")
+        t = float(f[0])
+        f[2] = repr(float(f[2]) + 0.02 * math.sin(6 * math.pi * t / T))
+        f[3] = repr(float(f[3]) + 0.02 * math.sin(4 * math.pi * t / T))
+        rows.append(",".join(f))
+    (tmp_path / "wiggle.csv").write_text("\n".join(rows) + "\n")
+    out = {}
+    for name in ("plain", "wiggle"):
+        res = run("--json", "rollout", model, "--given", tmp_path / f"{name}.csv", "-o", tmp_path / f"{name}_rest.csv")
+        assert res.exit_code == 0, res.stderr
+        out[name] = (json.loads(res.stdout)["motions"][0], res.stderr)
+    plain, wiggle = out["plain"][0], out["wiggle"][0]
+    assert 1.0 <= plain["band_widening"] < 1.5 and "widened" not in out["plain"][1]
+    assert wiggle["band_widening"] >= 1.5 and not wiggle["off"]
+    assert f"widened ×{wiggle['band_widening']:.2f}" in out["wiggle"][1]
+    assert wiggle["end_rotation_band"] > plain["end_rotation_band"]
+
+
 def test_rollout_given_refuses_start_poses(model, tmp_path):
     res = run("rollout", model, "--given", CSV_DIR / "shoe_01.csv", "--count", 1, "--duration", 2)
     assert res.exit_code == 2

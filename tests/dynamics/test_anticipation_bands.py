@@ -182,7 +182,7 @@ def test_a_model_file_keeps_the_factors_and_one_without_them_loads_as_before(tmp
     from rbgp_cli.io.model_store import load_model, save_model
     from rbgp_cli.io.model_schema import SchemaError
 
-    demos = family(6, 5)[0]
+    demos = family(8, 5)[0]  # SURPRISE_FROM: the surprise's reference as well
     model = train_model(demos, restarts=1, shared=True, explore_size=0, max_points=150)
     assert model.paths is not None and model.paths.seen_band_scales is not None
     save_model(model, tmp_path / "m.rbgp")
