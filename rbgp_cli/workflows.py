@@ -580,13 +580,9 @@ def continue_files(model, sources, *, options: ReadOptions | None = None, max_ga
         c = ant.continuation(tr.t, tr.quat, tr.position, samples=samples, seed=seed + i, name=str(i))
         c.info["source"] = tr.source or tr.name
         if c.estimate.off:
-            from rbgp_cli.errors import warn
-
             warn(f"the seen motion has left what the demonstrations cover (distance {c.estimate.distance:.2f} "
                  "in units of the demonstrations' spread); its continuation is an extrapolation", path=tr.source or tr.name)
         elif c.estimate.band_widening >= WIDENING_NOTE:
-            from rbgp_cli.errors import warn
-
             warn(f"the seen motion is less like the demonstrations than most of them: its bands are widened "
                  f"×{c.estimate.band_widening:.2f} (band_widening)", path=tr.source or tr.name)
         out.append(c)
