@@ -478,9 +478,26 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
                 "prior": "they followed the prior mean while outside (off_data prior)"}[off_data]
         warn(describe(res.left) + f"; {then}"
              + ("; envelope from the model's training points (an older model file)" if res.left["envelope"] != "demonstrations" else ""))
+    _note_widened_starts(res)
     if rate is not None and abs(float(rate) * step - 1.0) > 1e-9 and res.goal_distance is None and not res.via:
         res = res.resampled(rate)  # at 1/dt the grid is the integration grid (a conditioned one is resampled before it is bent)
     return res
+
+
+def _note_widened_starts(res) -> None:
+    """One warning naming the rollouts whose start's surprise widened their bands by WIDENING_NOTE or more
+    (:meth:`~rbgp_cli.dynamics.variation.Variation.start_widening`)."""
+    w = getattr(res, "band_widening", None)
+    if w is None:
+        return
+    w = np.max(np.asarray(w), axis=-1)  # (B,): the larger of the rotation and position part's
+    far = np.flatnonzero(w >= WIDENING_NOTE)
+    if len(far):
+        shown = ", ".join(str(int(b)) for b in far[:8]) + (f" and {len(far) - 8} more" if len(far) > 8 else "")
+        lo, hi = float(np.min(w[far])), float(np.max(w[far]))
+        by = f"×{lo:.2f}" if round(lo, 2) == round(hi, 2) else f"×{lo:.2f}–×{hi:.2f}"
+        warn(f"{len(far)} of {len(w)} starts are less like the demonstrations' starts than three in four of theirs: "
+             f"their bands are widened {by} (rollouts {shown}; band_widening)")
 
 
 #: A goal further than this many of the demonstrations' spreads from where they end (given the start)
@@ -589,8 +606,8 @@ def continue_files(model, sources, *, options: ReadOptions | None = None, max_ga
     return out
 
 
-#: ``rollout --given`` says on stderr when a seen motion's bands are widened by at least this factor (its surprise
-#: 2.25 × the left-out median; docs/method.md §13)
+#: ``rollout`` (from a start, or ``--given`` a seen beginning) says on stderr when a motion's bands are widened by
+#: at least this factor (its surprise 2.25 × the reference; docs/method.md §11 and §13)
 WIDENING_NOTE = 1.5
 
 

@@ -137,7 +137,7 @@ def _start_grouped(f, splits):
     scale = V._coordinate_scale(f["delta"])
     out = {}
     for train, test in splits:
-        a, b = V._held_out_errors(f["delta"], f["s"], train, test, ridge=f["ridge"], gain=f["gain"], scale=scale,
+        a, b, _ = V._held_out_errors(f["delta"], f["s"], train, test, ridge=f["ridge"], gain=f["gain"], scale=scale,
                                   inputs=f["inputs"])
         q_rot, q_pos = V.band_quantiles(len(train) - 2, LEVEL)
         for i, d in enumerate(test):

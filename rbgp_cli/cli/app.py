@@ -313,7 +313,9 @@ def rollout(
                    "output_rate_hz": float(rate) if res.integration else 1.0 / step,
                    "durations_s": [float(tr.t[-1]) for tr in trajs[:res.count]],
                    "output": output, "std": res.std is not None, "off_data": off_data, "left_data": res.left,
-                   "goal_distance": None if res.goal_distance is None else [float(d) for d in res.goal_distance]})
+                   "goal_distance": None if res.goal_distance is None else [float(d) for d in res.goal_distance],
+                   "band_widening": None if res.band_widening is None else
+                   [{"rotation": float(w[0]), "position": float(w[1])} for w in res.band_widening]})
 
 
 @app.command()

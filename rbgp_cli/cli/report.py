@@ -126,6 +126,14 @@ def _variation_text(v: dict) -> str:
         if cal.get("recorded") and cal.get("random"):
             line += (f" (at random ×{cal['random'][0]:.3g}, ×{cal['random'][1]:.3g}; in recording order "
                      f"×{cal['recorded'][0]:.3g}, ×{cal['recorded'][1]:.3g})")
+    sw = cal.get("start_widening")
+    parts = [name for name in ("rotation", "position") if sw and sw.get(name)]
+    if parts:  # dynamics/variation.band_calibration: the start's surprise kept where it narrows the left-out bands
+        line += ("\na start less like the demonstrations' starts than three in four of theirs widens its bands ("
+                 + " and ".join(parts) + "): on the demonstrations left out they are "
+                 + ", ".join(f"{100 * (1 - r):.0f} % narrower in {n}" for n, r in zip(("rotation", "position"),
+                                                                                   sw["mean_width_ratio"]) if sw.get(n))
+                 + " on average with it")
     drift = v.get("drift")
     if "drift" in v and drift is None:
         line += (f"\nwith {v['demos']} demonstrations a drift over the recording order cannot be tested (6 or more "

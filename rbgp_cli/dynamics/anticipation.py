@@ -77,6 +77,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rbgp_cli.dynamics.paths import NARROW_FROM
+from rbgp_cli.dynamics.variation import SURPRISE_FROM, surprise_scale
 from rbgp_cli.errors import InputError
 from rbgp_cli.geometry.conventions import SMALL_ANGLE
 from rbgp_cli.geometry.so3 import PI_TOLERANCE
@@ -1604,19 +1605,6 @@ def _spread_factors(terms, demos: int, level: float = 0.90, scale=None) -> tuple
         c_rot = c_rot / scale
         c_pos = c_pos / scale[:, None]
     return _weighted_quantile(c_rot, w, level), _weighted_quantile(c_pos.ravel(), np.repeat(w, 3), level)
-
-
-#: The bands of a motion under way widen with the seen part's surprise (:meth:`Anticipator.surprise_at`) from this
-#: many demonstrations on: with fewer the median of the left-out surprises is a poor reference, and widening against
-#: it over-covered the studies of five and six (hand raises trained on 6, 0.96–0.98 from 0.89–0.96; docs/defaults.md,
-#: sixteenth pass)
-SURPRISE_FROM = 8
-
-
-def surprise_scale(rho, reference):
-    """s = √max(1, ρ / ρ̄): the bands' widening for a seen part whose innovation per observed number
-    ρ = eᵀG⁻¹e / n exceeds the left-out demonstrations' median ρ̄ at its fraction."""
-    return np.sqrt(np.maximum(1.0, np.asarray(rho, dtype=np.float64) / max(float(reference), 1e-300)))
 
 
 def _weighted_quantile(x, w, level):

@@ -53,6 +53,8 @@ class RolloutResult:
         real motion around each mean trajectory (with sampled rollouts of a model that has a variation
         model or a path distribution, else None): |p − p_mean|_j ≤ band_position_j, and eᵀ M⁻¹ e ≤ 1 for
         e = log(R R_meanᵀ), M = band_rotation (:meth:`~rbgp_cli.dynamics.variation.Variation.region`)
+    band_widening : (B, 2) the factors s ≥ 1 each start's surprise widened its band's rotation and position part by
+        (:meth:`~rbgp_cli.dynamics.variation.Variation.start_widening`), or None
     """
 
     t: np.ndarray
@@ -82,6 +84,7 @@ class RolloutResult:
     goal_strength: np.ndarray | None = None
     band_position: np.ndarray | None = None
     band_rotation: np.ndarray | None = None
+    band_widening: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -155,6 +158,7 @@ class RolloutResult:
                                                                        self.goal_distance)
         res.via_distance = self.via_distance
         res.goal_strength = self.goal_strength
+        res.band_widening = self.band_widening
         if self.band_position is not None:
             res.band_position, res.band_rotation = band_p, band_r
         return res
@@ -225,7 +229,7 @@ def rollout(model, start_quat, start_position, steps: int, dt: float | None = No
 def _path_samples(variation, res: RolloutResult, K: int, seed: int, durations) -> RolloutResult:
     """``res`` with K path samples per trajectory: the mean rollout displaced by typical draws of the
     deviation process at each trajectory's phase (see :func:`rollout`), batched over trajectories and
-    samples, and the 90 % band of the next real motion at the same phases."""
+    samples, and the 90 % band of the next real motion at the same phases, widened by each start's surprise."""
     from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
 
     B = res.count
@@ -236,7 +240,9 @@ def _path_samples(variation, res: RolloutResult, K: int, seed: int, durations) -
     dev = variation.at(eta, np.broadcast_to(phase[:, None, :], (B, K, len(res.t))))  # (B, K, T, 6)
     res.sample_quat = quat_make_continuous(quat_multiply(exp_quat(dev[..., :3]), res.quat[:, None]))
     res.sample_position = res.position[:, None] + dev[..., 3:]
-    res.band_position, res.band_rotation = variation.region(phase)  # (B, T, 3), (B, T, 3, 3)
+    # widened by each start's surprise (Variation.start_widening: 1 for a start like the demonstrations')
+    res.band_widening = variation.start_widening(res.quat[:, 0], res.position[:, 0])
+    res.band_position, res.band_rotation = variation.region(phase, widen=res.band_widening)  # (B, T, 3), (B, T, 3, 3)
     return res
 
 

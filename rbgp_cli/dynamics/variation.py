@@ -57,6 +57,20 @@ Schäfer–Strimmer's weight α (:func:`shrinkage`), so that 3–6 demonstration
 covariance of too low a rank; the factors are also measured on contiguous blocks left out in recording
 order (the rows' order: the order the demonstrations were read), and the bands take the larger
 (:func:`band_calibration`); :func:`order_drift` tests whether the demonstrations drift over that order.
+
+The start's surprise (issue 36, seventeenth pass; docs/method.md §11). A band about the mean path cannot hold a
+next session whose starts moved (the hand raises' takes 25–32 from 1–24: 0.41 / 0.48). From START_SURPRISE_FROM
+demonstrations on, the band of a start c = δ(0) − μ(0) is widened by
+
+    s = √max(1, ρ / ρ̄),   ρ = cᵀ Σ_0⁻¹ c / 6,
+
+Σ_0 the demonstrations' start covariance (:func:`start_covariance`) and ρ̄ the upper quartile
+(START_SURPRISE_QUANTILE) of the ρ of the demonstrations left out one at a time, each against the others' Σ_0 and
+mean start. The factors c above are fitted on the left-out errors divided by their own s, so a start no more
+surprising than three in four of the demonstrations' keeps the factors' band, a more surprising one widens it
+and none narrows it (:func:`band_calibration`; :meth:`Variation.start_widening`). The widening is kept where the
+left-out bands are narrower with it at the same level (the start's surprise says which motions need more), else
+the bands are as without it (:func:`band_calibration`).
 """
 
 from __future__ import annotations
@@ -68,7 +82,7 @@ import numpy as np
 from rbgp_cli.dynamics.trajectory import Trajectory
 
 __all__ = ["Variation", "demonstration_variation", "demonstration_deviations", "start_regression", "start_map", "start_reach",
-           "bound_shift", "START_INPUTS",
+           "bound_shift", "START_INPUTS", "SURPRISE_FROM", "START_SURPRISE_FROM", "START_SURPRISE_QUANTILE", "surprise_scale", "start_covariance", "start_surprise",
            "band_scale", "band_calibration", "band_quantiles", "shrinkage", "order_drift", "pull_profile", "DRIFT_P", "STEPS", "MIN_DEMOS", "MIN_BAND_DEMOS", "RIDGE_GRID", "BAND_LEVEL",
            "PULL_CAP", "PULL_WINDOW"]
 
@@ -86,6 +100,31 @@ BAND_LEVEL = 0.90
 PULL_CAP = 20.0
 #: The phase window over which :func:`pull_profile` measures how fast the spread shrinks.
 PULL_WINDOW = 0.1
+#: The bands widen with the surprise of what is known of a motion (its start here, the seen part of a motion
+#: under way in dynamics/anticipation.py) from this many demonstrations on: with fewer the median of the
+#: left-out surprises is a poor reference, and widening against it over-covered the studies of five and six
+#: (hand raises trained on 6, 0.96–0.98 from 0.89–0.96; docs/defaults.md, sixteenth pass)
+SURPRISE_FROM = 8
+
+
+#: The start-only bands widen with the start's surprise from this many demonstrations on. One left out, the others'
+#: start covariance is estimated from m = D − 1 of them in six coordinates: a left-out start's ρ is F(6, m − 6)
+#: distributed for Gaussian starts (Hotelling), whose variance is finite only from m = 11 on, and the reference of
+#: fewer than sixteen was noise: the 10 waves (8 per fold) widened at 8 lost 0.07 at random folds (docs/defaults.md,
+#: seventeenth pass).
+START_SURPRISE_FROM = 16
+#: The start-only bands widen against this quantile of the left-out starts' surprise ρ (:func:`band_calibration`):
+#: one start's ρ is six numbers' (χ²₆ / 6 where the starts are Gaussian: its 90th percentile is twice its median),
+#: so against the median half of the starts were widened by chance. Measured on the real sets (the median, 0.75,
+#: 0.9; docs/defaults.md, seventeenth pass): the median held the next session of the hand raises best but took
+#: their random folds' rotation and the waves' recording order over 0.95; 0.9 mended little.
+START_SURPRISE_QUANTILE = 0.75
+
+
+def surprise_scale(rho, reference):
+    """s = √max(1, ρ / ρ̄): the bands' widening for what is known of a motion (a start, a seen part) whose
+    surprise ρ exceeds the reference ρ̄ (a quantile of the left-out demonstrations' ρ)."""
+    return np.sqrt(np.maximum(1.0, np.asarray(rho, dtype=np.float64) / max(float(reference), 1e-300)))
 
 
 @dataclass
@@ -108,6 +147,11 @@ class Variation:
     calibration: dict | None = None
     #: the demonstrations' drift over the recording order (:func:`order_drift`, plain data, or None)
     drift: dict | None = None
+    #: the start's surprise (:meth:`start_widening`; module docstring): {"quat" (4,), "position" (3,) the mean
+    #: path's first pose, "mean" (6,) μ(0), "covariance" (6, 6) Σ_0, "reference" ρ̄ the left-out starts' upper quartile,
+    #: "parts" [rotation, position] which part of the band widens};
+    #: None: no widening (fewer than START_SURPRISE_FROM demonstrations, or an older model file)
+    start_surprise: dict | None = None
 
     @property
     def demos(self) -> int:
@@ -154,17 +198,45 @@ class Variation:
         C = (1.0 - f) ** 2 * Ckk[k] + f ** 2 * Ckk[k + 1] + f * (1.0 - f) * Ck1[k]
         return _shrunk(C, float(self.shrinkage)) * (1.0 + 1.0 / self.demos) / self.dof
 
-    def region(self, phase: np.ndarray, level: float = BAND_LEVEL) -> tuple[np.ndarray, np.ndarray]:
+    def region(self, phase: np.ndarray, level: float = BAND_LEVEL, widen=None) -> tuple[np.ndarray, np.ndarray]:
         """The band: the ``level`` prediction region of the next real motion at phases ``phase`` (...,)
         around the mean rollout (module docstring). Returns the position half-widths (..., 3) m, per
-        axis c_pos t_ν,(1+level)/2 √C_jj, and the rotation region's matrix M (..., 3, 3) rad², the
-        region {e : eᵀ M⁻¹ e ≤ 1} of e = log(R Rᵀ_mean) (world frame), M = c_rot² 3 F_level(3, ν) C_rot
-        (C :meth:`scale_matrix`; c calibrated at BAND_LEVEL)."""
+        axis w c_pos t_ν,(1+level)/2 √C_jj, and the rotation region's matrix M (..., 3, 3) rad², the
+        region {e : eᵀ M⁻¹ e ≤ 1} of e = log(R Rᵀ_mean) (world frame), M = w² c_rot² 3 F_level(3, ν) C_rot
+        (C :meth:`scale_matrix`; c calibrated at BAND_LEVEL); ``widen`` (..., 2) the factors w ≥ 1 on the rotation
+        and the position part, its leading axes those of ``phase``'s leading ones (:meth:`start_widening`: (B, 2)
+        for phases (B, T); None: 1)."""
         C = self.scale_matrix(phase)
         q_rot, q_pos = band_quantiles(self.dof, level)
         c_rot, c_pos = (float(c) for c in self.band_scale)
-        half = c_pos * q_pos * np.sqrt(np.maximum(np.einsum("...ii->...i", C[..., 3:, 3:]), 0.0))
-        return half, (c_rot ** 2 * q_rot) * C[..., :3, :3]
+        shape = np.shape(phase)
+        if widen is None:
+            w_rot = w_pos = np.ones(shape)
+        else:
+            w = np.asarray(widen, dtype=np.float64)
+            w = w.reshape(w.shape[:-1] + (1,) * (len(shape) - (w.ndim - 1)) + (2,))
+            w_rot, w_pos = np.broadcast_to(w[..., 0], shape), np.broadcast_to(w[..., 1], shape)
+        half = (w_pos * c_pos * q_pos)[..., None] * np.sqrt(np.maximum(np.einsum("...ii->...i", C[..., 3:, 3:]), 0.0))
+        return half, (w_rot**2 * c_rot**2 * q_rot)[..., None, None] * C[..., :3, :3]
+
+    def start_widening(self, quat, position) -> np.ndarray:
+        """The bands' widening (B, 2), rotation and position part, of start poses (quat (B, 4) x, y, z, w; position
+        (B, 3) m): s = √max(1, ρ / ρ̄), ρ = cᵀ Σ_0⁻¹ c / 6 of c = (log(R R̄(0)ᵀ), p − p̄(0)) − μ(0) (module
+        docstring, "The start's surprise"), in each part that :attr:`start_surprise` widens (its ``parts``), else 1;
+        ones without :attr:`start_surprise`."""
+        quat = np.asarray(quat, dtype=np.float64).reshape(-1, 4)
+        position = np.asarray(position, dtype=np.float64).reshape(-1, 3)
+        info = self.start_surprise
+        if not info:
+            return np.ones((len(quat), 2))
+        from rbgp_cli.geometry.so3 import log_quat, quat_conjugate, quat_multiply
+
+        anchor = np.asarray(info["quat"], dtype=np.float64)[None]
+        c = np.concatenate([log_quat(quat_multiply(quat, quat_conjugate(anchor))),
+                            position - np.asarray(info["position"], dtype=np.float64)[None]], axis=1)
+        c = c - np.asarray(info["mean"], dtype=np.float64)[None]
+        w = surprise_scale(start_surprise(c, np.asarray(info["covariance"], dtype=np.float64)), info["reference"])
+        return np.where(np.asarray(info["parts"], dtype=bool)[None], w[:, None], 1.0)
 
     def at(self, eta: np.ndarray, phase: np.ndarray) -> np.ndarray:
         """Draws ``eta`` (..., S, 6) at phases ``phase`` (..., T) (clipped to [0, 1]) by linear
@@ -181,14 +253,28 @@ class Variation:
         return {"variation_s": np.ascontiguousarray(self.s, dtype=np.float64),
                 "variation_residuals": np.ascontiguousarray(self.residuals, dtype=np.float64)}
 
+    def surprise_header(self) -> dict | None:
+        """:attr:`start_surprise` as plain lists for a model file's header (None without it)."""
+        info = self.start_surprise
+        if not info:
+            return None
+        return {"quat": [float(x) for x in info["quat"]], "position": [float(x) for x in info["position"]],
+                "mean": [float(x) for x in info["mean"]],
+                "covariance": [[float(x) for x in row] for row in np.asarray(info["covariance"])],
+                "reference": float(info["reference"]), "parts": [bool(x) for x in info["parts"]]}
+
     @classmethod
-    def from_arrays(cls, arrays: dict, band_scale=None, shrinkage: float = 0.0) -> "Variation":
+    def from_arrays(cls, arrays: dict, band_scale=None, shrinkage: float = 0.0, start_surprise=None) -> "Variation":
         """From :meth:`to_arrays`' arrays, the header's ``band_scale`` ({"rotation", "position"}, or
-        None for (1, 1)) and ``shrinkage`` α (0 for files without it)."""
+        None for (1, 1)), ``shrinkage`` α (0 for files without it) and ``start_surprise``
+        (:meth:`surprise_header`; None for files without it: no widening)."""
         r = np.asarray(arrays["variation_residuals"], dtype=np.float64)
         scale = (1.0, 1.0) if not band_scale else (float(band_scale["rotation"]), float(band_scale["position"]))
+        info = None if not start_surprise else {
+            k: (float(v) if k == "reference" else [bool(x) for x in v] if k == "parts" else np.asarray(v, dtype=np.float64))
+            for k, v in start_surprise.items()}
         return cls(np.asarray(arrays["variation_s"], dtype=np.float64), r, int(r.shape[0]) - 2, scale,
-                   float(shrinkage or 0.0))
+                   float(shrinkage or 0.0), start_surprise=info)
 
 
 def demonstration_deviations(trajs: list[Trajectory], steps: int = STEPS) -> tuple[dict, np.ndarray]:
@@ -457,6 +543,27 @@ def _shrunk(cov: np.ndarray, alpha: float) -> np.ndarray:
     return (1.0 - alpha) * cov + alpha * (diag[..., :, None] * np.eye(cov.shape[-1]))
 
 
+def start_covariance(c0: np.ndarray) -> np.ndarray:
+    """Σ_0 (6, 6) of the centred start deviations c0 (m, 6) (rad, m): their covariance Σ c cᵀ / (m − 1), its
+    correlations shrunk by Schäfer–Strimmer's α (:func:`shrinkage`), plus the tracker's tolerance
+    (paths.GOAL_TOLERANCE, one standard deviation) on the diagonal, so that a coordinate the demonstrations
+    all started at alike does not make every other start infinitely surprising."""
+    from rbgp_cli.dynamics.paths import GOAL_TOLERANCE
+
+    c0 = np.asarray(c0, dtype=np.float64)
+    m = len(c0)
+    alpha = shrinkage(np.stack([np.zeros_like(c0), c0], axis=1))
+    tol = np.array([GOAL_TOLERANCE[0]] * 3 + [GOAL_TOLERANCE[1]] * 3) ** 2
+    return _shrunk(c0.T @ c0 / max(m - 1, 1), alpha) + np.diag(tol)
+
+
+def start_surprise(c: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """ρ = cᵀ Σ_0⁻¹ c / 6 (...,) of start deviations c (..., 6) about the mean start, against Σ_0 ``cov`` (6, 6)
+    (:func:`start_covariance`): the start's squared Mahalanobis distance per coordinate."""
+    c = np.asarray(c, dtype=np.float64)
+    return np.einsum("...i,...i->...", c, np.linalg.solve(cov, c.reshape(-1, 6).T).T.reshape(c.shape)) / 6.0
+
+
 def _held_out_errors(delta: np.ndarray, s: np.ndarray, train: np.ndarray, test: np.ndarray, *, ridge: float,
                      gain: float, scale: np.ndarray, alpha: float | None = None, inputs: str = "path"):
     """The errors of the demonstrations ``test`` predicted from those in ``train`` as a rollout predicts
@@ -464,8 +571,9 @@ def _held_out_errors(delta: np.ndarray, s: np.ndarray, train: np.ndarray, test: 
     the position errors per axis over their standard deviations) against the covariance the draws of
     the training demonstrations' own deviation process would have, C = (1 + 1/m)/ν Σ_α (the Student-t
     draws' scale matrix; :func:`band_scale`), Σ_α the shrunk Σ r rᵀ of their start-regression residuals
-    (:func:`shrinkage`; α from them unless given), m of them and ν = m − 2. ``inputs``: the start map's
-    units (:func:`start_map`), as the model's."""
+    (:func:`shrinkage`; α from them unless given), m of them and ν = m − 2), and rho (T,) the held-out
+    starts' surprise against the training ones' (:func:`start_surprise`). ``inputs``: the start map's units
+    (:func:`start_map`), as the model's."""
     rest = delta[train]
     m = len(rest)
     _, _, r = start_regression(rest)
@@ -474,6 +582,7 @@ def _held_out_errors(delta: np.ndarray, s: np.ndarray, train: np.ndarray, test: 
     mu, B = _ridge_map(rest, scale, ridge, inputs)
     held = delta[test]
     c0 = held[:, 0] - mu[0]
+    rho = start_surprise(c0, start_covariance(rest[:, 0] - mu[0]))
     shift, _ = bound_shift(np.einsum("sij,dj->dsi", B, c0), c0[:, None], start_reach(rest, mu)[None])  # as a rollout
     e = held - mu[None] - shift  # (T, S, 6)
     decay = np.exp(-float(gain) * np.asarray(s, dtype=np.float64))[1:, None]
@@ -483,7 +592,7 @@ def _held_out_errors(delta: np.ndarray, s: np.ndarray, train: np.ndarray, test: 
     Cr = Cr + (1e-9 * tr + 1e-24) * np.eye(3)
     m2 = np.einsum("dsi,dsi->ds", e[..., :3], np.linalg.solve(Cr[None], e[..., :3, None])[..., 0])
     sd = np.sqrt(np.maximum(np.einsum("sii->si", C[:, 3:, 3:]), 1e-24))
-    return m2, np.abs(e[..., 3:]) / sd[None]
+    return m2, np.abs(e[..., 3:]) / sd[None], rho
 
 
 def band_quantiles(dof: int, level: float = BAND_LEVEL) -> tuple[float, float]:
@@ -500,20 +609,26 @@ def _scores(delta: np.ndarray, s: np.ndarray, splits, *, ridge: float, gain: flo
             inputs: str = "path"):
     """The left-out errors of every (train, test) split in ``splits`` against the band of the model of
     its training demonstrations (:func:`_held_out_errors`), in units of that band's own Student-t
-    quantiles (ν = m − 2 of its m): rotation m² / (3 F(3, ν)) and position |z| / t_ν, pooled."""
+    quantiles (ν = m − 2 of its m): rotation m² / (3 F(3, ν)) (N, S − 1) and position |z| / t_ν (N, S − 1, 3),
+    the N left-out demonstrations of all splits stacked, and their starts' surprise ρ (N,)."""
     scale = _coordinate_scale(delta)
-    m2, z = [], []
+    m2, z, rho = [], [], []
     for train, test in splits:
-        a, b = _held_out_errors(delta, s, train, test, ridge=ridge, gain=gain, scale=scale, inputs=inputs)
+        a, b, c = _held_out_errors(delta, s, train, test, ridge=ridge, gain=gain, scale=scale, inputs=inputs)
         q_rot, q_pos = band_quantiles(len(train) - 2, level)
-        m2.append(np.ravel(a) / q_rot)
-        z.append(np.ravel(b) / q_pos)
-    return np.concatenate(m2), np.concatenate(z)
+        m2.append(a / q_rot)
+        z.append(b / q_pos)
+        rho.append(c)
+    return np.concatenate(m2), np.concatenate(z), np.concatenate(rho)
 
 
-def _factors(m2: np.ndarray, z: np.ndarray, level: float) -> tuple[float, float]:
-    """(c_rot, c_pos) ≥ 1 that put the ``level`` quantile of the normalised errors (:func:`_scores`) on
-    the bands' edge."""
+def _factors(m2: np.ndarray, z: np.ndarray, level: float, widen=None) -> tuple[float, float]:
+    """(c_rot, c_pos) ≥ 1 that put the ``level`` quantile of the normalised errors (:func:`_scores`: m2
+    (N, S − 1), z (N, S − 1, 3)) on the bands' edge, each left-out row's errors divided by its own widening
+    ``widen`` (N,) (None: 1)."""
+    if widen is not None:
+        w = np.asarray(widen, dtype=np.float64)
+        m2, z = m2 / w[:, None] ** 2, z / w[:, None, None]
     c_rot = np.sqrt(np.quantile(np.ravel(m2), level))
     c_pos = np.quantile(np.ravel(z), level)
     return max(1.0, float(c_rot)), max(1.0, float(c_pos))
@@ -545,24 +660,60 @@ def band_calibration(delta: np.ndarray, s: np.ndarray, *, ridge: float = float("
     the model without it (:func:`_scores`), each kind gives its factors, and the bands cover both: c = the
     larger of the two per rotation and position. (The quantile of both kinds' errors together was tried:
     on the 40 hand raises' blocks the bands then held 0.87 / 0.85 against 0.89 / 0.87, at random 0.92 /
-    0.93 against 0.93 / 0.94.) Returns ``{"band_scale": (c_rot, c_pos), "random": (…), "recorded": (…) or
-    None, "shrinkage": α}``; (1, 1) with fewer than MIN_BAND_DEMOS demonstrations. ``ridge``, ``inputs``:
-    the start map's λ and units (:func:`start_map`); ``gain`` the pull's constant a."""
+    0.93 against 0.93 / 0.94.)
+
+    The start's surprise (module docstring), from START_SURPRISE_FROM demonstrations on: each left-out error
+    divided by its start's widening s = √max(1, ρ / ρ̄) (ρ̄ the START_SURPRISE_QUANTILE quantile of the ρ of
+    those left out one at a time) gives the factors c' of the widened bands, c' s wide. The widening is kept,
+    for the rotation and the position part each, where it makes that part's left-out bands narrower at the
+    same level:
+
+        log mean(c'_rot s) < log c_rot   (and likewise in position)
+
+    over every left-out demonstration (both kinds), i.e. where the start's surprise says which motions need
+    the wider band. Where it does not (the handovers: starts at rest within millimetres, whose ρ has no rank
+    correlation with the need; a part whose factor is 1 already), widening some would only add width, as the
+    factors cannot fall below 1.
+
+    Returns ``{"band_scale": (c_rot, c_pos), "random": (…), "recorded": (…) or None, "shrinkage": α,
+    "surprise_reference": ρ̄ or None (kept for neither part), "surprise_parts": (rotation, position) whether
+    each part widens, "surprise_width": ((without), (with)) each part's mean log width, or None}``; (1, 1) with fewer than MIN_BAND_DEMOS demonstrations. ``ridge``,
+    ``inputs``: the start map's λ and units (:func:`start_map`); ``gain`` the pull's constant a."""
     delta = np.asarray(delta, dtype=np.float64)
     D = len(delta)
     _, _, r = start_regression(delta)
     alpha = shrinkage(r)
-    out = {"band_scale": (1.0, 1.0), "random": None, "recorded": None, "shrinkage": alpha}
+    out = {"band_scale": (1.0, 1.0), "random": None, "recorded": None, "shrinkage": alpha,
+           "surprise_reference": None, "surprise_parts": (False, False), "surprise_width": None}
     if D < MIN_BAND_DEMOS:
         return out
     loo = [(np.setdiff1d(np.arange(D), [d]), np.array([d])) for d in range(D)]
-    m2, z = _scores(delta, s, loo, ridge=ridge, gain=gain, level=level, inputs=inputs)
-    out["random"] = _factors(m2, z, level)
+    kinds = [_scores(delta, s, loo, ridge=ridge, gain=gain, level=level, inputs=inputs)]
     split = _order_blocks(D, blocks)
     if split is not None:
-        out["recorded"] = _factors(*_scores(delta, s, split, ridge=ridge, gain=gain, level=level, inputs=inputs), level)
-    rec = out["recorded"] or (1.0, 1.0)
-    out["band_scale"] = (max(out["random"][0], rec[0]), max(out["random"][1], rec[1]))
+        kinds.append(_scores(delta, s, split, ridge=ridge, gain=gain, level=level, inputs=inputs))
+
+    def calibrated(ref):  # the factors of each kind and the mean log width of each part, with the widening at ref
+        w = [np.ones(len(rho)) if ref is None else surprise_scale(rho, ref) for _, _, rho in kinds]
+        per = [_factors(m2, z, level, wk) for (m2, z, _), wk in zip(kinds, w)]
+        c = (max(f[0] for f in per), max(f[1] for f in per))
+        w = np.concatenate(w)
+        return per, c, (float(np.log(np.mean(c[0] * w))), float(np.log(np.mean(c[1] * w))))
+
+    per, c, width = calibrated(None)
+    if D >= START_SURPRISE_FROM:
+        ref = float(np.quantile(kinds[0][2], START_SURPRISE_QUANTILE))
+        per_s, c_s, width_s = calibrated(ref)
+        keep = [width_s[j] < width[j] for j in (0, 1)]  # rotation, position
+        out["surprise_width"] = (width, width_s)
+        if any(keep):  # each part's factors from the calibration it keeps (a factor is one part's quantile)
+            per = [tuple(fs[j] if keep[j] else f[j] for j in (0, 1)) for f, fs in zip(per, per_s)]
+            c = tuple(c_s[j] if keep[j] else c[j] for j in (0, 1))
+            out["surprise_reference"] = ref
+            out["surprise_parts"] = tuple(bool(k) for k in keep)
+    out["random"] = per[0]
+    out["recorded"] = per[1] if len(per) > 1 else None
+    out["band_scale"] = c
     return out
 
 
@@ -586,7 +737,7 @@ def band_scale(delta: np.ndarray, residuals: np.ndarray, s: np.ndarray, *, ridge
     if D < MIN_BAND_DEMOS:
         return 1.0, 1.0
     loo = [(np.setdiff1d(np.arange(D), [d]), np.array([d])) for d in range(D)]
-    return _factors(*_scores(delta, s, loo, ridge=ridge, gain=gain, level=level, inputs=inputs), level)
+    return _factors(*_scores(delta, s, loo, ridge=ridge, gain=gain, level=level, inputs=inputs)[:2], level)
 
 
 #: Reorderings of the demonstrations that :func:`order_drift`'s permutation test draws.
@@ -672,5 +823,16 @@ def demonstration_variation(trajs: list[Trajectory], steps: int = STEPS, *, ridg
     drift = order_drift(delta, [tr.duration for tr in trajs])
     plain = {"random": None if cal["random"] is None else list(cal["random"]),
              "recorded": None if cal["recorded"] is None else list(cal["recorded"])}
+    if cal["surprise_width"] is not None:  # whether the start's surprise widens the bands, and why (band_calibration)
+        w0, w1 = cal["surprise_width"]
+        plain["start_widening"] = {"rotation": bool(cal["surprise_parts"][0]), "position": bool(cal["surprise_parts"][1]),
+                                   "mean_width_ratio": [float(np.exp(w1[j] - w0[j])) for j in (0, 1)]}
+    surprise = None
+    if cal["surprise_reference"] is not None:  # the start's surprise (module docstring)
+        mu0 = delta[:, 0].mean(axis=0)
+        surprise = {"quat": np.asarray(path["quat"][0], dtype=np.float64),
+                    "position": np.asarray(path["position"][0], dtype=np.float64), "mean": mu0,
+                    "covariance": start_covariance(delta[:, 0] - mu0), "reference": float(cal["surprise_reference"]),
+                    "parts": [bool(k) for k in cal["surprise_parts"]]}
     return Variation(s=s, residuals=r, dof=D - 2, band_scale=cal["band_scale"], shrinkage=cal["shrinkage"],
-                     calibration=plain, drift=drift)
+                     calibration=plain, drift=drift, start_surprise=surprise)

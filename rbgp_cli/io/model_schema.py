@@ -257,6 +257,13 @@ TOP: dict = {
                            "position": num(1.0, 1e6, what="a factor of at least 1")}, ("rotation", "position")),
         # version 9: the shrinkage of the covariance between coordinates (dynamics/variation.shrinkage)
         "shrinkage": num(0.0, 1.0, what="a weight in [0, 1]"),
+        # optional: the start's surprise, the start-only bands' widening (dynamics/variation.py, seventeenth pass)
+        "start_surprise": obj({"quat": list_of(num(-1.0, 1.0, what="a unit quaternion's component"), 4, 4),
+                               "position": list_of(num(), 3, 3), "mean": list_of(num(), 6, 6),
+                               "covariance": list_of(list_of(num(), 6, 6), 6, 6),
+                               "reference": num(0.0, 1e12, lo_open=True, what="a positive surprise"),
+                               "parts": list_of(boolean, 2, 2)},
+                              ("quat", "position", "mean", "covariance", "reference", "parts")),
     }, ("demos", "steps")))),
     # optional: the gain g on the GP's residual mean (dynamics/residual_gain.py); absent: 1, the full GP
     "residual_gain": (10**6, num(0.0, 100.0, what="a gain from 0 to 100")),
@@ -372,6 +379,13 @@ def _agree(h: dict) -> None:
             raise SchemaError("paths.seen_band_scales needs as many rotation and position factors as fractions")
         if any(b <= a for a, b in zip(F, F[1:])):
             _fail(("paths", "seen_band_scales", "fractions"), F, "increasing fractions")
+    start = (h.get("variation") or {}).get("start_surprise")
+    if start is not None:
+        cov = np.asarray(start["covariance"], dtype=np.float64)
+        if not np.allclose(cov, cov.T, rtol=1e-9, atol=0.0) or np.min(np.linalg.eigvalsh(cov)) <= 0.0:
+            raise SchemaError("variation.start_surprise.covariance must be a symmetric positive definite 6 × 6 matrix")
+        if abs(float(np.linalg.norm(start["quat"])) - 1.0) > 1e-6:
+            _fail(("variation", "start_surprise", "quat"), start["quat"], "a unit quaternion")
     sur = (h.get("paths") or {}).get("seen_surprise")
     if sur is not None:
         F = sur["fractions"]

@@ -57,7 +57,11 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
   bounded by the demonstrations' reach says ``"start_reach": true`` and holds ``prior_start_reach`` (S, 2),
   the largest rotation (rad) and position (m) deviation per phase (:func:`rbgp_cli.dynamics.variation.start_reach`);
   files without it roll out with the map unbounded, as they were trained, and an rbgp older than the field
-  refuses a file that has it with its schema's "unknown field" error.
+  refuses a file that has it with its schema's "unknown field" error. Optional in version 9 as well:
+  ``variation.start_surprise`` ({"quat", "position", "mean", "covariance", "reference", "parts"}: the
+  demonstrations' start distribution, the left-out starts' upper quartile of surprise, which a start's bands widen
+  against, and which part of the band (rotation, position) widens,
+  :meth:`rbgp_cli.dynamics.variation.Variation.start_widening`); files without it widen nothing, as before.
 
 Loading reads the zip itself (never unpickling: .npy members of plain numbers only) with limits
 checked before anything large is decompressed: a member may decompress to at most
@@ -226,6 +230,8 @@ def save_model(model, path) -> dict:
                                "band_scale": {"rotation": float(variation.band_scale[0]),
                                               "position": float(variation.band_scale[1])},
                                "shrinkage": float(variation.shrinkage)}
+        if variation.surprise_header() is not None:  # optional: the start's surprise (dynamics/variation.py)
+            header["variation"]["start_surprise"] = variation.surprise_header()
     if paths is not None:
         header["paths"] = paths.header()
     if getattr(model, "envelope", None) is not None:  # optional: files without it load (computed then)
@@ -540,7 +546,8 @@ def load_model(path):
         from rbgp_cli.dynamics.variation import Variation
 
         variation = Variation.from_arrays(arrays, header["variation"].get("band_scale"),
-                                          header["variation"].get("shrinkage", 0.0))
+                                          header["variation"].get("shrinkage", 0.0),
+                                          header["variation"].get("start_surprise"))
     paths = None
     if header.get("paths"):
         from rbgp_cli.dynamics.paths import PathDistribution

@@ -161,15 +161,16 @@ def test_fit_paths_stores_the_factors_and_the_header_round_trips(paths):
 
 
 @pytest.mark.slow
-def rewrite_paths_header(src, change, out):
-    """A copy of model file ``src`` at ``out`` whose header's ``paths`` ``change`` (a function of the dict) edits, with
-    the header's checksum recomputed (what an older rbgp, or a damaged file, would have written)."""
+def rewrite_paths_header(src, change, out, section: str = "paths"):
+    """A copy of model file ``src`` at ``out`` whose header's ``section`` (default ``paths``) ``change`` (a function of
+    the dict) edits, with the header's checksum recomputed (what an older rbgp, or a damaged file, would have
+    written)."""
     from rbgp_cli.io.model_store import header_sha256
 
     with np.load(src, allow_pickle=False) as z:
         arrays = {k: z[k] for k in z.files}
     h = json.loads(arrays.pop("header").tobytes().decode())
-    change(h["paths"])
+    change(h[section])
     h["checksums"]["header"] = header_sha256(h)
     with open(out, "wb") as fh:
         np.savez_compressed(fh, header=np.frombuffer(json.dumps(h).encode(), dtype=np.uint8), **arrays)

@@ -80,15 +80,15 @@ def test_blocked_folds_of_a_drifting_session_hold_fresh_later_draws_at_the_level
 
 def _coverage_of(v, train, fresh):
     """:func:`_coverage` with a given variation ``v`` (of ``train``): the band rbgp gives (what crossval
-    measures, :func:`rbgp_cli.evaluation.coverage.band_coverage`)."""
+    measures, :func:`rbgp_cli.evaluation.coverage.band_coverage`), widened by each start's surprise."""
     from rbgp_cli.dynamics.model import mean_path
     from rbgp_cli.evaluation.coverage import Coverage, band_coverage
     from rbgp_cli.geometry.so3 import log_quat, quat_conjugate
 
     path = mean_path(train, 51)
-    half, M = v.region(v.s)
     total = Coverage()
     for real in fresh:
+        half, M = v.region(v.s, widen=v.start_widening(real.quat[:1], real.position[:1])[0])  # as a rollout widens it
         cond = path["position"] + (real.position[0] - path["position"][0])
         start_rot = log_quat(quat_multiply(real.quat[0], quat_conjugate(path["quat"][0])))
         mean_q = quat_multiply(exp_quat(np.broadcast_to(start_rot, (51, 3))), path["quat"])

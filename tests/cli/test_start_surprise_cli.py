@@ -1,0 +1,58 @@
+"""rbgp rollout widens the bands of a start unlike the demonstrations' starts (issue 36, seventeenth pass): --json
+reports each start's band_widening, stderr says which rollouts were widened and by how much, rbgp train says
+whether the start's surprise widens the bands."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from rbgp_cli.cli.app import app
+from tests.cli.test_drift_cli import FAST, _write
+from tests.dynamics.test_start_surprise import people
+
+runner = CliRunner()
+
+
+@pytest.mark.slow
+def test_a_far_start_gets_wider_bands_a_warning_and_its_factor_in_json(tmp_path):
+    demos = people(24, 9, other=0.25, samples=30)
+    folder = _write(demos, tmp_path / "takes", [f"take_{k + 1}" for k in range(24)])
+    res = runner.invoke(app, ["train", str(folder), "-o", str(tmp_path / "m.rbgp"), *FAST])
+    assert res.exit_code == 0, res.stderr
+    assert "widens its bands (rotation" in res.stderr  # the summary says the widening was kept, for which part
+    from rbgp_cli.geometry.so3 import log_quat
+
+    near = np.concatenate([log_quat(demos[0].quat[0]), demos[0].position[0]])
+    far = near + [0, 0, 0, 1.0, 0, 0]  # a metre off: tens of the starts' spreads
+    args = ["rollout", str(tmp_path / "m.rbgp"), "--samples", "3", "--json", "-o", str(tmp_path / "r.csv")]
+    for pose in (near, far):
+        args += ["--start", " ".join(f"{x:.9g}" for x in pose)]
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.stderr
+    w = json.loads(res.stdout)["band_widening"]
+    assert len(w) == 2 and w[0]["rotation"] < 1.5 and w[1]["rotation"] > 3.0, w
+    line = next(x for x in res.stderr.splitlines() if "widened" in x)
+    assert re.search(r"1 of 2 starts .*widened ×[0-9.]+ \(rollouts 1;", line), line
+    # without samples there is no band, and nothing is said about one
+    res = runner.invoke(app, ["rollout", str(tmp_path / "m.rbgp"), "--start", " ".join(f"{x:.9g}" for x in far),
+                              "--json", "-o", str(tmp_path / "m.csv")])
+    assert res.exit_code == 0 and json.loads(res.stdout)["band_widening"] is None and "widened" not in res.stderr
+
+
+def test_the_summary_says_whether_the_start_widens_the_bands_and_by_how_much():
+    from rbgp_cli.cli.report import _variation_text
+
+    base = {"demos": 40, "band_scale": {"rotation": 1.1, "position": 1.2}, "shrinkage": 0.1, "drift": None}
+    kept = _variation_text({**base, "calibration": {"random": [1.0, 1.1], "recorded": [1.1, 1.2], "start_widening": {
+        "rotation": True, "position": False, "mean_width_ratio": [0.93, 1.07]}}})
+    assert "widens its bands (rotation)" in kept and "7 % narrower in rotation" in kept and "position on" not in kept
+    none = _variation_text({**base, "calibration": {"random": [1.0, 1.1], "recorded": [1.1, 1.2], "start_widening": {
+        "rotation": False, "position": False, "mean_width_ratio": [1.3, 1.4]}}})
+    assert "surprise" not in none and "widens its bands" not in none  # not kept: the bands are as they were (--json has why)
+    older = _variation_text({**base, "calibration": {"random": [1.0, 1.1], "recorded": [1.1, 1.2]}})
+    assert "surprise" not in older and "widens its bands" not in older
