@@ -358,6 +358,13 @@ class Rollout:
         frame), or None (see :attr:`band_position`)."""
         return getattr(self.result, "band_rotation", None)
 
+    @property
+    def band_widening(self) -> np.ndarray | None:
+        """(B, 2): the factors ≥ 1 each start's surprise widened its band's rotation and position part by (a start
+        less like the demonstrations' starts than three in four of theirs, where the model keeps that;
+        docs/method.md §11), or None (no band)."""
+        return getattr(self.result, "band_widening", None)
+
     def trajectories(self, include_samples: bool = False) -> list:
         """The mean trajectories (names ``0``, ``1``, …) and optionally the samples (``0.s0``, …) as
         :class:`~rbgp_cli.dynamics.trajectory.Trajectory` objects, each cut to its length (what

@@ -63,6 +63,7 @@ def test_fit_predict_rollout_shapes(gp, demos):
     # the next motion's 90 % band comes with the samples: zero at the start, positive after it
     assert r.band_position.shape == (2, 11, 3) and r.band_rotation.shape == (2, 11, 3, 3)
     assert np.all(r.band_position[:, 0] == 0.0) and np.all(r.band_position[:, 5:] > 0.0)
+    assert r.band_widening.shape == (2, 2) and np.all(r.band_widening >= 1.0)  # by each start's surprise
     f = r.to_frame()
     assert len(f) == 2 * 11 * (1 + 3) and {"trajectory", "sample", "t", "qw", "x", "std_vx", "left_data"} <= set(f.columns)
     d = r.to_dict()

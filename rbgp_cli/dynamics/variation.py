@@ -82,7 +82,8 @@ import numpy as np
 from rbgp_cli.dynamics.trajectory import Trajectory
 
 __all__ = ["Variation", "demonstration_variation", "demonstration_deviations", "start_regression", "start_map", "start_reach",
-           "bound_shift", "START_INPUTS", "SURPRISE_FROM", "START_SURPRISE_FROM", "START_SURPRISE_QUANTILE", "surprise_scale", "start_covariance", "start_surprise",
+           "bound_shift", "START_INPUTS", "SURPRISE_FROM", "START_SURPRISE_FROM", "START_SURPRISE_QUANTILE",
+           "surprise_scale", "start_covariance", "start_surprise",
            "band_scale", "band_calibration", "band_quantiles", "shrinkage", "order_drift", "pull_profile", "DRIFT_P", "STEPS", "MIN_DEMOS", "MIN_BAND_DEMOS", "RIDGE_GRID", "BAND_LEVEL",
            "PULL_CAP", "PULL_WINDOW"]
 
@@ -271,8 +272,8 @@ class Variation:
         r = np.asarray(arrays["variation_residuals"], dtype=np.float64)
         scale = (1.0, 1.0) if not band_scale else (float(band_scale["rotation"]), float(band_scale["position"]))
         info = None if not start_surprise else {
-            k: (float(v) if k == "reference" else [bool(x) for x in v] if k == "parts" else np.asarray(v, dtype=np.float64))
-            for k, v in start_surprise.items()}
+            k: (float(v) if k == "reference" else [bool(x) for x in v] if k == "parts"
+                else np.asarray(v, dtype=np.float64)) for k, v in start_surprise.items()}
         return cls(np.asarray(arrays["variation_s"], dtype=np.float64), r, int(r.shape[0]) - 2, scale,
                    float(shrinkage or 0.0), start_surprise=info)
 
@@ -649,7 +650,8 @@ def _order_blocks(D: int, blocks: int):
 
 
 def band_calibration(delta: np.ndarray, s: np.ndarray, *, ridge: float = float("inf"), gain: float = 0.0,
-                     level: float = BAND_LEVEL, blocks: int = ORDER_BLOCKS, inputs: str = "path") -> dict:
+                     level: float = BAND_LEVEL, blocks: int = ORDER_BLOCKS, inputs: str = "path",
+                     surprise: bool = True) -> dict:
     """The bands' factors from the demonstrations left out, at random and in recording order
     (docs/method.md §11, "The bands' scale"; the rows of ``delta`` (D, S, 6) are in recording order).
 
@@ -677,8 +679,10 @@ def band_calibration(delta: np.ndarray, s: np.ndarray, *, ridge: float = float("
 
     Returns ``{"band_scale": (c_rot, c_pos), "random": (…), "recorded": (…) or None, "shrinkage": α,
     "surprise_reference": ρ̄ or None (kept for neither part), "surprise_parts": (rotation, position) whether
-    each part widens, "surprise_width": ((without), (with)) each part's mean log width, or None}``; (1, 1) with fewer than MIN_BAND_DEMOS demonstrations. ``ridge``,
-    ``inputs``: the start map's λ and units (:func:`start_map`); ``gain`` the pull's constant a."""
+    each part widens, "surprise_width": ((without), (with)) each part's mean log width, or None}``; (1, 1) with
+    fewer than MIN_BAND_DEMOS demonstrations. ``ridge``, ``inputs``: the start map's λ and units
+    (:func:`start_map`); ``gain`` the pull's constant a; ``surprise`` False: the factors without the start's
+    surprise, whatever the number of demonstrations."""
     delta = np.asarray(delta, dtype=np.float64)
     D = len(delta)
     _, _, r = start_regression(delta)
@@ -701,7 +705,7 @@ def band_calibration(delta: np.ndarray, s: np.ndarray, *, ridge: float = float("
         return per, c, (float(np.log(np.mean(c[0] * w))), float(np.log(np.mean(c[1] * w))))
 
     per, c, width = calibrated(None)
-    if D >= START_SURPRISE_FROM:
+    if surprise and D >= START_SURPRISE_FROM:
         ref = float(np.quantile(kinds[0][2], START_SURPRISE_QUANTILE))
         per_s, c_s, width_s = calibrated(ref)
         keep = [width_s[j] < width[j] for j in (0, 1)]  # rotation, position
@@ -825,7 +829,8 @@ def demonstration_variation(trajs: list[Trajectory], steps: int = STEPS, *, ridg
              "recorded": None if cal["recorded"] is None else list(cal["recorded"])}
     if cal["surprise_width"] is not None:  # whether the start's surprise widens the bands, and why (band_calibration)
         w0, w1 = cal["surprise_width"]
-        plain["start_widening"] = {"rotation": bool(cal["surprise_parts"][0]), "position": bool(cal["surprise_parts"][1]),
+        plain["start_widening"] = {"rotation": bool(cal["surprise_parts"][0]),
+                                   "position": bool(cal["surprise_parts"][1]),
                                    "mean_width_ratio": [float(np.exp(w1[j] - w0[j])) for j in (0, 1)]}
     surprise = None
     if cal["surprise_reference"] is not None:  # the start's surprise (module docstring)

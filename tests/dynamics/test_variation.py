@@ -118,11 +118,12 @@ def test_the_bands_scale_makes_the_demonstrations_left_out_fall_inside_at_the_le
 
 
 def _left_out_factors(demos):
-    """The factors of the demonstrations left out one at a time (:func:`band_scale`), without the start's surprise."""
-    from rbgp_cli.dynamics.variation import band_scale, demonstration_deviations
+    """The bands' factors from the demonstrations left out at random and in blocks (:func:`band_calibration`, the
+    larger of the two), without the start's surprise."""
+    from rbgp_cli.dynamics.variation import band_calibration, demonstration_deviations
 
     path, delta = demonstration_deviations(demos)
-    return band_scale(delta, None, np.asarray(path["s"]))
+    return band_calibration(delta, np.asarray(path["s"]), surprise=False)["band_scale"]
 
 
 def test_the_bands_scale_is_about_one_for_gaussian_deviations_and_widens_a_heavy_tailed_mixture():
