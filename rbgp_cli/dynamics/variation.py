@@ -230,12 +230,9 @@ class Variation:
         info = self.start_surprise
         if not info:
             return np.ones((len(quat), 2))
-        from rbgp_cli.geometry.so3 import log_quat, quat_conjugate, quat_multiply
+        from rbgp_cli.dynamics.paths import pose_deviation
 
-        anchor = np.asarray(info["quat"], dtype=np.float64)[None]
-        c = np.concatenate([log_quat(quat_multiply(quat, quat_conjugate(anchor))),
-                            position - np.asarray(info["position"], dtype=np.float64)[None]], axis=1)
-        c = c - np.asarray(info["mean"], dtype=np.float64)[None]
+        c = pose_deviation(info["quat"], info["position"], quat, position) - np.asarray(info["mean"], dtype=np.float64)
         w = surprise_scale(start_surprise(c, np.asarray(info["covariance"], dtype=np.float64)), info["reference"])
         return np.where(np.asarray(info["parts"], dtype=bool)[None], w[:, None], 1.0)
 
