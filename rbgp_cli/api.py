@@ -361,9 +361,17 @@ class Rollout:
     @property
     def band_widening(self) -> np.ndarray | None:
         """(B, 2): the factors ≥ 1 each start's surprise widened its band's rotation and position part by (a start
-        less like the demonstrations' starts than three in four of theirs, where the model keeps that;
-        docs/method.md §11), or None (no band)."""
+        less like the demonstrations' starts than any of theirs, :attr:`start_beyond`; or than three in four of
+        theirs, where the model keeps that; docs/method.md §11), or None (no band)."""
         return getattr(self.result, "band_widening", None)
+
+    @property
+    def start_beyond(self) -> np.ndarray | None:
+        """(B,): each start's surprise over the largest of the demonstrations' own (each left out against the
+        others), ρ / ρ_max: above 1 a start less like the demonstrations' starts than any of theirs was like the
+        others', whose band is widened by √(ρ / ρ_max) (docs/method.md §11); None for a model of fewer than five
+        demonstrations or an older model file."""
+        return getattr(self.result, "start_beyond", None)
 
     def trajectories(self, include_samples: bool = False) -> list:
         """The mean trajectories (names ``0``, ``1``, …) and optionally the samples (``0.s0``, …) as

@@ -478,22 +478,54 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
                 "prior": "they followed the prior mean while outside (off_data prior)"}[off_data]
         warn(describe(res.left) + f"; {then}"
              + ("; envelope from the model's training points (an older model file)" if res.left["envelope"] != "demonstrations" else ""))
+    var = getattr(model, "variation", None)
+    res.start_beyond = None if var is None else var.start_beyond(quat, pos)
+    _note_unlike_starts(res)
     _note_widened_starts(res)
     if rate is not None and abs(float(rate) * step - 1.0) > 1e-9 and res.goal_distance is None and not res.via:
         res = res.resampled(rate)  # at 1/dt the grid is the integration grid (a conditioned one is resampled before it is bent)
     return res
 
 
+def _shown(idx) -> str:
+    """Rollout numbers for a warning: the first eight, then how many more."""
+    return ", ".join(str(int(b)) for b in idx[:8]) + (f" and {len(idx) - 8} more" if len(idx) > 8 else "")
+
+
+def _note_unlike_starts(res) -> None:
+    """One warning naming the sampled rollouts whose start is less like the demonstrations' starts than any of theirs
+    was like the others' (``start_beyond`` above 1, :meth:`~rbgp_cli.dynamics.variation.Variation.start_beyond`):
+    held out, such starts' motions differed from the demonstrations more than the others' (docs/defaults.md,
+    eighteenth pass), and their bands are widened by √(ρ / ρ_max)."""
+    from rbgp_cli.errors import warn
+
+    beyond, w = getattr(res, "start_beyond", None), getattr(res, "band_widening", None)
+    if beyond is None or w is None:
+        return
+    far = np.flatnonzero(np.asarray(beyond) > 1.0)
+    if len(far):
+        lo, hi = float(np.min(beyond[far])), float(np.max(beyond[far]))
+        by = f"{lo:.2g}" if f"{lo:.2g}" == f"{hi:.2g}" else f"{lo:.2g}–{hi:.2g}"
+        widen = np.max(np.asarray(w)[far], axis=-1)
+        wl, wh = float(widen.min()), float(widen.max())
+        wby = f"×{wl:.2f}" if round(wl, 2) == round(wh, 2) else f"×{wl:.2f}–×{wh:.2f}"
+        warn(f"{len(far)} of {len(beyond)} starts are less like the demonstrations' starts than any of theirs is like "
+             f"the others' ({by} × the least typical one's surprise): their motions may differ from every "
+             f"demonstration, and their bands are widened {wby} (rollouts {_shown(far)}; start_beyond)")
+
+
 def _note_widened_starts(res) -> None:
     """One warning naming the rollouts whose start's surprise widened their bands by WIDENING_NOTE or more
-    (:meth:`~rbgp_cli.dynamics.variation.Variation.start_widening`)."""
+    (:meth:`~rbgp_cli.dynamics.variation.Variation.start_widening`), but for those :func:`_note_unlike_starts` names."""
     w = getattr(res, "band_widening", None)
     if w is None:
         return
     w = np.max(np.asarray(w), axis=-1)  # (B,): the larger of the rotation and position part's
-    far = np.flatnonzero(w >= WIDENING_NOTE)
+    beyond = getattr(res, "start_beyond", None)
+    unlike = np.zeros(len(w), dtype=bool) if beyond is None else np.asarray(beyond) > 1.0
+    far = np.flatnonzero((w >= WIDENING_NOTE) & ~unlike)
     if len(far):
-        shown = ", ".join(str(int(b)) for b in far[:8]) + (f" and {len(far) - 8} more" if len(far) > 8 else "")
+        shown = _shown(far)
         lo, hi = float(np.min(w[far])), float(np.max(w[far]))
         by = f"×{lo:.2f}" if round(lo, 2) == round(hi, 2) else f"×{lo:.2f}–×{hi:.2f}"
         warn(f"{len(far)} of {len(w)} starts are less like the demonstrations' starts than three in four of theirs: "

@@ -315,7 +315,8 @@ def rollout(
                    "output": output, "std": res.std is not None, "off_data": off_data, "left_data": res.left,
                    "goal_distance": None if res.goal_distance is None else [float(d) for d in res.goal_distance],
                    "band_widening": None if res.band_widening is None else
-                   [{"rotation": float(w[0]), "position": float(w[1])} for w in res.band_widening]})
+                   [{"rotation": float(w[0]), "position": float(w[1])} for w in res.band_widening],
+                   "start_beyond": None if res.start_beyond is None else [float(b) for b in res.start_beyond]})
 
 
 @app.command()

@@ -55,6 +55,9 @@ class RolloutResult:
         e = log(R R_meanᵀ), M = band_rotation (:meth:`~rbgp_cli.dynamics.variation.Variation.region`)
     band_widening : (B, 2) the factors s ≥ 1 each start's surprise widened its band's rotation and position part by
         (:meth:`~rbgp_cli.dynamics.variation.Variation.start_widening`), or None
+    start_beyond : (B,) each start's surprise over the largest of the demonstrations' own, ρ / ρ_max (above 1: less
+        like the demonstrations' starts than any of theirs was like the others';
+        :meth:`~rbgp_cli.dynamics.variation.Variation.start_beyond`), or None
     """
 
     t: np.ndarray
@@ -85,6 +88,7 @@ class RolloutResult:
     band_position: np.ndarray | None = None
     band_rotation: np.ndarray | None = None
     band_widening: np.ndarray | None = None
+    start_beyond: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -158,7 +162,7 @@ class RolloutResult:
                                                                        self.goal_distance)
         res.via_distance = self.via_distance
         res.goal_strength = self.goal_strength
-        res.band_widening = self.band_widening
+        res.band_widening, res.start_beyond = self.band_widening, self.start_beyond
         if self.band_position is not None:
             res.band_position, res.band_rotation = band_p, band_r
         return res

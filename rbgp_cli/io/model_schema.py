@@ -261,8 +261,9 @@ TOP: dict = {
         "start_surprise": obj({"quat": list_of(num(-1.0, 1.0, what="a unit quaternion's component"), 4, 4),
                                "position": list_of(num(), 3, 3), "mean": list_of(num(), 6, 6),
                                "covariance": list_of(list_of(num(), 6, 6), 6, 6),
-                               "reference": num(0.0, 1e12, lo_open=True, what="a positive surprise"),
-                               "parts": list_of(boolean, 2, 2)},
+                               "reference": nullable(num(0.0, 1e12, lo_open=True, what="a positive surprise")),
+                               "parts": list_of(boolean, 2, 2),
+                               "beyond": num(0.0, 1e12, lo_open=True, what="a positive surprise")},
                               ("quat", "position", "mean", "covariance", "reference", "parts")),
     }, ("demos", "steps")))),
     # optional: the gain g on the GP's residual mean (dynamics/residual_gain.py); absent: 1, the full GP

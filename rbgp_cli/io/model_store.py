@@ -61,7 +61,10 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
   ``variation.start_surprise`` ({"quat", "position", "mean", "covariance", "reference", "parts"}: the
   demonstrations' start distribution, the left-out starts' upper quartile of surprise, which a start's bands widen
   against, and which part of the band (rotation, position) widens,
-  :meth:`rbgp_cli.dynamics.variation.Variation.start_widening`); files without it widen nothing, as before.
+  :meth:`rbgp_cli.dynamics.variation.Variation.start_widening`); files without it widen nothing, as before. Since
+  the eighteenth pass it is written from 5 demonstrations on with ``"beyond"`` (ρ_max, the largest left-out start's
+  surprise, beyond which a start's bands widen in both parts) and ``"reference"`` null where the quartile's widening
+  is not kept; files without ``beyond`` widen only as before.
 
 Loading reads the zip itself (never unpickling: .npy members of plain numbers only) with limits
 checked before anything large is decompressed: a member may decompress to at most

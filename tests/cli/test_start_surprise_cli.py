@@ -1,6 +1,6 @@
-"""rbgp rollout widens the bands of a start unlike the demonstrations' starts (issue 36, seventeenth pass): --json
-reports each start's band_widening, stderr says which rollouts were widened and by how much, rbgp train says
-whether the start's surprise widens the bands."""
+"""rbgp rollout widens the bands of a start unlike the demonstrations' starts (issue 36, seventeenth and eighteenth
+passes): --json reports each start's band_widening and start_beyond, stderr says which rollouts were widened and by
+how much, rbgp train says whether the start's surprise widens the bands."""
 
 from __future__ import annotations
 
@@ -34,14 +34,21 @@ def test_a_far_start_gets_wider_bands_a_warning_and_its_factor_in_json(tmp_path)
         args += ["--start", " ".join(f"{x:.9g}" for x in pose)]
     res = runner.invoke(app, args)
     assert res.exit_code == 0, res.stderr
-    w = json.loads(res.stdout)["band_widening"]
+    out = json.loads(res.stdout)
+    w, beyond = out["band_widening"], out["start_beyond"]
     assert len(w) == 2 and w[0]["rotation"] < 1.5 and w[1]["rotation"] > 3.0, w
+    assert beyond[0] < 1.0 < 3.0 < beyond[1], beyond  # a training start is inside, a metre off far beyond
+    assert w[1]["position"] >= np.sqrt(beyond[1]) * (1 - 1e-9), (w, beyond)  # every part widened at least √(ρ / ρ_max)
     line = next(x for x in res.stderr.splitlines() if "widened" in x)
-    assert re.search(r"1 of 2 starts .*widened ×[0-9.]+ \(rollouts 1;", line), line
-    # without samples there is no band, and nothing is said about one
+    assert re.search(r"1 of 2 starts are less like the demonstrations' starts than any of theirs .*widened ×[0-9.]+ "
+                     r"\(rollouts 1; start_beyond\)", line), line
+    assert sum("widened" in x for x in res.stderr.splitlines()) == 1  # one warning names it, not two
+    # without samples there is no band, and nothing is said about one; the start's surprise is still reported
     res = runner.invoke(app, ["rollout", str(tmp_path / "m.rbgp"), "--start", " ".join(f"{x:.9g}" for x in far),
                               "--json", "-o", str(tmp_path / "m.csv")])
-    assert res.exit_code == 0 and json.loads(res.stdout)["band_widening"] is None and "widened" not in res.stderr
+    out = json.loads(res.stdout)
+    assert res.exit_code == 0 and out["band_widening"] is None and "widened" not in res.stderr
+    assert out["start_beyond"][0] > 3.0, out["start_beyond"]
 
 
 def test_the_summary_says_whether_the_start_widens_the_bands_and_by_how_much():

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rbgp_cli.dynamics.variation import (START_SURPRISE_FROM, START_SURPRISE_QUANTILE, demonstration_deviations,
-                                         demonstration_variation, start_covariance, start_surprise)
+from rbgp_cli.dynamics.variation import (START_BEYOND_FROM, START_SURPRISE_FROM, START_SURPRISE_QUANTILE,
+                                         demonstration_deviations, demonstration_variation, left_out_start_surprise,
+                                         start_covariance, start_surprise)
 from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
 from tests.dynamics.synthetic import timed_demos
 from tests.dynamics.test_variation import SIGMA_POS, SIGMA_ROT, hierarchical_demos
@@ -58,10 +59,13 @@ def test_the_widening_is_the_starts_mahalanobis_distance_against_the_upper_quart
             R = Rotation.from_rotvec(rotvec + info["mean"][:3]) * anchor
             p = info["position"] + info["mean"][3:] + size * rng.normal(size=3) * 0.1
             c = np.concatenate([(R * anchor.inv()).as_rotvec(), p - info["position"]]) - info["mean"]
-            want = np.sqrt(max(1.0, float(c @ inv @ c) / 6.0 / info["reference"]))
+            rho = float(c @ inv @ c) / 6.0
+            want = np.sqrt(max(1.0, rho / info["reference"]))
+            beyond = np.sqrt(max(1.0, rho / info["beyond"]))  # every part, beyond the least typical demonstration
             got = v.start_widening(R.as_quat()[None], p[None])
-            np.testing.assert_allclose(got, [[want if info["parts"][0] else 1.0, want if info["parts"][1] else 1.0]],
+            np.testing.assert_allclose(got, [[want if info["parts"][0] else beyond, want if info["parts"][1] else beyond]],
                                        rtol=1e-7)
+            np.testing.assert_allclose(v.start_beyond(R.as_quat()[None], p[None]), [rho / info["beyond"]], rtol=1e-7)
     mean_start = Rotation.from_rotvec(info["mean"][:3]) * anchor
     assert np.all(v.start_widening(mean_start.as_quat()[None], (info["position"] + info["mean"][3:])[None]) == 1.0)
     far = [v.start_widening(mean_start.as_quat()[None], (info["position"] + info["mean"][3:] + [k * 0.03, 0, 0])[None]).max()
@@ -82,6 +86,8 @@ def test_the_reference_is_the_upper_quartile_of_the_starts_left_out_one_at_a_tim
         mu = rest.mean(axis=0)
         rho.append(float(start_surprise(c0[d] - mu, start_covariance(rest - mu))))
     np.testing.assert_allclose(v.start_surprise["reference"], np.quantile(rho, START_SURPRISE_QUANTILE), rtol=1e-9)
+    np.testing.assert_allclose(v.start_surprise["beyond"], np.max(rho), rtol=1e-9)
+    np.testing.assert_allclose(left_out_start_surprise(c0), rho, rtol=1e-12)
     cov = start_covariance(c0 - c0.mean(axis=0))
     np.testing.assert_allclose(cov, cov.T, atol=0.0)
     assert np.linalg.eigvalsh(cov).min() > 0
@@ -89,23 +95,32 @@ def test_the_reference_is_the_upper_quartile_of_the_starts_left_out_one_at_a_tim
     np.testing.assert_allclose(v.start_surprise["covariance"], cov, rtol=1e-12)
 
 
-def test_fewer_demonstrations_than_the_threshold_widen_nothing_and_a_part_widens_where_it_narrows_the_bands():
-    """Below START_SURPRISE_FROM the reference would be a quantile of a handful of heavy-tailed surprises: no
-    widening, however far the start, and no choice made. From it on each part (rotation, position) widens only where
-    its left-out bands are narrower with it (the record gives the ratio); for Gaussian starts independent of the
-    motion that gain is nil on average (and a part not kept does not widen even a far start)."""
+def test_fewer_demonstrations_than_the_threshold_widen_only_beyond_and_a_part_widens_where_it_narrows_the_bands():
+    """Below START_SURPRISE_FROM the upper quartile would be a quantile of a handful of heavy-tailed surprises: no
+    choice is made, and only a start beyond every left-out demonstration's (ρ > ρ_max) is widened, by √(ρ / ρ_max) in
+    both parts; below START_BEYOND_FROM nothing is. From START_SURPRISE_FROM on each part (rotation, position) widens
+    against the quartile only where its left-out bands are narrower with it (the record gives the ratio); for Gaussian
+    starts independent of the motion that gain is nil on average, and a part not kept widens a far start only by
+    √(ρ / ρ_max)."""
     far_q, far_p = np.array([[0.0, 0.0, 0.0, 1.0]]), np.array([[5.0, 5.0, 5.0]])
     few = demonstration_variation(people(START_SURPRISE_FROM - 1, 4, other=0.25))
-    assert few.start_surprise is None and "start_widening" not in few.calibration
-    assert np.all(few.start_widening(far_q, far_p) == 1.0)
+    assert few.start_surprise["reference"] is None and "start_widening" not in few.calibration
+    assert not any(few.start_surprise["parts"])
+    beyond = few.start_beyond(far_q, far_p)
+    assert beyond[0] > 100.0  # metres off starts spread by centimetres
+    np.testing.assert_allclose(few.start_widening(far_q, far_p), np.sqrt(beyond)[:, None] * [[1.0, 1.0]], rtol=1e-12)
+    fewer = demonstration_variation(people(START_BEYOND_FROM - 1, 4))
+    assert fewer.start_surprise is None and np.all(fewer.start_widening(far_q, far_p) == 1.0)
+    assert fewer.start_beyond(far_q, far_p) is None
     ratios = []
     for seed in range(4):
         v = demonstration_variation(hierarchical_demos(40, 5 + seed))
         sw = v.calibration["start_widening"]
+        beyond = np.sqrt(v.start_beyond(far_q, far_p)[0])
         for j, name in enumerate(("rotation", "position")):  # a part widens iff its left-out bands narrow with it
             assert sw[name] == (sw["mean_width_ratio"][j] < 1.0), sw
-            assert (v.start_widening(far_q, far_p)[0, j] > 1.0) == sw[name]
-        assert (v.start_surprise is None) == (not sw["rotation"] and not sw["position"])
+            assert (v.start_widening(far_q, far_p)[0, j] > beyond * (1 + 1e-9)) == sw[name]
+        assert (v.start_surprise["reference"] is None) == (not sw["rotation"] and not sw["position"])
         ratios.append(sw["mean_width_ratio"])
     assert np.min(np.mean(ratios, axis=0)) > 0.99, ratios  # a start that says nothing narrows nothing to speak of
 
@@ -171,9 +186,50 @@ def test_a_model_file_keeps_the_start_reference_and_one_without_it_widens_nothin
     old, _ = load_model(tmp_path / "old.rbgp")
     assert old.variation.start_surprise is None and np.all(old.variation.start_widening(q, p) == 1.0)
 
+    def seventeenth(v):  # a file of the seventeenth pass: the quartile's widening, no ρ_max
+        v["start_surprise"].pop("beyond")
+        v["start_surprise"]["reference"], v["start_surprise"]["parts"] = 1.0, [False, False]
+
+    rewrite_paths_header(tmp_path / "m.rbgp", seventeenth, tmp_path / "s17.rbgp", section="variation")
+    s17, _ = load_model(tmp_path / "s17.rbgp")
+    assert s17.variation.start_beyond(q, p) is None and np.all(s17.variation.start_widening(q, p) == 1.0)
+
     def bad(v):
         v["start_surprise"]["covariance"][0][0] = -1.0
 
     rewrite_paths_header(tmp_path / "m.rbgp", bad, tmp_path / "bad.rbgp", section="variation")
     with pytest.raises(InputError, match="start_surprise"):
         load_model(tmp_path / "bad.rbgp")
+
+
+def test_a_start_beyond_every_demonstrations_own_widens_its_band_and_the_usual_starts_keep_theirs():
+    """Trained on usual people only (whose start says nothing about their motion), fresh people who start three times
+    as far off and deviate three times as much lie beyond ρ_max and are widened by √(ρ / ρ_max): their bands hold them
+    far more often than the same bands without the widening. Fresh usual people are rarely beyond (an exchangeable
+    start is, with probability at most 1/(D + 1)) and are held as before."""
+    from dataclasses import replace
+
+    from tests.dynamics.test_bands_order import _coverage_of
+
+    wide_u, plain_u, wide_n, plain_n, flagged = None, None, None, None, []
+    for rep in range(3):
+        train = people(24, 300 + rep)
+        v = demonstration_variation(train)
+        v0 = replace(v, start_surprise={**v.start_surprise, "beyond": None})  # the same bands, never widened beyond
+        unusual, usual = people(8, 400 + rep, start=3.0, spread=3.0), people(16, 500 + rep)
+        flagged.append(v.start_beyond(np.array([d.quat[0] for d in usual]), np.array([d.position[0] for d in usual])))
+        parts = [_coverage_of(m, train, fresh) for m in (v, v0) for fresh in (unusual, usual)]
+        if wide_u is None:
+            wide_u, wide_n, plain_u, plain_n = parts
+        else:
+            wide_u, wide_n, plain_u, plain_n = (a + b for a, b in zip((wide_u, wide_n, plain_u, plain_n), parts))
+    wu, pu, wn, pn = (x.to_dict() for x in (wide_u, plain_u, wide_n, plain_n))
+    # here 0.54 / 0.35 → 0.63 / 0.55: three times the deviations need more than ρ says (ρ_max of 24 is far out), but
+    # the width goes where it is needed
+    assert wu["coverage_position"] > pu["coverage_position"] + 0.05 and wu["coverage_rotation"] > pu["coverage_rotation"] + 0.15, (wu, pu)
+    # wider where they are beyond (in rotation the upper quartile's widening, kept here, already widens them)
+    assert wu["band_position"] > 1.3 * pu["band_position"] and wu["band_rotation"] > 1.05 * pu["band_rotation"], (wu, pu)
+    for part in ("position", "rotation"):
+        assert abs(wn[f"coverage_{part}"] - pn[f"coverage_{part}"]) <= 0.01, (wn, pn)
+        assert wn[f"band_{part}"] <= 1.02 * pn[f"band_{part}"], (wn, pn)
+    assert np.mean(np.concatenate(flagged) > 1.0) <= 0.1, flagged

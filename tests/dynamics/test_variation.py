@@ -203,7 +203,8 @@ def test_sampled_rollouts_start_at_the_start_are_smooth_seeded_and_saved_with_th
     save_model(m, path)
     m2, header = load_model(path)
     assert header["variation"] == {"demos": 12, "steps": 51, "band_scale": m.summary["variation"]["band_scale"],
-                                   "shrinkage": m.variation.shrinkage}
+                                   "shrinkage": m.variation.shrinkage, "start_surprise": m.variation.surprise_header()}
+    assert header["variation"]["start_surprise"]["beyond"] > 0  # twelve demonstrations: the starts' ρ_max is kept
     assert m2.variation.band_scale == m.variation.band_scale and m2.variation.shrinkage == m.variation.shrinkage
     # a version 5 file (no band_scale) samples as it was trained, with factors 1
     from tests.hostile import builders as B
