@@ -457,7 +457,9 @@ def rollout_conditioned(model, start_quat, start_position, *, goal_quat=None, go
     (``band_position``, ``band_rotation``) is the next motion's 90 % region, Student-t with the factors
     :meth:`~rbgp_cli.dynamics.paths.PathDistribution.goal_band_scale` (calibrated on left-out
     demonstrations given their start and end; :meth:`~rbgp_cli.dynamics.paths.Conditioned.region`): both
-    pinch at every constraint and widen between them as the demonstrations do.
+    pinch at every constraint and widen between them as the demonstrations do. A start beyond every
+    demonstration's (:meth:`~rbgp_cli.dynamics.variation.Variation.start_beyond` above 1) widens both parts of
+    its band by √(ρ / ρ_max) (``band_widening``).
     """
     from rbgp_cli.dynamics.paths import pose_deviation
 
@@ -534,8 +536,14 @@ def rollout_conditioned(model, start_quat, start_position, *, goal_quat=None, go
         res.sample_quat, res.sample_position = _conditioned_samples(paths, covs, new, W, ref_q, ref_p, int(samples), seed)
         scale = paths.goal_band_scale()
         bands = [covs[b].region(phase[b], scale=scale) for b in range(B)]
-        res.band_position = np.stack([h for h, _ in bands])
-        res.band_rotation = np.stack([m for _, m in bands])
+        # a start beyond every demonstration's widens both parts by √(ρ / ρ_max) on top of the goal bands' factors
+        # (Variation.start_beyond; the upper quartile's widening was calibrated on the start-only bands, not these)
+        var = getattr(model, "variation", None)
+        beyond = None if var is None else var.start_beyond(q0, p0)
+        w = np.ones(B) if beyond is None else np.sqrt(np.maximum(1.0, beyond))
+        res.band_widening = np.repeat(w[:, None], 2, axis=1)
+        res.band_position = np.stack([h for h, _ in bands]) * w[:, None, None]
+        res.band_rotation = np.stack([m for _, m in bands]) * (w**2)[:, None, None, None]
     return res
 
 

@@ -886,6 +886,8 @@ def demonstration_variation(trajs: list[Trajectory], steps: int = STEPS, *, ridg
                     "position": np.asarray(path["position"][0], dtype=np.float64), "mean": mu0,
                     "covariance": start_covariance(delta[:, 0] - mu0), "reference": None if ref is None else float(ref),
                     "parts": [bool(k) for k in cal["surprise_parts"]],
-                    "beyond": float(np.max(left_out_start_surprise(delta[:, 0])))}
+                    # at least 1, a start's ρ within the tracker's tolerance (Σ_0's diagonal floor): demonstrations
+                    # that all start alike leave ρ_max at 0, and a start off them by the tolerance is not beyond
+                    "beyond": max(1.0, float(np.max(left_out_start_surprise(delta[:, 0]))))}
     return Variation(s=s, residuals=r, dof=D - 2, band_scale=cal["band_scale"], shrinkage=cal["shrinkage"],
                      calibration=plain, drift=drift, start_surprise=surprise)

@@ -86,7 +86,8 @@ def test_the_reference_is_the_upper_quartile_of_the_starts_left_out_one_at_a_tim
         mu = rest.mean(axis=0)
         rho.append(float(start_surprise(c0[d] - mu, start_covariance(rest - mu))))
     np.testing.assert_allclose(v.start_surprise["reference"], np.quantile(rho, START_SURPRISE_QUANTILE), rtol=1e-9)
-    np.testing.assert_allclose(v.start_surprise["beyond"], np.max(rho), rtol=1e-9)
+    np.testing.assert_allclose(v.start_surprise["beyond"], max(1.0, np.max(rho)), rtol=1e-9)
+    assert np.max(rho) > 1.0  # the floor of 1 (starts all alike) is not what is tested here
     np.testing.assert_allclose(left_out_start_surprise(c0), rho, rtol=1e-12)
     cov = start_covariance(c0 - c0.mean(axis=0))
     np.testing.assert_allclose(cov, cov.T, atol=0.0)
@@ -233,3 +234,29 @@ def test_a_start_beyond_every_demonstrations_own_widens_its_band_and_the_usual_s
         assert abs(wn[f"coverage_{part}"] - pn[f"coverage_{part}"]) <= 0.01, (wn, pn)
         assert wn[f"band_{part}"] <= 1.02 * pn[f"band_{part}"], (wn, pn)
     assert np.mean(np.concatenate(flagged) > 1.0) <= 0.1, flagged
+
+
+def test_a_goal_conditioned_band_from_a_start_beyond_widens_by_the_same_factor():
+    """Given the goal, the band of a start beyond every demonstration's is the goal band times √(ρ / ρ_max) in both
+    parts (the position half-widths × w, the rotation region's matrix × w²); a demonstration's own start is not
+    widened."""
+    from dataclasses import replace
+
+    from rbgp_cli.dynamics.model import train_model
+    from rbgp_cli.dynamics.rollout import rollout_conditioned
+
+    demos = people(12, 11, samples=30)
+    model = train_model(demos, restarts=1, shared=True, explore_size=0, max_points=150)
+    q = np.array([demos[0].quat[0], demos[0].quat[0]])
+    p = np.array([demos[0].position[0], demos[0].position[0] + [0.3, 0.0, 0.0]])  # its own start, and ten spreads off
+    gq, gp = np.array([demos[0].quat[-1]] * 2), np.array([demos[0].position[-1]] * 2)
+    res = rollout_conditioned(model, q, p, goal_quat=gq, goal_position=gp, samples=2, durations=np.full(2, 1.0))
+    plain = replace(model, variation=replace(model.variation, start_surprise=None))
+    ref = rollout_conditioned(plain, q, p, goal_quat=gq, goal_position=gp, samples=2, durations=np.full(2, 1.0))
+    beyond = model.variation.start_beyond(q, p)
+    assert beyond[0] < 1.0 < 4.0 < beyond[1], beyond
+    w = np.sqrt(np.maximum(1.0, beyond))
+    np.testing.assert_allclose(res.band_widening, np.stack([w, w], axis=1), rtol=1e-12)
+    np.testing.assert_allclose(res.band_position, ref.band_position * w[:, None, None], rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(res.band_rotation, ref.band_rotation * (w**2)[:, None, None, None], rtol=1e-9, atol=1e-18)
+    np.testing.assert_allclose(res.position, ref.position, atol=1e-12)  # the mean does not move
