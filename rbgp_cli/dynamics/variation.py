@@ -83,7 +83,7 @@ from rbgp_cli.dynamics.trajectory import Trajectory
 
 __all__ = ["Variation", "demonstration_variation", "demonstration_deviations", "start_regression", "start_map", "start_reach",
            "bound_shift", "START_INPUTS", "SURPRISE_FROM", "START_SURPRISE_FROM", "START_SURPRISE_QUANTILE",
-           "surprise_scale", "start_covariance", "start_surprise", "left_out_start_surprise", "START_BEYOND_FROM",
+           "surprise_scale", "start_covariance", "start_surprise", "START_BEYOND_FROM",
            "band_scale", "band_calibration", "band_quantiles", "shrinkage", "order_drift", "pull_profile", "DRIFT_P", "STEPS", "MIN_DEMOS", "MIN_BAND_DEMOS", "RIDGE_GRID", "BAND_LEVEL",
            "PULL_CAP", "PULL_WINDOW"]
 
@@ -121,7 +121,7 @@ START_SURPRISE_FROM = 16
 #: their random folds' rotation and the waves' recording order over 0.95; 0.9 mended little.
 START_SURPRISE_QUANTILE = 0.75
 #: From this many demonstrations on, a start more surprising than every demonstration's start was against the
-#: others' (ρ above ρ_max, the largest of the left-out starts' ρ: :func:`left_out_start_surprise`) widens both parts of
+#: others' (ρ above ρ_max, the largest of the left-out starts' ρ: :func:`band_calibration`'s ``start_surprises``) widens both parts of
 #: its band by √(ρ / ρ_max) (:meth:`Variation.start_widening`), whether or not the upper quartile's widening is kept.
 #: Held out at random and from subsets of five on the five sets (docs/defaults.md, eighteenth pass), such starts
 #: were 2–13 % of the held-out ones and their bands held 0.53–0.92 (sample_data's rotation 0.12–0.16) where the
@@ -592,20 +592,6 @@ def start_surprise(c: np.ndarray, cov: np.ndarray) -> np.ndarray:
     return np.einsum("...i,...i->...", c, np.linalg.solve(cov, c.reshape(-1, 6).T).T.reshape(c.shape)) / 6.0
 
 
-def left_out_start_surprise(c0: np.ndarray) -> np.ndarray:
-    """ρ_d (m,) of each start deviation c0_d (m, 6) (rad, m) left out in turn: :func:`start_surprise` of c0_d minus
-    the others' mean, against the others' :func:`start_covariance`. Their largest, ρ_max, is how unlike the others the
-    least typical demonstration's start was: a new start beyond it is one no demonstration resembles as little
-    (for exchangeable starts, with probability at most 1/(m + 1))."""
-    c0 = np.asarray(c0, dtype=np.float64)
-    out = np.empty(len(c0))
-    for d in range(len(c0)):  # m solves of 6 × 6, each against its own covariance
-        rest = np.delete(c0, d, axis=0)
-        mu = rest.mean(axis=0)
-        out[d] = start_surprise(c0[d] - mu, start_covariance(rest - mu))
-    return out
-
-
 def _held_out_errors(delta: np.ndarray, s: np.ndarray, train: np.ndarray, test: np.ndarray, *, ridge: float,
                      gain: float, scale: np.ndarray, alpha: float | None = None, inputs: str = "path"):
     """The errors of the demonstrations ``test`` predicted from those in ``train`` as a rollout predicts
@@ -725,7 +711,9 @@ def band_calibration(delta: np.ndarray, s: np.ndarray, *, ridge: float = float("
 
     Returns ``{"band_scale": (c_rot, c_pos), "random": (…), "recorded": (…) or None, "shrinkage": α,
     "surprise_reference": ρ̄ or None (kept for neither part), "surprise_parts": (rotation, position) whether
-    each part widens, "surprise_width": ((without), (with)) each part's mean log width, or None}``; (1, 1) with
+    each part widens, "surprise_width": ((without), (with)) each part's mean log width, or None,
+    "start_surprises": (D,) each demonstration's start ρ left out against the others' (their largest is ρ_max,
+    :meth:`Variation.start_widening`), or None}``; (1, 1) with
     fewer than MIN_BAND_DEMOS demonstrations. ``ridge``, ``inputs``: the start map's λ and units
     (:func:`start_map`); ``gain`` the pull's constant a; ``surprise`` False: the factors without the start's
     surprise, whatever the number of demonstrations."""
@@ -734,11 +722,13 @@ def band_calibration(delta: np.ndarray, s: np.ndarray, *, ridge: float = float("
     _, _, r = start_regression(delta)
     alpha = shrinkage(r)
     out = {"band_scale": (1.0, 1.0), "random": None, "recorded": None, "shrinkage": alpha,
-           "surprise_reference": None, "surprise_parts": (False, False), "surprise_width": None}
+           "surprise_reference": None, "surprise_parts": (False, False), "surprise_width": None,
+           "start_surprises": None}
     if D < MIN_BAND_DEMOS:
         return out
     loo = [(np.setdiff1d(np.arange(D), [d]), np.array([d])) for d in range(D)]
     kinds = [_scores(delta, s, loo, ridge=ridge, gain=gain, level=level, inputs=inputs)]
+    out["start_surprises"] = kinds[0][2]  # each start left out against the others' mean and Σ_0
     split = _order_blocks(D, blocks)
     if split is not None:
         kinds.append(_scores(delta, s, split, ridge=ridge, gain=gain, level=level, inputs=inputs))
@@ -888,6 +878,6 @@ def demonstration_variation(trajs: list[Trajectory], steps: int = STEPS, *, ridg
                     "parts": [bool(k) for k in cal["surprise_parts"]],
                     # at least 1, a start's ρ within the tracker's tolerance (Σ_0's diagonal floor): demonstrations
                     # that all start alike leave ρ_max at 0, and a start off them by the tolerance is not beyond
-                    "beyond": max(1.0, float(np.max(left_out_start_surprise(delta[:, 0]))))}
+                    "beyond": max(1.0, float(np.max(cal["start_surprises"])))}
     return Variation(s=s, residuals=r, dof=D - 2, band_scale=cal["band_scale"], shrinkage=cal["shrinkage"],
                      calibration=plain, drift=drift, start_surprise=surprise)

@@ -10,7 +10,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from rbgp_cli.dynamics.variation import (START_BEYOND_FROM, START_SURPRISE_FROM, START_SURPRISE_QUANTILE,
-                                         demonstration_deviations, demonstration_variation, left_out_start_surprise,
+                                         band_calibration, demonstration_deviations, demonstration_variation,
                                          start_covariance, start_surprise)
 from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
 from tests.dynamics.synthetic import timed_demos
@@ -88,7 +88,7 @@ def test_the_reference_is_the_upper_quartile_of_the_starts_left_out_one_at_a_tim
     np.testing.assert_allclose(v.start_surprise["reference"], np.quantile(rho, START_SURPRISE_QUANTILE), rtol=1e-9)
     np.testing.assert_allclose(v.start_surprise["beyond"], max(1.0, np.max(rho)), rtol=1e-9)
     assert np.max(rho) > 1.0  # the floor of 1 (starts all alike) is not what is tested here
-    np.testing.assert_allclose(left_out_start_surprise(c0), rho, rtol=1e-12)
+    np.testing.assert_allclose(band_calibration(delta, v.s)["start_surprises"], rho, rtol=1e-9)
     cov = start_covariance(c0 - c0.mean(axis=0))
     np.testing.assert_allclose(cov, cov.T, atol=0.0)
     assert np.linalg.eigvalsh(cov).min() > 0
