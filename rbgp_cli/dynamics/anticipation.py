@@ -72,7 +72,7 @@ Only samples up to the last seen one enter: nothing here reads past ``t[-1]``.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -406,14 +406,16 @@ class Anticipator:
                                     r2=np.full(6, self.tolerance ** 2))[3:5]
         return float(quad[0]) / k6
 
-    def surprise_at(self, tau, q, p, D) -> float:
+    def surprise_at(self, tau, q, p, D, rho: float | None = None) -> float:
         """The bands' widening s = √max(1, ρ / ρ̄_F) (:func:`surprise_scale`) of a motion seen at (τ, q, p) with
-        duration D: its :meth:`surprise` ρ against fit_seen's left-out reference ρ̄_F interpolated at the seen
-        phase τ[-1] / D (held outside the fractions). 1 for a path distribution without the reference."""
+        duration D: its :meth:`surprise` ρ (or ``rho``, computed already) against fit_seen's left-out reference ρ̄_F
+        interpolated at the seen phase τ[-1] / D (held outside the fractions). 1 for a path distribution without
+        the reference."""
         if self._surprise is None:
             return 1.0
         F, ref = self._surprise
-        return float(surprise_scale(self.surprise(tau, q, p, D), np.interp(min(tau[-1] / D, 1.0) if D > 0 else 1.0, F, ref)))
+        rho = self.surprise(tau, q, p, D) if rho is None else float(rho)
+        return float(surprise_scale(rho, np.interp(min(tau[-1] / D, 1.0) if D > 0 else 1.0, F, ref)))
 
     # -------------------------------------------------------------- the duration's weights (batched)
     def _constants(self):
@@ -449,7 +451,7 @@ class Anticipator:
             c = self._fc = dict(
                 U=U, Ks=Ks, tau2=self.duration_smooth, S=S, D=D, U6=U6[:-1], dU6=np.diff(U6, axis=0), K4=K4,
                 C0=C0[:-1], dC=np.diff(C0, axis=0), inv_scale=1.0 / self.scale, half=0.5 * theta, A=A, B=B,
-                uL=uL, uLuL=float(uL @ uL), SEE=UE @ UE.T + self.duration_smooth * np.eye(6))
+                uL=uL, uLuL=float(uL @ uL), UEUE=UE @ UE.T)
         return c
 
     def _low_rank(self):
@@ -483,12 +485,15 @@ class Anticipator:
         """For each duration D_g: log weight, the conditioned end pose's mean (6,) and covariance (6, 6) in
         scaled units (module docstring). Batched over the grid, with Σ's low-rank-plus-smooth form
         (:meth:`_constants`); every linear interpolation between grid phases is a gather of values and
-        differences, and the end phase is interpolated as one more seen phase (s = 1)."""
+        differences, and the end phase is interpolated as one more seen phase (s = 1). ``tau2``: the smooth term's
+        τ², one or one per grid duration (G,) (default the duration's); ``r2``: the seen poses' tolerances², (6,) for
+        every pose, (6n,) per seen coordinate or (G, 6n) per grid duration too (default the duration's)."""
         c = self._constants()
         S, D = c["S"], c["D"]
-        tau2 = c["tau2"] if tau2 is None else float(tau2)
-        r2 = self._duration_r2 if r2 is None else r2
         G_, n = len(grid), len(tau)
+        tau2 = np.broadcast_to(np.asarray(c["tau2"] if tau2 is None else tau2, dtype=np.float64), (G_,))
+        r2 = np.asarray(self._duration_r2 if r2 is None else r2, dtype=np.float64)
+        r2 = np.tile(r2, n) if r2.shape == (6,) else r2
         k = np.empty((G_, n + 1), dtype=np.intp)
         f = np.empty((G_, n + 1))
         x = np.minimum(tau[None, :] / grid[:, None], 1.0) * (S - 1)  # the seen phases on the grid (G, n)
@@ -506,12 +511,12 @@ class Anticipator:
         k6 = 6 * n + 1
         M = np.zeros((G_, k6 + 7, k6 + 7))
         eye6 = np.eye(6)
-        M[:, 1:k6 + 6, 1:k6 + 6] = Z @ Z.transpose(0, 2, 1) + tau2 * (K[:, :, None, :, None] * eye6[None, None, :, None, :]).reshape(G_, 6 * n + 6, 6 * n + 6)
+        M[:, 1:k6 + 6, 1:k6 + 6] = Z @ Z.transpose(0, 2, 1) + tau2[:, None, None] * (K[:, :, None, :, None] * eye6[None, None, :, None, :]).reshape(G_, 6 * n + 6, 6 * n + 6)
         M[:, 1:k6 + 6, 0] = Z @ c["uL"]
         M[:, 0, 1:k6 + 6] = M[:, 1:k6 + 6, 0]
         M[:, 0, 0] = c["uLuL"] + tau2 + _ELL_TOL ** 2
         d = np.arange(1, k6)
-        M[:, d, d] += np.tile(r2, n)
+        M[:, d, d] += r2
         M[:, -1, 0] = np.log(grid) / self.lscale - self.m[-1]
         M[:, -1, 1:k6] = self._deviations(k[:, :n], f[:, :n], q[None], p[None]).reshape(G_, 6 * n)  # e = y − A m
         M[:, :-1, -1] = M[:, -1, :-1]
@@ -524,8 +529,32 @@ class Anticipator:
         logdet = 2.0 * np.sum(np.log(np.diagonal(L[:, :k6, :k6], axis1=1, axis2=2)), axis=1)
         logw = -0.5 * quad - 0.5 * logdet
         end_mean = self.m[self._end][None] + (LS @ Le[:, :, None])[..., 0]
-        end_cov = c["SEE"][None] - LS @ LS.transpose(0, 2, 1)
+        end_cov = c["UEUE"][None] + tau2[:, None, None] * np.eye(6) - LS @ LS.transpose(0, 2, 1)
         return logw, end_mean, end_cov, quad, k6
+
+    def rest_end(self, tau, q, p, D) -> np.ndarray:
+        """The continuation's end (6,) in scaled units: the rest's conditioned mean at phase 1 at duration D, x̂_end =
+        m_end + Σ_E,o G⁻¹ (y − A m) with the rest's τ²_rest on Σ, its r_rest on the seen poses at phases τ / D, the
+        last one exactly (:data:`~rbgp_cli.dynamics.paths.GOAL_TOLERANCE`, its precision added to r_rest's) and ℓ =
+        ln D (:meth:`_conditioned_mean` at the end's six entries, in :meth:`_grid_terms`' form for one duration:
+        the live update can afford it, batched with the :meth:`surprise`: :meth:`_at_estimate`)."""
+        return self._at_estimate(tau, q, p, D)[0]
+
+    def _at_estimate(self, tau, q, p, D) -> tuple[np.ndarray, float]:
+        """(:meth:`rest_end`, :meth:`surprise`) at duration D from one batched factorisation (the live update's
+        cost): the first with the rest's τ² and r, the second with the path distribution's own."""
+        from rbgp_cli.dynamics.paths import GOAL_TOLERANCE
+
+        n = len(tau)
+        r2 = np.empty((2, n, 6))
+        r2[0] = self.rest_tolerance ** 2
+        g2 = (np.repeat(np.asarray(GOAL_TOLERANCE, dtype=np.float64), 3) / self.scale) ** 2
+        r2[0, -1] = 1.0 / (1.0 / r2[0, -1] + 1.0 / g2)
+        r2[1] = self.tolerance ** 2
+        D = max(float(D), float(tau[-1]), 1e-9)
+        _, end_mean, _, quad, k6 = self._grid_terms(tau, q, p, np.array([D, D]), tau2=[self.rest_smooth, self.paths.smooth],
+                                                    r2=r2.reshape(2, -1))
+        return end_mean[0], float(quad[1]) / k6
 
     def weights(self, t, quat, position, checked: bool = False, active=None):
         """The duration posterior of a motion seen from t[0] to t[-1]: (grid (G,) s, weights (G,)), and the
@@ -578,16 +607,17 @@ class Anticipator:
             k = self.band_shift(grid, w, band_w, span)
             q = [max(x * k, span) for x in self._duration_quantiles(grid, band_w, span, (0.05, 0.95))]
             q = [min(q[0], D), D, max(q[1], D)]
-        # the end pose: moments of the mixture over the grid (scaled units), then unscaled
+        # the end pose: the continuation's (the rest's conditioning at D̂, rest_end); its spread the mixture's over
+        # the grid about that centre (scaled units), then unscaled
         E = terms["end_mean"]
-        mu = w @ E
+        mu, rho = self._at_estimate(*terms["seen"][3:], D)
         d = E - mu
         cov = (w @ terms["end_cov"].reshape(len(w), 36)).reshape(6, 6) + (d.T * w) @ d
         sc = self.scale
         mu_u = mu * sc
         cov_u = cov * sc[:, None] * sc[None, :]
         c_rot, c_pos = self.band_at(min(span / D, 1.0) if D > 0 else 1.0)
-        s_ = self.surprise_at(*terms["seen"][3:], D)
+        s_ = self.surprise_at(*terms["seen"][3:], D, rho=rho)
         c_rot, c_pos = c_rot * s_, c_pos * s_
         ref_q, ref_p = self.paths.quat[-1], self.paths.position[-1]
         # exp(μ_rot) ⊗ q̄_end, the product as L(exp(μ_rot)) q̄_end (_LEFT)
@@ -722,6 +752,7 @@ class Anticipator:
             mq, mp = self._rollout(dev, quat[-1], position[-1], span / D, D, t_out - t0)
         else:
             mq, mp = self.paths.pose_at(dev, (t_out - t0) / D)
+        est = replace(est, end_quat=np.array(mq[-1]), end_position=np.array(mp[-1]))  # the JSON's end: the CSV's last row
         out = []
         if samples:
             # the samples' spread about the mean: the path distribution's own conditioning, whose left-out

@@ -172,6 +172,8 @@ def test_the_api_predicts_the_rest_and_follows_a_stream():
     c = gp.predict_rest(seen, samples=4, seed=0)
     assert c.t[0] == pytest.approx(seen.t[-1]) and len(c.samples) == 4
     assert np.linalg.norm(c.position[0] - seen.position[-1]) < 5e-3  # the GP's rollout starts at the last seen pose
+    # the end pose it reports is where the rolled continuation ends (the JSON's end is the CSV's last row)
+    assert np.array_equal(c.estimate.end_position, c.position[-1]) and np.array_equal(c.estimate.end_quat, c.quat[-1])
     both = gp.predict_rest([seen, seen])
     assert [x.name for x in both] == ["0", "1"] and np.array_equal(both[0].position, both[1].position)
     f = gp.follower(detect=False)
@@ -199,3 +201,32 @@ def test_the_stream_evaluates_only_the_live_duration_cells_and_loses_nothing(tra
             evaluated.append(int(f._active.sum()))
     # the restriction does bite once the duration is known (else it would be no saving)
     assert evaluated and min(evaluated) < len(f.anticipator.grid) // 2
+
+
+def test_the_reported_end_pose_is_the_continuations_end(trained):
+    """The estimate's end pose (``rollout --given --json``, ``rbgp follow``) is the continuation's: the rest's
+    conditioning at D̂ with its last seen pose exact (:meth:`Anticipator.rest_end`, in the batched grid form the
+    live update affords) against the dense conditioning's end entries at durations off the estimate, and the
+    reported end against the continuation's last row; the live follower reports the same end."""
+    demos, paths = trained
+    ant = Anticipator(paths, None)
+    tr = family(1, 17)[0][0]
+    for F in (0.25, 0.5, 0.8):
+        seen, _ = _seen(tr, F)
+        grid, w, terms = ant.weights(seen.t, seen.quat, seen.position)
+        tau, q, p = terms["seen"][3:]
+        for D in (0.8 * tr.duration, tr.duration, 1.3 * tr.duration):
+            dense = ant._conditioned_mean(tau, q, p, seen.quat[-1], seen.position[-1], D)[0][ant._end]
+            np.testing.assert_allclose(ant.rest_end(tau, q, p, D), dense, atol=1e-9)
+        c = ant.continuation(seen.t, seen.quat, seen.position)
+        np.testing.assert_allclose(c.estimate.end_position, c.position[-1], atol=1e-9)
+        assert abs(np.dot(c.estimate.end_quat, c.quat[-1])) > 1 - 1e-12
+        # the seen part's last pose is kept: a different last pose moves the reported end
+        moved = ant.estimate(seen.t, seen.quat, seen.position + np.array([0.0, 0.0, 0.02]) * (seen.t == seen.t[-1])[:, None])
+        assert np.linalg.norm(moved.end_position - c.estimate.end_position) > 1e-3
+    f = Follower(paths, detect=False)
+    live = Anticipator(paths, None, points=f.anticipator.points, grid_size=len(f.anticipator.grid))
+    seen, _ = _seen(tr, 0.6)
+    est = [f.push(t, q, p) for t, q, p in zip(seen.t, seen.quat, seen.position)][-1]
+    c = live.continuation(seen.t, seen.quat, seen.position)
+    np.testing.assert_allclose(est.end_position, c.position[-1], atol=1e-6)
