@@ -84,7 +84,7 @@ from rbgp_cli.geometry.so3 import PI_TOLERANCE
 
 __all__ = ["Anticipator", "Anticipation", "Continuation", "anticipate", "fit_seen", "seen_band_scales", "surprise_scale", "Follower",
            "SEEN_TOLERANCE_GRID", "SEEN_FRACTIONS", "SEEN_POINTS", "DURATION_GRID", "DURATION_SMOOTH_GRID",
-           "DURATION_TOLERANCE_GRID", "REST_SMOOTH_GRID", "REST_FROM", "REST_FEW_SMOOTH", "duration_tolerances"]
+           "DURATION_TOLERANCE_GRID", "REST_SMOOTH_GRID", "REST_FROM", "REST_FEW_SMOOTH", "MIX_WEIGHT", "duration_tolerances"]
 
 #: Regularising tolerances r tried by :func:`fit_seen` (units of each coordinate's spread).
 SEEN_TOLERANCE_GRID = (0.05, 0.1, 0.2, 0.4, 0.8, 1.6, 3.2)
@@ -99,6 +99,9 @@ GRID_RANGE = (2.0 / 3.0, 1.5)
 #: Above this Mahalanobis distance (a χ with 6 degrees of freedom: fewer than 1 in 200 demonstrations lie
 #: beyond 3.5) the last seen pose has left what the demonstrations cover.
 OFF_DISTANCE = 3.5
+#: The continuation's mean averages the conditioned paths of the duration cells whose weight is at least this
+#: fraction of the largest (:meth:`Anticipator._mixed_deviation`; the others' share is left out, renormalised)
+MIX_WEIGHT = 1e-3
 #: :class:`Follower`: a duration cell whose weight is below this fraction of the largest is not evaluated
 #: at the next update (unless it neighbours one that is); every cell is, for the first ACTIVE_AFTER poses
 ACTIVE_WEIGHT = 1e-6
@@ -533,28 +536,37 @@ class Anticipator:
         return logw, end_mean, end_cov, quad, k6
 
     def rest_end(self, tau, q, p, D) -> np.ndarray:
-        """The continuation's end (6,) in scaled units: the rest's conditioned mean at phase 1 at duration D, x̂_end =
+        """The rest's conditioned end (6,) in scaled units at duration D: its conditioned mean at phase 1, x̂_end =
         m_end + Σ_E,o G⁻¹ (y − A m) with the rest's τ²_rest on Σ, its r_rest on the seen poses at phases τ / D, the
         last one exactly (:data:`~rbgp_cli.dynamics.paths.GOAL_TOLERANCE`, its precision added to r_rest's) and ℓ =
         ln D (:meth:`_conditioned_mean` at the end's six entries, in :meth:`_grid_terms`' form for one duration:
         the live update can afford it, batched with the :meth:`surprise`: :meth:`_at_estimate`)."""
         return self._at_estimate(tau, q, p, D)[0]
 
-    def _at_estimate(self, tau, q, p, D) -> tuple[np.ndarray, float]:
-        """(:meth:`rest_end`, :meth:`surprise`) at duration D from one batched factorisation (the live update's
-        cost): the first with the rest's τ² and r, the second with the path distribution's own."""
+    def _at_estimate(self, tau, q, p, D, grid=None, w=None) -> tuple[np.ndarray, float]:
+        """(the continuation's end (6,) scaled, :meth:`surprise` ρ at D) from one batched factorisation (the live
+        update's cost): the rest's conditioned ends (:meth:`rest_end`) at the duration cells ``grid`` whose weights
+        ``w`` are kept (:func:`_kept`), averaged with those weights normalised (:meth:`_mixed_deviation`'s end; at D
+        alone without them or where one cell carries the weight), and ρ with the path distribution's own τ² and r."""
         from rbgp_cli.dynamics.paths import GOAL_TOLERANCE
 
         n = len(tau)
-        r2 = np.empty((2, n, 6))
-        r2[0] = self.rest_tolerance ** 2
-        g2 = (np.repeat(np.asarray(GOAL_TOLERANCE, dtype=np.float64), 3) / self.scale) ** 2
-        r2[0, -1] = 1.0 / (1.0 / r2[0, -1] + 1.0 / g2)
-        r2[1] = self.tolerance ** 2
         D = max(float(D), float(tau[-1]), 1e-9)
-        _, end_mean, _, quad, k6 = self._grid_terms(tau, q, p, np.array([D, D]), tau2=[self.rest_smooth, self.paths.smooth],
-                                                    r2=r2.reshape(2, -1))
-        return end_mean[0], float(quad[1]) / k6
+        keep = None if w is None else _kept(w)
+        if keep is None or np.count_nonzero(keep) < 2:
+            at, wg = np.array([D]), np.ones(1)
+        else:
+            at, wg = grid[keep], w[keep] / w[keep].sum()
+        G = len(at)
+        r2 = np.empty((G + 1, n, 6))
+        r2[:G] = self.rest_tolerance ** 2
+        g2 = (np.repeat(np.asarray(GOAL_TOLERANCE, dtype=np.float64), 3) / self.scale) ** 2
+        r2[:G, -1] = 1.0 / (1.0 / r2[:G, -1] + 1.0 / g2)
+        r2[G] = self.tolerance ** 2
+        tau2 = np.full(G + 1, self.rest_smooth)
+        tau2[G] = self.paths.smooth
+        _, end_mean, _, quad, k6 = self._grid_terms(tau, q, p, np.append(at, D), tau2=tau2, r2=r2.reshape(G + 1, -1))
+        return wg @ end_mean[:G], float(quad[G]) / k6
 
     def weights(self, t, quat, position, checked: bool = False, active=None):
         """The duration posterior of a motion seen from t[0] to t[-1]: (grid (G,) s, weights (G,)), and the
@@ -610,7 +622,7 @@ class Anticipator:
         # the end pose: the continuation's (the rest's conditioning at D̂, rest_end); its spread the mixture's over
         # the grid about that centre (scaled units), then unscaled
         E = terms["end_mean"]
-        mu, rho = self._at_estimate(*terms["seen"][3:], D)
+        mu, rho = self._at_estimate(*terms["seen"][3:], D, grid, w)
         d = E - mu
         cov = (w @ terms["end_cov"].reshape(len(w), 36)).reshape(6, 6) + (d.T * w) @ d
         sc = self.scale
@@ -746,7 +758,8 @@ class Anticipator:
         if dt is None:
             dt = float(np.median(np.diff(t))) if len(t) > 1 else float(getattr(self.model, "rollout_dt", 0.01) or 0.01)
         mean_x, _ = self._conditioned_mean(tau, q, p, quat[-1], position[-1], D)
-        dev = self.paths.unscale(mean_x)[0]
+        dev_hat = self.paths.unscale(mean_x)[0]
+        dev = self._mixed_deviation(tau, q, p, quat[-1], position[-1], grid, w, D, dev_hat)
         t_out = self._times(t0, span, D, dt)
         if self.model is not None and use_model and _rollable(self.model):
             mq, mp = self._rollout(dev, quat[-1], position[-1], span / D, D, t_out - t0)
@@ -757,12 +770,39 @@ class Anticipator:
         if samples:
             # the samples' spread about the mean: the path distribution's own conditioning, whose left-out
             # remainders fitted the bands' factors (its mean at D̂ is what each draw's difference is taken from)
-            own = dev if self.Sigma_rest is self.Sigma and self.rest_tolerance == self.tolerance else \
+            own = dev_hat if self.Sigma_rest is self.Sigma and self.rest_tolerance == self.tolerance else \
                 self.paths.unscale(self._conditioned_mean(tau, q, p, quat[-1], position[-1], D, rest=False)[0])[0]
             k = self.band_shift(grid, w, terms["band_w"], span)
             out = self._samples(int(samples), seed, grid * k, terms["band_w"], tau, q, p, quat[-1], position[-1], own,
                                 (t_out, mq, mp), t0, span, D, dt, widen=est.band_widening)
         return Continuation(t_out, mq, mp, out, est, D, name=name)
+
+    def _mixed_deviation(self, tau, q, p, last_q, last_p, grid, w, D, dev_hat=None) -> np.ndarray:
+        """The continuation's mean path as deviations (S, 6) at duration D: the posterior mean over the duration's
+        weights of the rest's conditioned paths, each on the remainder's normalised time. With ŝ_0 = τ_N / D the last
+        seen phase at D and u_j = (s_j − ŝ_0) / (1 − ŝ_0) a grid phase's place in the remainder, each kept cell g
+        (weight ≥ :data:`MIX_WEIGHT` of the largest) gives the pose (R_g, p_g) of its conditioned path x̂_g at phase
+        s_0g + u_j (1 − s_0g), s_0g = τ_N / D_g, and
+
+            δ_j = Σ_g w̃_g (log(R_g R̄(s_j)ᵀ), p_g − p̄(s_j)),   w̃ the kept weights normalised.
+
+        Every x̂_g holds the last seen pose at its own s_0g, so the mean does at ŝ_0; its end (u = 1) is Σ_g w̃_g δ_g(1),
+        the conditioned ends' mean (:meth:`_at_estimate`). Where one cell carries the weight it is x̂ at D
+        (``dev_hat``, computed if None)."""
+        from rbgp_cli.dynamics.paths import pose_deviation
+
+        paths = self.paths
+        keep = _kept(w)
+        if np.count_nonzero(keep) < 2:
+            return paths.unscale(self._conditioned_mean(tau, q, p, last_q, last_p, D)[0])[0] if dev_hat is None else dev_hat
+        Dg, wg = grid[keep], w[keep] / w[keep].sum()
+        x = np.stack([self._conditioned_mean(tau, q, p, last_q, last_p, d)[0] for d in Dg])  # one solve per kept cell
+        dev_g = paths.unscale(x)[0]  # (G, S, 6)
+        s0 = min(float(tau[-1]) / D, 1.0)
+        u = (paths.s - s0) / (1.0 - s0) if s0 < 1.0 else np.ones_like(paths.s)
+        s0g = np.minimum(float(tau[-1]) / Dg, 1.0)[:, None]
+        qg, pg = paths.pose_at(dev_g, np.clip(s0g + u[None] * (1.0 - s0g), 0.0, 1.0))
+        return np.einsum("g,gsj->sj", wg, pose_deviation(paths.quat, paths.position, qg, pg))
 
     @staticmethod
     def _times(t0, span, D, dt):
@@ -847,6 +887,13 @@ class Anticipator:
                 sq, sp = _from_deviation(paths, rqk, rpk, dk)
                 out[k] = (tk, sq, sp)
         return out
+
+
+def _kept(w: np.ndarray) -> np.ndarray:
+    """The duration cells (G,) bool whose weight is at least :data:`MIX_WEIGHT` of the largest: those the
+    continuation's mean averages over."""
+    w = np.asarray(w, dtype=np.float64)
+    return w >= MIX_WEIGHT * w.max()
 
 
 def _rollable(model) -> bool:

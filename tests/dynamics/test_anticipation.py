@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rbgp_cli.dynamics.anticipation import Anticipator, Follower, anticipate
+from rbgp_cli.dynamics.anticipation import MIX_WEIGHT, Anticipator, Follower, anticipate
 from rbgp_cli.dynamics.paths import fit_paths
 from rbgp_cli.dynamics.trajectory import Trajectory
 from rbgp_cli.errors import InputError
@@ -205,9 +205,10 @@ def test_the_stream_evaluates_only_the_live_duration_cells_and_loses_nothing(tra
 
 def test_the_reported_end_pose_is_the_continuations_end(trained):
     """The estimate's end pose (``rollout --given --json``, ``rbgp follow``) is the continuation's: the rest's
-    conditioning at D̂ with its last seen pose exact (:meth:`Anticipator.rest_end`, in the batched grid form the
-    live update affords) against the dense conditioning's end entries at durations off the estimate, and the
-    reported end against the continuation's last row; the live follower reports the same end."""
+    conditioning with its last seen pose exact (:meth:`Anticipator.rest_end`, in the batched grid form the live
+    update affords) against the dense conditioning's end entries at durations off the estimate; the mean's average
+    over the duration's weights against a loop over the kept cells; the reported end against the continuation's
+    last row; the live follower reports the same end."""
     demos, paths = trained
     ant = Anticipator(paths, None)
     tr = family(1, 17)[0][0]
@@ -217,7 +218,23 @@ def test_the_reported_end_pose_is_the_continuations_end(trained):
         tau, q, p = terms["seen"][3:]
         for D in (0.8 * tr.duration, tr.duration, 1.3 * tr.duration):
             dense = ant._conditioned_mean(tau, q, p, seen.quat[-1], seen.position[-1], D)[0][ant._end]
-            np.testing.assert_allclose(ant.rest_end(tau, q, p, D), dense, atol=1e-9)
+            np.testing.assert_allclose(ant.rest_end(tau, q, p, D), dense, rtol=1e-6, atol=1e-7)
+        # the mean averages the conditioned paths over the duration's weights: its end is the weighted mean of the
+        # dense conditioned ends (a loop over the kept cells), and it passes through the last seen pose
+        keep = w >= MIX_WEIGHT * w.max()
+        if F == 0.25:
+            assert np.count_nonzero(keep) >= 2  # early on the duration is uncertain: the average is over several
+        dense_ends = np.array([ant._conditioned_mean(tau, q, p, seen.quat[-1], seen.position[-1], d)[0][ant._end]
+                               for d in grid[keep]])
+        mixed = (w[keep] / w[keep].sum()) @ dense_ends
+        est = ant._summary(grid, w, terms)
+        end_hat, _ = ant._at_estimate(tau, q, p, est.end_time - seen.t[0], grid, w)
+        np.testing.assert_allclose(end_hat, mixed, rtol=1e-6, atol=1e-7)
+        dev = ant._mixed_deviation(tau, q, p, seen.quat[-1], seen.position[-1], grid, w, est.end_time - seen.t[0])
+        np.testing.assert_allclose(dev[-1], mixed * paths.scale, rtol=1e-6, atol=1e-7)
+        s0 = min(tau[-1] / (est.end_time - seen.t[0]), 1.0)
+        q0, p0 = paths.pose_at(dev, np.array([s0]))
+        assert np.linalg.norm(p0[0] - seen.position[-1]) < 2e-3
         c = ant.continuation(seen.t, seen.quat, seen.position)
         np.testing.assert_allclose(c.estimate.end_position, c.position[-1], atol=1e-9)
         assert abs(np.dot(c.estimate.end_quat, c.quat[-1])) > 1 - 1e-12
