@@ -333,18 +333,22 @@ class Anticipator:
     """The phase estimate and conditioning of a :class:`~rbgp_cli.dynamics.paths.PathDistribution` on a seen
     beginning (module docstring), with its prior (m, Σ) computed once; ``model``: a
     :class:`~rbgp_cli.dynamics.model.MotionModel` whose GP dynamics give the continuation's mean (None: the
-    conditioned path)."""
+    conditioned path); ``mix_end``: the estimate's end pose is the continuation's (the mean over the duration's
+    weights of the rest's conditioned ends), or with False the rest's conditioned end at the median duration."""
 
     def __init__(self, paths, model=None, *, points: int = SEEN_POINTS, grid_size: int = DURATION_GRID,
                  tolerance: float | None = None, duration_smooth: float | None = None,
                  duration_tolerance: float | None = None, duration_sigma: float | None = None,
-                 duration_evidence: float | None = None):
+                 duration_evidence: float | None = None, mix_end: bool = True):
         if paths is None:
             raise InputError("this model has no path distribution to predict a motion under way (fewer than three "
                              "demonstrations, or a model file from an older rbgp)", hint="retrain it with rbgp train")
         self.paths = paths
         self.model = model
         self.points = int(points)
+        #: the estimate's end: the mean over the duration's weights of the rest's conditioned ends (the continuation's),
+        #: or with False the one at the median duration (:class:`Follower`: one conditioning per update)
+        self.mix_end = bool(mix_end)
         self.tolerance = float(paths.seen_tolerance if tolerance is None else tolerance)
         # the duration's weights (and the estimate's end pose) with their own τ² and r, or σ in rad and m (module
         # docstring): given, else fit_seen's choice, else the path distribution's τ² and seen tolerance
@@ -622,7 +626,7 @@ class Anticipator:
         # the end pose: the continuation's (the rest's conditioning at D̂, rest_end); its spread the mixture's over
         # the grid about that centre (scaled units), then unscaled
         E = terms["end_mean"]
-        mu, rho = self._at_estimate(*terms["seen"][3:], D, grid, w)
+        mu, rho = self._at_estimate(*terms["seen"][3:], D, *((grid, w) if self.mix_end else ()))
         d = E - mu
         cov = (w @ terms["end_cov"].reshape(len(w), 36)).reshape(6, 6) + (d.T * w) @ d
         sc = self.scale
@@ -1706,7 +1710,8 @@ class Follower:
 
     def __init__(self, paths, *, points: int = 6, grid_size: int = 16, window: float = 0.05,
                  start_speed: float | None = None, keep: int = 512, detect: bool = True, rest: float = 0.25):
-        self.anticipator = Anticipator(paths, None, points=points, grid_size=grid_size)
+        # the end at the median duration: the live update affords one conditioning of the rest (method.md §13)
+        self.anticipator = Anticipator(paths, None, points=points, grid_size=grid_size, mix_end=False)
         P = paths.position
         length = float(np.sum(np.linalg.norm(np.diff(P, axis=0), axis=1)))
         mean_D = float(np.exp(np.mean(paths.log_durations)))
