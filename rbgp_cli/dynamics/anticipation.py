@@ -13,7 +13,7 @@ the shortest demonstration to twice the longest, those shorter than the seen spa
     w_g ∝ N( (y(D_g), ln D_g) | A_g m, A_g Σ A_gᵀ + R ),     y_k(D) = (log(R_k R̄(τ_k/D)ᵀ), p_k − p̄(τ_k/D)) / σ,
 
 (after Maeda et al. 2017's phase estimation; a log-spaced grid makes the weight the density of ln D). The
-weights (and the estimate's end pose) use their own τ² and r (``paths.duration_smooth``,
+weights (and the end pose's band) use their own τ² and r (``paths.duration_smooth``,
 ``paths.duration_tolerance``: :func:`fit_seen` keeps (0.01, 0.8) or the distribution's own, whichever estimated the
 left-out demonstrations' durations best; with fewer than ten demonstrations also (0.01, 3.2) and τ² = 0.01 with,
 instead of r, a tolerance σ = 0.3 rad and m for every coordinate (``paths.duration_sigma``, r_c = σ / σ_c), the
@@ -24,11 +24,13 @@ the weighted median). Its band is the 5 %/95 % quantiles of the weights with the
 Student-t, ν = D − 1), times D̂ over their own median (:meth:`Anticipator.band_shift`: their spread, centred on D̂):
 :func:`fit_seen` takes the largest λ whose band holds the left-out durations at 90 % (:func:`_evidence_loo`); the
 samples draw their durations from these weights, moved the same way. One batched solve over the grid gives the weights and,
-per D_g, the conditioned end pose: the end pose's mean and band are the mixture's.
+per D_g, the conditioned end pose, whose mixture's spread is the end pose's band; its centre is the continuation's end.
 
-**The rest.** At D̂ the path distribution, with the rest's own smooth term τ²_rest K_ℓ, is conditioned on the
-seen poses (tolerance r_rest) and on the last seen pose exactly (:data:`~rbgp_cli.dynamics.paths.GOAL_TOLERANCE`, so the continuation starts where the
-motion is); the continuation runs from the last seen time to t_0 + D̂. Its mean is either that
+**The rest.** At each duration the path distribution, with the rest's own smooth term τ²_rest K_ℓ, is conditioned
+on the seen poses (tolerance r_rest) and on the last seen pose exactly (:data:`~rbgp_cli.dynamics.paths.GOAL_TOLERANCE`, so the continuation starts where the
+motion is); the continuation's path is those paths' mean over the duration's weights on the remainder's normalised
+time (:meth:`Anticipator._mixed_deviation`; the path at D̂ where one duration carries the weight), and it runs from the
+last seen time to t_0 + D̂. Its mean is either that
 conditioned path (``model=None``, the path distribution alone) or the model's GP dynamics rolled from the
 last seen pose at its phase with the conditioned path as the prior mean's reference (feed-forward along
 it and the pull toward it; the GP's residual field says how to move from an off-path pose). K samples draw
@@ -623,8 +625,8 @@ class Anticipator:
             k = self.band_shift(grid, w, band_w, span)
             q = [max(x * k, span) for x in self._duration_quantiles(grid, band_w, span, (0.05, 0.95))]
             q = [min(q[0], D), D, max(q[1], D)]
-        # the end pose: the continuation's (the rest's conditioning at D̂, rest_end); its spread the mixture's over
-        # the grid about that centre (scaled units), then unscaled
+        # the end pose: the continuation's (the rest's conditioned ends averaged over the duration, or with mix_end
+        # False at D̂); its band the spread of the duration weights' mixture about that centre (scaled), then unscaled
         E = terms["end_mean"]
         mu, rho = self._at_estimate(*terms["seen"][3:], D, *((grid, w) if self.mix_end else ()))
         d = E - mu
