@@ -278,6 +278,8 @@ def command(func):
                 with _progress_session(), _signals_as_exceptions(), _guarded_stdout():
                     result = func(*args, **kwargs)
                     sys.stdout.flush()  # a full disk under stdout fails here, inside the command
+                    if _INTERRUPTED["on"]:  # a Ctrl-C that a library swallowed (an optional import's except
+                        raise KeyboardInterrupt  # ImportError) is still the interruption: never lost silently
                     return result
             except typer.Exit:
                 raise
