@@ -210,29 +210,27 @@ def _signalled(command, tmp_path, sig, delay, group=False):
         run.cleanup(procs)
 
 
-def _handlers_installed(pid) -> bool:
-    """rbgp's entry point has installed its handlers: SIGTERM is caught (Python does not catch it)."""
+def _signal_set(pid, field: str, sig) -> bool:
+    """Signal ``sig`` is in that process's /proc status mask ``field`` (``SigCgt``: caught, ``SigIgn``: ignored)."""
     try:
         with open(f"/proc/{pid}/status") as fh:
             for line in fh:
-                if line.startswith("SigCgt:"):
-                    return bool(int(line.split()[1], 16) >> (signal.SIGTERM - 1) & 1)
+                if line.startswith(field + ":"):
+                    return bool(int(line.split()[1], 16) >> (sig - 1) & 1)
     except OSError:
         pass
     return False
+
+
+def _handlers_installed(pid) -> bool:
+    """rbgp's entry point has installed its handlers: SIGTERM is caught (Python does not catch it)."""
+    return _signal_set(pid, "SigCgt", signal.SIGTERM)
 
 
 def _sigint_ignored(pid) -> bool:
     """SIGINT is ignored in that process now: :class:`rbgp_cli.compute.start_workers` ignores it while a pool starts
     its processes (so that they inherit the ignoring), and a Ctrl-C then is lost, as documented there."""
-    try:
-        with open(f"/proc/{pid}/status") as fh:
-            for line in fh:
-                if line.startswith("SigIgn:"):
-                    return bool(int(line.split()[1], 16) >> (signal.SIGINT - 1) & 1)
-    except OSError:
-        pass
-    return False
+    return _signal_set(pid, "SigIgn", signal.SIGINT)
 
 
 @pytest.mark.slow
