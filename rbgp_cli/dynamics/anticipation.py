@@ -156,6 +156,12 @@ REST_SE = 1.0
 REST_FEW_SMOOTH = 10.0
 #: Tolerance of the exactly observed ln D (in units of ln D's spread) and of the last seen pose.
 _ELL_TOL = 1e-4
+#: ... and of ln D in the rest's conditioning where :func:`fit_seen` frees it (``paths.rest_duration_tolerance``):
+#: 10³ spreads, ln D as good as not given, so a duration cell's path differs from another's only by where the seen
+#: poses lie on it, not by the path distribution's coupling of ln D to the path (chosen by the rest's left-out
+#: end and remainder: over-fitted on the 30 handovers and sample_data, real on the waves and the slower handovers;
+#: docs/defaults.md, issue 37's twentieth pass)
+REST_FREE_ELL = 1e3
 
 
 # ----------------------------------------------------------------------------------------- results
@@ -372,6 +378,9 @@ class Anticipator:
         rest_tolerance = getattr(paths, "rest_tolerance", None)
         self.rest_smooth = float(paths.smooth if rest_smooth is None else rest_smooth)
         self.rest_tolerance = float(self.tolerance if (rest_tolerance is None or tolerance is not None) else rest_tolerance)
+        rest_ell = getattr(paths, "rest_duration_tolerance", None)
+        #: ln D's tolerance in the rest's conditioning (units of its spread): exact, or freed by fit_seen
+        self.rest_ell = float(_ELL_TOL if (rest_ell is None or tolerance is not None) else rest_ell)
         self.m, self.Sigma = paths.prior()
         self.Sigma_rest = self.Sigma if self.rest_smooth == paths.smooth else paths.prior(smooth=self.rest_smooth)[1]
         self.scale = paths.scale
@@ -490,13 +499,14 @@ class Anticipator:
         e -= f[..., None] * c["dC"][k]
         return e
 
-    def _grid_terms(self, tau, q, p, grid, tau2=None, r2=None):
+    def _grid_terms(self, tau, q, p, grid, tau2=None, r2=None, ell2=None):
         """For each duration D_g: log weight, the conditioned end pose's mean (6,) and covariance (6, 6) in
         scaled units (module docstring). Batched over the grid, with Σ's low-rank-plus-smooth form
         (:meth:`_constants`); every linear interpolation between grid phases is a gather of values and
         differences, and the end phase is interpolated as one more seen phase (s = 1). ``tau2``: the smooth term's
         τ², one or one per grid duration (G,) (default the duration's); ``r2``: the seen poses' tolerances², (6,) for
-        every pose, (6n,) per seen coordinate or (G, 6n) per grid duration too (default the duration's)."""
+        every pose, (6n,) per seen coordinate or (G, 6n) per grid duration too (default the duration's); ``ell2``: ln D's
+        tolerance², one or one per grid duration (G,) (default _ELL_TOL²)."""
         c = self._constants()
         S, D = c["S"], c["D"]
         G_, n = len(grid), len(tau)
@@ -523,7 +533,7 @@ class Anticipator:
         M[:, 1:k6 + 6, 1:k6 + 6] = Z @ Z.transpose(0, 2, 1) + tau2[:, None, None] * (K[:, :, None, :, None] * eye6[None, None, :, None, :]).reshape(G_, 6 * n + 6, 6 * n + 6)
         M[:, 1:k6 + 6, 0] = Z @ c["uL"]
         M[:, 0, 1:k6 + 6] = M[:, 1:k6 + 6, 0]
-        M[:, 0, 0] = c["uLuL"] + tau2 + _ELL_TOL ** 2
+        M[:, 0, 0] = c["uLuL"] + tau2 + np.broadcast_to(np.asarray(_ELL_TOL ** 2 if ell2 is None else ell2, dtype=np.float64), (G_,))
         d = np.arange(1, k6)
         M[:, d, d] += r2
         M[:, -1, 0] = np.log(grid) / self.lscale - self.m[-1]
@@ -545,7 +555,7 @@ class Anticipator:
         """The rest's conditioned end (6,) in scaled units at duration D: its conditioned mean at phase 1, x̂_end =
         m_end + Σ_E,o G⁻¹ (y − A m) with the rest's τ²_rest on Σ, its r_rest on the seen poses at phases τ / D, the
         last one exactly (:data:`~rbgp_cli.dynamics.paths.GOAL_TOLERANCE`, its precision added to r_rest's) and ℓ =
-        ln D (:meth:`_conditioned_mean` at the end's six entries, in :meth:`_grid_terms`' form for one duration:
+        ln D with the rest's tolerance (``rest_ell``) (:meth:`_conditioned_mean` at the end's six entries, in :meth:`_grid_terms`' form for one duration:
         the live update can afford it, batched with the :meth:`surprise`: :meth:`_at_estimate`)."""
         return self._at_estimate(tau, q, p, D)[0]
 
@@ -571,7 +581,10 @@ class Anticipator:
         r2[G] = self.tolerance ** 2
         tau2 = np.full(G + 1, self.rest_smooth)
         tau2[G] = self.paths.smooth
-        _, end_mean, _, quad, k6 = self._grid_terms(tau, q, p, np.append(at, D), tau2=tau2, r2=r2.reshape(G + 1, -1))
+        ell2 = np.full(G + 1, self.rest_ell ** 2)
+        ell2[G] = _ELL_TOL ** 2
+        _, end_mean, _, quad, k6 = self._grid_terms(tau, q, p, np.append(at, D), tau2=tau2, r2=r2.reshape(G + 1, -1),
+                                                    ell2=ell2)
         return wg @ end_mean[:G], float(quad[G]) / k6
 
     def weights(self, t, quat, position, checked: bool = False, active=None):
@@ -701,11 +714,11 @@ class Anticipator:
     # -------------------------------------------------------------- the rest of the motion
     def _observations(self, tau, q, p, last_q, last_p, D, rest: bool = True):
         """(A, y, r²) at duration D: the seen poses (tolerance: the rest's r_rest, or with ``rest=False`` the path
-        distribution's r), the last one exactly, and ℓ = ln D."""
+        distribution's r), the last one exactly, and ℓ = ln D (exactly, or with the rest's ``rest_ell``)."""
         paths = self.paths
         obs = [paths.observe(np.clip(tau / D, 0, 1), q, p, tolerance=None),
                paths.observe([min(tau[-1] / D, 1.0)], last_q[None], last_p[None], exact=True),
-               paths.observe_duration(D, tolerance=_ELL_TOL * self.lscale)]
+               paths.observe_duration(D, tolerance=(self.rest_ell if rest else _ELL_TOL) * self.lscale)]
         A, y, r2 = paths.stack(*obs)
         r2[: 6 * len(tau)] = (self.rest_tolerance if rest else self.tolerance) ** 2
         return A, y, r2
@@ -776,7 +789,8 @@ class Anticipator:
         if samples:
             # the samples' spread about the mean: the path distribution's own conditioning, whose left-out
             # remainders fitted the bands' factors (its mean at D̂ is what each draw's difference is taken from)
-            own = dev_hat if self.Sigma_rest is self.Sigma and self.rest_tolerance == self.tolerance else \
+            own = dev_hat if (self.Sigma_rest is self.Sigma and self.rest_tolerance == self.tolerance
+                              and self.rest_ell == _ELL_TOL) else \
                 self.paths.unscale(self._conditioned_mean(tau, q, p, quat[-1], position[-1], D, rest=False)[0])[0]
             k = self.band_shift(grid, w, terms["band_w"], span)
             out = self._samples(int(samples), seed, grid * k, terms["band_w"], tau, q, p, quat[-1], position[-1], own,
@@ -942,7 +956,7 @@ def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS,
     (:func:`~rbgp_cli.dynamics.paths.left_out_moments`, :func:`~rbgp_cli.dynamics.paths.held_out_scores`).
     ``smooth``: the τ² of the others' distribution (default the path distribution's). ``by_fraction`` (with
     ``stats``): the Mahalanobis² and z-scores as lists, one array per fraction of SEEN_FRACTIONS. ``rest`` (τ²_rest,
-    r_rest), with ``stats``: the scores' errors are taken from the mean conditioned with these (the mean a
+    r_rest[, ln D's tolerance]), with ``stats``: the scores' errors are taken from the mean conditioned with these (the mean a
     continuation follows), their covariance still the one of ``smooth`` and the tolerance (its samples' spread)."""
     from rbgp_cli.dynamics.paths import GOAL_TOLERANCE, SELECT_EVERY, held_out_scores, left_out_moments
 
@@ -966,7 +980,7 @@ def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS,
                 Sr = Sigma + K_rest[np.ix_(idx, idx)]
                 r2 = np.full(no, float(rest[1]) ** 2)
                 r2[-7:-1] = r_last
-                r2[-1] = _ELL_TOL ** 2
+                r2[-1] = (float(rest[2]) if len(rest) > 2 else _ELL_TOL) ** 2
                 g = np.swapaxes(np.linalg.solve(Sr[:, :no, :no] + np.diag(r2), Sr[:, :no, no:]), 1, 2)
                 mean_rest = m[:, no:] + np.einsum("bij,bj->bi", g, innovation)
             Sigma += Kss
@@ -995,7 +1009,7 @@ def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS,
 
 
 def _end_loo(paths, smooths, tolerances, points: int = SEEN_POINTS, *, remainder: bool = False,
-             per_demo: bool = False) -> np.ndarray:
+             per_demo: bool = False, ell: float = _ELL_TOL) -> np.ndarray:
     """The left-out final pose given the seen part, for each τ² of ``smooths`` and r of ``tolerances``: each
     demonstration left out, its first F (each of SEEN_FRACTIONS) seen at its true phases (≤ ``points`` grid
     phases, the last exactly, as the continuation sees it) and its ln D, and the others' distribution (its
@@ -1007,7 +1021,8 @@ def _end_loo(paths, smooths, tolerances, points: int = SEEN_POINTS, *, remainder
     ``remainder``: the error of the whole rest as well, eᵀe at the end plus (1/k) Σ_j e_jᵀe_j over the k phases the
     remainder is scored at (:func:`seen_split`: every SELECT_EVERY-th after F and the end), what crossval scores a
     continuation by (its final pose and its remainder's RMSE). ``per_demo``: the sums per left-out demonstration,
-    (len(smooths), len(tolerances), D), instead of their mean."""
+    (len(smooths), len(tolerances), D), instead of their mean. ``ell``: ln D's tolerance (units of its spread; the
+    default exactly, :data:`REST_FREE_ELL` as good as not given)."""
     from rbgp_cli.dynamics.paths import GOAL_TOLERANCE, left_out_moments
 
     X = paths.vectors()
@@ -1031,7 +1046,7 @@ def _end_loo(paths, smooths, tolerances, points: int = SEEN_POINTS, *, remainder
                 for b, tol in enumerate(tolerances):
                     r2 = np.full(no, float(tol) ** 2)
                     r2[-7:-1] = r_last
-                    r2[-1] = _ELL_TOL ** 2
+                    r2[-1] = float(ell) ** 2
                     gain = np.swapaxes(np.linalg.solve(Soo + np.diag(r2), Sot), 1, 2)  # (B, 6k, no)
                     e = Xs[block, no:] - m[:, no:] - np.einsum("bij,bj->bi", gain, innovation)
                     sq = np.sum(e[:, -6:] ** 2, axis=1)
@@ -1082,10 +1097,17 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, s
         per = _end_loo(paths, smooths, tols, remainder=True, per_demo=True)
         rest = _loosest_rest(per, smooths, tols)
         err = per.mean(axis=2)
+        # then ln D in it, exact or freed, by the same rule at that τ² and r (freed: the looser)
+        exact = per[smooths.index(rest[0]), tols.index(rest[1])]
+        freed = _end_loo(paths, [rest[0]], [rest[1]], remainder=True, per_demo=True, ell=REST_FREE_ELL)[0, 0]
+        pick = _loosest_within({_ELL_TOL: exact, REST_FREE_ELL: freed}, REST_SE, looseness=lambda c: c)
+        paths.rest_duration_tolerance = None if pick == _ELL_TOL else float(pick)
+        paths.info.update(rest_duration_tolerance=float(pick), rest_duration_freed_loo=float(np.mean(freed - exact)))
     else:  # few left-out ends: only the path distribution's own τ² against one smooth τ², at the seen r
         err = _end_loo(paths, [rest[0], REST_FEW_SMOOTH], [rest[1]])[:, 0]
         if err[1] < err[0]:  # ties keep the path distribution's own
             rest = (float(REST_FEW_SMOOTH), rest[1])
+        paths.rest_duration_tolerance = None  # ln D exact
     paths.rest_smooth, paths.rest_tolerance = rest
     paths.info.update(rest_smooth=rest[0], rest_tolerance=rest[1], rest_end_loo=float(err.min()))
     # the samples' spread keeps the path distribution's conditioning; its factors from the same left-out remainders:
@@ -1109,7 +1131,9 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, s
                 lam = max(ok) if ok else min(held)
                 paths.duration_evidence = None if lam == 1.0 else float(lam)
                 paths.info.update(duration_evidence=float(lam), duration_loo_coverage=held[lam])
-    own = rest == (float(paths.smooth), float(r))
+    own = rest == (float(paths.smooth), float(r)) and paths.rest_duration_tolerance is None
+    if paths.rest_duration_tolerance is not None:
+        rest = (*rest, float(paths.rest_duration_tolerance))
     if spread is None:
         spread = DURATION_SPREAD and paths.demos >= SPREAD_FROM
     if spread:  # the remainders against the samples as drawn, each at its own duration (eighth pass)
@@ -1394,14 +1418,15 @@ SPREAD_BLOCK = 256
 SPREAD_POINTS = 6
 
 
-def _loo_rows(ctx, d, dur, tau2, tol, query, *, logw: bool = False, cov: bool = False, quad: bool = False):
+def _loo_rows(ctx, d, dur, tau2, tol, query, *, logw: bool = False, cov: bool = False, quad: bool = False,
+              ell: float = _ELL_TOL):
     """Batched over rows b: the others' distribution of left-out demonstration d_b (the mean m_d and the sample part
     c (X_o − m_d)ᵀ(X_o − m_d) of :func:`~rbgp_cli.dynamics.paths.left_out_moments`, c = (1 + 1/N)/(N − 1), plus the
     smooth term τ² (K_ℓ ⊗ I_6 ⊕ 1)) conditioned on d_b's seen grid poses (``ctx["js"]``, at true times
     τ_k = s_k D_(d_b)) taken as lying at the phases a_k = min(τ_k / D_b, 1) of the duration D_b = ``dur[b]``: the
     deviation y_k of the pose from the mean path at a_k (tolerance ``tol`` in units of the spread; the last seen
     pose exactly, GOAL_TOLERANCE, unless ``logw``, where every pose has ``tol`` as the duration's weights do) and
-    ℓ = ln D_b (tolerance _ELL_TOL). With G = A Σ Aᵀ + R (A the linear interpolation at the a_k),
+    ℓ = ln D_b (tolerance ``ell``, default _ELL_TOL). With G = A Σ Aᵀ + R (A the linear interpolation at the a_k),
 
         x̂(q) = W(q) m_d + W(q) Σ Aᵀ G⁻¹ (y − A m_d),    W(q) Σ Aᵀ = (W(q) Z)(A Z)ᵀ + τ² K_ℓ(q, a) ⊗ I_6,
 
@@ -1451,7 +1476,7 @@ def _loo_rows(ctx, d, dur, tau2, tol, query, *, logw: bool = False, cov: bool = 
     G = Za @ Za.transpose(0, 2, 1)
     for j in range(6):  # τ² K_ℓ ⊗ I_6: one coordinate at a time
         G[:, j:6 * n:6, j:6 * n:6] += tau2 * Kaa
-    G[:, -1, -1] += tau2 + _ELL_TOL ** 2
+    G[:, -1, -1] += tau2 + float(ell) ** 2
     r2 = np.tile(np.broadcast_to(np.asarray(tol, dtype=np.float64) ** 2, (6,)), n)  # r, or r_c per coordinate
     if not logw:
         r2[-6:] = ctx["r_last"]
@@ -1546,7 +1571,8 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration
     ds = np.arange(Dn)
     true_q = np.broadcast_to(paths.s[jt], (Dn, T))
     own, C = _loo_rows(ctx, ds, ctx["dur"], tau2, r, true_q, cov=True)
-    mu = own if rest is None or tuple(rest) == (tau2, r) else _loo_rows(ctx, ds, ctx["dur"], float(rest[0]), float(rest[1]), true_q)
+    mu = own if rest is None or tuple(rest) == (tau2, r) else \
+        _loo_rows(ctx, ds, ctx["dur"], float(rest[0]), float(rest[1]), true_q, ell=float(rest[2]) if len(rest) > 2 else _ELL_TOL)
     x_true = X[:, :-1].reshape(Dn, S, 6)[:, jt]
     mid = np.concatenate([[0.0], 0.5 * (u[1:] + u[:-1]), [1.0]])
     share = np.tile(np.diff(mid), Dn)

@@ -208,6 +208,9 @@ class PathDistribution:
     #: chosen on the left-out final pose; None: ``smooth`` and ``seen_tolerance``)
     rest_smooth: float | None = None
     rest_tolerance: float | None = None
+    #: ln D's tolerance in that conditioning, in units of its spread, where fit_seen frees it
+    #: (:data:`rbgp_cli.dynamics.anticipation.REST_FREE_ELL`; None: exactly, as the duration's weights observe it)
+    rest_duration_tolerance: float | None = None
     #: the draws' factors of a motion under way per seen fraction, {"fractions", "rotation", "position"} (lists;
     #: :func:`rbgp_cli.dynamics.anticipation.seen_band_scales`; None: ``seen_band_scale`` at every fraction)
     seen_band_scales: dict | None = None
@@ -520,6 +523,8 @@ class PathDistribution:
                 **({"duration_evidence": float(self.duration_evidence)} if self.duration_evidence is not None else {}),
                 **({"rest_smooth": float(self.rest_smooth)} if self.rest_smooth is not None else {}),
                 **({"rest_tolerance": float(self.rest_tolerance)} if self.rest_tolerance is not None else {}),
+                **({"rest_duration_tolerance": float(self.rest_duration_tolerance)}
+                   if self.rest_duration_tolerance is not None else {}),
                 **({"seen_band_scales": {k: [float(x) for x in self.seen_band_scales[k]]
                                          for k in ("fractions", "rotation", "position")}}
                    if self.seen_band_scales is not None else {}),
@@ -542,6 +547,8 @@ class PathDistribution:
                    duration_evidence=None if header.get("duration_evidence") is None else float(header["duration_evidence"]),
                    rest_smooth=None if header.get("rest_smooth") is None else float(header["rest_smooth"]),
                    rest_tolerance=None if header.get("rest_tolerance") is None else float(header["rest_tolerance"]),
+                   rest_duration_tolerance=None if header.get("rest_duration_tolerance") is None
+                   else float(header["rest_duration_tolerance"]),
                    seen_band_scales=None if header.get("seen_band_scales") is None else
                    {k: [float(x) for x in header["seen_band_scales"][k]] for k in ("fractions", "rotation", "position")},
                    seen_surprise=None if header.get("seen_surprise") is None else _surprise_copy(header["seen_surprise"]))

@@ -44,7 +44,8 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
   demonstrations), ``duration_evidence`` (the seen poses' evidence weight λ in the duration's weights; files
   without it weigh with λ = 1, as before), and
   ``rest_smooth`` / ``rest_tolerance`` (the conditioning of its rest, chosen on the left-out final pose; files
-  without them condition with ``smooth`` and ``seen_tolerance``, as before), and ``seen_band_scales`` ({"fractions",
+  without them condition with ``smooth`` and ``seen_tolerance``, as before) and ``rest_duration_tolerance`` (ln D's
+  tolerance there where it is freed; files without it condition on ln D exactly, as before), and ``seen_band_scales`` ({"fractions",
   "rotation", "position"}: the bands' factors per seen fraction; files without them draw with ``seen_band_scale``
   at every fraction, as before), and ``seen_surprise`` ({"fractions", "reference"}: the left-out seen parts' median
   surprise, which a seen part's bands widen against; files without it widen nothing, as before; an rbgp older than these fields

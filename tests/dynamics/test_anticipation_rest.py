@@ -11,8 +11,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from rbgp_cli.dynamics import anticipation
-from rbgp_cli.dynamics.anticipation import (REST_FEW_SMOOTH, REST_FROM, REST_SE, Anticipator, _end_loo, _loosest_rest,
-                                            seen_split)
+from rbgp_cli.dynamics.anticipation import (REST_FEW_SMOOTH, REST_FREE_ELL, REST_FROM, REST_SE, Anticipator, _end_loo,
+                                            _loosest_rest, seen_split)
 from rbgp_cli.dynamics.paths import GOAL_TOLERANCE, PathDistribution, fit_paths
 from rbgp_cli.dynamics.trajectory import Trajectory
 
@@ -51,7 +51,7 @@ def paths():
     return fit_paths(family(12, 3)[0])
 
 
-def loop_end_loo(paths, smooths, tolerances, remainder=False):
+def loop_end_loo(paths, smooths, tolerances, remainder=False, ell=anticipation._ELL_TOL):
     """_end_loo as a loop: each demonstration left out, the others' PathDistribution conditioned (its own
     PathDistribution.condition) on the left-out vector's seen entries, the end's error summed; with ``remainder``,
     plus the mean over the scored phases after the seen part (seen_split's) of their squared error. Per left-out
@@ -69,7 +69,7 @@ def loop_end_loo(paths, smooths, tolerances, remainder=False):
             for b, tol in enumerate(tolerances):
                 r2 = np.full(no, float(tol) ** 2)
                 r2[-7:-1] = (np.array(GOAL_TOLERANCE).repeat(3) / paths.scale) ** 2
-                r2[-1] = anticipation._ELL_TOL ** 2
+                r2[-1] = ell ** 2
                 for d in range(D):
                     others = np.delete(X, d, axis=0)
                     m = others.mean(axis=0)
@@ -93,6 +93,10 @@ def test_end_loo_equals_the_loop_through_condition(paths):
     both = _end_loo(paths, smooths, tols, remainder=True, per_demo=True)
     np.testing.assert_allclose(both, want, rtol=1e-7)
     assert np.all(both.mean(axis=2) > got * (1 + 1e-3))  # the remainder's term is there
+    # ln D freed: the same loop with its tolerance, and it changes the conditioning
+    freed = _end_loo(paths, smooths[:1], tols[:1], remainder=True, per_demo=True, ell=REST_FREE_ELL)
+    np.testing.assert_allclose(freed, loop_end_loo(paths, smooths[:1], tols[:1], remainder=True, ell=REST_FREE_ELL), rtol=1e-7)
+    assert np.max(np.abs(freed - both[:1, :1])) > 1e-3 * both[:1, :1].max()
 
 
 def test_the_one_standard_error_rule_takes_the_loosest_candidate_the_left_out_errors_cannot_tell_apart():
@@ -156,6 +160,18 @@ def test_the_rest_is_conditioned_with_its_own_tolerance(paths):
     old = Anticipator(other)
     assert (old.rest_smooth, old.rest_tolerance) == (paths.smooth, paths.seen_tolerance)
     assert Anticipator(paths, tolerance=0.7).rest_tolerance == 0.7  # an explicit tolerance applies throughout
+    freed = copy.copy(paths)
+    freed.rest_duration_tolerance = REST_FREE_ELL
+    ant = Anticipator(freed)
+    _, _, r2 = ant._observations(tau, q, p, tr.quat[k - 1], tr.position[k - 1], 2.0)
+    np.testing.assert_allclose(r2[-1], REST_FREE_ELL ** 2)  # ln D as good as not given
+    _, _, r2 = ant._observations(tau, q, p, tr.quat[k - 1], tr.position[k - 1], 2.0, rest=False)
+    np.testing.assert_allclose(r2[-1], anticipation._ELL_TOL ** 2)  # the samples' conditioning keeps ln D exact
+    assert Anticipator(freed, tolerance=0.7).rest_ell == anticipation._ELL_TOL
+    # the rest's end in the batched grid form against the dense conditioning, ln D freed
+    for D in (1.6, 2.0, 2.5):
+        dense = ant._conditioned_mean(tau, q, p, tr.quat[k - 1], tr.position[k - 1], D)[0][ant._end]
+        np.testing.assert_allclose(ant.rest_end(tau, q, p, D), dense, rtol=1e-6, atol=1e-7)
 
 
 def test_model_file_fields_round_trip():
@@ -163,16 +179,21 @@ def test_model_file_fields_round_trip():
     S, D = 11, 5
     paths = PathDistribution(np.linspace(0, 1, S), np.tile([0.0, 0.0, 0.0, 1.0], (S, 1)), np.zeros((S, 3)),
                              rng.normal(size=(D, S, 6)), rng.normal(size=D), rest_smooth=0.7, rest_tolerance=0.4)
+    paths.rest_duration_tolerance = REST_FREE_ELL
     header = paths.header()
     assert header["rest_smooth"] == paths.rest_smooth and header["rest_tolerance"] == paths.rest_tolerance
     back = PathDistribution.from_arrays(paths.to_arrays(), header)
-    assert (back.rest_smooth, back.rest_tolerance) == (0.7, 0.4)
+    assert (back.rest_smooth, back.rest_tolerance, back.rest_duration_tolerance) == (0.7, 0.4, REST_FREE_ELL)
     from rbgp_cli.io.model_schema import TOP
 
     TOP["paths"][1](header, ("paths",))  # the model file's schema accepts the fields
     old = {k: v for k, v in header.items() if not k.startswith("rest_")}
     back = PathDistribution.from_arrays(paths.to_arrays(), old)
-    assert back.rest_smooth is None and back.rest_tolerance is None
+    assert back.rest_smooth is None and back.rest_tolerance is None and back.rest_duration_tolerance is None
+    from rbgp_cli.io.model_schema import SchemaError
+
+    with pytest.raises(SchemaError, match="rest_duration_tolerance"):
+        TOP["paths"][1](dict(header, rest_duration_tolerance=0.0), ("paths",))
 
 
 @pytest.mark.slow
@@ -296,3 +317,37 @@ def test_the_samples_keep_the_own_spread_about_the_new_mean(paths):
     np.testing.assert_array_equal(a.position, b.position)
     for (_, _, pa), (_, _, pb) in zip(a.samples, b.samples):
         np.testing.assert_array_equal(pa, pb)
+
+
+def coupled_family(n, seed):
+    """``n`` motions of the shared reach of :func:`offset_family` whose second half rises to an end offset set by the
+    duration, 0.3 m per unit of ln D along y (durations 2 s ± 10 % in ln D: about 3 cm), and nothing else: a seen
+    part up to half way says nothing of the end that ln D does not."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for d in range(n):
+        t, s, reach = _reach(rng)
+        u = np.clip(2 * s - 1, 0, 1)
+        reach[:, 1] += 0.3 * np.log(t[-1] / 2.0) * u * u * (3 - 2 * u)
+        out.append(_turning(t, s, reach, f"c{d}"))
+    return out
+
+
+@pytest.mark.slow
+def test_ln_d_is_freed_in_the_rest_only_where_it_does_not_inform_the_path():
+    """From REST_FROM demonstrations on, fit_seen frees ln D in the rest's conditioning where the left-out end and
+    remainder are as well predicted without it (the one-standard-error rule, freed the looser): a family whose path
+    does not depend on the duration frees it; one whose end is set by the duration keeps it exact, and there the
+    freed conditioning predicts the left-out ends worse."""
+    free = fit_paths(independent_end_family(24, 5))
+    assert free.rest_duration_tolerance == REST_FREE_ELL
+    assert free.header()["rest_duration_tolerance"] == REST_FREE_ELL
+    coupled = fit_paths(coupled_family(24, 6))
+    assert coupled.rest_duration_tolerance is None and "rest_duration_tolerance" not in coupled.header()
+    args = ([coupled.rest_smooth], [coupled.rest_tolerance])
+    exact = _end_loo(coupled, *args, remainder=True, per_demo=True)[0, 0]
+    freed = _end_loo(coupled, *args, remainder=True, per_demo=True, ell=REST_FREE_ELL)[0, 0]
+    d = freed - exact
+    assert d.mean() > REST_SE * d.std(ddof=1) / np.sqrt(len(d))
+    assert Anticipator(coupled).rest_ell == anticipation._ELL_TOL
+    assert Anticipator(free).rest_ell == REST_FREE_ELL
