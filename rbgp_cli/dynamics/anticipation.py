@@ -24,11 +24,14 @@ the weighted median). Its band is the 5 %/95 % quantiles of the weights with the
 Student-t, ν = D − 1), times D̂ over their own median (:meth:`Anticipator.band_shift`: their spread, centred on D̂):
 :func:`fit_seen` takes the largest λ whose band holds the left-out durations at 90 % (:func:`_evidence_loo`); the
 samples draw their durations from these weights, moved the same way. One batched solve over the grid gives the weights and,
-per D_g, the conditioned end pose, whose mixture's spread is the end pose's band; its centre is the continuation's end.
+per D_g, the conditioned end pose. The end pose is the continuation's end; its band's covariance is the end's conditional
+covariance at D̂ as the samples draw it (the path distribution's own τ² and r, the last seen pose exactly) plus the
+spread of the per-D_g ends over the weights about their own mean (the duration's part).
 
 **The rest.** At each duration the path distribution, with the rest's own smooth term τ²_rest K_ℓ, is conditioned
-on the seen poses (tolerance r_rest) and on the last seen pose exactly (:data:`~rbgp_cli.dynamics.paths.GOAL_TOLERANCE`, so the continuation starts where the
-motion is); the continuation's path is those paths' mean over the duration's weights on the remainder's normalised
+on the seen poses (tolerance r_rest), on the last seen pose exactly (:data:`~rbgp_cli.dynamics.paths.GOAL_TOLERANCE`, so the continuation starts where the
+motion is) and on ℓ = ln D (exactly, or freed where :func:`fit_seen` finds the path distribution's coupling of ℓ to
+the path over-fitted: :data:`REST_FREE_ELL`); the continuation's path is those paths' mean over the duration's weights on the remainder's normalised
 time (:meth:`Anticipator._mixed_deviation`; the path at D̂ where one duration carries the weight), and it runs from the
 last seen time to t_0 + D̂. Its mean is either that
 conditioned path (``model=None``, the path distribution alone) or the model's GP dynamics rolled from the
@@ -559,11 +562,14 @@ class Anticipator:
         the live update can afford it, batched with the :meth:`surprise`: :meth:`_at_estimate`)."""
         return self._at_estimate(tau, q, p, D)[0]
 
-    def _at_estimate(self, tau, q, p, D, grid=None, w=None) -> tuple[np.ndarray, float]:
-        """(the continuation's end (6,) scaled, :meth:`surprise` ρ at D) from one batched factorisation (the live
-        update's cost): the rest's conditioned ends (:meth:`rest_end`) at the duration cells ``grid`` whose weights
-        ``w`` are kept (:func:`_kept`), averaged with those weights normalised (:meth:`_mixed_deviation`'s end; at D
-        alone without them or where one cell carries the weight), and ρ with the path distribution's own τ² and r."""
+    def _at_estimate(self, tau, q, p, D, grid=None, w=None) -> tuple[np.ndarray, float, np.ndarray]:
+        """(the continuation's end (6,) scaled, :meth:`surprise` ρ at D, the end's covariance (6, 6) at D as the
+        samples draw it) from one batched factorisation (the live update's cost): the rest's conditioned ends
+        (:meth:`rest_end`) at the duration cells ``grid`` whose weights ``w`` are kept (:func:`_kept`), averaged with
+        those weights normalised (:meth:`_mixed_deviation`'s end; at D alone without them or where one cell carries
+        the weight); ρ with the path distribution's own τ² and r; and the end's conditional covariance under the path
+        distribution's own τ² and r with the last seen pose exact and ℓ = ln D (the samples' conditioning,
+        :meth:`_samples`)."""
         from rbgp_cli.dynamics.paths import GOAL_TOLERANCE
 
         n = len(tau)
@@ -574,18 +580,19 @@ class Anticipator:
         else:
             at, wg = grid[keep], w[keep] / w[keep].sum()
         G = len(at)
-        r2 = np.empty((G + 1, n, 6))
+        r2 = np.empty((G + 2, n, 6))  # the rest at each cell, the surprise at D, the samples' conditioning at D
         r2[:G] = self.rest_tolerance ** 2
+        r2[G:] = self.tolerance ** 2
         g2 = (np.repeat(np.asarray(GOAL_TOLERANCE, dtype=np.float64), 3) / self.scale) ** 2
-        r2[:G, -1] = 1.0 / (1.0 / r2[:G, -1] + 1.0 / g2)
-        r2[G] = self.tolerance ** 2
-        tau2 = np.full(G + 1, self.rest_smooth)
-        tau2[G] = self.paths.smooth
-        ell2 = np.full(G + 1, self.rest_ell ** 2)
-        ell2[G] = _ELL_TOL ** 2
-        _, end_mean, _, quad, k6 = self._grid_terms(tau, q, p, np.append(at, D), tau2=tau2, r2=r2.reshape(G + 1, -1),
-                                                    ell2=ell2)
-        return wg @ end_mean[:G], float(quad[G]) / k6
+        last = np.r_[np.arange(G), G + 1]
+        r2[last, -1] = 1.0 / (1.0 / r2[last, -1] + 1.0 / g2)  # the last seen pose exact (not for the surprise)
+        tau2 = np.full(G + 2, self.rest_smooth)
+        tau2[G:] = self.paths.smooth
+        ell2 = np.full(G + 2, self.rest_ell ** 2)
+        ell2[G:] = _ELL_TOL ** 2
+        _, end_mean, end_cov, quad, k6 = self._grid_terms(tau, q, p, np.append(at, [D, D]), tau2=tau2,
+                                                          r2=r2.reshape(G + 2, -1), ell2=ell2)
+        return wg @ end_mean[:G], float(quad[G]) / k6, end_cov[G + 1]
 
     def weights(self, t, quat, position, checked: bool = False, active=None):
         """The duration posterior of a motion seen from t[0] to t[-1]: (grid (G,) s, weights (G,)), and the
@@ -639,11 +646,12 @@ class Anticipator:
             q = [max(x * k, span) for x in self._duration_quantiles(grid, band_w, span, (0.05, 0.95))]
             q = [min(q[0], D), D, max(q[1], D)]
         # the end pose: the continuation's (the rest's conditioned ends averaged over the duration, or with mix_end
-        # False at D̂); its band the spread of the duration weights' mixture about that centre (scaled), then unscaled
+        # False at D̂); its band's covariance the samples' conditional one at D̂ plus the spread over the duration's
+        # weights of the ends conditioned for the weights, about their own mean (scaled), then unscaled
         E = terms["end_mean"]
-        mu, rho = self._at_estimate(*terms["seen"][3:], D, *((grid, w) if self.mix_end else ()))
-        d = E - mu
-        cov = (w @ terms["end_cov"].reshape(len(w), 36)).reshape(6, 6) + (d.T * w) @ d
+        mu, rho, cov_own = self._at_estimate(*terms["seen"][3:], D, *((grid, w) if self.mix_end else ()))
+        d = E - w @ E
+        cov = cov_own + (d.T * w) @ d
         sc = self.scale
         mu_u = mu * sc
         cov_u = cov * sc[:, None] * sc[None, :]
@@ -665,7 +673,8 @@ class Anticipator:
 
             nu = max(self.paths.demos - 2, 1)
             quantiles = self._quantiles = (float(3.0 * fdtri(3, nu, 0.9)), float(stdtrit(nu, 0.95)))
-        rot_band = c_rot * np.sqrt(quantiles[0] * max(np.linalg.eigvalsh(cov_u[:3, :3]).max(), 0.0))
+        # an angle: at most π (any rotation)
+        rot_band = min(c_rot * np.sqrt(quantiles[0] * max(np.linalg.eigvalsh(cov_u[:3, :3]).max(), 0.0)), np.pi)
         pos_band = c_pos * quantiles[1] * np.sqrt(np.clip(np.diag(cov_u)[3:], 0.0, None))
         # off: the last seen pose against the prior's marginal at its phase (a χ with 6 degrees of freedom)
         dist = self._distance(terms["seen"][1][-1], terms["seen"][2][-1], min(span / D, 1.0))
@@ -1070,8 +1079,9 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, s
     """Choose the seen poses' regularising tolerance r, the rest's own τ² and r and the bands' factors of a motion
     under way by leaving demonstrations out (module docstring); sets ``paths.seen_tolerance``,
     ``paths.rest_smooth`` and ``paths.rest_tolerance`` (from REST_FROM demonstrations on over the grids by the
-    one-standard-error rule, :func:`_loosest_rest`; with fewer the seen r and the better of τ² and
-    :data:`REST_FEW_SMOOTH`) and
+    one-standard-error rule, :func:`_loosest_rest`, then at those ln D exact or freed by the same rule,
+    ``paths.rest_duration_tolerance``; with fewer the seen r and the better of τ² and :data:`REST_FEW_SMOOTH`,
+    ln D exact) and
     ``paths.seen_band_scale`` and returns ``paths``. With the demonstrations ``trajs`` (in the path
     distribution's order) and ``duration``, also the duration weights' own τ² and r
     (:func:`_duration_loo`; ``paths.duration_smooth``, ``paths.duration_tolerance``), chosen before the bands'
