@@ -652,6 +652,12 @@ def follow_stream(model, lines, *, options: ReadOptions | None = None, every: in
     from rbgp_cli.dynamics.anticipation import Follower
     from rbgp_cli.io.stream import RowStream
 
+    fmt = getattr(options, "format", "auto") if options is not None else "auto"
+    if fmt not in ("auto", "csv"):  # the other formats are files read whole (binary, or a header block)
+        raise InputError(f"format {fmt} is read from whole files, and a stream is CSV rows (a header line, then one "
+                         "pose per row)", path=source, param="format",
+                         hint="stream a CSV of time, position and quaternion columns, or predict from a "
+                              "recorded file with rollout --given FILE")
     follower = Follower(getattr(model, "paths", None) if paths is None else paths, detect=detect)
     header = next(iter(lines), None)
     if header is None or not header.strip():

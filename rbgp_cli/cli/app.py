@@ -324,6 +324,7 @@ def rollout(
 @with_read_options
 def follow(
     model: Annotated[str, typer.Argument(help="Model file.")],
+    source: Annotated[str, typer.Argument(help="The stream: - for stdin (the default), or a CSV file read row by row to its end.")] = "-",
     every: Annotated[int, typer.Option("--every", min=1, help="Print a prediction every N poses of a motion under way (1: after every pose).")] = 1,
     no_detect: Annotated[bool, typer.Option("--no-detect", help="The stream's first pose is the motion's start (phase 0); by default a motion starts when the pose leaves rest, so follow runs across repetitions.")] = False,
     json_out: Annotated[bool, typer.Option("--json", help="Accepted as every command's --json is: follow prints JSON lines either way.")] = False,
@@ -339,15 +340,27 @@ def follow(
 
     Example: tail -f take.csv | rbgp follow handover.rbgp
     """
-    import json
     import sys
 
     from rbgp_cli import workflows
     from rbgp_cli.io.model_store import load_model
 
     m, _ = load_model(model)
-    lines = iter(sys.stdin.readline, "")
-    for out in workflows.follow_stream(m, lines, options=read.options, every=every, detect=not no_detect):
+    if source == "-":
+        _follow_lines(workflows, m, iter(sys.stdin.readline, ""), read, every, no_detect, "stdin")
+        return
+    from rbgp_cli.io.stream import open_stream
+
+    with open_stream(source) as fh:
+        _follow_lines(workflows, m, iter(fh.readline, ""), read, every, no_detect, source)
+
+
+def _follow_lines(workflows, m, lines, read, every, no_detect, source) -> None:
+    """follow's loop: one JSON line per prediction, flushed as it comes."""
+    import json
+    import sys
+
+    for out in workflows.follow_stream(m, lines, options=read.options, every=every, detect=not no_detect, source=source):
         sys.stdout.write(json.dumps(out) + "\n")
         sys.stdout.flush()
 

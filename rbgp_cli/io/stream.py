@@ -13,7 +13,7 @@ import numpy as np
 
 from rbgp_cli.errors import InputError
 
-__all__ = ["RowStream"]
+__all__ = ["RowStream", "open_stream"]
 
 _LENGTH = {"m": 1.0, "mm": 1e-3, "cm": 1e-2, "dm": 0.1, "km": 1e3, "in": 0.0254, "ft": 0.3048}
 _TIME = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9, "min": 60.0}
@@ -114,3 +114,16 @@ class RowStream:
             raise InputError(f"row {self._row} does not hold one pose", path=self.source, row=self._row,
                              hint="stream one body's rows")
         return trajs[0]
+
+
+def open_stream(path: str):
+    """A CSV file opened to be read as a stream of text lines (``rbgp follow MODEL FILE``), a missing or unreadable
+    file one clear error."""
+    try:
+        return open(path, "r", encoding="utf-8", errors="surrogateescape", newline="")
+    except FileNotFoundError:
+        raise InputError("file not found", path=path, hint="check the path") from None
+    except IsADirectoryError:
+        raise InputError("is a directory, not a file", path=path, hint="pass one CSV file, or - for stdin") from None
+    except OSError as exc:
+        raise InputError(f"cannot read the file ({exc.strerror or exc})", path=path) from None

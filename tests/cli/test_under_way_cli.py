@@ -307,3 +307,21 @@ def test_follow_takes_json_as_every_command_does_and_prints_the_same_lines(model
     lines = plain.stdout.splitlines()
     assert len(lines) >= 2 and all("phase" in json.loads(x) for x in lines)
     assert before.stdout == plain.stdout == after.stdout
+
+
+def test_follow_reads_a_file_or_dash_for_stdin_and_refuses_a_whole_file_format(model, tmp_path):
+    """``rbgp follow MODEL FILE`` reads the CSV row by row to its end and prints what the same rows on stdin give;
+    ``-`` is stdin; a missing file, a folder and a format that is read from whole files (``--format qtm``) are
+    each one line and exit 2."""
+    text = (CSV_DIR / "shoe_01.csv").read_text()
+    piped = run("follow", model, "--no-detect", "--every", "40", input=text)
+    dash = run("follow", model, "-", "--no-detect", "--every", "40", input=text)
+    from_file = run("follow", model, CSV_DIR / "shoe_01.csv", "--no-detect", "--every", "40")
+    assert piped.exit_code == dash.exit_code == from_file.exit_code == 0, (dash.stderr, from_file.stderr)
+    assert len(piped.stdout.splitlines()) >= 2 and piped.stdout == dash.stdout == from_file.stdout
+    for args, words in (((tmp_path / "none.csv",), "file not found"), ((tmp_path,), "is a directory"),
+                        (("--format", "qtm"), "read from whole files")):
+        res = run("follow", model, *args, "--no-detect", input=text)
+        assert res.exit_code == 2, res.stderr
+        msg = res.stderr.strip().splitlines()
+        assert len(msg) == 1 and words in msg[0], res.stderr
