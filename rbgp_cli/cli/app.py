@@ -264,23 +264,23 @@ def rollout(
                              "--steps or --duration", hint="drop them, or drop --given")
         if fmt != "csv" or rerun or plot:
             raise InputError("--given writes CSV (no --rerun or --plot)", hint="write -o FILE.csv (or stdout)")
-        ignored = [flag for flag, on in (("--goal", goal), ("--goals", goals), ("--via", via), ("--goal-tolerance", goal_tolerance),
+        ignored = [flag for flag, on in (("--goal", goal is not None), ("--goals", goals is not None), ("--via", via), ("--goal-tolerance", goal_tolerance),
                                          ("--count", count is not None), ("--dt", dt is not None), ("--output-rate", output_rate is not None),
                                          ("--off-data", off_data != "keep")) if on]
         if ignored:  # a continuation is conditioned on what was seen alone, on its own grid: these would do nothing
             raise InputError(f"--given continues each seen motion on its own; it takes no {', '.join(ignored)}",
                              hint="drop them, or drop --given")
         return _rollout_given(m, given, read, samples=samples, seed=seed, output=output, json_out=json_out)
-    if goal or via or goal_tolerance:  # a mistyped pose is the one line said, before the starts' progress note
+    if goal is not None or via or goal_tolerance is not None:  # a mistyped pose (or an empty one) is the one line said
         import warnings
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # said once, below
-            for text in [goal] if goal else []:
+            for text in [goal] if goal is not None else []:
                 workflows.parse_goal(text)
             for text in via or []:
                 workflows.parse_via(text)
-            if goal_tolerance:
+            if goal_tolerance is not None:
                 workflows.parse_tolerance(goal_tolerance)
     q0, p0, durations = workflows.rollout_starts(
         m, start=start, start_quat=start_quat, starts=starts, from_demos=from_demos, count=count,

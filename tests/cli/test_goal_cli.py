@@ -108,6 +108,7 @@ def test_a_softer_goal_ends_near_it_not_at_it(model, tmp_path):
     (["--goal", "1 2 3"], ["goal pose", "seven finite numbers", "qx qy qz qw x y z"]),
     (["--goal", "a b c d e f g"], ["goal pose", "not seven numbers"]),
     (["--goal", "0 0 0 0 1 2 3"], ["zero quaternion"]),
+    (["--goal", ""], ["goal pose ''", "seven finite numbers"]),  # an empty goal is not no goal
     (["--via", "0 0 0 1 0 0 0"], ["via-point", "no time before a colon", "T: qx qy qz qw x y z"]),
     (["--via", "x: 0 0 0 1 0 0 0"], ["via-point", "not a number of seconds"]),
     (["--via", "-1: 0 0 0 1 0 0 0"], ["positive number of seconds"]),
