@@ -37,6 +37,7 @@ from __future__ import annotations
 import io
 import os
 import re
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -317,19 +318,27 @@ def read(path, options: ReadOptions | None = None) -> list[Trajectory]:
     """
     path = str(path)
     options = options or ReadOptions()
-    try:
+    with file_errors(path):
         if os.path.getsize(path) >= max(FAST_MIN_BYTES, 1):
             out = _read_mapped(path, options)
             if out is not None:
                 return out
         data = Path(path).read_bytes()
+    return read_bytes(data, path, options)
+
+
+@contextmanager
+def file_errors(path: str, folder_hint: str = "pass the files inside it"):
+    """Opening or reading ``path`` inside this block: a missing file, a folder or another OS error becomes one
+    :class:`~rbgp_cli.errors.InputError` naming the file."""
+    try:
+        yield
     except FileNotFoundError:
         raise InputError("file not found", path=path, hint="check the path") from None
     except IsADirectoryError:
-        raise InputError("is a directory, not a file", path=path, hint="pass the files inside it") from None
+        raise InputError("is a directory, not a file", path=path, hint=folder_hint) from None
     except OSError as exc:
         raise InputError(f"cannot read the file ({exc.strerror or exc})", path=path) from None
-    return read_bytes(data, path, options)
 
 
 def _read_mapped(path: str, options: ReadOptions):

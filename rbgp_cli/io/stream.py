@@ -118,12 +118,8 @@ class RowStream:
 
 def open_stream(path: str):
     """A CSV file opened to be read as a stream of text lines (``rbgp follow MODEL FILE``), a missing or unreadable
-    file one clear error."""
-    try:
+    file one clear error (:func:`~rbgp_cli.io.csv.file_errors`)."""
+    from rbgp_cli.io.csv import file_errors
+
+    with file_errors(path, "pass one CSV file, or - for stdin"):
         return open(path, "r", encoding="utf-8", errors="surrogateescape", newline="")
-    except FileNotFoundError:
-        raise InputError("file not found", path=path, hint="check the path") from None
-    except IsADirectoryError:
-        raise InputError("is a directory, not a file", path=path, hint="pass one CSV file, or - for stdin") from None
-    except OSError as exc:
-        raise InputError(f"cannot read the file ({exc.strerror or exc})", path=path) from None
