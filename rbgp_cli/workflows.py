@@ -656,8 +656,8 @@ def follow_stream(model, lines, *, options: ReadOptions | None = None, every: in
     if fmt not in ("auto", "csv"):  # the other formats are files read whole (binary, or a header block)
         raise InputError(f"format {fmt} is read from whole files, and a stream is CSV rows (a header line, then one "
                          "pose per row)", path=source, param="format",
-                         hint="stream a CSV of time, position and quaternion columns, or predict from a "
-                              "recorded file with rollout --given FILE")
+                         hint="stream a CSV of time, position and quaternion columns; a recorded file in that "
+                              "format is continued whole, as a seen beginning")
     follower = Follower(getattr(model, "paths", None) if paths is None else paths, detect=detect)
     header = next(iter(lines), None)
     if header is None or not header.strip():

@@ -330,7 +330,7 @@ def follow(
     json_out: Annotated[bool, typer.Option("--json", help="Accepted as every command's --json is: follow prints JSON lines either way.")] = False,
     read: ReadArgs = None,
 ):
-    """Follow a motion live: read poses as CSV rows on stdin, print one JSON line per prediction.
+    """Follow a motion live: read poses as CSV rows (stdin, or a file), print one JSON line per prediction.
 
     The stream is a CSV table (header first, then rows as they arrive: `tail -f` of a logger, or any
     reader's output), read with the read options below. After each pose of a motion under way (or every

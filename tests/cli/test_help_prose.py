@@ -56,6 +56,8 @@ def ragged_breaks(text: str, columns: int) -> list[str]:
             continue
         if boxed and (word.startswith("-") or ib.lstrip().startswith("*")):  # the next option's row
             continue
+        if boxed and ia.lstrip().startswith("*") and start_b == start_a + 1 + len(ia[start_a + 1:]) - len(ia[start_a + 1:].lstrip()):
+            continue  # an optional argument's row after a required one's: it starts where that one's name does
         if len(ia.rstrip()) + 1 + len(word) <= width - 2:
             found.append(f"{ia.rstrip()}⏎{ib.strip()[:40]}")
     return found
