@@ -190,6 +190,10 @@ def test_model_file_fields_round_trip():
     old = {k: v for k, v in header.items() if not k.startswith("rest_")}
     back = PathDistribution.from_arrays(paths.to_arrays(), old)
     assert back.rest_smooth is None and back.rest_tolerance is None and back.rest_duration_tolerance is None
+    from rbgp_cli.cli.report import _paths_text
+
+    assert "without the duration's coupling" in _paths_text(header)  # rbgp info and train's summary say so
+    assert "without the duration's coupling" not in _paths_text(old)
     from rbgp_cli.io.model_schema import SchemaError
 
     with pytest.raises(SchemaError, match="rest_duration_tolerance"):
