@@ -549,7 +549,13 @@ def rollout_conditioned(model, start_quat, start_position, *, goal_quat=None, go
 
 def _goal_durations(paths, q0, p0, gq, gp, asked, via) -> np.ndarray:
     """:func:`rollout_conditioned`'s durations (B,) s: ``asked``, else the conditional median given the
-    start and goal (``gq`` None: the start alone); every via-point must lie inside them."""
+    start and goal (``gq`` None: the start alone), kept within the durations a motion under way considers
+    (:data:`~rbgp_cli.dynamics.anticipation.GRID_RANGE` times the demonstrations' shortest and longest), with a warning
+    where that moved one: ln D is linear in the goal, and a goal far off the demonstrations' ends extrapolates it
+    (a 50 m goal of a handover model: 0.03 s); every via-point must lie inside them."""
+    from rbgp_cli.dynamics.anticipation import GRID_RANGE
+    from rbgp_cli.errors import warn
+
     durations = asked
     if durations is None:
         durations = np.empty(len(q0))
@@ -558,6 +564,15 @@ def _goal_durations(paths, q0, p0, gq, gp, asked, via) -> np.ndarray:
             if gq is not None:
                 ob.append(paths.observe([1.0], gq[b:b + 1], gp[b:b + 1], exact=True))
             durations[b] = paths.condition(*paths.stack(*ob)).duration
+        d = np.exp(np.asarray(paths.log_durations, dtype=np.float64))
+        lo, hi = GRID_RANGE[0] * d.min(), GRID_RANGE[1] * d.max()
+        out = np.flatnonzero((durations < lo) | (durations > hi))
+        if len(out):
+            which = "the motion" if len(durations) == 1 else f"{len(out)} of {len(durations)} motions"
+            warn(f"the duration the demonstrations suggest for {which} ({', '.join(f'{x:.3g}' for x in durations[out][:4])}"
+                 f"{', ...' if len(out) > 4 else ''} s) lies beyond theirs ({d.min():.3g}–{d.max():.3g} s) by more than "
+                 f"they vary: it is kept within {lo:.3g}–{hi:.3g} s", hint="give the duration to set it")
+            durations = np.clip(durations, lo, hi)
     for (tv, _, _) in via:
         if not np.all((float(tv) > 0) & (float(tv) < durations)):
             raise InputError(f"a via-point at {float(tv):g} s lies outside the motion (0 to {durations.min():.3g} s)",

@@ -74,6 +74,27 @@ def test_a_goal_far_from_where_the_demonstrations_end_is_warned_about(model, tmp
 
 
 @pytest.mark.slow
+def test_a_goal_so_far_that_its_duration_extrapolates_keeps_a_duration_like_the_demonstrations(model, tmp_path):
+    """ln D given the start and goal is linear in the goal: 50 m off, it extrapolates to a motion of a few
+    microseconds. The duration is kept within 2/3 of the shortest demonstration's and 1.5 of the longest's, with a
+    warning; a duration given is taken as given."""
+    from rbgp_cli.dynamics.anticipation import GRID_RANGE
+
+    start, _, goal, tr = demo_ends()
+    far = goal.split()[:4] + ["50", "50", "50"]
+    res = run("rollout", model, "--start-quat", start, "--goal", " ".join(far), "--no-std", "-o", tmp_path / "far.csv")
+    assert res.exit_code == 0, res.stderr
+    assert "lies beyond theirs" in res.stderr and "it is kept within" in res.stderr, res.stderr
+    durs = [t.duration for t in read_demonstrations([str(p) for p in sorted(CSV_DIR.glob("*.csv"))], ReadOptions())]
+    mean = read_rollout(tmp_path / "far.csv")["0"]
+    assert GRID_RANGE[0] * min(durs) - 0.02 <= mean.duration <= GRID_RANGE[1] * max(durs) + 0.02
+    res = run("rollout", model, "--start-quat", start, "--goal", " ".join(far), "--duration", "0.5", "--no-std",
+              "-o", tmp_path / "given.csv")
+    assert res.exit_code == 0 and "it is kept within" not in res.stderr, res.stderr
+    assert abs(read_rollout(tmp_path / "given.csv")["0"].duration - 0.5) < 0.02
+
+
+@pytest.mark.slow
 def test_goals_file_one_per_start_in_the_order_of_the_starts(model, tmp_path):
     start, _, goal, tr = demo_ends()
     goals = tmp_path / "goals.csv"
