@@ -340,29 +340,21 @@ def follow(
 
     Example: tail -f take.csv | rbgp follow handover.rbgp
     """
+    import contextlib
+    import json
     import sys
 
     from rbgp_cli import workflows
     from rbgp_cli.io.model_store import load_model
-
-    m, _ = load_model(model)
-    if source == "-":
-        _follow_lines(workflows, m, iter(sys.stdin.readline, ""), read, every, no_detect, "stdin")
-        return
     from rbgp_cli.io.stream import open_stream
 
-    with open_stream(source) as fh:
-        _follow_lines(workflows, m, iter(fh.readline, ""), read, every, no_detect, source)
-
-
-def _follow_lines(workflows, m, lines, read, every, no_detect, source) -> None:
-    """follow's loop: one JSON line per prediction, flushed as it comes."""
-    import json
-    import sys
-
-    for out in workflows.follow_stream(m, lines, options=read.options, every=every, detect=not no_detect, source=source):
-        sys.stdout.write(json.dumps(out) + "\n")
-        sys.stdout.flush()
+    m, _ = load_model(model)
+    stdin = source == "-"
+    with contextlib.nullcontext(sys.stdin) if stdin else open_stream(source) as fh:
+        for out in workflows.follow_stream(m, iter(fh.readline, ""), options=read.options, every=every,
+                                           detect=not no_detect, source="stdin" if stdin else source):
+            sys.stdout.write(json.dumps(out) + "\n")
+            sys.stdout.flush()
 
 
 def _rollout_given(m, given, read, *, samples, seed, output, json_out) -> None:
