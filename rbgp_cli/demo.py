@@ -51,7 +51,7 @@ def run_demo(out, *, count: int = 100, representations=("axis-angle", "euler", "
     data = Path(data) if data else find_sample_data()
     demos, _, _ = workflows.load_demonstrations([str(data)])
     base = start_vectors(demos)
-    q0, p0 = starts_near(base, count, 0.02, seed=seed)
+    q0, p0 = starts_near(base, count, workflows.PAPER_START_SPREAD, seed=seed)
     duration = float(np.median([t.duration for t in demos]))
     scores = {"data": str(data), "demonstrations": len(demos), "rollouts": count, "quick": quick, "representations": {}}
     with progress.task("demo", total=len(representations), unit="representations") as task:

@@ -384,11 +384,15 @@ def check_rollout(res, folder, shown):
     lines = (folder / "gen.csv").read_text().splitlines()
     assert lines[0] == comment and lines[1] == header
     gen = _read_csv(folder / "gen.csv")
-    assert gen["trajectory"].nunique() == 100  # --count 100
+    names = gen["trajectory"].astype(str).unique()
+    means = [n for n in names if "." not in n]
+    assert len(means) == 100 and sorted(names) == sorted(means + [f"{n}.s0" for n in means])  # --count 100 --samples 1
     assert np.allclose(np.linalg.norm(gen[["qx", "qy", "qz", "qw"]].to_numpy(), axis=1), 1, atol=1e-9)
     first = gen.groupby("trajectory", sort=False)["t"]
     assert np.all(first.min() == 0) and np.all(first.apply(lambda t: np.all(np.diff(t) > 0)))
-    assert np.all(gen.filter(like="std_").to_numpy() >= 0) and set(gen["left_data"].unique()) <= {0, 1}
+    mean_rows = ~gen["trajectory"].astype(str).str.contains(".", regex=False)
+    assert np.all(gen[mean_rows].filter(like="std_").to_numpy() >= 0) and set(gen[mean_rows]["left_data"].unique()) <= {0, 1}
+    assert gen[~mean_rows].filter(like="std_").isna().all().all()  # a sample is one motion: no std of its own
 
 
 EVALUATE = re.compile(r"bhattacharyya mean (\S+)  rotation (\S+)  translation (\S+)  offset (\S+)  spread (\S+)  "
@@ -440,7 +444,7 @@ CHECKS = {
     "rbgp train sample_data/csv/*.csv -o shoe.rbgp": check_train,
     "rbgp info shoe.rbgp": check_info,
     "rbgp predict shoe.rbgp poses.csv > velocities.csv": check_predict,
-    "rbgp rollout shoe.rbgp --from-demos sample_data/csv/*.csv --count 100 --start-spread 0.02 -o gen.csv": check_rollout,
+    "rbgp rollout shoe.rbgp --from-demos sample_data/csv/*.csv --count 100 --samples 1 -o gen.csv": check_rollout,
     "rbgp evaluate gen.csv --demos sample_data/csv/*.csv --plot fig.png": check_evaluate,
     "rbgp crossval sample_data/csv --representation all --folds 3": check_crossval,
     "rbgp bench paper theorem": check_bench,

@@ -397,35 +397,71 @@ def start_vectors(trajs) -> np.ndarray:
     return np.array([np.concatenate([t.quat[0], t.position[0]]) for t in trajs], dtype=np.float64).reshape(-1, 7)
 
 
-def starts_near(starts: np.ndarray, count: int, spread: float, seed: int = 0, spread_rot: float | None = None,
+#: The isotropic start perturbation (metres) used when the starts cannot shape one: fewer than two of them.
+START_SPREAD_FALLBACK = 0.02
+
+
+def start_bandwidth(n: int, dims: int = 6) -> float:
+    """Silverman's rule for a Gaussian kernel in ``dims`` dimensions on ``n`` points,
+    h = (4 / (n (d + 2)))^(1/(d + 4)): the kernel's share of the drawn starts' spread
+    (:func:`starts_near`; n = 6: 0.78, n = 40: 0.65)."""
+    return float((4.0 / (max(n, 1) * (dims + 2))) ** (1.0 / (dims + 4)))
+
+
+def starts_near(starts: np.ndarray, count: int, spread: float | None, seed: int = 0, spread_rot: float | None = None,
                 return_index: bool = False, in_order: bool = False):
     """``count`` start poses near the given ones (paper sec. 4.3: 100 unseen starts near the demos').
 
-    Each new start takes a demonstration start (cycling through them in a seeded random order; with
+    Each new start takes a demonstration start j (cycling through them in a seeded random order; with
     ``in_order``, new start i near start i mod D, so that the i-th output belongs to the i-th input) and
-    perturbs it: translation by N(0, spread²) per axis (metres), rotation by exp of a N(0, s_r²)
+    perturbs it.
+
+    ``spread`` None (the default of ``rbgp rollout``): shaped by the starts themselves, a smoothed
+    bootstrap that keeps their mean and covariance. In the coordinates c = (log(R R₀ᵀ), p − p₀) of each
+    start about the first one (rotation first), with c̄ their mean, the new start near start j is
+
+        c = c̄ + √(1 − h²) (c_j − c̄) + h Σ_k z_k (c_k − c̄) / √(D − 1),   z ~ N(0, I_D),
+
+    h = :func:`start_bandwidth` (D) (Silverman's rule), so that the new starts have the starts' mean c̄ and
+    covariance Σ (the perturbation lies in the span of the starts' own deviations: a coordinate in which
+    they do not vary is not varied). With fewer than two starts there is no spread to follow, and the
+    isotropic perturbation below with :data:`START_SPREAD_FALLBACK` is used.
+
+    ``spread`` a number: translation by N(0, spread²) per axis (metres), rotation by exp of a N(0, s_r²)
     rotation vector with s_r = spread_rot (radians; default spread / 0.3 m × 0.1 rad, i.e. about
-    0.1 rad per 0.3 m of translation spread, matching the scale of human start-pose variation).
+    0.1 rad per 0.3 m of translation spread).
 
     starts : (D, 7) = (qx, qy, qz, qw, x, y, z). Returns (quat (count, 4), position (count, 3)), and
     with ``return_index`` also the index (count,) of the start each one was drawn near.
     """
-    from rbgp_cli.geometry.so3 import exp_quat, quat_multiply
+    from rbgp_cli.geometry.so3 import exp_quat, log_quat, quat_conjugate, quat_multiply
 
     starts = np.asarray(starts, dtype=np.float64).reshape(-1, 7)
     if len(starts) == 0:
         raise InputError("no start poses to draw from")
     if count < 1:
         raise InputError(f"count must be at least 1, got {count}", param="count")
-    if spread < 0:
+    if spread is not None and not spread >= 0:
         raise InputError(f"spread must be >= 0, got {spread}", param="spread")
     rng = np.random.default_rng(seed)
-    s_r = spread / 0.3 * 0.1 if spread_rot is None else spread_rot
     if in_order:
         order = np.arange(count) % len(starts)
     else:
         order = np.concatenate([rng.permutation(len(starts)) for _ in range(-(-count // len(starts)))])[:count]
     base = starts[order]
+    if spread is None and len(starts) >= 2:
+        n = len(starts)
+        q_ref, p_ref = starts[0, :4], starts[0, 4:]
+        c = np.concatenate([log_quat(quat_multiply(starts[:, :4], quat_conjugate(q_ref))), starts[:, 4:] - p_ref], axis=1)
+        mean = c.mean(axis=0)
+        h = start_bandwidth(n)
+        z = rng.normal(0.0, 1.0, (count, n))
+        new = mean + np.sqrt(1.0 - h * h) * (c[order] - mean) + h * (z @ (c - mean)) / np.sqrt(n - 1.0)
+        q = quat_multiply(exp_quat(new[:, :3]), np.broadcast_to(q_ref, (count, 4)))
+        p = p_ref + new[:, 3:]
+        return (q, p, order) if return_index else (q, p)
+    spread = START_SPREAD_FALLBACK if spread is None else float(spread)
+    s_r = spread / 0.3 * 0.1 if spread_rot is None else spread_rot
     dq = exp_quat(rng.normal(0.0, 1.0, (count, 3)) * s_r)
     q = quat_multiply(dq, base[:, :4])
     p = base[:, 4:] + rng.normal(0.0, 1.0, (count, 3)) * spread

@@ -63,3 +63,26 @@ def test_the_summary_says_whether_the_start_widens_the_bands_and_by_how_much():
     assert "surprise" not in none and "widens its bands" not in none  # not kept: the bands are as they were (--json has why)
     older = _variation_text({**base, "calibration": {"random": [1.0, 1.1], "recorded": [1.1, 1.2]}})
     assert "surprise" not in older and "widens its bands" not in older
+
+
+@pytest.mark.slow
+def test_starts_drawn_from_the_demonstrations_are_like_theirs_and_a_fixed_spread_is_not(tmp_path):
+    """--from-demos draws starts like the demonstrations' own (their mean and covariance): they are not beyond
+    every demonstration's start, so their bands are not widened; a fixed perturbation of many of the starts'
+    spreads is beyond and said to be (the twenty-first pass: 2 cm was 4–8 spreads of the hand raises')."""
+    demos = people(24, 9, other=0.25, samples=30)
+    folder = _write(demos, tmp_path / "takes", [f"take_{k + 1}" for k in range(24)])
+    model = str(tmp_path / "m.rbgp")
+    assert runner.invoke(app, ["train", str(folder), "-o", model, *FAST]).exit_code == 0
+    spread = np.std([d.position[0] for d in demos], axis=0).max()
+    far = f"{6 * spread:.4f}"  # a fixed perturbation of 6 of the starts' largest spreads per axis
+    base = ["rollout", model, "--from-demos", str(folder), "--count", "48", "--samples", "2", "--json"]
+    res = runner.invoke(app, base + ["-o", str(tmp_path / "a.csv")])
+    assert res.exit_code == 0, res.stderr
+    beyond = np.array(json.loads(res.stdout)["start_beyond"])
+    assert len(beyond) == 48 and np.mean(beyond > 1.0) <= 0.1, np.sort(beyond)[-5:]
+    assert "less like the demonstrations' starts" not in res.stderr or np.any(beyond > 1.0)
+    res = runner.invoke(app, base + ["--start-spread", far, "-o", str(tmp_path / "b.csv")])
+    assert res.exit_code == 0, res.stderr
+    beyond = np.array(json.loads(res.stdout)["start_beyond"])
+    assert np.mean(beyond > 1.0) > 0.5 and "less like the demonstrations' starts" in res.stderr, np.sort(beyond)

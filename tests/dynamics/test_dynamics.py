@@ -152,3 +152,40 @@ def test_starts_near_is_seeded_and_spread():
     assert 0.01 < np.std(p[:, 0] - np.where(p[:, 0] > 0, 0.1, -0.1)) < 0.04
     with pytest.raises(InputError):
         starts_near(base, 0, 0.02)
+
+
+def _start_coordinates(q, p, q_ref, p_ref):
+    """(log(R R_refᵀ), p − p_ref) by scipy's Rotation, an oracle independent of rbgp's so3."""
+    rot = (Rotation.from_quat(q) * Rotation.from_quat(q_ref).inv()).as_rotvec()
+    return np.concatenate([rot, p - p_ref], axis=1)
+
+
+def test_default_starts_keep_the_demonstrations_mean_and_covariance():
+    """spread None: the drawn starts have the starts' own mean and covariance (a smoothed bootstrap), and vary
+    only where the starts do (here z is the same for all: no drawn start moves in z)."""
+    rng = np.random.default_rng(3)
+    n = 8
+    rot = Rotation.from_rotvec(rng.normal(0, 0.05, (n, 3)) + [0.3, -0.2, 1.0])
+    pos = np.column_stack([rng.normal(0.4, 0.004, n), rng.normal(-0.1, 0.010, n), np.full(n, 0.9)])
+    base = np.column_stack([rot.as_quat(), pos])
+    q, p, near = starts_near(base, 40000, None, seed=1, return_index=True, in_order=True)
+    np.testing.assert_array_equal(near, np.arange(40000) % n)
+    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1, atol=1e-12)
+    np.testing.assert_allclose(p[:, 2], 0.9, atol=1e-12)
+    c0 = _start_coordinates(base[:, :4], base[:, 4:], base[0, :4], base[0, 4:])
+    c = _start_coordinates(q, p, base[0, :4], base[0, 4:])
+    sd0 = c0.std(axis=0, ddof=1)
+    np.testing.assert_allclose(c.mean(axis=0), c0.mean(axis=0), atol=0.03 * sd0.max())
+    keep = sd0 > 0
+    np.testing.assert_allclose(np.cov(c[:, keep].T), np.cov(c0[:, keep].T), rtol=0.06, atol=0.06 * sd0.max() ** 2)
+    # each drawn start stays nearer its own demonstration's start than the others', on average
+    d_own = np.linalg.norm(c[:, 3:] - c0[near, 3:], axis=1).mean()
+    d_other = np.linalg.norm(c[:, 3:] - c0[(near + 1) % n, 3:], axis=1).mean()
+    assert d_own < d_other
+
+
+def test_default_starts_from_one_start_use_the_fixed_spread():
+    base = np.array([[0, 0, 0, 1, 0.1, 0.2, 0.3]])
+    q, p = starts_near(base, 4000, None, seed=0)
+    assert 0.018 < np.std(p[:, 0]) < 0.022
+    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1, atol=1e-12)
