@@ -353,7 +353,8 @@ class Anticipator:
                  duration_evidence: float | None = None, mix_end: bool = True):
         if paths is None:
             raise InputError("this model has no path distribution to predict a motion under way (fewer than three "
-                             "demonstrations, or a model file from an older rbgp)", hint="retrain it with rbgp train")
+                             "demonstrations, or a model file from an older rbgp)",
+                             hint="retrain it with rbgp train on three demonstrations or more")
         self.paths = paths
         self.model = model
         self.points = int(points)

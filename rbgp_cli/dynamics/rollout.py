@@ -224,7 +224,7 @@ def rollout(model, start_quat, start_position, steps: int, dt: float | None = No
         if sampling == "path" and samples:
             if getattr(model, "variation", None) is None:
                 raise InputError("this model has no model of how its demonstrations differ (fewer than three, or "
-                                 "an older model file)", hint="sample with sampling 'step', or retrain")
+                                 "an older model file)", hint="sample with sampling 'step', or retrain it with rbgp train on three demonstrations or more")
             res = _rollout(model, start_quat, start_position, steps, dt, 0, seed, with_std, task, durations, off_data)
             return _path_samples(model.variation, res, int(samples), seed, durations)
         return _rollout(model, start_quat, start_position, steps, dt, samples, seed, with_std, task, durations, off_data)
@@ -502,7 +502,8 @@ def rollout_conditioned(model, start_quat, start_position, *, goal_quat=None, go
     paths = getattr(model, "paths", None) if paths is None else paths
     if paths is None:
         raise InputError("this model has no path distribution to condition on a goal (fewer than three "
-                         "demonstrations, or a model file from an older rbgp)", hint="retrain it with rbgp train")
+                         "demonstrations, or a model file from an older rbgp)",
+                         hint="retrain it with rbgp train on three demonstrations or more")
     q0 = quat_normalize(np.asarray(start_quat, dtype=np.float64).reshape(-1, 4))
     p0 = np.asarray(start_position, dtype=np.float64).reshape(-1, 3)
     B = len(q0)

@@ -417,4 +417,5 @@ def describe_rows(desc: dict) -> list[str]:
 FORMAT = Format(
     name="bvh", title="BVH skeleton", detect=detect, read=read, describe=describe, describe_rows=describe_rows,
     skip_reason=_skip_reason, read_all=_read_all, needs=_needs, suffix=".bvh",
+    honours=("body",),
 )

@@ -623,4 +623,5 @@ def describe_rows(desc: dict) -> list[str]:
 FORMAT = Format(
     name="c3d", title="C3D", detect=detect, read=read, describe=describe, describe_rows=describe_rows,
     skip_reason=_skip_reason, read_all=_read_all, needs=_needs, suffix=".c3d", binary=True,
+    honours=("body",),
 )

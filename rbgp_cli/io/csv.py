@@ -745,4 +745,5 @@ def _skip_reason(head: bytes, path, options: ReadOptions | None = None, complete
 FORMAT = Format(
     name="csv", title="generic CSV", read=read, read_bytes=read_bytes, describe=describe, describe_rows=describe_rows,
     skip_reason=_skip_reason, write=write_trajectories_csv, fallback=True,
+    honours=("columns",),
 )

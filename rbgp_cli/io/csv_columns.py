@@ -174,8 +174,10 @@ def _best(cols: list, role: str, used: set, source: str):
 
 
 def _missing_error(role_key: str, what: str, cols: list, used: set, source: str) -> InputError:
-    unused = [c.name for c in cols if c.name and c.index not in used]
-    guess = closest(role_key, unused) or closest(role_key, [c.base for c in cols if c.index not in used])
+    # a guess is a column no role claims: 'z_m' is the position's z, never the missing quaternion's qz
+    free = [c for c in cols if c.name and c.index not in used and not c.roles]
+    unused = [c.name for c in free]
+    guess = closest(role_key, unused) or closest(role_key, [c.base for c in free])
     if guess and guess not in unused:  # matched a normalised name: report the file's name
         guess = next(c.name for c in cols if c.base == guess)
     msg = f"{what} column '{role_key}' not found (columns are {columns_list(cols)})"

@@ -27,6 +27,13 @@ class Table:
     declared: dict  # from "# key=value" comment lines above the header
 
 
+def _formats_said() -> str:
+    """"rbgp reads …": the registered formats' titles, so that a new format is named here without editing it."""
+    from rbgp_cli.io import formats
+
+    return "rbgp reads " + ", ".join(formats.get(n).title for n in formats.names())
+
+
 def decode(data: bytes, source: str) -> str:
     if not data.strip():
         raise InputError("the file is empty", path=source, hint="export the demonstrations again")
@@ -40,7 +47,7 @@ def decode(data: bytes, source: str) -> str:
         raise InputError(
             "not a text file (it contains binary data)",
             path=source,
-            hint="rbgp reads CSV/TSV, QTM, Motive and Vicon exports and MCAP files",
+            hint=_formats_said(),
         )
     try:
         text = data.decode("utf-8-sig")
@@ -51,7 +58,7 @@ def decode(data: bytes, source: str) -> str:
         raise InputError(
             "not a text file (it contains binary data)",
             path=source,
-            hint="rbgp reads CSV/TSV, QTM, Motive and Vicon exports and MCAP files",
+            hint=_formats_said(),
         )
     return text
 

@@ -35,6 +35,18 @@ HEAD_BYTES = 8192
 #: ``--format`` help lists them and detection tries them (the fallback, CSV, last).
 _BUILTIN = ("csv", "qtm", "motive", "vicon", "mcap", "c3d", "bvh")
 
+#: The read options (:class:`~rbgp_cli.io.options.ReadOptions` fields) that only some formats use: a file of a
+#: format that does not (its :attr:`Format.honours`) is read without them, and the reader says so once.
+SPECIFIC_OPTIONS = ("columns", "body", "rotation", "topic", "frame")
+
+
+def ignored_options(options, fmt: "Format") -> list:
+    """The :data:`SPECIFIC_OPTIONS` set in ``options`` that format ``fmt`` does not use ([] when ``fmt`` does
+    not say which it uses)."""
+    if fmt.honours is None:
+        return []
+    return [k for k in SPECIFIC_OPTIONS if getattr(options, k, None) and k not in fmt.honours]
+
 
 @dataclass(frozen=True)
 class Format:
@@ -82,6 +94,9 @@ class Format:
         A binary format: its ``skip_reason`` also judges empty and blank heads.
     fallback : bool
         What a file is when no format's ``detect`` recognises it (one format: CSV).
+    honours : tuple of str, optional
+        Which of the read options only some formats use (:data:`SPECIFIC_OPTIONS`) this one uses; None: not
+        stated (a plugin), and no option is said to be ignored for it.
     """
 
     name: str
@@ -99,6 +114,7 @@ class Format:
     suffix: str = ".csv"
     binary: bool = False
     fallback: bool = False
+    honours: Optional[tuple] = None
 
 
 _registered: dict = {}  # name -> Format, for formats added with register()

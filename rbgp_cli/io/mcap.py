@@ -871,4 +871,5 @@ FORMAT = Format(
     name="mcap", title="MCAP", detect=detect, read=read, describe=describe, describe_rows=describe_rows,
     skip_reason=_skip_reason, read_stream=read_stream, read_all=_inspect_read, needs=_topic_needs,
     suffix=".mcap", binary=True,
+    honours=("topic", "frame"),
 )

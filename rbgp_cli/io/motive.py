@@ -395,4 +395,5 @@ FORMAT = Format(
     name="motive", title="OptiTrack Motive CSV", detect=detect, read=read, describe=describe,
     describe_rows=describe_rows, skip_reason=vendor.skip_reason(sniff, "Motive"),
     read_all=vendor.read_every_body(read), needs=vendor.body_needs, write=write_motive_csv,
+    honours=("body",),
 )

@@ -489,4 +489,5 @@ FORMAT = Format(
     name="qtm", title="Qualisys QTM TSV", detect=detect, read=read, describe=describe, describe_rows=describe_rows,
     skip_reason=vendor.skip_reason(sniff, "QTM", not_6d), read_all=vendor.read_every_body(read),
     needs=vendor.body_needs, write=write_qtm_tsv, suffix=".tsv",
+    honours=("body",),
 )

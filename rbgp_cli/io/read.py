@@ -295,8 +295,9 @@ def _format_option(options: ReadOptions) -> str:
     return fmt
 
 
-def read_file(source, options: ReadOptions | None = None) -> list[Trajectory]:
-    """Read one file (any supported format) into raw trajectories.
+def read_file(source, options: ReadOptions | None = None, formats_read: set | None = None) -> list[Trajectory]:
+    """Read one file (any supported format) into raw trajectories; ``formats_read``, when given, gets the
+    name of the format it was read as.
 
     Raises
     ------
@@ -311,7 +312,10 @@ def read_file(source, options: ReadOptions | None = None) -> list[Trajectory]:
         if p.parent.is_dir():
             from rbgp_cli.errors import closest
 
-            guess = closest(p.name, [c.name for c in p.parent.iterdir()])
+            # names compared without a shared suffix: '.csv' alone made 'motion_025.csv' like 'mot_rest.csv'
+            same = {c.stem: c.name for c in p.parent.iterdir() if c.suffix.lower() == p.suffix.lower()}
+            stem = closest(p.stem, same) if p.suffix else None
+            guess = same[stem] if stem else closest(p.name, [c.name for c in p.parent.iterdir() if c.suffix.lower() != p.suffix.lower()])
             if guess:
                 hint = f"did you mean {str(p.parent / guess)!r}?"
         raise InputError("file not found", path=source, hint=hint)
@@ -336,6 +340,8 @@ def read_file(source, options: ReadOptions | None = None) -> list[Trajectory]:
     entry = formats.get(fmt)
     if not entry.binary:
         check_line_lengths(source)
+    if formats_read is not None:
+        formats_read.add(entry.name)
     return entry.read(source, options)
 
 
@@ -512,6 +518,7 @@ def read_sources(sources, options: ReadOptions | None = None, stdin=None) -> tup
     listing = list_sources(sources, options)
     out: list[Trajectory] = []
     read: set = set()
+    formats_read: set = set()
     stdin_used = False
     for src in list(listing.files):
         if src == "-":
@@ -523,7 +530,7 @@ def read_sources(sources, options: ReadOptions | None = None, stdin=None) -> tup
             trajs = read_stream(stdin_stream(stdin), options, source="-")
         else:
             try:
-                trajs = read_file(src, options)
+                trajs = read_file(src, options, formats_read)
             except NotPoseData as exc:
                 if not listing.may_skip(src):
                     raise
@@ -537,7 +544,22 @@ def read_sources(sources, options: ReadOptions | None = None, stdin=None) -> tup
     note = listing.note()
     if note:
         warn(note)
+    _say_ignored_options(options, formats_read)
     return out, listing
+
+
+def _say_ignored_options(options: ReadOptions, formats_read: set) -> None:
+    """One warning per read option that only some formats use (:data:`~rbgp_cli.io.formats.SPECIFIC_OPTIONS`)
+    and that no file read used (``body`` given for CSV files): the user meant it, and it changed nothing."""
+    read = [formats.get(n) for n in sorted(formats_read)]
+    if not read:
+        return
+    unused = set.intersection(*(set(formats.ignored_options(options, f)) for f in read))
+    for key in (k for k in formats.SPECIFIC_OPTIONS if k in unused):
+        users = [f.name for f in map(formats.get, formats.names()) if f.honours and key in f.honours]
+        titles = " and ".join(f.title for f in read)
+        warn(f"{key} was given but these files are {titles}, which do not use it: read without it",
+             hint=f"{key} applies to {', '.join(users)} files", param=key)
 
 
 def read_demonstrations(sources, options: ReadOptions | None = None, stdin=None) -> list[Trajectory]:

@@ -351,4 +351,5 @@ FORMAT = Format(
     name="vicon", title="Vicon CSV", detect=detect, read=read, describe=describe, describe_rows=describe_rows,
     skip_reason=vendor.skip_reason(sniff, "Vicon"), read_all=vendor.read_every_body(read), needs=vendor.body_needs,
     write=write_vicon_csv,
+    honours=("body", "rotation"),
 )

@@ -133,7 +133,7 @@ def test_skipped_files_are_judged_from_their_head_without_being_read(tmp_path, m
     (d / "marker_log.csv").write_text("time,x,y,z\n" + "0.01,1.5,2.5,3.5\n" * 300_000)
     opened = []
     real = rread.read_file
-    monkeypatch.setattr(rread, "read_file", lambda src, options=None: opened.append(Path(src).name) or real(src, options))
+    monkeypatch.setattr(rread, "read_file", lambda src, options=None, seen=None: opened.append(Path(src).name) or real(src, options, seen))
     with pytest.warns(RbgpWarning, match="skipped 14 of 16 files"):
         trajs, listing = rread.read_sources([str(d)])
     assert len(trajs) == 2

@@ -102,6 +102,44 @@ def test_missing_file_suggests_a_close_name(tmp_path):
         rread.read_file(tmp_path / "demo_1.csv")
 
 
+def test_missing_file_suggests_no_name_that_only_shares_the_suffix(tmp_path):
+    (tmp_path / "mot_rest.csv").write_text(CSV_TEXT)
+    with pytest.raises(InputError, match=r"motion_025\.csv: file not found; check the path"):
+        rread.read_file(tmp_path / "motion_025.csv")
+    with pytest.raises(InputError, match=r"did you mean .*mot_rest\.csv"):
+        rread.read_file(tmp_path / "mot_rset.csv")
+
+
+def test_a_missing_quaternion_column_is_not_matched_to_a_position_column(tmp_path):
+    f = tmp_path / "d.csv"
+    f.write_text("time_s,x_m,y_m,z_m,qw,qx,qy\n0,0,0,0,1,0,0\n0.1,0.1,0,0,1,0,0\n")
+    with pytest.raises(InputError, match=r"rotation column 'qz' not found") as err:
+        rread.read_file(f)
+    assert "z_m" not in str(err.value).split("(columns are")[1].split(")", 1)[1], str(err.value)
+
+
+def test_a_binary_file_is_refused_naming_every_format_rbgp_reads(tmp_path):
+    f = tmp_path / "d.csv"
+    f.write_bytes(bytes(range(256)) * 8)
+    with pytest.raises(InputError, match="not a text file") as err:
+        rread.read_file(f)
+    assert all(w in str(err.value) for w in ("C3D", "BVH", "MCAP", "Qualisys")), str(err.value)
+
+
+def test_a_read_option_no_file_uses_is_said_once_and_one_some_file_uses_is_not(tmp_path):
+    for k in range(3):
+        (tmp_path / f"d{k}.csv").write_text(CSV_TEXT)
+    with pytest.warns(RbgpWarning) as caught:
+        rread.read_sources([str(tmp_path)], ReadOptions(body="Hand_R"))
+    said = [str(w.message) for w in caught if "body was given" in str(w.message)]
+    assert len(said) == 1 and "generic CSV" in said[0] and "bvh" in said[0], said
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RbgpWarning)
+        rread.read_sources([str(tmp_path)], ReadOptions(columns={"t": "t"}))  # CSV uses columns: nothing said
+
+
 def test_directory_empty_and_unreadable_files(tmp_path):
     with pytest.raises(InputError, match="is a directory"):
         rread.read_file(tmp_path)
