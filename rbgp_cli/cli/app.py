@@ -247,7 +247,7 @@ def rollout(
     if off_data not in OFF_DATA:
         raise InputError(f"off_data must be one of {', '.join(OFF_DATA)}, got {off_data!r}", param="off_data")
     opts = read.options
-    if opts.rate is not None and not (starts or from_demos or goals):
+    if opts.rate is not None and not (starts or from_demos or goals or given):
         raise InputError("--rate is the sample rate of input files without a time column, and rollout reads none here",
                          hint="set the rate of the written trajectories with --output-rate HZ")
     fmt, folder = _rollout_format(output, output_format, mcap_encoding)

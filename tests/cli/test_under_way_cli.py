@@ -325,3 +325,17 @@ def test_follow_reads_a_file_or_dash_for_stdin_and_refuses_a_whole_file_format(m
         assert res.exit_code == 2, res.stderr
         msg = res.stderr.strip().splitlines()
         assert len(msg) == 1 and words in msg[0], res.stderr
+
+
+def test_rollout_given_a_file_without_a_time_column_takes_its_times_from_the_rate(model, tmp_path):
+    """--rate is the sample rate of a given file without a time column: read with it, not refused, and the
+    continuation starts at the last seen sample's time on that clock ((n − 1) / rate)."""
+    src = (CSV_DIR / "shoe_01.csv").read_text().splitlines()
+    header = src[0].split(",")
+    keep = [i for i, name in enumerate(header) if not name.lower().startswith("t")]
+    rows = [",".join(line.split(",")[i] for i in keep) for line in src[: 1 + (len(src) - 1) // 2]]
+    (tmp_path / "seen.csv").write_text("\n".join(rows) + "\n")
+    res = run("--json", "rollout", model, "--given", tmp_path / "seen.csv", "--rate", 50, "-o", tmp_path / "rest.csv")
+    assert res.exit_code == 0, res.stderr
+    m0 = json.loads(res.stdout)["motions"][0]
+    assert m0["t"] == pytest.approx((len(rows) - 2) / 50.0)
