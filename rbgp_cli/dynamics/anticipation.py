@@ -95,6 +95,9 @@ __all__ = ["Anticipator", "Anticipation", "Continuation", "anticipate", "fit_see
 SEEN_TOLERANCE_GRID = (0.05, 0.1, 0.2, 0.4, 0.8, 1.6, 3.2)
 #: Fractions of a left-out demonstration seen in :func:`fit_seen`.
 SEEN_FRACTIONS = (0.2, 0.4, 0.6, 0.8)
+#: The end band's factors are fitted at SEEN_FRACTIONS and at this one, where a motion is nearly done (what
+#: ``follow`` reports until the end; twenty-first pass): there the band is the last seen pose's short continuation.
+END_LATE = 0.95
 #: Seen poses (evenly spaced in time) that enter the phase estimate and the conditioning.
 SEEN_POINTS = 12
 #: Durations on the grid of the phase estimate, log-spaced over GRID_RANGE times the demonstrations'
@@ -399,6 +402,10 @@ class Anticipator:
         per_F = getattr(paths, "seen_band_scales", None)
         self._band_F = None if not per_F else (np.asarray(per_F["fractions"], float), np.asarray(per_F["rotation"], float),
                                                np.asarray(per_F["position"], float))
+        # the end band's own factors per seen fraction (fit_seen); files without them use the draws' (band_at)
+        per_end = getattr(paths, "seen_end_band_scales", None)
+        self._end_F = None if not per_end else (np.asarray(per_end["fractions"], float),
+                                                np.asarray(per_end["rotation"], float), np.asarray(per_end["position"], float))
         # the left-out reference of the seen part's surprise, for the number of seen poses nearest this one's
         sur = getattr(paths, "seen_surprise", None)
         self._surprise = None
@@ -418,6 +425,18 @@ class Anticipator:
             return self._band
         F, rot, pos = self._band_F
         return float(np.interp(phase, F, rot)), float(np.interp(phase, F, pos))
+
+    def end_band_at(self, phase: float) -> tuple[float, float]:
+        """The end band's factors (c_rot, c_pos) of a motion seen up to ``phase``: :func:`fit_seen`'s end factors per
+        fraction (:func:`_end_needs`) interpolated linearly in the phase (held outside the fractions), each never below
+        the draws' :meth:`band_at` there (the left-out statistic sees each beginning at its true phases and is
+        optimistic near the end: docs/defaults.md, twenty-first pass); for a path distribution without them (an older
+        model file, or fewer than SPREAD_FROM demonstrations) the draws' factors."""
+        draws = self.band_at(phase)
+        if self._end_F is None:
+            return draws
+        F, rot, pos = self._end_F
+        return max(draws[0], float(np.interp(phase, F, rot))), max(draws[1], float(np.interp(phase, F, pos)))
 
     def surprise(self, tau, q, p, D) -> float:
         """The seen part's surprise ρ = eᵀG⁻¹e / n of a motion seen at (τ (n_s,) s, q (n_s, 4), p (n_s, 3)) with
@@ -656,7 +675,7 @@ class Anticipator:
         sc = self.scale
         mu_u = mu * sc
         cov_u = cov * sc[:, None] * sc[None, :]
-        c_rot, c_pos = self.band_at(min(span / D, 1.0) if D > 0 else 1.0)
+        c_rot, c_pos = self.end_band_at(min(span / D, 1.0) if D > 0 else 1.0)
         s_ = self.surprise_at(*terms["seen"][3:], D, rho=rho)
         c_rot, c_pos = c_rot * s_, c_pos * s_
         ref_q, ref_p = self.paths.quat[-1], self.paths.position[-1]
@@ -1149,16 +1168,26 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, s
         spread = DURATION_SPREAD and paths.demos >= SPREAD_FROM
     if spread:  # the remainders against the samples as drawn, each at its own duration (eighth pass)
         ctx = _spread_context(paths)
-        raw, refs = [], []
-        for F in SEEN_FRACTIONS:
+        raw, refs, ends = [], [], []
+        for F in (*SEEN_FRACTIONS, END_LATE):
             terms = _spread_terms(paths, F, rest=None if own else rest, ctx=ctx)
             scale = None
             if paths.demos >= SURPRISE_FROM:  # the left-out seen parts' median surprise at this fraction
-                ref = float(np.median(terms["rho"]))
-                refs.append([ref, float(np.median(terms["rho_live"]))] if "rho_live" in terms else [ref, ref])
-                scale = np.repeat(surprise_scale(terms["rho"], ref), terms["T"])
-            raw.append(_spread_factors(terms, paths.demos, level, scale=scale))
+                if F in SEEN_FRACTIONS:
+                    ref = float(np.median(terms["rho"]))
+                    refs.append([ref, float(np.median(terms["rho_live"]))] if "rho_live" in terms else [ref, ref])
+                else:  # beyond the fractions the band widens against the last one's reference (surprise_at)
+                    ref = refs[-1][0]
+                scale = surprise_scale(terms["rho"], ref)
+            # the end band's needs at every fraction, the draws' factors at SEEN_FRACTIONS
+            ends.append(_end_needs(paths, terms, level, scale=scale))
+            if F in SEEN_FRACTIONS:
+                raw.append(_spread_factors(terms, paths.demos, level,
+                                           scale=None if scale is None else np.repeat(scale, terms["T"])))
         paths.seen_band_scales = _narrowed(raw, paths.demos)
+        paths.seen_end_band_scales = _narrowed([(_weighted_quantile(r, np.ones(len(r)), level),
+                                                 _weighted_quantile(q.ravel(), np.ones(q.size), level)) for r, q in ends],
+                                               paths.demos, fractions=(*SEEN_FRACTIONS, END_LATE))
         paths.seen_surprise = None if not refs else {
             "fractions": [float(F) for F in SEEN_FRACTIONS], "points": [SEEN_POINTS, SPREAD_POINTS],
             "reference": [[x[0] for x in refs], [x[1] for x in refs]]}
@@ -1182,15 +1211,40 @@ def seen_band_scales(m2_F, z_F, demos: int, level: float = 0.90) -> dict:
     return _narrowed([_band_factors(m2, z, demos, level) for m2, z in zip(m2_F, z_F)], demos)
 
 
-def _narrowed(raw, demos: int) -> dict:
+def _narrowed(raw, demos: int, fractions=SEEN_FRACTIONS) -> dict:
     """:func:`seen_band_scales`' dictionary from the unclamped factors ``raw`` [(c_rot, c_pos) per fraction of
-    SEEN_FRACTIONS]: c < 1 taken as c^w, w = min(1, D / NARROW_FROM), never below NARROWEST."""
+    ``fractions``]: c < 1 taken as c^w, w = min(1, D / NARROW_FROM), never below NARROWEST."""
     from rbgp_cli.dynamics.paths import NARROWEST
 
     w = min(1.0, demos / NARROW_FROM)
     c = [[max(NARROWEST, x if x >= 1.0 else x ** w) for x in pair] for pair in raw]
-    return {"fractions": [float(F) for F in SEEN_FRACTIONS], "rotation": [float(x[0]) for x in c],
+    return {"fractions": [float(F) for F in fractions], "rotation": [float(x[0]) for x in c],
             "position": [float(x[1]) for x in c]}
+
+
+def _end_needs(paths, terms, level: float = 0.90, scale=None) -> tuple[np.ndarray, np.ndarray]:
+    """Each left-out end's need of the end band that :meth:`Anticipator._summary` reports, from the scored remainders
+    of :func:`_spread_terms` at their last phase (the end, u = 1): with ê the end's error and Σ = C + V its
+    covariance there (the own conditional one and the duration's spread, unscaled: rad and m), the rotation band
+    c · √(3 F_level(3, ν) λ_max(Σ_rot)) holds the end when c ≥ |ê_rot| / √(3 F λ_max), a position coordinate's
+    c · t_ν σ_i when c ≥ |ê_i| / (t_ν σ_i) (ν = D − 2, the quantiles the band uses). ``scale`` (D,): each need
+    divided by its demonstration's :func:`surprise_scale`, which the band multiplies by. Returns (c_rot (D,),
+    c_pos (D, 3))."""
+    from scipy.special import fdtri, stdtrit
+
+    nu = max(int(paths.demos) - 2, 1)
+    T = int(terms["T"])
+    sc = np.asarray(paths.scale, dtype=np.float64)
+    e = terms["e"].reshape(-1, T, 6)[:, -1] * sc
+    cov = (terms["C"] + terms["V"]).reshape(-1, T, 6, 6)[:, -1] * sc[:, None] * sc[None, :]
+    lam = np.maximum(np.linalg.eigvalsh(cov[:, :3, :3])[:, -1], 1e-30)
+    c_rot = np.linalg.norm(e[:, :3], axis=1) / np.sqrt(3.0 * fdtri(3, nu, level) * lam)
+    sig = np.sqrt(np.maximum(np.einsum("dii->di", cov[:, 3:, 3:]), 1e-30))
+    c_pos = np.abs(e[:, 3:]) / (stdtrit(nu, 0.5 + level / 2.0) * sig)
+    if scale is not None:
+        c_rot = c_rot / scale
+        c_pos = c_pos / np.asarray(scale)[:, None]
+    return c_rot, c_pos
 
 
 def duration_candidates(paths) -> list[tuple]:

@@ -214,6 +214,9 @@ class PathDistribution:
     #: the draws' factors of a motion under way per seen fraction, {"fractions", "rotation", "position"} (lists;
     #: :func:`rbgp_cli.dynamics.anticipation.seen_band_scales`; None: ``seen_band_scale`` at every fraction)
     seen_band_scales: dict | None = None
+    #: the end band's factors per seen fraction, the same form (:func:`rbgp_cli.dynamics.anticipation._end_needs`;
+    #: None: ``seen_band_scales``, as files written before them)
+    seen_end_band_scales: dict | None = None
     #: the left-out seen parts' median surprise per seen fraction, {"fractions" (F,), "points" (k,) seen poses,
     #: "reference" (k, F)} (lists; the bands of a motion under way seen at that many poses widen by
     #: √max(1, ρ / reference): :meth:`rbgp_cli.dynamics.anticipation.Anticipator.surprise_at`; None: no widening, as
@@ -528,6 +531,9 @@ class PathDistribution:
                 **({"seen_band_scales": {k: [float(x) for x in self.seen_band_scales[k]]
                                          for k in ("fractions", "rotation", "position")}}
                    if self.seen_band_scales is not None else {}),
+                **({"seen_end_band_scales": {k: [float(x) for x in self.seen_end_band_scales[k]]
+                                             for k in ("fractions", "rotation", "position")}}
+                   if self.seen_end_band_scales is not None else {}),
                 **({"seen_surprise": _surprise_copy(self.seen_surprise)} if self.seen_surprise is not None else {})}
 
     @classmethod
@@ -551,6 +557,8 @@ class PathDistribution:
                    else float(header["rest_duration_tolerance"]),
                    seen_band_scales=None if header.get("seen_band_scales") is None else
                    {k: [float(x) for x in header["seen_band_scales"][k]] for k in ("fractions", "rotation", "position")},
+                   seen_end_band_scales=None if header.get("seen_end_band_scales") is None else
+                   {k: [float(x) for x in header["seen_end_band_scales"][k]] for k in ("fractions", "rotation", "position")},
                    seen_surprise=None if header.get("seen_surprise") is None else _surprise_copy(header["seen_surprise"]))
 
 

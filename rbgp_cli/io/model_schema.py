@@ -292,6 +292,11 @@ TOP: dict = {
                                  "rotation": list_of(num(0.0, 1e6, what="a non-negative factor"), 1, 100),
                                  "position": list_of(num(0.0, 1e6, what="a non-negative factor"), 1, 100)},
                                 ("fractions", "rotation", "position")),
+        # optional: a motion under way's end band's factors per seen fraction (twenty-first pass)
+        "seen_end_band_scales": obj({"fractions": list_of(num(0.0, 1.0, what="a seen fraction in [0, 1]"), 1, 100),
+                                     "rotation": list_of(num(0.0, 1e6, what="a non-negative factor"), 1, 100),
+                                     "position": list_of(num(0.0, 1e6, what="a non-negative factor"), 1, 100)},
+                                    ("fractions", "rotation", "position")),
         # optional: the left-out seen parts' median surprise per seen fraction, the bands' widening (sixteenth pass)
         "seen_surprise": obj({"fractions": list_of(num(0.0, 1.0, what="a seen fraction in [0, 1]"), 1, 100),
                               "points": list_of(integer(1, 10000), 1, 10),
@@ -374,13 +379,15 @@ def _agree(h: dict) -> None:
             raise SchemaError("prior.gain_profile needs a start-conditioned path prior (prior.start = 'conditioned')")
         if prior.get("start_reach") and prior.get("start") != "conditioned":
             raise SchemaError("prior.start_reach needs a start-conditioned path prior (prior.start = 'conditioned')")
-    sbs = (h.get("paths") or {}).get("seen_band_scales")
-    if sbs is not None:
+    for key in ("seen_band_scales", "seen_end_band_scales"):
+        sbs = (h.get("paths") or {}).get(key)
+        if sbs is None:
+            continue
         F = sbs["fractions"]
         if not (len(sbs["rotation"]) == len(F) and len(sbs["position"]) == len(F)):
-            raise SchemaError("paths.seen_band_scales needs as many rotation and position factors as fractions")
+            raise SchemaError(f"paths.{key} needs as many rotation and position factors as fractions")
         if any(b <= a for a, b in zip(F, F[1:])):
-            _fail(("paths", "seen_band_scales", "fractions"), F, "increasing fractions")
+            _fail(("paths", key, "fractions"), F, "increasing fractions")
     start = (h.get("variation") or {}).get("start_surprise")
     if start is not None:
         cov = np.asarray(start["covariance"], dtype=np.float64)

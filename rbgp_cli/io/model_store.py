@@ -47,7 +47,8 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
   without them condition with ``smooth`` and ``seen_tolerance``, as before) and ``rest_duration_tolerance`` (ln D's
   tolerance there where it is freed; files without it condition on ln D exactly, as before), and ``seen_band_scales`` ({"fractions",
   "rotation", "position"}: the bands' factors per seen fraction; files without them draw with ``seen_band_scale``
-  at every fraction, as before), and ``seen_surprise`` ({"fractions", "reference"}: the left-out seen parts' median
+  at every fraction, as before), ``seen_end_band_scales`` (the same form: the end pose's band's own factors, at the
+  fractions and 0.95; files without them use ``seen_band_scales``, as before), and ``seen_surprise`` ({"fractions", "reference"}: the left-out seen parts' median
   surprise, which a seen part's bands widen against; files without it widen nothing, as before; an rbgp older than these fields
   refuses a file that has them with its schema's "unknown field" error).
 * Version 9 (what this rbgp writes): the deviation process says how much its covariance between
