@@ -651,13 +651,22 @@ WIDENING_NOTE = 1.5
 
 
 def follow_stream(model, lines, *, options: ReadOptions | None = None, every: int = 1, detect: bool = True,
-                  paths=None, source: str = "stdin"):
+                  paths=None, source: str = "stdin", max_gap: float | None = None, path: str | None = None):
     """``rbgp follow``: poses arriving as CSV rows (``lines``: an iterator of text lines, the header first)
     followed live (:class:`~rbgp_cli.dynamics.anticipation.Follower`). Yields one dict per ``every`` poses
     of a motion under way: ``t``, ``start`` (the motion's detected start), ``motion`` (0, 1, … across
-    repetitions), ``phase``, ``end_time`` and its 90 % band, the end pose with its 90 % bands, ``off``."""
+    repetitions), ``phase``, ``end_time`` and its 90 % band, the end pose with its 90 % bands, ``off``. ``path``: the
+    file the lines come from (None: a pipe), whose first bytes tell a format read whole from CSV rows.
+
+    Lost frames (:class:`~rbgp_cli.io.stream.Lost`) are skipped, the first said in a warning and their count at the
+    end; with ``max_gap`` (s) a run of them no longer than that is filled when the next pose arrives, at the lost
+    rows' times, by slerp and linear interpolation between the poses around it (as a file's are,
+    :func:`~rbgp_cli.dynamics.prepare.prepare_all`), each filled pose pushed before the new one. A motion that turns
+    ``off`` (beyond the demonstrations), or whose bands are widened ×1.5 or more, is said once per motion on
+    stderr (the JSON lines carry the numbers)."""
     from rbgp_cli.dynamics.anticipation import Follower
-    from rbgp_cli.io.stream import RowStream
+    from rbgp_cli.geometry.so3 import slerp
+    from rbgp_cli.io.stream import Lost, RowStream, check_streamable
 
     fmt = getattr(options, "format", "auto") if options is not None else "auto"
     if fmt not in ("auto", "csv"):  # the other formats are files read whole (binary, or a header block)
@@ -669,21 +678,60 @@ def follow_stream(model, lines, *, options: ReadOptions | None = None, every: in
     header = next(iter(lines), None)
     if header is None or not header.strip():
         raise InputError("no header line on the stream", path=source, hint="send the CSV's header line first")
+    check_streamable(header, source, path)
     rows = RowStream(header, options, source)
     count, motion = 0, None
+    lost: list = []  # the lost rows since the last pose
+    n_lost = n_filled = 0
+    last = None  # the last pose pushed (t, quat, position)
+    said: set = set()  # (motion, what) said on stderr
+
+    def push(row):
+        nonlocal count, motion
+        est = follower.push(*row)
+        if est is None:
+            return None
+        if follower.motion != motion:
+            motion, count = follower.motion, 0
+        count += 1
+        for what, on in (("off", est.off), ("wide", est.band_widening >= 1.5)):
+            if on and (motion, what) not in said:
+                said.add((motion, what))
+                warn(f"motion {motion} at t = {est.t:g} s: " + (
+                    "the seen motion has left what the demonstrations cover (off): its prediction is an extrapolation"
+                    if what == "off" else f"the seen part is less like the demonstrations than the left-out ones: its "
+                    f"bands are widened ×{est.band_widening:.2f} (band_widening)"), path=source)
+        if (count - 1) % max(int(every), 1):
+            return None
+        return dict(motion=int(motion), start=float(follower.start), **est.to_dict())
+
     for line in lines:
         row = rows.parse(line)
         if row is None:
             continue
-        est = follower.push(*row)
-        if est is None:
+        if isinstance(row, Lost):
+            if not n_lost:
+                warn(f"row {row.row} is a lost frame (its pose empty or NaN): "
+                     + (f"runs of lost frames up to {max_gap:g} s are filled when the next pose arrives, longer ones "
+                        "skipped" if max_gap else "lost frames are skipped"), path=source)
+            n_lost += 1
+            lost.append(row)
             continue
-        if follower.motion != motion:
-            motion, count = follower.motion, 0
-        count += 1
-        if (count - 1) % max(int(every), 1):
-            continue
-        yield dict(motion=int(motion), start=float(follower.start), **est.to_dict())
+        if lost and max_gap and last is not None and row[0] - last[0] <= max_gap and all(x.t is not None for x in lost):
+            for x in lost:  # filled between the poses around the run, at the lost rows' own times
+                f = (x.t - last[0]) / (row[0] - last[0])
+                out = push((x.t, slerp(last[1], row[1], f), (1 - f) * last[2] + f * row[2]))
+                n_filled += 1
+                if out is not None:
+                    yield out
+        lost = []
+        last = row
+        out = push(row)
+        if out is not None:
+            yield out
+    if n_lost:
+        warn(f"{n_lost} lost frame{'s' if n_lost != 1 else ''} on the stream: {n_filled} filled, "
+             f"{n_lost - n_filled} skipped", path=source)
 
 
 def crossval_under_way(sources, fractions, train_kwargs: dict, *, options: ReadOptions | None = None, max_gap=None,

@@ -350,9 +350,16 @@ def follow(
 
     m, _ = load_model(model)
     stdin = source == "-"
-    with contextlib.nullcontext(sys.stdin) if stdin else open_stream(source) as fh:
+    if stdin and hasattr(sys.stdin, "buffer"):  # bytes that are not UTF-8 (a binary file piped in) are said, not raised
+        import io
+
+        piped = io.TextIOWrapper(sys.stdin.buffer, encoding="utf-8", errors="surrogateescape", newline="")
+    else:
+        piped = sys.stdin
+    with contextlib.nullcontext(piped) if stdin else open_stream(source) as fh:
         for out in workflows.follow_stream(m, iter(fh.readline, ""), options=read.options, every=every,
-                                           detect=not no_detect, source="stdin" if stdin else source):
+                                           detect=not no_detect, source="stdin" if stdin else source,
+                                           max_gap=read.max_gap, path=None if stdin else source):
             sys.stdout.write(json.dumps(out) + "\n")
             sys.stdout.flush()
 

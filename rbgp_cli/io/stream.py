@@ -5,6 +5,10 @@ which finds the time, position and rotation columns and their units as it does f
 rotation is a quaternion in named columns, each later row is split and converted directly (the same
 columns and unit factors); any other layout (Euler angles, a rotation matrix, ...) reads each row
 through the CSV reader with the header. Rows: SI units and quaternions x, y, z, w out.
+
+A lost frame (a row whose pose cells are empty or NaN, or whose quaternion is zero, as trackers mark an
+occluded body) is not a pose: :meth:`RowStream.parse` returns it as :class:`Lost` (its time, where the row has
+one), for the caller to skip or fill, as a file's lost frames are dropped or filled.
 """
 
 from __future__ import annotations
@@ -13,7 +17,25 @@ import numpy as np
 
 from rbgp_cli.errors import InputError
 
-__all__ = ["RowStream", "open_stream"]
+__all__ = ["RowStream", "Lost", "check_streamable", "open_stream"]
+
+
+class Lost:
+    """A lost frame of a stream (module docstring): ``t`` its time in s (None where the row has none), ``row`` its
+    row number."""
+
+    __slots__ = ("t", "row")
+
+    def __init__(self, t, row: int):
+        self.t, self.row = t, row
+
+    def __repr__(self) -> str:
+        return f"Lost(t={self.t!r}, row={self.row})"
+
+
+def _lost(cells) -> bool:
+    """Pose cells that mark a lost frame: every one empty or NaN."""
+    return all(not c.strip() or c.strip().lower() in ("nan", "-nan", "na", "null") for c in cells)
 
 _LENGTH = {"m": 1.0, "mm": 1e-3, "cm": 1e-2, "dm": 0.1, "km": 1e3, "in": 0.0254, "ft": 0.3048}
 _TIME = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9, "min": 60.0}
@@ -61,7 +83,8 @@ class RowStream:
         return trajs[0]
 
     def parse(self, line: str):
-        """(t s, quat (4,) x, y, z, w, position (3,) m) of one data row, or None for a blank line."""
+        """(t s, quat (4,) x, y, z, w, position (3,) m) of one data row, :class:`Lost` for a lost frame (module
+        docstring), or None for a blank line."""
         line = line.rstrip("\r\n")
         self._row += 1
         if not line.strip():
@@ -71,19 +94,27 @@ class RowStream:
             q = np.asarray(tr.quat[0], dtype=float)
             t = float(tr.t[0]) if self._rate is None else self._rows / self._rate  # a file's row / rate
             self._rows += 1
+            if not (np.all(np.isfinite(q)) and np.all(np.isfinite(tr.position[0])) and np.linalg.norm(q) > 1e-9):
+                return Lost(self._in_order(t) if np.isfinite(t) else None, self._row)
             return self._in_order(t), q / self._unit_norm(q), tr.position[0].astype(float)
         idx, delim, lf, tf = self._fast
         parts = line.split(delim) if delim not in ("whitespace", None) else line.split()
         try:
             v = [float(parts[i]) for i in idx]
         except (IndexError, ValueError):
-            raise InputError(f"row {self._row} is not a pose row like the first ({line[:60]!r})", path=self.source,
-                             row=self._row, hint="stream rows with the header's columns, numbers only") from None
+            if len(parts) > max(idx) and _lost([parts[i] for i in idx[1:]]):
+                try:
+                    t = float(parts[idx[0]]) * tf
+                except ValueError:
+                    t = None
+                return Lost(self._in_order(t) if t is not None and np.isfinite(t) else None, self._row)
+            raise InputError(f"row {self._row} is not a pose row like the header says ({line[:60]!r})",
+                             path=self.source, row=self._row,
+                             hint="stream rows with the header's columns, numbers only (a lost frame: its pose cells "
+                                  "empty or NaN)") from None
         q = np.array(v[4:8])
-        nq = np.linalg.norm(q)
-        if not np.all(np.isfinite(v)) or nq < 1e-9:
-            raise InputError(f"row {self._row} has a missing or zero pose", path=self.source, row=self._row,
-                             hint="drop lost frames before streaming them")
+        if not np.all(np.isfinite(v[1:])) or np.linalg.norm(q) < 1e-9:
+            return Lost(self._in_order(v[0] * tf) if np.isfinite(v[0]) else None, self._row)
         return self._in_order(v[0] * tf), q / self._unit_norm(q), np.array(v[1:4]) * lf
 
     def _in_order(self, t: float) -> float:
@@ -110,10 +141,28 @@ class RowStream:
         from rbgp_cli.io.csv import read_text
 
         trajs = read_text(self.header + "\n" + line + "\n", self.source, self.options)
-        if len(trajs) != 1 or len(trajs[0].t) != 1 or not np.all(np.isfinite(trajs[0].quat)):
+        if len(trajs) != 1 or len(trajs[0].t) != 1:
             raise InputError(f"row {self._row} does not hold one pose", path=self.source, row=self._row,
                              hint="stream one body's rows")
         return trajs[0]
+
+
+def check_streamable(header: str, source: str, path: str | None = None) -> None:
+    """Refuse, in one line, a stream that is not CSV rows: a file of a format read whole (QTM, Motive, Vicon, C3D,
+    BVH, MCAP: recognised from the file's first bytes when ``path`` names it, else from the ``header`` line), or
+    binary data. ``header``: the stream's first line as read (text, undecodable bytes as surrogates)."""
+    from rbgp_cli.io import formats
+    from rbgp_cli.io.csv_table import decode
+    from rbgp_cli.io.read import detect_format
+
+    head = header.encode("utf-8", "surrogateescape")
+    fmt = detect_format(path) if path else formats.detect(head)
+    if fmt != "csv":
+        raise InputError(f"{formats.get(fmt).title}: a format read from whole files, and a stream is CSV rows (a "
+                         "header line, then one pose per row)", path=source, param="format",
+                         hint="stream a CSV of time, position and quaternion columns; a recorded file in that "
+                              "format is continued whole, as a seen beginning")
+    decode(head, source)  # binary data: "not a text file", naming the formats rbgp reads
 
 
 def open_stream(path: str):
