@@ -631,18 +631,41 @@ def continue_files(model, sources, *, options: ReadOptions | None = None, max_ga
 
     seen, _, _ = load_demonstrations(sources, options, max_gap=max_gap)
     ant = Anticipator(getattr(model, "paths", None) if paths is None else paths, model)
-    out = []
+    out, off, wide = [], [], []
     for i, tr in enumerate(seen):
         c = ant.continuation(tr.t, tr.quat, tr.position, samples=samples, seed=seed + i, name=str(i))
         c.info["source"] = tr.source or tr.name
         if c.estimate.off:
-            warn(f"the seen motion has left what the demonstrations cover (distance {c.estimate.distance:.2f} "
-                 "in units of the demonstrations' spread); its continuation is an extrapolation", path=tr.source or tr.name)
+            off.append(i)
         elif c.estimate.band_widening >= WIDENING_NOTE:
-            warn(f"the seen motion is less like the demonstrations than most of them: its bands are widened "
-                 f"×{c.estimate.band_widening:.2f} (band_widening)", path=tr.source or tr.name)
+            wide.append(i)
         out.append(c)
+    _note_seen(out, off, wide)
     return out
+
+
+def _note_seen(conts, off, wide) -> None:
+    """What ``rollout --given`` says of the seen motions ``off`` (beyond the demonstrations) and ``wide`` (bands
+    widened ×WIDENING_NOTE or more), given by their indices in ``conts``: naming the file when there is one such
+    motion, else one warning for each kind with the range and the trajectories (as the start's notes do)."""
+    for idx, kind in ((off, "off"), (wide, "wide")):
+        if not idx:
+            continue
+        est = [conts[i].estimate for i in idx]
+        if kind == "off":
+            d = [e.distance for e in est]
+            what = (f"left what the demonstrations cover (distance {min(d):.2f}" + (f"–{max(d):.2f}" if len(d) > 1 else "")
+                    + " in units of the demonstrations' spread): the continuation is an extrapolation")
+        else:
+            w = [e.band_widening for e in est]
+            what = (f"less like the demonstrations than most of them: the bands are widened ×{min(w):.2f}"
+                    + (f"–×{max(w):.2f}" if len(w) > 1 else ""))
+        field = "off" if kind == "off" else "band_widening"
+        if len(idx) == 1:
+            warn(f"the seen motion {'is' if kind == 'wide' else 'has'} {what} ({field})", path=conts[idx[0]].info["source"])
+        else:
+            verb = "are" if kind == "wide" else "have"
+            warn(f"{len(idx)} of {len(conts)} seen motions {verb} {what} (trajectories {_shown(idx)}; {field})")
 
 
 #: ``rollout`` (from a start, or ``--given`` a seen beginning) says on stderr when a motion's bands are widened by

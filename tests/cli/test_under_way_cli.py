@@ -69,6 +69,13 @@ def test_rollout_given_says_when_a_seen_part_unlike_the_demonstrations_widens_it
     assert wiggle["band_widening"] >= 1.5 and not wiggle["off"]
     assert f"widened ×{wiggle['band_widening']:.2f}" in out["wiggle"][1]
     assert wiggle["end_rotation_band"] > plain["end_rotation_band"]
+    # several such motions: one warning with the range and the trajectories, not one line per file
+    (tmp_path / "wiggle2.csv").write_text("\n".join(rows) + "\n")
+    res = run("rollout", model, "--given", tmp_path / "plain.csv", tmp_path / "wiggle.csv", tmp_path / "wiggle2.csv",
+              "-o", tmp_path / "three.csv")
+    said = [x for x in res.stderr.splitlines() if "widened" in x]
+    assert res.exit_code == 0 and len(said) == 1, res.stderr
+    assert "2 of 3 seen motions" in said[0] and "(trajectories 1, 2; band_widening)" in said[0], said
 
 
 def test_rollout_given_refuses_start_poses(model, tmp_path):
