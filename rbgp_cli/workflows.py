@@ -374,7 +374,7 @@ def rollout_starts(model, *, start=(), start_quat=(), starts=None, from_demos=No
     ``starts`` (:func:`read_start_poses`), and ``count`` starts drawn near the start poses of the
     demonstrations ``from_demos`` in the order they are read, start i near demonstration i mod D
     (:func:`~rbgp_cli.dynamics.rollout.starts_near`, ``start_spread`` m or None for starts drawn like the
-    demonstrations' own, ``seed``; ``count`` None: one per
+    demonstrations' own, from one file with the spread of the model's stored starts, ``seed``; ``count`` None: one per
     demonstration, so that a goals file in the demonstrations' order pairs each goal with its own start).
     None of them given: ``count`` (None: 1) starts near the model's stored start poses (its first one as it
     is when ``count`` is 1 and the spread 0).
@@ -408,7 +408,7 @@ def rollout_starts(model, *, start=(), start_quat=(), starts=None, from_demos=No
     if from_demos:
         demos, _, _ = load_demonstrations(from_demos, options, max_gap=max_gap)
         q, p, near = starts_near(start_vectors(demos), len(demos) if count is None else count, start_spread, seed=seed,
-                                 return_index=True, in_order=True)
+                                 return_index=True, in_order=True, shape=model.starts)  # one file: the model's spread
         qs.append(q)
         ps.append(p)
         durs = [demos[i].duration for i in near]

@@ -409,7 +409,7 @@ def start_bandwidth(n: int, dims: int = 6) -> float:
 
 
 def starts_near(starts: np.ndarray, count: int, spread: float | None, seed: int = 0, spread_rot: float | None = None,
-                return_index: bool = False, in_order: bool = False):
+                return_index: bool = False, in_order: bool = False, shape: np.ndarray | None = None):
     """``count`` start poses near the given ones (paper sec. 4.3: 100 unseen starts near the demos').
 
     Each new start takes a demonstration start j (cycling through them in a seeded random order; with
@@ -424,8 +424,10 @@ def starts_near(starts: np.ndarray, count: int, spread: float | None, seed: int 
 
     h = :func:`start_bandwidth` (D) (Silverman's rule), so that the new starts have the starts' mean c̄ and
     covariance Σ (the perturbation lies in the span of the starts' own deviations: a coordinate in which
-    they do not vary is not varied). With fewer than two starts there is no spread to follow, and the
-    isotropic perturbation below with :data:`START_SPREAD_FALLBACK` is used.
+    they do not vary is not varied). With fewer than two starts there is no spread to follow: with ``shape``
+    ((M, 7) other starts of the same motion, M ≥ 2, e.g. those a model stores) the start is moved by
+    h Σ_k z_k (s_k − s̄) / √(M − 1) of their coordinates (h = :func:`start_bandwidth` (M)), else by the isotropic
+    perturbation below with :data:`START_SPREAD_FALLBACK`.
 
     ``spread`` a number: translation by N(0, spread²) per axis (metres), rotation by exp of a N(0, s_r²)
     rotation vector with s_r = spread_rot (radians; default spread / 0.3 m × 0.1 rad, i.e. about
@@ -449,16 +451,28 @@ def starts_near(starts: np.ndarray, count: int, spread: float | None, seed: int 
     else:
         order = np.concatenate([rng.permutation(len(starts)) for _ in range(-(-count // len(starts)))])[:count]
     base = starts[order]
+    def coordinates(s):  # (log(R R₀ᵀ), p − p₀) about the first, their mean
+        q0, p0 = s[0, :4], s[0, 4:]
+        c = np.concatenate([log_quat(quat_multiply(s[:, :4], quat_conjugate(q0))), s[:, 4:] - p0], axis=1)
+        return c, c.mean(axis=0)
+
     if spread is None and len(starts) >= 2:
         n = len(starts)
-        q_ref, p_ref = starts[0, :4], starts[0, 4:]
-        c = np.concatenate([log_quat(quat_multiply(starts[:, :4], quat_conjugate(q_ref))), starts[:, 4:] - p_ref], axis=1)
-        mean = c.mean(axis=0)
+        c, mean = coordinates(starts)
         h = start_bandwidth(n)
         z = rng.normal(0.0, 1.0, (count, n))
         new = mean + np.sqrt(1.0 - h * h) * (c[order] - mean) + h * (z @ (c - mean)) / np.sqrt(n - 1.0)
-        q = quat_multiply(exp_quat(new[:, :3]), np.broadcast_to(q_ref, (count, 4)))
-        p = p_ref + new[:, 3:]
+        q = quat_multiply(exp_quat(new[:, :3]), np.broadcast_to(starts[0, :4], (count, 4)))
+        p = starts[0, 4:] + new[:, 3:]
+        return (q, p, order) if return_index else (q, p)
+    if spread is None and shape is not None and len(np.reshape(shape, (-1, 7))) >= 2:
+        shape = np.asarray(shape, dtype=np.float64).reshape(-1, 7)
+        c, mean = coordinates(shape)
+        m = len(shape)
+        z = rng.normal(0.0, 1.0, (count, m))
+        d = start_bandwidth(m) * (z @ (c - mean)) / np.sqrt(m - 1.0)  # world-frame moves with the shape's covariance
+        q = quat_multiply(exp_quat(d[:, :3]), base[:, :4])
+        p = base[:, 4:] + d[:, 3:]
         return (q, p, order) if return_index else (q, p)
     spread = START_SPREAD_FALLBACK if spread is None else float(spread)
     s_r = spread / 0.3 * 0.1 if spread_rot is None else spread_rot

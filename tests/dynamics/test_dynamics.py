@@ -184,8 +184,19 @@ def test_default_starts_keep_the_demonstrations_mean_and_covariance():
     assert d_own < d_other
 
 
-def test_default_starts_from_one_start_use_the_fixed_spread():
+def test_default_starts_from_one_start_use_the_fixed_spread_or_the_shape_of_other_starts():
     base = np.array([[0, 0, 0, 1, 0.1, 0.2, 0.3]])
     q, p = starts_near(base, 4000, None, seed=0)
     assert 0.018 < np.std(p[:, 0]) < 0.022
     np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1, atol=1e-12)
+    # with other starts of the motion (a model's), moved about the one start with their covariance times h²
+    rng = np.random.default_rng(4)
+    shape = np.column_stack([Rotation.from_rotvec(rng.normal(0, 0.03, (30, 3))).as_quat(),
+                             rng.normal(0, [0.002, 0.005, 0.0], (30, 3))])
+    q, p = starts_near(base, 40000, None, seed=1, shape=shape)
+    from rbgp_cli.dynamics.rollout import start_bandwidth
+
+    h = start_bandwidth(30)
+    np.testing.assert_allclose(p.mean(axis=0), base[0, 4:], atol=2e-4)
+    np.testing.assert_allclose(np.cov((p - base[0, 4:]).T)[:2, :2], h * h * np.cov(shape[:, 4:6].T), rtol=0.06, atol=1e-9)
+    np.testing.assert_allclose(p[:, 2], 0.3, atol=1e-12)  # no spread in z among the shape's starts: none drawn
