@@ -549,6 +549,8 @@ def _times(table: Table, cols: list, plan: Plan, data, options: ReadOptions, gro
             unit, unit_source = infer_time_unit(plan, table, options, data["t"], groups)
             t = data["t"] * TIME_UNITS[unit]
         time_info = {"time_unit": unit, "time_unit_source": unit_source}
+        if options.rate:  # the file's own times are used; the reader says the rate was not (read_sources)
+            time_info["rate_option_unused"] = plan.roles["t"].name
     else:
         if not options.rate:
             tcands = [c.name for c in cols if any(w in c.base for w in ("time", "stamp", "sec"))]

@@ -26,6 +26,9 @@ def infer_length_unit(plan: Plan, table: Table, options: ReadOptions, position: 
                 f"unknown length unit {options.length_unit!r}; use one of {', '.join(LENGTH_UNITS)}",
                 param="length_unit",
             )
+        named = {plan.roles[r].unit for r in "xyz" if plan.roles[r].unit_kind == "length"}
+        if named and named != {options.length_unit}:  # the option wins, and the reader says so (read_sources)
+            return options.length_unit, f"option, over the column names' {', '.join(sorted(named))}"
         return options.length_unit, "option"
     units = {plan.roles[r].unit for r in "xyz" if plan.roles[r].unit_kind == "length"}
     if len(units) > 1:

@@ -544,13 +544,24 @@ def read_sources(sources, options: ReadOptions | None = None, stdin=None) -> tup
     note = listing.note()
     if note:
         warn(note)
-    _say_ignored_options(options, formats_read)
+    _say_ignored_options(options, formats_read, out)
     return out, listing
 
 
-def _say_ignored_options(options: ReadOptions, formats_read: set) -> None:
+def _say_ignored_options(options: ReadOptions, formats_read: set, trajs=()) -> None:
     """One warning per read option that only some formats use (:data:`~rbgp_cli.io.formats.SPECIFIC_OPTIONS`)
-    and that no file read used (``body`` given for CSV files): the user meant it, and it changed nothing."""
+    and that no file read used (``body`` given for CSV files): the user meant it, and it changed nothing. Also one
+    for ``rate`` where every file read has a time column, and one where ``length_unit`` overrode the unit the
+    position columns' names give (x_m read as millimetres): the option was applied, against the file."""
+    named = sorted({str(tr.info.get("length_unit_source", "")) for tr in trajs} - {"", "option"})
+    if options.length_unit and any(x.startswith("option, over") for x in named):
+        units = sorted({x.rsplit("' ", 1)[-1] for x in named if x.startswith("option, over")})
+        warn(f"length_unit {options.length_unit} was applied to position columns whose names say "
+             f"{', '.join(units)}: positions read as {options.length_unit}",
+             hint="drop length_unit if the column names are right", param="length_unit")
+    if options.rate and trajs and all(tr.info.get("rate_option_unused") for tr in trajs):
+        warn(f"rate {options.rate:g} Hz was given, but the files have a time column "
+             f"({trajs[0].info['rate_option_unused']}): their own times are used", param="rate")
     read = [formats.get(n) for n in sorted(formats_read)]
     if not read:
         return

@@ -280,3 +280,24 @@ def test_inspect_stdin(tmp_path):
     d = inspect_file("-", stdin=io.BytesIO(CSV_TEXT.encode()))
     assert d["path"] == "-" and d["format"] == "csv" and d["trajectories"][0]["samples"] == 3
     assert "rbgp-stdin" not in json.dumps(d)
+
+
+def test_an_option_that_contradicts_the_file_is_applied_and_said_once(tmp_path):
+    """length_unit mm on columns named x_m … is applied (the option wins) and said in one warning for the set; rate
+    on files that have a time column is not used, and that is said too (before: both silent)."""
+    text = "time_s,x_m,y_m,z_m,qx,qy,qz,qw\n0,1,0,0,0,0,0,1\n0.1,1.1,0,0,0,0,0,1\n0.2,1.2,0,0,0,0,0,1\n"
+    for k in range(3):
+        (tmp_path / f"d{k}.csv").write_text(text)
+    with pytest.warns(RbgpWarning) as caught:
+        trajs, _ = rread.read_sources([str(tmp_path)], ReadOptions(length_unit="mm", rate=100.0))
+    said = [str(w.message) for w in caught]
+    unit = [x for x in said if "length_unit mm was applied" in x]
+    rate = [x for x in said if "rate 100 Hz was given" in x]
+    assert len(unit) == 1 and "names say m" in unit[0] and len(rate) == 1 and "time_s" in rate[0], said
+    np.testing.assert_allclose(trajs[0].position[:, 0], [1e-3, 1.1e-3, 1.2e-3])
+    np.testing.assert_allclose(trajs[0].t, [0.0, 0.1, 0.2])
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RbgpWarning)
+        rread.read_sources([str(tmp_path)], ReadOptions(length_unit="m"))  # agrees with the names: nothing said
