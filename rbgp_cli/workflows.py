@@ -867,6 +867,12 @@ def evaluate_files(generated_sources, demo_sources, *, options: ReadOptions | No
     else:
         if not generated_sources:
             raise InputError("no generated trajectories given", hint="pass a file (or - for stdin) or model MODEL", param="model")
+        from rbgp_cli.io.model_store import is_model_file
+
+        for src in generated_sources:
+            if src != "-" and is_model_file(src):
+                raise InputError("is a model file, not generated trajectories", path=str(src),
+                                 hint=f"to score its rollouts: model {src} count N", param=("model", "count"))
         generated, _, _ = load_demonstrations(generated_sources, ReadOptions(), stdin=stdin)
     if unscored and check_sample_sizes(len(generated), len(demos), covariance).refusal is not None:
         result = evaluate(generated, demos, length=length, covariance=covariance, sample_size="record")

@@ -262,14 +262,16 @@ def rollout(
         if start or start_quat or starts or from_demos or steps is not None or duration is not None or each_duration:
             raise InputError("--given continues motions under way from what was seen: it takes no start poses, "
                              "--steps or --duration", hint="drop them, or drop --given")
-        if fmt != "csv" or rerun or plot:
-            raise InputError("--given writes CSV (no --rerun or --plot)", hint="write -o FILE.csv (or stdout)")
+        other = [x for x, on in (("an MCAP output", fmt != "csv"), ("--rerun", rerun), ("--plot", plot)) if on]
+        if other:
+            raise InputError(f"--given writes CSV, and takes no {' or '.join(other)}",
+                             hint="write -o FILE.csv (or stdout)" if fmt != "csv" else f"drop {' and '.join(other)}")
         ignored = [flag for flag, on in (("--goal", goal is not None), ("--goals", goals is not None), ("--via", via), ("--goal-tolerance", goal_tolerance),
                                          ("--count", count is not None), ("--dt", dt is not None), ("--output-rate", output_rate is not None),
                                          ("--off-data", off_data != "keep")) if on]
         if ignored:  # a continuation is conditioned on what was seen alone, on its own grid: these would do nothing
             raise InputError(f"--given continues each seen motion on its own; it takes no {', '.join(ignored)}",
-                             hint="drop them, or drop --given")
+                             hint=f"drop {'them' if len(ignored) > 1 else 'it'}, or drop --given")
         return _rollout_given(m, given, read, samples=samples, seed=seed, output=output, json_out=json_out)
     if goal is not None or via or goal_tolerance is not None:  # a mistyped pose (or an empty one) is the one line said
         import warnings

@@ -406,6 +406,18 @@ def _seekable_source(path):
     return io.BytesIO(data)
 
 
+def is_model_file(path) -> bool:
+    """Whether ``path`` is a file that looks like an rbgp model (a zip archive holding a ``header`` member), for a
+    message where one is given as data; False for anything else, a pipe or an unreadable file."""
+    try:
+        if not os.path.isfile(path) or _head(path, 4) != b"PK\x03\x04":
+            return False
+        with zipfile.ZipFile(path) as zf:
+            return any(n.startswith("header") for n in zf.namelist())
+    except (OSError, zipfile.BadZipFile, ValueError):
+        return False
+
+
 def _open_zip(path, src=None) -> zipfile.ZipFile:
     src = path if src is None else src
     magic = _head(src, 4)

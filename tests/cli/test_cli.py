@@ -176,6 +176,13 @@ def test_evaluate_with_model_generates_like_the_paper(model):
     assert json.loads(res.stdout)["n_generated"] == 5
 
 
+def test_evaluate_given_a_model_file_as_generated_trajectories_points_to_model(model):
+    res = run("evaluate", model, "--demos", CSV_DIR)
+    assert res.exit_code == 2
+    msg = res.stderr.strip().splitlines()
+    assert len(msg) == 1 and "is a model file, not generated trajectories" in msg[0] and f"--model {model}" in msg[0], msg
+
+
 def test_evaluate_against_one_demonstration_refuses_and_one_rollout_warns(model, tmp_path):
     """One demonstration: the per-step spread is the ridge alone, so the score would measure the ridge
     (the issue saw 'bhattacharyya mean 145.25'): exit 2 naming how many are needed. One generated

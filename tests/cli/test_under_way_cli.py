@@ -96,7 +96,15 @@ def test_rollout_given_refuses_what_it_would_ignore(model, tmp_path, args, named
     assert res.exit_code == 2, res.stderr
     msg = res.stderr.strip().splitlines()
     assert len(msg) == 1 and "--given" in msg[0] and named in msg[0], res.stderr
+    assert "drop it, or drop --given" in msg[0], msg  # one option: "it"
     assert not (tmp_path / "rest.csv").exists()
+
+
+def test_rollout_given_refuses_an_mcap_output_naming_only_what_was_given(model, tmp_path):
+    res = run("rollout", model, "--given", CSV_DIR / "shoe_01.csv", "-o", tmp_path / "rest.mcap")
+    assert res.exit_code == 2
+    msg = res.stderr.strip().splitlines()
+    assert len(msg) == 1 and "an MCAP output" in msg[0] and "--rerun" not in msg[0] and "--plot" not in msg[0], msg
 
 
 @pytest.mark.slow
