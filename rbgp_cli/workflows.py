@@ -539,11 +539,7 @@ def _note_widened_starts(res) -> None:
              f"their bands are widened {by} (rollouts {shown}; band_widening)")
 
 
-#: A goal further than this many of the demonstrations' spreads from where they end (given the start)
-#: is warned about (:func:`warn_far_goals`; the distance is a χ with 6 degrees of freedom, which exceeds
-#: 4.5 with probability 0.0025; held out of 5 folds, 2 of the 30 handovers' own goals and 2 of the 40
-#: slower handovers' lie beyond it, none of the 40 hand raises'; docs/method.md §12).
-FAR_GOAL = 4.5
+from rbgp_cli.dynamics.paths import FAR_GOAL  # noqa: E402  (warned about by warn_far_goals)
 
 
 def warn_far_goals(distance) -> None:

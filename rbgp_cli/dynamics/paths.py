@@ -68,6 +68,12 @@ MAX_GOAL_TOLERANCE = 1e100
 #: left-out paths is less certain), and at most to this factor.
 NARROW_FROM = 10
 NARROWEST = 0.5
+#: A goal further than this many of the demonstrations' spreads from where they end (given the start) is beyond
+#: what they support: it is warned about (rbgp_cli.workflows.warn_far_goals), and its default duration is not
+#: extrapolated (rollout._goal_durations). The distance is a χ with 6 degrees of freedom, which exceeds 4.5 with
+#: probability 0.0025; held out of 5 folds, 2 of the 30 handovers' own goals and 2 of the 40 slower handovers' lie
+#: beyond it, none of the 40 hand raises' (docs/method.md §12).
+FAR_GOAL = 4.5
 #: The scales κ (on the sample covariance) and λ (on the smooth shrinkage) that
 #: :meth:`PathDistribution.goal_strength` weighs for what is known of one motion (issue 38, fourth pass).
 STRENGTH_GRID = (1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0, 128.0)

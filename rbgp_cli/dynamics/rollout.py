@@ -603,8 +603,15 @@ def _goal_durations(paths, q0, p0, gq, gp, asked, via) -> np.ndarray:
     start and goal (``gq`` None: the start alone), kept within the durations a motion under way considers
     (:data:`~rbgp_cli.dynamics.anticipation.GRID_RANGE` times the demonstrations' shortest and longest), with a warning
     where that moved one: ln D is linear in the goal, and a goal far off the demonstrations' ends extrapolates it
-    (a 50 m goal of a handover model: 0.03 s); every via-point must lie inside them."""
+    (a 50 m goal of a handover model: 0.03 s); every via-point must lie inside them.
+
+    A goal further than :data:`~rbgp_cli.dynamics.paths.FAR_GOAL` spreads from where the demonstrations end (given
+    the start; e its deviation from there, d its distance) is not extrapolated: the duration is the one given the
+    goal moved back to that distance, e → e · FAR_GOAL / d, times (L + |p_goal − p_back|) / L, L the length of the
+    mean path's positions: the demonstrations' pace over the longer way. (A hand raise model given a goal 1 m above
+    its reach suggested 0.74 s, the demonstrations' shortest 1.6 s.)"""
     from rbgp_cli.dynamics.anticipation import GRID_RANGE
+    from rbgp_cli.dynamics.paths import FAR_GOAL
     from rbgp_cli.errors import warn
 
     durations = asked
@@ -612,9 +619,21 @@ def _goal_durations(paths, q0, p0, gq, gp, asked, via) -> np.ndarray:
         durations = np.empty(len(q0))
         for b in range(len(q0)):
             ob = [paths.observe([0.0], q0[b:b + 1], p0[b:b + 1], exact=True)]
+            stretch = 1.0
             if gq is not None:
-                ob.append(paths.observe([1.0], gq[b:b + 1], gp[b:b + 1], exact=True))
-            durations[b] = paths.condition(*paths.stack(*ob)).duration
+                A1, y1, r1 = paths.observe([1.0], gq[b:b + 1], gp[b:b + 1], exact=True)
+                start = paths.condition(*ob[0])
+                pred = A1 @ start.mean
+                e = y1 - pred
+                d = float(np.sqrt(e @ np.linalg.solve(A1 @ start.cov @ A1.T, e)))
+                if d > FAR_GOAL:  # the goal moved back to FAR_GOAL spreads, and the way to the real one walked at its pace
+                    y_b = pred + e * (FAR_GOAL / d)
+                    p_b = gp[b] + (y_b - y1)[3:] * paths.scale[3:]
+                    way = float(np.sum(np.linalg.norm(np.diff(paths.position, axis=0), axis=1)))
+                    stretch = 1.0 + float(np.linalg.norm(gp[b] - p_b)) / max(way, 1e-9)
+                    y1 = y_b
+                ob.append((A1, y1, r1))
+            durations[b] = paths.condition(*paths.stack(*ob)).duration * stretch
         d = np.exp(np.asarray(paths.log_durations, dtype=np.float64))
         lo, hi = GRID_RANGE[0] * d.min(), GRID_RANGE[1] * d.max()
         out = np.flatnonzero((durations < lo) | (durations > hi))

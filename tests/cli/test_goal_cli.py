@@ -94,6 +94,46 @@ def test_a_goal_so_far_that_its_duration_extrapolates_keeps_a_duration_like_the_
     assert abs(read_rollout(tmp_path / "given.csv")["0"].duration - 0.5) < 0.02
 
 
+def test_a_goal_beyond_the_demonstrations_gets_their_pace_over_the_longer_way(model):
+    """A goal moved away from where a demonstration ends, 5 cm at a time: within FAR_GOAL spreads the default duration
+    is the conditional one given the start and goal; beyond, the one at the goal moved back to FAR_GOAL spreads times
+    (L + the extra way) / L, so that it is continuous there and grows as the goal goes farther (before, ln D
+    extrapolated linearly and a hand raise's far goal got a motion shorter than every demonstration's)."""
+    from rbgp_cli.dynamics.paths import FAR_GOAL
+    from rbgp_cli.dynamics.rollout import _goal_durations
+    from rbgp_cli.io.model_store import load_model
+
+    paths = load_model(model)[0].paths
+    tr = demo_ends()[3]
+    q0, p0 = tr.quat[:1], tr.position[:1]
+    way = tr.position[-1] - tr.position[0]
+    ks = np.arange(0, 61)
+    gp = tr.position[-1] + 0.05 * ks[:, None] * way / np.linalg.norm(way)
+    gq = np.repeat(tr.quat[-1:], len(ks), axis=0)
+    qs, ps = np.repeat(q0, len(ks), axis=0), np.repeat(p0, len(ks), axis=0)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        dur = _goal_durations(paths, qs, ps, gq, gp, None, ())
+    dist = paths.goal_distance(qs, ps, gq, gp)
+    beyond = dist > FAR_GOAL
+    assert beyond.any() and not beyond.all(), dist
+    inside = [paths.condition(*paths.stack(paths.observe([0.0], q0, p0, exact=True),
+                                           paths.observe([1.0], gq[k:k + 1], gp[k:k + 1], exact=True))).duration
+              for k in np.flatnonzero(~beyond)]
+    np.testing.assert_allclose(dur[~beyond], inside, rtol=1e-9)
+    d = np.diff(dur)
+    assert np.all(np.abs(d) < 0.1 * dur[:-1]), dur  # no jump where the rule changes
+    from rbgp_cli.dynamics.anticipation import GRID_RANGE
+
+    hi = GRID_RANGE[1] * np.exp(paths.log_durations.max())  # then kept there, with a warning
+    free = beyond[1:] & beyond[:-1] & (dur[1:] < hi - 1e-9)
+    assert free.sum() >= 5 and np.all(d[free] > 0), dur  # farther beyond: longer
+    demos = [t.duration for t in read_demonstrations([str(p) for p in sorted(CSV_DIR.glob("*.csv"))], ReadOptions())]
+    assert dur[-1] > np.median(demos), (dur[-1], demos)
+
+
 @pytest.mark.slow
 def test_goals_file_one_per_start_in_the_order_of_the_starts(model, tmp_path):
     start, _, goal, tr = demo_ends()
