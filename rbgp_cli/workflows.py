@@ -785,7 +785,7 @@ def crossval_under_way(sources, fractions, train_kwargs: dict, *, options: ReadO
     if len(demos) < 4:
         raise InputError(f"crossval with a seen fraction needs at least 4 demonstrations, got {len(demos)}",
                          hint="the path distribution needs 3 in every training fold")
-    methods = [m for m in METHODS if peers or m in ("rbgp", "no-GP")]
+    methods = [m for m in METHODS if peers or m in ("rbgp", "no-GP", "nearest")]  # peers: the ProMPs (as --given goal)
     if peers and missing() is not None:
         from rbgp_cli.errors import warn
 

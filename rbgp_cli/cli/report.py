@@ -308,10 +308,13 @@ def format_crossval(result: dict, per_fold: bool = False) -> str:
     ]
     goal = result.get("given") == "goal"
     if goal:  # the end errors of the mean motions, after the other columns
+        shown = {str(r.get("representation")) for r in result["results"]}  # the peers name their rows so
+        said = " ".join(x for k, x in (("promp", "promp: conditioned on start and goal;"),
+                                        ("dmp", "dmp: of the nearest demonstration, with the new goal;")) if k in shown)
         lines[1] = ("given goal: each held-out demonstration's start, final pose and duration are given; "
                     "end_mm / end_mrad: how far the mean motions end from that final pose; nearest: the "
-                    "demonstration nearest by start and goal with its end offsets blended in; promp: conditioned "
-                    "on start and goal; dmp: of the nearest demonstration, with the new goal. " + lines[1])
+                    "demonstration nearest by start and goal with its end offsets blended in; " + said
+                    + (" " if said else "") + lines[1])
         lines[-1] += f" {'end_mm':>7} {'end_mrad':>8}"
     # rows of a --grid: the options that make each row, after its numbers
     options = {id(r): _options_label(r) for r in result["results"]}
