@@ -313,9 +313,13 @@ def read_file(source, options: ReadOptions | None = None, formats_read: set | No
             from rbgp_cli.errors import closest
 
             # names compared without a shared suffix: '.csv' alone made 'motion_025.csv' like 'mot_rest.csv'
-            same = {c.stem: c.name for c in p.parent.iterdir() if c.suffix.lower() == p.suffix.lower()}
-            stem = closest(p.stem, same) if p.suffix else None
-            guess = same[stem] if stem else closest(p.name, [c.name for c in p.parent.iterdir() if c.suffix.lower() != p.suffix.lower()])
+            if p.suffix:
+                same = {c.stem: c.name for c in p.parent.iterdir() if c.suffix.lower() == p.suffix.lower()}
+                stem = closest(p.stem, same)
+                guess = same[stem] if stem else closest(p.name, [c.name for c in p.parent.iterdir()
+                                                                 if c.suffix.lower() != p.suffix.lower()])
+            else:  # a folder, or a file named without its suffix
+                guess = closest(p.name, [c.name for c in p.parent.iterdir()])
             if guess:
                 hint = f"did you mean {str(p.parent / guess)!r}?"
         raise InputError("file not found", path=source, hint=hint)

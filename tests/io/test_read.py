@@ -108,6 +108,9 @@ def test_missing_file_suggests_no_name_that_only_shares_the_suffix(tmp_path):
         rread.read_file(tmp_path / "motion_025.csv")
     with pytest.raises(InputError, match=r"did you mean .*mot_rest\.csv"):
         rread.read_file(tmp_path / "mot_rset.csv")
+    (tmp_path / "hand_raise_csv").mkdir()
+    with pytest.raises(InputError, match=r"did you mean .*hand_raise_csv"):  # a folder's name, without a suffix
+        rread.read_file(tmp_path / "hand_rise_csv")
 
 
 def test_a_missing_quaternion_column_is_not_matched_to_a_position_column(tmp_path):
