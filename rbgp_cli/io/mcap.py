@@ -864,6 +864,9 @@ def describe_rows(desc: dict) -> list[str]:
         mark = "pose" if t.get("pose") else "    "
         n = t["messages"] if t["messages"] is not None else "?"
         lines.append(f"    {mark} {t['topic']:<36} {t['schema'] or '(no schema)'} ({t['message_encoding']}) {n} messages")
+    if not any(t.get("pose") for t in desc.get("topics", [])):  # what train would say: nothing here to train on
+        lines.append(_row("pose data", "none: no topic of a pose message type (train skips this file, or refuses it "
+                                       "alone)"))
     return lines
 
 

@@ -177,6 +177,13 @@ def test_no_pose_topic(tmp_path):
     F.write_strings(p)
     with pytest.raises(InputError, match=r"no pose topic found; topics are: /chatter \(std_msgs/msg/String, 5 messages\)"):
         rmcap.read(p)
+    # inspect says it too, under the topics (it lists them and exits 0, as for any file it can describe)
+    from rbgp_cli.io.inspect import format_inspect, inspect_file
+
+    text = format_inspect(inspect_file(p))
+    assert "pose data     none: no topic of a pose message type" in text, text
+    F.write_ros2(tmp_path / "pose.mcap", "geometry_msgs/msg/PoseStamped", n=5)
+    assert "pose data" not in format_inspect(inspect_file(tmp_path / "pose.mcap"))
 
 
 def test_several_pose_topics_are_listed(tmp_path):
