@@ -295,12 +295,21 @@ def read_start_poses(path, options: ReadOptions | None = None) -> tuple[np.ndarr
     from rbgp_cli.dynamics.prepare import ZERO_QUAT_NORM, line_of
     from rbgp_cli.io.read import read_demonstrations
 
+    import warnings
+
+    from rbgp_cli.errors import RbgpWarning
+
     opts = options or ReadOptions()
-    if opts.rate is None:
+    own_rate = opts.rate is None
+    if own_rate:
         from dataclasses import replace
 
         opts = replace(opts, rate=1.0)  # a list of poses needs no time column
-    trajs = read_demonstrations([str(path)], opts)
+    with warnings.catch_warnings():
+        if own_rate:  # the rate set here is not the user's: that a file's own times were used is nothing to say
+            warnings.filterwarnings("ignore", message=r".*rate 1 Hz was given, but the files have a time column",
+                                    category=RbgpWarning)
+        trajs = read_demonstrations([str(path)], opts)
     q = np.concatenate([t.quat for t in trajs]) if trajs else np.zeros((0, 4))
     p = np.concatenate([t.position for t in trajs]) if trajs else np.zeros((0, 3))
     if len(q) == 0:
