@@ -114,7 +114,9 @@ class RolloutResult:
 
     def resampled(self, rate: float) -> "RolloutResult":
         """The same rollouts at ``rate`` Hz: times t'_j = j / rate for t'_j <= t_S (each trajectory up
-        to its own end), poses by slerp (rotation) and linear interpolation (position) between the
+        to its own end, or to where it was stopped on leaving the data; when every trajectory ends at the same t_S
+        off that grid, t_S is written as well, so that the last row is the motion's end), poses by slerp (rotation)
+        and linear interpolation (position) between the
         integration steps around t'_j (:func:`~rbgp_cli.dynamics.trajectory.interpolate_poses`), the
         predictive std linearly. Output times on a step (t'_j = t_k) give that step's state exactly, so
         resampling changes nothing the integration computed; it only adds points between the steps.
@@ -133,6 +135,9 @@ class RolloutResult:
                              param="output_rate")
         count = np.floor((ends + tol) * rate).astype(int) + 1  # (B,) output samples of each trajectory
         t_new = np.arange(int(count.max())) / rate  # (T,) the times written
+        if np.ptp(ends) <= tol and ends[0] - t_new[-1] > tol:  # one end, off the grid: written too (the goal, the end)
+            t_new = np.append(t_new, ends[0])
+            count = count + 1
         # a target that is a step up to rounding is that step, so those samples are copied bit for bit
         near = np.clip(np.round(t_new / (t[1] - t[0])).astype(int), 0, len(t) - 1)
         x_new = np.where(np.abs(t[near] - t_new) <= tol, t[near], t_new)  # where to interpolate
@@ -148,7 +153,8 @@ class RolloutResult:
             band_p = (1.0 - f[:, None]) * self.band_position[:, k] + f[:, None] * self.band_position[:, k + 1]
             band_r = (1.0 - f[:, None, None]) * self.band_rotation[:, k] + f[:, None, None] * self.band_rotation[:, k + 1]
         res = RolloutResult(t=t_new, quat=quat, position=pos, std=std, output_names=self.output_names,
-                            lengths=None if self.lengths is None else count,
+                            # each its own length, and no further than where it was stopped (``ends``, in count)
+                            lengths=None if self.lengths is None and self.ends is None else count,
                             integration=self.integration or (len(t) - 1, float(t[1] - t[0])))
         if self.sample_quat is not None:
             res.sample_quat, res.sample_position = interpolate_poses(t, self.sample_quat, self.sample_position, x_new)

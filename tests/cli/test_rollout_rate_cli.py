@@ -49,8 +49,10 @@ def test_rollout_is_written_at_the_recorded_rate_by_default(model, tmp_path):
     assert names[:9] == ["trajectory", "t", "x", "y", "z", "qx", "qy", "qz", "qw"]
     assert names[9:] == [f"std_{n}" for n in ("wx", "wy", "wz", "vx", "vy", "vz")] + ["left_data"]
     n = int(np.floor(2.0 * rate + 1e-9)) + 1
-    assert v.shape == (n, 15) and set(traj) == {"0"}
-    np.testing.assert_allclose(v[:, 0], np.arange(n) / rate, rtol=0, atol=1e-12)  # times on the rate
+    off = 2.0 - (n - 1) / rate > 1e-9  # the end, off the rate's grid, is written as the last row
+    assert v.shape == (n + off, 15) and set(traj) == {"0"}
+    np.testing.assert_allclose(v[:n, 0], np.arange(n) / rate, rtol=0, atol=1e-12)  # times on the rate
+    assert v[-1, 0] == pytest.approx(2.0)
     assert np.all(np.isfinite(v)) and np.all(v[:, 8:14] > 0) and set(v[:, 14]) <= {0.0, 1.0}
     np.testing.assert_allclose(np.linalg.norm(v[:, 4:8], axis=1), 1.0, atol=1e-12)
 
@@ -215,3 +217,16 @@ def test_each_duration_recording_draws_each_rollout_for_its_own_duration(model, 
     rec = Rrd(rrd)
     rows = [rec.num_rows(f"/world/rollouts/{b}/body") for b in range(3)]
     assert rows == [traj.count(str(b)) for b in range(3)] and len(set(rows)) > 1
+
+
+def test_an_output_rate_whose_grid_misses_the_end_still_writes_the_end(model, tmp_path):
+    """--output-rate 0.5 on a 3.5 s motion: rows at 0, 2 s and its end (before: 0 and 2 s, the file ending mid-motion)."""
+    out = tmp_path / "r.csv"
+    res = run("rollout", model, "--start", START, "--duration", 3.5, "--output-rate", 0.5, "--json", "-o", out)
+    assert res.exit_code == 0, res.stderr
+    _, _, v = _table(out)
+    np.testing.assert_allclose(v[:, 0], [0.0, 2.0, 3.5], atol=0.02)
+    full = tmp_path / "full.csv"
+    assert run("rollout", model, "--start", START, "--duration", 3.5, "-o", full).exit_code == 0
+    _, _, w = _table(full)
+    np.testing.assert_allclose(v[-1, 1:8], w[-1, 1:8], atol=1e-6)  # the same end pose as at the recorded rate
