@@ -209,7 +209,7 @@ def rollout(
     start_time: Annotated[float, typer.Option("--start-time", help="Time of the MCAP's first message in seconds since the epoch (e.g. a recording's start, to play both side by side): every message's log time and stamp is this plus t.")] = 0.0,
     json_out: Annotated[bool, typer.Option("--json", help="Print a JSON summary on stdout (requires -o FILE).")] = False,
     rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd).")] = None,
-    plot: Annotated[Optional[str], typer.Option("--plot", help="Also write a figure (PNG): each dimension over time, the mean rollouts as lines, with --samples the next motion's 90 % band around each, goals as crosses at the end, via-points as diamonds, samples outside the demonstrations circled (rotation relative to the first rollout's start).")] = None,
+    plot: Annotated[Optional[str], typer.Option("--plot", help="Also write a figure (PNG, or PDF or SVG by the file's suffix): each dimension over time, the mean rollouts as lines, with --samples the next motion's 90 % band around each, goals as crosses at the end, via-points as diamonds, samples outside the demonstrations circled (rotation relative to the first rollout's start).")] = None,
     up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.")] = "z",
     read: ReadArgs = None,
 ):
@@ -254,8 +254,9 @@ def rollout(
     check_files({"--rerun": rerun, "--plot": plot})
     check_outputs(None if folder else (output or "-"), rerun, plot)
     if plot:
-        from rbgp_cli.viz.plots import _matplotlib
+        from rbgp_cli.viz.plots import _matplotlib, figure_format
 
+        figure_format(plot)  # a suffix it cannot write: said now
         _matplotlib()  # not installed: say so now, not after the rollout
     m, _ = load_model(model)
     if given:
@@ -471,7 +472,7 @@ def evaluate(
     per_step: Annotated[Optional[str], typer.Option("--per-step", help="Write the per-step series to this CSV.")] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print the scores as JSON on stdout.")] = False,
     rerun: Annotated[Optional[str], typer.Option("--rerun", help="Also write a Rerun recording (.rrd).")] = None,
-    plot: Annotated[Optional[str], typer.Option("--plot", help="Also write a figure (PNG) like the paper's Fig. 4/5: per dimension both sets' mean ± 2σ bands and at most 20 lines of each, axes clipped to the demonstrations and the bulk of the rollouts (clipped ones counted), and the per-step score. With one demonstration there is no score: the figure is still written, without the score panels, and the command exits 2 with the reason.")] = None,
+    plot: Annotated[Optional[str], typer.Option("--plot", help="Also write a figure (PNG, or PDF or SVG by the file's suffix) like the paper's Fig. 4/5: per dimension both sets' mean ± 2σ bands and at most 20 lines of each, axes clipped to the demonstrations and the bulk of the rollouts (clipped ones counted), and the per-step score. With one demonstration there is no score: the figure is still written, without the score panels, and the command exits 2 with the reason.")] = None,
     compare: Annotated[Optional[List[str]], paths_option("--compare", help="With --plot: generated trajectories of a second model (CSV, e.g. the Euler GP's rollouts) drawn in another colour and scored in the distance panel.")] = None,
     up: Annotated[str, typer.Option(help="World up axis for the recording: z or y.")] = "z",
     read: ReadArgs = None,
@@ -508,8 +509,9 @@ def evaluate(
     check_files({"--rerun": rerun, "--plot": plot})
     check_outputs(per_step, rerun, plot)
     if plot:
-        from rbgp_cli.viz.plots import _matplotlib
+        from rbgp_cli.viz.plots import _matplotlib, figure_format
 
+        figure_format(plot)  # a suffix it cannot write: said now
         _matplotlib()  # not installed: say so now, not after the scoring
     m = None
     if model is not None:

@@ -83,6 +83,24 @@ def _matplotlib():
     return Figure, FigureCanvasAgg
 
 
+#: The figure formats a plot's file suffix chooses (matplotlib's Agg and vector back ends, no other package).
+FIGURE_FORMATS = ("png", "pdf", "svg")
+
+
+def figure_format(path) -> str:
+    """The format of a figure written to ``path``, from its suffix (none: PNG); an InputError for another suffix,
+    before any work (a .pdf written as PNG data would open nowhere)."""
+    import os
+
+    ext = os.path.splitext(str(path))[1].lower().lstrip(".")
+    if not ext:
+        return "png"
+    if ext not in FIGURE_FORMATS:
+        raise InputError(f"a figure is written as {', '.join('.' + f for f in FIGURE_FORMATS)}, not .{ext}",
+                         path=str(path), hint="name the figure FILE.png, FILE.pdf or FILE.svg", param="plot")
+    return ext
+
+
 def is_monte_carlo_sample(traj: Trajectory) -> bool:
     """True for a Monte Carlo rollout as ``rbgp rollout --samples`` names it (``3.s0``, ``file#3.s0``)."""
     return bool(_SAMPLE_NAME.search(traj.name or ""))
@@ -324,7 +342,7 @@ def plot_evaluation(path, result, generated: Sequence[Trajectory], demos: Sequen
     title = _figure_title(title, result, res_c, gen_label, cmp_label, refusal)
     fig.suptitle(title, fontsize=12)
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=DPI)
+        fig.savefig(tmp, format=figure_format(path), dpi=DPI)
     return fig
 
 
@@ -519,5 +537,5 @@ def plot_rollout(path, res, title: str | None = None):
     if B > 1:
         fig.axes[0].legend(fontsize=7.5, loc="best")
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=DPI)
+        fig.savefig(tmp, format=figure_format(path), dpi=DPI)
     return fig

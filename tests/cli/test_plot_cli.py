@@ -71,3 +71,20 @@ def test_a_scored_plot_still_exits_0(tmp_path):
     res = run("evaluate", *gen, "--demos", CSV_DIR, "--plot", fig, "--json")
     assert res.exit_code == 0, res.stderr
     assert json.loads(res.stdout)["n_demos"] == 9 and _png(fig)
+
+
+@pytest.mark.parametrize("name,magic", [("fig.pdf", b"%PDF"), ("fig.svg", b"<?xml")])
+def test_the_figure_format_follows_the_suffix(tmp_path, name, magic):
+    """--plot x.pdf writes a PDF (before: PNG data under a .pdf name), .svg an SVG."""
+    gen = sorted(CSV_DIR.glob("*.csv"))[:4]
+    res = run("evaluate", *gen, "--demos", CSV_DIR, "--plot", tmp_path / name)
+    assert res.exit_code == 0, res.stderr
+    assert (tmp_path / name).read_bytes()[: len(magic)] == magic
+
+
+def test_a_figure_suffix_rbgp_cannot_write_is_refused_before_the_work(model, tmp_path):
+    res = run("rollout", model, "--count", 1, "-o", tmp_path / "r.csv", "--plot", tmp_path / "fig.jpg")
+    assert res.exit_code == 2
+    msg = res.stderr.strip().splitlines()
+    assert len(msg) == 1 and ".png, .pdf, .svg, not .jpg" in msg[0], msg
+    assert not (tmp_path / "r.csv").exists() and not (tmp_path / "fig.jpg").exists()
