@@ -205,9 +205,18 @@ def make_splits(n: int, k: int, seed: int = 0, order: str = "random", train_size
         starts = np.unique(np.round(np.linspace(0, max(0, n - N - 2), k)).astype(int))  # ≥ 2 held out where possible
         return [(np.arange(j, j + N), np.arange(j + N, n)) for j in starts]
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 2025]))
-    out = []
-    for _ in range(int(k)):
+    from math import comb
+
+    if comb(n, N) < int(k):  # distinct subsets: as many as there are (9 choose 8: 9)
+        warn(f"train_size {N} of {n} demonstrations makes {comb(n, N)} distinct subsets, not {int(k)}: "
+             f"{comb(n, N)} splits", param=("train_size", "folds"))
+        k = comb(n, N)
+    out, seen = [], set()
+    while len(out) < k:  # a subset drawn before is drawn again (the same draws as before where none repeats)
         train = np.sort(rng.choice(n, size=N, replace=False))
+        if tuple(train) in seen:
+            continue
+        seen.add(tuple(train))
         out.append((train, np.setdiff1d(np.arange(n), train)))
     return out
 

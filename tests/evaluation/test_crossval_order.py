@@ -5,6 +5,7 @@ Python API's parity (issue 36)."""
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -43,8 +44,15 @@ def test_train_size_splits_train_on_that_many_and_hold_out_the_rest_or_the_later
         with pytest.raises(InputError, match="train_size"):
             make_splits(n, k, seed, "random", size)
         return
-    for train, test in make_splits(n, k, seed, "random", size):
+    from math import comb
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # fewer distinct subsets than asked: said, and as many as there are
+        splits = make_splits(n, k, seed, "random", size)
+    for train, test in splits:
         assert len(train) == size and len(np.intersect1d(train, test)) == 0 and len(train) + len(test) == n
+    assert len(splits) == min(k, comb(n, size))  # distinct subsets (9 choose 8 drew one subset 3 times in 5)
+    assert len({tuple(t) for t, _ in splits}) == len(splits)
     windows = make_splits(n, k, seed, "recorded", size)
     assert 1 <= len(windows) <= k
     for train, test in windows:
