@@ -146,6 +146,14 @@ def test_library_errors_name_parameters(gp, demos):
     assert err.value.param == "rho_rot" and str(err.value) == "rho_rot must be a number, got 'x'"
     with pytest.raises(InputError, match="not fitted"):
         rbgp.RigidBodyGP().predict(np.zeros(7) + [0, 0, 0, 1, 0, 0, 0])
+    # the command line's bounds hold for the library too, each error naming its parameter (before: a raw numpy
+    # error for max_points 0, a plain ValueError for 1, restarts 0 accepted, and no parameter named)
+    for kw, param in ((dict(max_points=0), "max_points"), (dict(max_points=1), "max_points"),
+                      (dict(restarts=0), "restarts"), (dict(representation="bogus"), "representation"),
+                      (dict(kernel="foo"), "kernel")):
+        with pytest.raises(InputError) as err:
+            rbgp.RigidBodyGP(**{**FAST_KW, **kw}).fit(demos)
+        assert err.value.param == param and "--" not in str(err.value), (kw, err.value)
 
 
 def test_cli_shows_flags_for_parameters(tmp_path):

@@ -55,7 +55,7 @@ def make_kernel(representation: Representation, kernel: str = "se", rho_rot: flo
         if time_dims:
             raise InputError("kernel dot takes no time input", hint="use kernel se or se-chordal", param="kernel")
         return DotProduct(rd, rho_rot, learn_rho)
-    raise InputError(f"unknown kernel {kernel!r}; expected one of {', '.join(KERNELS)}")
+    raise InputError(f"unknown kernel {kernel!r}; expected one of {', '.join(KERNELS)}", param="kernel")
 
 
 @dataclass
@@ -754,6 +754,12 @@ def train_model(
     """
     t0 = time.perf_counter()
     rep, kernel, kern = _checked_model_options(representation, kernel, rho_rot, time_input, prior, prior_gain, euler_order)
+    # what the command line's bounds say, for the library's callers too (a raw numpy error otherwise)
+    if max_points is not None and not (isinstance(max_points, (int, np.integer)) and max_points >= 2):
+        raise InputError(f"max_points must be a whole number of at least 2 (a GP needs two points), got {max_points!r}",
+                         param="max_points")
+    if not (isinstance(restarts, (int, np.integer)) and restarts >= 1):
+        raise InputError(f"restarts must be a whole number of at least 1, got {restarts!r}", param="restarts")
     velocity = velocity or default_velocity()
     X, Y, info = training_set(trajs, rep, subsample=subsample, max_points=None, seed=seed, velocity=velocity,
                               time_input=time_input)
@@ -983,7 +989,8 @@ def _checked_model_options(representation, kernel, rho_rot, time_input, prior, p
     """:func:`train_model`'s model options checked (InputError naming the parameter): the
     representation, the kernel's name and the kernel (with ρ1 fixed, or learned for ``"learn"``)."""
     if representation not in DEFAULT_KERNELS:
-        raise InputError(f"unknown representation {representation!r}; expected one of {', '.join(DEFAULT_KERNELS)}")
+        raise InputError(f"unknown representation {representation!r}; expected one of {', '.join(DEFAULT_KERNELS)}",
+                         param="representation")
     kernel = kernel or DEFAULT_KERNELS[representation]
     rep = make_representation(representation, order=euler_order) if representation == "euler" else make_representation(representation)
     learn_rho = rho_rot == "learn"
