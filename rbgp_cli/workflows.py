@@ -334,10 +334,12 @@ def read_start_poses(path, options: ReadOptions | None = None) -> tuple[np.ndarr
     return q / norm[:, None], p
 
 
-def predict_file(model, path, options: ReadOptions | None = None, noisy: bool = False, max_gap: float | None = None):
+def predict_file(model, path, options: ReadOptions | None = None, noisy: bool = False, max_gap: float | None = None,
+                 names: list | None = None):
     """``rbgp predict``: velocity mean and std at every pose of a file.
 
-    Returns (t or None, quat (m, 4), position (m, 3), mean (m, L), std (m, L)). For a model without a
+    Returns (t or None, quat (m, 4), position (m, 3), mean (m, L), std (m, L)); ``names``, a list, gets each row's
+    trajectory name (where the file holds trajectories). For a model without a
     time input the file is a list of poses (:func:`read_start_poses`); with one it holds trajectories
     with times, and each pose gets its time since its trajectory's start (seconds, or the phase
     t/D for a phase model, whose outputs per unit phase are divided by D: per second); ``max_gap``
@@ -368,6 +370,8 @@ def predict_file(model, path, options: ReadOptions | None = None, noisy: bool = 
                                   tau=tau / scale if model.time_input == "phase" else tau,
                                   start=(tr.quat[0], tr.position[0]))
         ts.append(tr.t)
+        if names is not None:
+            names.extend([tr.name] * len(tr.t))
         qs.append(tr.quat)
         ps.append(tr.position)
         means.append(mean / scale)

@@ -163,14 +163,23 @@ def predict(
 
     check_outputs(output or "-")
     m, _ = load_model(model)
-    t, q, p, mean, std = workflows.predict_file(m, poses, read.options, noisy=noisy, max_gap=read.max_gap)  # '-' too
+    rows_of: list = []
+    t, q, p, mean, std = workflows.predict_file(m, poses, read.options, noisy=noisy, max_gap=read.max_gap,
+                                                names=rows_of)  # '-' too
     names = list(m.representation.output_names)
     time_col = ["t"] if t is not None else []
+    several = len(set(rows_of)) > 1  # trajectories told apart, as a rollout file names them
+    prefixes = {str(x).split("#", 1)[0] + "#" for x in rows_of if "#" in str(x)}
+    if several and len(prefixes) == 1 and all("#" in str(x) for x in rows_of):  # one file's: its own names
+        rows_of = [str(x)[len(next(iter(prefixes))):] for x in rows_of]
 
     def write(fh):
-        fh.write(",".join(time_col + ["x", "y", "z", "qx", "qy", "qz", "qw"] + [f"mean_{n}" for n in names] + [f"std_{n}" for n in names]) + "\n")
+        fh.write(",".join((["trajectory"] if several else []) + time_col + ["x", "y", "z", "qx", "qy", "qz", "qw"]
+                          + [f"mean_{n}" for n in names] + [f"std_{n}" for n in names]) + "\n")
         for i, row in enumerate(zip(p, q, mean, std)):
-            lead = [repr(float(t[i]))] if t is not None else []
+            # a name quoted as CSV quotes it, as rollout writes names
+            lead = (['"' + str(rows_of[i]).replace('"', '""') + '"'] if several else []) + \
+                ([repr(float(t[i]))] if t is not None else [])
             fh.write(",".join(lead + [repr(float(v)) for part in row for v in part]) + "\n")
 
     write_text_output(output, write)

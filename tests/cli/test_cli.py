@@ -78,6 +78,23 @@ def test_predict_writes_mean_and_std_per_pose(model, tmp_path):
     assert vals.shape == (2, 8 + 12) and np.all(np.isfinite(vals)) and np.all(vals[:, -6:] >= 0)
 
 
+def test_predict_on_a_rollout_file_keeps_its_trajectories_apart(model, tmp_path):
+    """A file of several trajectories (a rollout's): a trajectory column first, with their own names (before: dropped,
+    the rows told apart only by t falling back to 0); one trajectory: no such column."""
+    import csv
+
+    gen = tmp_path / "gen.csv"
+    assert run("rollout", model, "--count", 3, "-o", gen).exit_code == 0
+    res = run("predict", model, gen)
+    assert res.exit_code == 0, res.stderr
+    rows = list(csv.reader(res.stdout.splitlines()))
+    assert rows[0][:2] == ["trajectory", "t"]
+    names = [r[0] for r in rows[1:]]
+    assert sorted(set(names)) == ["0", "1", "2"] and names == sorted(names, key=int)  # in the file's order
+    one = run("predict", model, CSV_DIR / "shoe_01.csv")
+    assert one.exit_code == 0 and one.stdout.splitlines()[0].startswith("t,x,y,z,qx,qy,qz,qw,")
+
+
 def test_predict_without_times_for_a_phase_model_says_what_to_give(model, tmp_path):
     poses = tmp_path / "poses.csv"
     poses.write_text(BARE_POSES)
