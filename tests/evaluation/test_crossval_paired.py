@@ -167,6 +167,26 @@ def test_the_text_shows_the_paired_section_and_marks_large_z():
     assert worse["paired"]["rotation"]["z"] is None and "+0.0000 ± -" in line
 
 
+def test_the_text_notes_when_most_fits_switched_the_gp_off_across_gp_rows():
+    """Rows that differ only in the GP's representation or kernel, where most fits chose gain 0: one note under the
+    table (a new user read three alike rows as three alike representations); none for one GP row or gains of 1."""
+    demos = reaching_demos(6)
+    res = crossval(demos, [Config(REPLAY)], folds=3, jobs=1, samples=0)
+    base = res["results"][0]
+
+    def gp_row(rep, kernel, gains):
+        return {**base, "representation": rep, "kernel": kernel, "label": f"{rep} {kernel}",
+                "per_fold": [{**f, "residual_gain": g} for f, g in zip(base["per_fold"], gains)]}
+
+    res["paired_reference"] = None
+    res["results"] = [gp_row("axis-angle", "se-chordal", [0.0, 0.0, 0.0]), gp_row("euler", "se", [0.0, 0.25, 1.0])]
+    assert "note: 4 of 6 fits switched the GP's residual off" in format_crossval(res)
+    res["results"] = [gp_row("axis-angle", "se-chordal", [1.0, 1.0, 0.0]), gp_row("euler", "se", [1.0, 0.25, 1.0])]
+    assert "note:" not in format_crossval(res)
+    res["results"] = [gp_row("axis-angle", "se-chordal", [0.0, 0.0, 0.0])]
+    assert "note:" not in format_crossval(res)
+
+
 @pytest.mark.slow
 def test_cli_json_and_table_have_the_paired_comparisons(tmp_path):
     folder = _write(reaching_demos(6), tmp_path / "demos")
