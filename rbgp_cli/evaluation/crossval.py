@@ -313,7 +313,7 @@ def splits_text(result: dict, limit: int = 6) -> str:
     else:
         head = (f"trained on {size} consecutive, the later ones held out" if order == "recorded"
                 else f"trained on {size} at random, the rest held out")
-        parts = [f"{_ranges(sp['train'])} → {len(sp['test'])}" for sp in splits[:limit]]
+        parts = [f"{_ranges(sp['train'])} → {len(sp['test'])} held out" for sp in splits[:limit]]  # a count: not "4"
     more = f"; and {len(splits) - limit} more" if len(splits) > limit else ""
     return f"splits: {head}: " + "; ".join(f"[{p}]" for p in parts) + more
 

@@ -77,7 +77,7 @@ def test_the_splits_line_names_the_demonstrations_in_recording_order():
     assert splits_text(res) == "splits: held out in contiguous blocks in recording order: [1–4]; [5–8]; [9–12]"
     res = {"order": "recorded", "train_size": 5, "seed": 0,
            "splits": [{"train": a.tolist(), "test": b.tolist()} for a, b in make_splits(n, 2, 0, "recorded", 5)]}
-    assert splits_text(res) == ("splits: trained on 5 consecutive, the later ones held out: [1–5 → 7]; [6–10 → 2]")
+    assert splits_text(res) == ("splits: trained on 5 consecutive, the later ones held out: [1–5 → 7 held out]; [6–10 → 2 held out]")
 
 
 @pytest.fixture(scope="module")
