@@ -608,7 +608,8 @@ def read_options(fmt="auto", columns=None, quat_order=None, euler_order=None, de
             raise InputError(f"{name} must be a positive number, got {v}")
     for name, v in (("--crop-from", crop_from), ("--crop-to", crop_to)):
         if v is not None and not (0 <= v < float("inf")):
-            raise InputError(f"{name} must be a non-negative number of seconds, got {v}")
+            raise InputError(f"{name} must be a finite, non-negative number of seconds, got {v}",
+                             hint="leave it out to keep the whole take" if v == float("inf") else None)
     if crop_from is not None and crop_to is not None and crop_to <= crop_from:
         raise InputError(f"--crop-to {crop_to:g} must be later than --crop-from {crop_from:g}")
     if not split_at_rest and (rest_speed is not None or rest_time is not None):

@@ -573,7 +573,7 @@ def crop_trajectory(traj: Trajectory, start: float | None = None, end: float | N
         return traj
     for name, v in (("crop_from", start), ("crop_to", end)):
         if v is not None and not (np.isfinite(v) and v >= 0):
-            raise InputError(f"{name} must be a non-negative number of seconds, got {v!r}", param=name)
+            raise InputError(f"{name} must be a finite, non-negative number of seconds, got {v!r}", param=name)
     if start is not None and end is not None and end <= start:
         raise InputError(f"crop_to {end:g} s must be later than crop_from {start:g} s", param="crop_to")
     t = traj.t
