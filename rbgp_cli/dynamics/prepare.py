@@ -25,6 +25,7 @@ This module is core: it uses numpy and :mod:`rbgp_cli.errors` only.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -689,7 +690,13 @@ def _runs_of(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
 
 
-def split_at_rest(traj: Trajectory, rest: RestSplit, *, quiet: bool = False):
+def _rest_rule(rest: RestSplit) -> str:
+    """What counts as rest, for the warnings of :func:`split_at_rest`."""
+    return (f"rest: speed below {rest.speed:g} m/s and {rest.angular_speed:g} rad/s for at least {rest.min_rest:g} s; "
+            "rest_speed and rest_time decide")
+
+
+def split_at_rest(traj: Trajectory, rest: RestSplit, *, quiet: bool = False, say_whole: bool = True):
     """Cut a clean take into repetitions separated by rests (docs/method.md §4.1 conventions).
 
     Rest samples: linear speed < ``rest.speed`` and angular speed < ``rest.angular_speed``
@@ -698,7 +705,8 @@ def split_at_rest(traj: Trajectory, rest: RestSplit, *, quiet: bool = False):
     repetition named ``NAME#rep1``, ...; motion runs shorter than ``rest.min_rest`` are left out.
     Returns ``(repetitions, record)``, record = plain data (``repetitions``, ``rests``,
     ``twitches``, ``spans_s``: [start, end] of each repetition, seconds since the take's start). With
-    no rest found the take comes back whole (and, unless ``quiet``, a warning says so).
+    no rest found the take comes back whole (and, unless ``quiet`` or not ``say_whole``, a warning says so; the
+    record has ``no_rest``: :func:`prepare_all` says it once for all takes).
     """
     t = traj.t
     n = len(t)
@@ -717,13 +725,13 @@ def split_at_rest(traj: Trajectory, rest: RestSplit, *, quiet: bool = False):
         reps.append((a0, b0))
     t0 = float(t[0])
     label = f"{traj.name}: " if traj.name else ""
-    how = (f"rest: speed below {rest.speed:g} m/s and {rest.angular_speed:g} rad/s for at least {rest.min_rest:g} s; "
-           "rest_speed and rest_time decide")
+    how = _rest_rule(rest)
     record = {"repetitions": len(reps), "rests": len(rests), "twitches": twitches,
               "spans_s": [[float(t[a] - t0), float(t[b - 1] - t0)] for a, b in reps]}
     if len(reps) <= 1 and not rests:
-        if not quiet:
+        if not quiet and say_whole:
             warn(f"{label}split_at_rest found no rest: kept as one demonstration ({how})", path=traj.source or None)
+        record["no_rest"] = True
         record["repetitions"] = 1
         record["spans_s"] = [[0.0, float(t[-1] - t0)]]
         return [traj], record
@@ -751,6 +759,7 @@ def prepare_all(trajectories, *, max_gap: float | None = None, unit_tolerance: f
     longer. ``quiet`` suppresses the warnings of splitting (``rbgp inspect`` reports them itself).
     """
     clean, reports = [], []
+    whole: list = []  # takes split_at_rest found no rest in: said once, below
     for traj in trajectories:
         if crop is not None:
             traj = crop_trajectory(traj, *crop)
@@ -764,11 +773,17 @@ def prepare_all(trajectories, *, max_gap: float | None = None, unit_tolerance: f
         if rest is not None:
             reps, r["rest"] = [], []
             for piece in pieces:
-                got, rec = split_at_rest(piece, rest, quiet=quiet)
+                got, rec = split_at_rest(piece, rest, quiet=quiet, say_whole=False)
+                if rec.get("no_rest"):
+                    whole.append(os.path.basename(piece.source) if piece.source else (piece.name or ""))
                 reps += got
                 r["rest"].append(rec)
             pieces = reps
         r["pieces"] = len(pieces)
         clean.extend(pieces)
         reports.append(r)
+    if whole and not quiet:
+        named = ", ".join(n for n in whole[:4] if n) + (f" and {len(whole) - 4} more" if len(whole) > 4 else "")
+        warn(f"split_at_rest found no rest in {len(whole)} of {sum(len(r['rest']) for r in reports if 'rest' in r)} "
+             f"takes{' (' + named + ')' if named else ''}: each kept as one demonstration ({_rest_rule(rest)})")
     return clean, reports

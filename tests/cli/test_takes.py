@@ -178,3 +178,21 @@ def test_cropping_keeps_the_samples_between_the_times(tmp_path):
     assert tr["demonstrations"] == 1 and tr["samples_used"] == int(kept.sum())
     res = run("train", f, "-o", tmp_path / "m.rbgp", "--crop-from", "100")
     assert res.exit_code == 2 and "lasts" in res.stderr and "--crop-from" in res.stderr
+
+
+def test_takes_without_a_rest_are_said_once_for_the_set():
+    """--split-at-rest over takes that never rest (a folder of waves): one warning naming how many and which, not one
+    per take."""
+    from rbgp_cli.dynamics.trajectory import Trajectory
+
+    takes = []
+    for k in range(5):
+        t = np.arange(0, 2.0, 0.01)
+        pos = np.column_stack([0.3 * np.sin(3 * t + k), 0.2 * t, np.zeros_like(t)])  # always moving
+        takes.append(Trajectory(t, np.tile([0, 0, 0, 1.0], (len(t), 1)), pos, name=f"wave_{k}", source=f"/d/wave_{k}.csv"))
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        out, _ = prepare_all(takes, rest=RestSplit())
+    said = [str(x.message) for x in w if issubclass(x.category, RbgpWarning) and "no rest" in str(x.message)]
+    assert len(out) == 5 and len(said) == 1, said
+    assert "no rest in 5 of 5 takes" in said[0] and "wave_0.csv" in said[0] and "1 more" in said[0], said
