@@ -53,7 +53,8 @@ def make_kernel(representation: Representation, kernel: str = "se", rho_rot: flo
         return SquaredExponential("chordal", rd, rho_rot, learn_rho, time_dims)
     if kernel == "dot":
         if time_dims:
-            raise InputError("kernel dot takes no time input", hint="use kernel se or se-chordal", param="kernel")
+            raise InputError("kernel dot takes no time input", hint="use kernel se or se-chordal; the dot product "
+                             "needs time_input none and prior none (or goal)", param=("kernel", "time_input", "prior"))
         return DotProduct(rd, rho_rot, learn_rho)
     raise InputError(f"unknown kernel {kernel!r}; expected one of {', '.join(KERNELS)}", param="kernel")
 
