@@ -220,8 +220,8 @@ def make_input(name: str, folder: Path, model_path: Path) -> None:
     target = folder / name
     target.parent.mkdir(parents=True, exist_ok=True)
     low = name.lower()
-    if low.endswith(".mcap") and Path(name).stem.startswith("generated"):
-        # what an example before it writes (rollout -o generated.mcap), which may run on another test worker
+    if low.endswith((".mcap", ".csv")) and Path(name).stem.startswith("gen"):
+        # what an example before it writes (rollout -o gen.csv, -o generated.mcap), which may run on another worker
         subprocess.run([str(BIN / "rbgp"), "-q", "rollout", str(model_path), "--count", "2", "-o", str(target)],
                        check=True, capture_output=True, timeout=300)
     elif low.endswith(".mcap"):

@@ -354,9 +354,9 @@ def format_crossval(result: dict, per_fold: bool = False) -> str:
     gains = [f.get("residual_gain") for r in gp_rows for f in r.get("per_fold", [])]
     off = sum(g == 0 for g in gains)
     if len({(r["representation"], r["kernel"]) for r in gp_rows}) > 1 and gains and 2 * off >= len(gains):
-        lines.append(f"note: {off} of {len(gains)} fits switched the GP's residual off (gain 0, chosen on held-out "
+        lines += ["", f"note: {off} of {len(gains)} fits switched the GP's residual off (gain 0, chosen on held-out "
                      "rollouts): there the motion is the path prior's, and rows that differ only in the GP's "
-                     "representation or kernel differ little; --residual-gain 1 compares the GPs themselves")
+                     "representation or kernel differ little; --residual-gain 1 compares the GPs themselves"]
     lines += _paired_lines(result)
     return "\n".join(lines)
 
