@@ -493,9 +493,13 @@ def rollout_model(model, quat, pos, *, steps=None, duration=None, dt=None, sampl
             steps = max(1, int(round(dur / step)))
         res = rollout(model, quat, pos, steps, step, **kwargs)
     if res.left and res.left["count"]:
-        then = {"keep": "they went on (off_data stop ends them there, prior falls back to the prior's pull)",
+        residual_off = float(getattr(model, "residual_gain", 1.0)) == 0.0  # the motion is the prior's already
+        then = {"keep": "they went on (off_data stop ends them there" + ("" if residual_off else
+                                                                        ", prior falls back to the prior's pull") + ")",
                 "stop": "they end there (off_data stop)",
-                "prior": "they followed the prior mean while outside (off_data prior)"}[off_data]
+                "prior": ("they went on: this model's GP residual is off (gain 0), so its motion is the prior's "
+                          "everywhere and off_data prior changes nothing (off_data stop ends them)" if residual_off else
+                          "they followed the prior mean while outside (off_data prior)")}[off_data]
         warn(describe(res.left) + f"; {then}"
              + ("; envelope from the model's training points (an older model file)" if res.left["envelope"] != "demonstrations" else ""))
     var = getattr(model, "variation", None)

@@ -167,3 +167,19 @@ def test_crossval_reports_how_many_rollouts_left(narrow):
     res = runner.invoke(app, ["crossval", str(folder), "--folds", "3", *FAST, "--jobs", "1"])
     header = next(ln for ln in res.stdout.splitlines() if ln.startswith("representation"))  # the table's columns
     assert res.exit_code == 0 and " left" in header
+
+
+def test_off_data_prior_on_a_model_whose_residual_is_off_says_it_changes_nothing(narrow, tmp_path):
+    """With the GP's residual off (gain 0) the motion is the prior's everywhere: off_data prior writes what keep writes,
+    and the warning says so instead of claiming a fallback (a new user compared the two files byte for byte)."""
+    folder, _, _, _ = narrow
+    model = tmp_path / "off.rbgp"
+    assert runner.invoke(app, ["train", str(folder), "-o", str(model), *FAST, "--residual-gain", "0"]).exit_code == 0
+    out = {}
+    for mode in ("keep", "prior"):
+        res = runner.invoke(app, ["rollout", str(model), "--start", FAR, "--off-data", mode, "-o", str(tmp_path / f"{mode}.csv")])
+        assert res.exit_code == 0, res.stderr
+        out[mode] = res.stderr
+    assert (tmp_path / "keep.csv").read_text() == (tmp_path / "prior.csv").read_text()
+    assert "changes nothing" in out["prior"] and "followed the prior mean" not in out["prior"]
+    assert "falls back to the prior's pull" not in out["keep"]
