@@ -299,7 +299,8 @@ def format_crossval(result: dict, per_fold: bool = False) -> str:
         "the held-out motions; left: rollouts "
         "that left the training demonstrations' envelope; kernel 'no-GP': the same fits with the GP's residual "
         "switched off (the path distribution alone), what the GP adds is the difference"
-        + (f" (held-out demonstrations: {result['floor_left_data']} of {result['demonstrations'] * R})"
+        + (f" (held-out demonstrations: {result['floor_left_data']} of "
+           f"{sum(len(sp['test']) for sp in result['splits']) if result.get('splits') else result['demonstrations'] * R})"
            if result.get("floor_left_data") is not None else ""),
         splits_text(result),
         "",

@@ -5,6 +5,7 @@ Python API's parity (issue 36)."""
 from __future__ import annotations
 
 import json
+import re
 import warnings
 
 import numpy as np
@@ -99,7 +100,8 @@ def test_crossval_in_recording_order_and_with_a_train_size_say_their_splits_in_t
     assert table.exit_code == 0, table.stderr
     assert "splits: trained on 5 at random, the rest held out: [" in table.stdout
     line = next(x for x in table.stdout.splitlines() if x.startswith("splits:"))
-    assert line.count("→ 3") == 2  # two subsets of 5, each holding out the other 3
+    assert line.count("→ 3 held out") == 2  # two subsets of 5, each holding out the other 3
+    assert re.search(r"held-out demonstrations: \d+ of 6\)", table.stdout)  # 2 × 3 held out, not 8
     # the API gives the same splits
     import rbgp_cli as rbgp
 
