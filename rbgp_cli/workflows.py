@@ -295,21 +295,13 @@ def read_start_poses(path, options: ReadOptions | None = None) -> tuple[np.ndarr
     from rbgp_cli.dynamics.prepare import ZERO_QUAT_NORM, line_of
     from rbgp_cli.io.read import read_demonstrations
 
-    import warnings
-
-    from rbgp_cli.errors import RbgpWarning
-
     opts = options or ReadOptions()
     own_rate = opts.rate is None
     if own_rate:
         from dataclasses import replace
 
         opts = replace(opts, rate=1.0)  # a list of poses needs no time column
-    with warnings.catch_warnings():
-        if own_rate:  # the rate set here is not the user's: that a file's own times were used is nothing to say
-            warnings.filterwarnings("ignore", message=r".*rate 1 Hz was given, but the files have a time column",
-                                    category=RbgpWarning)
-        trajs = read_demonstrations([str(path)], opts)
+    trajs = read_demonstrations([str(path)], opts, own_rate=own_rate)
     q = np.concatenate([t.quat for t in trajs]) if trajs else np.zeros((0, 4))
     p = np.concatenate([t.position for t in trajs]) if trajs else np.zeros((0, 3))
     if len(q) == 0:
@@ -339,7 +331,8 @@ def predict_file(model, path, options: ReadOptions | None = None, noisy: bool = 
     """``rbgp predict``: velocity mean and std at every pose of a file.
 
     Returns (t or None, quat (m, 4), position (m, 3), mean (m, L), std (m, L)); ``names``, a list, gets each row's
-    trajectory name (where the file holds trajectories). For a model without a
+    trajectory name where the file holds trajectories, as the file names them (the reader's ``FILE#`` prefix, the
+    same for all, left out). For a model without a
     time input the file is a list of poses (:func:`read_start_poses`); with one it holds trajectories
     with times, and each pose gets its time since its trajectory's start (seconds, or the phase
     t/D for a phase model, whose outputs per unit phase are divided by D: per second); ``max_gap``
@@ -376,6 +369,10 @@ def predict_file(model, path, options: ReadOptions | None = None, noisy: bool = 
         ps.append(tr.position)
         means.append(mean / scale)
         stds.append(std / scale)
+    if names is not None:
+        heads = {str(x).split("#", 1)[0] for x in names}
+        if len(heads) == 1 and all("#" in str(x) for x in names):  # one file's trajectories: its own names
+            names[:] = [str(x).split("#", 1)[1] for x in names]
     return (np.concatenate(ts), np.concatenate(qs), np.concatenate(ps), np.concatenate(means), np.concatenate(stds))
 
 

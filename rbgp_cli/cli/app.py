@@ -169,9 +169,6 @@ def predict(
     names = list(m.representation.output_names)
     time_col = ["t"] if t is not None else []
     several = len(set(rows_of)) > 1  # trajectories told apart, as a rollout file names them
-    prefixes = {str(x).split("#", 1)[0] + "#" for x in rows_of if "#" in str(x)}
-    if several and len(prefixes) == 1 and all("#" in str(x) for x in rows_of):  # one file's: its own names
-        rows_of = [str(x)[len(next(iter(prefixes))):] for x in rows_of]
 
     def write(fh):
         fh.write(",".join((["trajectory"] if several else []) + time_col + ["x", "y", "z", "qx", "qy", "qz", "qw"]

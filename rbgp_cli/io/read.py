@@ -508,13 +508,16 @@ def warnings_renamed(tmp: str, name: str, stem: str):
                 warnings.warn(fix(w.message), w.category, stacklevel=3)
 
 
-def read_sources(sources, options: ReadOptions | None = None, stdin=None) -> tuple[list[Trajectory], SourceList]:
+def read_sources(sources, options: ReadOptions | None = None, stdin=None, *,
+                 own_rate: bool = False) -> tuple[list[Trajectory], SourceList]:
     """Read every source into raw trajectories, in order; also return what was read and skipped.
 
     Files found in a directory or through a pattern that hold no pose data are skipped (judged from
     their head, else by the reader raising :class:`~rbgp_cli.errors.NotPoseData`); one
     :class:`~rbgp_cli.errors.RbgpWarning` counts and names them. A directory or pattern that leaves
-    nothing to read, and any other problem of any file, is an :class:`InputError`.
+    nothing to read, and any other problem of any file, is an :class:`InputError`. ``own_rate``: the options' rate is
+    the caller's default (a list of poses needs no time column), not the user's, and files that have their own times
+    are not said to leave it unused.
     """
     options = options or ReadOptions()
     if isinstance(sources, (str, os.PathLike)):
@@ -548,11 +551,11 @@ def read_sources(sources, options: ReadOptions | None = None, stdin=None) -> tup
     note = listing.note()
     if note:
         warn(note)
-    _say_ignored_options(options, formats_read, out)
+    _say_ignored_options(options, formats_read, out, rate_given=not own_rate)
     return out, listing
 
 
-def _say_ignored_options(options: ReadOptions, formats_read: set, trajs=()) -> None:
+def _say_ignored_options(options: ReadOptions, formats_read: set, trajs=(), rate_given: bool = True) -> None:
     """One warning per read option that only some formats use (:data:`~rbgp_cli.io.formats.SPECIFIC_OPTIONS`)
     and that no file read used (``body`` given for CSV files): the user meant it, and it changed nothing. Also one
     for ``rate`` where every file read has a time column, and one where ``length_unit`` overrode the unit the
@@ -563,7 +566,7 @@ def _say_ignored_options(options: ReadOptions, formats_read: set, trajs=()) -> N
         warn(f"length_unit {options.length_unit} was applied to position columns whose names say "
              f"{', '.join(units)}: positions read as {options.length_unit}",
              hint="drop length_unit if the column names are right", param="length_unit")
-    if options.rate and trajs and all(tr.info.get("rate_option_unused") for tr in trajs):
+    if rate_given and options.rate and trajs and all(tr.info.get("rate_option_unused") for tr in trajs):
         warn(f"rate {options.rate:g} Hz was given, but the files have a time column "
              f"({trajs[0].info['rate_option_unused']}): their own times are used", param="rate")
     read = [formats.get(n) for n in sorted(formats_read)]
@@ -577,7 +580,8 @@ def _say_ignored_options(options: ReadOptions, formats_read: set, trajs=()) -> N
              hint=f"{key} applies to {', '.join(users)} files", param=key)
 
 
-def read_demonstrations(sources, options: ReadOptions | None = None, stdin=None) -> list[Trajectory]:
+def read_demonstrations(sources, options: ReadOptions | None = None, stdin=None, *,
+                        own_rate: bool = False) -> list[Trajectory]:
     """Read every source into raw trajectories, in order.
 
     Parameters
@@ -588,6 +592,8 @@ def read_demonstrations(sources, options: ReadOptions | None = None, stdin=None)
     options : ReadOptions, optional
     stdin : binary stream, optional
         What ``-`` reads (default ``sys.stdin.buffer``).
+    own_rate : bool
+        The options' rate is the caller's default, not the user's (:func:`read_sources`).
 
     Returns
     -------
@@ -595,4 +601,4 @@ def read_demonstrations(sources, options: ReadOptions | None = None, stdin=None)
         Raw (see :mod:`rbgp_cli.io.read`); prepare them with
         :func:`rbgp_cli.dynamics.prepare.prepare_all`.
     """
-    return read_sources(sources, options, stdin)[0]
+    return read_sources(sources, options, stdin, own_rate=own_rate)[0]
