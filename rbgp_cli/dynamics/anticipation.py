@@ -23,7 +23,9 @@ the weighted median). Its band is the 5 %/95 % quantiles of the weights with the
 λ = ``paths.duration_evidence``, w_g ∝ t_ν(ℓ_g) (w_g / N(ℓ_g))^λ (N the weights' Gaussian prior of ℓ, t_ν its
 Student-t, ν = D − 1), times D̂ over their own median (:meth:`Anticipator.band_shift`: their spread, centred on D̂):
 :func:`fit_seen` takes the largest λ whose band holds the left-out durations at 90 % (:func:`_evidence_loo`); the
-samples draw their durations from these weights, moved the same way. One batched solve over the grid gives the weights and,
+samples draw their durations from these weights, moved the same way. A seen part less like the demonstrations than
+their median (widening s > 1, below) has the band and the samples' durations stretched about D̂ in ln D by s,
+D̂ (D / D̂)^s (:meth:`Anticipator.stretched`), and λ is chosen for the band so widened. One batched solve over the grid gives the weights and,
 per D_g, the conditioned end pose. The end pose is the continuation's end; its band's covariance is the end's conditional
 covariance at D̂ as the samples draw it (the path distribution's own τ² and r, the last seen pose exactly) plus the
 spread of the per-D_g ends over the weights about their own mean (the duration's part).
@@ -143,7 +145,9 @@ DURATION_FOLDS = 5
 #: level (:func:`_evidence_loo`). The band and the samples' durations use it, moved onto the point estimate; the
 #: point estimate (the median) and the end pose keep λ = 1, which estimated the left-out durations best
 #: (docs/defaults.md, issue 37's thirteenth pass)
-DURATION_EVIDENCE_GRID = (1.0, 0.5, 0.25, 0.125, 0.0625, 0.03125, 0.015625, 0.0078125)
+#: Steps of √2 (twenty-second pass: with the band widened by the seen part's surprise the left-out bands hold more at
+#: each λ, and a step of 2 left them at 0.94–0.95 where the next λ up held less than 0.90)
+DURATION_EVIDENCE_GRID = tuple(float(2.0 ** (-k / 2.0)) for k in range(15))
 #: The conditioning of the rest has its own τ² and r, chosen by :func:`fit_seen` on the left-out final pose and
 #: remainder from these τ² (and the path distribution's own) × SEEN_TOLERANCE_GRID, from REST_FROM demonstrations on (with fewer
 #: the left-out ends are too few to choose among so many: docs/defaults.md, issue 37's fourth pass; see REST_FEW_SMOOTH)
@@ -678,6 +682,7 @@ class Anticipator:
         c_rot, c_pos = self.end_band_at(min(span / D, 1.0) if D > 0 else 1.0)
         s_ = self.surprise_at(*terms["seen"][3:], D, rho=rho)
         c_rot, c_pos = c_rot * s_, c_pos * s_
+        q = self.stretched(q, D, s_, span)
         ref_q, ref_p = self.paths.quat[-1], self.paths.position[-1]
         # exp(μ_rot) ⊗ q̄_end, the product as L(exp(μ_rot)) q̄_end (_LEFT)
         theta = float(np.sqrt(mu_u[:3] @ mu_u[:3]))
@@ -703,6 +708,17 @@ class Anticipator:
                             end_time=t0 + D, end_time_band=(t0 + q[0], t0 + q[2]), end_quat=end_q, end_position=end_p,
                             end_rotation_band=float(rot_band), end_position_band=pos_band, off=off,
                             distance=float(dist), band_widening=float(s_))
+
+    @staticmethod
+    def stretched(x, D: float, s: float, span: float = 0.0):
+        """Durations ``x`` (any shape, s) moved away from the point estimate D by the seen part's widening s in ln D:
+        D (x / D)^s, at least ``span``: the end time's band and the samples' durations of a seen part less like the
+        demonstrations than their median (:meth:`surprise_at`), widened as its pose bands are (s = 1: unchanged)."""
+        if s == 1.0:
+            return x
+        out = D * np.power(np.asarray(x, dtype=np.float64) / D, s)
+        out = np.maximum(out, span)
+        return [float(v) for v in out] if isinstance(x, list) else out
 
     def band_shift(self, grid, w, band_w, span) -> float:
         """The factor k = D̂ / D̂_band that moves the band's weights ``band_w`` onto the point estimate: the ratio of
@@ -822,8 +838,9 @@ class Anticipator:
                               and self.rest_ell == _ELL_TOL) else \
                 self.paths.unscale(self._conditioned_mean(tau, q, p, quat[-1], position[-1], D, rest=False)[0])[0]
             k = self.band_shift(grid, w, terms["band_w"], span)
-            out = self._samples(int(samples), seed, grid * k, terms["band_w"], tau, q, p, quat[-1], position[-1], own,
-                                (t_out, mq, mp), t0, span, D, dt, widen=est.band_widening)
+            s_ = est.band_widening  # the durations widened about D̂ as the end time's band is (stretched)
+            out = self._samples(int(samples), seed, self.stretched(grid * k, D, s_, span + 1e-6), terms["band_w"], tau, q,
+                                p, quat[-1], position[-1], own, (t_out, mq, mp), t0, span, D, dt, widen=s_)
         return Continuation(t_out, mq, mp, out, est, D, name=name)
 
     def _mixed_deviation(self, tau, q, p, last_q, last_p, grid, w, D, dev_hat=None) -> np.ndarray:
@@ -903,7 +920,7 @@ class Anticipator:
 
     def _samples(self, K, seed, grid, w, tau, q, p, last_q, last_p, dev0, mean, t0, span, D0, dt, widen: float = 1.0):
         """K continuations (t, quat, position): at a duration D_k drawn from the weights (its grid cell, then
-        uniformly within it), the mean's deviation at the same phase plus the difference between a draw of
+        uniformly within it; a cell ``widen`` times the grid's step in ln D wide, as :meth:`stretched` leaves it), the mean's deviation at the same phase plus the difference between a draw of
         the distribution conditioned at D_k and the conditioned mean at D̂ (module docstring). One
         conditioning per distinct grid cell drawn."""
         from rbgp_cli.dynamics.paths import _interpolation, pose_deviation
@@ -912,7 +929,7 @@ class Anticipator:
         paths = self.paths
         rng = np.random.default_rng(np.random.SeedSequence([int(seed), 37]))
         idx = rng.choice(len(grid), size=K, p=w)
-        jitter = rng.uniform(-self._half_step, self._half_step, K) * (len(grid) > 1)
+        jitter = rng.uniform(-self._half_step, self._half_step, K) * (len(grid) > 1) * float(widen)
         t_m, mq, mp = mean
         ph_m = (t_m - t0) / D0
         zero = np.zeros((paths.S, 6))
@@ -1170,7 +1187,12 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, s
         ctx = _spread_context(paths)
         raw, refs, ends = [], [], []
         for F in (*SEEN_FRACTIONS, END_LATE):
-            terms = _spread_terms(paths, F, rest=None if own else rest, ctx=ctx)
+            # the samples' durations widened about each one's D̂ by its surprise as the continuation's are, against the
+            # left-out median at this fraction (beyond the fractions the last one's reference, as surprise_at)
+            widen = None
+            if paths.demos >= SURPRISE_FROM:
+                widen = "median" if F in SEEN_FRACTIONS else refs[-1][0]
+            terms = _spread_terms(paths, F, rest=None if own else rest, ctx=ctx, widen_reference=widen)
             scale = None
             if paths.demos >= SURPRISE_FROM:  # the left-out seen parts' median surprise at this fraction
                 if F in SEEN_FRACTIONS:
@@ -1366,28 +1388,49 @@ def _evidence_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = SE
     duration's own τ² and r or σ as ``paths`` has them; the band of level ``level`` is what
     :meth:`Anticipator._summary` reports, the (1 − level)/2 and (1 + level)/2 quantiles of the weights with the
     evidence weighted by λ, moved by :meth:`Anticipator.band_shift` onto the median of the whole evidence's
-    weights (the point estimate) and widened to hold it.
+    weights (the point estimate) and widened to hold it; from SURPRISE_FROM demonstrations on, then widened about
+    it by the seen part's surprise as the continuation widens it (:meth:`Anticipator.stretched`, s =
+    :func:`surprise_scale` of the beginning's :meth:`Anticipator.surprise` at its point estimate against the
+    left-out beginnings' median at the same fraction), so that λ is chosen for the band as it is reported.
     Returns {λ: inside (n,) bool} per left-out beginning; {} as :func:`_duration_loo`."""
     from rbgp_cli.dynamics.paths import MIN_PATH_DEMOS
 
     if trajs is None or len(trajs) != paths.demos or paths.demos < MIN_PATH_DEMOS + 1:
         return {}
-    out = {float(lam): [] for lam in evidences}
+    lams = [float(lam) for lam in evidences]
+    bands = {lam: [] for lam in lams}  # (lo, hi) per beginning
+    true, meds, spans, rhos, fracs = [], [], [], [], []
     lo_p, hi_p = 0.5 - level / 2.0, 0.5 + level / 2.0
     for rest, seen, poses, left_out in _left_out_beginnings(paths, trajs, folds, points):
         ant = Anticipator(rest, None, points=points, grid_size=grid_size, duration_evidence=1.0)
-        for d, (grid, lw, span) in zip(left_out, _duration_weights(ant, seen, poses, log=True)):
-            D = float(np.exp(paths.log_durations[d]))
+        for i, (d, (grid, lw, span)) in enumerate(zip(left_out, _duration_weights(ant, seen, poses, log=True))):
             w1 = ant._tempered(grid, lw, 1.0)
             med = ant._duration_quantiles(grid, w1, span, (0.5,))[0]
-            for lam in out:
+            true.append(float(np.exp(paths.log_durations[d])))
+            meds.append(med)
+            spans.append(span)
+            fracs.append(i % len(SEEN_FRACTIONS))  # each left-out demonstration's beginnings in SEEN_FRACTIONS' order
+            rhos.append(ant.surprise(*poses[i], med) if paths.demos >= SURPRISE_FROM else 0.0)
+            for lam in lams:
                 wl = w1 if lam == 1.0 else ant._tempered(grid, lw, lam)
                 k = ant.band_shift(grid, w1, wl, span)
                 lo, hi = (max(x * k, span) for x in ant._duration_quantiles(grid, wl, span, (lo_p, hi_p)))
-                out[lam].append(min(lo, med) <= D <= max(hi, med))
-    if not out[float(evidences[0])]:
+                bands[lam].append((min(lo, med), max(hi, med)))
+    if not true:
         return {}
-    return {lam: np.asarray(e, dtype=bool) for lam, e in out.items()}
+    true, meds, spans, rhos, fracs = (np.asarray(x, dtype=np.float64) for x in (true, meds, spans, rhos, fracs))
+    widen = np.ones(len(true))
+    if paths.demos >= SURPRISE_FROM:  # each beginning's widening against the median at its fraction
+        for f in np.unique(fracs):
+            at = fracs == f
+            widen[at] = surprise_scale(rhos[at], float(np.median(rhos[at])))
+    out = {}
+    for lam in lams:
+        b = np.asarray(bands[lam], dtype=np.float64)
+        lo = np.maximum(meds * (b[:, 0] / meds) ** widen, spans)
+        hi = meds * (b[:, 1] / meds) ** widen
+        out[lam] = (lo <= true) & (true <= hi)
+    return out
 
 
 def _duration_medians(ant, seen, poses) -> list:
@@ -1604,7 +1647,8 @@ def _spread_context(paths, points: int = SEEN_POINTS):
                 half=0.5 * (hi - lo) / (SPREAD_GRID - 1), points=points)
 
 
-def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration: bool = True) -> dict:
+def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration: bool = True,
+                  widen_reference: float | str | None = None) -> dict:
     """The left-out remainders of fraction F against the samples as drawn (module docstring, issue 37's eighth
     pass). Each demonstration d left out, its first F seen at its true phases (:func:`seen_split`'s seen grid
     phases; the last exactly); the remainder scored at every grid phase s_j after F, u_j = (s_j − s_J)/(1 − s_J)
@@ -1621,7 +1665,10 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration
     time (R,), "rho": each left-out seen part's surprise (D,) at its point estimate of D (``duration=False``: at its
     true D) and "rho_live" the same from SPREAD_POINTS seen poses, "T": the scored phases per demonstration},
     R = D × the scored phases, demonstration-major. ``duration=False``: the remainders at their true
-    durations alone (V = 0, ȳ = x̂: ê_j = x_dj − μ_j), the statistic without the duration's part."""
+    durations alone (V = 0, ȳ = x̂: ê_j = x_dj − μ_j), the statistic without the duration's part.
+    ``widen_reference`` (a ρ̄, or "median": the median of "rho"): each left-out demonstration's durations D_g moved
+    away from its D̂ by its widening s = :func:`surprise_scale` (ρ, ρ̄) in ln D, D̂ (D_g / D̂)^s, as
+    :meth:`Anticipator.stretched` moves the continuation's samples' (None: not moved)."""
     ctx = _spread_context(paths) if ctx is None else ctx
     X, S = ctx["X"], ctx["S"]
     Dn, P = X.shape
@@ -1682,8 +1729,12 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration
     dd, gg = np.nonzero(w > SPREAD_KEEP * w.max(axis=1, keepdims=True))
     off = (2.0 * np.arange(SPREAD_SUB) + 1.0 - SPREAD_SUB) / SPREAD_SUB  # sub-cell midpoints in half steps
     rd = np.repeat(dd, SPREAD_SUB)
-    Dg = np.maximum(np.exp(np.log(grid[dd, gg] * shift[dd])[:, None] + off[None] * ctx["half"][dd, None]).ravel(),
-                    span[rd] * (1 + 1e-9))
+    lg = np.log(grid[dd, gg] * shift[dd])[:, None] + off[None] * ctx["half"][dd, None]
+    if widen_reference is not None:  # D̂ (D_g / D̂)^s (Anticipator.stretched)
+        ref = float(np.median(rho)) if widen_reference == "median" else float(widen_reference)
+        s_d = surprise_scale(rho, ref)[dd, None]
+        lg = np.log(d_hat[dd])[:, None] + s_d * (lg - np.log(d_hat[dd])[:, None])
+    Dg = np.maximum(np.exp(lg).ravel(), span[rd] * (1 + 1e-9))
     wg = np.repeat(w[dd, gg], SPREAD_SUB) / SPREAD_SUB
     s0 = np.minimum(span[rd] / Dg, 1.0)
     q = s0[:, None] + u[None] * (1.0 - s0[:, None])  # (R_g, T)

@@ -70,7 +70,10 @@ def test_the_band_weights_equal_a_prior_times_the_evidence_to_the_power_lambda(p
         assert D == pytest.approx(q(w, 0.5), rel=1e-12)
         k = D / q(terms["band_w"], 0.5)
         lo, hi = max(q(terms["band_w"], 0.05) * k, span), max(q(terms["band_w"], 0.95) * k, span)
-        np.testing.assert_allclose(np.subtract(e.end_time_band, seen.t[0]), [min(lo, D), max(hi, D)], rtol=1e-12)
+        # then widened about D̂ in ln D by the seen part's surprise s (1 for a seen part like the median left-out one)
+        s = e.band_widening
+        lo, hi = max(D * (min(lo, D) / D) ** s, span), D * (max(hi, D) / D) ** s
+        np.testing.assert_allclose(np.subtract(e.end_time_band, seen.t[0]), [lo, hi], rtol=1e-12)
 
 
 def test_fit_seen_takes_the_largest_lambda_whose_left_out_band_holds_nine_in_ten():
