@@ -1130,7 +1130,9 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, s
     remainders' true durations (:func:`_seen_loo`). With that statistic and from :data:`SURPRISE_FROM`
     demonstrations on, also ``paths.seen_surprise``: the left-out seen parts' median surprise per fraction (at
     SEEN_POINTS and at the live update's SPREAD_POINTS seen poses), each left-out need divided by its own
-    :func:`surprise_scale` before the factors' quantile."""
+    :func:`surprise_scale` before the factors' quantile; and ``paths.seen_end_band_scales``, the end band's factors
+    (:func:`_end_needs`), each at least what the live estimator's left-out misses ask (:func:`_estimated_end_needs`,
+    kept in ``paths.info["end_band_live"]``)."""
     from rbgp_cli.dynamics.paths import _band_factors
 
     scores = dict(zip(SEEN_TOLERANCE_GRID, _seen_loo(paths, SEEN_TOLERANCE_GRID)))
@@ -1213,6 +1215,12 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, s
         paths.seen_surprise = None if not refs else {
             "fractions": [float(F) for F in SEEN_FRACTIONS], "points": [SEEN_POINTS, SPREAD_POINTS],
             "reference": [[x[0] for x in refs], [x[1] for x in refs]]}
+        live = _estimated_end_needs(paths, trajs, level)
+        if live is not None:  # also what the live estimator itself missed the left-out ends by: never narrower
+            sc = paths.seen_end_band_scales
+            sc["rotation"] = [max(a, b) for a, b in zip(sc["rotation"], live["rotation"])]
+            sc["position"] = [max(a, b) for a, b in zip(sc["position"], live["position"])]
+            paths.info.update(end_band_live=live)
     else:
         _, m2_F, z_F = _seen_loo(paths, [r], stats=True, by_fraction=True, rest=None if own else rest)
         paths.seen_band_scales = seen_band_scales(m2_F, z_F, paths.demos, level)
@@ -1242,6 +1250,41 @@ def _narrowed(raw, demos: int, fractions=SEEN_FRACTIONS) -> dict:
     c = [[max(NARROWEST, x if x >= 1.0 else x ** w) for x in pair] for pair in raw]
     return {"fractions": [float(F) for F in fractions], "rotation": [float(x[0]) for x in c],
             "position": [float(x[1]) for x in c]}
+
+
+def _estimated_end_needs(paths, trajs, level: float = 0.90, folds: int = DURATION_FOLDS,
+                         fractions=(*SEEN_FRACTIONS, END_LATE)) -> dict | None:
+    """The end band's factors per fraction from the live estimator itself: the demonstrations ``trajs`` left out in
+    ``folds`` groups (:func:`_left_out_beginnings`), each seen up to each of ``fractions`` of its own samples and
+    estimated by :class:`Follower`'s anticipator of the others (SPREAD_POINTS seen poses, SPREAD_GRID durations, the
+    end at D̂; the factors and the surprise reference fitted so far). A band of factor c holds the end where
+    c ≥ c_used |ê| / band (ê the final pose's error: the rotation angle, each position coordinate; c_used the
+    factor the estimate applied, its widening s divided out with it). The left-out statistic at the true phases
+    (:func:`_end_needs`) does not see the estimated phase's error, which moves the end where the seen part determines
+    the path (docs/defaults.md, twenty-second pass). Returns :func:`_narrowed`'s dictionary of the ``level``
+    quantiles per fraction (None without the trajectories)."""
+    from rbgp_cli.dynamics.paths import MIN_PATH_DEMOS
+    from rbgp_cli.geometry.so3 import log_quat, quat_conjugate, quat_multiply
+
+    if trajs is None or len(trajs) != paths.demos or paths.demos < MIN_PATH_DEMOS + 1:
+        return None
+    nf = len(fractions)
+    rot, pos = [[] for _ in range(nf)], [[] for _ in range(nf)]
+    for rest, seen, _poses, left_out in _left_out_beginnings(paths, trajs, folds, SPREAD_POINTS, fractions=fractions):
+        ant = Anticipator(rest, None, points=SPREAD_POINTS, grid_size=SPREAD_GRID, mix_end=False)
+        for i, ((t, quat, position), d) in enumerate(zip(seen, left_out)):
+            est = ant.estimate(t, quat, position, checked=True)
+            c_rot, c_pos = ant.end_band_at(est.phase)
+            tr = trajs[d]
+            err = log_quat(quat_multiply(est.end_quat[None], quat_conjugate(np.asarray(tr.quat[-1], float)[None])))[0]
+            f = i % nf  # each left-out demonstration's beginnings in the fractions' order
+            rot[f].append(c_rot * float(np.linalg.norm(err)) / max(est.end_rotation_band, 1e-12))
+            pos[f].extend(c_pos * np.abs(est.end_position - tr.position[-1]) / np.maximum(est.end_position_band, 1e-12))
+    if not rot[0]:
+        return None
+    return _narrowed([(_weighted_quantile(np.asarray(r), np.ones(len(r)), level),
+                       _weighted_quantile(np.asarray(p), np.ones(len(p)), level)) for r, p in zip(rot, pos)],
+                     paths.demos, fractions=fractions)
 
 
 def _end_needs(paths, terms, level: float = 0.90, scale=None) -> tuple[np.ndarray, np.ndarray]:
@@ -1318,7 +1361,7 @@ def duration_tolerances(paths, tolerance: float | None = None, sigma: float | No
     return np.full(6, float(tolerance))
 
 
-def _left_out_beginnings(paths, trajs, folds: int, points: int):
+def _left_out_beginnings(paths, trajs, folds: int, points: int, fractions=SEEN_FRACTIONS):
     """The left-out beginnings :func:`_duration_loo` and :func:`_evidence_loo` score, per group of demonstrations
     left out (``folds`` groups in a fixed random order): (the others' path distribution, the group's seen beginnings
     [(t, quat, position)] (each left-out demonstration's first F on its own clock, every F of SEEN_FRACTIONS), their
@@ -1344,11 +1387,11 @@ def _left_out_beginnings(paths, trajs, folds: int, points: int):
         for d in group:
             tr = trajs[d]
             t_all, quat_all, pos_all = _seen(tr.t, tr.quat, tr.position, points)[:3]
-            for F in SEEN_FRACTIONS:
+            for F in fractions:
                 k = int(np.clip(np.argmin(np.abs(tr.t - (tr.t[0] + F * tr.duration))), 1, len(tr.t) - 1))
                 seen.append((t_all[: k + 1], quat_all[: k + 1], pos_all[: k + 1]))
         poses = [_seen(*s, points, checked=True)[3:] for s in seen]  # τ, q, p of each
-        yield rest, seen, poses, np.repeat(group, len(SEEN_FRACTIONS))
+        yield rest, seen, poses, np.repeat(group, len(fractions))
 
 
 def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6, grid_size: int = 16,

@@ -272,8 +272,11 @@ def test_the_end_band_is_the_samples_conditional_covariance_plus_the_durations_s
         gain = ant._gain(A, r2, rest=False)
         dense = (ant.Sigma - gain @ A @ ant.Sigma)[np.ix_(ant._end, ant._end)]
         np.testing.assert_allclose(cov_own, dense, rtol=1e-5, atol=1e-9)
-        bands.append((est.end_rotation_band, float(np.linalg.norm(est.end_position_band))))
+        # the band's own width, its factors (fitted per seen fraction) and widening divided out
+        c_rot, c_pos = ant.end_band_at(est.phase)
+        s = est.band_widening
+        bands.append((est.end_rotation_band / (c_rot * s), float(np.linalg.norm(est.end_position_band)) / (c_pos * s)))
         assert est.end_rotation_band <= np.pi
     bands = np.array(bands)
-    assert np.all(bands[-1] < 0.5 * bands[0]), bands  # near the end the band is a fraction of its early width
+    assert np.all(bands[-1] < 0.5 * bands[0]), bands  # near the end the covariance's band is a fraction of its early width
     assert np.all(np.diff(bands[1:], axis=0) < 0), bands  # and it narrows as more is seen

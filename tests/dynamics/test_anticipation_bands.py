@@ -102,6 +102,7 @@ def test_the_factors_follow_the_seen_phase_and_files_without_them_keep_the_poole
     with_F.seen_band_scale = (1.0, 1.0)
     with_F.seen_band_scales = {"fractions": [0.2, 0.4, 0.6, 0.8], "rotation": [1.2, 1.0, 0.9, 0.7],
                                "position": [1.0, 0.9, 0.8, 0.6]}
+    with_F.seen_end_band_scales = None  # the end band then takes the draws' factors
     ant = Anticipator(with_F)
     assert ant.band_at(0.05) == (1.2, 1.0) and ant.band_at(1.0) == (0.7, 0.6)
     np.testing.assert_allclose(ant.band_at(0.5), (0.95, 0.85))
@@ -161,7 +162,12 @@ def test_fit_paths_stores_the_factors_and_the_header_round_trips(paths):
     # the end band's own factors: the same fractions and END_LATE, round-tripped; without them the draws' are used
     ebs = paths.seen_end_band_scales
     assert ebs["fractions"] == [*anticipation.SEEN_FRACTIONS, anticipation.END_LATE]
-    assert all(NARROWEST <= x < 10 for x in ebs["rotation"] + ebs["position"])
+    # never below the left-out statistic's at the true phases, nor the live estimator's own misses (which on this
+    # family, whose end the seen part at its true phases nearly determines, are up to ~13 times the band's width)
+    assert all(NARROWEST <= x < 100 for x in ebs["rotation"] + ebs["position"])
+    live = paths.info["end_band_live"]
+    assert live["fractions"] == ebs["fractions"]
+    assert all(e >= v for e, v in zip(ebs["rotation"] + ebs["position"], live["rotation"] + live["position"]))
     assert back.seen_end_band_scales == ebs
     ant = Anticipator(back)
     assert ant.end_band_at(0.95) == (ebs["rotation"][-1], ebs["position"][-1]) and ant.end_band_at(1.0) == ant.end_band_at(0.95)
@@ -348,10 +354,12 @@ def test_the_draws_90_percent_regions_are_the_student_t_bands_the_factors_are_fi
 @pytest.mark.slow
 def test_the_end_band_holds_fresh_final_positions_late_where_the_draws_factors_did_not():
     """The end pose's band with its own factors (fitted on the left-out ends, twenty-first pass; never narrower than
-    the draws'): fitted on 30 motions of :func:`_rich_family`, 192 fresh motions seen up to F = 0.8 and 0.95 have
-    their final position inside the reported band 0.85–0.95 of the time per coordinate (measured 0.936 and 0.894);
-    with the draws' factors alone (a file without the end's) 0.878 and 0.837, the second below the level. The
-    rotation band, already wide here (held 0.95), is not narrowed."""
+    the draws' nor than the live estimator's own left-out misses, twenty-second pass): fitted on 30 motions of
+    :func:`_rich_family`, 192 fresh motions seen up to F = 0.8 and 0.95 have their final position inside the reported
+    band 0.85–0.96 of the time per coordinate (measured 0.943 and 0.953; at the twenty-first pass 0.936 and 0.894: the
+    factors are fitted on ``follow``'s estimator, 6 seen poses, whose misses are larger than this one's of 12); with
+    the draws' factors alone (a file without the end's) 0.878 and 0.837, the second below the level. The rotation
+    band, already wide here (held 0.95), is not narrowed."""
     from rbgp_cli.evaluation.under_way import split_seen
     from rbgp_cli.geometry.so3 import log_quat, quat_conjugate, quat_multiply
 
@@ -373,6 +381,34 @@ def test_the_end_band_holds_fresh_final_positions_late_where_the_draws_factors_d
                 rot.append(np.linalg.norm(err) <= e.end_rotation_band)
             held[name, F] = (float(np.mean(pos)), float(np.mean(rot)))
     for F in (0.8, 0.95):
-        assert 0.85 <= held["end", F][0] <= 0.95, held
+        assert 0.85 <= held["end", F][0] <= 0.96, held
         assert held["end", F][1] >= held["draws", F][1] >= 0.85, held  # the rotation band as wide as before or wider
     assert held["draws", 0.95][0] < 0.85 < held["end", 0.95][0], held
+
+
+@pytest.mark.slow
+def test_the_end_band_holds_what_the_live_estimator_misses_by(monkeypatch):
+    """On :func:`family` the seen part at its true phases nearly determines the end, so the left-out statistic at the
+    true phases (:func:`_end_needs`) asks for the narrowest factors; the live estimator's phase is estimated and its
+    end misses by several millimetres. Fitted on 24 motions, 100 fresh ones seen up to F = 0.6 and 0.95 by ``follow``'s
+    anticipator (6 seen poses, 16 durations, the end at D̂) have their final position inside the end band 0.8–0.95 of
+    the time per coordinate (measured 0.827 / 0.857), against 0.40 / 0.58 with the factors of the true phases alone."""
+    from rbgp_cli.evaluation.under_way import split_seen
+
+    demos = family(24, 0)[0]
+    live = fit_paths(demos)
+    monkeypatch.setattr(anticipation, "_estimated_end_needs", lambda *a, **k: None)
+    true_phases = fit_paths(demos)
+    assert all(a >= b for a, b in zip(live.seen_end_band_scales["position"], true_phases.seen_end_band_scales["position"]))
+    fresh = family(100, 9)[0]
+    for F in (0.6, 0.95):
+        held = {}
+        for name, p in (("live", live), ("true phases", true_phases)):
+            ant = Anticipator(p, None, points=6, grid_size=16, mix_end=False)
+            inside = []
+            for tr in fresh:
+                seen, _ = split_seen(tr, F)
+                e = ant.estimate(seen.t, seen.quat, seen.position)
+                inside.append(np.abs(e.end_position - tr.position[-1]) <= e.end_position_band)
+            held[name] = float(np.mean(inside))
+        assert 0.8 <= held["live"] <= 0.95 and held["true phases"] < 0.7, (F, held)
