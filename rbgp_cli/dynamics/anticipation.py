@@ -711,10 +711,11 @@ class Anticipator:
 
     @staticmethod
     def stretched(x, D: float, s: float, span: float = 0.0):
-        """Durations ``x`` (any shape, s) moved away from the point estimate D by the seen part's widening s in ln D:
+        """Durations ``x`` (any shape, s; D, s and ``span`` scalars or broadcasting with it) moved away from the point
+        estimate D by the seen part's widening s in ln D:
         D (x / D)^s, at least ``span``: the end time's band and the samples' durations of a seen part less like the
         demonstrations than their median (:meth:`surprise_at`), widened as its pose bands are (s = 1: unchanged)."""
-        if s == 1.0:
+        if np.ndim(s) == 0 and s == 1.0:
             return x
         out = D * np.power(np.asarray(x, dtype=np.float64) / D, s)
         out = np.maximum(out, span)
@@ -1270,14 +1271,13 @@ def _estimated_end_needs(paths, trajs, level: float = 0.90, folds: int = DURATIO
         return None
     nf = len(fractions)
     rot, pos = [[] for _ in range(nf)], [[] for _ in range(nf)]
-    for rest, seen, _poses, left_out in _left_out_beginnings(paths, trajs, folds, SPREAD_POINTS, fractions=fractions):
+    for rest, seen, _poses, left_out, at_f in _left_out_beginnings(paths, trajs, folds, SPREAD_POINTS, fractions=fractions):
         ant = Anticipator(rest, None, points=SPREAD_POINTS, grid_size=SPREAD_GRID, mix_end=False)
-        for i, ((t, quat, position), d) in enumerate(zip(seen, left_out)):
+        for (t, quat, position), d, f in zip(seen, left_out, at_f):
             est = ant.estimate(t, quat, position, checked=True)
             c_rot, c_pos = ant.end_band_at(est.phase)
             tr = trajs[d]
             err = log_quat(quat_multiply(est.end_quat[None], quat_conjugate(np.asarray(tr.quat[-1], float)[None])))[0]
-            f = i % nf  # each left-out demonstration's beginnings in the fractions' order
             rot[f].append(c_rot * float(np.linalg.norm(err)) / max(est.end_rotation_band, 1e-12))
             pos[f].extend(c_pos * np.abs(est.end_position - tr.position[-1]) / np.maximum(est.end_position_band, 1e-12))
     if not rot[0]:
@@ -1362,11 +1362,12 @@ def duration_tolerances(paths, tolerance: float | None = None, sigma: float | No
 
 
 def _left_out_beginnings(paths, trajs, folds: int, points: int, fractions=SEEN_FRACTIONS):
-    """The left-out beginnings :func:`_duration_loo` and :func:`_evidence_loo` score, per group of demonstrations
-    left out (``folds`` groups in a fixed random order): (the others' path distribution, the group's seen beginnings
-    [(t, quat, position)] (each left-out demonstration's first F on its own clock, every F of SEEN_FRACTIONS), their
-    seen poses [(τ, q, p)] (``points`` of them), the left-out demonstration of each beginning (n,)). Nothing when
-    fewer than MIN_PATH_DEMOS would be left."""
+    """The left-out beginnings :func:`_duration_loo`, :func:`_evidence_loo` and :func:`_estimated_end_needs` score,
+    per group of demonstrations left out (``folds`` groups in a fixed random order): (the others' path distribution,
+    the group's seen beginnings [(t, quat, position)] (each left-out demonstration's first F on its own clock, every
+    F of ``fractions``), their seen poses [(τ, q, p)] (``points`` of them), the left-out demonstration of each
+    beginning (n,), the index of its F in ``fractions`` (n,)). Nothing when fewer than MIN_PATH_DEMOS would be
+    left."""
     import copy
 
     from rbgp_cli.dynamics.paths import MIN_PATH_DEMOS
@@ -1391,7 +1392,7 @@ def _left_out_beginnings(paths, trajs, folds: int, points: int, fractions=SEEN_F
                 k = int(np.clip(np.argmin(np.abs(tr.t - (tr.t[0] + F * tr.duration))), 1, len(tr.t) - 1))
                 seen.append((t_all[: k + 1], quat_all[: k + 1], pos_all[: k + 1]))
         poses = [_seen(*s, points, checked=True)[3:] for s in seen]  # τ, q, p of each
-        yield rest, seen, poses, np.repeat(group, len(fractions))
+        yield rest, seen, poses, np.repeat(group, len(fractions)), np.tile(np.arange(len(fractions)), len(group))
 
 
 def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6, grid_size: int = 16,
@@ -1410,7 +1411,7 @@ def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6,
         return {}
     candidates = duration_candidates(paths)
     err = {c: [] for c in candidates}
-    for rest, seen, poses, left_out in _left_out_beginnings(paths, trajs, folds, points):
+    for rest, seen, poses, left_out, _at_f in _left_out_beginnings(paths, trajs, folds, points):
         rest.duration_smooth = rest.duration_tolerance = rest.duration_sigma = None
         for c in candidates:
             ant = Anticipator(rest, None, points=points, grid_size=grid_size, duration_smooth=c[0],
@@ -1444,7 +1445,7 @@ def _evidence_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = SE
     bands = {lam: [] for lam in lams}  # (lo, hi) per beginning
     true, meds, spans, rhos, fracs = [], [], [], [], []
     lo_p, hi_p = 0.5 - level / 2.0, 0.5 + level / 2.0
-    for rest, seen, poses, left_out in _left_out_beginnings(paths, trajs, folds, points):
+    for rest, seen, poses, left_out, at_f in _left_out_beginnings(paths, trajs, folds, points):
         ant = Anticipator(rest, None, points=points, grid_size=grid_size, duration_evidence=1.0)
         for i, (d, (grid, lw, span)) in enumerate(zip(left_out, _duration_weights(ant, seen, poses, log=True))):
             w1 = ant._tempered(grid, lw, 1.0)
@@ -1452,7 +1453,7 @@ def _evidence_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = SE
             true.append(float(np.exp(paths.log_durations[d])))
             meds.append(med)
             spans.append(span)
-            fracs.append(i % len(SEEN_FRACTIONS))  # each left-out demonstration's beginnings in SEEN_FRACTIONS' order
+            fracs.append(at_f[i])
             rhos.append(ant.surprise(*poses[i], med) if paths.demos >= SURPRISE_FROM else 0.0)
             for lam in lams:
                 wl = w1 if lam == 1.0 else ant._tempered(grid, lw, lam)
@@ -1470,8 +1471,7 @@ def _evidence_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = SE
     out = {}
     for lam in lams:
         b = np.asarray(bands[lam], dtype=np.float64)
-        lo = np.maximum(meds * (b[:, 0] / meds) ** widen, spans)
-        hi = meds * (b[:, 1] / meds) ** widen
+        lo, hi = (Anticipator.stretched(b[:, j], meds, widen, spans) for j in (0, 1))
         out[lam] = (lo <= true) & (true <= hi)
     return out
 
@@ -1772,12 +1772,11 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration
     dd, gg = np.nonzero(w > SPREAD_KEEP * w.max(axis=1, keepdims=True))
     off = (2.0 * np.arange(SPREAD_SUB) + 1.0 - SPREAD_SUB) / SPREAD_SUB  # sub-cell midpoints in half steps
     rd = np.repeat(dd, SPREAD_SUB)
-    lg = np.log(grid[dd, gg] * shift[dd])[:, None] + off[None] * ctx["half"][dd, None]
-    if widen_reference is not None:  # D̂ (D_g / D̂)^s (Anticipator.stretched)
+    Dg = np.exp(np.log(grid[dd, gg] * shift[dd])[:, None] + off[None] * ctx["half"][dd, None])
+    if widen_reference is not None:  # D̂ (D_g / D̂)^s, as the continuation's samples
         ref = float(np.median(rho)) if widen_reference == "median" else float(widen_reference)
-        s_d = surprise_scale(rho, ref)[dd, None]
-        lg = np.log(d_hat[dd])[:, None] + s_d * (lg - np.log(d_hat[dd])[:, None])
-    Dg = np.maximum(np.exp(lg).ravel(), span[rd] * (1 + 1e-9))
+        Dg = Anticipator.stretched(Dg, d_hat[dd, None], surprise_scale(rho, ref)[dd, None])
+    Dg = np.maximum(Dg.ravel(), span[rd] * (1 + 1e-9))
     wg = np.repeat(w[dd, gg], SPREAD_SUB) / SPREAD_SUB
     s0 = np.minimum(span[rd] / Dg, 1.0)
     q = s0[:, None] + u[None] * (1.0 - s0[:, None])  # (R_g, T)
