@@ -3,6 +3,8 @@ line breaks; and option help that is still true."""
 
 from __future__ import annotations
 
+import re
+
 import pytest
 import typer
 from typer.testing import CliRunner
@@ -38,7 +40,14 @@ def ragged_breaks(text: str, columns: int) -> list[str]:
     word would have fitted on the line before."""
     found = []
     lines = text.splitlines()
-    for a, b in zip(lines, lines[1:]):
+    listed, listing = [], False  # plain layout: whether each line is in an Arguments:, Options: or Commands: list
+    for line in lines:
+        if re.fullmatch(r"[A-Z][\w ]*:", line):
+            listing = True
+        elif line and not line.startswith(" "):
+            listing = False
+        listed.append(listing)
+    for i, (a, b) in enumerate(zip(lines, lines[1:])):
         boxed = a.startswith("│") and b.startswith("│")
         ia, ib = (a[1:-1], b[1:-1]) if boxed else (a, b)
         width = len(ia) if boxed else columns
@@ -55,6 +64,8 @@ def ragged_breaks(text: str, columns: int) -> list[str]:
         if word.startswith("["):  # Typer's own line for [default: ...] / [required]: its layout, not ours
             continue
         if boxed and (word.startswith("-") or ib.lstrip().startswith("*")):  # the next option's row
+            continue
+        if not boxed and listed[i + 1] and start_b == 2:  # plain layout: a list's next row (its term at 2)
             continue
         if boxed and ia.lstrip().startswith("*") and start_b == start_a + 1 + len(ia[start_a + 1:]) - len(ia[start_a + 1:].lstrip()):
             continue  # an optional argument's row after a required one's: it starts where that one's name does
@@ -108,3 +119,18 @@ def test_samples_help_says_where_samples_come_from():
     text = " ".join(_help(["rollout"]).split())
     assert "predictive Gaussian" not in text
     assert "variation model" in text and "fewer than 3 demonstrations" in text
+
+
+@pytest.mark.parametrize("path", [["train"], ["crossval"], ["bench", "paper"], []])
+def test_narrow_terminals_get_the_plain_list_and_wide_ones_the_panels(path):
+    """Below PANELS_FROM columns the help is Click's plain two-column list, filling the terminal (no line longer
+    than it less Click's margin of 2) and shorter than the panels (at 80 columns the panels ran `rbgp train --help` to
+    448 lines); from PANELS_FROM on it is Typer's boxed panels."""
+    from rbgp_cli.cli.args import PANELS_FROM
+
+    narrow, wide = _help(path, 80), _help(path, PANELS_FROM)
+    assert "╭" not in narrow and "Options:" in narrow
+    assert "╭" in wide
+    assert max(len(line) for line in narrow.splitlines()) <= 78
+    if path == ["train"]:
+        assert len(narrow.splitlines()) < 250, len(narrow.splitlines())
