@@ -207,8 +207,8 @@ class PathDistribution:
     #: (fewer than ten demonstrations: :data:`rbgp_cli.dynamics.anticipation.DURATION_FEW_SIGMA`; None: r)
     duration_sigma: float | None = None
     #: the weight λ ∈ (0, 1] of the seen poses' evidence in the duration's band and samples, w_g ∝ p(ℓ_g)
-    #: p(y | ℓ_g)^λ (:func:`rbgp_cli.dynamics.anticipation.fit_seen`: the largest λ whose band holds the left-out
-    #: durations at 90 %; None: 1)
+    #: p(y | ℓ_g)^λ (:func:`rbgp_cli.dynamics.anticipation.fit_seen`: the largest λ whose band holds enough left-out
+    #: durations for 90 % on the next one, :func:`~rbgp_cli.dynamics.anticipation.finite_sample_count`; None: 1)
     duration_evidence: float | None = None
     #: τ² and r of a motion under way's conditioning of the rest (:func:`rbgp_cli.dynamics.anticipation.fit_seen`,
     #: chosen on the left-out final pose; None: ``smooth`` and ``seen_tolerance``)
