@@ -223,6 +223,15 @@ def set_help_layout(cmd) -> None:
         stack.extend((getattr(c, "commands", None) or {}).values())
 
 
+def _show_plain_help(exc) -> None:
+    """Print a no-argument invocation's help (``rbgp``, ``rbgp bench``) in the plain layout. Typer prints the panels
+    while it builds the help and shows the error itself as nothing. The plain help is only the exception's message,
+    so it goes to stdout here, as the panels do (exit 2 either way)."""
+    ctx = getattr(exc, "ctx", None)
+    if ctx is not None and getattr(ctx.command, "rich_markup_mode", "rich") is None:
+        typer.echo(exc.format_message())
+
+
 class RbgpGroup(TyperGroup):
     """The ``rbgp`` group: rewrites each subcommand's arguments with :func:`expand_path_lists`, stops
     with one clear line when a path list took a required argument, prints Click's usage errors as
@@ -241,7 +250,8 @@ class RbgpGroup(TyperGroup):
         extra.setdefault("terminal_width", max(width - 2, 50))
         try:
             return super().make_context(info_name, args, parent=parent, **extra)
-        except NoArgsIsHelpError:
+        except NoArgsIsHelpError as exc:
+            _show_plain_help(exc)
             raise
         except UsageError as exc:  # the group's own options: rbgp --bogus
             _usage_error_line(exc)
@@ -250,7 +260,8 @@ class RbgpGroup(TyperGroup):
         NoArgsIsHelpError, UsageError = _usage_errors()
         try:
             return super().invoke(ctx)
-        except NoArgsIsHelpError:
+        except NoArgsIsHelpError as exc:
+            _show_plain_help(exc)
             raise
         except UsageError as exc:  # a subcommand's options and arguments, or an unknown command
             _usage_error_line(exc)

@@ -134,3 +134,14 @@ def test_narrow_terminals_get_the_plain_list_and_wide_ones_the_panels(path):
     assert max(len(line) for line in narrow.splitlines()) <= 78
     if path == ["train"]:
         assert len(narrow.splitlines()) < 250, len(narrow.splitlines())
+
+
+@pytest.mark.parametrize("path", [[], ["bench"]])
+@pytest.mark.parametrize("columns", [80, 120])
+def test_a_command_run_without_arguments_prints_its_help_in_either_layout(path, columns):
+    """`rbgp` and `rbgp bench` alone print their help on stdout and exit 2, in the panels and in the plain list (Typer
+    prints only the panels itself: the plain layout's help was lost, an empty exit 2)."""
+    res = CliRunner().invoke(app, path, env={"COLUMNS": str(columns), "TERMINAL_WIDTH": str(columns)})
+    assert res.exit_code == 2
+    assert "Usage: rbgp" in res.stdout and "Commands" in res.stdout
+    assert ("╭" in res.stdout) is (columns >= 100)
