@@ -199,6 +199,9 @@ def _paths_text(p: dict) -> str:
     if p.get("rest_duration_tolerance") is not None:  # docs/method.md §13, the rest's ln D
         line += ("; a motion under way's rest is conditioned without the duration's coupling to the path (the demonstrations left out "
                  "were predicted as well without it)")
+    if p.get("rest_near_tolerance") is not None:  # docs/method.md §13, the near pose
+        line += (f"; and on the pose just before the last seen one, tolerance {p['rest_near_tolerance']:.3g} spreads (where "
+                 "the motion is heading: the demonstrations left out, their durations estimated, were predicted better with it)")
     return line
 
 

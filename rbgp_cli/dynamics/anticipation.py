@@ -34,7 +34,9 @@ spread of the per-D_g ends over the weights about their own mean (the duration's
 **The rest.** At each duration the path distribution, with the rest's own smooth term τ²_rest K_ℓ, is conditioned
 on the seen poses (tolerance r_rest), on the last seen pose exactly (:data:`~rbgp_cli.dynamics.paths.GOAL_TOLERANCE`, so the continuation starts where the
 motion is) and on ℓ = ln D (exactly, or freed where :func:`fit_seen` finds the path distribution's coupling of ℓ to
-the path over-fitted: :data:`REST_FREE_ELL`); the continuation's path is those paths' mean over the duration's weights on the remainder's normalised
+the path over-fitted: :data:`REST_FREE_ELL`) and, where :func:`fit_seen` keeps one (``paths.rest_near_tolerance``), on
+the pose one grid step D̂ / (S − 1) before the last with its own tolerance: with the last, where the motion is heading
+(:meth:`Anticipator._near`, :func:`_choose_near`); the continuation's path is those paths' mean over the duration's weights on the remainder's normalised
 time (:meth:`Anticipator._mixed_deviation`; the path at D̂ where one duration carries the weight), and it runs from the
 last seen time to t_0 + D̂. Its mean is either that
 conditioned path (``model=None``, the path distribution alone) or the model's GP dynamics rolled from the
@@ -165,6 +167,12 @@ REST_SE = 1.0
 #: 4, 4 and 2 of the five subsets of the slower handovers, hand raises, handovers and waves; in no fold of the waves'
 #: eight nor of sample_data's six; docs/defaults.md, issue 37's twelfth pass)
 REST_FEW_SMOOTH = 10.0
+#: ... and then whether the rest's conditioning also sees the pose one grid step of the path (D̂ / 50) before the last seen
+#: one, with the best of these tolerances (units of each coordinate's spread, those below r_rest), kept where it beats
+#: none by more than REST_SE standard errors, both scored at the left-out demonstrations' estimated durations
+#: (:func:`_rest_at_estimates`). With the last seen pose it says where the motion is heading, which r_rest's looseness,
+#: chosen against over-fitting the seen part as a whole, leaves out (docs/defaults.md, twenty-fourth pass)
+REST_NEAR_GRID = (0.05, 0.1, 0.2, 0.4, 0.8, 1.6)
 #: Tolerance of the exactly observed ln D (in units of ln D's spread) and of the last seen pose.
 _ELL_TOL = 1e-4
 #: ... and of ln D in the rest's conditioning where :func:`fit_seen` frees it (``paths.rest_duration_tolerance``):
@@ -393,6 +401,9 @@ class Anticipator:
         rest_ell = getattr(paths, "rest_duration_tolerance", None)
         #: ln D's tolerance in the rest's conditioning (units of its spread): exact, or freed by fit_seen
         self.rest_ell = float(_ELL_TOL if (rest_ell is None or tolerance is not None) else rest_ell)
+        rest_near = getattr(paths, "rest_near_tolerance", None)
+        #: the tolerance of the near pose in the rest's conditioning (:meth:`_near`; None: no near pose)
+        self.rest_near = None if (rest_near is None or tolerance is not None) else float(rest_near)
         self.m, self.Sigma = paths.prior()
         self.Sigma_rest = self.Sigma if self.rest_smooth == paths.smooth else paths.prior(smooth=self.rest_smooth)[1]
         self.scale = paths.scale
@@ -587,7 +598,7 @@ class Anticipator:
         the live update can afford it, batched with the :meth:`surprise`: :meth:`_at_estimate`)."""
         return self._at_estimate(tau, q, p, D)[0]
 
-    def _at_estimate(self, tau, q, p, D, grid=None, w=None) -> tuple[np.ndarray, float, np.ndarray]:
+    def _at_estimate(self, tau, q, p, D, grid=None, w=None, near=None) -> tuple[np.ndarray, float, np.ndarray]:
         """(the continuation's end (6,) scaled, :meth:`surprise` ρ at D, the end's covariance (6, 6) at D as the
         samples draw it) from one batched factorisation (the live update's cost): the rest's conditioned ends
         (:meth:`rest_end`) at the duration cells ``grid`` whose weights ``w`` are kept (:func:`_kept`), averaged with
@@ -597,8 +608,12 @@ class Anticipator:
         :meth:`_samples`)."""
         from rbgp_cli.dynamics.paths import GOAL_TOLERANCE
 
-        n = len(tau)
         D = max(float(D), float(tau[-1]), 1e-9)
+        nn = 0
+        if near is not None and self.rest_near is not None and len(tau) > 1:
+            tau, q, p = near
+            nn = 1
+        n = len(tau)
         keep = None if w is None else _kept(w)
         if keep is None or np.count_nonzero(keep) < 2:
             at, wg = np.array([D]), np.ones(1)
@@ -611,13 +626,16 @@ class Anticipator:
         g2 = (np.repeat(np.asarray(GOAL_TOLERANCE, dtype=np.float64), 3) / self.scale) ** 2
         last = np.r_[np.arange(G), G + 1]
         r2[last, -1] = 1.0 / (1.0 / r2[last, -1] + 1.0 / g2)  # the last seen pose exact (not for the surprise)
+        if nn:
+            r2[:G, -2] = self.rest_near ** 2
+            r2[G:, -2] = 1e12  # the surprise and the samples' conditioning do not see it
         tau2 = np.full(G + 2, self.rest_smooth)
         tau2[G:] = self.paths.smooth
         ell2 = np.full(G + 2, self.rest_ell ** 2)
         ell2[G:] = _ELL_TOL ** 2
         _, end_mean, end_cov, quad, k6 = self._grid_terms(tau, q, p, np.append(at, [D, D]), tau2=tau2,
                                                           r2=r2.reshape(G + 2, -1), ell2=ell2)
-        return wg @ end_mean[:G], float(quad[G]) / k6, end_cov[G + 1]
+        return wg @ end_mean[:G], float(quad[G]) / (k6 - 6 * nn), end_cov[G + 1]
 
     def weights(self, t, quat, position, checked: bool = False, active=None):
         """The duration posterior of a motion seen from t[0] to t[-1]: (grid (G,) s, weights (G,)), and the
@@ -674,7 +692,8 @@ class Anticipator:
         # False at D̂); its band's covariance the samples' conditional one at D̂ plus the spread over the duration's
         # weights of the ends conditioned for the weights, about their own mean (scaled), then unscaled
         E = terms["end_mean"]
-        mu, rho, cov_own = self._at_estimate(*terms["seen"][3:], D, *((grid, w) if self.mix_end else ()))
+        mu, rho, cov_own = self._at_estimate(*terms["seen"][3:], D, *((grid, w) if self.mix_end else (None, None)),
+                                             near=self._near(terms["seen"], D))
         d = E - w @ E
         cov = cov_own + (d.T * w) @ d
         sc = self.scale
@@ -759,6 +778,16 @@ class Anticipator:
         return float(np.sqrt(max(e @ Cinv[j] @ e, 0.0)))
 
     # -------------------------------------------------------------- the rest of the motion
+    def _near(self, seen, D):
+        """The seen poses (τ, q, p) of the rest's conditioning: ``seen`` (:func:`_seen`'s six arrays) with, where the
+        rest has a near tolerance, the pose one grid step D / (S − 1) before the last inserted before it."""
+        t, quat, position, tau, q, p = seen
+        if self.rest_near is None or len(tau) < 2:
+            return tau, q, p
+        tn = np.array([max(float(tau[-1]) - float(D) / (self.paths.S - 1), 0.0)])
+        qn, pn = _slerp_samples(t - t[0], quat, position, tn)
+        return np.r_[tau[:-1], tn, tau[-1:]], np.concatenate([q[:-1], qn, q[-1:]]), np.concatenate([p[:-1], pn, p[-1:]])
+
     def _observations(self, tau, q, p, last_q, last_p, D, rest: bool = True):
         """(A, y, r²) at duration D: the seen poses (tolerance: the rest's r_rest, or with ``rest=False`` the path
         distribution's r), the last one exactly, and ℓ = ln D (exactly, or with the rest's ``rest_ell``)."""
@@ -768,6 +797,8 @@ class Anticipator:
                paths.observe_duration(D, tolerance=(self.rest_ell if rest else _ELL_TOL) * self.lscale)]
         A, y, r2 = paths.stack(*obs)
         r2[: 6 * len(tau)] = (self.rest_tolerance if rest else self.tolerance) ** 2
+        if rest and self.rest_near is not None and len(tau) > 2:  # the pose just before the last (_near)
+            r2[6 * (len(tau) - 2): 6 * (len(tau) - 1)] = self.rest_near ** 2
         return A, y, r2
 
     def _gain(self, A, r2, rest: bool = True):
@@ -823,9 +854,10 @@ class Anticipator:
         D = max(est.end_time - t0, span + 1e-9)
         if dt is None:
             dt = float(np.median(np.diff(t))) if len(t) > 1 else float(getattr(self.model, "rollout_dt", 0.01) or 0.01)
-        mean_x, _ = self._conditioned_mean(tau, q, p, quat[-1], position[-1], D)
+        tn, qn, pn = self._near(terms["seen"], D)
+        mean_x, _ = self._conditioned_mean(tn, qn, pn, quat[-1], position[-1], D)
         dev_hat = self.paths.unscale(mean_x)[0]
-        dev = self._mixed_deviation(tau, q, p, quat[-1], position[-1], grid, w, D, dev_hat)
+        dev = self._mixed_deviation(tn, qn, pn, quat[-1], position[-1], grid, w, D, dev_hat)
         t_out = self._times(t0, span, D, dt)
         if self.model is not None and use_model and _rollable(self.model):
             mq, mp = self._rollout(dev, quat[-1], position[-1], span / D, D, t_out - t0)
@@ -837,7 +869,7 @@ class Anticipator:
             # the samples' spread about the mean: the path distribution's own conditioning, whose left-out
             # remainders fitted the bands' factors (its mean at D̂ is what each draw's difference is taken from)
             own = dev_hat if (self.Sigma_rest is self.Sigma and self.rest_tolerance == self.tolerance
-                              and self.rest_ell == _ELL_TOL) else \
+                              and self.rest_ell == _ELL_TOL and self.rest_near is None) else \
                 self.paths.unscale(self._conditioned_mean(tau, q, p, quat[-1], position[-1], D, rest=False)[0])[0]
             k = self.band_shift(grid, w, terms["band_w"], span)
             s_ = est.band_widening  # the durations widened about D̂ as the end time's band is (stretched)
@@ -978,15 +1010,19 @@ def anticipate(paths, t, quat, position, *, model=None, samples: int = 0, seed: 
 
 
 # ----------------------------------------------------------------------------------------- fitting r
-def seen_split(F: float, S: int, P: int, points: int) -> tuple[np.ndarray, int]:
+def seen_split(F: float, S: int, P: int, points: int, near: bool = False) -> tuple[np.ndarray, int]:
     """The path vector's entries a left-out demonstration is seen at and scored on, when its first
     fraction F is seen: (idx, no), the first ``no`` of ``idx`` the seen ones (at most ``points`` phases of
     the S up to F, 6 coordinates each, and ln D, entry P − 1), the rest the scored ones (every
-    SELECT_EVERY-th phase after F and the last, 6 coordinates each)."""
+    SELECT_EVERY-th phase after F and the last, 6 coordinates each). ``near``: the grid phase just before the
+    last seen one is among the seen (the rest's near pose, :attr:`Anticipator.rest_near`): the seen entries'
+    second-to-last six."""
     from rbgp_cli.dynamics.paths import SELECT_EVERY
 
     J = int(round(F * (S - 1)))
     seen = np.unique(np.round(np.linspace(0, J, min(points, J + 1))).astype(int))
+    if near and J >= 1:
+        seen = np.union1d(seen, [J - 1])
     scored = np.unique(np.concatenate([np.arange(J + SELECT_EVERY, S - 1, SELECT_EVERY), [S - 1]]))
     io = np.concatenate([(6 * seen[:, None] + np.arange(6)).ravel(), [P - 1]])
     it = (6 * scored[:, None] + np.arange(6)).ravel()
@@ -1016,21 +1052,29 @@ def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS,
     total = np.zeros(len(tolerances))
     count, m2, z = 0, [], []
     m2_F, z_F = [], []
+    near = float(rest[3]) if rest is not None and len(rest) > 3 and rest[3] is not None else None
     for F in SEEN_FRACTIONS:
         start = len(m2)
         idx, no = seen_split(F, S, P, points)
         Xs = X[:, idx]
         Kss = Ks[np.ix_(idx, idx)]
+        # the rest's mean sees the grid phase just before the last too, where it has a near tolerance
+        idx_r, no_r = seen_split(F, S, P, points, near=True) if near is not None else (idx, no)
+        Xr = X[:, idx_r]
+        moments_r = left_out_moments(Xr) if near is not None else None
         for block, m, Sigma in left_out_moments(Xs):  # the others' Gaussian per left-out d, (B, ...)
             innovation = Xs[block, :no] - m[:, :no]
+            mr, Sr0 = (m, Sigma) if moments_r is None else next(moments_r)[1:]
             mean_rest = None
             if rest is not None and stats:  # the continuation's mean: the rest's τ² and r
-                Sr = Sigma + K_rest[np.ix_(idx, idx)]
-                r2 = np.full(no, float(rest[1]) ** 2)
+                Sr = Sr0 + K_rest[np.ix_(idx_r, idx_r)]
+                r2 = np.full(no_r, float(rest[1]) ** 2)
                 r2[-7:-1] = r_last
                 r2[-1] = (float(rest[2]) if len(rest) > 2 else _ELL_TOL) ** 2
-                g = np.swapaxes(np.linalg.solve(Sr[:, :no, :no] + np.diag(r2), Sr[:, :no, no:]), 1, 2)
-                mean_rest = m[:, no:] + np.einsum("bij,bj->bi", g, innovation)
+                if near is not None and no_r >= 13:
+                    r2[-13:-7] = near ** 2
+                g = np.swapaxes(np.linalg.solve(Sr[:, :no_r, :no_r] + np.diag(r2), Sr[:, :no_r, no_r:]), 1, 2)
+                mean_rest = mr[:, no_r:] + np.einsum("bij,bj->bi", g, Xr[block, :no_r] - mr[:, :no_r])
             Sigma += Kss
             Soo, Sot, Stt = Sigma[:, :no, :no], Sigma[:, :no, no:], Sigma[:, no:, no:]
             for i, tol in enumerate(tolerances):
@@ -1057,7 +1101,7 @@ def _seen_loo(paths, tolerances, stats: bool = False, points: int = SEEN_POINTS,
 
 
 def _end_loo(paths, smooths, tolerances, points: int = SEEN_POINTS, *, remainder: bool = False,
-             per_demo: bool = False, ell: float = _ELL_TOL) -> np.ndarray:
+             per_demo: bool = False, ell: float = _ELL_TOL, near: float | None = None) -> np.ndarray:
     """The left-out final pose given the seen part, for each τ² of ``smooths`` and r of ``tolerances``: each
     demonstration left out, its first F (each of SEEN_FRACTIONS) seen at its true phases (≤ ``points`` grid
     phases, the last exactly, as the continuation sees it) and its ln D, and the others' distribution (its
@@ -1070,7 +1114,8 @@ def _end_loo(paths, smooths, tolerances, points: int = SEEN_POINTS, *, remainder
     remainder is scored at (:func:`seen_split`: every SELECT_EVERY-th after F and the end), what crossval scores a
     continuation by (its final pose and its remainder's RMSE). ``per_demo``: the sums per left-out demonstration,
     (len(smooths), len(tolerances), D), instead of their mean. ``ell``: ln D's tolerance (units of its spread; the
-    default exactly, :data:`REST_FREE_ELL` as good as not given)."""
+    default exactly, :data:`REST_FREE_ELL` as good as not given). ``near``: the grid phase just before the last seen
+    one seen too, with this tolerance (:func:`seen_split` with ``near``; None: not added)."""
     from rbgp_cli.dynamics.paths import GOAL_TOLERANCE, left_out_moments
 
     X = paths.vectors()
@@ -1080,7 +1125,7 @@ def _end_loo(paths, smooths, tolerances, points: int = SEEN_POINTS, *, remainder
     end = 6 * (S - 1) + np.arange(6)
     out = np.zeros((len(smooths), len(tolerances), len(X)))
     for F in SEEN_FRACTIONS:
-        idx, no = seen_split(F, S, P, points)
+        idx, no = seen_split(F, S, P, points, near=near is not None)
         if not remainder:
             idx = np.concatenate([idx[:no], end])  # the seen entries (ln D last), then the end's six
         k = (len(idx) - no) // 6  # the scored phases, the end last
@@ -1095,6 +1140,8 @@ def _end_loo(paths, smooths, tolerances, points: int = SEEN_POINTS, *, remainder
                     r2 = np.full(no, float(tol) ** 2)
                     r2[-7:-1] = r_last
                     r2[-1] = float(ell) ** 2
+                    if near is not None and no >= 13:
+                        r2[-13:-7] = float(near) ** 2
                     gain = np.swapaxes(np.linalg.solve(Soo + np.diag(r2), Sot), 1, 2)  # (B, 6k, no)
                     e = Xs[block, no:] - m[:, no:] - np.einsum("bij,bj->bi", gain, innovation)
                     sq = np.sum(e[:, -6:] ** 2, axis=1)
@@ -1112,6 +1159,27 @@ def _loosest_rest(errors: np.ndarray, smooths, tolerances, k: float = REST_SE) -
     E = np.asarray(errors, dtype=np.float64)
     per = {(float(t2), float(r)): E[i, j] for i, t2 in enumerate(smooths) for j, r in enumerate(tolerances)}
     return _loosest_within(per, k, looseness=lambda c: (c[1], c[0]))
+
+
+def _choose_near(paths) -> None:
+    """Whether the rest's conditioning sees the near pose (one grid step before the last seen one), and at which
+    tolerance (``paths.rest_near_tolerance``): scored at the left-out demonstrations' estimated durations
+    (:func:`_rest_at_estimates`; at a wrong duration the near pose reads a wrong heading), the best of REST_NEAR_GRID's
+    tolerances below r_rest, kept only where it beats no near pose by more than REST_SE standard errors of their
+    paired difference (the simpler conditioning, without it, otherwise). After the duration's τ², r and λ, which the
+    estimated durations use."""
+    rest = (float(paths.rest_smooth), float(paths.rest_tolerance), float(paths.rest_duration_tolerance or _ELL_TOL))
+    cands = [float(x) for x in REST_NEAR_GRID if x < rest[1]]
+    near, rn = {}, np.inf
+    if cands:
+        E = _rest_at_estimates(paths, [rest] + [(*rest, c) for c in cands])
+        near = {np.inf: E[0], **dict(zip(cands, E[1:]))}
+        best = min(cands, key=lambda c: float(np.mean(near[c])))
+        rn = _loosest_within({np.inf: near[np.inf], best: near[best]}, REST_SE, looseness=lambda c: c)
+    paths.rest_near_tolerance = None if not np.isfinite(rn) else float(rn)
+    paths.info = dict(paths.info or {}, rest_near_tolerance=paths.rest_near_tolerance,
+                      rest_near_loo={("none" if not np.isfinite(c) else str(c)): float(np.mean(e - near[np.inf]))
+                                     for c, e in near.items()} if near else None)
 
 
 def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, spread: bool | None = None):
@@ -1154,11 +1222,13 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, s
         pick = _loosest_within({_ELL_TOL: exact, REST_FREE_ELL: freed}, REST_SE, looseness=lambda c: c)
         paths.rest_duration_tolerance = None if pick == _ELL_TOL else float(pick)
         paths.info.update(rest_duration_tolerance=float(pick), rest_duration_freed_loo=float(np.mean(freed - exact)))
+        paths.rest_near_tolerance = None  # chosen after the duration's weights (_choose_near)
     else:  # few left-out ends: only the path distribution's own τ² against one smooth τ², at the seen r
         err = _end_loo(paths, [rest[0], REST_FEW_SMOOTH], [rest[1]])[:, 0]
         if err[1] < err[0]:  # ties keep the path distribution's own
             rest = (float(REST_FEW_SMOOTH), rest[1])
         paths.rest_duration_tolerance = None  # ln D exact
+        paths.rest_near_tolerance = None  # no near pose
     paths.rest_smooth, paths.rest_tolerance = rest
     paths.info.update(rest_smooth=rest[0], rest_tolerance=rest[1], rest_end_loo=float(err.min()))
     # the samples' spread keeps the path distribution's conditioning; its factors from the same left-out remainders:
@@ -1182,9 +1252,13 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, s
                 lam = max(ok) if ok else min(held)
                 paths.duration_evidence = None if lam == 1.0 else float(lam)
                 paths.info.update(duration_evidence=float(lam), duration_loo_coverage=held[lam])
-    own = rest == (float(paths.smooth), float(r)) and paths.rest_duration_tolerance is None
-    if paths.rest_duration_tolerance is not None:
-        rest = (*rest, float(paths.rest_duration_tolerance))
+    if paths.demos >= REST_FROM:
+        _choose_near(paths)
+    own = rest == (float(paths.smooth), float(r)) and paths.rest_duration_tolerance is None and paths.rest_near_tolerance is None
+    if paths.rest_duration_tolerance is not None or paths.rest_near_tolerance is not None:
+        rest = (*rest, float(paths.rest_duration_tolerance or _ELL_TOL))
+    if paths.rest_near_tolerance is not None:
+        rest = (*rest, float(paths.rest_near_tolerance))
     if spread is None:
         spread = DURATION_SPREAD and paths.demos >= SPREAD_FROM
     if spread:  # the remainders against the samples as drawn, each at its own duration (eighth pass)
@@ -1580,7 +1654,7 @@ SPREAD_POINTS = 6
 
 
 def _loo_rows(ctx, d, dur, tau2, tol, query, *, logw: bool = False, cov: bool = False, quad: bool = False,
-              ell: float = _ELL_TOL):
+              ell: float = _ELL_TOL, near: float | None = None):
     """Batched over rows b: the others' distribution of left-out demonstration d_b (the mean m_d and the sample part
     c (X_o − m_d)ᵀ(X_o − m_d) of :func:`~rbgp_cli.dynamics.paths.left_out_moments`, c = (1 + 1/N)/(N − 1), plus the
     smooth term τ² (K_ℓ ⊗ I_6 ⊕ 1)) conditioned on d_b's seen grid poses (``ctx["js"]``, at true times
@@ -1594,8 +1668,9 @@ def _loo_rows(ctx, d, dur, tau2, tol, query, *, logw: bool = False, cov: bool = 
     Z the others' centred, scaled rows (as columns; d_b's own column zero). ``query`` (B, T) phases. Returns
     x̂ at the query phases (B, T, 6) scaled; with ``logw`` also −½ eᵀG⁻¹e − ½ log det G (B,) (e = y − A m_d), with
     ``cov`` the conditioned covariance's diagonal blocks at the query phases (B, T, 6, 6), with ``quad`` (last) the
-    seen part's surprise eᵀG⁻¹e / (6n + 1) (B,) (:meth:`Anticipator.surprise` when ``logw``). No loop over the rows:
-    every interpolation is a gather of grid values."""
+    seen part's surprise eᵀG⁻¹e / (6n + 1) (B,) (:meth:`Anticipator.surprise` when ``logw``). ``near``: the
+    second-to-last seen pose's tolerance (the rest's near pose: ``ctx["js"]`` holds its grid phase). No loop over the
+    rows: every interpolation is a gather of grid values."""
     X, Ks, S, js = ctx["X"], ctx["Ks"], ctx["S"], ctx["js"]
     Dn = len(X)
     B, n, T = len(d), len(js), query.shape[1]
@@ -1641,6 +1716,8 @@ def _loo_rows(ctx, d, dur, tau2, tol, query, *, logw: bool = False, cov: bool = 
     r2 = np.tile(np.broadcast_to(np.asarray(tol, dtype=np.float64) ** 2, (6,)), n)  # r, or r_c per coordinate
     if not logw:
         r2[-6:] = ctx["r_last"]
+    if near is not None and n >= 2:
+        r2[-12:-6] = float(near) ** 2
     dg = np.arange(6 * n)
     G[:, dg, dg] += r2
     e = np.empty((B, k6))
@@ -1712,8 +1789,9 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration
 
         ȳ_j = Σ_g w_g y_gj,   V_j = Σ_g w_g (y_gj − ȳ_j)(y_gj − ȳ_j)ᵀ,   ê_j = x_dj − μ_j − (ȳ_j − x̂_j),
 
-    μ_j the mean the continuation follows (the rest's τ² and r; ``rest`` None: the own) and x̂_j the own conditioned
-    mean at the true duration. Returns {"e": ê (R, 6), "V": (R, 6, 6), "C": the own conditioned covariance's
+    μ_j the mean the continuation follows (``rest`` (τ²_rest, r_rest[, ln D's tolerance[, the near pose's]]); None:
+    the own) and x̂_j the own conditioned mean at the true duration.
+    Returns {"e": ê (R, 6), "V": (R, 6, 6), "C": the own conditioned covariance's
     diagonal blocks at the true duration (R, 6, 6), "w": each scored phase's share of the remainder's normalised
     time (R,), "rho": each left-out seen part's surprise (D,) at its point estimate of D (``duration=False``: at its
     true D) and "rho_live" the same from SPREAD_POINTS seen poses, "T": the scored phases per demonstration},
@@ -1736,14 +1814,66 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration
     ds = np.arange(Dn)
     true_q = np.broadcast_to(paths.s[jt], (Dn, T))
     own, C = _loo_rows(ctx, ds, ctx["dur"], tau2, r, true_q, cov=True)
+    near = float(rest[3]) if rest is not None and len(rest) > 3 and rest[3] is not None else None
+    ctx_mu = ctx
+    if near is not None:  # the rest's seen poses: with the grid phase just before the last (seen_split's near)
+        idx_n, no_n = seen_split(F, S, P, ctx["points"], near=True)
+        jn = idx_n[:no_n - 1:6] // 6
+        ctx_mu = dict(ctx, js=jn, seen_time=ctx["dur"][:, None] * paths.s[jn][None], seen_q=ctx["q"][:, jn], seen_p=ctx["p"][:, jn])
     mu = own if rest is None or tuple(rest) == (tau2, r) else \
-        _loo_rows(ctx, ds, ctx["dur"], float(rest[0]), float(rest[1]), true_q, ell=float(rest[2]) if len(rest) > 2 else _ELL_TOL)
+        _loo_rows(ctx_mu, ds, ctx["dur"], float(rest[0]), float(rest[1]), true_q,
+                  ell=float(rest[2]) if len(rest) > 2 else _ELL_TOL, near=near)
     x_true = X[:, :-1].reshape(Dn, S, 6)[:, jt]
     mid = np.concatenate([[0.0], 0.5 * (u[1:] + u[:-1]), [1.0]])
     share = np.tile(np.diff(mid), Dn)
     if not duration:
         return {"e": (x_true - mu).reshape(-1, 6), "V": np.zeros((Dn * T, 6, 6)), "C": C.reshape(-1, 6, 6), "w": share,
                 "rho": _loo_rows(ctx, ds, ctx["dur"], tau2, r, np.zeros((Dn, 1)), logw=True, quad=True)[2], "T": T}
+    w, shift, d_hat, ctx6 = _left_out_weights(paths, F, ctx)
+    span, grid = ctx["seen_time"][:, -1], ctx["grid"]
+    # the seen part's surprise at each left-out demonstration's point estimate of D, as the continuation computes it
+    # (Anticipator.surprise_at), from ctx's seen poses and from the live update's
+    rho = _loo_rows(ctx, ds, d_hat, tau2, r, np.zeros((Dn, 1)), logw=True, quad=True)[2]
+    rho_live = _loo_rows(ctx6, ds, d_hat, tau2, r, np.zeros((Dn, 1)), logw=True, quad=True)[2]
+    dd, gg = np.nonzero(w > SPREAD_KEEP * w.max(axis=1, keepdims=True))
+    off = (2.0 * np.arange(SPREAD_SUB) + 1.0 - SPREAD_SUB) / SPREAD_SUB  # sub-cell midpoints in half steps
+    rd = np.repeat(dd, SPREAD_SUB)
+    Dg = np.exp(np.log(grid[dd, gg] * shift[dd])[:, None] + off[None] * ctx["half"][dd, None])
+    if widen_reference is not None:  # D̂ (D_g / D̂)^s, as the continuation's samples
+        ref = float(np.median(rho)) if widen_reference == "median" else float(widen_reference)
+        Dg = Anticipator.stretched(Dg, d_hat[dd, None], surprise_scale(rho, ref)[dd, None])
+    Dg = np.maximum(Dg.ravel(), span[rd] * (1 + 1e-9))
+    wg = np.repeat(w[dd, gg], SPREAD_SUB) / SPREAD_SUB
+    s0 = np.minimum(span[rd] / Dg, 1.0)
+    q = s0[:, None] + u[None] * (1.0 - s0[:, None])  # (R_g, T)
+    # the own conditioned means at D_g, at s_g(u_j) (R_g, T, 6), in blocks of SPREAD_BLOCK rows (memory)
+    xg = np.concatenate([_loo_rows(ctx, rd[i:i + SPREAD_BLOCK], Dg[i:i + SPREAD_BLOCK], tau2, r, q[i:i + SPREAD_BLOCK])
+                         for i in range(0, len(rd), SPREAD_BLOCK)])
+    y = _rebase(paths, xg, q, np.broadcast_to(paths.s[jt], q.shape))
+    wsum = np.zeros(Dn)
+    np.add.at(wsum, rd, wg)
+    wn = wg / wsum[rd]
+    ybar = np.zeros((Dn, T, 6))
+    np.add.at(ybar, rd, wn[:, None, None] * y)
+    dy = y - ybar[rd]
+    V = np.zeros((Dn, T, 6, 6))
+    np.add.at(V, rd, wn[:, None, None, None] * dy[..., :, None] * dy[..., None, :])
+    e_hat = x_true - mu - (ybar - own)
+    return {"e": e_hat.reshape(-1, 6), "V": V.reshape(-1, 6, 6), "C": C.reshape(-1, 6, 6), "w": share, "rho": rho,
+            "rho_live": rho_live, "T": T}
+
+
+def _left_out_weights(paths, F: float, ctx):
+    """Each left-out demonstration's duration weights seen up to fraction F, as the continuation's samples draw them
+    (:func:`_spread_terms`): the others' distribution with the duration's τ² and r on its SPREAD_GRID durations
+    (``ctx["grid"]``, those shorter than the seen span left out), SPREAD_POINTS seen poses at their true times, the
+    seen poses' evidence weighted by λ (``paths.duration_evidence``). ``ctx``: :func:`_spread_context`'s with the
+    fraction's seen grid phases (``js``, ``seen_time``, ``seen_q``, ``seen_p``). Returns (w (D, G) the weights, shift (D,)
+    the factor moving them onto the whole evidence's median, d_hat (D,) that median: the point estimate of D, ctx6 the
+    context of the SPREAD_POINTS seen poses)."""
+    X, S = ctx["X"], ctx["S"]
+    Dn, P = X.shape
+    ds = np.arange(Dn)
     # the duration's weights over each left-out demonstration's grid (durations shorter than the seen span left out)
     dsm = float(paths.smooth if paths.duration_smooth is None else paths.duration_smooth)
     dtol = duration_tolerances(paths)
@@ -1774,37 +1904,53 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration
         w1 = np.exp(lw1 - np.where(ok, lw1.max(axis=1), 0.0)[:, None])
         w1 = np.where(ok[:, None], w1 / np.where(ok, w1.sum(axis=1), 1.0)[:, None], w)
         shift = _row_medians(grid, w1, ctx["half"], span) / _row_medians(grid, w, ctx["half"], span)
-    # the seen part's surprise at each left-out demonstration's point estimate of D (the whole evidence's median), as
-    # the continuation computes it (Anticipator.surprise_at), from ctx's seen poses and from the live update's
+    # each left-out demonstration's point estimate of D (the whole evidence's median), as the continuation's
     d_hat = np.maximum(_row_medians(grid, w, ctx["half"], span) * shift, span * (1 + 1e-9))
-    rho = _loo_rows(ctx, ds, d_hat, tau2, r, np.zeros((Dn, 1)), logw=True, quad=True)[2]
-    rho_live = _loo_rows(ctx6, ds, d_hat, tau2, r, np.zeros((Dn, 1)), logw=True, quad=True)[2]
-    dd, gg = np.nonzero(w > SPREAD_KEEP * w.max(axis=1, keepdims=True))
-    off = (2.0 * np.arange(SPREAD_SUB) + 1.0 - SPREAD_SUB) / SPREAD_SUB  # sub-cell midpoints in half steps
-    rd = np.repeat(dd, SPREAD_SUB)
-    Dg = np.exp(np.log(grid[dd, gg] * shift[dd])[:, None] + off[None] * ctx["half"][dd, None])
-    if widen_reference is not None:  # D̂ (D_g / D̂)^s, as the continuation's samples
-        ref = float(np.median(rho)) if widen_reference == "median" else float(widen_reference)
-        Dg = Anticipator.stretched(Dg, d_hat[dd, None], surprise_scale(rho, ref)[dd, None])
-    Dg = np.maximum(Dg.ravel(), span[rd] * (1 + 1e-9))
-    wg = np.repeat(w[dd, gg], SPREAD_SUB) / SPREAD_SUB
-    s0 = np.minimum(span[rd] / Dg, 1.0)
-    q = s0[:, None] + u[None] * (1.0 - s0[:, None])  # (R_g, T)
-    # the own conditioned means at D_g, at s_g(u_j) (R_g, T, 6), in blocks of SPREAD_BLOCK rows (memory)
-    xg = np.concatenate([_loo_rows(ctx, rd[i:i + SPREAD_BLOCK], Dg[i:i + SPREAD_BLOCK], tau2, r, q[i:i + SPREAD_BLOCK])
-                         for i in range(0, len(rd), SPREAD_BLOCK)])
-    y = _rebase(paths, xg, q, np.broadcast_to(paths.s[jt], q.shape))
-    wsum = np.zeros(Dn)
-    np.add.at(wsum, rd, wg)
-    wn = wg / wsum[rd]
-    ybar = np.zeros((Dn, T, 6))
-    np.add.at(ybar, rd, wn[:, None, None] * y)
-    dy = y - ybar[rd]
-    V = np.zeros((Dn, T, 6, 6))
-    np.add.at(V, rd, wn[:, None, None, None] * dy[..., :, None] * dy[..., None, :])
-    e_hat = x_true - mu - (ybar - own)
-    return {"e": e_hat.reshape(-1, 6), "V": V.reshape(-1, 6, 6), "C": C.reshape(-1, 6, 6), "w": share, "rho": rho,
-            "rho_live": rho_live, "T": T}
+    return w, shift, d_hat, ctx6
+
+
+def _rest_at_estimates(paths, rests, ctx=None) -> np.ndarray:
+    """The left-out final pose and remainder of the continuation's mean at each left-out demonstration's estimated
+    duration, for each rest conditioning of ``rests`` [(τ², r, ln D's tolerance, near tolerance or None)]: each
+    demonstration d left out, its first F (each of SEEN_FRACTIONS) seen at its true times, its duration estimated as
+    the samples' statistic does (:func:`_left_out_weights`: D̂_d), and the others' distribution conditioned at D̂_d on
+    those poses, the last exactly, ln D̂_d and, with a near tolerance, the pose D̂_d / (S − 1) before the last
+    (interpolated on d's grid path, as :meth:`Anticipator._near` takes it from the seen samples). Its mean at the
+    remainder's normalised time u (phase ŝ_0 + u (1 − ŝ_0), ŝ_0 = span / D̂_d) against d at phase s_J + u (1 − s_J), in
+    units of each coordinate's spread, at :func:`seen_split`'s scored phases: eᵀe at the end plus (1/k) Σ_j e_jᵀe_j,
+    summed over the fractions (:func:`_end_loo`'s criterion, where the seen part's phases are the estimate's, not the
+    truth's: a pose read at a wrong phase, such as the near one, is scored as the continuation reads it). Returns
+    (len(rests), D)."""
+    ctx = _spread_context(paths) if ctx is None else ctx
+    X, S = ctx["X"], ctx["S"]
+    Dn, P = X.shape
+    ds = np.arange(Dn)
+    out = np.zeros((len(rests), Dn))
+    for F in SEEN_FRACTIONS:
+        idx, no = seen_split(F, S, P, ctx["points"])
+        js = idx[:no - 1:6] // 6
+        jt = idx[no::6] // 6  # the scored phases, the end last
+        J = int(js[-1])
+        cF = dict(ctx, js=js, seen_time=ctx["dur"][:, None] * paths.s[js][None], seen_q=ctx["q"][:, js], seen_p=ctx["p"][:, js])
+        d_hat = _left_out_weights(paths, F, cF)[2]
+        span = cF["seen_time"][:, -1]
+        s0 = np.minimum(span / d_hat, 1.0)
+        u = (paths.s[jt] - paths.s[J]) / (1.0 - paths.s[J])
+        q = s0[:, None] + u[None] * (1.0 - s0[:, None])  # (D, k)
+        x_true = X[:, :-1].reshape(Dn, S, 6)[:, jt]
+        t_near = np.maximum(span - d_hat / (S - 1), 0.0)
+        qn, pn = paths.pose_at(paths.deviations, (t_near / ctx["dur"])[:, None])  # (D, 1, ·) on each d's own path
+        cN = dict(cF, js=np.r_[js[:-1], J - 1, J], seen_time=np.concatenate([cF["seen_time"][:, :-1], t_near[:, None],
+                                                                             cF["seen_time"][:, -1:]], axis=1),
+                  seen_q=np.concatenate([cF["seen_q"][:, :-1], qn, cF["seen_q"][:, -1:]], axis=1),
+                  seen_p=np.concatenate([cF["seen_p"][:, :-1], pn, cF["seen_p"][:, -1:]], axis=1))
+        for i, rest in enumerate(rests):
+            near = rest[3] if len(rest) > 3 else None
+            mu = _loo_rows(cF if near is None else cN, ds, d_hat, float(rest[0]), float(rest[1]), q,
+                           ell=float(rest[2]) if len(rest) > 2 else _ELL_TOL, near=near)
+            e = x_true - _rebase(paths, mu, q, np.broadcast_to(paths.s[jt], q.shape))
+            out[i] += np.sum(e[:, -1] ** 2, axis=1) + np.sum(e * e, axis=(1, 2)) / len(jt)
+    return out
 
 
 def _temper_log(logw, e2, v, nu: int, lam: float):

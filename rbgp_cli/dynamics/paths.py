@@ -217,6 +217,10 @@ class PathDistribution:
     #: ln D's tolerance in that conditioning, in units of its spread, where fit_seen frees it
     #: (:data:`rbgp_cli.dynamics.anticipation.REST_FREE_ELL`; None: exactly, as the duration's weights observe it)
     rest_duration_tolerance: float | None = None
+    #: the tolerance of the seen pose one grid step before the last in that conditioning, in units of each
+    #: coordinate's spread: with the last seen pose, where the motion is heading (fit_seen; None: the rest's r like
+    #: every other seen pose, and no pose added)
+    rest_near_tolerance: float | None = None
     #: the draws' factors of a motion under way per seen fraction, {"fractions", "rotation", "position"} (lists;
     #: :func:`rbgp_cli.dynamics.anticipation.seen_band_scales`; None: ``seen_band_scale`` at every fraction)
     seen_band_scales: dict | None = None
@@ -534,6 +538,8 @@ class PathDistribution:
                 **({"rest_tolerance": float(self.rest_tolerance)} if self.rest_tolerance is not None else {}),
                 **({"rest_duration_tolerance": float(self.rest_duration_tolerance)}
                    if self.rest_duration_tolerance is not None else {}),
+                **({"rest_near_tolerance": float(self.rest_near_tolerance)}
+                   if self.rest_near_tolerance is not None else {}),
                 **({"seen_band_scales": {k: [float(x) for x in self.seen_band_scales[k]]
                                          for k in ("fractions", "rotation", "position")}}
                    if self.seen_band_scales is not None else {}),
@@ -561,6 +567,8 @@ class PathDistribution:
                    rest_tolerance=None if header.get("rest_tolerance") is None else float(header["rest_tolerance"]),
                    rest_duration_tolerance=None if header.get("rest_duration_tolerance") is None
                    else float(header["rest_duration_tolerance"]),
+                   rest_near_tolerance=None if header.get("rest_near_tolerance") is None
+                   else float(header["rest_near_tolerance"]),
                    seen_band_scales=None if header.get("seen_band_scales") is None else
                    {k: [float(x) for x in header["seen_band_scales"][k]] for k in ("fractions", "rotation", "position")},
                    seen_end_band_scales=None if header.get("seen_end_band_scales") is None else

@@ -287,6 +287,7 @@ TOP: dict = {
         "rest_smooth": num(0.0, 1e6, what="a non-negative variance"),
         "rest_tolerance": num(0.0, 1e6, what="a non-negative tolerance"),
         "rest_duration_tolerance": num(0.0, 1e6, lo_open=True, what="a positive tolerance"),
+        "rest_near_tolerance": num(0.0, 1e6, lo_open=True, what="a positive tolerance"),
         # optional: a motion under way's bands' factors per seen fraction (issue 37, seventh pass)
         "seen_band_scales": obj({"fractions": list_of(num(0.0, 1.0, what="a seen fraction in [0, 1]"), 1, 100),
                                  "rotation": list_of(num(0.0, 1e6, what="a non-negative factor"), 1, 100),

@@ -45,7 +45,9 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
   without it weigh with λ = 1, as before), and
   ``rest_smooth`` / ``rest_tolerance`` (the conditioning of its rest, chosen on the left-out final pose; files
   without them condition with ``smooth`` and ``seen_tolerance``, as before) and ``rest_duration_tolerance`` (ln D's
-  tolerance there where it is freed; files without it condition on ln D exactly, as before), and ``seen_band_scales`` ({"fractions",
+  tolerance there where it is freed; files without it condition on ln D exactly, as before) and
+  ``rest_near_tolerance`` (the tolerance of the seen pose one grid step before the last there, which with the last
+  says where the motion is heading; files without it add no such pose, as before), and ``seen_band_scales`` ({"fractions",
   "rotation", "position"}: the bands' factors per seen fraction; files without them draw with ``seen_band_scale``
   at every fraction, as before), ``seen_end_band_scales`` (the same form: the end pose's band's own factors, at the
   fractions and 0.95; files without them use ``seen_band_scales``, as before), and ``seen_surprise`` ({"fractions", "reference"}: the left-out seen parts' median

@@ -73,6 +73,21 @@ def test_the_statistics_about_the_rests_mean_against_a_direct_conditioning(paths
     blocks = [cov_own[6 * j:6 * j + 3, 6 * j:6 * j + 3] for j in range(k)]
     want = [e[j, :3] @ np.linalg.solve(blocks[j], e[j, :3]) for j in range(k)]
     np.testing.assert_allclose(m2_F[fi][d * k:(d + 1) * k], want, rtol=1e-6)
+    # with the near pose (the grid phase before the last seen, its own tolerance) and ln D freed: the rest's mean
+    # conditioned on those entries as well, the covariance still the own one's
+    _, _, z_n = _seen_loo(paths, [r], stats=True, by_fraction=True, rest=(*rest, 1e3, 0.1))
+    idx_n, no_n = seen_split(anticipation.SEEN_FRACTIONS[fi], S, P, anticipation.SEEN_POINTS, near=True)
+    on = np.delete(X, d, axis=0)[:, idx_n]
+    mn = on.mean(axis=0)
+    Sn = (1.0 + 1.0 / (D - 1)) * np.cov(on, rowvar=False) + paths.smooth_covariance(rest[0])[np.ix_(idx_n, idx_n)]
+    r2 = np.full(no_n, rest[1] ** 2)
+    r2[-13:-7] = 0.1 ** 2
+    r2[-7:-1] = r_last
+    r2[-1] = 1e3 ** 2
+    mean_n = mn[no_n:] + Sn[no_n:, :no_n] @ np.linalg.solve(Sn[:no_n, :no_n] + np.diag(r2), X[d, idx_n[:no_n]] - mn[:no_n])
+    e_n = (X[d, idx_n[no_n:]] - mean_n).reshape(-1, 6)
+    np.testing.assert_allclose(z_n[fi][d * k:(d + 1) * k], np.abs(e_n[:, 3:]) / sd[:, 3:], rtol=1e-7)
+    assert not np.allclose(e_n, e)  # the near pose moved the mean
 
 
 def test_the_factors_narrow_as_the_goal_bands_do():

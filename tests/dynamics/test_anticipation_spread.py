@@ -38,18 +38,20 @@ def _direct(paths, d, F, rest):
     dur = np.exp(paths.log_durations)
     Dd = dur[d]
 
-    def seen(points):
-        idx, no = seen_split(F, S, P, points)
+    def seen(points, near=False):
+        idx, no = seen_split(F, S, P, points, near=near)
         js = idx[:no - 1:6] // 6
         return js, paths.s[js] * Dd
 
-    def cond(js, times, Dur, tau2, tol, exact=True):
+    def cond(js, times, Dur, tau2, tol, ell=_ELL_TOL, near=None, exact=True):
         q, p = paths.pose_at(paths.deviations[d], paths.s[js])
         A, y, r2 = paths.observe(np.minimum(times / Dur, 1.0), q, p)
         r2[:] = tol ** 2
         if exact:
             r2[-6:] = r_last
-        Al, yl, rl = paths.observe_duration(Dur, tolerance=_ELL_TOL * paths.duration_scale)
+        if near is not None:
+            r2[-12:-6] = near ** 2
+        Al, yl, rl = paths.observe_duration(Dur, tolerance=ell * paths.duration_scale)
         A, y, r2 = np.vstack([A, Al]), np.concatenate([y, yl]), np.concatenate([r2, rl])
         Sg = sample + paths.smooth_covariance(tau2)
         G = A @ Sg @ A.T + np.diag(r2)
@@ -65,7 +67,7 @@ def _direct(paths, d, F, rest):
     u = (jt - J) / (S - 1 - J)
     tau2, r = paths.smooth, paths.seen_tolerance
     own, cov, _ = cond(js, times, Dd, tau2, r)
-    mu = cond(js, times, Dd, *rest)[0] if rest is not None else own
+    mu = cond(*seen(SEEN_POINTS, near=len(rest) > 3), Dd, *rest)[0] if rest is not None else own
     blocks = np.array([cov[6 * j:6 * j + 6, 6 * j:6 * j + 6] for j in jt])
     # the duration's weights on the others' grid, then SPREAD_SUB durations per cell kept
     od = np.delete(dur, d)
@@ -112,9 +114,9 @@ def _direct(paths, d, F, rest):
     return {"e": e, "V": V, "C": blocks, "w": np.diff(mid)}
 
 
-@pytest.mark.parametrize("F", [0.2, 0.8])
-def test_the_batched_terms_equal_the_direct_computation(paths, F):
-    rest = (1.0, 3.2)
+@pytest.mark.parametrize("F, rest", [(0.2, (1.0, 3.2)), (0.8, (1.0, 3.2)), (0.6, (1.0, 3.2, 1e3, 0.1))])
+def test_the_batched_terms_equal_the_direct_computation(paths, F, rest):
+    """(τ²_rest, r_rest), and with ln D freed and the near pose at its tolerance (the grid phase before the last)."""
     got = _spread_terms(paths, F, rest=rest)
     T = len(got["w"]) // paths.demos
     for d in (0, 4, 8):
