@@ -784,9 +784,16 @@ class Anticipator:
         t, quat, position, tau, q, p = seen
         if self.rest_near is None or len(tau) < 2:
             return tau, q, p
-        tn = np.array([max(float(tau[-1]) - float(D) / (self.paths.S - 1), 0.0)])
-        qn, pn = _slerp_samples(t - t[0], quat, position, tn)
-        return np.r_[tau[:-1], tn, tau[-1:]], np.concatenate([q[:-1], qn, q[-1:]]), np.concatenate([p[:-1], pn, p[-1:]])
+        tn = max(float(tau[-1]) - float(D) / (self.paths.S - 1), 0.0)
+        # the two samples about it (the live update calls this at every pose: no pass over the whole buffer)
+        k = min(max(int(np.searchsorted(t, t[0] + tn, side="right")) - 1, 0), len(t) - 2)
+        qn, pn = _slerp_samples(t[k:k + 2] - t[0], quat[k:k + 2], position[k:k + 2], np.array([tn]))
+        n = len(tau)
+        tau_n, q_n, p_n = np.empty(n + 1), np.empty((n + 1, 4)), np.empty((n + 1, 3))
+        tau_n[:-2], q_n[:-2], p_n[:-2] = tau[:-1], q[:-1], p[:-1]
+        tau_n[-2], q_n[-2], p_n[-2] = tn, qn[0], pn[0]
+        tau_n[-1], q_n[-1], p_n[-1] = tau[-1], q[-1], p[-1]
+        return tau_n, q_n, p_n
 
     def _observations(self, tau, q, p, last_q, last_p, D, rest: bool = True):
         """(A, y, r²) at duration D: the seen poses (tolerance: the rest's r_rest, or with ``rest=False`` the path
