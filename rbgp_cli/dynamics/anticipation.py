@@ -1784,6 +1784,12 @@ def _spread_context(paths, points: int = SEEN_POINTS):
                 half=0.5 * (hi - lo) / (SPREAD_GRID - 1), points=points)
 
 
+def _seen_at(ctx, paths, js):
+    """:func:`_spread_context`'s ``ctx`` with every demonstration seen at the grid phases ``js`` (n,): their times
+    ``seen_time`` (D, n) s on each one's own clock, poses ``seen_q`` (D, n, 4) and ``seen_p`` (D, n, 3)."""
+    return dict(ctx, js=js, seen_time=ctx["dur"][:, None] * paths.s[js][None], seen_q=ctx["q"][:, js], seen_p=ctx["p"][:, js])
+
+
 def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration: bool = True,
                   widen_reference: float | str | None = None) -> dict:
     """The left-out remainders of fraction F against the samples as drawn (module docstring, issue 37's eighth
@@ -1816,7 +1822,7 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration
     jt = np.arange(J + 1, S)
     T = len(jt)
     u = (jt - J) / (S - 1 - J)
-    ctx = dict(ctx, js=js, seen_time=ctx["dur"][:, None] * paths.s[js][None], seen_q=ctx["q"][:, js], seen_p=ctx["p"][:, js])
+    ctx = _seen_at(ctx, paths, js)
     tau2, r = float(paths.smooth), float(paths.seen_tolerance)
     ds = np.arange(Dn)
     true_q = np.broadcast_to(paths.s[jt], (Dn, T))
@@ -1826,7 +1832,7 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration
     if near is not None:  # the rest's seen poses: with the grid phase just before the last (seen_split's near)
         idx_n, no_n = seen_split(F, S, P, ctx["points"], near=True)
         jn = idx_n[:no_n - 1:6] // 6
-        ctx_mu = dict(ctx, js=jn, seen_time=ctx["dur"][:, None] * paths.s[jn][None], seen_q=ctx["q"][:, jn], seen_p=ctx["p"][:, jn])
+        ctx_mu = _seen_at(ctx, paths, jn)
     mu = own if rest is None or tuple(rest) == (tau2, r) else \
         _loo_rows(ctx_mu, ds, ctx["dur"], float(rest[0]), float(rest[1]), true_q,
                   ell=float(rest[2]) if len(rest) > 2 else _ELL_TOL, near=near)
@@ -1889,8 +1895,7 @@ def _left_out_weights(paths, F: float, ctx):
     rows_d = np.repeat(ds, SPREAD_GRID)
     idx6, no6 = seen_split(F, S, P, SPREAD_POINTS)
     js6 = idx6[:no6 - 1:6] // 6
-    ctx6 = dict(ctx, js=js6, seen_time=ctx["dur"][:, None] * paths.s[js6][None], seen_q=ctx["q"][:, js6],
-                seen_p=ctx["p"][:, js6])
+    ctx6 = _seen_at(ctx, paths, js6)
     _, lw = _loo_rows(ctx6, rows_d, grid.ravel(), dsm, dtol, np.zeros((len(rows_d), 1)), logw=True)
     lam = 1.0 if paths.duration_evidence is None else float(paths.duration_evidence)
     shift = np.ones(Dn)
@@ -1938,7 +1943,7 @@ def _rest_at_estimates(paths, rests, ctx=None) -> np.ndarray:
         js = idx[:no - 1:6] // 6
         jt = idx[no::6] // 6  # the scored phases, the end last
         J = int(js[-1])
-        cF = dict(ctx, js=js, seen_time=ctx["dur"][:, None] * paths.s[js][None], seen_q=ctx["q"][:, js], seen_p=ctx["p"][:, js])
+        cF = _seen_at(ctx, paths, js)
         d_hat = _left_out_weights(paths, F, cF)[2]
         span = cF["seen_time"][:, -1]
         s0 = np.minimum(span / d_hat, 1.0)
@@ -1947,10 +1952,9 @@ def _rest_at_estimates(paths, rests, ctx=None) -> np.ndarray:
         x_true = X[:, :-1].reshape(Dn, S, 6)[:, jt]
         t_near = np.maximum(span - d_hat / (S - 1), 0.0)
         qn, pn = paths.pose_at(paths.deviations, (t_near / ctx["dur"])[:, None])  # (D, 1, ·) on each d's own path
-        cN = dict(cF, js=np.r_[js[:-1], J - 1, J], seen_time=np.concatenate([cF["seen_time"][:, :-1], t_near[:, None],
-                                                                             cF["seen_time"][:, -1:]], axis=1),
-                  seen_q=np.concatenate([cF["seen_q"][:, :-1], qn, cF["seen_q"][:, -1:]], axis=1),
-                  seen_p=np.concatenate([cF["seen_p"][:, :-1], pn, cF["seen_p"][:, -1:]], axis=1))
+        last = len(js) - 1  # the near pose goes before the last seen one
+        cN = dict(cF, js=np.insert(js, last, J - 1), seen_time=np.insert(cF["seen_time"], last, t_near, axis=1),
+                  seen_q=np.insert(cF["seen_q"], last, qn[:, 0], axis=1), seen_p=np.insert(cF["seen_p"], last, pn[:, 0], axis=1))
         for i, rest in enumerate(rests):
             near = rest[3] if len(rest) > 3 else None
             mu = _loo_rows(cF if near is None else cN, ds, d_hat, float(rest[0]), float(rest[1]), q,
