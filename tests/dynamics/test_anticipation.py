@@ -280,3 +280,26 @@ def test_the_end_band_is_the_samples_conditional_covariance_plus_the_durations_s
     bands = np.array(bands)
     assert np.all(bands[-1] < 0.5 * bands[0]), bands  # near the end the covariance's band is a fraction of its early width
     assert np.all(np.diff(bands[1:], axis=0) < 0), bands  # and it narrows as more is seen
+
+
+def test_the_strided_kronecker_and_diagonal_helpers_match_their_dense_forms():
+    """The batched grid terms add τ² K ⊗ I_6 and the tolerances through strided views (_add_kron_i6, _diagonal):
+    equal to numpy's dense Kronecker product and diagonal, on views inside a larger matrix, and a view that would
+    need a copy (the additions lost) is refused."""
+    from rbgp_cli.dynamics.anticipation import _add_kron_i6, _diagonal
+
+    rng = np.random.default_rng(3)
+    K = rng.normal(size=(2, 3, 4))
+    out = np.zeros((2, 1 + 18, 1 + 24))
+    _add_kron_i6(out[:, 1:, 1:], K)
+    assert np.array_equal(out[:, 1:, 1:], np.stack([np.kron(k, np.eye(6)) for k in K]))
+    assert not out[:, 0].any() and not out[:, :, 0].any()
+    A = rng.normal(size=(3, 5, 5))
+    before = A.copy()
+    _diagonal(A, 1, 4)[...] += 10.0
+    expect = before.copy()
+    for j in range(1, 4):
+        expect[:, j, j] += 10.0
+    assert np.array_equal(A, expect)
+    with pytest.raises(AttributeError):
+        _diagonal(A[:, :4, :4], 0, 2)
