@@ -693,19 +693,18 @@ class RigidBodyGP:
         -------
         A :class:`~rbgp_cli.dynamics.anticipation.Continuation` (a list for a list or a source): ``t``, ``quat``,
         ``position`` from the last seen time to the predicted end on the seen clock, ``samples``, and
-        ``estimate`` (phase, end time and end pose with 90 % bands, ``off``). Nothing after the last seen
-        sample is used.
+        ``estimate`` (phase, end time and end pose with 90 % bands, ``off``), and ``info["left_data"]``: the mean's
+        then each sample's (T,) bool rows outside the demonstrations' envelope (warned about on stderr, as the seen
+        motions that are off or less like the demonstrations are). Nothing after the last seen sample is used.
         """
-        from rbgp_cli.dynamics.anticipation import Anticipator
         from rbgp_cli.dynamics.trajectory import Trajectory
+        from rbgp_cli.workflows import continue_motions
 
         m = self._check()
-        ant = Anticipator(getattr(m, "paths", None) if paths is None else paths, m)
         single = isinstance(seen, Trajectory)
         items = [seen] if single else (list(seen) if isinstance(seen, (list, tuple)) and all(isinstance(x, Trajectory) for x in seen)
                                        else _demos(seen))
-        out = [ant.continuation(tr.t, tr.quat, tr.position, samples=samples, seed=seed + i, dt=dt, name=str(i))
-               for i, tr in enumerate(items)]
+        out = continue_motions(m, items, samples=samples, seed=seed, dt=dt, paths=paths)
         return out[0] if single else out
 
     def follower(self, *, paths=None, **options):

@@ -40,6 +40,9 @@ __all__ = [
     "crossval_files",
     "given_option",
     "left_data",
+    "continue_files",
+    "continue_motions",
+    "follow_stream",
     "SAMPLE_DATA",
 ]
 
@@ -637,13 +640,22 @@ def continue_files(model, sources, *, options: ReadOptions | None = None, max_ga
     :class:`~rbgp_cli.dynamics.anticipation.Continuation` per motion, in the order read, named 0, 1, …
     (its samples ``0.s0``, …), on the seen file's own clock (docs/method.md §13). ``paths``: the path
     distribution (default the model's)."""
+    seen, _, _ = load_demonstrations(sources, options, max_gap=max_gap)
+    return continue_motions(model, seen, samples=samples, seed=seed, paths=paths)
+
+
+def continue_motions(model, seen, *, samples: int = 0, seed: int = 0, dt: float | None = None, paths=None) -> list:
+    """One :class:`~rbgp_cli.dynamics.anticipation.Continuation` per seen beginning of ``seen`` (Trajectories on their
+    own clocks), named 0, 1, … (``seed + i`` seeds the i-th one's samples; ``dt`` their step, default the seen
+    samples' median interval), with what ``rollout --given`` says of them on stderr: the seen motions that are off or
+    widened (:func:`_note_seen`), and the continuations that leave the demonstrations' envelope
+    (:func:`_note_left_continuations`, ``info["left_data"]``; a model without an envelope: not checked)."""
     from rbgp_cli.dynamics.anticipation import Anticipator
 
-    seen, _, _ = load_demonstrations(sources, options, max_gap=max_gap)
     ant = Anticipator(getattr(model, "paths", None) if paths is None else paths, model)
     out, off, wide = [], [], []
     for i, tr in enumerate(seen):
-        c = ant.continuation(tr.t, tr.quat, tr.position, samples=samples, seed=seed + i, name=str(i))
+        c = ant.continuation(tr.t, tr.quat, tr.position, samples=samples, seed=seed + i, dt=dt, name=str(i))
         c.info["source"] = tr.source or tr.name
         if c.estimate.off:
             off.append(i)
@@ -651,7 +663,38 @@ def continue_files(model, sources, *, options: ReadOptions | None = None, max_ga
             wide.append(i)
         out.append(c)
     _note_seen(out, off, wide)
+    envelope = model.data_envelope() if hasattr(model, "data_envelope") else None
+    if envelope is not None:
+        _note_left_continuations(out, envelope)
     return out
+
+
+def _note_left_continuations(conts, envelope) -> dict:
+    """Which continuations (mean and samples) leave the demonstrations' ``envelope``, each row at its phase of the
+    whole motion, (t − t_0) / D with t_0 the seen start and D its own duration (the mean's D̂, a sample's drawn one):
+    each continuation's ``info["left_data"]`` is a list, the mean's then its samples', of (T,) bool rows outside
+    (what ``rollout --given`` writes in its left_data column); one warning names those that left (as ``rollout``
+    does), the times since the seen start. Returns :func:`~rbgp_cli.dynamics.envelope.left_envelope`'s report."""
+    from rbgp_cli.dynamics.envelope import describe, left_envelope
+
+    trajs, spans, owner = [], [], []
+    for i, c in enumerate(conts):
+        t0 = float(c.t[-1]) - float(c.duration)  # the seen start: the mean ends at t_0 + D̂
+        for tr in c.trajectories(include_samples=True):
+            trajs.append(tr)
+            spans.append((t0, float(tr.t[-1]) - t0))
+            owner.append(i)
+    report = left_envelope(trajs, envelope, spans=spans, masks=True)
+    for c in conts:
+        c.info["left_data"] = []
+    for i, rows in zip(owner, report.pop("outside")):
+        conts[i].info["left_data"].append(rows)
+    for e in report["trajectories"]:
+        e["name"] = trajs[e["index"]].name
+    if report["count"]:
+        warn(describe(report, what="continuations (means and samples)") + "; they are extrapolations there "
+             "(rows marked in the left_data column)")
+    return report
 
 
 def _note_seen(conts, off, wide) -> None:
@@ -833,7 +876,9 @@ def crossval_under_way(sources, fractions, train_kwargs: dict, *, options: ReadO
     rows = [dict(method=m, given=F, **tot[(m, F)].to_dict(), per_motion=tot[(m, F)].per_motion(names))
             for F in fractions for m in methods if (m, F) in tot]
     add_paired(rows)  # each row's "paired" against rbgp's at the same F
+    floor = {F: tot[("floor", F)].to_dict() for F in fractions if ("floor", F) in tot}
     return {"rows": rows, "folds": folds, "samples": samples, "inputs": [i["name"] for i in inputs],
+            "floor_left_data": [{"given": F, "left_data": v["left_data"], "left_of": v["left_of"]} for F, v in floor.items()],
             "paired_reference": REFERENCE, "repeats": int(repeats), "order": order, "seed": int(seed),
             "train_size": None if train_size is None else int(train_size),
             "splits": [{"train": [int(j) for j in tr], "test": [int(j) for j in te]} for tr, te in splits], **info}

@@ -381,10 +381,16 @@ def _rollout_given(m, given, read, *, samples, seed, output, json_out) -> None:
     conts = workflows.continue_files(m, given, options=read.options, max_gap=read.max_gap, samples=samples, seed=seed,
                                      progress=progress)
     trajs = [tr for c in conts for tr in c.trajectories(include_samples=samples > 0)]
-    write_text_output(output, lambda fh: write_trajectories_csv(trajs, fh))
+    # 1 where a row lies outside the demonstrations' envelope at its phase of the whole motion (mean and samples)
+    left = [c.info.get("left_data") for c in conts]
+    extra = {} if any(x is None for x in left) else {"left_data": [r.astype(float) for x in left for r in x]}
+    write_text_output(output, lambda fh: write_trajectories_csv(trajs, fh, extra=extra))
     if json_out:
         emit_json({"output": output, "samples_per_motion": samples,
-                   "motions": [dict(trajectory=c.name, source=c.info.get("source"), **c.estimate.to_dict()) for c in conts]})
+                   "motions": [dict(trajectory=c.name, source=c.info.get("source"), **c.estimate.to_dict(),
+                                    **({} if x is None else {"left_data": bool(x[0].any()),
+                                                             "samples_left_data": int(sum(r.any() for r in x[1:]))}))
+                               for c, x in zip(conts, left)]})
 
 
 def _write_rollout_csv(res, trajs, output) -> None:

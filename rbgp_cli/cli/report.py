@@ -400,20 +400,26 @@ def format_under_way(result: dict) -> str:
     from rbgp_cli.evaluation.crossval import splits_text
 
     head = (f"{'given':>5} {'method':<12} {'end_pos':>8} {'end_rot':>8} {'end_time':>8} {'rest_pos':>8} "
-            f"{'rest_rot':>8} {'cov_pos':>9} {'cov_rot':>9} {'cov_end':>9}")
+            f"{'rest_rot':>8} {'cov_pos':>9} {'cov_rot':>9} {'cov_end':>9} {'left':>9}")
     folds = f"{result['folds']} {'forward ' if result.get('order') == 'forward' else ''}folds"
+    floor = result.get("floor_left_data") or []
+    floor_text = "" if not floor else (" (the held-out remainders themselves: " + ", ".join(
+        f"{x['left_data']} of {x['left_of']} at {x['given']:g}" for x in floor if x.get("left_of") is not None) + ")")
     lines = [f"a motion under way: {folds}, {result['samples']} samples per motion; "
              "end and rest errors in m / rad / s, coverage of the remainder by the 90 % bands and of the end time "
-             "by its 90 % band (cov_end) ± its standard error over the held-out motions"] + ([splits_text(result)] if "splits" in result else []) + [head]
+             "by its 90 % band (cov_end) ± its standard error over the held-out motions; left: the continuations "
+             "(means and samples) that leave the training demonstrations' envelope, of those predicted"
+             + floor_text] + ([splits_text(result)] if "splits" in result else []) + [head]
 
     def f(x, w, d):
         return f"{x:>{w}.{d}f}" if x == x else f"{'-':>{w}}"
 
     for r in result["rows"]:
+        left = "-" if r.get("left_of") is None else f"{r['left_data']}/{r['left_of']}"
         lines.append(f"{r['given']:>5g} {r['method']:<12} {f(r['end_pos'], 8, 3)} {f(r['end_rot'], 8, 3)} "
                      f"{f(r['end_time'], 8, 3)} {f(r['rest_pos'], 8, 3)} {f(r['rest_rot'], 8, 3)} "
                      f"{_cov_cell(r['cov_pos'], r.get('cov_pos_se'), 9)} {_cov_cell(r['cov_rot'], r.get('cov_rot_se'), 9)} "
-                     f"{_cov_cell(r.get('cov_end_time', float('nan')), r.get('cov_end_time_se'), 9)}")
+                     f"{_cov_cell(r.get('cov_end_time', float('nan')), r.get('cov_end_time_se'), 9)} {left:>9}")
     return "\n".join(lines + _under_way_paired_lines(result))
 
 

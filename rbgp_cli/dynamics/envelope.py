@@ -123,9 +123,13 @@ def exits_report(outside: np.ndarray, t: np.ndarray, position: np.ndarray, envel
     }
 
 
-def left_envelope(trajs, envelope: Envelope) -> dict:
+def left_envelope(trajs, envelope: Envelope, spans=None, masks: bool = False) -> dict:
     """Which trajectories (each on its own phase (t − t_0)/D) leave ``envelope``: :func:`exits_report`
-    with the index into ``trajs`` and the time since the trajectory's start."""
+    with the index into ``trajs`` and the time since the trajectory's start. ``spans``: [(t_0 s, D s)] per trajectory,
+    the motion each is part of (a continuation of a motion under way starts at the last seen time, t_0 and D the
+    whole motion's start and duration on its clock; ``t`` is then reported since t_0); None: each trajectory is a
+    whole motion (t_0 = t[0], D its duration). ``masks``: also ``"outside"``, per trajectory a (T_b,) bool of its
+    samples outside."""
     if not trajs:
         return exits_report(np.zeros((0, 1), bool), np.zeros(1), np.zeros((0, 1, 3)), envelope)
     T = max(len(tr.t) for tr in trajs)
@@ -133,16 +137,21 @@ def left_envelope(trajs, envelope: Envelope) -> dict:
     tt = np.zeros((len(trajs), T))
     pos = np.zeros((len(trajs), T, 3))
     for b, tr in enumerate(trajs):  # one vectorised check per trajectory (their lengths differ)
-        tau = tr.t - tr.t[0]
+        t0, D = (tr.t[0], tr.duration) if spans is None else spans[b]
+        tau = tr.t - t0
         n = len(tau)
-        mask[b, :n] = envelope.outside(tr.position, tau / max(tr.duration, 1e-12))
+        mask[b, :n] = envelope.outside(tr.position, tau / max(D, 1e-12))
         tt[b, :n], pos[b, :n] = tau, tr.position
-    return exits_report(mask, tt, pos, envelope)
+    report = exits_report(mask, tt, pos, envelope)
+    if masks:
+        report["outside"] = [mask[b, :len(tr.t)] for b, tr in enumerate(trajs)]
+    return report
 
 
 def describe(report: dict, what: str = "rollouts", limit: int = 5) -> str:
     """One line: how many left, and where and when the first few did."""
-    items = [f"#{e['index']} at t = {e['t']:.2f} s ({', '.join(f'{v:.2f}' for v in e['position'])})"
+    items = [f"{e['name'] if 'name' in e else '#' + str(e['index'])} at t = {e['t']:.2f} s "
+             f"({', '.join(f'{v:.2f}' for v in e['position'])})"
              for e in report["trajectories"][:limit]]
     more = len(report["trajectories"]) - len(items)
     return (f"{report['count']} of {report['of']} {what} left the demonstrations' envelope (by more than "

@@ -13,7 +13,11 @@ duration. The columns per method and F:
   ``cov_pos_se``, ``cov_rot_se`` their standard errors over the held-out motions
   (:func:`~rbgp_cli.evaluation.coverage.coverage_se`);
 - ``cov_end_time``: how often the real end time lies in the predicted end time's 90 % band (the held-out motions'
-  fraction; methods without a band: none), ``cov_end_time_se`` its standard error over the held-out motions.
+  fraction; methods without a band: none), ``cov_end_time_se`` its standard error over the held-out motions;
+- ``left_data`` of ``left_of``: how many of the predicted continuations (the mean and each sample) leave the
+  training demonstrations' envelope (:mod:`~rbgp_cli.dynamics.envelope`), each row at its phase of the whole motion,
+  (t − t_0) / D with t_0 the seen start and D the continuation's own end; the held-out remainders themselves, checked
+  the same way at their true duration, are the floor (:func:`under_way_fold`'s ``("floor", F)``).
 
 Methods: ``rbgp`` (:class:`~rbgp_cli.dynamics.anticipation.Anticipator` with the model's GP dynamics),
 ``no-GP`` (the same, its mean the conditioned path alone), ``nearest`` (the training demonstration and
@@ -34,7 +38,7 @@ import numpy as np
 from rbgp_cli.dynamics.trajectory import Trajectory
 
 __all__ = ["FRACTIONS", "METHODS", "COLUMNS", "split_seen", "UnderWayScores", "score", "nearest_continuation",
-           "PhaseProMP", "under_way_fold", "add_paired"]
+           "PhaseProMP", "under_way_fold", "add_paired", "left_of"]
 
 #: The fractions crossval --given takes by default.
 FRACTIONS = (0.2, 0.4, 0.6, 0.8)
@@ -82,6 +86,8 @@ class UnderWayScores:
     motion_coverage: list = field(default_factory=list)
     #: per motion with an end-time band: 1.0 where it held the real end time, else 0.0
     end_time_in: list = field(default_factory=list)
+    #: per motion checked against the envelope: (continuations that left it, continuations checked)
+    left: list = field(default_factory=list)
 
     @property
     def sp(self) -> float:
@@ -102,12 +108,13 @@ class UnderWayScores:
         cov = self.coverage if other.coverage is None else (other.coverage if self.coverage is None else self.coverage + other.coverage)
         return UnderWayScores(self.end_pos + other.end_pos, self.end_rot + other.end_rot, self.end_time + other.end_time,
                               self.motion_sq + other.motion_sq, self.index + other.index, cov,
-                              self.motion_coverage + other.motion_coverage, self.end_time_in + other.end_time_in)
+                              self.motion_coverage + other.motion_coverage, self.end_time_in + other.end_time_in,
+                              self.left + other.left)
 
     def with_index(self, index: int) -> "UnderWayScores":
         """The same scores of one motion, labelled with its place in the input order."""
         return UnderWayScores(self.end_pos, self.end_rot, self.end_time, self.motion_sq, [int(index)] * len(self.end_pos),
-                              self.coverage, self.motion_coverage, self.end_time_in)
+                              self.coverage, self.motion_coverage, self.end_time_in, self.left)
 
     def to_dict(self) -> dict:
         nan = float("nan")
@@ -118,7 +125,9 @@ class UnderWayScores:
                "rest_pos": float(np.sqrt(self.sp / n)) if n else nan,
                "rest_rot": float(np.sqrt(self.sr / n)) if n else nan,
                "cov_pos": nan, "cov_rot": nan, "band_pos": nan, "band_rot": nan, "motions": len(self.end_pos),
-               "cov_pos_se": nan, "cov_rot_se": nan, "cov_end_time": nan, "cov_end_time_se": nan}
+               "cov_pos_se": nan, "cov_rot_se": nan, "cov_end_time": nan, "cov_end_time_se": nan,
+               "left_data": int(sum(a for a, _ in self.left)) if self.left else None,
+               "left_of": int(sum(b for _, b in self.left)) if self.left else None}
         if self.coverage is not None:
             c = self.coverage.to_dict()
             out.update(cov_pos=c["coverage_position"], cov_rot=c["coverage_rotation"], band_pos=c["band_position"],
@@ -190,9 +199,11 @@ def add_paired(rows: list[dict], reference: str = REFERENCE) -> None:
             key: paired_difference([a[key] for a, _ in both], [b[key] for _, b in both]) for key in COLUMNS}}
 
 
-def score(mean: Trajectory, samples: list, rest: Trajectory, end_band: tuple | None = None) -> UnderWayScores:
+def score(mean: Trajectory, samples: list, rest: Trajectory, end_band: tuple | None = None, envelope=None,
+          t0: float | None = None) -> UnderWayScores:
     """One held-out remainder's scores (module docstring); ``end_band`` (lo, hi) s the predicted end time's band,
-    if the method has one."""
+    if the method has one; ``envelope`` (with ``t0`` the seen start): how many of the mean and samples leave it
+    (:func:`left_of`)."""
     from rbgp_cli.evaluation.coverage import MIN_SAMPLES, prediction_coverage
     from rbgp_cli.evaluation.crossval import trajectory_errors
 
@@ -202,7 +213,18 @@ def score(mean: Trajectory, samples: list, rest: Trajectory, end_band: tuple | N
     return UnderWayScores([float(np.linalg.norm(mean.position[-1] - rest.position[-1]))],
                           [float(2.0 * np.arccos(min(1.0, dq)))], [abs(float(mean.t[-1] - rest.t[-1]))], [(sp, sr, n)],
                           [], cov, [] if cov is None else [cov.astuple()[:4]],
-                          [] if end_band is None else [float(end_band[0] <= rest.t[-1] <= end_band[1])])
+                          [] if end_band is None else [float(end_band[0] <= rest.t[-1] <= end_band[1])],
+                          [] if envelope is None else [left_of([mean, *samples], envelope, t0)])
+
+
+def left_of(trajs: list, envelope, t0: float) -> tuple[int, int]:
+    """(how many of ``trajs`` leave ``envelope``, how many were checked): continuations of a motion that started at
+    ``t0`` on their clock, each row at its phase (t − t0) / (t_end − t0) of the whole motion ending where it ends
+    (:func:`~rbgp_cli.dynamics.envelope.left_envelope` with spans)."""
+    from rbgp_cli.dynamics.envelope import left_envelope
+
+    report = left_envelope(trajs, envelope, spans=[(t0, float(tr.t[-1]) - t0) for tr in trajs])
+    return int(report["count"]), int(report["of"])
 
 
 # ---------------------------------------------------------------------------------------- nearest
@@ -367,12 +389,15 @@ def ridge_std(train: list, *, folds: int = 5, fractions=(0.2, 0.6), seed: int = 
 # ---------------------------------------------------------------------------------------- one fold
 def under_way_fold(model, paths, train: list, test: list, fractions=FRACTIONS, *, samples: int = 20, seed: int = 0,
                    methods=METHODS, indices=None) -> dict:
-    """Scores {(method, F): UnderWayScores} of one fold: ``model`` and ``paths`` fitted on ``train``;
+    """Scores {(method, F): UnderWayScores} of one fold, and {("floor", F): UnderWayScores} with only the held-out
+    remainders' ``left``: ``model`` and ``paths`` fitted on ``train``;
     ``indices``: the held-out motions' places in the input order (default 0, 1, … in ``test``'s order),
     which label their per-motion scores."""
     from rbgp_cli.dynamics.anticipation import Anticipator
+    from rbgp_cli.dynamics.envelope import envelope_from_demos
 
     out = {}
+    env = envelope_from_demos(train)
     ants = {}
     if "rbgp" in methods:
         ants["rbgp"] = Anticipator(paths, model)
@@ -391,15 +416,18 @@ def under_way_fold(model, paths, train: list, test: list, fractions=FRACTIONS, *
     for i, tr in enumerate(test):
         for F in fractions:
             seen, rest = split_seen(tr, F)
+            t0 = float(seen.t[0])
             for name, ant in ants.items():
                 c = ant.continuation(seen.t, seen.quat, seen.position, samples=samples, seed=seed + i)
                 trs = c.trajectories(include_samples=True)
-                _add(out, (name, F), score(trs[0], trs[1:], rest, c.estimate.end_time_band).with_index(indices[i]))
+                _add(out, (name, F), score(trs[0], trs[1:], rest, c.estimate.end_time_band, env, t0).with_index(indices[i]))
             if "nearest" in methods:
-                _add(out, ("nearest", F), score(nearest_continuation(train, seen), [], rest).with_index(indices[i]))
+                _add(out, ("nearest", F), score(nearest_continuation(train, seen), [], rest, None, env, t0).with_index(indices[i]))
             for name, pm in promps.items():
                 mean, smp = pm.predict(seen, samples=samples, seed=seed + i)
-                _add(out, (name, F), score(mean, smp, rest).with_index(indices[i]))
+                _add(out, (name, F), score(mean, smp, rest, None, env, t0).with_index(indices[i]))
+            # the floor: the real remainder itself, at its true duration
+            _add(out, ("floor", F), UnderWayScores(index=[indices[i]], left=[left_of([rest], env, t0)]))
     return out
 
 

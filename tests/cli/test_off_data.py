@@ -183,3 +183,20 @@ def test_off_data_prior_on_a_model_whose_residual_is_off_says_it_changes_nothing
     assert (tmp_path / "keep.csv").read_text() == (tmp_path / "prior.csv").read_text()
     assert "changes nothing" in out["prior"] and "followed the prior mean" not in out["prior"]
     assert "falls back to the prior's pull" not in out["keep"]
+
+
+def test_a_continuation_is_checked_at_its_phase_of_the_whole_motion():
+    """left_envelope with spans: a piece that starts mid-motion is held to the boxes of its phases in the whole motion
+    (t − t_0) / D, not to the start's: a motion along x from 0 to 1 m, and its second half alone; read as a whole
+    motion of its own, that second half starts at phase 0, where the demonstrations are near x = 0, and leaves."""
+    from rbgp_cli.dynamics.envelope import envelope_from_points, left_envelope
+    from rbgp_cli.dynamics.trajectory import Trajectory
+
+    s = np.linspace(0.0, 1.0, 101)
+    env = envelope_from_points(np.c_[s, np.zeros((101, 2))], s, margin_fraction=0.05)
+    t = 2.0 * s[50:]  # the second half of a 2 s motion that started at t = 0
+    half = Trajectory(t, np.tile([0.0, 0.0, 0.0, 1.0], (51, 1)), np.c_[s[50:], np.zeros((51, 2))], name="rest")
+    whole = left_envelope([half], env, spans=[(0.0, 2.0)], masks=True)
+    alone = left_envelope([half], env)
+    assert whole["count"] == 0 and not whole["outside"][0].any()
+    assert alone["count"] == 1 and alone["trajectories"][0]["step"] == 0

@@ -78,6 +78,40 @@ def test_rollout_given_says_when_a_seen_part_unlike_the_demonstrations_widens_it
     assert "2 of 3 seen motions" in said[0] and "(trajectories 1, 2; band_widening)" in said[0], said
 
 
+@pytest.mark.slow
+def test_rollout_given_marks_and_names_continuations_that_leave_the_demonstrations_envelope(model, tmp_path):
+    """Half of shoe_01 as recorded: its continuation and samples stay inside the demonstrations' envelope (left_data
+    0 on every row, false in --json, no warning); the same half moved 1 m along x, where no demonstration goes: the
+    continuations are extrapolations, every one is marked (left_data 1 from its first row) and one warning names
+    them; the Python API gives the same rows."""
+    _prefix(CSV_DIR / "shoe_01.csv", tmp_path / "plain.csv", 0.5)
+    lines = (tmp_path / "plain.csv").read_text().splitlines()
+    moved = [lines[0]] + [",".join([f[0], repr(float(f[1]) + 1.0), *f[2:]]) for f in (x.split(",") for x in lines[1:])]
+    (tmp_path / "moved.csv").write_text("\n".join(moved) + "\n")
+    out = {}
+    for name in ("plain", "moved"):
+        res = run("--json", "rollout", model, "--given", tmp_path / f"{name}.csv", "--samples", 3,
+                  "-o", tmp_path / f"{name}_rest.csv")
+        assert res.exit_code == 0, res.stderr
+        rows = [r.split(",") for r in (tmp_path / f"{name}_rest.csv").read_text().splitlines()
+                if r and not r.startswith("#")]
+        col = rows[0].index("left_data")
+        out[name] = (json.loads(res.stdout)["motions"][0], res.stderr, {r[0].strip('"'): [] for r in rows[1:]})
+        for r in rows[1:]:
+            out[name][2][r[0].strip('"')].append(float(r[col]))
+    plain, moved = out["plain"], out["moved"]
+    assert plain[0]["left_data"] is False and plain[0]["samples_left_data"] == 0 and "envelope" not in plain[1]
+    assert set(plain[2]) == {"0", "0.s0", "0.s1", "0.s2"} and all(v == 0.0 for x in plain[2].values() for v in x)
+    assert moved[0]["off"] and moved[0]["left_data"] is True and moved[0]["samples_left_data"] == 3
+    assert all(x[0] == 1.0 for x in moved[2].values())
+    said = [x for x in moved[1].splitlines() if "envelope" in x]
+    assert len(said) == 1 and "4 of 4 continuations" in said[0] and "0.s0 at t = " in said[0], moved[1]
+    from rbgp_cli.api import RigidBodyGP
+
+    (cont,) = RigidBodyGP.load(model).predict_rest(str(tmp_path / "moved.csv"), samples=3)
+    assert len(cont.info["left_data"]) == 4 and all(rows[0] for rows in cont.info["left_data"])
+
+
 def test_rollout_given_refuses_start_poses(model, tmp_path):
     res = run("rollout", model, "--given", CSV_DIR / "shoe_01.csv", "--count", 1, "--duration", 2)
     assert res.exit_code == 2
