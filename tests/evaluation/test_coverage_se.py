@@ -156,14 +156,16 @@ def test_the_tables_print_each_coverage_with_its_standard_error():
     base = dict(given=0.4, end_pos=0.1, end_rot=0.2, end_time=0.3, rest_pos=0.1, rest_rot=0.2, band_pos=0.1,
                 band_rot=0.2, motions=3)
     rows = [dict(base, method="rbgp", cov_pos=0.8667, cov_rot=0.8333, cov_pos_se=0.0882, cov_rot_se=0.1202,
-                 cov_end_time=0.6667, cov_end_time_se=0.3333),
+                 cov_end_time=0.6667, cov_end_time_se=0.3333, left_data=2, left_of=63),
             dict(base, method="nearest", cov_pos=nan, cov_rot=nan, cov_pos_se=nan, cov_rot_se=nan, cov_end_time=nan,
                  cov_end_time_se=nan),
             dict(base, method="promp", cov_pos=0.5, cov_rot=0.25)]  # rows of an older result: no SE, no end band
-    lines = format_under_way({"rows": rows, "folds": 3, "samples": 5}).splitlines()
+    floor = [{"given": 0.4, "left_data": 0, "left_of": 3}]
+    lines = format_under_way({"rows": rows, "folds": 3, "samples": 5, "floor_left_data": floor}).splitlines()
     head = next(i for i, x in enumerate(lines) if x.split()[:2] == ["given", "method"])
-    assert lines[head].split()[-3:] == ["cov_pos", "cov_rot", "cov_end"]
-    assert lines[head + 1].split()[-3:] == ["0.87±0.09", "0.83±0.12", "0.67±0.33"]
-    assert lines[head + 2].split()[-3:] == ["-", "-", "-"]
-    assert lines[head + 3].split()[-3:] == ["0.50", "0.25", "-"]
+    assert lines[head].split()[-4:] == ["cov_pos", "cov_rot", "cov_end", "left"]
+    assert lines[head + 1].split()[-4:] == ["0.87±0.09", "0.83±0.12", "0.67±0.33", "2/63"]
+    assert lines[head + 2].split()[-4:] == ["-", "-", "-", "-"]
+    assert lines[head + 3].split()[-4:] == ["0.50", "0.25", "-", "-"]
     assert len({len(x) for x in lines[head:head + 4]}) == 1  # the columns stay aligned
+    assert "(the held-out remainders themselves: 0 of 3 at 0.4)" in lines[0]

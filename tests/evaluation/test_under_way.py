@@ -146,3 +146,19 @@ def test_a_fold_labels_each_motion_with_its_place_in_the_input_order():
         pm = out[key].per_motion()
         assert [m["index"] for m in pm] == [4, 17]
         assert pm[1]["end_time"] == pytest.approx(out[key].end_time[0])  # index 17 is the first held out
+    # every method's continuations and the held-out remainders themselves checked against the envelope
+    assert out[("floor", 0.5)].to_dict()["left_of"] == 2 and out[("no-GP", 0.5)].to_dict()["left_of"] == 2
+
+
+def test_score_counts_the_continuations_that_leave_the_training_envelope():
+    """score with an envelope: of the mean and its samples, those whose rows leave the training demonstrations'
+    envelope at their phase of the whole motion (t − t_0) / D; a sample moved 1 m aside leaves, the truth does not."""
+    from rbgp_cli.dynamics.envelope import envelope_from_demos
+
+    demos, _ = family(6, 1)
+    env = envelope_from_demos(demos[:5])
+    seen, rest = split_seen(demos[5], 0.5)
+    aside = Trajectory(rest.t, rest.quat, rest.position + [1.0, 0.0, 0.0], name="aside")
+    sc = score(rest, [rest, aside], rest, None, env, float(seen.t[0])).to_dict()
+    assert (sc["left_data"], sc["left_of"]) == (1, 3)
+    assert score(rest, [], rest).to_dict()["left_of"] is None  # no envelope: not checked
