@@ -671,20 +671,22 @@ def continue_motions(model, seen, *, samples: int = 0, seed: int = 0, dt: float 
 
 def _note_left_continuations(conts, envelope) -> dict:
     """Which continuations (mean and samples) leave the demonstrations' ``envelope``, each row at its phase of the
-    whole motion, (t − t_0) / D with t_0 the seen start and D its own duration (the mean's D̂, a sample's drawn one):
-    each continuation's ``info["left_data"]`` is a list, the mean's then its samples', of (T,) bool rows outside
-    (what ``rollout --given`` writes in its left_data column); one warning names those that left (as ``rollout``
-    does), the times since the seen start. Returns :func:`~rbgp_cli.dynamics.envelope.left_envelope`'s report."""
-    from rbgp_cli.dynamics.envelope import describe, left_envelope
+    whole motion (:func:`~rbgp_cli.dynamics.envelope.continuation_phases`: the mean's (t − t_0) / D̂ with t_0 the seen
+    start, a sample's from the same current phase to 1 at its own end): each continuation's ``info["left_data"]`` is
+    a list, the mean's then its samples', of (T,) bool rows outside (what ``rollout --given`` writes in its left_data
+    column); one warning names those that left (as ``rollout`` does), the times since the seen start. Returns
+    :func:`~rbgp_cli.dynamics.envelope.left_envelope`'s report."""
+    from rbgp_cli.dynamics.envelope import continuation_phases, describe, left_envelope
 
-    trajs, spans, owner = [], [], []
+    trajs, phases, starts, owner = [], [], [], []
     for i, c in enumerate(conts):
         t0 = float(c.t[-1]) - float(c.duration)  # the seen start: the mean ends at t_0 + D̂
-        for tr in c.trajectories(include_samples=True):
-            trajs.append(tr)
-            spans.append((t0, float(tr.t[-1]) - t0))
-            owner.append(i)
-    report = left_envelope(trajs, envelope, spans=spans, masks=True)
+        own = c.trajectories(include_samples=True)
+        trajs += own
+        phases += continuation_phases(own, t0)
+        starts += [t0] * len(own)
+        owner += [i] * len(own)
+    report = left_envelope(trajs, envelope, phases=phases, starts=starts, masks=True)
     for c in conts:
         c.info["left_data"] = []
     for i, rows in zip(owner, report.pop("outside")):

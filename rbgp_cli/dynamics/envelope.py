@@ -22,7 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Envelope", "envelope_from_demos", "envelope_from_points", "left_envelope", "exits_report", "describe",
+__all__ = ["Envelope", "envelope_from_demos", "envelope_from_points", "left_envelope", "continuation_phases",
+           "exits_report", "describe",
            "PHASES", "WINDOW", "MARGIN_FRACTION", "MIN_MARGIN", "OFF_DATA"]
 
 #: Phases of the envelope (s_j = j / (S − 1)).
@@ -123,13 +124,29 @@ def exits_report(outside: np.ndarray, t: np.ndarray, position: np.ndarray, envel
     }
 
 
-def left_envelope(trajs, envelope: Envelope, spans=None, masks: bool = False) -> dict:
+def continuation_phases(trajs, t0: float) -> list:
+    """The phases of the rows of continuations of one motion under way that started at ``t0`` (their clock, s):
+    ``trajs[0]`` the mean, from the last seen time to the predicted end, at s = (t − t_0) / D̂; every other (a sample,
+    drawn with its own duration) from the same current phase s_0 = (t_last − t_0) / D̂ to 1 at its own end,
+
+        s = s_0 + (1 − s_0) (t − t_last) / (t_end − t_last),
+
+    so that a sample drawn shorter or longer is held to the boxes of the phases still ahead of the motion, not to those
+    its own duration would put the seen pose at (a seen pose at 80 % of the motion read at 95 % by a short draw is
+    where the demonstrations are at 80 %). For trajectories that all end together (one duration) this is
+    (t − t_0) / D for each. Returns [(T_b,)]."""
+    first = trajs[0]
+    s0 = float((first.t[0] - t0) / max(first.t[-1] - t0, 1e-12))
+    return [s0 + (1.0 - s0) * (tr.t - tr.t[0]) / max(float(tr.t[-1] - tr.t[0]), 1e-12) for tr in trajs]
+
+
+def left_envelope(trajs, envelope: Envelope, phases=None, starts=None, masks: bool = False) -> dict:
     """Which trajectories (each on its own phase (t − t_0)/D) leave ``envelope``: :func:`exits_report`
-    with the index into ``trajs`` and the time since the trajectory's start. ``spans``: [(t_0 s, D s)] per trajectory,
-    the motion each is part of (a continuation of a motion under way starts at the last seen time, t_0 and D the
-    whole motion's start and duration on its clock; ``t`` is then reported since t_0); None: each trajectory is a
-    whole motion (t_0 = t[0], D its duration). ``masks``: also ``"outside"``, per trajectory a (T_b,) bool of its
-    samples outside."""
+    with the index into ``trajs`` and the time since the trajectory's start. ``phases``: [(T_b,)] per trajectory, its
+    rows' phases in the motion it is part of (a continuation of a motion under way: :func:`continuation_phases`),
+    with ``starts`` [t_0 s] that motion's start on its clock (``t`` is then reported since t_0); None: each trajectory
+    is a whole motion (t_0 = t[0], D its duration). ``masks``: also ``"outside"``, per trajectory a (T_b,) bool of
+    its samples outside."""
     if not trajs:
         return exits_report(np.zeros((0, 1), bool), np.zeros(1), np.zeros((0, 1, 3)), envelope)
     T = max(len(tr.t) for tr in trajs)
@@ -137,10 +154,9 @@ def left_envelope(trajs, envelope: Envelope, spans=None, masks: bool = False) ->
     tt = np.zeros((len(trajs), T))
     pos = np.zeros((len(trajs), T, 3))
     for b, tr in enumerate(trajs):  # one vectorised check per trajectory (their lengths differ)
-        t0, D = (tr.t[0], tr.duration) if spans is None else spans[b]
-        tau = tr.t - t0
+        tau = tr.t - (tr.t[0] if starts is None else starts[b])
         n = len(tau)
-        mask[b, :n] = envelope.outside(tr.position, tau / max(D, 1e-12))
+        mask[b, :n] = envelope.outside(tr.position, tau / max(tr.duration, 1e-12) if phases is None else phases[b])
         tt[b, :n], pos[b, :n] = tau, tr.position
     report = exits_report(mask, tt, pos, envelope)
     if masks:

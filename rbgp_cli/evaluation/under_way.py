@@ -15,9 +15,9 @@ duration. The columns per method and F:
 - ``cov_end_time``: how often the real end time lies in the predicted end time's 90 % band (the held-out motions'
   fraction; methods without a band: none), ``cov_end_time_se`` its standard error over the held-out motions;
 - ``left_data`` of ``left_of``: how many of the predicted continuations (the mean and each sample) leave the
-  training demonstrations' envelope (:mod:`~rbgp_cli.dynamics.envelope`), each row at its phase of the whole motion,
-  (t − t_0) / D with t_0 the seen start and D the continuation's own end; the held-out remainders themselves, checked
-  the same way at their true duration, are the floor (:func:`under_way_fold`'s ``("floor", F)``).
+  training demonstrations' envelope (:mod:`~rbgp_cli.dynamics.envelope`), each row at its phase of the whole motion
+  (:func:`~rbgp_cli.dynamics.envelope.continuation_phases`); the held-out remainders themselves, checked at their true
+  phases, are the floor (:func:`under_way_fold`'s ``("floor", F)``).
 
 Methods: ``rbgp`` (:class:`~rbgp_cli.dynamics.anticipation.Anticipator` with the model's GP dynamics),
 ``no-GP`` (the same, its mean the conditioned path alone), ``nearest`` (the training demonstration and
@@ -219,11 +219,11 @@ def score(mean: Trajectory, samples: list, rest: Trajectory, end_band: tuple | N
 
 def left_of(trajs: list, envelope, t0: float) -> tuple[int, int]:
     """(how many of ``trajs`` leave ``envelope``, how many were checked): continuations of a motion that started at
-    ``t0`` on their clock, each row at its phase (t − t0) / (t_end − t0) of the whole motion ending where it ends
-    (:func:`~rbgp_cli.dynamics.envelope.left_envelope` with spans)."""
-    from rbgp_cli.dynamics.envelope import left_envelope
+    ``t0`` on their clock, the mean first, each row at its phase of the whole motion
+    (:func:`~rbgp_cli.dynamics.envelope.continuation_phases`, as ``rollout --given`` checks them)."""
+    from rbgp_cli.dynamics.envelope import continuation_phases, left_envelope
 
-    report = left_envelope(trajs, envelope, spans=[(t0, float(tr.t[-1]) - t0) for tr in trajs])
+    report = left_envelope(trajs, envelope, phases=continuation_phases(trajs, t0), starts=[t0] * len(trajs))
     return int(report["count"]), int(report["of"])
 
 

@@ -186,17 +186,25 @@ def test_off_data_prior_on_a_model_whose_residual_is_off_says_it_changes_nothing
 
 
 def test_a_continuation_is_checked_at_its_phase_of_the_whole_motion():
-    """left_envelope with spans: a piece that starts mid-motion is held to the boxes of its phases in the whole motion
-    (t − t_0) / D, not to the start's: a motion along x from 0 to 1 m, and its second half alone; read as a whole
-    motion of its own, that second half starts at phase 0, where the demonstrations are near x = 0, and leaves."""
-    from rbgp_cli.dynamics.envelope import envelope_from_points, left_envelope
+    """continuation_phases and left_envelope with phases: a piece that starts mid-motion is held to the boxes of its
+    phases in the whole motion, not to the start's: a motion along x from 0 to 1 m in 2 s and its second half; read as
+    a whole motion of its own, that second half starts at phase 0, where the demonstrations are near x = 0, and
+    leaves. A sample drawn shorter (ending at 1.6 s) starts from the mean's current phase 0.5, not at 1 / 1.6 of its
+    own duration (where the demonstrations are near x = 0.6 and the seen pose, 0.5, would be outside), and reaches
+    phase 1 at its own end."""
+    from rbgp_cli.dynamics.envelope import continuation_phases, envelope_from_points, left_envelope
     from rbgp_cli.dynamics.trajectory import Trajectory
 
     s = np.linspace(0.0, 1.0, 101)
-    env = envelope_from_points(np.c_[s, np.zeros((101, 2))], s, margin_fraction=0.05)
-    t = 2.0 * s[50:]  # the second half of a 2 s motion that started at t = 0
-    half = Trajectory(t, np.tile([0.0, 0.0, 0.0, 1.0], (51, 1)), np.c_[s[50:], np.zeros((51, 2))], name="rest")
-    whole = left_envelope([half], env, spans=[(0.0, 2.0)], masks=True)
-    alone = left_envelope([half], env)
-    assert whole["count"] == 0 and not whole["outside"][0].any()
+    env = envelope_from_points(np.c_[s, np.zeros((101, 2))], s, window=0.02, margin_fraction=0.05)
+    unit = np.tile([0.0, 0.0, 0.0, 1.0], (51, 1))
+    mean = Trajectory(2.0 * s[50:], unit, np.c_[s[50:], np.zeros((51, 2))], name="rest")
+    short = Trajectory(np.linspace(1.0, 1.6, 51), unit, mean.position, name="rest.s0")
+    phases = continuation_phases([mean, short], 0.0)
+    assert np.allclose(phases[0], s[50:]) and np.allclose(phases[1], s[50:])
+    whole = left_envelope([mean, short], env, phases=phases, starts=[0.0, 0.0], masks=True)
+    assert whole["count"] == 0 and not any(m.any() for m in whole["outside"])
+    own = left_envelope([short], env, phases=[(short.t - 0.0) / 1.6], starts=[0.0])  # the sample's own duration
+    alone = left_envelope([mean], env)
+    assert own["count"] == 1 and own["trajectories"][0]["step"] == 0
     assert alone["count"] == 1 and alone["trajectories"][0]["step"] == 0
