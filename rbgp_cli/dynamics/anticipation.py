@@ -306,11 +306,13 @@ def _add_kron_i6(out: np.ndarray, K: np.ndarray) -> None:
 
 def _diagonal(A: np.ndarray, start: int, stop: int) -> np.ndarray:
     """A writable view (B, stop − start) of the diagonal entries start … stop − 1 of each of a C-contiguous batch of
-    square matrices A (B, K, K): the flat entries j (K + 1), a basic strided slice (no fancy-index gather). Setting
-    the view's shape raises where it would need a copy (an addition to a copy would be lost)."""
+    square matrices A (B, K, K): the flat entries j (K + 1), a basic strided slice (no fancy-index gather). An A whose
+    flat form would be a copy (an addition to it lost) raises AttributeError, as numpy's in-place reshape does (not
+    by setting ``shape``: deprecated in NumPy 2.5)."""
     B, K = A.shape[0], A.shape[-1]
-    flat = A.view()
-    flat.shape = (B, K * K)
+    flat = A.reshape(B, K * K)
+    if not np.may_share_memory(flat, A):
+        raise AttributeError("_diagonal needs a batch of matrices whose flat form is a view (C-contiguous)")
     return flat[:, start * (K + 1):stop * (K + 1):K + 1]
 
 
