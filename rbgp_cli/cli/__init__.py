@@ -12,6 +12,32 @@ def _exit_now(signum, frame):  # pragma: no cover - runs in a process that then 
     _os._exit(128 + signum)
 
 
+#: Exit codes of a run ended by a signal: Ctrl-C (130) and SIGTERM (143).
+SIGNAL_EXITS = (128 + _signal.SIGINT, 128 + _signal.SIGTERM)
+
+
+def end_signalled_run(code: int) -> None:  # pragma: no cover - ends the process (tested in a subprocess)
+    """End a run that a signal interrupted, once the command has cleaned up (its pools stopped, its
+    temporary files removed): Python's exit functions run and the standard streams are flushed, then
+    the process ends with ``code`` without the C-level teardown. That teardown destroys native thread
+    pools (Arrow's, loaded by pandas) whose threads an interruption can leave running, and libstdc++
+    then aborts the process ("terminate called without an active exception", exit −6 instead of 130;
+    seen once in CI, in a Ctrl-C during training)."""
+    import atexit
+    import sys
+
+    try:
+        atexit._run_exitfuncs()
+    except BaseException:  # noqa: BLE001 - a second Ctrl-C during the exit functions: end anyway
+        pass
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (AttributeError, OSError, ValueError):
+            pass
+    _os._exit(code)
+
+
 def exit_on_signals() -> None:
     """First thing in the entry points (``rbgp``, ``python -m rbgp_cli``): until a command runs
     (imports, parsing), Ctrl-C prints ``rbgp: interrupted`` and exits 130 and SIGTERM exits 143, at

@@ -799,8 +799,14 @@ def bench_paper(
 
 def main() -> None:
     """Console-script entry point (``rbgp_cli.__main__.main`` installs the signal handling before
-    importing this module; here again for callers of this function)."""
-    from rbgp_cli.cli import exit_on_signals
+    importing this module; here again for callers of this function). A run that a signal ended
+    leaves without the C-level teardown (:func:`rbgp_cli.cli.end_signalled_run`)."""
+    from rbgp_cli.cli import SIGNAL_EXITS, end_signalled_run, exit_on_signals
 
     exit_on_signals()
-    app()
+    try:
+        app()
+    except SystemExit as exc:
+        if exc.code in SIGNAL_EXITS:
+            end_signalled_run(exc.code)
+        raise

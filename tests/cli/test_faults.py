@@ -392,3 +392,41 @@ def test_a_failure_that_ctrl_c_caused_is_reported_as_the_interruption(capsys):
         broken()
     err = capsys.readouterr().err
     assert exc.value.exit_code == 1 and "internal error: ImportError" in err and "interrupted" not in err
+
+
+_ENDS_WITH_A_THREAD_RUNNING = """
+import atexit, sys, threading, time
+from rbgp_cli.cli import app as cli_app
+from rbgp_cli.cli import end_signalled_run
+
+atexit.register(lambda: print("exit functions ran", file=sys.stderr))
+threading.Thread(target=time.sleep, args=(60,)).start()  # not a daemon: Python's own teardown would wait for it
+sys.stdout.write("unflushed line")
+if sys.argv[1] == "end":
+    end_signalled_run(130)
+cli_app.app = lambda: sys.exit(int(sys.argv[1]))  # a command that ended with this code
+cli_app.main()
+"""
+
+
+@pytest.mark.parametrize("code", ["end", "130", "143"])
+def test_a_signalled_run_ends_at_once_with_its_code_after_the_exit_functions(code):
+    """A run that Ctrl-C (130) or SIGTERM (143) ended skips the C-level teardown, where native thread pools
+    still running can abort the process (CI once: ``terminate called without an active exception``, exit
+    −6 after ``rbgp: interrupted``). Its exit functions still run and its streams are flushed; a thread
+    still running does not hold it (the normal teardown waits for it: that case takes the 60 s)."""
+    t0 = time.monotonic()
+    run = subprocess.run([sys.executable, "-c", _ENDS_WITH_A_THREAD_RUNNING, code], capture_output=True, text=True,
+                         env=ENV, timeout=50)
+    assert run.returncode == (130 if code == "end" else int(code)), run.stderr
+    assert run.stdout == "unflushed line" and "exit functions ran" in run.stderr, run.stderr
+    assert time.monotonic() - t0 < 30
+
+
+def test_a_run_that_ended_otherwise_keeps_the_normal_teardown():
+    """Exit codes other than a signal's go through Python's normal exit (which waits for the thread)."""
+    script = _ENDS_WITH_A_THREAD_RUNNING.replace("args=(60,)", "args=(1.5,)")
+    t0 = time.monotonic()
+    run = subprocess.run([sys.executable, "-c", script, "2"], capture_output=True, text=True, env=ENV, timeout=50)
+    assert run.returncode == 2 and "exit functions ran" in run.stderr, run.stderr
+    assert time.monotonic() - t0 >= 1.5
