@@ -874,8 +874,8 @@ def crossval_under_way(sources, fractions, train_kwargs: dict, *, options: ReadO
             for k, v in out.items():
                 tot[k] = v if k not in tot else tot[k].add(v)
             task.advance()
-    names = [d.name for d in demos]
-    rows = [dict(method=m, given=F, **tot[(m, F)].to_dict(), per_motion=tot[(m, F)].per_motion(names))
+    names, sources = [d.name for d in demos], [d.source for d in demos]
+    rows = [dict(method=m, given=F, **tot[(m, F)].to_dict(), per_motion=tot[(m, F)].per_motion(names, sources))
             for F in fractions for m in methods if (m, F) in tot]
     add_paired(rows)  # each row's "paired" against rbgp's at the same F
     floor = {F: tot[("floor", F)].to_dict() for F in fractions if ("floor", F) in tot}

@@ -634,8 +634,10 @@ def _velocity_summary(parts: list[dict]) -> dict:
     }
 
 
-def _per_motion(folds: list[np.ndarray], results: list[dict], names: list[str] | None = None) -> list[dict] | None:
-    """Per held-out demonstration (by its index in the input order, and its ``name``): its position and
+def _per_motion(folds: list[np.ndarray], results: list[dict], names: list[str] | None = None,
+                sources: list | None = None) -> list[dict] | None:
+    """Per held-out demonstration (by its index in the input order, its ``name`` and, when it was read from
+    a file, its ``source``: the name alone repeats across files, e.g. a BVH joint's): its position and
     rotation RMSE, sqrt(Σ sum / Σ count) over every split that held it out (one with a single set of
     folds; R with ``repeats`` R; those of its subsets with ``train_size``); sorted by index, the
     demonstrations never held out left out; with sampled coverage also its ``coverage_position`` and
@@ -661,9 +663,14 @@ def _per_motion(folds: list[np.ndarray], results: list[dict], names: list[str] |
         return {"coverage_position": float(a[0] / a[1]) if a[1] else None,
                 "coverage_rotation": float(a[2] / a[3]) if a[3] else None, "coverage_steps": int(a[3])}
 
-    return [{"index": i, **({"name": names[i]} if names is not None else {}),
+    return [{"index": i, **({"name": names[i]} if names is not None else {}), **_source(sources, i),
              "position_rmse": math.sqrt(v[0] / v[2]), "rotation_rmse": math.sqrt(v[1] / v[2]), **coverage(i)}
             for i, v in sorted(sums.items())]
+
+
+def _source(sources: list | None, i: int) -> dict:
+    """{"source": the file demonstration i was read from}, or {} when it has none (built in Python)."""
+    return {"source": str(sources[i])} if sources is not None and sources[i] is not None else {}
 
 
 def paired_difference(reference, row) -> dict:
@@ -717,9 +724,9 @@ def _add_paired(rows: list[dict]) -> str | None:
 
 
 def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[dict], k: int | None = None,
-         seeds: list[int] | None = None, names: list[str] | None = None) -> dict:
+         seeds: list[int] | None = None, names: list[str] | None = None, sources: list | None = None) -> dict:
     """One configuration's row over its splits (``k`` folds per repetition, ``seeds`` the repetitions'
-    fold seeds; by default one repetition; ``names`` the demonstrations', for ``per_motion``)."""
+    fold seeds; by default one repetition; ``names`` and ``sources`` the demonstrations', for ``per_motion``)."""
     k = len(folds) if k is None else int(k)
     per_fold = []
     for i, (test_idx, floor, r) in enumerate(zip(folds, floors, results)):
@@ -778,7 +785,7 @@ def _row(config: Config, folds: list[np.ndarray], floors: list, results: list[di
         "reliable": all(e["reliable"] for e in per_fold),
         **extra,
         "per_fold": per_fold,
-        "per_motion": _per_motion(folds, results, names),
+        "per_motion": _per_motion(folds, results, names, sources),
     }
 
 
@@ -952,13 +959,13 @@ def crossval(demos: list[Trajectory], configs: list[Config], *, folds: int = 5, 
         else:
             for i, r in _run_in_processes(args, n_jobs, label=label):
                 done(i, r)
-    rows, names = [], [d.name for d in demos]
+    rows, names, sources = [], [d.name for d in demos], [d.source for d in demos]
     for ci, c in enumerate(configs):
         res = [results[ci * len(splits) + f] for f in range(len(splits))]
-        rows.append(_row(c, fold_idx, floors, res, k=k, seeds=seeds, names=names))
+        rows.append(_row(c, fold_idx, floors, res, k=k, seeds=seeds, names=names, sources=sources))
         if without_gp and all("without_gp" in r for r in res):
             off = Config(c.representation, c.kernel, c.train, label=f"{c.name}, without the GP", options=c.options)
-            row = _row(off, fold_idx, floors, [r["without_gp"] for r in res], k=k, seeds=seeds, names=names)
+            row = _row(off, fold_idx, floors, [r["without_gp"] for r in res], k=k, seeds=seeds, names=names, sources=sources)
             rows.append({**row, "without_gp": True})
     rows.sort(key=lambda r: (r["ratio"], r["label"]))
     return {

@@ -150,13 +150,14 @@ class UnderWayScores:
             out.update(cov_end_time=float(inside.mean()), cov_end_time_se=nan if se is None else se)
         return out
 
-    def per_motion(self, names: list | None = None) -> list[dict]:
-        """[{"index", "name", "end_pos", "end_rot", "end_time", "rest_pos", "rest_rot", "scored"}, ...], one per
+    def per_motion(self, names: list | None = None, sources: list | None = None) -> list[dict]:
+        """[{"index", "name", "source", "end_pos", "end_rot", "end_time", "rest_pos", "rest_rot", "scored"}, ...], one per
         held-out motion sorted by index. A motion scored by several splits (``--repeats``, ``--train-size``)
         is one entry, as crossval's start-only ``per_motion`` is: its end errors the mean over those splits,
         its remainder's RMSEs √(Σ/steps) pooled over them, with samples its ``cov_pos``, ``cov_rot`` (steps
         inside over steps scored, pooled); ``scored`` how many splits held it out. Motions without an index
-        stay one entry per scoring. ``name`` only with ``names`` (the input order's names) and an index."""
+        stay one entry per scoring. ``name`` only with ``names`` (the input order's names) and an index;
+        ``source`` likewise with ``sources`` (the files they were read from), where the motion has one."""
         covs = self.motion_coverage if len(self.motion_coverage) == len(self.end_pos) else None
         groups: dict = {}
         for k in range(len(self.end_pos)):
@@ -171,6 +172,8 @@ class UnderWayScores:
                 a, n, b, m = (float(sum(covs[k][j] for k in ks)) for j in range(4))
                 cov = {"cov_pos": a / n if n else float("nan"), "cov_rot": b / m if m else float("nan")}
             out.append({"index": i, **({"name": names[i]} if names is not None and i is not None else {}),
+                        **({"source": str(sources[i])} if sources is not None and i is not None
+                           and sources[i] is not None else {}),
                         "end_pos": float(np.mean([self.end_pos[k] for k in ks])),
                         "end_rot": float(np.mean([self.end_rot[k] for k in ks])),
                         "end_time": float(np.mean([self.end_time[k] for k in ks])),

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -230,6 +231,8 @@ def test_crossval_given_rows(tmp_path):
         assert r["method"] == "nearest" or 0.0 <= r["cov_pos"] <= 1.0  # the nearest has no samples
         # every demonstration held out once, its own scores averaging to the row's
         assert [m["index"] for m in r["per_motion"]] == list(range(9))
+        # each names the file it was read from (a BVH take's name is its joint's, the same in every file)
+        assert [Path(m["source"]).name for m in r["per_motion"]] == sorted(p.name for p in CSV_DIR.glob("*.csv"))
         assert np.mean([m["end_pos"] for m in r["per_motion"]]) == pytest.approx(r["end_pos"], rel=1e-9)
     assert rows[0]["paired"] is None and rows[1]["paired"]["reference"] == "rbgp"
     d = [b["end_time"] - a["end_time"] for a, b in zip(rows[0]["per_motion"], rows[1]["per_motion"])]

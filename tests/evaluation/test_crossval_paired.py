@@ -98,6 +98,9 @@ def test_per_motion_pools_a_motion_over_every_split_that_held_it_out():
            {"motion_position_sq": [6.0], "motion_rotation_sq": [5.0], "motion_count": [20]}]
     out = cv._per_motion(folds, res, ["a", "b", "c"])
     assert [m["index"] for m in out] == [0, 1, 2] and [m["name"] for m in out] == ["a", "b", "c"]
+    assert all("source" not in m for m in out)  # motions built in Python have no file
+    sourced = cv._per_motion(folds, res, ["hand", "hand", "hand"], ["t1.bvh", None, "t3.bvh"])
+    assert [m.get("source") for m in sourced] == ["t1.bvh", None, "t3.bvh"]
     assert [m["position_rmse"] for m in out] == pytest.approx([math.sqrt(10 / 30), math.sqrt(16 / 20), math.sqrt(4 / 20)])
     assert [m["rotation_rmse"] for m in out] == pytest.approx([math.sqrt(6 / 30), math.sqrt(8 / 20), math.sqrt(2 / 20)])
     assert cv._per_motion(folds, [{}] * 4) is None  # results without per-motion sums (an old worker's)
