@@ -26,8 +26,10 @@ def end_signalled_run(code: int) -> None:  # pragma: no cover - ends the process
     import atexit
     import sys
 
+    run_exit_functions = getattr(atexit, "_run_exitfuncs", None)  # CPython's; elsewhere: none to run
     try:
-        atexit._run_exitfuncs()
+        if run_exit_functions is not None:
+            run_exit_functions()
     except BaseException:  # noqa: BLE001 - a second Ctrl-C during the exit functions: end anyway
         pass
     for stream in (sys.stdout, sys.stderr):
