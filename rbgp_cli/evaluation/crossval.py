@@ -663,14 +663,15 @@ def _per_motion(folds: list[np.ndarray], results: list[dict], names: list[str] |
         return {"coverage_position": float(a[0] / a[1]) if a[1] else None,
                 "coverage_rotation": float(a[2] / a[3]) if a[3] else None, "coverage_steps": int(a[3])}
 
-    return [{"index": i, **({"name": names[i]} if names is not None else {}), **_source(sources, i),
+    return [{"index": i, **({"name": names[i]} if names is not None else {}), **motion_source(sources, i),
              "position_rmse": math.sqrt(v[0] / v[2]), "rotation_rmse": math.sqrt(v[1] / v[2]), **coverage(i)}
             for i, v in sorted(sums.items())]
 
 
-def _source(sources: list | None, i: int) -> dict:
-    """{"source": the file demonstration i was read from}, or {} when it has none (built in Python)."""
-    return {"source": str(sources[i])} if sources is not None and sources[i] is not None else {}
+def motion_source(sources: list | None, i: int | None) -> dict:
+    """A per-motion row's {"source": the file demonstration i was read from}, or {} without ``sources``, without
+    an index or when it has none (built in Python)."""
+    return {"source": str(sources[i])} if sources is not None and i is not None and sources[i] is not None else {}
 
 
 def paired_difference(reference, row) -> dict:

@@ -158,6 +158,8 @@ class UnderWayScores:
         inside over steps scored, pooled); ``scored`` how many splits held it out. Motions without an index
         stay one entry per scoring. ``name`` only with ``names`` (the input order's names) and an index;
         ``source`` likewise with ``sources`` (the files they were read from), where the motion has one."""
+        from rbgp_cli.evaluation.crossval import motion_source
+
         covs = self.motion_coverage if len(self.motion_coverage) == len(self.end_pos) else None
         groups: dict = {}
         for k in range(len(self.end_pos)):
@@ -172,8 +174,7 @@ class UnderWayScores:
                 a, n, b, m = (float(sum(covs[k][j] for k in ks)) for j in range(4))
                 cov = {"cov_pos": a / n if n else float("nan"), "cov_rot": b / m if m else float("nan")}
             out.append({"index": i, **({"name": names[i]} if names is not None and i is not None else {}),
-                        **({"source": str(sources[i])} if sources is not None and i is not None
-                           and sources[i] is not None else {}),
+                        **motion_source(sources, i),
                         "end_pos": float(np.mean([self.end_pos[k] for k in ks])),
                         "end_rot": float(np.mean([self.end_rot[k] for k in ks])),
                         "end_time": float(np.mean([self.end_time[k] for k in ks])),
