@@ -196,6 +196,9 @@ def _paths_text(p: dict) -> str:
     if lam is not None and lam < 1.0:  # the end time's band of a motion under way (docs/method.md §13)
         line += (f"; a motion under way's end-time band weighs the seen poses' evidence ×{lam:.3g} (the largest weight "
                  "whose band held the demonstrations left out 9 times in 10, else the smallest tried)")
+    if p.get("duration_statistic") == "mode":  # docs/method.md §13, the duration's point estimate
+        line += ("; a motion under way's end time is its duration weights' mode (the demonstrations left out were "
+                 "timed closer by it than by the median)")
     if p.get("rest_duration_tolerance") is not None:  # docs/method.md §13, the rest's ln D
         line += ("; a motion under way's rest is conditioned without the duration's coupling to the path (the demonstrations left out "
                  "were predicted as well without it)")

@@ -18,8 +18,9 @@ weights (and the end pose's band) use their own τ² and r (``paths.duration_smo
 left-out demonstrations' durations best; with fewer than ten demonstrations also (0.01, 3.2) and τ² = 0.01 with,
 instead of r, a tolerance σ = 0.3 rad and m for every coordinate (``paths.duration_sigma``, r_c = σ / σ_c), the
 loosest within a standard error of the best); the conditioning of the rest uses the distribution's.
-The predicted end time is t_0 + D with D's weighted median; the phase of the last seen sample is span / D̂ (D̂
-the weighted median). Its band is the 5 %/95 % quantiles of the weights with the seen poses' evidence weighted by
+The predicted end time is t_0 + D̂ with D̂ the weights' median, or their mode in ln D where that estimated the
+left-out durations better (``paths.duration_statistic``, :data:`DURATION_STATISTICS`); the phase of the last seen
+sample is span / D̂. Its band is the 5 %/95 % quantiles of the weights with the seen poses' evidence weighted by
 λ = ``paths.duration_evidence``, w_g ∝ t_ν(ℓ_g) (w_g / N(ℓ_g))^λ (N the weights' Gaussian prior of ℓ, t_ν its
 Student-t, ν = D − 1), times D̂ over their own median (:meth:`Anticipator.band_shift`: their spread, centred on D̂):
 :func:`fit_seen` takes the largest λ whose band holds enough left-out durations for 90 % on the next one
@@ -82,6 +83,7 @@ Only samples up to the last seen one enter: nothing here reads past ``t[-1]``.
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -151,6 +153,17 @@ DURATION_FOLDS = 5
 #: Steps of √2 (twenty-second pass: with the band widened by the seen part's surprise the left-out bands hold more at
 #: each λ, and a step of 2 left them at 0.94–0.95 where the next λ up held less than 0.90)
 DURATION_EVIDENCE_GRID = tuple(float(2.0 ** (-k / 2.0)) for k in range(15))
+#: The point estimate D̂ of the duration: the weights' median, or their mode in ln D (refined by a parabola through
+#: the log weights, :func:`_log_mode`: the maximum-a-posteriori phase speed of Maeda et al.'s estimate). The median
+#: is the best guess under absolute error where the weights describe the durations; a second mode they give to
+#: durations no demonstration like this one had pulls it between the two, and the mode does not follow. Chosen per
+#: model by :func:`fit_seen` on the left-out beginnings that choose the duration's τ² and r: the mode where its
+#: |ln D̂ − ln D| is smaller than the median's by more than DURATION_MODE_SE paired standard errors (docs/defaults.md,
+#: issue 37's twenty-seventh pass). ``paths.duration_statistic``: "mode", or None for the median (older files too).
+#: The seen part's surprise is measured at the median whichever D̂ is (:meth:`Anticipator._summary`), as its
+#: left-out reference is (:func:`_spread_terms`, :func:`_evidence_loo`): a reference the statistic does not move.
+DURATION_STATISTICS = ("median", "mode")
+DURATION_MODE_SE = 1.0
 #: The conditioning of the rest has its own τ² and r, chosen by :func:`fit_seen` on the left-out final pose and
 #: remainder from these τ² (and the path distribution's own) × SEEN_TOLERANCE_GRID, from REST_FROM demonstrations on (with fewer
 #: the left-out ends are too few to choose among so many: docs/defaults.md, issue 37's fourth pass; see REST_FEW_SMOOTH)
@@ -187,7 +200,7 @@ REST_FREE_ELL = 1e3
 @dataclass
 class Anticipation:
     """What is known after the seen part: the last seen time ``t`` and the estimated ``phase`` there,
-    ``end_time`` (median) with ``end_time_band`` (5 %, 95 %) on the seen clock, ``end_quat`` (4,) x, y, z, w
+    ``end_time`` (t_0 + D̂) with ``end_time_band`` (5 %, 95 %) on the seen clock, ``end_quat`` (4,) x, y, z, w
     and ``end_position`` (3,) m with their 90 % half-widths ``end_rotation_band`` (rad, the angle) and
     ``end_position_band`` (3,) m, ``off`` (the seen part has left what the demonstrations cover) and
     ``distance`` (the last seen pose's Mahalanobis distance under the prior at its phase), ``band_widening`` (the
@@ -381,12 +394,13 @@ class Anticipator:
     beginning (module docstring), with its prior (m, Σ) computed once; ``model``: a
     :class:`~rbgp_cli.dynamics.model.MotionModel` whose GP dynamics give the continuation's mean (None: the
     conditioned path); ``mix_end``: the estimate's end pose is the continuation's (the mean over the duration's
-    weights of the rest's conditioned ends), or with False the rest's conditioned end at the median duration."""
+    weights of the rest's conditioned ends), or with False the rest's conditioned end at D̂; ``duration_statistic``:
+    D̂ the weights' "median" or "mode" (None: the path distribution's choice, :func:`fit_seen`)."""
 
     def __init__(self, paths, model=None, *, points: int = SEEN_POINTS, grid_size: int = DURATION_GRID,
                  tolerance: float | None = None, duration_smooth: float | None = None,
                  duration_tolerance: float | None = None, duration_sigma: float | None = None,
-                 duration_evidence: float | None = None, mix_end: bool = True):
+                 duration_evidence: float | None = None, mix_end: bool = True, duration_statistic: str | None = None):
         if paths is None:
             raise InputError("this model has no path distribution to predict a motion under way (fewer than three "
                              "demonstrations, or a model file from an older rbgp)",
@@ -395,7 +409,7 @@ class Anticipator:
         self.model = model
         self.points = int(points)
         #: the estimate's end: the mean over the duration's weights of the rest's conditioned ends (the continuation's),
-        #: or with False the one at the median duration (:class:`Follower`: one conditioning per update)
+        #: or with False the one at D̂ (:class:`Follower`: one conditioning per update)
         self.mix_end = bool(mix_end)
         self.tolerance = float(paths.seen_tolerance if tolerance is None else tolerance)
         # the duration's weights (and the estimate's end pose) with their own τ² and r, or σ in rad and m (module
@@ -412,6 +426,10 @@ class Anticipator:
         if duration_evidence is None:
             duration_evidence = getattr(paths, "duration_evidence", None)
         self.duration_evidence = 1.0 if duration_evidence is None else float(duration_evidence)
+        #: D̂: the duration weights' "median" or "mode" (DURATION_STATISTICS; given, else fit_seen's choice)
+        self.duration_statistic = str(duration_statistic or getattr(paths, "duration_statistic", None) or "median")
+        if self.duration_statistic not in DURATION_STATISTICS:
+            raise ValueError(f"duration_statistic {self.duration_statistic!r}: one of {DURATION_STATISTICS}")
         # the rest's mean conditioned with its own τ² and r (fit_seen), else the path distribution's; the samples'
         # spread about it (and the off distance) keep the path distribution's Σ and r
         rest_smooth = getattr(paths, "rest_smooth", None)
@@ -621,8 +639,9 @@ class Anticipator:
         the live update can afford it, batched with the :meth:`surprise`: :meth:`_at_estimate`)."""
         return self._at_estimate(tau, q, p, D)[0]
 
-    def _at_estimate(self, tau, q, p, D, grid=None, w=None, near=None) -> tuple[np.ndarray, float, np.ndarray]:
-        """(the continuation's end (6,) scaled, :meth:`surprise` ρ at D, the end's covariance (6, 6) at D as the
+    def _at_estimate(self, tau, q, p, D, grid=None, w=None, near=None, D_rho=None) -> tuple[np.ndarray, float, np.ndarray]:
+        """(the continuation's end (6,) scaled, :meth:`surprise` ρ at ``D_rho`` (default D; the continuation's: the
+        weights' median), the end's covariance (6, 6) at D as the
         samples draw it) from one batched factorisation (the live update's cost): the rest's conditioned ends
         (:meth:`rest_end`) at the duration cells ``grid`` whose weights ``w`` are kept (:func:`_kept`), averaged with
         those weights normalised (:meth:`_mixed_deviation`'s end; at D alone without them or where one cell carries
@@ -630,6 +649,7 @@ class Anticipator:
         distribution's own τ² and r with the last seen pose exact and ℓ = ln D (the samples' conditioning,
         :meth:`_samples`)."""
         D = max(float(D), float(tau[-1]), 1e-9)
+        D_rho = D if D_rho is None else max(float(D_rho), float(tau[-1]), 1e-9)
         nn = 0
         if near is not None and self.rest_near is not None and len(tau) > 1:
             tau, q, p = near
@@ -655,7 +675,7 @@ class Anticipator:
         tau2[G:] = self.paths.smooth
         ell2 = np.full(G + 2, self.rest_ell ** 2)
         ell2[G:] = _ELL_TOL ** 2
-        _, end_mean, end_cov, quad, k6 = self._grid_terms(tau, q, p, np.append(at, [D, D]), tau2=tau2,
+        _, end_mean, end_cov, quad, k6 = self._grid_terms(tau, q, p, np.append(at, [D_rho, D]), tau2=tau2,
                                                           r2=r2.reshape(G + 2, -1), ell2=ell2)
         return wg @ end_mean[:G], float(quad[G]) / (k6 - 6 * nn), end_cov[G + 1]
 
@@ -704,10 +724,13 @@ class Anticipator:
         t = terms["seen"][0]
         t0, span = float(t[0]), terms["span"]
         q = self._duration_quantiles(grid, w, span)
-        D = q[1]
+        # D̂ the point estimate (the weights' median or mode); the surprise is measured at their median, D_med, as
+        # its left-out reference is (fit_seen: a reference the duration statistic does not move)
+        D_med = q[1]
+        D = D_med if self.duration_statistic == "median" else self.point(grid, w, span)
         band_w = terms.get("band_w", w)
-        if band_w is not w:  # the tempered weights' spread, moved to the whole evidence's median (band_shift)
-            k = self.band_shift(grid, w, band_w, span)
+        if band_w is not w or self.duration_statistic != "median":  # the band's spread, moved to D̂ (band_shift)
+            k = self.band_shift(grid, w, band_w, span, D)
             q = [max(x * k, span) for x in self._duration_quantiles(grid, band_w, span, (0.05, 0.95))]
             q = [min(q[0], D), D, max(q[1], D)]
         # the end pose: the continuation's (the rest's conditioned ends averaged over the duration, or with mix_end
@@ -715,14 +738,14 @@ class Anticipator:
         # weights of the ends conditioned for the weights, about their own mean (scaled), then unscaled
         E = terms["end_mean"]
         mu, rho, cov_own = self._at_estimate(*terms["seen"][3:], D, *((grid, w) if self.mix_end else (None, None)),
-                                             near=self._near(terms["seen"], D))
+                                             near=self._near(terms["seen"], D), D_rho=D_med)
         d = E - w @ E
         cov = cov_own + (d.T * w) @ d
         sc = self.scale
         mu_u = mu * sc
         cov_u = cov * sc[:, None] * sc[None, :]
         c_rot, c_pos = self.end_band_at(min(span / D, 1.0) if D > 0 else 1.0)
-        s_ = self.surprise_at(*terms["seen"][3:], D, rho=rho)
+        s_ = self.surprise_at(*terms["seen"][3:], D_med, rho=rho)
         c_rot, c_pos = c_rot * s_, c_pos * s_
         q = self.stretched(q, D, s_, span)
         ref_q, ref_p = self.paths.quat[-1], self.paths.position[-1]
@@ -763,16 +786,24 @@ class Anticipator:
         out = np.maximum(out, span)
         return [float(v) for v in out] if isinstance(x, list) else out
 
-    def band_shift(self, grid, w, band_w, span) -> float:
+    def band_shift(self, grid, w, band_w, span, D: float | None = None) -> float:
         """The factor k = D̂ / D̂_band that moves the band's weights ``band_w`` onto the point estimate: the ratio of
-        the weights' ``w`` median to theirs (both at least the seen span). The band and the samples' durations are
-        the tempered weights' durations times k: their spread, centred where the whole evidence puts the end (the
-        tempered median lies toward the prior's, which estimated the held-out durations worse)."""
-        if band_w is w:
+        D̂ (:meth:`point` of the weights ``w``) to their median (both at least the seen span). The band and the
+        samples' durations are the tempered weights' durations times k: their spread, centred where the whole
+        evidence puts the end (the tempered median lies toward the prior's, which estimated the held-out durations
+        worse). 1 where the band's weights are ``w`` and D̂ is their median. ``D``: D̂, computed already."""
+        if band_w is w and self.duration_statistic == "median":
             return 1.0
-        D = self._duration_quantiles(grid, w, span, (0.5,))[0]
+        D = self.point(grid, w, span) if D is None else float(D)
         Db = self._duration_quantiles(grid, band_w, span, (0.5,))[0]
         return float(D / Db) if Db > 0 else 1.0
+
+    def point(self, grid, w, span) -> float:
+        """D̂ (s, at least ``span``): the weights' median (:meth:`_duration_quantiles`) or, with ``duration_statistic``
+        "mode", their refined mode in ln D (:func:`_log_mode`)."""
+        if self.duration_statistic == "mode":
+            return _log_mode(grid, w, span)
+        return self._duration_quantiles(grid, w, span, (0.5,))[0]
 
     def _duration_quantiles(self, grid, w, span, levels=(0.05, 0.5, 0.95)) -> list:
         """The quantiles of D at ``levels`` (default 5 %, 50 % and 95 %; s, at least the seen span) from the weights
@@ -900,7 +931,7 @@ class Anticipator:
             own = dev_hat if (self.Sigma_rest is self.Sigma and self.rest_tolerance == self.tolerance
                               and self.rest_ell == _ELL_TOL and self.rest_near is None) else \
                 self.paths.unscale(self._conditioned_mean(tau, q, p, quat[-1], position[-1], D, rest=False)[0])[0]
-            k = self.band_shift(grid, w, terms["band_w"], span)
+            k = self.band_shift(grid, w, terms["band_w"], span, D)
             s_ = est.band_widening  # the durations widened about D̂ as the end time's band is (stretched)
             out = self._samples(int(samples), seed, self.stretched(grid * k, D, s_, span + 1e-6), terms["band_w"], tau, q,
                                 p, quat[-1], position[-1], own, (t_out, mq, mp), t0, span, D, dt, widen=s_)
@@ -1190,6 +1221,23 @@ def _loosest_rest(errors: np.ndarray, smooths, tolerances, k: float = REST_SE) -
     return _loosest_within(per, k, looseness=lambda c: (c[1], c[0]))
 
 
+def _choose_statistic(paths, trajs, pick, median_errors, k: float = DURATION_MODE_SE) -> None:
+    """``paths.duration_statistic``: "mode" where the left-out beginnings of :func:`_duration_loo` (with the chosen
+    (τ², r, σ) ``pick``) estimate their durations closer with the weights' mode than with their median
+    (``median_errors``, |ln D̂ − ln D| per beginning), by more than ``k`` standard errors of the paired difference;
+    else None (the median)."""
+    paths.duration_statistic = None
+    modes = _duration_loo(paths, trajs, per_beginning=True, statistic="mode", candidates=[pick])
+    if not modes:
+        return
+    d = modes[pick] - np.asarray(median_errors, dtype=np.float64)
+    se = float(np.std(d, ddof=1) / np.sqrt(len(d))) if len(d) > 1 else 0.0
+    if float(np.mean(d)) < -k * se:
+        paths.duration_statistic = "mode"
+    paths.info.update(duration_statistic=paths.duration_statistic or "median",
+                      duration_mode_gain=float(np.mean(d)), duration_mode_gain_se=se)
+
+
 def _choose_near(paths) -> None:
     """Whether the rest's conditioning sees the near pose (one grid step before the last seen one), and at which
     tolerance (``paths.rest_near_tolerance``): scored at the left-out demonstrations' estimated durations
@@ -1274,6 +1322,7 @@ def fit_seen(paths, trajs=None, *, level: float = 0.90, duration: bool = True, s
             (paths.duration_smooth, paths.duration_tolerance, paths.duration_sigma) = pick
             paths.info.update(duration_smooth=pick[0], duration_tolerance=pick[1], duration_sigma=pick[2],
                               duration_loo_error=float(np.mean(errors[pick])))
+            _choose_statistic(paths, trajs, pick, errors[pick])
             inside = _evidence_loo(paths, trajs, level=level)
             if inside:  # the largest λ whose band holds enough left-out durations (finite_sample_count), else the smallest
                 held = {lam: float(np.mean(v)) for lam, v in inside.items()}
@@ -1509,12 +1558,13 @@ def _left_out_beginnings(paths, trajs, folds: int, points: int, fractions=SEEN_F
 
 
 def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6, grid_size: int = 16,
-                  per_beginning: bool = False) -> dict:
+                  per_beginning: bool = False, statistic: str = "median", candidates=None) -> dict:
     """The duration's τ² and r by leaving demonstrations out on the task itself: the demonstrations in
     ``folds`` groups; each group's first F (each of SEEN_FRACTIONS) seen on its own clock, its duration
     estimated (the weights' median; with ``points`` seen poses and ``grid_size`` durations, as the live
     :class:`Follower`'s, for speed) by the others' path distribution with each
-    candidate (τ², r, σ) of :func:`duration_candidates` (the seen poses' evidence whole, λ = 1). Returns
+    candidate (τ², r, σ) of :func:`duration_candidates` (or of ``candidates``; the seen poses' evidence whole, λ = 1),
+    D̂ the weights' ``statistic`` ("median" or "mode", :meth:`Anticipator.point`). Returns
     {(τ², r, σ): mean |ln D̂ − ln D|} ({} without the trajectories or with fewer than MIN_PATH_DEMOS + 1
     demonstrations); ``per_beginning``: {(τ², r, σ): |ln D̂ − ln D| (n,)} per left-out beginning, in the same order
     for every candidate (:func:`_left_out_beginnings`)."""
@@ -1522,13 +1572,14 @@ def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6,
 
     if trajs is None or len(trajs) != paths.demos or paths.demos < MIN_PATH_DEMOS + 1:
         return {}
-    candidates = duration_candidates(paths)
+    candidates = duration_candidates(paths) if candidates is None else list(candidates)
     err = {c: [] for c in candidates}
     for rest, seen, poses, left_out, _at_f in _left_out_beginnings(paths, trajs, folds, points):
         rest.duration_smooth = rest.duration_tolerance = rest.duration_sigma = None
         for c in candidates:
             ant = Anticipator(rest, None, points=points, grid_size=grid_size, duration_smooth=c[0],
-                              duration_tolerance=c[1], duration_sigma=c[2], duration_evidence=1.0)
+                              duration_tolerance=c[1], duration_sigma=c[2], duration_evidence=1.0,
+                              duration_statistic=statistic)
             err[c].extend(abs(np.log(max(D_hat, 1e-9)) - paths.log_durations[d])
                           for d, D_hat in zip(left_out, _duration_medians(ant, seen, poses)))
     if not err[candidates[0]]:
@@ -1562,12 +1613,14 @@ def _evidence_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = SE
         ant = Anticipator(rest, None, points=points, grid_size=grid_size, duration_evidence=1.0)
         for i, (d, (grid, lw, span)) in enumerate(zip(left_out, _duration_weights(ant, seen, poses, log=True))):
             w1 = ant._tempered(grid, lw, 1.0)
-            med = ant._duration_quantiles(grid, w1, span, (0.5,))[0]
+            med = ant.point(grid, w1, span)  # D̂
             true.append(float(np.exp(paths.log_durations[d])))
             meds.append(med)
             spans.append(span)
             fracs.append(at_f[i])
-            rhos.append(ant.surprise(*poses[i], med) if paths.demos >= SURPRISE_FROM else 0.0)
+            # the surprise at the weights' median, as the continuation measures it (Anticipator._summary)
+            rho_at = med if ant.duration_statistic == "median" else ant._duration_quantiles(grid, w1, span, (0.5,))[0]
+            rhos.append(ant.surprise(*poses[i], rho_at) if paths.demos >= SURPRISE_FROM else 0.0)
             for lam in lams:
                 wl = w1 if lam == 1.0 else ant._tempered(grid, lw, lam)
                 k = ant.band_shift(grid, w1, wl, span)
@@ -1590,11 +1643,12 @@ def _evidence_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = SE
 
 
 def _duration_medians(ant, seen, poses) -> list:
-    """The median duration (s) that :meth:`Anticipator.weights` and :meth:`Anticipator._duration_quantiles` give for
-    each seen beginning of ``seen`` [(t (N,), quat (N, 4), position (N, 3))], checked, unit and sign-continuous as
+    """The point estimate D̂ (s) that :meth:`Anticipator.weights` and :meth:`Anticipator.point` give for each seen
+    beginning of ``seen`` [(t (N,), quat (N, 4), position (N, 3))], checked, unit and sign-continuous as
     :func:`_seen` leaves them, and ``poses`` [(τ (n,), q (n, 4), p (n, 3))] its seen poses (:func:`_seen` with the
-    anticipator's ``points``): :func:`_duration_weights`' weights, their median."""
-    return [ant._duration_quantiles(grid, w, span)[1] for grid, w, span in _duration_weights(ant, seen, poses)]
+    anticipator's ``points``): :func:`_duration_weights`' weights, their median or mode (the anticipator's
+    ``duration_statistic``)."""
+    return [ant.point(grid, w, span) for grid, w, span in _duration_weights(ant, seen, poses)]
 
 
 def _duration_weights(ant, seen, poses, log: bool = False) -> list:
@@ -1862,12 +1916,12 @@ def _spread_terms(paths, F: float, rest: tuple | None = None, ctx=None, duration
     if not duration:
         return {"e": (x_true - mu).reshape(-1, 6), "V": np.zeros((Dn * T, 6, 6)), "C": C.reshape(-1, 6, 6), "w": share,
                 "rho": _loo_rows(ctx, ds, ctx["dur"], tau2, r, np.zeros((Dn, 1)), logw=True, quad=True)[2], "T": T}
-    w, shift, d_hat, ctx6 = _left_out_weights(paths, F, ctx)
+    w, shift, d_hat, ctx6, d_med = _left_out_weights(paths, F, ctx)
     span, grid = ctx["seen_time"][:, -1], ctx["grid"]
-    # the seen part's surprise at each left-out demonstration's point estimate of D, as the continuation computes it
+    # the seen part's surprise at each left-out demonstration's median of D, as the continuation computes it
     # (Anticipator.surprise_at), from ctx's seen poses and from the live update's
-    rho = _loo_rows(ctx, ds, d_hat, tau2, r, np.zeros((Dn, 1)), logw=True, quad=True)[2]
-    rho_live = _loo_rows(ctx6, ds, d_hat, tau2, r, np.zeros((Dn, 1)), logw=True, quad=True)[2]
+    rho = _loo_rows(ctx, ds, d_med, tau2, r, np.zeros((Dn, 1)), logw=True, quad=True)[2]
+    rho_live = _loo_rows(ctx6, ds, d_med, tau2, r, np.zeros((Dn, 1)), logw=True, quad=True)[2]
     dd, gg = np.nonzero(w > SPREAD_KEEP * w.max(axis=1, keepdims=True))
     off = (2.0 * np.arange(SPREAD_SUB) + 1.0 - SPREAD_SUB) / SPREAD_SUB  # sub-cell midpoints in half steps
     rd = np.repeat(dd, SPREAD_SUB)
@@ -1902,8 +1956,10 @@ def _left_out_weights(paths, F: float, ctx):
     (``ctx["grid"]``, those shorter than the seen span left out), SPREAD_POINTS seen poses at their true times, the
     seen poses' evidence weighted by λ (``paths.duration_evidence``). ``ctx``: :func:`_spread_context`'s with the
     fraction's seen grid phases (``js``, ``seen_time``, ``seen_q``, ``seen_p``). Returns (w (D, G) the weights, shift (D,)
-    the factor moving them onto the whole evidence's median, d_hat (D,) that median: the point estimate of D, ctx6 the
-    context of the SPREAD_POINTS seen poses)."""
+    the factor moving them onto the whole evidence's D̂, d_hat (D,) that D̂ (its median, or its mode with
+    ``paths.duration_statistic`` "mode"): the point estimate of D, ctx6 the
+    context of the SPREAD_POINTS seen poses, d_med (D,) the whole evidence's median, where the seen part's surprise
+    is measured)."""
     X, S = ctx["X"], ctx["S"]
     Dn, P = X.shape
     ds = np.arange(Dn)
@@ -1931,14 +1987,22 @@ def _left_out_weights(paths, F: float, ctx):
     lw = np.where(np.isfinite(lw).any(axis=1, keepdims=True), lw, np.where(np.arange(SPREAD_GRID) == SPREAD_GRID - 1, 0.0, -np.inf))
     w = np.exp(lw - lw.max(axis=1, keepdims=True))
     w /= w.sum(axis=1, keepdims=True)
-    if lam != 1.0:  # the samples' durations moved onto the whole evidence's median (Anticipator.band_shift)
-        ok = np.isfinite(lw1).any(axis=1)
-        w1 = np.exp(lw1 - np.where(ok, lw1.max(axis=1), 0.0)[:, None])
-        w1 = np.where(ok[:, None], w1 / np.where(ok, w1.sum(axis=1), 1.0)[:, None], w)
-        shift = _row_medians(grid, w1, ctx["half"], span) / _row_medians(grid, w, ctx["half"], span)
-    # each left-out demonstration's point estimate of D (the whole evidence's median), as the continuation's
+    mode = getattr(paths, "duration_statistic", None) == "mode"
+    if lam != 1.0 or mode:  # the samples' durations moved onto the whole evidence's D̂ (Anticipator.band_shift)
+        if lam != 1.0:
+            ok = np.isfinite(lw1).any(axis=1)
+            w1 = np.exp(lw1 - np.where(ok, lw1.max(axis=1), 0.0)[:, None])
+            w1 = np.where(ok[:, None], w1 / np.where(ok, w1.sum(axis=1), 1.0)[:, None], w)
+        else:
+            w1 = w
+        d_med = _row_medians(grid, w1, ctx["half"], span)
+        point = _row_log_modes(grid, w1, span) if mode else d_med
+        shift = point / _row_medians(grid, w, ctx["half"], span)
+    # each left-out demonstration's point estimate of D (the whole evidence's median or mode), as the continuation's
     d_hat = np.maximum(_row_medians(grid, w, ctx["half"], span) * shift, span * (1 + 1e-9))
-    return w, shift, d_hat, ctx6
+    if lam == 1.0 and not mode:
+        d_med = d_hat
+    return w, shift, d_hat, ctx6, np.maximum(d_med, span * (1 + 1e-9))
 
 
 def _rest_at_estimates(paths, rests, ctx=None) -> np.ndarray:
@@ -2003,6 +2067,50 @@ def _row_medians(grid, w, half, span):
     r = np.arange(len(w))
     f = (0.5 - cw[r, j]) / np.maximum(cw[r, j + 1] - cw[r, j], 1e-300)
     return np.maximum(np.exp(edges[r, j] + f * (edges[r, j + 1] - edges[r, j])), span)
+
+
+def _log_mode(grid, w, span) -> float:
+    """The mode of weights ``w`` (G,) over durations ``grid`` (G,) s in x = ln D, refined by the parabola through the log
+    weights y at the largest one j and its neighbours (the grid's log spacing need not be even: the live update
+    evaluates a subset): x̂ = x_j − ½ [(x_j − x_{j−1})² (y_j − y_{j+1}) − (x_j − x_{j+1})² (y_j − y_{j−1})] /
+    [(x_j − x_{j−1})(y_j − y_{j+1}) − (x_j − x_{j+1})(y_j − y_{j−1})], kept within the cell of x_j (half-way to
+    each neighbour); x_j itself at the grid's ends, where a neighbour's weight is 0 or where the parabola is not
+    concave. Returns e^x̂, at least ``span``: :meth:`Anticipator.point` with "mode". In scalars (the live update
+    calls it once per pose; :func:`_row_log_modes` is the same per row)."""
+    w = np.asarray(w, dtype=np.float64)
+    G = len(w)
+    j = int(np.argmax(w))
+    x1 = math.log(float(grid[j]))
+    out = x1
+    if 0 < j < G - 1 and w[j - 1] > 0.0 and w[j + 1] > 0.0:
+        x0, x2 = math.log(float(grid[j - 1])), math.log(float(grid[j + 1]))
+        y0, y1, y2 = math.log(float(w[j - 1])), math.log(float(w[j])), math.log(float(w[j + 1]))
+        a, b = (x1 - x0) * (y1 - y2), (x1 - x2) * (y1 - y0)
+        if a - b > 0.0:  # concave through three positive weights
+            xv = x1 - 0.5 * ((x1 - x0) * a - (x1 - x2) * b) / (a - b)
+            out = min(max(xv, 0.5 * (x0 + x1)), 0.5 * (x1 + x2))
+    return max(math.exp(out), float(span))
+
+
+def _row_log_modes(grid, w, span):
+    """:func:`_log_mode` per row d of weights ``w`` (D, G) over ``grid`` (D, G) s, at least ``span`` (D,)."""
+    x = np.log(grid)
+    D, G = w.shape
+    r = np.arange(D)
+    j = np.argmax(w, axis=1)
+    out = x[r, j].copy()
+    inner = (j > 0) & (j < G - 1)
+    if G >= 3 and np.any(inner):
+        jm, jp = np.clip(j - 1, 0, G - 1), np.clip(j + 1, 0, G - 1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            y0, y1, y2 = np.log(w[r, jm]), np.log(w[r, j]), np.log(w[r, jp])
+            x0, x1, x2 = x[r, jm], x[r, j], x[r, jp]
+            a, b = (x1 - x0) * (y1 - y2), (x1 - x2) * (y1 - y0)
+            den = a - b
+            ok = inner & np.isfinite(y0) & np.isfinite(y2) & (den > 0)  # concave through three positive weights
+            xv = x1 - 0.5 * ((x1 - x0) * a - (x1 - x2) * b) / np.where(ok, den, 1.0)
+        out = np.where(ok, np.clip(xv, 0.5 * (x0 + x1), 0.5 * (x1 + x2)), out)
+    return np.maximum(np.exp(out), span)
 
 
 def _rebase(paths, x, q, s):
@@ -2083,7 +2191,7 @@ class Follower:
 
     def __init__(self, paths, *, points: int = 6, grid_size: int = 16, window: float = 0.05,
                  start_speed: float | None = None, keep: int = 512, detect: bool = True, rest: float = 0.25):
-        # the end at the median duration: the live update affords one conditioning of the rest (method.md §13)
+        # the end at D̂: the live update affords one conditioning of the rest (method.md §13)
         self.anticipator = Anticipator(paths, None, points=points, grid_size=grid_size, mix_end=False)
         P = paths.position
         length = float(np.sum(np.linalg.norm(np.diff(P, axis=0), axis=1)))

@@ -1211,7 +1211,8 @@ def _train_summary(rep, kernel, kern, trajs, info, shared, velocity, gp, gp_choi
     summary["paths"] = None if paths is None else {
         "demos": paths.demos, "smooth": float(paths.smooth), "length": float(paths.length),
         "band_scale": {"rotation": float(paths.band_scale[0]), "position": float(paths.band_scale[1])},
-        **({"duration_evidence": float(paths.duration_evidence)} if paths.duration_evidence is not None else {})}
+        **({"duration_evidence": float(paths.duration_evidence)} if paths.duration_evidence is not None else {}),
+        **({"duration_statistic": str(paths.duration_statistic)} if paths.duration_statistic is not None else {})}
     # the recording order is the order the demonstrations were read (docs/data.md, "Recording order")
     summary["recording_order"] = [tr.name or tr.source or f"demonstration {k + 1}" for k, tr in enumerate(trajs)][:1000]
     return summary

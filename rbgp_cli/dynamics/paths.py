@@ -210,6 +210,9 @@ class PathDistribution:
     #: p(y | ℓ_g)^λ (:func:`rbgp_cli.dynamics.anticipation.fit_seen`: the largest λ whose band holds enough left-out
     #: durations for 90 % on the next one, :func:`~rbgp_cli.dynamics.anticipation.finite_sample_count`; None: 1)
     duration_evidence: float | None = None
+    #: the duration's point estimate D̂: "mode" (the weights' refined mode in ln D) or None for their median
+    #: (:func:`rbgp_cli.dynamics.anticipation.fit_seen`, chosen on the left-out beginnings)
+    duration_statistic: str | None = None
     #: τ² and r of a motion under way's conditioning of the rest (:func:`rbgp_cli.dynamics.anticipation.fit_seen`,
     #: chosen on the left-out final pose; None: ``smooth`` and ``seen_tolerance``)
     rest_smooth: float | None = None
@@ -534,6 +537,7 @@ class PathDistribution:
                 **({"duration_tolerance": float(self.duration_tolerance)} if self.duration_tolerance is not None else {}),
                 **({"duration_sigma": float(self.duration_sigma)} if self.duration_sigma is not None else {}),
                 **({"duration_evidence": float(self.duration_evidence)} if self.duration_evidence is not None else {}),
+                **({"duration_statistic": str(self.duration_statistic)} if self.duration_statistic is not None else {}),
                 **({"rest_smooth": float(self.rest_smooth)} if self.rest_smooth is not None else {}),
                 **({"rest_tolerance": float(self.rest_tolerance)} if self.rest_tolerance is not None else {}),
                 **({"rest_duration_tolerance": float(self.rest_duration_tolerance)}
@@ -563,6 +567,7 @@ class PathDistribution:
                    duration_tolerance=None if header.get("duration_tolerance") is None else float(header["duration_tolerance"]),
                    duration_sigma=None if header.get("duration_sigma") is None else float(header["duration_sigma"]),
                    duration_evidence=None if header.get("duration_evidence") is None else float(header["duration_evidence"]),
+                   duration_statistic=None if header.get("duration_statistic") is None else str(header["duration_statistic"]),
                    rest_smooth=None if header.get("rest_smooth") is None else float(header["rest_smooth"]),
                    rest_tolerance=None if header.get("rest_tolerance") is None else float(header["rest_tolerance"]),
                    rest_duration_tolerance=None if header.get("rest_duration_tolerance") is None

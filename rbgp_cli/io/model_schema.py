@@ -283,6 +283,7 @@ TOP: dict = {
         "duration_tolerance": num(0.0, 1e6, what="a non-negative tolerance"),
         "duration_sigma": num(0.0, 1e6, lo_open=True, what="a positive tolerance in radians and metres"),
         "duration_evidence": num(0.0, 1.0, lo_open=True, what="a weight in (0, 1]"),
+        "duration_statistic": string(("median", "mode")),
         # optional: a motion under way's conditioning of the rest, its own τ² and tolerance (issue 37)
         "rest_smooth": num(0.0, 1e6, what="a non-negative variance"),
         "rest_tolerance": num(0.0, 1e6, what="a non-negative tolerance"),

@@ -42,7 +42,8 @@ Layout (format ``rbgp-model``, version :data:`FORMAT_VERSION`):
   way's duration weights; files without them weigh durations with ``smooth`` and ``seen_tolerance``) or
   ``duration_sigma`` (the weights' tolerance in rad and m, in place of ``duration_tolerance``; fewer than ten
   demonstrations), ``duration_evidence`` (the seen poses' evidence weight λ in the duration's weights; files
-  without it weigh with λ = 1, as before), and
+  without it weigh with λ = 1, as before), ``duration_statistic`` ("mode": the duration's point estimate is its
+  weights' mode, chosen on the left-out beginnings; files without it take the median, as before), and
   ``rest_smooth`` / ``rest_tolerance`` (the conditioning of its rest, chosen on the left-out final pose; files
   without them condition with ``smooth`` and ``seen_tolerance``, as before) and ``rest_duration_tolerance`` (ln D's
   tolerance there where it is freed; files without it condition on ln D exactly, as before) and

@@ -35,9 +35,9 @@ def test_the_band_weights_equal_a_prior_times_the_evidence_to_the_power_lambda(p
     point estimate's) stay the whole evidence's, and so does the end time; the band is the tempered weights'
     quantiles moved onto it."""
     ant = Anticipator(paths, None, points=8, grid_size=12, duration_smooth=0.01, duration_tolerance=0.8,
-                      duration_evidence=lam)
+                      duration_evidence=lam, duration_statistic="median")  # D̂ the median (the mode: its own tests)
     whole = Anticipator(paths, None, points=8, grid_size=12, duration_smooth=0.01, duration_tolerance=0.8,
-                        duration_evidence=1.0)
+                        duration_evidence=1.0, duration_statistic="median")
     ref = copy.copy(paths)
     ref.smooth, ref.seen_tolerance = 0.01, 0.8
     m, Sigma = ref.prior()

@@ -11,7 +11,7 @@ from scipy.special import fdtri, stdtrit
 
 from rbgp_cli.dynamics import anticipation
 from rbgp_cli.dynamics.anticipation import (SEEN_POINTS, SPREAD_GRID, SPREAD_KEEP, SPREAD_POINTS, SPREAD_SUB, GRID_RANGE,
-                                            _ELL_TOL, _spread_factors, _spread_terms, seen_split)
+                                            _ELL_TOL, _log_mode, _spread_factors, _spread_terms, seen_split)
 from rbgp_cli.dynamics.paths import GOAL_TOLERANCE, fit_paths, pose_deviation
 
 from .test_anticipation import family
@@ -84,14 +84,17 @@ def _direct(paths, d, F, rest):
         return max(float(np.exp(np.interp(0.5, np.concatenate([[0.0], np.cumsum(wt)]), edges))), span)
 
     shift = 1.0
+    mode = paths.duration_statistic == "mode"
+    w1 = np.exp(lw - lw.max())
     if lam != 1.0:  # the seen poses' evidence weighted by λ about the others' prior of ℓ, whole as its Student-t
-        w1 = np.exp(lw - lw.max())
         v = (sample + paths.smooth_covariance(dsm))[-1, -1] + _ELL_TOL ** 2
         e2 = (np.log(grid) / paths.duration_scale - m[-1]) ** 2
         nu = Dn - 2
         lw = -0.5 * (nu + 1) * np.log1p(e2 / (nu * v)) + lam * (lw + 0.5 * e2 / v)
+    if lam != 1.0 or mode:  # onto the whole evidence's D̂: its median, or its mode in ln D
         wt = np.exp(lw - lw.max())
-        shift = median(w1 / w1.sum()) / median(wt / wt.sum())  # onto the whole evidence's median
+        point = _log_mode(grid, w1 / w1.sum(), span) if mode else median(w1 / w1.sum())
+        shift = point / median(wt / wt.sum())
     w = np.exp(lw - lw.max())
     w /= w.sum()
     zero = np.zeros((S, 6))
