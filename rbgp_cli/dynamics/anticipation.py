@@ -1581,7 +1581,7 @@ def _duration_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = 6,
                               duration_tolerance=c[1], duration_sigma=c[2], duration_evidence=1.0,
                               duration_statistic=statistic)
             err[c].extend(abs(np.log(max(D_hat, 1e-9)) - paths.log_durations[d])
-                          for d, D_hat in zip(left_out, _duration_medians(ant, seen, poses)))
+                          for d, D_hat in zip(left_out, _duration_points(ant, seen, poses)))
     if not err[candidates[0]]:
         return {}
     if per_beginning:
@@ -1642,7 +1642,7 @@ def _evidence_loo(paths, trajs, *, folds: int = DURATION_FOLDS, points: int = SE
     return out
 
 
-def _duration_medians(ant, seen, poses) -> list:
+def _duration_points(ant, seen, poses) -> list:
     """The point estimate D̂ (s) that :meth:`Anticipator.weights` and :meth:`Anticipator.point` give for each seen
     beginning of ``seen`` [(t (N,), quat (N, 4), position (N, 3))], checked, unit and sign-continuous as
     :func:`_seen` leaves them, and ``poses`` [(τ (n,), q (n, 4), p (n, 3))] its seen poses (:func:`_seen` with the
@@ -1652,7 +1652,7 @@ def _duration_medians(ant, seen, poses) -> list:
 
 
 def _duration_weights(ant, seen, poses, log: bool = False) -> list:
-    """[(grid (G,) s, weights (G,), span s)] per seen beginning of ``seen`` (as :func:`_duration_medians` takes
+    """[(grid (G,) s, weights (G,), span s)] per seen beginning of ``seen`` (as :func:`_duration_points` takes
     them): :meth:`Anticipator.weights`' grid and weights, their log weights computed for all the beginnings at once: :meth:`Anticipator._grid_terms`'
     log weight, −½ eᵀG⁻¹e − ½ log det G, with the beginnings × the grid's durations as one batch (its end pose's mean
     and covariance, which :func:`_duration_loo` does not use, left out). The same numbers as the loop over
@@ -1974,7 +1974,6 @@ def _left_out_weights(paths, F: float, ctx):
     ctx6 = _seen_at(ctx, paths, js6)
     _, lw = _loo_rows(ctx6, rows_d, grid.ravel(), dsm, dtol, np.zeros((len(rows_d), 1)), logw=True)
     lam = 1.0 if paths.duration_evidence is None else float(paths.duration_evidence)
-    shift = np.ones(Dn)
     if lam != 1.0:  # the seen poses' evidence weighted by λ, the others' prior of ℓ kept whole (Anticipator._tempered)
         lw1 = np.where(grid.ravel() >= span[rows_d], lw, -np.inf).reshape(Dn, SPREAD_GRID)
         xl = X[:, -1]
@@ -1987,22 +1986,20 @@ def _left_out_weights(paths, F: float, ctx):
     lw = np.where(np.isfinite(lw).any(axis=1, keepdims=True), lw, np.where(np.arange(SPREAD_GRID) == SPREAD_GRID - 1, 0.0, -np.inf))
     w = np.exp(lw - lw.max(axis=1, keepdims=True))
     w /= w.sum(axis=1, keepdims=True)
+    w1 = w  # the whole evidence's weights (λ = 1)
+    if lam != 1.0:
+        ok = np.isfinite(lw1).any(axis=1)
+        w1 = np.exp(lw1 - np.where(ok, lw1.max(axis=1), 0.0)[:, None])
+        w1 = np.where(ok[:, None], w1 / np.where(ok, w1.sum(axis=1), 1.0)[:, None], w)
+    med = _row_medians(grid, w, ctx["half"], span)
+    d_med = med if w1 is w else _row_medians(grid, w1, ctx["half"], span)
+    # the samples' durations moved onto the whole evidence's D̂, its median or mode (Anticipator.band_shift; 1 where
+    # the weights are the whole evidence's and D̂ their median); each left-out demonstration's point estimate of D
+    # as the continuation's
     mode = getattr(paths, "duration_statistic", None) == "mode"
-    if lam != 1.0 or mode:  # the samples' durations moved onto the whole evidence's D̂ (Anticipator.band_shift)
-        if lam != 1.0:
-            ok = np.isfinite(lw1).any(axis=1)
-            w1 = np.exp(lw1 - np.where(ok, lw1.max(axis=1), 0.0)[:, None])
-            w1 = np.where(ok[:, None], w1 / np.where(ok, w1.sum(axis=1), 1.0)[:, None], w)
-        else:
-            w1 = w
-        d_med = _row_medians(grid, w1, ctx["half"], span)
-        point = _row_log_modes(grid, w1, span) if mode else d_med
-        shift = point / _row_medians(grid, w, ctx["half"], span)
-    # each left-out demonstration's point estimate of D (the whole evidence's median or mode), as the continuation's
-    d_hat = np.maximum(_row_medians(grid, w, ctx["half"], span) * shift, span * (1 + 1e-9))
-    if lam == 1.0 and not mode:
-        d_med = d_hat
-    return w, shift, d_hat, ctx6, np.maximum(d_med, span * (1 + 1e-9))
+    shift = (_row_log_modes(grid, w1, span) if mode else d_med) / med
+    floor = span * (1 + 1e-9)
+    return w, shift, np.maximum(med * shift, floor), ctx6, np.maximum(d_med, floor)
 
 
 def _rest_at_estimates(paths, rests, ctx=None) -> np.ndarray:
