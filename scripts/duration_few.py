@@ -30,7 +30,7 @@ left-out beginnings (:func:`~rbgp_cli.dynamics.anticipation._duration_loo`):
   continuation's) instead of the live update's 6 and 16.
 
 Prints the mean |end time error| (s) per F and the choices per subset. Nothing here changes rbgp; it measures
-(docs/defaults.md, issue 37, tenth pass).
+(docs/defaults.md, issue 37, tenth and twenty-eighth passes).
 """
 
 from __future__ import annotations
@@ -45,10 +45,9 @@ FRACTIONS = (0.2, 0.4, 0.6, 0.8)
 def main(argv=None):
     from rbgp_cli.dynamics.anticipation import (DURATION_FEW_BELOW, SEEN_FRACTIONS, Anticipator, _duration_loo,
                                                 _loosest_within, fit_seen)
-    from rbgp_cli.evaluation.under_way import PhaseProMP, ridge_std
     from rbgp_cli.dynamics.paths import fit_paths
     from rbgp_cli.evaluation.crossval import make_splits
-    from rbgp_cli.evaluation.under_way import split_seen
+    from rbgp_cli.evaluation.under_way import PhaseProMP, ridge_std, split_seen
     from rbgp_cli.io.read import ReadOptions
     from rbgp_cli.workflows import load_demonstrations
 
