@@ -733,7 +733,8 @@ def follow_stream(model, lines, *, options: ReadOptions | None = None, every: in
     """``rbgp follow``: poses arriving as CSV rows (``lines``: an iterator of text lines, the header first)
     followed live (:class:`~rbgp_cli.dynamics.anticipation.Follower`). Yields one dict per ``every`` poses
     of a motion under way: ``t``, ``start`` (the motion's detected start), ``motion`` (0, 1, … across
-    repetitions), ``phase``, ``end_time`` and its 90 % band, the end pose with its 90 % bands, ``off``. ``path``: the
+    repetitions), ``phase``, ``end_time`` and its 90 % band, the end pose with its 90 % bands, ``off``, ``at_rest`` (the
+    pose at rest now, :attr:`~rbgp_cli.dynamics.anticipation.Follower.at_rest`: a hold in mid-motion). ``path``: the
     file the lines come from (None: a pipe), whose first bytes tell a format read whole from CSV rows.
 
     Lost frames (:class:`~rbgp_cli.io.stream.Lost`) are skipped, the first said in a warning and their count at the
@@ -781,7 +782,7 @@ def follow_stream(model, lines, *, options: ReadOptions | None = None, every: in
                     f"bands are widened ×{est.band_widening:.2f} (band_widening)"), path=source)
         if (count - 1) % max(int(every), 1):
             return None
-        return dict(motion=int(motion), start=float(follower.start), **est.to_dict())
+        return dict(motion=int(motion), start=float(follower.start), **est.to_dict(), at_rest=follower.at_rest)
 
     for line in lines:
         row = rows.parse(line)

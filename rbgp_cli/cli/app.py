@@ -344,8 +344,9 @@ def follow(
     The stream is a CSV table (header first, then rows as they arrive: `tail -f` of a logger, or any
     reader's output), read with the read options below. After each pose of a motion under way (or every
     --every poses) one line: t, the motion's start, its estimated phase, the predicted end time and end
-    pose with 90 % bands, and whether the motion has left what the demonstrations cover
-    (docs/method.md §13). Nothing is printed at rest.
+    pose with 90 % bands, whether the motion has left what the demonstrations cover, and whether the
+    pose is at rest now (a hold in mid-motion; docs/method.md §13). Nothing is printed at rest before
+    a motion starts.
 
     Example: tail -f take.csv | rbgp follow handover.rbgp
     """

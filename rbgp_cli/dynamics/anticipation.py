@@ -2212,6 +2212,15 @@ class Follower:
         (ta, _, pa), (tb, _, pb) = self._recent[0], self._recent[-1]
         return float(np.linalg.norm(pb - pa) / (tb - ta)) if tb > ta else 0.0
 
+    @property
+    def at_rest(self) -> bool:
+        """Whether the pose is at rest now: its speed over the last ``window`` seconds (at least half of it seen)
+        below ``start_speed``, the threshold a motion starts above. In mid-motion this is a hold, which the estimate
+        does not foresee: its phase is the seen time over one duration, so it reads a hold as a slower motion, the
+        prediction of one that resumes at once (docs/method.md §13)."""
+        r = self._recent
+        return len(r) >= 2 and r[-1][0] - r[0][0] >= 0.5 * self.window and self._speed() < self.start_speed
+
     def push(self, t: float, quat, position):
         """Add the pose seen at time ``t`` (quat (4,) x, y, z, w; position (3,) m); returns the
         :class:`Anticipation` of the motion under way, or None at rest."""

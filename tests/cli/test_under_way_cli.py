@@ -161,6 +161,7 @@ def test_follow_reads_a_pipe_and_prints_one_json_line_per_prediction(model, tmp_
     assert abs(got[-1]["end_time"] - true_end) < 0.1 * true_end
     for g in got:
         assert len(g["end_position"]) == 3 and len(g["end_position_band"]) == 3 and g["off"] in (True, False)
+    assert not any(g["at_rest"] for g in got[1:])  # the shoe moves on after its slow departure
 
 
 def test_follow_bad_row_is_one_line_error(model):

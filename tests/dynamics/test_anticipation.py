@@ -150,6 +150,36 @@ def test_a_stream_starts_at_the_departure_from_rest(trained):
     assert abs(f.start - t_move[0]) <= 0.1
 
 
+def test_a_hold_in_mid_motion_reads_at_rest_and_as_a_slower_motion(trained):
+    """A held pose (0.5 s still at 40 % of a motion, 0.1 mm of noise) is reported at rest, while the motion on
+    either side of it is not. The estimate reads the hold as a slower motion (docs/method.md §13: one time-scaling of
+    the demonstrations): the end time moves later and its band widens, the phase does not run on to the motion's
+    end (it stays near 0.4: 0.40 → 0.36 here), and once the motion resumes the end band holds the real end."""
+    _, paths = trained
+    tr = family(1, 7)[0][0]
+    k = int(0.4 * len(tr.t))
+    rng = np.random.default_rng(0)
+    f = Follower(paths, detect=False)
+    moving = [f.push(tr.t[j], tr.quat[j], tr.position[j]) and f.at_rest for j in range(k + 1)]
+    assert not any(moving[2:])
+    before = f.push(tr.t[k] + 1.0 / RATE, tr.quat[k], tr.position[k])
+    held = []
+    for t in tr.t[k] + np.arange(2, 26) / RATE:
+        held.append((f.push(t, tr.quat[k], tr.position[k] + 1e-4 * rng.standard_normal(3)), f.at_rest))
+    assert all(a for _, a in held[1:])
+    last = held[-1][0]
+    assert last.end_time > before.end_time + 0.5 * 0.5  # later by at least half the hold
+    assert last.end_time_band[1] - last.end_time_band[0] > before.end_time_band[1] - before.end_time_band[0]
+    assert max(e.phase for e, _ in held) < 0.5
+    true_end = tr.t[-1] + 0.5
+    after = []
+    for j in range(k + 1, len(tr.t)):
+        est = f.push(tr.t[j] + 0.5, tr.quat[j], tr.position[j])
+        after.append(f.at_rest)
+        assert est.end_time_band[0] <= true_end <= est.end_time_band[1]
+    assert not any(after[2:-10])  # moving again (the last poses slow to the end)
+
+
 def test_bad_seen_input_is_one_clear_error(trained):
     _, paths = trained
     ant = Anticipator(paths)
