@@ -160,7 +160,10 @@ def test_a_hold_in_mid_motion_reads_at_rest_and_as_a_slower_motion(trained):
     k = int(0.4 * len(tr.t))
     rng = np.random.default_rng(0)
     f = Follower(paths, detect=False)
-    moving = [f.push(tr.t[j], tr.quat[j], tr.position[j]) and f.at_rest for j in range(k + 1)]
+    moving = []
+    for j in range(k + 1):
+        f.push(tr.t[j], tr.quat[j], tr.position[j])
+        moving.append(f.at_rest)
     assert not any(moving[2:])
     before = f.push(tr.t[k] + 1.0 / RATE, tr.quat[k], tr.position[k])
     held = []
