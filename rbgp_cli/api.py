@@ -711,7 +711,7 @@ class RigidBodyGP:
         """An incremental :class:`~rbgp_cli.dynamics.anticipation.Follower` for a stream of poses (``rbgp follow``):
         ``push(t, quat, position)`` returns the current estimate (phase, end time and end pose with 90 %
         bands, ``off``) or None at rest. ``options``: the Follower's (``points``, ``grid_size``, ``window``,
-        ``start_speed``, ``keep``, ``detect``)."""
+        ``start_speed``, ``keep``, ``detect``, ``rest``, ``lead``)."""
         from rbgp_cli.dynamics.anticipation import Follower
 
         m = self._check()

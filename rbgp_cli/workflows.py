@@ -732,7 +732,9 @@ def follow_stream(model, lines, *, options: ReadOptions | None = None, every: in
                   paths=None, source: str = "stdin", max_gap: float | None = None, path: str | None = None):
     """``rbgp follow``: poses arriving as CSV rows (``lines``: an iterator of text lines, the header first)
     followed live (:class:`~rbgp_cli.dynamics.anticipation.Follower`). Yields one dict per ``every`` poses
-    of a motion under way: ``t``, ``start`` (the motion's detected start), ``motion`` (0, 1, … across
+    of a motion under way: ``t``, ``start`` (when the motion left rest), ``rest_before`` (s: how much of the rest
+    before it begins the motion, as the demonstrations begin at rest; its phase 0 is at ``start − rest_before``,
+    :class:`~rbgp_cli.dynamics.anticipation.Follower`), ``motion`` (0, 1, … across
     repetitions), ``phase``, ``end_time`` and its 90 % band, the end pose with its 90 % bands, ``off``, ``at_rest`` (the
     pose at rest now, :attr:`~rbgp_cli.dynamics.anticipation.Follower.at_rest`: a hold in mid-motion). ``path``: the
     file the lines come from (None: a pipe), whose first bytes tell a format read whole from CSV rows.
@@ -782,7 +784,8 @@ def follow_stream(model, lines, *, options: ReadOptions | None = None, every: in
                     f"bands are widened ×{est.band_widening:.2f} (band_widening)"), path=source)
         if (count - 1) % max(int(every), 1):
             return None
-        return dict(motion=int(motion), start=float(follower.start), **est.to_dict(), at_rest=follower.at_rest)
+        return dict(motion=int(motion), start=float(follower.start), rest_before=follower.rest_before, **est.to_dict(),
+                    at_rest=follower.at_rest)
 
     for line in lines:
         row = rows.parse(line)

@@ -343,7 +343,8 @@ def follow(
 
     The stream is a CSV table (header first, then rows as they arrive: `tail -f` of a logger, or any
     reader's output), read with the read options below. After each pose of a motion under way (or every
-    --every poses) one line: t, the motion's start, its estimated phase, the predicted end time and end
+    --every poses) one line: t, the motion's start (when it left rest) and how much of the rest before it
+    begins it (as the demonstrations begin at rest), its estimated phase, the predicted end time and end
     pose with 90 % bands, whether the motion has left what the demonstrations cover, and whether the
     pose is at rest now (a hold in mid-motion; docs/method.md §13). Nothing is printed at rest before
     a motion starts.

@@ -95,7 +95,7 @@ from rbgp_cli.geometry.conventions import SMALL_ANGLE
 from rbgp_cli.geometry.so3 import PI_TOLERANCE
 
 __all__ = ["Anticipator", "Anticipation", "Continuation", "anticipate", "fit_seen", "seen_band_scales", "surprise_scale", "Follower",
-           "SEEN_TOLERANCE_GRID", "SEEN_FRACTIONS", "SEEN_POINTS", "DURATION_GRID", "DURATION_SMOOTH_GRID",
+           "initial_rests", "SEEN_TOLERANCE_GRID", "SEEN_FRACTIONS", "SEEN_POINTS", "DURATION_GRID", "DURATION_SMOOTH_GRID",
            "DURATION_TOLERANCE_GRID", "REST_SMOOTH_GRID", "REST_FROM", "REST_FEW_SMOOTH", "MIX_WEIGHT", "duration_tolerances"]
 
 #: Regularising tolerances r tried by :func:`fit_seen` (units of each coordinate's spread).
@@ -2175,19 +2175,35 @@ def _weighted_quantile(x, w, level):
 
 
 # ----------------------------------------------------------------------------------------- streams
+def initial_rests(paths, speed: float) -> np.ndarray:
+    """How long each demonstration of ``paths`` rests before it moves (D,) s: demonstration d on the phase grid,
+    p_d(s_j) = p̄(s_j) + δ_d,pos(s_j), moves at ‖p_d(s_(j+1)) − p_d(s_j)‖ / ((s_(j+1) − s_j) D_d) between grid phases;
+    its rest is s_j D_d for the first s_j after which it is faster than ``speed`` (m/s), 0 if it never is (to the
+    grid's step, 2 % of its duration on 51 phases)."""
+    P = np.asarray(paths.position, dtype=np.float64)[None] + np.asarray(paths.deviations, dtype=np.float64)[:, :, 3:]
+    D = np.exp(np.asarray(paths.log_durations, dtype=np.float64))
+    v = np.linalg.norm(np.diff(P, axis=1), axis=2) / (np.diff(paths.s)[None] * D[:, None])
+    fast = v > speed
+    return np.where(fast.any(axis=1), paths.s[np.argmax(fast, axis=1)] * D, 0.0)
+
+
 class Follower:
     """A motion under way, followed live (``rbgp follow``): :meth:`push` one pose at a time; it returns the
     current :class:`Anticipation` (or None while at rest before a motion starts).
 
     A motion starts when the pose leaves rest: its speed over the last ``window`` seconds exceeds
-    ``start_speed`` (default a tenth of the demonstrations' mean speed along the mean path); its start
-    (phase 0) is the last sample before that window's speed rose. It ends when the estimated phase has
-    reached 1 and the pose is at rest again; the next departure from rest starts the next motion. The
+    ``start_speed`` (default a tenth of the demonstrations' mean speed along the mean path); it departed at the
+    last sample before that window's speed rose. Its start (phase 0) is where the demonstrations' is: they begin at
+    rest for a while before they move (the handovers 0.5 s on average, up to 2.3 s), so the rest seen before the
+    departure, since the pose came to rest and at most ``lead`` seconds of it (default the longest the
+    demonstrations begin with, :func:`initial_rests`), is the motion's beginning too. It ends when the estimated
+    phase has reached 1 and the pose is at rest again; the next departure from rest starts the next motion. The
     seen buffer keeps at most ``keep`` poses (older ones are thinned, every other one, the first kept):
     the update's cost stays bounded however long the motion runs."""
 
     def __init__(self, paths, *, points: int = 6, grid_size: int = 16, window: float = 0.05,
-                 start_speed: float | None = None, keep: int = 512, detect: bool = True, rest: float = 0.25):
+                 start_speed: float | None = None, keep: int = 512, detect: bool = True, rest: float = 0.25,
+                 lead: float | None = None):
         # the end at D̂: the live update affords one conditioning of the rest (method.md §13)
         self.anticipator = Anticipator(paths, None, points=points, grid_size=grid_size, mix_end=False)
         P = paths.position
@@ -2207,6 +2223,13 @@ class Follower:
         self._arrays = None  # the buffer as arrays (Follower._buffer)
         self._active = None  # the duration cells evaluated at the next update (Follower._estimate)
         self.rest = float(rest)
+        #: at most this much of the rest before a departure (s) begins the motion (phase 0 where the demonstrations'
+        #: is: their longest initial rest, initial_rests)
+        self.lead = float(np.max(initial_rests(paths, self.start_speed)) if lead is None else max(float(lead), 0.0))
+        from collections import deque
+
+        self._still = deque()  # (t, quat, position) at rest before a departure, the last `lead` seconds of it
+        self._departure = None  # when the current (or last) motion left rest
 
     def _speed(self):
         (ta, _, pa), (tb, _, pb) = self._recent[0], self._recent[-1]
@@ -2235,6 +2258,9 @@ class Follower:
         while len(self._recent) > 2 and self._recent[1][0] <= t - self.window:
             self._recent.pop(0)
         if not self._moving:
+            self._still.append((t, q, p))
+            while self._still[0][0] < self._recent[0][0] - self.lead:  # a departure takes from its window's first on
+                self._still.popleft()
             fast = len(self._recent) >= 2 and self._recent[-1][0] - self._recent[0][0] >= 0.5 * self.window \
                 and self._speed() > self.start_speed
             if not fast and self._quiet_since is None:
@@ -2242,11 +2268,18 @@ class Follower:
             armed = self.motion < 0 or (self._quiet_since is not None and t - self._quiet_since >= self.rest)
             if fast and not armed:
                 self._quiet_since = None  # still settling after the last motion: not a new one yet
+                self._still.clear()
             if fast and armed:
-                self._moving = True  # it left rest within the window: its start is the window's first pose
+                self._moving = True  # it left rest within the window: it departed at the window's first pose
                 self.motion += 1
                 self._active = None
-                self._t, self._q, self._p = [x[0] for x in self._recent], [x[1] for x in self._recent], [x[2] for x in self._recent]
+                # the motion begins with the rest before it, since the pose came to rest, at most `lead` seconds
+                first = self._recent[0][0]
+                since = first - self.lead if self._quiet_since is None else max(first - self.lead, self._quiet_since)
+                rows = [x for x in self._still if since <= x[0] < first] + self._recent
+                self._still.clear()
+                self._departure = first
+                self._t, self._q, self._p = [x[0] for x in rows], [x[1] for x in rows], [x[2] for x in rows]
                 self._arrays = None
             else:
                 return None
@@ -2311,5 +2344,16 @@ class Follower:
 
     @property
     def start(self) -> float | None:
-        """The current (or last) motion's start time (None before the first)."""
+        """The current (or last) motion's start time (None before the first): when it left rest (with ``detect``
+        False, the stream's first pose)."""
+        if self._departure is not None:
+            return self._departure
         return self._t[0] if self._t else None
+
+    @property
+    def rest_before(self) -> float:
+        """How much of the rest before the current (or last) motion's start begins it (s): its phase 0 is that much
+        before :attr:`start` (at most ``lead``; 0 without a motion or with ``detect`` False)."""
+        if self._departure is None or not self._t:
+            return 0.0
+        return float(self._departure - self._t[0])

@@ -155,6 +155,9 @@ def test_follow_reads_a_pipe_and_prints_one_json_line_per_prediction(model, tmp_
     assert len(got) >= 3
     assert all(g["motion"] == 0 for g in got)
     assert got[0]["start"] >= 0.0 and got[0]["t"] - got[0]["start"] < 0.1
+    # its phase 0 is before the departure by the rest the demonstrations begin with (at most that), here the same
+    # for every line of the motion
+    assert 0.0 < got[0]["rest_before"] <= 1.0 and len({g["rest_before"] for g in got}) == 1
     phases = [g["phase"] for g in got]
     assert phases == sorted(phases) and phases[-1] > 0.5
     true_end = float(lines[-1].split(",")[0])
