@@ -51,12 +51,13 @@ def test_initial_rests_are_the_demonstrations_waits(trained):
 
 
 def _stream(f, tr, idle=0.0):
-    """Push ``tr`` into the Follower ``f`` after ``idle`` s more at its first pose; the estimates (None at rest)."""
+    """Push ``tr`` into the Follower ``f`` after ``idle`` s more at its first pose: the estimates (None at rest) and
+    the stream pushed (t, quat, position)."""
     k = int(round(idle * RATE))
     t = np.concatenate([tr.t[0] - np.arange(k, 0, -1) / RATE, tr.t])
     q = np.concatenate([np.repeat(tr.quat[:1], k, axis=0), tr.quat])
     p = np.concatenate([np.repeat(tr.position[:1], k, axis=0), tr.position])
-    return [f.push(a, b, c) for a, b, c in zip(t, q, p)], t
+    return [f.push(a, b, c) for a, b, c in zip(t, q, p)], (t, q, p)
 
 
 def test_the_rest_before_a_departure_begins_the_motion_at_most_lead(trained):
@@ -68,19 +69,18 @@ def test_the_rest_before_a_departure_begins_the_motion_at_most_lead(trained):
     tr = new[0]
     departed = tr.t[0] + waits[0]
     f = Follower(paths)
-    est, t = _stream(f, tr)
+    est, (t, _, _) = _stream(f, tr)
     first = next(i for i, e in enumerate(est) if e is not None)
     assert abs(f.start - departed) < 0.1 and t[first] - f.start < 0.1
     assert f.rest_before == pytest.approx(f.start - tr.t[0])
     g = Follower(paths)
-    est_g, t_g = _stream(g, tr, idle=3.0)
+    est_g, (t_g, q_g, p_g) = _stream(g, tr, idle=3.0)
     assert g.start == pytest.approx(f.start) and g.lead - 1.0 / RATE < g.rest_before <= g.lead + 1e-9
     # the first estimate: the anticipator's, with the Follower's poses and grid, on the motion from its phase 0
     j = next(i for i, e in enumerate(est_g) if e is not None)
     a = Anticipator(paths, None, points=6, grid_size=16, mix_end=False)
     k0 = int(np.argmin(np.abs(t_g - (g.start - g.rest_before))))
-    want = a.estimate(t_g[k0:j + 1], np.concatenate([np.repeat(tr.quat[:1], 150, axis=0), tr.quat])[k0:j + 1],
-                      np.concatenate([np.repeat(tr.position[:1], 150, axis=0), tr.position])[k0:j + 1])
+    want = a.estimate(t_g[k0:j + 1], q_g[k0:j + 1], p_g[k0:j + 1])
     assert est_g[j].end_time == pytest.approx(want.end_time, rel=1e-9)
     assert est_g[j].phase == pytest.approx(want.phase, rel=1e-9)
 
@@ -98,7 +98,7 @@ def test_with_the_rest_before_it_the_live_end_time_is_closer():
         e_all = []
         for tr, w, d in zip(new, waits, durs):
             f = Follower(paths, lead=lead)
-            est, t = _stream(f, tr, idle=1.0)
+            est, (t, _, _) = _stream(f, tr, idle=1.0)
             k = int(np.searchsorted(t, tr.t[0] + w + 0.5 * d))
             e_all.append(abs(est[k].end_time - tr.t[-1]))
         err[lead] = float(np.mean(e_all))
