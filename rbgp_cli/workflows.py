@@ -647,16 +647,23 @@ def continue_files(model, sources, *, options: ReadOptions | None = None, max_ga
 def continue_motions(model, seen, *, samples: int = 0, seed: int = 0, dt: float | None = None, paths=None) -> list:
     """One :class:`~rbgp_cli.dynamics.anticipation.Continuation` per seen beginning of ``seen`` (Trajectories on their
     own clocks), named 0, 1, … (``seed + i`` seeds the i-th one's samples; ``dt`` their step, default the seen
-    samples' median interval), with what ``rollout --given`` says of them on stderr: the seen motions that are off or
+    samples' median interval), with what ``rollout --given`` says of them on stderr: a seen motion that rests longer
+    before it moves than any demonstration (``info["rest_before_moving"]``, s), the seen motions that are off or
     widened (:func:`_note_seen`), and the continuations that leave the demonstrations' envelope
     (:func:`_note_left_continuations`, ``info["left_data"]``; a model without an envelope: not checked)."""
-    from rbgp_cli.dynamics.anticipation import Anticipator
+    from rbgp_cli.dynamics.anticipation import Anticipator, rest_before_moving
 
     ant = Anticipator(getattr(model, "paths", None) if paths is None else paths, model)
     out, off, wide = [], [], []
     for i, tr in enumerate(seen):
         c = ant.continuation(tr.t, tr.quat, tr.position, samples=samples, seed=seed + i, dt=dt, name=str(i))
         c.info["source"] = tr.source or tr.name
+        rest = rest_before_moving(tr.t, tr.position, ant.rest_speed)
+        if rest > ant.lead + ant.lead_step:  # a recording begun earlier than the demonstrations' (method.md §13)
+            c.info["rest_before_moving"] = rest
+            warn(f"the seen motion rests {rest:.2f} s before it moves, longer than any demonstration does (at most "
+                 f"{ant.lead:.2f} s): the estimate counts that rest as part of the motion; if the recording began "
+                 f"earlier than theirs, read it with crop_from {rest - ant.lead:.2f} (s)", path=c.info["source"])
         if c.estimate.off:
             off.append(i)
         elif c.estimate.band_widening >= WIDENING_NOTE:

@@ -94,9 +94,10 @@ from rbgp_cli.errors import InputError
 from rbgp_cli.geometry.conventions import SMALL_ANGLE
 from rbgp_cli.geometry.so3 import PI_TOLERANCE
 
-__all__ = ["Anticipator", "Anticipation", "Continuation", "anticipate", "fit_seen", "seen_band_scales", "surprise_scale", "Follower",
-           "initial_rests", "SEEN_TOLERANCE_GRID", "SEEN_FRACTIONS", "SEEN_POINTS", "DURATION_GRID", "DURATION_SMOOTH_GRID",
-           "DURATION_TOLERANCE_GRID", "REST_SMOOTH_GRID", "REST_FROM", "REST_FEW_SMOOTH", "MIX_WEIGHT", "duration_tolerances"]
+__all__ = ["Anticipator", "Anticipation", "Continuation", "anticipate", "fit_seen", "seen_band_scales",
+           "surprise_scale", "Follower", "initial_rests", "rest_before_moving", "SEEN_TOLERANCE_GRID",
+           "SEEN_FRACTIONS", "SEEN_POINTS", "DURATION_GRID", "DURATION_SMOOTH_GRID", "DURATION_TOLERANCE_GRID",
+           "REST_SMOOTH_GRID", "REST_FROM", "REST_FEW_SMOOTH", "MIX_WEIGHT", "duration_tolerances"]
 
 #: Regularising tolerances r tried by :func:`fit_seen` (units of each coordinate's spread).
 SEEN_TOLERANCE_GRID = (0.05, 0.1, 0.2, 0.4, 0.8, 1.6, 3.2)
@@ -470,6 +471,15 @@ class Anticipator:
 
         self._ref = PathReference({"s": paths.s, "quat": paths.quat, "position": paths.position,
                                    "velocity": np.zeros((S - 1, 6))})
+        #: the speed a motion leaves rest above (m/s): a tenth of the mean path's length over exp(mean ln D)
+        length = float(np.sum(np.linalg.norm(np.diff(paths.position, axis=0), axis=1)))
+        self.rest_speed = 0.1 * length / float(np.exp(np.mean(paths.log_durations)))
+        #: the longest rest a demonstration begins with (s, initial_rests): a live motion begins at most this long
+        #: before it left rest (Follower); a seen part that rests longer is said (rbgp_cli.workflows.continue_motions)
+        self.lead = float(np.max(initial_rests(paths, self.rest_speed)))
+        #: ... read off the phase grid to its step (s): the detected departures of the demonstrations themselves lie
+        #: within 0.04 s of their grid rests on the real recordings
+        self.lead_step = float((paths.s[1] - paths.s[0]) * np.exp(np.max(paths.log_durations)))
 
     def band_at(self, phase: float) -> tuple[float, float]:
         """The bands' factors (c_rot, c_pos) of a motion seen up to ``phase``: :func:`fit_seen`'s per-fraction
@@ -699,7 +709,7 @@ class Anticipator:
         w = self._tempered(grid, logw, 1.0)
         band_w = w if self.duration_evidence == 1.0 else self._tempered(grid, logw)
         return grid, w, dict(end_mean=end_mean, end_cov=end_cov, quad=quad, k=k, span=span, band_w=band_w,
-                                       beyond=not np.any(keep), seen=(t, quat, position, tau, q, p))
+                             beyond=not np.any(keep), seen=(t, quat, position, tau, q, p))
 
     def _tempered(self, grid, logw, evidence: float | None = None):
         """The normalised weights (G,) over ``grid`` from the log weights log N(ℓ_g) + log p(y | ℓ_g) (any constant;
@@ -2187,6 +2197,19 @@ def initial_rests(paths, speed: float) -> np.ndarray:
     return np.where(fast.any(axis=1), paths.s[np.argmax(fast, axis=1)] * D, 0.0)
 
 
+def rest_before_moving(t, position, speed: float, window: float = 0.05) -> float:
+    """How long a seen part (t (N,) s increasing, position (N, 3) m) rests before it moves (s): it left rest at j(i)
+    for the first sample i whose trailing window moved faster than ``speed`` (‖p_i − p_j‖ / (t_i − t_j) > speed, j the
+    last sample with t_j ≤ t_i − ``window``, at least half a window seen: :class:`Follower`'s test), t_j(i) − t_0; a
+    part still at rest, t_N − t_0."""
+    t = np.asarray(t, dtype=np.float64)
+    position = np.asarray(position, dtype=np.float64)
+    j = np.maximum(np.searchsorted(t, t - window, side="right") - 1, 0)
+    span = t - t[j]
+    fast = (span >= 0.5 * window) & (np.linalg.norm(position - position[j], axis=1) > speed * np.where(span > 0, span, 1.0))
+    return float((t[j[np.argmax(fast)]] if fast.any() else t[-1]) - t[0])
+
+
 class Follower:
     """A motion under way, followed live (``rbgp follow``): :meth:`push` one pose at a time; it returns the
     current :class:`Anticipation` (or None while at rest before a motion starts).
@@ -2206,10 +2229,7 @@ class Follower:
                  lead: float | None = None):
         # the end at D̂: the live update affords one conditioning of the rest (method.md §13)
         self.anticipator = Anticipator(paths, None, points=points, grid_size=grid_size, mix_end=False)
-        P = paths.position
-        length = float(np.sum(np.linalg.norm(np.diff(P, axis=0), axis=1)))
-        mean_D = float(np.exp(np.mean(paths.log_durations)))
-        self.start_speed = float(0.1 * length / mean_D if start_speed is None else start_speed)
+        self.start_speed = float(self.anticipator.rest_speed if start_speed is None else start_speed)
         self.window = float(window)
         self.keep = int(keep)
         self.detect = bool(detect)
@@ -2225,7 +2245,9 @@ class Follower:
         self.rest = float(rest)
         #: at most this much of the rest before a departure (s) begins the motion (phase 0 where the demonstrations'
         #: is: their longest initial rest, initial_rests)
-        self.lead = float(np.max(initial_rests(paths, self.start_speed)) if lead is None else max(float(lead), 0.0))
+        if lead is None:
+            lead = self.anticipator.lead if start_speed is None else np.max(initial_rests(paths, self.start_speed))
+        self.lead = max(float(lead), 0.0)
         from collections import deque
 
         self._still = deque()  # (t, quat, position) at rest before a departure, the last `lead` seconds of it

@@ -103,3 +103,34 @@ def test_with_the_rest_before_it_the_live_end_time_is_closer():
             e_all.append(abs(est[k].end_time - tr.t[-1]))
         err[lead] = float(np.mean(e_all))
     assert err[None] < 0.67 * err[0.0]
+
+
+def test_a_seen_file_that_waits_longer_than_any_demonstration_is_said_with_where_to_crop_it(trained):
+    """``rollout --given`` of a part that waited 3 s more than its own wait: rest_before_moving measures the whole wait
+    (to the detection's lag), one warning says it and the crop that would begin it lead before it moves, and the
+    estimate is left as it is (counted from the file's first sample, as crossval's held-out beginnings are). A part
+    that waits less than lead is not said."""
+    from rbgp_cli.dynamics.anticipation import rest_before_moving
+    from rbgp_cli.errors import RbgpWarning
+    from rbgp_cli.workflows import continue_motions
+
+    _, _, paths = trained
+    a = Anticipator(paths)
+    new, waits, durs = waiting(2, 11)
+    tr, w, d = new[0], waits[0], durs[0]
+    _, (t, q, p) = _stream(Follower(paths), tr, idle=3.0)
+    m = int(np.searchsorted(t, tr.t[0] + w + 0.5 * d))
+    rest = rest_before_moving(t[:m], p[:m], a.rest_speed)
+    assert abs(rest - (3.0 + w)) < 0.1
+    long = Trajectory(t[:m], q[:m], p[:m], name="long")
+    with pytest.warns(RbgpWarning, match=rf"rests {rest:.2f} s before it moves.*crop_from {rest - a.lead:.2f}"):
+        out = continue_motions(None, [long], paths=paths)
+    assert out[0].info["rest_before_moving"] == pytest.approx(rest)
+    assert out[0].estimate.end_time == pytest.approx(a.estimate(t[:m], q[:m], p[:m]).end_time)
+    k = int(np.searchsorted(tr.t, tr.t[0] + w + 0.5 * d))
+    short = Trajectory(tr.t[:k], tr.quat[:k], tr.position[:k], name="short")
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RbgpWarning)
+        assert "rest_before_moving" not in continue_motions(None, [short], paths=paths)[0].info
