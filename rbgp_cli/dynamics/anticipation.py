@@ -477,8 +477,8 @@ class Anticipator:
         #: the longest rest a demonstration begins with (s, initial_rests): a live motion begins at most this long
         #: before it left rest (Follower); a seen part that rests longer is said (rbgp_cli.workflows.continue_motions)
         self.lead = float(np.max(initial_rests(paths, self.rest_speed)))
-        #: ... read off the phase grid to its step (s): the detected departures of the demonstrations themselves lie
-        #: within 0.04 s of their grid rests on the real recordings
+        #: ... read off the phase grid to its step (s): on the real recordings the demonstrations' own detected
+        #: departures (rest_before_moving) come at most 0.04 s after their grid rests
         self.lead_step = float((paths.s[1] - paths.s[0]) * np.exp(np.max(paths.log_durations)))
 
     def band_at(self, phase: float) -> tuple[float, float]:
