@@ -1,9 +1,10 @@
 """Issue 37, twenty-ninth pass: ``rbgp follow`` with the rest before a departure as the motion's beginning.
 
 Usage:
-    python scripts/follow_lead.py DIR [--body NAME] [--folds 5] [--seed 0] [--idle S]
+    python scripts/follow_lead.py DIR [--body NAME] [--folds 5] [--seed 0] [--idle S] [--train-size N]
 
-On crossval's folds (:func:`rbgp_cli.evaluation.crossval.make_splits`, at random), each held-out recording is
+On crossval's folds (:func:`rbgp_cli.evaluation.crossval.make_splits`, at random; with ``--train-size N`` its subsets
+of N, as ``crossval --train-size N``), each held-out recording is
 streamed into a :class:`rbgp_cli.dynamics.anticipation.Follower` of the other demonstrations' path distribution (after
 ``--idle`` seconds more at its first pose: a stream that waited longer than the recording), once as it is (the rest
 before the departure, at most ``lead``, begins the motion) and once with ``lead=0`` (the motion begins at its
@@ -36,11 +37,12 @@ def main(argv=None):
     ap.add_argument("--folds", type=int, default=5)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--idle", type=float, default=0.0)
+    ap.add_argument("--train-size", type=int, default=0)
     args = ap.parse_args(argv)
     trajs, _, _ = load_demonstrations([args.dir], ReadOptions(body=args.body) if args.body else ReadOptions())
     rows = ("rollout --given", "follow, lead 0", "follow")
     score = {r: {F: [] for F in FRACTIONS} for r in rows}  # (|end time error|, held, |final position error|)
-    for train_idx, test_idx in make_splits(len(trajs), args.folds, args.seed, "random", None):
+    for train_idx, test_idx in make_splits(len(trajs), args.folds, args.seed, "random", args.train_size or None):
         train = [trajs[i] for i in train_idx]
         paths = fit_paths(train)
         ant = Anticipator(paths, None, points=6, grid_size=16, mix_end=False)
