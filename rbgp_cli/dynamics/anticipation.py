@@ -84,6 +84,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections import deque
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -2248,8 +2249,6 @@ class Follower:
         if lead is None:
             lead = self.anticipator.lead if start_speed is None else np.max(initial_rests(paths, self.start_speed))
         self.lead = max(float(lead), 0.0)
-        from collections import deque
-
         self._still = deque()  # (t, quat, position) at rest before a departure, the last `lead` seconds of it
         self._departure = None  # when the current (or last) motion left rest
 
@@ -2257,14 +2256,18 @@ class Follower:
         (ta, _, pa), (tb, _, pb) = self._recent[0], self._recent[-1]
         return float(np.linalg.norm(pb - pa) / (tb - ta)) if tb > ta else 0.0
 
+    def _seen_window(self) -> bool:
+        """Whether at least half a ``window`` has been seen, so that its speed may say rest or motion."""
+        r = self._recent
+        return len(r) >= 2 and r[-1][0] - r[0][0] >= 0.5 * self.window
+
     @property
     def at_rest(self) -> bool:
         """Whether the pose is at rest now: its speed over the last ``window`` seconds (at least half of it seen)
         below ``start_speed``, the threshold a motion starts above. In mid-motion this is a hold, which the estimate
         does not foresee: its phase is the seen time over one duration, so it reads a hold as a slower motion, the
         prediction of one that resumes at once (docs/method.md §13)."""
-        r = self._recent
-        return len(r) >= 2 and r[-1][0] - r[0][0] >= 0.5 * self.window and self._speed() < self.start_speed
+        return self._seen_window() and self._speed() < self.start_speed
 
     def push(self, t: float, quat, position):
         """Add the pose seen at time ``t`` (quat (4,) x, y, z, w; position (3,) m); returns the
@@ -2283,8 +2286,7 @@ class Follower:
             self._still.append((t, q, p))
             while self._still[0][0] < self._recent[0][0] - self.lead:  # a departure takes from its window's first on
                 self._still.popleft()
-            fast = len(self._recent) >= 2 and self._recent[-1][0] - self._recent[0][0] >= 0.5 * self.window \
-                and self._speed() > self.start_speed
+            fast = self._seen_window() and self._speed() > self.start_speed
             if not fast and self._quiet_since is None:
                 self._quiet_since = t
             armed = self.motion < 0 or (self._quiet_since is not None and t - self._quiet_since >= self.rest)
